@@ -1,0 +1,1 @@
+"""calibration stage of bodymetry (see docs/ and DESIGN.md)."""

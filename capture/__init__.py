@@ -1,0 +1,1 @@
+"""capture stage of bodymetry (see docs/ and DESIGN.md)."""

@@ -1,0 +1,1 @@
+"""Estimation stage: body model, features, discriminative and generative fitting, biometrics."""

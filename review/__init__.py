@@ -1,0 +1,1 @@
+"""review stage of bodymetry (see docs/ and DESIGN.md)."""
