@@ -1,0 +1,277 @@
+"""SCAPE mesh deformation, Eq. (1) of the paper, and the vertex solve.
+
+For every triangle t of a template with edge matrix ``Δx_t = [v2 - v1, v3 - v1]``
+the posed, shaped edges are::
+
+    Δy_t = R_{p_t}(θ) S_t(ν) Q_t(θ) Δx_t
+
+with ``R`` the rigid rotation of the triangle's part, ``S_t(ν) = μ_t + Σ_i ν_i U_it``
+the shape deformation (PCA) and ``Q_t = I + A_t f_t(θ)`` the pose deformation, a
+linear function of the rotations of the two joints nearest the triangle. The
+vertices are then the least-squares fit to the predicted edges; the system
+matrix depends only on the topology, so it is factorized once and every state
+(or batch of states, as right-hand-side columns) costs one sparse solve.
+
+Deformations are 3x3 because each triangle's frame includes a third, normal
+vector scaled by the inverse square root of the area (deformation transfer),
+which makes the per-triangle deformation gradient unique.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from estimation.body_model.rotations import matrix_to_axis_angle
+
+#: Features per triangle for Q: two joints' rotation vectors and a constant.
+N_POSE_FEATURES = 7
+
+
+def triangle_frames(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Per-triangle frames ``[e1, e2, n / sqrt(|n|)]`` as columns.
+
+    Parameters
+    ----------
+    vertices : (..., V, 3) float
+    faces : (T, 3) int
+
+    Returns
+    -------
+    (..., T, 3, 3) float
+    """
+    tri = vertices[..., faces, :]
+    e1 = tri[..., 1, :] - tri[..., 0, :]
+    e2 = tri[..., 2, :] - tri[..., 0, :]
+    n = np.cross(e1, e2)
+    n = n / np.sqrt(np.linalg.norm(n, axis=-1, keepdims=True) + 1e-300)
+    return np.stack([e1, e2, n], axis=-1)
+
+
+def deformation_gradients(rest: np.ndarray, deformed: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Per-triangle linear maps taking ``rest`` triangle frames to ``deformed`` ones.
+
+    Parameters
+    ----------
+    rest : (V, 3) float
+    deformed : (..., V, 3) float
+    faces : (T, 3) int
+
+    Returns
+    -------
+    (..., T, 3, 3) float
+        ``D`` with ``D @ [e1, e2] = [e1', e2']`` for every triangle.
+    """
+    inv_rest = np.linalg.inv(triangle_frames(rest, faces))
+    return triangle_frames(deformed, faces) @ inv_rest
+
+
+@dataclass(frozen=True)
+class ScapeArrays:
+    """The learned SCAPE model at one resolution (what the model file stores).
+
+    Attributes
+    ----------
+    template : (V, 3) float
+        Rest-pose template vertices (world frame, metres).
+    faces : (T, 3) int
+        Outward-oriented triangles.
+    parts : (T,) int
+        Part index of each triangle (see ``skeleton.PARTS``).
+    shape_mean : (T, 9) float
+        Row-major mean shape deformation μ_t.
+    shape_basis : (K, T, 9) float
+        Shape components, scaled so ν ~ N(0, I) over the training bodies.
+    pose_joints : (T, 2) int
+        The two joints (indices into ``skeleton.JOINTS``) whose rotations drive Q_t.
+    pose_coef : (T, 9, 7) float
+        ``vec(Q_t) - vec(I) = pose_coef[t] @ [r_j1, r_j2, 1]``.
+    """
+
+    template: np.ndarray
+    faces: np.ndarray
+    parts: np.ndarray
+    shape_mean: np.ndarray
+    shape_basis: np.ndarray
+    pose_joints: np.ndarray
+    pose_coef: np.ndarray
+
+
+class ScapeMesh:
+    """Eq. (1) and the prefactored vertex solve for one mesh resolution.
+
+    Internally triangles are sorted by (part, joint pair) so that the part
+    rotations and the pose deformations become a few dense matrix products over
+    contiguous blocks, and edge arrays are laid out ``(B, xyz, edge, T)``.
+
+    Parameters
+    ----------
+    arrays : ScapeArrays
+    n_shape : int
+        Shape components to use (at most ``arrays.shape_basis.shape[0]``).
+    """
+
+    def __init__(self, arrays: ScapeArrays, n_shape: int) -> None:
+        n_max = arrays.shape_basis.shape[0]
+        if not 0 < n_shape <= n_max:
+            raise ValueError(f"n_shape: expected 1..{n_max}, got {n_shape}")
+        self.arrays = arrays
+        self.n_shape = n_shape
+        self.n_vertices = len(arrays.template)
+        T = len(arrays.faces)
+        n_joints = int(arrays.pose_joints.max()) + 1
+        key = (arrays.parts * n_joints + arrays.pose_joints[:, 0]) * n_joints + arrays.pose_joints[
+            :, 1
+        ]
+        order = np.argsort(key, kind="stable")
+        self._order = order
+        self.faces = arrays.faces[order]
+        self.parts = arrays.parts[order]
+        pairs = arrays.pose_joints[order]
+        tri = arrays.template[self.faces]
+        edges = np.stack([tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]], axis=-1)  # (T, 3, 2)
+        #: (3, 2, T) template edges Δx_t
+        self.template_edges = np.ascontiguousarray(edges.transpose(1, 2, 0))
+        # Shape: S = mean + ν @ basis, rows (i, j) of S_t, triangles last.
+        self._shape_mean = np.ascontiguousarray(arrays.shape_mean[order].reshape(T, 9).T).reshape(
+            -1
+        )
+        basis = arrays.shape_basis[:n_shape][:, order].reshape(n_shape, T, 9)
+        self._shape_basis = np.ascontiguousarray(basis.transpose(0, 2, 1).reshape(n_shape, -1))
+        # Pose: (Q - I) Δx is linear in the features, so fold Δx into the coefficients:
+        # P[t, f] = C_f[t] @ Δx_t, (T, 7, 3, 2).
+        C = arrays.pose_coef[order].reshape(T, 3, 3, N_POSE_FEATURES)
+        P = np.einsum("tijf,tje->tfie", C, edges)
+        self._part_blocks = _blocks(self.parts)
+        self._pose_blocks = []
+        for start, stop in _blocks(key[order]):
+            j1, j2 = pairs[start]
+            block = P[start:stop].transpose(1, 2, 3, 0).reshape(N_POSE_FEATURES, -1)
+            self._pose_blocks.append((start, stop, int(j1), int(j2), np.ascontiguousarray(block)))
+        self._build_solver()
+
+    def _build_solver(self) -> None:
+        T, V = len(self.faces), self.n_vertices
+        f = self.faces
+        # Row e * T + t holds edge e of triangle t (matching the (xyz, edge, T) layout).
+        rows = np.concatenate([np.arange(T), np.arange(T), T + np.arange(T), T + np.arange(T)])
+        cols = np.concatenate([f[:, 1], f[:, 0], f[:, 2], f[:, 0]])
+        vals = np.concatenate([np.ones(T), -np.ones(T), np.ones(T), -np.ones(T)])
+        A = sp.csr_matrix((vals, (rows, cols)), shape=(2 * T, V))
+        # Vertex 0 is pinned at the origin: the edges fix the mesh up to a translation.
+        A = A[:, 1:].tocsc()
+        self._At = A.T.tocsr()
+        self._lu = spla.splu((self._At @ A).tocsc(), permc_spec="MMD_AT_PLUS_A")
+
+    # --- Eq. (1) -------------------------------------------------------------
+    def shape_deformations(self, nu: np.ndarray) -> np.ndarray:
+        """S_t(ν) for a batch of shapes, in internal triangle order.
+
+        Parameters
+        ----------
+        nu : (B, n_shape) float
+
+        Returns
+        -------
+        (B, 3, 3, T) float
+        """
+        nu = np.atleast_2d(np.asarray(nu, dtype=float))
+        if nu.shape[-1] != self.n_shape:
+            raise ValueError(f"nu: expected shape (B, {self.n_shape}), got {nu.shape}")
+        S = self._shape_mean + nu @ self._shape_basis
+        return S.reshape(len(nu), 3, 3, -1)
+
+    def posed_template_edges(self, local_rotations: np.ndarray) -> np.ndarray:
+        """``Q_t(θ) Δx_t`` for a batch of poses.
+
+        Parameters
+        ----------
+        local_rotations : (B, 15, 3, 3) float
+            Each part's rotation relative to its parent.
+
+        Returns
+        -------
+        (B, 3, 2, T) float
+        """
+        rotvec = matrix_to_axis_angle(local_rotations)  # (B, 15, 3)
+        B = len(rotvec)
+        out = np.empty((B, 3, 2, len(self.faces)))
+        feats = np.ones((B, N_POSE_FEATURES))
+        for start, stop, j1, j2, block in self._pose_blocks:
+            feats[:, 0:3] = rotvec[:, j1]
+            feats[:, 3:6] = rotvec[:, j2]
+            out[..., start:stop] = (feats @ block).reshape(B, 3, 2, stop - start)
+        out += self.template_edges
+        return out
+
+    def edges(
+        self,
+        part_rotations: np.ndarray | None,
+        local_rotations: np.ndarray | None,
+        nu: np.ndarray,
+    ) -> np.ndarray:
+        """Predicted triangle edges Δy_t of Eq. (1), in internal triangle order.
+
+        Parameters
+        ----------
+        part_rotations : (B, 15, 3, 3) float or None
+            Global rotation of each part; None for the rest pose (identity).
+        local_rotations : (B, 15, 3, 3) float or None
+            Rotation of each part relative to its parent; None for no pose
+            deformation (Q = I).
+        nu : (B, n_shape) float
+
+        Returns
+        -------
+        (B, 3, 2, T) float
+        """
+        S = self.shape_deformations(nu)
+        B = len(S)
+        if local_rotations is None:
+            x = np.broadcast_to(self.template_edges, (B, *self.template_edges.shape))
+        else:
+            x = self.posed_template_edges(local_rotations)
+        # y_i = sum_j S_ij x_j, elementwise over (state, edge, triangle).
+        y = np.empty((B, 3, 2, len(self.faces)))
+        for i in range(3):
+            y[:, i] = (
+                S[:, i, 0, None] * x[:, 0] + S[:, i, 1, None] * x[:, 1] + S[:, i, 2, None] * x[:, 2]
+            )
+        if part_rotations is None:
+            return y
+        out = np.empty_like(y)
+        for part, (start, stop) in zip(np.unique(self.parts), self._part_blocks, strict=True):
+            block = y[..., start:stop].reshape(B, 3, -1)
+            out[..., start:stop] = (part_rotations[:, part] @ block).reshape(B, 3, 2, -1)
+        return out
+
+    def solve(self, edges: np.ndarray) -> np.ndarray:
+        """Vertices whose triangle edges best fit ``edges`` (least squares).
+
+        Parameters
+        ----------
+        edges : (B, 3, 2, T) float
+            As returned by :meth:`edges`.
+
+        Returns
+        -------
+        (B, V, 3) float
+            Vertex 0 at the origin (callers place the mesh).
+        """
+        B = edges.shape[0]
+        E = np.ascontiguousarray(edges).reshape(B * 3, -1).T  # (2T, 3B)
+        X = self._lu.solve(np.asarray(self._At @ E))  # (V-1, 3B)
+        out = np.zeros((B, self.n_vertices, 3))
+        out[:, 1:] = X.reshape(-1, B, 3).transpose(1, 0, 2)
+        return out
+
+
+def _blocks(sorted_keys: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) of each run of equal values in a sorted array."""
+    cuts = np.flatnonzero(np.diff(sorted_keys)) + 1
+    bounds = np.concatenate([[0], cuts, [len(sorted_keys)]])
+    return [(int(a), int(b)) for a, b in itertools.pairwise(bounds)]
