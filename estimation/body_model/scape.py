@@ -7,7 +7,8 @@ the posed, shaped edges are::
 
 with ``R`` the rigid rotation of the triangle's part, ``S_t(ν) = μ_t + Σ_i ν_i U_it``
 the shape deformation (PCA) and ``Q_t = I + A_t f_t(θ)`` the pose deformation, a
-linear function of the rotations of the two joints nearest the triangle. The
+linear function of the rotation vectors of the two joints nearest the
+triangle (Q = I in the rest pose). The
 vertices are then the least-squares fit to the predicted edges; the system
 matrix depends only on the topology, so it is factorized once and every state
 (or batch of states, as right-hand-side columns) costs one sparse solve.
@@ -28,8 +29,9 @@ import scipy.sparse.linalg as spla
 
 from estimation.body_model.rotations import matrix_to_axis_angle
 
-#: Features per triangle for Q: two joints' rotation vectors and a constant.
-N_POSE_FEATURES = 7
+#: Features per triangle for Q: two joints' rotation vectors. No constant term:
+#: Q must be the identity in the rest pose, where the body is the template.
+N_POSE_FEATURES = 6
 
 
 def triangle_frames(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -88,8 +90,8 @@ class ScapeArrays:
         Shape components, scaled so ν ~ N(0, I) over the training bodies.
     pose_joints : (T, 2) int
         The two joints (indices into ``skeleton.JOINTS``) whose rotations drive Q_t.
-    pose_coef : (T, 9, 7) float
-        ``vec(Q_t) - vec(I) = pose_coef[t] @ [r_j1, r_j2, 1]``.
+    pose_coef : (T, 9, 6) float
+        ``vec(Q_t) - vec(I) = pose_coef[t] @ [r_j1, r_j2]``.
     """
 
     template: np.ndarray
@@ -200,7 +202,7 @@ class ScapeMesh:
         rotvec = matrix_to_axis_angle(local_rotations)  # (B, 15, 3)
         B = len(rotvec)
         out = np.empty((B, 3, 2, len(self.faces)))
-        feats = np.ones((B, N_POSE_FEATURES))
+        feats = np.empty((B, N_POSE_FEATURES))
         for start, stop, j1, j2, block in self._pose_blocks:
             feats[:, 0:3] = rotvec[:, j1]
             feats[:, 3:6] = rotvec[:, j2]
@@ -212,7 +214,7 @@ class ScapeMesh:
         self,
         part_rotations: np.ndarray | None,
         local_rotations: np.ndarray | None,
-        nu: np.ndarray,
+        nu: np.ndarray | None,
     ) -> np.ndarray:
         """Predicted triangle edges Δy_t of Eq. (1), in internal triangle order.
 
@@ -223,24 +225,34 @@ class ScapeMesh:
         local_rotations : (B, 15, 3, 3) float or None
             Rotation of each part relative to its parent; None for no pose
             deformation (Q = I).
-        nu : (B, n_shape) float
+        nu : (B, n_shape) float or None
+            None keeps the template's own shape (S = I), the body Q was fitted on.
 
         Returns
         -------
         (B, 3, 2, T) float
         """
-        S = self.shape_deformations(nu)
-        B = len(S)
+        if nu is None:
+            sizes = [len(r) for r in (part_rotations, local_rotations) if r is not None]
+            B = sizes[0] if sizes else 1
+        else:
+            S = self.shape_deformations(nu)
+            B = len(S)
         if local_rotations is None:
             x = np.broadcast_to(self.template_edges, (B, *self.template_edges.shape))
         else:
             x = self.posed_template_edges(local_rotations)
-        # y_i = sum_j S_ij x_j, elementwise over (state, edge, triangle).
-        y = np.empty((B, 3, 2, len(self.faces)))
-        for i in range(3):
-            y[:, i] = (
-                S[:, i, 0, None] * x[:, 0] + S[:, i, 1, None] * x[:, 1] + S[:, i, 2, None] * x[:, 2]
-            )
+        if nu is None:
+            y = np.array(x)
+        else:
+            # y_i = sum_j S_ij x_j, elementwise over (state, edge, triangle).
+            y = np.empty((B, 3, 2, len(self.faces)))
+            for i in range(3):
+                y[:, i] = (
+                    S[:, i, 0, None] * x[:, 0]
+                    + S[:, i, 1, None] * x[:, 1]
+                    + S[:, i, 2, None] * x[:, 2]
+                )
         if part_rotations is None:
             return y
         out = np.empty_like(y)

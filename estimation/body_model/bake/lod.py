@@ -46,8 +46,9 @@ __all__ = [
 #: watertight LOD of the MakeHuman body at 3000 triangles; 6-8 leave duplicate
 #: (folded) face pairs there.
 DEFAULT_AGGRESSIVENESS: tuple[float, ...] = (5.0, 4.0, 3.0, 6.0, 2.0, 7.0)
-#: Offsets added to ``target_faces`` when no aggressiveness works at the target.
-DEFAULT_TARGET_OFFSETS: tuple[int, ...] = (0, 2, -2, 4, -4, 8, -8)
+#: Factors on ``target_faces`` tried when no aggressiveness works at the target
+#: (small changes of the target rarely change the outcome; these are a last resort).
+DEFAULT_TARGET_SCALES: tuple[float, ...] = (1.0, 1.03, 0.97)
 
 
 # --------------------------------------------------------------------------
@@ -218,7 +219,7 @@ def decimate_watertight(
     faces: np.ndarray,
     target_faces: int = 3000,
     aggressiveness: Sequence[float] = DEFAULT_AGGRESSIVENESS,
-    target_offsets: Sequence[int] = DEFAULT_TARGET_OFFSETS,
+    target_scales: Sequence[float] = DEFAULT_TARGET_SCALES,
     face_tolerance: float = 0.1,
     volume_tolerance: float = 0.02,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -230,9 +231,12 @@ def decimate_watertight(
     unreferenced vertices) and verifies the result with :func:`mesh_defects`,
     plus ``|F' - target| <= face_tolerance * target`` and
     ``|vol' / vol - 1| <= volume_tolerance``. Settings are tried in a fixed
-    order -- each offset in ``target_offsets`` with each value in
+    order -- each factor in ``target_scales`` with each value in
     ``aggressiveness`` -- and the first result passing every check is returned.
-    The simplifier has no randomness, so the output is deterministic.
+    The simplifier has no randomness, so the output is deterministic (same
+    input bytes, same numpy / fast_simplification build -> same output bytes).
+    Its error thresholds are absolute, so the result depends (slightly) on the
+    units: decimate in the units the LOD will be used in.
 
     Parameters
     ----------
@@ -240,11 +244,12 @@ def decimate_watertight(
     faces : (F, 3) int
         Must itself pass :func:`mesh_defects` (closed, oriented outward).
     target_faces : int
-        Wanted face count (even for a closed mesh; 0 < target < F).
+        Wanted face count (4 <= target < F; a closed genus-0 mesh has an even count).
     aggressiveness : sequence of float
         ``agg`` values for ``fast_simplification`` (0..10), tried in order.
-    target_offsets : sequence of int
-        Offsets to ``target_faces`` tried in order, each with every ``agg``.
+    target_scales : sequence of float
+        Factors on ``target_faces`` (rounded to an even count) tried in order,
+        each with every ``agg``.
     face_tolerance, volume_tolerance : float
         Relative acceptance bounds on face count and volume.
 
@@ -273,8 +278,8 @@ def decimate_watertight(
         )
     vol_in = signed_volume(v, f)
     tried: list[str] = []
-    for offset in target_offsets:
-        count = target_faces + int(offset)
+    counts = dict.fromkeys(2 * round(target_faces * float(x) / 2) for x in target_scales)
+    for count in counts:
         if not 4 <= count < f.shape[0]:
             continue
         for agg in aggressiveness:
@@ -297,7 +302,8 @@ def decimate_watertight(
                 return out_v, out_f
             tried.append(f"target={count} agg={agg}: " + "; ".join(why))
     raise RuntimeError(
-        "decimate_watertight: no setting gave a watertight mesh; tried:\n  " + "\n  ".join(tried)
+        "decimate_watertight: no setting gave an acceptable watertight mesh; tried:\n  "
+        + "\n  ".join(tried)
     )
 
 
@@ -332,17 +338,15 @@ def _closest_on_triangles(
         np.divide(num, den, out=out, where=den != 0)
         return np.clip(out, 0.0, 1.0)
 
-    n = p.shape[0]
     # Interior (face region) first; the regions below override it in reverse
-    # order of Ericson's early returns, so the first matching test wins.
+    # order of Ericson's early returns, so the first matching test wins. The
+    # clipping only guards round-off (and degenerate triangles, which the edge
+    # tests then handle): the weights always describe a point on the triangle.
     denom = va + vb + vc
     v = ratio(vb, denom)
     w = ratio(vc, denom)
-    bary = np.stack([1.0 - v - w, v, w], axis=1)
-    bad = (bary[:, 0] < 0) | (denom == 0)  # round-off / degenerate triangle: snap to edge test
-    bary[bad, 0] = 0.0
-    s = bary.sum(axis=1, keepdims=True)
-    bary = np.divide(bary, s, out=np.full((n, 3), 1.0 / 3.0), where=s > 0)
+    bary = np.stack([np.maximum(1.0 - v - w, 0.0), v, w], axis=1)
+    bary /= bary.sum(axis=1, keepdims=True)  # the sum is max(1, v + w) >= 1
 
     def edge(mask: np.ndarray, i: int, j: int, t: np.ndarray) -> None:
         row = np.zeros((int(mask.sum()), 3))
@@ -373,8 +377,11 @@ def _best_pairs(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Evaluate (point ``pt``, face ``fc``) pairs; per point keep the nearest face
     (ties: smallest face index). Points without pairs get face -1, distance inf."""
+    key = np.sort(pt * f.shape[0] + fc)  # sorted by (point, face)
+    key = key[np.r_[True, key[1:] != key[:-1]]] if key.size else key  # drop repeats
+    pt, fc = np.divmod(key, f.shape[0])
     bary, d2 = _closest_on_triangles(p[pt], v[f[fc, 0]], v[f[fc, 1]], v[f[fc, 2]])
-    order = np.lexsort((fc, d2, pt))
+    order = np.lexsort((d2, pt))  # stable: equal distances keep the face order
     pt_sorted = pt[order]
     first = order[np.r_[True, pt_sorted[1:] != pt_sorted[:-1]]] if pt.size else order
     face = np.full(n_points, -1, dtype=np.int64)
@@ -469,27 +476,35 @@ def closest_points(
         return np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0)
     proxy, owner, radius = _proxies(v, f)
     tree = cKDTree(proxy)
-    k = max(1, min(int(k), proxy.shape[0]))
-    dist_k, cand = tree.query(p, k=k)
-    dist_k, cand = dist_k.reshape(n_p, k), cand.reshape(n_p, k)
-    pt = np.repeat(np.arange(n_p), k)
-    face, bary, d2 = _best_pairs(p, v, f, pt, owner[cand.reshape(-1)], n_p)
-    dist = np.sqrt(d2)
+    n_q = proxy.shape[0]
+    face = np.full(n_p, -1, dtype=np.int64)
+    bary = np.zeros((n_p, 3))
+    d2 = np.full(n_p, np.inf)
     # Every triangle has a proxy within `radius` of its nearest point to p; a
-    # proxy not among the k is >= dist_k[:, -1] away, so its triangle is
-    # >= dist_k[:, -1] - radius away.
-    unsure = np.flatnonzero((k < proxy.shape[0]) & (dist_k[:, -1] - radius < dist))
-    if unsure.size:
-        balls = tree.query_ball_point(p[unsure], dist[unsure] + radius)
-        sizes = np.array([len(b) for b in balls], dtype=np.int64)
-        pt2 = np.repeat(unsure, sizes)
-        fc2 = owner[np.concatenate([np.asarray(b, dtype=np.int64) for b in balls])]
-        # Several proxies of one triangle: evaluate it once.
-        pair = np.unique(np.stack([pt2, fc2], axis=1), axis=0)
-        face2, bary2, d22 = _best_pairs(p, v, f, pair[:, 0], pair[:, 1], n_p)
+    # proxy not among the k nearest is >= dist_k[:, -1] away, so its triangle
+    # is >= dist_k[:, -1] - radius away. Points where that does not rule out a
+    # closer triangle are retried with 4x more candidates, then with a ball.
+    todo = np.arange(n_p)
+    k = max(1, min(int(k), n_q))
+    while todo.size:
+        ball = k >= 256 and k < n_q
+        if ball:
+            lists = tree.query_ball_point(p[todo], np.sqrt(d2[todo]) + radius)
+            sizes = np.array([len(b) for b in lists], dtype=np.int64)
+            pt = np.repeat(todo, sizes)
+            cand = np.concatenate([np.asarray(b, dtype=np.int64) for b in lists])
+        else:
+            dist_k, cand = tree.query(p[todo], k=k)
+            dist_k, cand = dist_k.reshape(todo.size, k), cand.reshape(-1)
+            pt = np.repeat(todo, k)
+        face2, bary2, d22 = _best_pairs(p, v, f, pt, owner[cand], n_p)
         better = (face2 >= 0) & ((d22 < d2) | ((d22 == d2) & (face2 < face)))
         face[better], bary[better], d2[better] = face2[better], bary2[better], d22[better]
-        dist = np.sqrt(d2)
+        if ball or k >= n_q:
+            break
+        todo = todo[dist_k[:, -1] - radius < np.sqrt(d2[todo])]
+        k = min(4 * k, n_q)
+    dist = np.sqrt(d2)
     return face, bary, dist
 
 

@@ -396,9 +396,10 @@ def variation_coefficients(phenotypes: np.ndarray) -> np.ndarray:
     ----------
     phenotypes
         (B, 6) values in the column order :data:`PHENOTYPE_LABELS`: gender
-        (0 male, 1 female), anny age (-1/3 newborn, 0 baby, 1/3 child, 2/3 young
-        adult of 25 years, 1 old), muscle, weight, height, proportions, each in
-        [0, 1]. Out-of-range values are clamped to the anchors (anny's
+        (0 male, 1 female), anny age (anchors -1/3 newborn, 0 baby, 1/3 child,
+        2/3 young, 1 old; :meth:`ShapePrior.morphological_to_anny_age` maps years
+        to it), muscle, weight, height, proportions, each in [0, 1].
+        Out-of-range values are clamped to the anchors (anny's
         ``extrapolate=False``).
 
     Returns

@@ -110,7 +110,7 @@ def nearest_joint_pairs(
 
 
 def pose_features(local_rotvecs: np.ndarray, pairs: np.ndarray) -> np.ndarray:
-    """Features ``[r_j1, r_j2, 1]`` of every triangle.
+    """Features ``[r_j1, r_j2]`` of every triangle.
 
     Parameters
     ----------
@@ -119,11 +119,9 @@ def pose_features(local_rotvecs: np.ndarray, pairs: np.ndarray) -> np.ndarray:
 
     Returns
     -------
-    (B, T, 7) float
+    (B, T, 6) float
     """
-    B = local_rotvecs.shape[0]
-    ones = np.ones((B, len(pairs), 1))
-    return np.concatenate([local_rotvecs[:, pairs[:, 0]], local_rotvecs[:, pairs[:, 1]], ones], -1)
+    return np.concatenate([local_rotvecs[:, pairs[:, 0]], local_rotvecs[:, pairs[:, 1]]], -1)
 
 
 def fit_pose_coefficients(
@@ -151,11 +149,11 @@ def fit_pose_coefficients(
     local_rotvecs : (K, 15, 3) float
         Rotation vectors of each joint relative to its parent.
     ridge : float
-        Ridge penalty (relative to the number of poses) on all but the constant.
+        Ridge penalty, relative to the number of poses.
 
     Returns
     -------
-    (T, 9, 7) float
+    (T, 9, 6) float
     """
     K = len(posed_vertices)
     D = deformation_gradients(rest_vertices, posed_vertices, faces)  # (K, T, 3, 3)
@@ -163,12 +161,12 @@ def fit_pose_coefficients(
     Q = np.swapaxes(R, -1, -2) @ D
     Y = (Q - np.eye(3)).reshape(K, len(faces), 9)
     coef = np.zeros((len(faces), 9, N_POSE_FEATURES))
-    penalty = ridge * K * np.diag([1.0] * (N_POSE_FEATURES - 1) + [0.0])
+    penalty = ridge * K * np.eye(N_POSE_FEATURES)
     keys = pairs[:, 0] * len(JOINTS) + pairs[:, 1]
     for key in np.unique(keys):
         sel = np.flatnonzero(keys == key)
         j1, j2 = pairs[sel[0]]
-        F = np.concatenate([local_rotvecs[:, j1], local_rotvecs[:, j2], np.ones((K, 1))], 1)
+        F = np.concatenate([local_rotvecs[:, j1], local_rotvecs[:, j2]], 1)
         G = F.T @ F + penalty
         rhs = F.T @ Y[:, sel].reshape(K, -1)  # (7, n_sel * 9)
         sol = np.linalg.solve(G, rhs).reshape(N_POSE_FEATURES, len(sel), 9)

@@ -120,7 +120,7 @@ def _rebuild_tensor_v2(
         strides=tuple(s * flat.itemsize for s in stride),
         writeable=False,
     )
-    return np.array(view, dtype=flat.dtype.newbyteorder("="), copy=True)
+    return np.array(view, dtype=flat.dtype.newbyteorder("="), order="C", copy=True)
 
 
 class _RestrictedUnpickler(pickle.Unpickler):
@@ -241,7 +241,15 @@ def load_state_dict(path: str | Path) -> dict[str, Any]:
             obj = unpickler.load()
     except (_UnsupportedContent, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path}: cannot read as a torch state dict: {exc}") from exc
-    except (pickle.UnpicklingError, EOFError, TypeError, AttributeError, KeyError) as exc:
+    except (
+        pickle.UnpicklingError,
+        EOFError,
+        TypeError,
+        AttributeError,
+        KeyError,
+        IndexError,
+        ValueError,
+    ) as exc:
         raise ValueError(f"{path}: malformed torch pickle: {exc!r}") from exc
     try:
         if not isinstance(obj, dict):

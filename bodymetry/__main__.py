@@ -1,0 +1,3 @@
+from bodymetry.cli import main
+
+main()

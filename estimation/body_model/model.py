@@ -1,0 +1,345 @@
+"""The SCAPE body model at run time: load the baked file, shape and pose bodies.
+
+Typical use::
+
+    model = BodyModel.load()                      # the committed model, ν in R^9
+    state = BodyState.rest(model.n_shape)         # τ = 0, θ = 0, ν = 0 (mean body)
+    body = model.pose(state)                      # PosedBody with vertices, joints
+    canon = model.canonical_vertices(state.nu)    # standing rest pose, feet on z = 0
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from bodymetry.errors import InputError
+from bodymetry.fileio import load_npz
+from estimation.body_model.scape import ScapeArrays, ScapeMesh
+from estimation.body_model.skeleton import (
+    JOINTS,
+    N_POSE,
+    PARTS,
+    JointLimits,
+    forward_kinematics,
+    local_rotations,
+)
+
+#: The committed model file.
+DEFAULT_MODEL_PATH = Path(__file__).with_name("data") / "body_model.npz"
+#: Bumped when the file layout changes incompatibly.
+MODEL_FORMAT = 1
+DEFAULT_SHAPE_DOFS = 9
+
+
+@dataclass(frozen=True)
+class BodyState:
+    """A batch of body states Y = (τ, θ, ν).
+
+    Attributes
+    ----------
+    tau : (B, 3) float
+        World position of the root joint (mid-point of the hips), metres.
+    theta : (B, 37) float
+        Joint angles, radians (layout in ``skeleton``).
+    nu : (B, n_shape) float
+        Shape coefficients, in standard deviations of the training bodies.
+    """
+
+    tau: np.ndarray
+    theta: np.ndarray
+    nu: np.ndarray
+
+    def __post_init__(self) -> None:
+        tau = np.atleast_2d(np.asarray(self.tau, dtype=float))
+        theta = np.atleast_2d(np.asarray(self.theta, dtype=float))
+        nu = np.atleast_2d(np.asarray(self.nu, dtype=float))
+        if tau.shape[-1] != 3 or theta.shape[-1] != N_POSE:
+            raise ValueError(
+                f"BodyState: expected tau (B, 3) and theta (B, {N_POSE}), "
+                f"got {tau.shape} and {theta.shape}"
+            )
+        B = max(len(tau), len(theta), len(nu))
+        for name, arr in (("tau", tau), ("theta", theta), ("nu", nu)):
+            if len(arr) not in (1, B):
+                raise ValueError(f"BodyState.{name}: batch size {len(arr)} does not match {B}")
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"BodyState.{name}: contains NaN or infinity")
+        object.__setattr__(self, "tau", np.broadcast_to(tau, (B, 3)).copy())
+        object.__setattr__(self, "theta", np.broadcast_to(theta, (B, N_POSE)).copy())
+        object.__setattr__(self, "nu", np.broadcast_to(nu, (B, nu.shape[-1])).copy())
+
+    def __len__(self) -> int:
+        return len(self.tau)
+
+    @classmethod
+    def rest(cls, n_shape: int = DEFAULT_SHAPE_DOFS, batch: int = 1) -> BodyState:
+        """The mean body in its rest pose with the root joint at the origin."""
+        return cls(np.zeros((batch, 3)), np.zeros((batch, N_POSE)), np.zeros((batch, n_shape)))
+
+    def vector(self) -> np.ndarray:
+        """(B, 3 + 37 + n_shape) concatenation ``[τ, θ, ν]``."""
+        return np.concatenate([self.tau, self.theta, self.nu], axis=1)
+
+    @classmethod
+    def from_vector(cls, y: np.ndarray) -> BodyState:
+        """Inverse of :meth:`vector` for ``y`` of shape (B, 40 + n_shape)."""
+        y = np.atleast_2d(np.asarray(y, dtype=float))
+        return cls(y[:, :3], y[:, 3 : 3 + N_POSE], y[:, 3 + N_POSE :])
+
+    def __getitem__(self, index: int | slice | np.ndarray) -> BodyState:
+        return BodyState(self.tau[index], self.theta[index], self.nu[index])
+
+
+@dataclass(frozen=True)
+class PosedBody:
+    """Meshes and joints of a batch of posed bodies.
+
+    Attributes
+    ----------
+    vertices : (B, V, 3) float
+        World coordinates, metres.
+    faces : (T, 3) int
+    joints : (B, 15, 3) float
+        Joint centres (order of ``skeleton.JOINTS``).
+    keypoints : (B, K, 3) float
+        Joints plus extra keypoints (order of ``BodyModel.keypoint_names``).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    joints: np.ndarray
+    keypoints: np.ndarray
+
+
+def _scape_arrays(data: dict[str, np.ndarray], prefix: str) -> ScapeArrays:
+    return ScapeArrays(
+        template=data[f"{prefix}_template"].astype(float),
+        faces=data[f"{prefix}_faces"].astype(np.int64),
+        parts=data[f"{prefix}_parts"].astype(np.int64),
+        shape_mean=data[f"{prefix}_shape_mean"].astype(float),
+        shape_basis=data[f"{prefix}_shape_basis"].astype(float),
+        pose_joints=data[f"{prefix}_pose_joints"].astype(np.int64),
+        pose_coef=data[f"{prefix}_pose_coef"].astype(float),
+    )
+
+
+def _sparse(data: dict[str, np.ndarray], prefix: str) -> sp.csr_matrix:
+    shape = tuple(int(x) for x in data[f"{prefix}_shape"])
+    return sp.csr_matrix(
+        (data[f"{prefix}_vals"].astype(float), (data[f"{prefix}_rows"], data[f"{prefix}_cols"])),
+        shape=shape,
+    )
+
+
+class BodyModel:
+    """Our SCAPE body model (paper §2) built from the MakeHuman body.
+
+    Parameters
+    ----------
+    data : dict of arrays
+        The contents of a baked model file.
+    n_shape : int
+        Shape components used (ν's length); at most the number stored.
+    """
+
+    def __init__(self, data: dict[str, np.ndarray], n_shape: int = DEFAULT_SHAPE_DOFS) -> None:
+        fmt = int(data["format"]) if "format" in data else -1
+        if fmt != MODEL_FORMAT:
+            raise InputError(f"body model: format {fmt}, this bodymetry reads {MODEL_FORMAT}")
+        self.data = data
+        self.n_shape = int(n_shape)
+        self.full = ScapeMesh(_scape_arrays(data, "full"), self.n_shape)
+        self.lod = ScapeMesh(_scape_arrays(data, "lod"), self.n_shape)
+        self.lod_map = _sparse(data, "lod_map")
+        self.keypoint_regressor = _sparse(data, "keypoint_regressor")
+        self.keypoint_names: tuple[str, ...] = tuple(str(x) for x in data["keypoint_names"])
+        self.keypoint_parts = data["keypoint_parts"].astype(np.int64)
+        self.hinge_axes = data["hinge_axes"].astype(float)
+        self.limits = JointLimits(
+            data["limit_lower"].astype(float), data["limit_upper"].astype(float)
+        )
+        self.poses = {
+            "tpose": data["pose_tpose"].astype(float),
+            "apose": data["pose_apose"].astype(float),
+        }
+        self.provenance: dict = json.loads(str(data["provenance"]))
+        self.vertex_parts = data["vertex_parts"].astype(np.int64)
+        self.landmarks: dict[str, int] = {
+            str(k): int(v)
+            for k, v in zip(data["landmark_names"], data["landmark_vertices"], strict=True)
+        }
+
+    @classmethod
+    def load(cls, path: str | Path | None = None, n_shape: int = DEFAULT_SHAPE_DOFS) -> BodyModel:
+        """Load a baked model file (default: the one shipped with bodymetry)."""
+        path = DEFAULT_MODEL_PATH if path is None else Path(path)
+        data = load_npz(path)
+        n_max = data["full_shape_basis"].shape[0] if "full_shape_basis" in data else 0
+        if not 0 < n_shape <= n_max:
+            raise InputError(f"{path}: n_shape must be 1..{n_max}, got {n_shape}")
+        return cls(data, n_shape)
+
+    # --- properties ---------------------------------------------------------
+    @property
+    def parts(self) -> tuple[str, ...]:
+        return PARTS
+
+    @property
+    def n_shape_stored(self) -> int:
+        return int(self.data["full_shape_basis"].shape[0])
+
+    def faces(self, lod: bool = False) -> np.ndarray:
+        """Triangles (T, 3) of the full mesh or of the level of detail, in file order."""
+        return self.data["lod_faces" if lod else "full_faces"].astype(np.int64)
+
+    def _mesh(self, lod: bool) -> ScapeMesh:
+        return self.lod if lod else self.full
+
+    # --- shape (linear in ν) --------------------------------------------------
+    @cached_property
+    def _canonical_basis(self) -> np.ndarray:
+        """(1 + n, V, 3): unposed full mesh = basis[0] + Σ ν_i basis[1 + i] (vertex 0 pinned)."""
+        n = self.n_shape
+        nu = np.vstack([np.zeros(n), np.eye(n)])
+        solved = self.full.solve(self.full.edges(None, None, nu))
+        solved[1:] -= solved[0]
+        return solved
+
+    @cached_property
+    def _keypoint_basis(self) -> np.ndarray:
+        """(1 + n, K, 3) keypoints of the canonical basis (linear, like the mesh)."""
+        return np.stack([self.keypoint_regressor @ b for b in self._canonical_basis])
+
+    @cached_property
+    def _anchor_basis(self) -> dict[bool, np.ndarray]:
+        """Per resolution, (1 + n, 3): pelvis-vertex centroid minus root joint, unposed.
+
+        Posed meshes are placed so their pelvis centroid sits where the rigid
+        pelvis carries it; the offset is linear in ν like everything unposed.
+        """
+        out = {}
+        root = self._keypoint_basis[:, 0]
+        for lod in (False, True):
+            mesh = self._mesh(lod)
+            if lod:
+                n = self.n_shape
+                nu = np.vstack([np.zeros(n), np.eye(n)])
+                solved = mesh.solve(mesh.edges(None, None, nu))
+                solved[1:] -= solved[0]
+                # Align the LOD frame to the full one through the barycentric map.
+                mapped = np.stack([self.lod_map @ b for b in self._canonical_basis])
+                solved = solved + (mapped - solved).mean(axis=1, keepdims=True)
+            else:
+                solved = self._canonical_basis
+            pelvis = self._pelvis_vertices(lod)
+            out[lod] = solved[:, pelvis].mean(axis=1) - root
+        return out
+
+    def _pelvis_vertices(self, lod: bool) -> np.ndarray:
+        faces = self.faces(lod)
+        parts = self._mesh(lod).arrays.parts
+        return np.unique(faces[parts == PARTS.index("pelvis")])
+
+    def _check_nu(self, nu: np.ndarray) -> np.ndarray:
+        nu = np.atleast_2d(np.asarray(nu, dtype=float))
+        if nu.shape[-1] != self.n_shape:
+            raise ValueError(f"nu: expected shape (B, {self.n_shape}), got {nu.shape}")
+        return nu
+
+    def _linear(self, basis: np.ndarray, nu: np.ndarray) -> np.ndarray:
+        return basis[0] + np.einsum("bn,n...->b...", nu, basis[1:])
+
+    def rest_keypoints(self, nu: np.ndarray) -> np.ndarray:
+        """Keypoints (B, K, 3) of the unposed body, in the canonical frame of
+        :meth:`canonical_vertices` (root joint above the origin, feet on z = 0)."""
+        nu = self._check_nu(nu)
+        verts = self._linear(self._canonical_basis, nu)
+        kp = self._linear(self._keypoint_basis, nu)
+        return kp - self._canonical_offset(verts, kp)[:, None, :]
+
+    @staticmethod
+    def _canonical_offset(verts: np.ndarray, kp: np.ndarray) -> np.ndarray:
+        offset = kp[:, 0].copy()
+        offset[:, 2] = verts[..., 2].min(axis=1)
+        return offset
+
+    def canonical_vertices(self, nu: np.ndarray) -> np.ndarray:
+        """The unposed (rest-pose, standing) full mesh for each shape.
+
+        Parameters
+        ----------
+        nu : (B, n_shape) float
+
+        Returns
+        -------
+        (B, V, 3) float
+            Lowest point on z = 0, root joint above the origin.
+        """
+        nu = self._check_nu(nu)
+        verts = self._linear(self._canonical_basis, nu)
+        kp = self._linear(self._keypoint_basis, nu)
+        return verts - self._canonical_offset(verts, kp)[:, None, :]
+
+    def shape_from_vertices(self, vertices: np.ndarray) -> np.ndarray:
+        """Least-squares ν of unposed bodies given as full meshes (any translation).
+
+        This is the projection onto the model's shape space in vertex space: the
+        ν whose canonical mesh, best translated, is closest to ``vertices``.
+
+        Parameters
+        ----------
+        vertices : (B, V, 3) float
+            Rest-pose bodies in full correspondence with the template.
+
+        Returns
+        -------
+        (B, n_shape) float
+        """
+        vertices = np.asarray(vertices, dtype=float)
+        if vertices.ndim == 2:
+            vertices = vertices[None]
+        if vertices.shape[1:] != (self.full.n_vertices, 3):
+            raise ValueError(
+                f"vertices: expected shape (B, {self.full.n_vertices}, 3), got {vertices.shape}"
+            )
+        basis = self._canonical_basis - self._canonical_basis.mean(axis=1, keepdims=True)
+        A = basis[1:].reshape(self.n_shape, -1).T  # (3V, n)
+        b = (vertices - vertices.mean(axis=1, keepdims=True) - basis[0]).reshape(len(vertices), -1)
+        nu, *_ = np.linalg.lstsq(A, b.T, rcond=None)
+        return nu.T
+
+    # --- pose ------------------------------------------------------------------
+    def pose(self, state: BodyState, lod: bool = False, pose_deformation: bool = True) -> PosedBody:
+        """Meshes, joints and keypoints of posed, shaped bodies (Eq. 1 + solve).
+
+        Parameters
+        ----------
+        state : BodyState
+            Batch of B states.
+        lod : bool
+            Build the ~3,000-triangle level of detail instead of the full mesh.
+        pose_deformation : bool
+            Apply the learned Q (False: rigid parts only, for comparison).
+        """
+        nu = self._check_nu(state.nu)
+        rest_kp = self._linear(self._keypoint_basis, nu)  # canonical (pinned) frame
+        rest_joints = rest_kp[:, : len(JOINTS)]
+        rot, joints = forward_kinematics(state.theta, state.tau, rest_joints, self.hinge_axes)
+        local = local_rotations(state.theta, self.hinge_axes) if pose_deformation else None
+        mesh = self._mesh(lod)
+        verts = mesh.solve(mesh.edges(rot, local, nu))
+        anchor = self._linear(self._anchor_basis[lod], nu)  # (B, 3)
+        want = state.tau + np.einsum("bij,bj->bi", rot[:, 0], anchor)
+        have = verts[:, self._pelvis_vertices(lod)].mean(axis=1)
+        verts += (want - have)[:, None, :]
+        # Extra keypoints ride rigidly on their part.
+        parts = self.keypoint_parts
+        rel = rest_kp - rest_joints[:, parts]
+        kp = joints[:, parts] + np.einsum("bkij,bkj->bki", rot[:, parts], rel)
+        return PosedBody(verts, self.faces(lod), joints, kp)
