@@ -1,0 +1,1 @@
+"""The synthetic capture studio: renders ground-truth multi-camera sessions."""
