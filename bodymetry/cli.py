@@ -17,6 +17,7 @@ from typing import Any
 
 import click
 import numpy as np
+import rich.markup
 
 from bodymetry import __version__
 from bodymetry.errors import BodymetryError, InputError
@@ -32,7 +33,13 @@ def _friendly_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return func(*args, **kwargs)
         except BodymetryError as exc:
-            console.print(f"[bold red]error:[/] {exc}", highlight=False)
+            # One line whatever the terminal width, and the message is text, not markup
+            # (paths and user input may contain brackets).
+            console.print(
+                f"[bold red]error:[/] {rich.markup.escape(str(exc))}",
+                highlight=False,
+                soft_wrap=True,
+            )
             sys.exit(2)
 
     return wrapper

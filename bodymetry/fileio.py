@@ -120,7 +120,14 @@ def load_npz(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise InputError(f"{path}: file not found")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            return {name: data[name] for name in data.files}
+        # Open the file here: np.load leaks its own handle when the zip is corrupt.
+        with open(path, "rb") as fh:
+            data = np.load(fh, allow_pickle=False)
+            if not isinstance(data, np.lib.npyio.NpzFile):  # a plain .npy file
+                raise InputError(f"{path}: not a .npz archive (a single .npy array)")
+            with data:
+                return {name: data[name] for name in data.files}
     except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
+        if isinstance(exc, InputError):
+            raise
         raise InputError(f"{path}: not a readable .npz file ({exc})") from exc

@@ -180,7 +180,16 @@ class BodyModel:
         """Load a baked model file (default: the one shipped with bodymetry)."""
         path = DEFAULT_MODEL_PATH if path is None else Path(path)
         data = load_npz(path)
-        n_max = data["full_shape_basis"].shape[0] if "full_shape_basis" in data else 0
+        if "format" not in data or "full_shape_basis" not in data:
+            raise InputError(
+                f"{path}: not a bodymetry body model file (no 'format' or 'full_shape_basis' array)"
+            )
+        if int(data["format"]) != MODEL_FORMAT:
+            raise InputError(
+                f"{path}: body model format {int(data['format'])}, this bodymetry reads "
+                f"{MODEL_FORMAT}"
+            )
+        n_max = data["full_shape_basis"].shape[0]
         if not 0 < n_shape <= n_max:
             raise InputError(f"{path}: n_shape must be 1..{n_max}, got {n_shape}")
         return cls(data, n_shape)

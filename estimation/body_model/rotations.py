@@ -109,28 +109,31 @@ def matrix_to_axis_angle(R: np.ndarray) -> np.ndarray:
     (..., 3) float
     """
     R = np.asarray(R, dtype=float)
-    cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    angle = np.arccos(cos)
+    cos = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
     w = np.stack(
         [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]],
         axis=-1,
     )
-    sin = np.sin(angle)
+    # w = 2 sin(angle) axis. Take the angle from atan2, not arccos(cos): near pi,
+    # arccos loses digits that angle / sin(angle) then amplifies (1e-3 rad at pi - 1e-6).
+    sin = 0.5 * np.linalg.norm(w, axis=-1)
+    angle = np.arctan2(sin, cos)
     small = sin < 1e-6
     # Near 0 the vector w/2 is the rotation vector to first order; near pi use the
-    # symmetric part (the antisymmetric one vanishes).
+    # symmetric part (the antisymmetric one vanishes, its direction is lost in round-off).
     scale = np.where(small, 0.5, angle / (2.0 * np.where(small, 1.0, sin)))
     out = w * scale[..., None]
-    near_pi = small & (cos < 0)
+    near_pi = (sin < 1e-3) & (cos < 0)
     if np.any(near_pi):
+        # (R + R^T) / 2 - cos I = (1 - cos) axis axis^T: its largest column is along the axis.
         Rp = R[near_pi]
-        diag = np.clip((np.diagonal(Rp, axis1=-2, axis2=-1) + 1.0) / 2.0, 0.0, None)
-        axis = np.sqrt(diag)
-        k = np.argmax(axis, axis=-1)
-        rows = Rp[np.arange(len(Rp)), k]
-        axis = (rows + np.eye(3)[k]) / (2.0 * axis[np.arange(len(Rp)), k][:, None])
+        B = 0.5 * (Rp + np.swapaxes(Rp, -1, -2)) - cos[near_pi][:, None, None] * np.eye(3)
+        k = np.argmax(np.diagonal(B, axis1=-2, axis2=-1), axis=-1)
+        axis = B[np.arange(len(Rp)), :, k]
         axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
-        out[near_pi] = axis * angle[near_pi][:, None]
+        # Orient it like w (which still carries the sign unless the angle is exactly pi).
+        sign = np.where(np.einsum("ni,ni->n", axis, w[near_pi]) < 0, -1.0, 1.0)
+        out[near_pi] = axis * (sign * angle[near_pi])[:, None]
     return out
 
 

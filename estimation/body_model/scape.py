@@ -145,7 +145,7 @@ class ScapeMesh:
         basis = arrays.shape_basis[:n_shape][:, order].reshape(n_shape, T, 9)
         self._shape_basis = np.ascontiguousarray(basis.transpose(0, 2, 1).reshape(n_shape, -1))
         # Pose: (Q - I) Δx is linear in the features, so fold Δx into the coefficients:
-        # P[t, f] = C_f[t] @ Δx_t, (T, 7, 3, 2).
+        # P[t, f] = C_f[t] @ Δx_t, (T, 6, 3, 2).
         C = arrays.pose_coef[order].reshape(T, 3, 3, N_POSE_FEATURES)
         P = np.einsum("tijf,tje->tfie", C, edges)
         self._part_blocks = _blocks(self.parts)

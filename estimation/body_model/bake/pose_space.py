@@ -168,7 +168,7 @@ def fit_pose_coefficients(
         j1, j2 = pairs[sel[0]]
         F = np.concatenate([local_rotvecs[:, j1], local_rotvecs[:, j2]], 1)
         G = F.T @ F + penalty
-        rhs = F.T @ Y[:, sel].reshape(K, -1)  # (7, n_sel * 9)
+        rhs = F.T @ Y[:, sel].reshape(K, -1)  # (6, n_sel * 9)
         sol = np.linalg.solve(G, rhs).reshape(N_POSE_FEATURES, len(sel), 9)
         coef[sel] = sol.transpose(1, 2, 0)
     return coef

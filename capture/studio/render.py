@@ -1,0 +1,1077 @@
+"""Rendering of the synthetic capture studio: camera images with ground truth.
+
+Pipeline of :meth:`Studio.render_frame` for one camera:
+
+1. The body mesh is projected *with* the camera's lens distortion and rasterized
+   by :func:`rasterize`, a vectorized numpy z-buffer (no per-triangle Python
+   loop). Body triangles are small (a few pixels), so drawing them with
+   straight edges between distorted vertices is exact to far below a pixel;
+   no image is resampled, and the person mask is exactly the raster.
+2. Room (floor, walls, ceiling) and calibration board are computed analytically
+   per output pixel by intersecting the pixel's *undistorted* ray (cached per
+   camera) with their planes, with box-filtered procedural textures.
+3. Shadows: the casters (body, board) are rasterized orthographically from the
+   key light into a depth map (a shadow map, 1 cm texels) whose coverage is
+   blurred for a soft penumbra; room and board pixels behind a caster in
+   light space lose the key light's contribution and keep the ambient, so a
+   shadow is darker by a constant factor with unchanged chromaticity.
+4. Camera: per-camera constant gain, white balance and vignetting; optical
+   blur (Gaussian, σ ≈ 0.7 px); per-frame exposure flicker; sensor noise
+   (read noise + shot noise); 8-bit quantization. Compression is the video
+   writer's job.
+
+Coordinates follow DESIGN.md: world z up, floor z = 0, metres; cameras OpenCV.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+import scipy.sparse as sp
+
+from calibration.camera import Camera
+from capture.studio.scene import (
+    Appearance,
+    BoardPose,
+    BoardTexture,
+    Light,
+    Room,
+)
+
+#: Tolerance of the inside test, in barycentric units.
+_INSIDE_EPS = 1e-9
+
+# =============================================================================
+# Rasterizer
+# =============================================================================
+
+
+@dataclass(frozen=True)
+class Raster:
+    """Result of rasterizing a triangle mesh.
+
+    Attributes
+    ----------
+    size : tuple of int
+        ``(width, height)`` in pixels.
+    tri : (H, W) int32
+        Index of the visible triangle per pixel (into the ``faces`` passed in),
+        -1 where no triangle covers the pixel.
+    depth : (H, W) float32
+        Depth of the visible surface (camera z, or the orthographic depth),
+        ``inf`` where nothing is covered.
+    pixels : (N,) int64
+        Flat indices (``row * W + col``) of the covered pixels.
+    bary : (N, 3) float32
+        Barycentric coordinates of each covered pixel's centre in its visible
+        triangle (perspective-correct when rasterized with ``perspective=True``),
+        weights of ``faces[tri, 0..2]``.
+    """
+
+    size: tuple[int, int]
+    tri: np.ndarray
+    depth: np.ndarray
+    pixels: np.ndarray
+    bary: np.ndarray
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) bool: pixels covered by some triangle."""
+        return self.tri >= 0
+
+    @property
+    def bary_image(self) -> np.ndarray:
+        """(H, W, 3) float32 barycentrics, 0 where nothing is covered."""
+        w, h = self.size
+        out = np.zeros((h * w, 3), np.float32)
+        out[self.pixels] = self.bary
+        return out.reshape(h, w, 3)
+
+
+def signed_area2(xy: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Twice the signed screen area of each triangle (T,).
+
+    Positive means the vertices run clockwise on screen (image y points down),
+    i.e. counter-clockwise seen from the camera in a right-handed view with y up:
+    for a mesh with outward counter-clockwise faces projected by an OpenCV
+    camera, front faces have a *negative* value.
+    """
+    p = xy[faces]
+    return (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (
+        p[:, 1, 1] - p[:, 0, 1]
+    )
+
+
+def rasterize(
+    xy: np.ndarray,
+    depth: np.ndarray,
+    faces: np.ndarray,
+    size: tuple[int, int],
+    *,
+    perspective: bool = True,
+    cull: str = "none",
+    valid: np.ndarray | None = None,
+    max_candidates: int = 50_000_000,
+) -> Raster:
+    """Z-buffer rasterization of triangles given in pixel coordinates.
+
+    Parameters
+    ----------
+    xy : (N, 2) float
+        Vertex positions in pixels (x right, y down; pixel centres at integers).
+    depth : (N,) float
+        Vertex depth: camera z (> 0) for ``perspective=True``, any linear depth
+        otherwise (orthographic). Smaller is nearer.
+    faces : (T, 3) int
+        Vertex indices per triangle.
+    size : (width, height)
+        Image size in pixels.
+    perspective : bool
+        Interpolate depth and barycentrics perspective-correctly (1/z linear in
+        screen space); False interpolates linearly (orthographic projection).
+    cull : {"none", "back", "front"}
+        Drop triangles by screen winding: "back" keeps triangles with negative
+        :func:`signed_area2` (front faces of an outward counter-clockwise mesh
+        seen by an OpenCV camera).
+    valid : (N,) bool, optional
+        Vertices that may be drawn; triangles touching an invalid vertex are
+        dropped (e.g. behind the camera, or outside the lens model's range).
+    max_candidates : int
+        Upper bound on candidate pixels (bounding-box area summed over
+        triangles), a guard against runaway memory.
+
+    Returns
+    -------
+    Raster
+    """
+    xy = np.asarray(xy, dtype=np.float64)
+    depth = np.asarray(depth, dtype=np.float64).reshape(-1)
+    faces = np.asarray(faces)
+    w_img, h_img = int(size[0]), int(size[1])
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise ValueError(f"rasterize: xy must have shape (N, 2), got {xy.shape}")
+    if depth.shape[0] != xy.shape[0]:
+        raise ValueError(f"rasterize: depth must have {xy.shape[0]} values, got {depth.shape[0]}")
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise ValueError(f"rasterize: faces must have shape (T, 3), got {faces.shape}")
+    if w_img <= 0 or h_img <= 0:
+        raise ValueError(f"rasterize: size must be (width, height) > 0, got {size}")
+    if cull not in ("none", "back", "front"):
+        raise ValueError(f"rasterize: cull must be 'none', 'back' or 'front', got {cull!r}")
+
+    ok_v = np.all(np.isfinite(xy), axis=1) & np.isfinite(depth)
+    if perspective:
+        ok_v &= depth > 1e-9
+    if valid is not None:
+        ok_v &= np.asarray(valid, dtype=bool).reshape(-1)
+    keep = np.all(ok_v[faces], axis=1)
+
+    p = xy[faces]  # (T, 3, 2)
+    x0, x1, x2 = p[:, 0, 0], p[:, 1, 0], p[:, 2, 0]
+    y0, y1, y2 = p[:, 0, 1], p[:, 1, 1], p[:, 2, 1]
+    area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+    with np.errstate(invalid="ignore"):
+        keep &= np.abs(area2) > 1e-12
+        if cull == "back":
+            keep &= area2 < 0
+        elif cull == "front":
+            keep &= area2 > 0
+
+        xmin = np.ceil(np.minimum(np.minimum(x0, x1), x2))
+        xmax = np.floor(np.maximum(np.maximum(x0, x1), x2))
+        ymin = np.ceil(np.minimum(np.minimum(y0, y1), y2))
+        ymax = np.floor(np.maximum(np.maximum(y0, y1), y2))
+        keep &= (xmax >= 0) & (ymax >= 0) & (xmin <= w_img - 1) & (ymin <= h_img - 1)
+    ids = np.flatnonzero(keep)
+
+    empty = Raster(
+        (w_img, h_img),
+        np.full((h_img, w_img), -1, np.int32),
+        np.full((h_img, w_img), np.inf, np.float32),
+        np.zeros(0, np.int64),
+        np.zeros((0, 3), np.float32),
+    )
+    if ids.size == 0:
+        return empty
+
+    bx0 = np.clip(xmin[ids], 0, w_img - 1).astype(np.int64)
+    bx1 = np.clip(xmax[ids], 0, w_img - 1).astype(np.int64)
+    by0 = np.clip(ymin[ids], 0, h_img - 1).astype(np.int64)
+    by1 = np.clip(ymax[ids], 0, h_img - 1).astype(np.int64)
+    bw = bx1 - bx0 + 1
+    bh = by1 - by0 + 1
+    n = bw * bh
+    good = (bw > 0) & (bh > 0)
+    if not np.all(good):
+        ids, bx0, by0, bw, n = ids[good], bx0[good], by0[good], bw[good], n[good]
+    total = int(n.sum())
+    if total > max_candidates:
+        raise ValueError(
+            f"rasterize: {total} candidate pixels exceed max_candidates={max_candidates}"
+        )
+    if total == 0:
+        return empty
+
+    # Affine barycentric functions per triangle: l_i(x, y) = a_i x + b_i y + c_i.
+    inv = 1.0 / area2[ids]
+    X0, X1, X2 = x0[ids], x1[ids], x2[ids]
+    Y0, Y1, Y2 = y0[ids], y1[ids], y2[ids]
+    a0 = (Y1 - Y2) * inv
+    b0 = (X2 - X1) * inv
+    c0 = (X1 * Y2 - X2 * Y1) * inv
+    a1 = (Y2 - Y0) * inv
+    b1 = (X0 - X2) * inv
+    c1 = (X2 * Y0 - X0 * Y2) * inv
+
+    # Candidate pixels: expand each bounding box (row-major within the box).
+    local_tri = np.repeat(np.arange(ids.size), n)
+    start = np.cumsum(n) - n
+    local = np.arange(total) - start[local_tri]
+    bw_c = bw[local_tri]
+    px = bx0[local_tri] + local % bw_c
+    py = by0[local_tri] + local // bw_c
+    fx = px.astype(np.float64)
+    fy = py.astype(np.float64)
+    l0 = a0[local_tri] * fx + b0[local_tri] * fy + c0[local_tri]
+    l1 = a1[local_tri] * fx + b1[local_tri] * fy + c1[local_tri]
+    l2 = 1.0 - l0 - l1
+    inside = (l0 >= -_INSIDE_EPS) & (l1 >= -_INSIDE_EPS) & (l2 >= -_INSIDE_EPS)
+    cand = np.flatnonzero(inside)
+    if cand.size == 0:
+        return empty
+    ct = local_tri[cand]
+    l0, l1, l2 = l0[cand], l1[cand], l2[cand]
+    pix = py[cand] * w_img + px[cand]
+
+    tri_glob = ids[ct]
+    f = faces[tri_glob]
+    d0, d1, d2 = depth[f[:, 0]], depth[f[:, 1]], depth[f[:, 2]]
+    # Perspective: 1/z is linear in screen space, and the nearest has the largest 1/z.
+    key = -(l0 / d0 + l1 / d1 + l2 / d2) if perspective else l0 * d0 + l1 * d1 + l2 * d2
+
+    zbuf = np.full(h_img * w_img, np.inf)
+    np.minimum.at(zbuf, pix, key)
+    win = np.flatnonzero(key == zbuf[pix])
+    # Ties (shared edges at equal depth): the last written wins, deterministically.
+    tri_flat = np.full(h_img * w_img, -1, np.int64)
+    cand_flat = np.empty(h_img * w_img, np.int64)
+    tri_flat[pix[win]] = tri_glob[win]
+    cand_flat[pix[win]] = win
+    pixels = np.flatnonzero(tri_flat >= 0)
+    wsel = cand_flat[pixels]
+
+    b = np.stack([l0[wsel], l1[wsel], l2[wsel]], axis=1)
+    if perspective:
+        b = b / np.stack([d0[wsel], d1[wsel], d2[wsel]], axis=1)
+        zinv = b.sum(axis=1)
+        b = b / zinv[:, None]
+        zval = 1.0 / zinv
+    else:
+        zval = key[wsel]
+    depth_img = np.full(h_img * w_img, np.inf, np.float32)
+    depth_img[pixels] = zval
+    return Raster(
+        (w_img, h_img),
+        tri_flat.reshape(h_img, w_img).astype(np.int32),
+        depth_img.reshape(h_img, w_img),
+        pixels,
+        b.astype(np.float32),
+    )
+
+
+# =============================================================================
+# Cameras: rays, projection for the rasterizer
+# =============================================================================
+
+
+def _camera_key(camera: Camera) -> tuple:
+    return (
+        camera.name,
+        camera.size,
+        camera.K.tobytes(),
+        camera.dist.tobytes(),
+        camera.R.tobytes(),
+        camera.t.tobytes(),
+    )
+
+
+def pixel_rays(camera: Camera) -> np.ndarray:
+    """Undistorted ray of every pixel centre, camera frame, z = 1.
+
+    Returns
+    -------
+    (H, W, 3) float64
+        ``(x, y, 1)`` with ``camera.project`` of ``camera.center + R.T @ ray``
+        landing on the pixel centre (to ~1e-10 px).
+    """
+    w, h = camera.size
+    grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1)
+    if np.any(camera.dist != 0):
+        und = cv2.undistortPoints(
+            grid.reshape(-1, 1, 2),
+            camera.K,
+            camera.dist,
+            R=np.eye(3),
+            P=np.eye(3),
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
+        ).reshape(h, w, 2)
+    else:
+        kinv = np.linalg.inv(camera.K)
+        und = grid @ kinv[:2, :2].T + kinv[:2, 2]
+    return np.concatenate([und, np.ones((h, w, 1))], axis=-1)
+
+
+def _radial_limit(camera: Camera, r_image: float) -> float:
+    """Largest undistorted radius (normalized) where the lens model is still
+    monotonic, capped at 1.5x the image corner radius: beyond it a polynomial
+    model can fold far-away points back into the image."""
+    d = np.zeros(8)
+    d[: min(8, camera.dist.size)] = camera.dist[:8]
+    k1, k2, _, _, k3, k4, k5, k6 = d
+    r = np.linspace(0.0, 4.0 * max(r_image, 0.1), 4001)
+    r2 = r * r
+    rd = r * (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    bad = np.flatnonzero(np.diff(rd) <= 0)
+    r_mono = r[bad[0]] * 0.98 if bad.size else r[-1]
+    return float(min(1.5 * r_image, r_mono))
+
+
+def project_for_raster(
+    camera: Camera, points: np.ndarray, supersample: int = 1, r_limit: float | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Project world points for :func:`rasterize` (with lens distortion).
+
+    Parameters
+    ----------
+    camera : Camera
+    points : (N, 3) float
+        World points, metres.
+    supersample : int
+        Pixel grid refinement: pixel centres of the ``s``-times finer grid.
+    r_limit : float, optional
+        Normalized radius beyond which points are marked invalid (see
+        ``_radial_limit``); None: no limit.
+
+    Returns
+    -------
+    xy : (N, 2) float
+        Pixel coordinates on the (supersampled) grid.
+    z : (N,) float
+        Camera depth, metres.
+    valid : (N,) bool
+        In front of the camera and within the lens model's range.
+    """
+    pc = camera.to_camera(points)
+    z = pc[:, 2]
+    valid = z > 1e-6
+    with np.errstate(divide="ignore", invalid="ignore"):
+        n = pc[:, :2] / np.where(valid, z, 1.0)[:, None]
+    if r_limit is not None:
+        valid &= np.einsum("ij,ij->i", n, n) < r_limit**2
+    xy = camera.distort_normalized(n) @ camera.K[:2, :2].T + camera.K[:2, 2]
+    if supersample != 1:
+        xy = supersample * (xy + 0.5) - 0.5
+    return xy, z, valid
+
+
+def _sample(
+    image: np.ndarray, x: np.ndarray, y: np.ndarray, interp: int, border: float | None = None
+) -> np.ndarray:
+    """Sample a single-channel float32 image at points (x, y) (N,) with cv2.remap
+    (pixel centres at integers); ``border``: value outside, None: replicate the edge."""
+    n = x.size
+    cols = 4096
+    rows = max(1, -(-n // cols))
+    mx = np.zeros(rows * cols, np.float32)
+    my = np.zeros(rows * cols, np.float32)
+    mx[:n] = x
+    my[:n] = y
+    if border is None:
+        out = cv2.remap(
+            image, mx.reshape(rows, cols), my.reshape(rows, cols), interp,
+            borderMode=cv2.BORDER_REPLICATE,
+        )  # fmt: skip
+    else:
+        out = cv2.remap(
+            image, mx.reshape(rows, cols), my.reshape(rows, cols), interp,
+            borderMode=cv2.BORDER_CONSTANT, borderValue=float(border),
+        )  # fmt: skip
+    return out.reshape(-1)[:n]
+
+
+def _downsample_person(
+    r: Raster, rad: np.ndarray, s: int, w: int, h: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Average a supersampled person raster into (H*W,) coverage, (H*W, 3)
+    coverage-weighted radiance and (H*W,) nearest depth, touching only its bounding box."""
+    cov = np.zeros(h * w, np.float32)
+    out = np.zeros((h * w, 3), np.float32)
+    depth = np.full(h * w, np.inf, np.float32)
+    if r.pixels.size == 0:
+        return cov, out, depth
+    ws = w * s
+    py, px = r.pixels // ws, r.pixels % ws
+    by0, by1 = int(py.min()) // s, int(py.max()) // s + 1
+    bx0, bx1 = int(px.min()) // s, int(px.max()) // s + 1
+    bh, bw = by1 - by0, bx1 - bx0
+    local = (py - by0 * s) * (bw * s) + (px - bx0 * s)
+    c = np.zeros(bh * s * bw * s, np.float32)
+    c[local] = 1.0
+    v = np.zeros((bh * s * bw * s, 3), np.float32)
+    v[local] = rad
+    sub_depth = r.depth[by0 * s : by1 * s, bx0 * s : bx1 * s]
+    c = c.reshape(bh, s, bw, s).mean(axis=(1, 3))
+    v = v.reshape(bh, s, bw, s, 3).mean(axis=(1, 3))
+    d = sub_depth.reshape(bh, s, bw, s).min(axis=(1, 3))
+    cov.reshape(h, w)[by0:by1, bx0:bx1] = c
+    out.reshape(h, w, 3)[by0:by1, bx0:bx1] = v
+    depth.reshape(h, w)[by0:by1, bx0:bx1] = d
+    return cov, out, depth
+
+
+# =============================================================================
+# Studio
+# =============================================================================
+
+
+@dataclass(frozen=True)
+class Effects:
+    """Camera and sensor effects. All noise is drawn from the ``rng`` passed
+    to a render call; per-camera constants come from ``seed`` and the camera name.
+
+    Attributes
+    ----------
+    exposure : float
+        Digital numbers per unit radiance (albedo x irradiance).
+    blur_sigma : float
+        Optical blur, pixels (Gaussian σ; 0 = none).
+    read_noise : float
+        Gaussian sensor noise σ, DN.
+    shot_noise : float
+        Photon noise: variance per DN of signal (σ² = read² + shot·I).
+    flicker : float
+        Relative σ of the per-frame exposure (gain) fluctuation.
+    camera_gain_spread : float
+        Relative σ of each camera's constant gain.
+    white_balance_spread : float
+        Relative σ of each camera's constant per-channel gain.
+    vignetting : float
+        Relative fall-off at the image corners (cos⁴-like, quadratic in radius).
+    seed : int
+        Seed of the per-camera constants.
+    """
+
+    exposure: float = 235.0
+    blur_sigma: float = 0.7
+    read_noise: float = 2.5
+    shot_noise: float = 0.03
+    flicker: float = 0.012
+    camera_gain_spread: float = 0.025
+    white_balance_spread: float = 0.012
+    vignetting: float = 0.12
+    seed: int = 0
+
+
+class Frame(NamedTuple):
+    """One rendered camera image with its ground truth.
+
+    Attributes
+    ----------
+    image : (H, W, 3) uint8
+        BGR image.
+    person_mask : (H, W) bool
+        Pixels where the person is visible (the raster that made the image).
+    shadow_mask : (H, W) bool
+        Non-person pixels (room, board) darkened by more than half of the
+        full shadow: the person's and the board's cast shadows.
+    """
+
+    image: np.ndarray
+    person_mask: np.ndarray
+    shadow_mask: np.ndarray
+
+
+class BoardFrame(NamedTuple):
+    """:class:`Frame` plus the pixels where the calibration board is visible."""
+
+    image: np.ndarray
+    person_mask: np.ndarray
+    shadow_mask: np.ndarray
+    board_mask: np.ndarray
+
+
+@dataclass
+class _CameraCache:
+    rays_world: np.ndarray  # (H*W, 3) world directions (camera depth = ray parameter)
+    r_limit: float
+    bg_ambient: np.ndarray  # (H*W, 3) float32 radiance from the ambient light
+    bg_direct: np.ndarray  # (H*W, 3) float32 radiance from the key light (unshadowed)
+    bg_light: np.ndarray  # (3, H*W) float32 light-space coordinates of the room pixels
+    camera_gain: np.ndarray  # (H, W, 3) float32 exposure x vignetting x gain x white balance
+
+
+@dataclass
+class _ShadowMap:
+    origin: np.ndarray  # (2,) light-space x, y of texel (0, 0)'s centre
+    texel: float
+    coverage: np.ndarray  # (h, w) float32, blurred occupancy
+    zmin: np.ndarray  # (h, w) float32, min-filtered caster depth
+
+
+@dataclass
+class _Board:
+    texture: BoardTexture
+    pose: BoardPose
+    mips: list[np.ndarray] = field(default_factory=list)
+
+
+class Studio:
+    """The synthetic lab: room, light, subject appearance and camera effects.
+
+    Parameters
+    ----------
+    faces : (T, 3) int
+        The body mesh's triangles (outward, counter-clockwise).
+    face_parts : (T,) int
+        Body part of each triangle (order of ``skeleton.PARTS``), for colours.
+    room, light, appearance, effects : optional
+        Scene description; defaults give a 6 x 6 m lab with a key light at 52°
+        elevation.
+    vertex_modulation : (V, 3) float, optional
+        Per-vertex albedo modulation (see ``Appearance.vertex_modulation``);
+        default: computed from ``appearance`` without hair.
+    shadows : bool
+        Cast shadows of the person and the board.
+    shadow_texel : float
+        Shadow-map texel size, metres.
+    supersample : int
+        Rasterize the body on an ``s``-times finer grid and average (1 = off;
+        edges are then softened by the optical blur only).
+    """
+
+    def __init__(
+        self,
+        faces: np.ndarray,
+        face_parts: np.ndarray,
+        *,
+        room: Room | None = None,
+        light: Light | None = None,
+        appearance: Appearance | None = None,
+        effects: Effects | None = None,
+        vertex_modulation: np.ndarray | None = None,
+        shadows: bool = True,
+        shadow_texel: float = 0.01,
+        supersample: int = 1,
+    ) -> None:
+        faces = np.asarray(faces, dtype=np.int64)
+        face_parts = np.asarray(face_parts, dtype=np.int64).reshape(-1)
+        if faces.ndim != 2 or faces.shape[1] != 3:
+            raise ValueError(f"Studio: faces must have shape (T, 3), got {faces.shape}")
+        if face_parts.shape[0] != faces.shape[0]:
+            raise ValueError(
+                f"Studio: face_parts must have {faces.shape[0]} entries, got {face_parts.shape[0]}"
+            )
+        if int(supersample) < 1:
+            raise ValueError(f"Studio: supersample must be >= 1, got {supersample}")
+        if shadow_texel <= 0:
+            raise ValueError(f"Studio: shadow_texel must be > 0, got {shadow_texel}")
+        self.faces = faces
+        self.face_parts = face_parts
+        self.n_vertices = int(faces.max()) + 1
+        self.room = room or Room()
+        self.light = light or Light()
+        self.appearance = appearance or Appearance()
+        self.effects = effects or Effects()
+        self.shadows = bool(shadows)
+        self.shadow_texel = float(shadow_texel)
+        self.supersample = int(supersample)
+        self.face_albedo = self.appearance.face_albedo(face_parts).astype(np.float32)
+        if vertex_modulation is None:
+            vertex_modulation = self.appearance.vertex_modulation(faces, self.n_vertices)
+        vm = np.asarray(vertex_modulation, dtype=np.float32)
+        if vm.shape != (self.n_vertices, 3):
+            raise ValueError(
+                f"Studio: vertex_modulation must have shape ({self.n_vertices}, 3), got {vm.shape}"
+            )
+        self.vertex_modulation = vm
+        # Vertex normal = sum of adjacent (area-weighted) face normals.
+        t = faces.shape[0]
+        self._face_to_vertex = sp.csr_matrix(
+            (np.ones(3 * t), (faces.reshape(-1), np.repeat(np.arange(t), 3))),
+            shape=(self.n_vertices, t),
+        )
+        self._light_R = self.light.frame()
+        self._cache: dict[tuple, _CameraCache] = {}
+        self._r_limits: dict[tuple, float] = {}
+
+    @classmethod
+    def from_model(cls, model, **kwargs) -> Studio:
+        """A studio for ``estimation.body_model.BodyModel``'s full mesh, with hair."""
+        from estimation.body_model.skeleton import PARTS
+
+        appearance = kwargs.pop("appearance", None) or Appearance()
+        faces = model.faces()
+        face_parts = model.full.arrays.parts
+        rest = model.canonical_vertices(np.zeros((1, model.n_shape)))[0]
+        head = PARTS.index("head")
+        head_vertices = np.unique(faces[face_parts == head])
+        mod = appearance.vertex_modulation(
+            faces,
+            rest.shape[0],
+            rest_vertices=rest,
+            head_vertices=head_vertices,
+            skin_color=np.asarray(appearance.part_colors)[head],
+        )
+        return cls(faces, face_parts, appearance=appearance, vertex_modulation=mod, **kwargs)
+
+    # --- public API -----------------------------------------------------------------
+    def render_frame(
+        self,
+        camera: Camera,
+        vertices: np.ndarray | None,
+        rng: np.random.Generator | int | None = None,
+        *,
+        effects: bool = True,
+    ) -> Frame:
+        """Render the person (or the empty room if ``vertices`` is None).
+
+        Parameters
+        ----------
+        camera : Camera
+        vertices : (V, 3) float or None
+            Posed body vertices, world metres.
+        rng : Generator or int
+            Source of the per-frame flicker and noise (required when ``effects``).
+        effects : bool
+            False: no blur, flicker or noise (the clean frame used to check masks);
+            per-camera gain, white balance and vignetting stay.
+
+        Returns
+        -------
+        Frame
+        """
+        img, person, shadow, _ = self._render(camera, vertices, None, rng, effects)
+        return Frame(img, person, shadow)
+
+    def render_background(
+        self,
+        camera: Camera,
+        rng: np.random.Generator | int | None = None,
+        *,
+        effects: bool = True,
+    ) -> np.ndarray:
+        """(H, W, 3) uint8 BGR image of the empty room (same light, camera, noise model)."""
+        return self._render(camera, None, None, rng, effects)[0]
+
+    def render_board(
+        self,
+        camera: Camera,
+        board: BoardTexture,
+        pose: BoardPose,
+        rng: np.random.Generator | int | None = None,
+        *,
+        vertices: np.ndarray | None = None,
+        effects: bool = True,
+    ) -> BoardFrame:
+        """Render a calibration board at ``pose`` (and the person, if given).
+
+        The board is z-tested against the person, casts a shadow, and receives
+        the person's shadow.
+        """
+        if not isinstance(board, BoardTexture):
+            raise ValueError(f"render_board: board must be a BoardTexture, got {type(board)}")
+        if not isinstance(pose, BoardPose):
+            raise ValueError(f"render_board: pose must be a BoardPose, got {type(pose)}")
+        img, person, shadow, bmask = self._render(
+            camera, vertices, _Board(board, pose, self._mips(board)), rng, effects
+        )
+        return BoardFrame(img, person, shadow, bmask)
+
+    def person_raster(self, camera: Camera, vertices: np.ndarray) -> Raster:
+        """The body's raster in ``camera`` (distorted image, no supersampling)."""
+        xy, z, valid = project_for_raster(camera, vertices, 1, self._r_limit(camera))
+        return rasterize(xy, z, self.faces, camera.size, cull="back", valid=valid)
+
+    # --- caches -----------------------------------------------------------------------
+    def _mips(self, board: BoardTexture) -> list[np.ndarray]:
+        cached = getattr(self, "_mip_cache", None)
+        if cached is None or cached[0] is not board:
+            self._mip_cache = (board, board.mipmaps())
+        return self._mip_cache[1]
+
+    def _r_limit(self, camera: Camera) -> float:
+        """The lens model's valid normalized radius (from the image border's rays)."""
+        key = _camera_key(camera)
+        if key in self._cache:
+            return self._cache[key].r_limit
+        hit = self._r_limits.get(key)
+        if hit is None:
+            w, h = camera.size
+            border = np.concatenate(
+                [
+                    np.stack([np.arange(w), np.zeros(w)], 1),
+                    np.stack([np.arange(w), np.full(w, h - 1)], 1),
+                    np.stack([np.zeros(h), np.arange(h)], 1),
+                    np.stack([np.full(h, w - 1), np.arange(h)], 1),
+                ]
+            ).astype(np.float64)
+            if np.any(camera.dist != 0):
+                und = cv2.undistortPoints(
+                    border.reshape(-1, 1, 2), camera.K, camera.dist, R=np.eye(3), P=np.eye(3),
+                    criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
+                ).reshape(-1, 2)  # fmt: skip
+            else:
+                kinv = np.linalg.inv(camera.K)
+                und = border @ kinv[:2, :2].T + kinv[:2, 2]
+            hit = _radial_limit(camera, float(np.sqrt((und**2).sum(-1)).max()))
+            self._r_limits[key] = hit
+        return hit
+
+    def _camera(self, camera: Camera) -> _CameraCache:
+        key = _camera_key(camera)
+        hit = self._cache.get(key)
+        if hit is not None:
+            return hit
+        w, h = camera.size
+        rays = pixel_rays(camera)
+        rays_world = rays @ camera.R  # R.T @ ray for each ray
+        origin = camera.center
+        tpar, surface = self.room.intersect(origin, rays_world)
+        pts = origin + tpar[..., None] * rays_world
+        # Footprint (metres per pixel) of each pixel on its surface.
+        dx = np.zeros_like(tpar)
+        for axis in (0, 1):
+            g = np.gradient(pts, axis=axis)
+            dx = np.maximum(dx, np.linalg.norm(g, axis=-1))
+        # Across a surface edge the gradient is meaningless; use the ray-based estimate.
+        est = tpar * np.linalg.norm(rays_world, axis=-1) / camera.K[0, 0]
+        dx = np.where(dx > 4 * est, est, dx)
+        albedo = self.room.albedo(pts, surface, dx)
+        normals = self.room.normals()[surface]
+        amb, direct = self.light.irradiance(normals)
+        col = np.asarray(self.light.color)
+        emit = self.room.emission(pts, surface, dx)
+        lit = albedo * amb[..., None] * (1.0 - np.minimum(emit, 1.0))[..., None] + emit[..., None]
+        bg_amb = (lit * col).reshape(-1, 3).astype(np.float32)
+        bg_dir = (albedo * direct[..., None] * col).reshape(-1, 3).astype(np.float32)
+        bg_light = (pts.reshape(-1, 3) @ self._light_R.T).T.astype(np.float32).copy()
+        # Per-camera constants.
+        crng = np.random.default_rng([self.effects.seed, zlib.crc32(camera.name.encode())])
+        gain = 1.0 + self.effects.camera_gain_spread * crng.standard_normal()
+        wb = 1.0 + self.effects.white_balance_spread * crng.standard_normal(3)
+        cx, cy = camera.K[0, 2], camera.K[1, 2]
+        yy, xx = np.mgrid[0:h, 0:w]
+        rr = ((xx - cx) ** 2 + (yy - cy) ** 2) / (0.25 * (w * w + h * h))
+        vig = 1.0 - self.effects.vignetting * np.clip(rr, 0, 1.5)
+        cam_gain = (self.effects.exposure * gain * vig[..., None] * wb).astype(np.float32)
+        entry = _CameraCache(
+            rays_world.reshape(-1, 3),
+            self._r_limit(camera),
+            bg_amb,
+            bg_dir,
+            bg_light,
+            cam_gain,
+        )
+        self._cache[key] = entry
+        return entry
+
+    # --- shadows ------------------------------------------------------------------
+    def _shadow_maps(
+        self, casters: list[tuple[np.ndarray, np.ndarray, str]]
+    ) -> tuple[np.ndarray, float, list[np.ndarray]]:
+        """Orthographic depth maps, one per caster, on a grid shared by all.
+
+        Parameters
+        ----------
+        casters : list of (vertices (N, 3), faces (T, 3), cull)
+
+        Returns
+        -------
+        origin : (2,) float
+            Light-space x, y of texel (0, 0)'s centre.
+        texel : float
+        depths : list of (h, w) float32
+            Nearest light-space depth per texel (inf: no caster).
+        """
+        lr = self._light_R
+        q_all = [v @ lr.T for v, _, _ in casters]
+        tau = self.shadow_texel
+        sig = self.light.penumbra / tau
+        pad = int(np.ceil(3 * sig)) + 2
+        lo = np.min([q[:, :2].min(0) for q in q_all], axis=0)
+        hi = np.max([q[:, :2].max(0) for q in q_all], axis=0)
+        origin = np.floor(lo / tau) * tau - pad * tau
+        size = (np.ceil((hi - origin) / tau).astype(int) + pad + 1).tolist()
+        if size[0] * size[1] > 16_000_000:
+            raise ValueError(
+                f"shadow map of {size[0]}x{size[1]} texels: casters too large for "
+                f"shadow_texel={tau}"
+            )
+        depths = []
+        for q, (_, f, cull) in zip(q_all, casters, strict=True):
+            r = rasterize(
+                (q[:, :2] - origin) / tau, q[:, 2], f, tuple(size), perspective=False, cull=cull
+            )
+            depths.append(r.depth)
+        return origin, tau, depths
+
+    def _finish_shadow_map(self, origin: np.ndarray, tau: float, zmin: np.ndarray) -> _ShadowMap:
+        """Soft coverage (blurred occupancy) and min-filtered depth of a depth map."""
+        sig = self.light.penumbra / tau
+        occ = np.isfinite(zmin).astype(np.float32)
+        zfin = np.where(np.isfinite(zmin), zmin, np.float32(1e9)).astype(np.float32)
+        if sig > 0:
+            k = 2 * int(np.ceil(2 * sig)) + 1
+            occ = cv2.GaussianBlur(occ, (0, 0), sig)
+            zfin = cv2.erode(zfin, np.ones((k, k), np.uint8))
+        return _ShadowMap(origin, tau, occ, zfin)
+
+    @staticmethod
+    def _shadow_lookup(smap: _ShadowMap, q: np.ndarray, bias: float = 0.02) -> np.ndarray:
+        """Shadow amount in [0, 1] for receivers at light-space coordinates q (3, N)."""
+        mx = (q[0] - smap.origin[0]) / smap.texel
+        my = (q[1] - smap.origin[1]) / smap.texel
+        cov = _sample(smap.coverage, mx, my, cv2.INTER_LINEAR, 0.0)
+        zc = _sample(smap.zmin, mx, my, cv2.INTER_NEAREST, 1e9)
+        return np.where(q[2] > zc + bias, cov, 0.0).astype(np.float32)
+
+    # --- the render -----------------------------------------------------------------
+    def _render(
+        self,
+        camera: Camera,
+        vertices: np.ndarray | None,
+        board: _Board | None,
+        rng: np.random.Generator | int | None,
+        effects: bool,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        if not isinstance(camera, Camera):
+            raise ValueError(
+                f"render: camera must be a calibration.camera.Camera, got {type(camera)}"
+            )
+        if effects:
+            if rng is None:
+                raise ValueError("render: rng (Generator or int seed) is required with effects")
+            rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
+        cache = self._camera(camera)
+        w, h = camera.size
+        npx = w * h
+        s = self.supersample
+        light = self.light
+        col = np.asarray(light.color, dtype=np.float32)
+
+        # --- person raster and shading ------------------------------------------------
+        person_cov = None  # (H*W,) float32 coverage
+        person_rad = None  # (H*W, 3) float32 radiance x coverage
+        person_depth = None  # (H*W,) float32 depth (inf where none; nearest sub-sample)
+        if vertices is not None:
+            v = np.asarray(vertices, dtype=np.float64)
+            if v.shape != (self.n_vertices, 3):
+                raise ValueError(
+                    f"render: vertices must have shape ({self.n_vertices}, 3), got {v.shape}"
+                )
+            xy, z, valid = project_for_raster(camera, v, s, cache.r_limit)
+            r = rasterize(xy, z, self.faces, (w * s, h * s), cull="back", valid=valid)
+            rad = self._shade_person(v, r)
+            if s == 1:
+                person_cov = np.zeros(npx, np.float32)
+                person_cov[r.pixels] = 1.0
+                person_rad = np.zeros((npx, 3), np.float32)
+                person_rad[r.pixels] = rad
+                person_depth = r.depth.reshape(-1)
+            else:
+                person_cov, person_rad, person_depth = _downsample_person(r, rad, s, w, h)
+
+        # --- board: analytic ray-plane intersection --------------------------------------
+        board_px = None
+        board_rad = None
+        board_light = None
+        board_side_direct = None
+        if board is not None:
+            board_px, board_rad, board_light, board_side_direct = self._board_pixels(
+                camera, cache, board, person_depth
+            )
+
+        # --- shadows -------------------------------------------------------------------
+        shade_bg = np.zeros(npx, np.float32)
+        shade_board = None
+        if self.shadows:
+            casters = []
+            if vertices is not None:
+                casters.append((np.asarray(vertices, dtype=np.float64), self.faces, "back"))
+            if board is not None:
+                corners = board.pose.to_world(board.texture.corners())
+                casters.append((corners, np.array([[0, 1, 2], [0, 2, 3]]), "none"))
+            if casters:
+                origin, tau, depths = self._shadow_maps(casters)
+                zall = depths[0] if len(depths) == 1 else np.minimum(depths[0], depths[1])
+                all_map = self._finish_shadow_map(origin, tau, zall)
+                q = cache.bg_light
+                hh, ww = all_map.coverage.shape
+                sel = np.flatnonzero(
+                    (q[0] >= origin[0] - tau)
+                    & (q[0] <= origin[0] + ww * tau)
+                    & (q[1] >= origin[1] - tau)
+                    & (q[1] <= origin[1] + hh * tau)
+                )
+                if sel.size:
+                    shade_bg[sel] = self._shadow_lookup(all_map, q[:, sel])
+                if vertices is not None and board_px is not None and board_px.size:
+                    person_map = self._finish_shadow_map(origin, tau, depths[0])
+                    shade_board = self._shadow_lookup(person_map, board_light)
+
+        # --- composite (linear radiance) -----------------------------------------------------
+        rad = cache.bg_ambient + cache.bg_direct * (1.0 - shade_bg)[:, None]
+        shadow_amount = shade_bg.copy()
+        board_mask = np.zeros(npx, bool)
+        if board_px is not None and board_px.size:
+            sb = shade_board if shade_board is not None else np.zeros(board_px.size, np.float32)
+            amb_b, dir_b = board_side_direct
+            rad[board_px] = board_rad * (amb_b + dir_b * (1.0 - sb))[:, None] * col
+            shadow_amount[board_px] = sb
+            board_mask[board_px] = True
+        person_mask = np.zeros(npx, bool)
+        if person_cov is not None:
+            if board_px is not None and board_px.size:
+                # Where the board is in front of the person, the board wins the whole pixel.
+                front = np.zeros(npx, bool)
+                front[board_px] = True
+                person_cov = np.where(front, 0.0, person_cov).astype(np.float32)
+                person_rad = np.where(front[:, None], 0.0, person_rad).astype(np.float32)
+            rad = rad * (1.0 - person_cov)[:, None] + person_rad * col
+            person_mask = person_cov >= 0.5
+        shadow_mask = (shadow_amount > 0.5) & ~person_mask
+
+        # --- camera ----------------------------------------------------------------------
+        img = rad.reshape(h, w, 3) * cache.camera_gain
+        ef = self.effects
+        if effects:
+            if ef.blur_sigma > 0:
+                img = cv2.GaussianBlur(img, (0, 0), ef.blur_sigma)
+            img = img * np.float32(1.0 + ef.flicker * rng.standard_normal())
+            sigma = np.sqrt(ef.read_noise**2 + ef.shot_noise * np.maximum(img, 0.0))
+            img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
+        out = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+        return (
+            out,
+            person_mask.reshape(h, w),
+            shadow_mask.reshape(h, w),
+            board_mask.reshape(h, w),
+        )
+
+    def _shade_person(self, v: np.ndarray, r: Raster) -> np.ndarray:
+        """Radiance (without the light's colour) of the person's covered pixels (N, 3)."""
+        f = self.faces
+        fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        vn = self._face_to_vertex @ fn
+        vn /= np.linalg.norm(vn, axis=1, keepdims=True) + 1e-12
+        tri = r.tri.reshape(-1)[r.pixels]
+        fv = f[tri]  # (N, 3)
+        b = r.bary.astype(np.float64)
+        n = vn[fv[:, 0]] * b[:, 0:1] + vn[fv[:, 1]] * b[:, 1:2] + vn[fv[:, 2]] * b[:, 2:3]
+        n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
+        mod = self.vertex_modulation
+        m = mod[fv[:, 0]] * b[:, 0:1] + mod[fv[:, 1]] * b[:, 1:2] + mod[fv[:, 2]] * b[:, 2:3]
+        amb, direct = self.light.irradiance(n)
+        alb = self.face_albedo[tri] * m
+        return (alb * (amb + direct)[:, None]).astype(np.float32)
+
+    def _board_pixels(
+        self,
+        camera: Camera,
+        cache: _CameraCache,
+        board: _Board,
+        person_depth: np.ndarray | None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """Pixels where the board is visible, their albedo (N, 3), light-space
+        coordinates (3, N) and (ambient, direct) irradiance of the visible side."""
+        w, h = camera.size
+        tex, pose = board.texture, board.pose
+        # Candidate region: bounding box of the projected sheet outline.
+        c = tex.corners()
+        outline = np.concatenate(
+            [c[i] + np.linspace(0, 1, 33)[:, None] * (c[(i + 1) % 4] - c[i]) for i in range(4)]
+        )
+        pw = pose.to_world(outline)
+        xy, _, valid = project_for_raster(camera, pw, 1, cache.r_limit)
+        empty = (
+            np.zeros(0, np.int64),
+            np.zeros((0, 3), np.float32),
+            np.zeros((3, 0), np.float32),
+            (np.zeros(0), np.zeros(0)),
+        )
+        if valid.sum() < 3:
+            return empty
+        x0 = max(int(np.floor(xy[valid, 0].min())) - 2, 0)
+        x1 = min(int(np.ceil(xy[valid, 0].max())) + 2, w - 1)
+        y0 = max(int(np.floor(xy[valid, 1].min())) - 2, 0)
+        y1 = min(int(np.ceil(xy[valid, 1].max())) + 2, h - 1)
+        if not np.all(valid):  # partly behind the camera or beyond the lens range
+            x0, x1, y0, y1 = 0, w - 1, 0, h - 1
+        if x1 < x0 or y1 < y0:
+            return empty
+        ys, xs = np.mgrid[y0 : y1 + 1, x0 : x1 + 1]
+        pix = (ys * w + xs).reshape(-1)
+        d = cache.rays_world[pix]  # (N, 3)
+        origin = camera.center
+        nrm = pose.R[:, 2]
+        denom = d @ nrm
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = ((pose.t - origin) @ nrm) / denom
+        p = origin + lam[:, None] * d
+        pb = (p - pose.t) @ pose.R  # board frame
+        m = tex.margin
+        pwid, phei = tex.pattern_size
+        inside = (
+            np.isfinite(lam)
+            & (lam > 1e-6)
+            & (pb[:, 0] >= -m)
+            & (pb[:, 0] <= pwid + m)
+            & (pb[:, 1] >= -m)
+            & (pb[:, 1] <= phei + m)
+        )
+        if person_depth is not None:
+            inside &= lam < person_depth[pix]
+        gh, gw = ys.shape
+        # Texture footprint: texels per pixel from the board coordinates' gradients.
+        ppm = tex.image.shape[1] / tex.sheet_size[0]  # texels per metre
+        u = ((pb[:, 0] + m) * ppm).reshape(gh, gw)
+        vv = ((pb[:, 1] + m) * ppm).reshape(gh, gw)
+        with np.errstate(invalid="ignore"):
+            gu = np.hypot(*np.gradient(u)) if min(gh, gw) > 1 else np.ones_like(u)
+            gv = np.hypot(*np.gradient(vv)) if min(gh, gw) > 1 else np.ones_like(u)
+        foot = np.nan_to_num(np.maximum(gu, gv), nan=1.0, posinf=1.0).reshape(-1)
+        sel = np.flatnonzero(inside)
+        if sel.size == 0:
+            return empty
+        level = np.clip(np.log2(np.maximum(foot[sel], 1e-6)), 0, len(board.mips) - 1)
+        l0 = np.floor(level).astype(int)
+        frac = (level - l0).astype(np.float32)
+        us = u.reshape(-1)[sel]
+        vs = vv.reshape(-1)[sel]
+        alb = np.zeros(sel.size, np.float32)
+        for lev in np.unique(np.concatenate([l0, np.minimum(l0 + 1, len(board.mips) - 1)])):
+            wgt = np.where(l0 == lev, 1 - frac, 0) + np.where(
+                np.minimum(l0 + 1, len(board.mips) - 1) == lev, frac, 0
+            )
+            use = np.flatnonzero(wgt > 0)
+            if use.size == 0:
+                continue
+            sc = 2.0**lev
+            val = _sample(board.mips[lev], us[use] / sc - 0.5, vs[use] / sc - 0.5, cv2.INTER_LINEAR)
+            alb[use] += wgt[use] * val
+        # Visible side: the printed side faces -z of the board.
+        facing_front = (d[sel] @ nrm) > 0  # ray runs along +z: sees the -z side
+        alb = np.where(facing_front, alb, np.float32(tex.back_albedo))
+        side_n = np.where(facing_front[:, None], -nrm[None], nrm[None])
+        amb, direct = self.light.irradiance(side_n)
+        bl = (p[sel] @ self._light_R.T).T.astype(np.float32)
+        return (
+            pix[sel],
+            np.repeat(alb[:, None], 3, axis=1),
+            bl,
+            (amb.astype(np.float32), direct.astype(np.float32)),
+        )

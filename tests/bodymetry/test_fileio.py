@@ -1,0 +1,207 @@
+"""Tests for bodymetry.fileio: atomic writes, deterministic .npz, pickle-free reading."""
+
+from __future__ import annotations
+
+import gc
+import io
+import json
+import re
+import time
+import zipfile
+
+import numpy as np
+import pytest
+
+from bodymetry import fileio
+from bodymetry.errors import InputError
+
+SEED = 20240619
+#: The fixed timestamp every .npz member carries (zip's epoch).
+ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
+
+
+def _arrays() -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(SEED)
+    return {
+        "float": rng.normal(size=(20, 3)),
+        "int8": rng.integers(-100, 100, 50).astype(np.int8),
+        "half": rng.normal(size=(4, 5)).astype(np.float16),
+        "scalar": np.array(3),
+        "text": np.array(["root", "knuckle_l"]),
+        "json": np.array(json.dumps({"a": 1})),
+        "empty": np.zeros((0, 3)),
+        "fortran": np.asfortranarray(rng.normal(size=(3, 4))),
+    }
+
+
+def _leftovers(folder) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name.endswith(".tmp"))
+
+
+# --- atomic writes ------------------------------------------------------------------------------
+
+
+def test_atomic_path_writes_and_cleans_up(tmp_path):
+    target = tmp_path / "sub" / "dir" / "out.txt"  # missing parents are created
+    with fileio.atomic_path(target) as tmp:
+        assert tmp.parent == target.parent
+        assert tmp != target
+        tmp.write_text("hello")
+        assert not target.exists()  # nothing visible until the block succeeds
+    assert target.read_text() == "hello"
+    assert _leftovers(target.parent) == []
+
+
+def test_atomic_path_keeps_the_old_file_when_the_block_raises(tmp_path):
+    target = tmp_path / "out.txt"
+    target.write_text("old")
+    with pytest.raises(RuntimeError, match="boom"), fileio.atomic_path(target) as tmp:
+        tmp.write_text("half-written")
+        raise RuntimeError("boom")
+    assert target.read_text() == "old"
+    assert _leftovers(tmp_path) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.txt"]
+
+
+def test_atomic_path_without_a_previous_file(tmp_path):
+    target = tmp_path / "new.bin"
+    with pytest.raises(KeyError), fileio.atomic_path(target) as tmp:
+        tmp.write_bytes(b"x")
+        raise KeyError("interrupted")
+    assert not target.exists()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_atomic_write_replaces_and_uses_normal_permissions(tmp_path):
+    reference = tmp_path / "reference"
+    reference.write_bytes(b"")  # created the usual way, under the current umask
+    target = tmp_path / "out.bin"
+    fileio.write_bytes_atomic(target, b"first")
+    fileio.write_bytes_atomic(target, b"second")
+    assert target.read_bytes() == b"second"
+    assert target.stat().st_mode & 0o777 == reference.stat().st_mode & 0o777
+    assert _leftovers(tmp_path) == []
+
+
+def test_write_text_and_json(tmp_path):
+    fileio.write_text_atomic(tmp_path / "t.txt", "ν = 1.5σ\n")
+    assert (tmp_path / "t.txt").read_bytes() == "ν = 1.5σ\n".encode()
+    obj = {"height_mm": 1685.0, "names": ["a", "b"], "nested": {"x": None}}
+    fileio.write_json_atomic(tmp_path / "m.json", obj)
+    text = (tmp_path / "m.json").read_text(encoding="utf-8")
+    assert json.loads(text) == obj
+    assert text.endswith("\n")
+
+
+# --- deterministic .npz ---------------------------------------------------------------------------
+
+
+def test_npz_bytes_round_trip():
+    arrays = _arrays()
+    for compress in (True, False):
+        data = fileio.npz_bytes(arrays, compress=compress)
+        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+            assert npz.files == list(arrays)  # the mapping's order
+            for name, value in arrays.items():
+                assert npz[name].dtype == value.dtype, name
+                np.testing.assert_array_equal(npz[name], value)
+
+
+def test_npz_bytes_is_deterministic(monkeypatch):
+    arrays = _arrays()
+    first = fileio.npz_bytes(arrays)
+    assert fileio.npz_bytes(arrays) == first
+    assert fileio.npz_bytes(dict(arrays)) == first
+    # Another day, another clock: the same bytes.
+    later = time.time() + 400 * 86400.0
+    monkeypatch.setattr(time, "time", lambda: later)
+    monkeypatch.setattr(time, "localtime", lambda *a: time.gmtime(later))
+    assert fileio.npz_bytes(arrays) == first
+    with zipfile.ZipFile(io.BytesIO(first)) as zf:
+        assert all(info.date_time == ZIP_EPOCH for info in zf.infolist())
+        assert all(info.compress_type == zipfile.ZIP_DEFLATED for info in zf.infolist())
+
+
+def test_npz_bytes_depends_on_the_values_and_order():
+    arrays = _arrays()
+    changed = dict(arrays, float=arrays["float"] + 1e-15)
+    assert fileio.npz_bytes(changed) != fileio.npz_bytes(arrays)
+    reordered = dict(reversed(list(arrays.items())))
+    assert fileio.npz_bytes(reordered) != fileio.npz_bytes(arrays)
+
+
+def test_npz_compression():
+    arrays = {"zeros": np.zeros((200, 200))}
+    assert len(fileio.npz_bytes(arrays)) < len(fileio.npz_bytes(arrays, compress=False)) / 10
+
+
+def test_object_arrays_are_refused(tmp_path):
+    with pytest.raises(TypeError, match=r"'bad'.*object"):
+        fileio.npz_bytes({"ok": np.zeros(2), "bad": np.array([{"a": 1}], dtype=object)})
+    with pytest.raises(TypeError, match="object"):
+        fileio.save_npz(tmp_path / "x.npz", {"bad": np.array([1, "a", None], dtype=object)})
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_save_and_load_npz(tmp_path):
+    arrays = _arrays()
+    path = tmp_path / "model.npz"
+    fileio.save_npz(path, arrays)
+    assert path.read_bytes() == fileio.npz_bytes(arrays)
+    loaded = fileio.load_npz(path)
+    assert list(loaded) == list(arrays)
+    for name, value in arrays.items():
+        np.testing.assert_array_equal(loaded[name], value)
+    # A str path works too, and the result does not depend on an open file.
+    assert list(fileio.load_npz(str(path))) == list(arrays)
+    assert _leftovers(tmp_path) == []
+
+
+# --- load_npz rejects what it cannot read safely -----------------------------------------------
+
+
+def _rejects(path, *patterns: str) -> None:
+    with pytest.raises(InputError, match=re.escape(str(path))) as info:
+        fileio.load_npz(path)
+    for pattern in patterns:
+        assert re.search(pattern, str(info.value)), str(info.value)
+    gc.collect()  # a leaked file handle would surface here as a ResourceWarning (an error)
+
+
+def test_load_npz_missing_file(tmp_path):
+    _rejects(tmp_path / "nope.npz", "not found")
+    _rejects(tmp_path, "not found")  # a folder is not a file
+
+
+def test_load_npz_not_an_npz(tmp_path):
+    text = tmp_path / "notes.npz"
+    text.write_text("just some text, long enough to not be empty\n")
+    _rejects(text)
+    empty = tmp_path / "empty.npz"
+    empty.write_bytes(b"")
+    _rejects(empty)
+    npy = tmp_path / "array.npz"
+    with open(npy, "wb") as fh:
+        np.save(fh, np.arange(3))
+    _rejects(npy, "npy")
+
+
+def test_load_npz_corrupt_zip(tmp_path):
+    good = fileio.npz_bytes(_arrays())
+    truncated = tmp_path / "truncated.npz"
+    truncated.write_bytes(good[: len(good) // 2])
+    _rejects(truncated)
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_bytes(b"PK\x03\x04" + bytes(range(256)) * 4)
+    _rejects(garbage)
+
+
+def test_load_npz_refuses_pickles(tmp_path):
+    path = tmp_path / "pickled.npz"
+    np.savez(path, ok=np.zeros(3), evil=np.array([{"run": "code"}], dtype=object))
+    _rejects(path, "(?i)object|pickle")
+
+
+def test_input_error_is_a_value_error(tmp_path):
+    with pytest.raises(ValueError):
+        fileio.load_npz(tmp_path / "missing.npz")

@@ -1,0 +1,192 @@
+"""Camera and CameraGroup: projection vs OpenCV, undistortion, triangulation, indexing."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from calibration.camera import Camera, CameraGroup
+
+K = np.array([[900.0, 0.0, 330.0], [0.0, 905.0, 235.0], [0.0, 0.0, 1.0]])
+_D12 = [-0.2, 0.05, 0.001, -0.0005, 0.01, 0.02, 0.001, 0.003, 0.001, -0.002, 0.0015, 5e-4]
+DISTORTIONS = {
+    4: [-0.2, 0.05, 0.001, -0.0005],
+    5: [-0.2, 0.05, 0.001, -0.0005, 0.01],
+    8: [-0.2, 0.05, 0.001, -0.0005, 0.01, 0.02, 0.001, 0.003],
+    12: _D12,
+    14: [*_D12, 0.01, -0.02],
+}
+
+
+def _look_at(center: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    z = target - center
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    return R, -R @ center
+
+
+def make_rig(n: int = 4, seed: int = 0) -> CameraGroup:
+    """``n`` cameras on a 3 m circle looking at the middle of a 2 m tall volume."""
+    rng = np.random.default_rng(seed)
+    cams = []
+    for i, angle in enumerate(np.linspace(0, 2 * np.pi, n, endpoint=False)):
+        center = np.array([3 * np.cos(angle), 3 * np.sin(angle), 1.2 + 0.6 * rng.random()])
+        R, t = _look_at(center, np.array([0.0, 0.0, 1.0]) + rng.normal(0, 0.05, 3))
+        Ki = K.copy()
+        Ki[:2, :2] *= 1 + rng.normal(0, 0.02)
+        dist = [-0.15 + rng.normal(0, 0.02), 0.03, 0.001, -0.001, 0.0]
+        cams.append(Camera(f"cam_{i:02d}", (640, 480), Ki, dist, R, t))
+    return CameraGroup(cams)
+
+
+def _volume_points(n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.uniform([-0.8, -0.8, 0.0], [0.8, 0.8, 2.0], (n, 3))
+
+
+# -- Camera ---------------------------------------------------------------------
+@pytest.mark.parametrize("n_coeffs", sorted(DISTORTIONS))
+def test_project_matches_opencv(n_coeffs: int) -> None:
+    R = Rotation.from_rotvec([0.1, -0.2, 0.05]).as_matrix()
+    cam = Camera("a", (640, 480), K, DISTORTIONS[n_coeffs], R, [0.1, 0.2, 3.0])
+    X = np.random.default_rng(1).uniform(-1, 1, (300, 3))
+    ref, _ = cv2.projectPoints(X, cv2.Rodrigues(R)[0], cam.t, K, cam.dist)
+    np.testing.assert_allclose(cam.project(X), ref[:, 0], atol=1e-9)
+
+
+def test_project_behind_camera_is_nan_and_projection_matrix() -> None:
+    cam = Camera("a", (640, 480), K, [0.0] * 5, np.eye(3), [0.0, 0.0, 0.0])
+    px = cam.project(np.array([[0.1, 0.2, 2.0], [0.1, 0.2, -2.0]]))
+    assert np.all(np.isfinite(px[0])) and np.all(np.isnan(px[1]))
+    X = np.array([0.3, -0.2, 4.0])
+    h = cam.projection_matrix @ np.append(X, 1.0)
+    np.testing.assert_allclose(h[:2] / h[2], cam.project(X, distort=False), atol=1e-12)
+
+
+@pytest.mark.parametrize("n_coeffs", sorted(DISTORTIONS))
+def test_undistort_round_trip_within_image(n_coeffs: int) -> None:
+    cam = Camera("a", (640, 480), K, DISTORTIONS[n_coeffs])
+    u, v = np.meshgrid(np.linspace(0, 639, 41), np.linspace(0, 479, 31))
+    px = np.stack([u, v], axis=-1)  # (31, 41, 2): any leading shape
+    xy = cam.undistort_points(px)
+    assert xy.shape == px.shape and np.all(np.isfinite(xy))
+    back = cam.distort_normalized(xy) @ cam.K[:2, :2].T + cam.K[:2, 2]
+    assert np.abs(back - px).max() < 1e-6
+    ref = cv2.undistortPoints(
+        px.reshape(-1, 1, 2),
+        cam.K,
+        cam.dist,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-16),
+    )
+    np.testing.assert_allclose(xy.reshape(-1, 2), ref[:, 0], atol=1e-9)
+    ideal = cam.undistort_points(px, normalized=False)
+    np.testing.assert_allclose(ideal, xy @ cam.K[:2, :2].T + cam.K[:2, 2], atol=1e-9)
+
+
+def test_undistort_nan_and_shape() -> None:
+    cam = Camera("a", (640, 480), K, DISTORTIONS[5])
+    out = cam.undistort_points(np.array([[np.nan, 3.0], [320.0, 240.0]]))
+    assert np.all(np.isnan(out[0])) and np.all(np.isfinite(out[1]))
+    with pytest.raises(ValueError, match=r"\(\.\.\., 2\)"):
+        cam.undistort_points(np.zeros((4, 3)))
+
+
+def test_ray_passes_through_point() -> None:
+    cam = make_rig(1)[0]
+    X = _volume_points(50, 3)
+    d = cam.ray(cam.project(X))
+    v = X - cam.center
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    np.testing.assert_allclose(d, v, atol=1e-10)
+
+
+# -- CameraGroup ---------------------------------------------------------------------
+def test_triangulate_noise_free_exact() -> None:
+    group = make_rig()
+    X = _volume_points(500, 1)
+    px = group.project(X)
+    assert px.shape == (4, 500, 2)
+    np.testing.assert_allclose(group.triangulate(px), X, atol=1e-9)
+    np.testing.assert_allclose(group.triangulate(px, refine=True), X, atol=1e-9)
+    err = group.reprojection_error(X, px)
+    assert err.shape == (4, 500) and err.max() < 1e-9
+
+
+def test_triangulate_with_missing_views() -> None:
+    group = make_rig()
+    X = _volume_points(300, 2)
+    px = group.project(X)
+    px[0, :200] = np.nan  # seen by 3 cameras
+    px[1, :100] = np.nan  # seen by 2
+    px[2, :10] = np.nan  # seen by 1: not triangulable
+    px[3, 299, 0] = np.nan  # half-NaN counts as missing
+    Y = group.triangulate(px)
+    assert np.all(np.isnan(Y[:10]))
+    np.testing.assert_allclose(Y[10:], X[10:], atol=1e-9)
+    Y3 = group.triangulate(px, min_views=3)
+    assert np.all(np.isnan(Y3[:100])) and np.all(np.isfinite(Y3[200:299]))
+    err = group.reprojection_error(Y, px)
+    assert np.all(np.isnan(err[0, :200])) and np.nanmax(err) < 1e-9
+
+
+def test_refinement_lowers_reprojection_error() -> None:
+    group = make_rig()
+    X = _volume_points(400, 4)
+    px = group.project(X) + np.random.default_rng(5).normal(0, 1.0, (4, 400, 2))
+    lin = group.triangulate(px)
+    ref = group.triangulate(px, refine=True)
+    e_lin = np.nanmean(group.reprojection_error(lin, px) ** 2)
+    e_ref = np.nanmean(group.reprojection_error(ref, px) ** 2)
+    assert e_ref <= e_lin
+    assert np.linalg.norm(ref - X, axis=1).mean() < 0.01
+
+
+def test_group_validation_errors() -> None:
+    group = make_rig(3)
+    with pytest.raises(ValueError, match=r"\(C, N, 2\) with C = 3"):
+        group.triangulate(np.zeros((2, 5, 2)))
+    with pytest.raises(ValueError, match=r"N = 5"):
+        group.reprojection_error(np.zeros((4, 3)), np.zeros((3, 5, 2)))
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        group.project(np.zeros((5, 2)))
+    with pytest.raises(ValueError, match="min_views"):
+        group.triangulate(np.zeros((3, 5, 2)), min_views=1)
+
+
+def test_group_indexing_and_subset() -> None:
+    group = make_rig(4)
+    assert len(group) == 4
+    assert group.names == ("cam_00", "cam_01", "cam_02", "cam_03")
+    assert group[1].name == "cam_01" and group[-1].name == "cam_03"
+    assert group["cam_02"] is group[2]
+    assert "cam_03" in group and "nope" not in group
+    assert [c.name for c in group] == list(group.names)
+    assert group.index("cam_03") == 3
+    sub = group.subset(["cam_03", "cam_00"])
+    assert sub.names == ("cam_03", "cam_00") and sub[0] is group[3]
+    assert group.centers.shape == (4, 3)
+    X = _volume_points(5, 0)
+    np.testing.assert_array_equal(sub.project(X), group.project(X)[[3, 0]])
+    with pytest.raises(KeyError, match="cam_09"):
+        group["cam_09"]
+    with pytest.raises(KeyError, match="cam_09"):
+        group.subset(["cam_00", "cam_09"])
+    with pytest.raises(IndexError):
+        group[4]
+    with pytest.raises(TypeError):
+        group[1.5]  # type: ignore[index]
+
+
+def test_group_construction_errors() -> None:
+    cam = make_rig(1)[0]
+    with pytest.raises(ValueError, match="duplicate camera name 'cam_00'"):
+        CameraGroup([cam, cam])
+    with pytest.raises(ValueError, match="at least one camera"):
+        CameraGroup([])
+    with pytest.raises(ValueError, match="must be a Camera"):
+        CameraGroup([cam, "cam_01"])  # type: ignore[list-item]

@@ -1,0 +1,368 @@
+"""calibration.yaml and anipose calibration.toml: exact round trips, one test per bad input."""
+
+from __future__ import annotations
+
+import copy
+import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from bodymetry.errors import InputError
+from calibration.camera import Camera, CameraGroup
+from calibration.io import (
+    CALIBRATION_FORMAT,
+    Calibration,
+    dump_yaml,
+    export_anipose_toml,
+    import_anipose_toml,
+    load_calibration,
+    read_calibration,
+    save_calibration,
+)
+
+
+def make_group(n: int = 3, seed: int = 0) -> CameraGroup:
+    rng = np.random.default_rng(seed)
+    cams = []
+    for i in range(n):
+        K = [[800 + 50 * rng.random(), 0.0, 320 + rng.normal()], [0.0, 805 + rng.random(), 240.5]]
+        K.append([0.0, 0.0, 1.0])
+        dist = rng.normal(0, 1e-3, 5) * np.array([100, 10, 1, 1, 1])
+        R = Rotation.random(random_state=seed * 10 + i).as_matrix()
+        cams.append(Camera(f"cam_{i:02d}", (640, 480), K, dist, R, rng.normal(0, 2, 3)))
+    return CameraGroup(cams)
+
+
+def assert_groups_equal(a: CameraGroup, b: CameraGroup, rot_tol: float = 0.0) -> None:
+    assert a.names == b.names
+    for ca, cb in zip(a, b, strict=True):
+        assert ca.size == cb.size
+        np.testing.assert_array_equal(ca.K, cb.K)
+        np.testing.assert_array_equal(ca.dist, cb.dist)
+        np.testing.assert_array_equal(ca.t, cb.t)
+        if rot_tol == 0.0:
+            np.testing.assert_array_equal(ca.R, cb.R)
+        else:
+            assert np.abs(ca.R - cb.R).max() < rot_tol
+
+
+EXTRA = {
+    "world": {"frame": "board on the floor, z up", "note": "x: along the board's long side"},
+    "quality": {
+        "cam_00": {"rms_px": 0.21, "frames_read": 300, "boards_detected": 211},
+        "overall": {"rms_px": 0.25, "converged": True, "date": "2026-11-22", "none": None},
+    },
+}
+
+
+# -- YAML round trip ------------------------------------------------------------
+def test_yaml_round_trip_is_byte_exact(tmp_path: Path) -> None:
+    group = make_group()
+    first = tmp_path / "calibration.yaml"
+    save_calibration(first, group, extra=EXTRA)
+    calib = read_calibration(first)
+    assert_groups_equal(calib.cameras, group)
+    assert calib.world == EXTRA["world"] and calib.quality == EXTRA["quality"]
+    second = tmp_path / "again.yaml"
+    save_calibration(second, calib)
+    assert second.read_bytes() == first.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["again.yaml", "calibration.yaml"]
+
+
+def test_yaml_extreme_floats_exact(tmp_path: Path) -> None:
+    cam = Camera(
+        "odd name: 1",
+        (641, 479),
+        [[1e3 / 3, 1e-300, 320.1], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]],
+        [5e-324, -0.0, 1e-5, 1.5e20, 2.0**-40],
+        np.eye(3),
+        [-0.0, 1e-17, 123456789.123456789],
+    )
+    path = tmp_path / "c.yaml"
+    save_calibration(path, CameraGroup([cam]))
+    back = load_calibration(path)
+    assert_groups_equal(back, CameraGroup([cam]))
+    assert np.signbit(back[0].dist[1]) and np.signbit(back[0].t[0])
+    # Plain PyYAML (YAML 1.1) reads the same numbers, not strings.
+    data = yaml.safe_load(path.read_text())
+    assert data["cameras"][0]["dist"] == cam.dist.tolist()
+    assert data["cameras"][0]["name"] == "odd name: 1"
+
+
+def test_yaml_layout(tmp_path: Path) -> None:
+    path = tmp_path / "c.yaml"
+    save_calibration(path, make_group(1))
+    text = path.read_text()
+    assert f"format: {CALIBRATION_FORMAT}\n" in text
+    assert "    size: [640, 480]\n" in text
+    assert "    K:\n      - [" in text
+
+
+def test_yaml_accepts_hand_written_numbers(tmp_path: Path) -> None:
+    """Integers, YAML-1.2 exponents (``1e-5``) and R rounded to 6 digits are fine."""
+    R = Rotation.from_rotvec([0.3, -0.2, 1.0]).as_matrix()
+    rows = ", ".join("[" + ", ".join(f"{v:.6f}" for v in row) + "]" for row in R)
+    text = (
+        f"format: {CALIBRATION_FORMAT}\ncameras:\n"
+        "  - {name: a, size: [640, 480], K: [[800, 0, 320], [0, 800, 240], [0, 0, 1]],\n"
+        f"     dist: [1e-5, 0, 0, 0], R: [{rows}], t: [1, 2, 3]}}\n"
+    )
+    path = tmp_path / "c.yaml"
+    path.write_text(text)
+    cam = load_calibration(path)[0]
+    assert cam.dist[0] == 1e-5 and cam.K[0, 0] == 800.0
+    np.testing.assert_allclose(cam.R @ cam.R.T, np.eye(3), atol=1e-14)
+    np.testing.assert_allclose(cam.R, R, atol=2e-6)
+
+
+def test_save_rejects_bad_extra(tmp_path: Path) -> None:
+    path = tmp_path / "c.yaml"
+    with pytest.raises(ValueError, match="unknown keys"):
+        save_calibration(path, make_group(1), extra={"qualty": {}})
+    with pytest.raises(InputError, match="world"):
+        save_calibration(path, make_group(1), extra={"world": [1, 2]})
+    assert not path.exists() and list(tmp_path.iterdir()) == []
+
+
+# -- TOML -------------------------------------------------------------------------------
+def test_yaml_toml_yaml_round_trip(tmp_path: Path) -> None:
+    group = make_group(4, seed=3)
+    save_calibration(tmp_path / "a.yaml", group)
+    toml_path = tmp_path / "calibration.toml"
+    export_anipose_toml(toml_path, load_calibration(tmp_path / "a.yaml"), metadata={"error": 0.3})
+    back = import_anipose_toml(toml_path)  # metadata.units = "m"
+    assert_groups_equal(back, group, rot_tol=1e-12)
+    save_calibration(tmp_path / "b.yaml", back)
+    again = load_calibration(tmp_path / "b.yaml")
+    assert_groups_equal(again, group, rot_tol=1e-12)
+    # And once more through TOML: stable.
+    export_anipose_toml(tmp_path / "again.toml", again)
+    assert_groups_equal(import_anipose_toml(tmp_path / "again.toml"), group, rot_tol=1e-12)
+
+
+ANIPOSE_TOML = """\
+[cam_0]
+name = "A"
+size = [ 1280, 1024,]
+matrix = [ [ 1000.0, 0.0, 640.0,], [ 0.0, 1000.0, 512.0,], [ 0.0, 0.0, 1.0,],]
+distortions = [ -0.1, 0.01, 0.0, 0.0, 0.0,]
+rotation = [ 0.1, -0.2, 0.3,]
+translation = [ 100.0, -250.0, 3000.0,]
+
+[cam_1]
+name = "B"
+size = [ 1280.0, 1024.0,]
+matrix = [ [ 1010.0, 0.0, 641.0,], [ 0.0, 1010.0, 510.0,], [ 0.0, 0.0, 1.0,],]
+distortions = [ -0.12, 0.02, 0.0, 0.0, 0.0,]
+rotation = [ -0.1, 0.5, 0.0,]
+translation = [ -900.0, 50.0, 2800.0,]
+fisheye = false
+
+[metadata]
+adjusted = true
+error = 0.5
+"""
+
+
+def test_import_anipose_millimetres(tmp_path: Path) -> None:
+    path = tmp_path / "calibration.toml"
+    path.write_text(ANIPOSE_TOML)
+    group = import_anipose_toml(path, units="mm")
+    assert group.names == ("A", "B") and group[1].size == (1280, 1024)
+    np.testing.assert_allclose(group[0].t, [0.1, -0.25, 3.0], rtol=1e-15)
+    np.testing.assert_allclose(group[0].R, Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix())
+    with pytest.raises(InputError, match="does not say the unit"):
+        import_anipose_toml(path)
+    with pytest.raises(InputError, match=r"calibration\.toml.*units='mm'"):
+        import_anipose_toml(path, units="m")
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda s: s.replace('name = "B"', 'name = "A"'), r"cam_1\.name: duplicate camera name"),
+        (lambda s: s.replace("fisheye = false", "fisheye = true"), r"cam_1\.fisheye: fisheye"),
+        (lambda s: s.replace("rotation = [ -0.1, 0.5, 0.0,]\n", ""), r"cam_1\.rotation: missing"),
+        (
+            lambda s: s.replace(
+                "[ 0.0, 0.0, 1.0,],]\ndistortions = [ -0.12", "]\ndistortions = [ -0.12"
+            ),
+            r"cam_1\.matrix: expected a 3x3",
+        ),
+        (lambda s: s.replace("[cam_1]", "[cam_1"), "not valid TOML"),
+        (
+            lambda s: s + '\n[metadata2]\nunits = "furlong"\n',
+            r"metadata2\.name: missing key 'name'",
+        ),
+        (lambda s: s.replace("error = 0.5", 'units = "m"'), r"metadata\.units: the file says 'm'"),
+    ],
+)
+def test_import_anipose_errors(tmp_path: Path, edit: Callable[[str], str], message: str) -> None:
+    path = tmp_path / "calibration.toml"
+    path.write_text(edit(ANIPOSE_TOML))
+    with pytest.raises(InputError, match=message) as info:
+        import_anipose_toml(path, units="mm")
+    assert str(path) in str(info.value)
+
+
+# -- malformed calibration.yaml: one test per class ---------------------------------------
+def _valid_data() -> dict[str, Any]:
+    group = make_group(3)
+    return {
+        "format": CALIBRATION_FORMAT,
+        "cameras": [
+            {
+                "name": c.name,
+                "size": list(c.size),
+                "K": c.K.tolist(),
+                "dist": c.dist.tolist(),
+                "R": c.R.tolist(),
+                "t": c.t.tolist(),
+            }
+            for c in group
+        ],
+    }
+
+
+def _load_edited(tmp_path: Path, edit: Callable[[dict[str, Any]], Any]) -> InputError:
+    data = copy.deepcopy(_valid_data())
+    result = edit(data)
+    path = tmp_path / "calibration.yaml"
+    path.write_text(yaml.safe_dump(data if result is None else result))
+    with pytest.raises(InputError) as info:
+        load_calibration(path)
+    assert str(path) in str(info.value)
+    return info.value
+
+
+def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
+    """Edit ``data`` at a dotted path like ``cameras.2.K``."""
+
+    def edit(data: dict[str, Any]) -> None:
+        *parents, last = path.split(".")
+        node: Any = data
+        for p in parents:
+            node = node[int(p)] if p.isdigit() else node[p]
+        node[int(last) if last.isdigit() else last] = value
+
+    return edit
+
+
+def _delete(path: str) -> Callable[[dict[str, Any]], None]:
+    def edit(data: dict[str, Any]) -> None:
+        *parents, last = path.split(".")
+        node: Any = data
+        for p in parents:
+            node = node[int(p)] if p.isdigit() else node[p]
+        del node[last]
+
+    return edit
+
+
+def _rename(old: str, new: str) -> Callable[[dict[str, Any]], None]:
+    def edit(data: dict[str, Any]) -> None:
+        data[new] = data.pop(old)
+
+    return edit
+
+
+def _not_rotation(data: dict[str, Any]) -> None:
+    data["cameras"][1]["R"] = (np.array(data["cameras"][1]["R"]) * 1.01).tolist()
+
+
+def _reflection(data: dict[str, Any]) -> None:
+    data["cameras"][1]["R"] = (-np.array(data["cameras"][1]["R"])).tolist()
+
+
+@pytest.mark.parametrize(
+    ("edit", "field", "message"),
+    [
+        # missing key
+        (_delete("format"), "format", "missing key 'format'"),
+        (_delete("cameras"), "cameras", "missing key 'cameras'"),
+        (_delete("cameras.2.K"), r"cameras\[2\]\.K", "missing key 'K'"),
+        (_delete("cameras.0.dist"), r"cameras\[0\]\.dist", "missing key 'dist'"),
+        # unknown key / typo
+        (_set("cameras.0.distortion", [0, 0, 0, 0]), r"cameras\[0\]\.distortion", "unknown key"),
+        (_rename("cameras", "camers"), "cameras", "'camers': a typo"),
+        # unknown format version / kind
+        (_set("format", "bodymetry-calibration/2"), "format", "unknown format version"),
+        (_set("format", "bodymetry-session/1"), "format", "wrong kind of file"),
+        (_set("format", 1), "format", "expected the string"),
+        # wrong type
+        (_set("cameras.1.name", 7), r"cameras\[1\]\.name", "expected a string"),
+        (_set("cameras.1.K", "eye(3)"), r"cameras\[1\]\.K", "expected a 3x3"),
+        (_set("cameras.1.t.2", "far"), r"cameras\[1\]\.t\[2\]", "expected a number"),
+        (_set("cameras.1.t.2", True), r"cameras\[1\]\.t\[2\]", "expected a number"),
+        (_set("cameras.1.size", 640), r"cameras\[1\]\.size", r"\[width, height\]"),
+        (_set("cameras.1.size.0", 640.5), r"cameras\[1\]\.size\[0\]", "expected an integer"),
+        (_set("cameras.1.size.1", 0), r"cameras\[1\]\.size\[1\]", ">= 1"),
+        (_set("cameras", {"a": 1}), "cameras", "expected a list of cameras"),
+        (_set("cameras", []), "cameras", "at least one camera"),
+        (_set("cameras.0", [1, 2]), r"cameras\[0\]", "expected a mapping"),
+        (_set("world", "lab"), "world", "expected a mapping"),
+        # wrong matrix shape
+        (_set("cameras.2.K", [[800, 0, 320], [0, 800, 240]]), r"cameras\[2\]\.K", "3 items, got 2"),
+        (_set("cameras.2.R.1", [0, 1]), r"cameras\[2\]\.R\[1\]", "3 items, got 2"),
+        (_set("cameras.2.t", [0, 1]), r"cameras\[2\]\.t", "3 items, got 2"),
+        (_set("cameras.2.dist", [0, 0, 0]), r"cameras\[2\]\.dist", "4 or 5 or 8 or 12 or 14"),
+        # bad values
+        (_set("cameras.0.K.2", [0, 0, 2]), r"cameras\[0\]\.K", r"\[0, 0, 1\]"),
+        (_set("cameras.0.K.0.0", -800), r"cameras\[0\]\.K", "positive focal"),
+        (_not_rotation, r"cameras\[1\]\.R", "rotation matrix"),
+        (_reflection, r"cameras\[1\]\.R", "reflection"),
+        # non-finite numbers
+        (_set("cameras.0.t.1", float("nan")), r"cameras\[0\]\.t\[1\]", "finite"),
+        (_set("cameras.0.K.0.2", float("inf")), r"cameras\[0\]\.K\[0\]\[2\]", "finite"),
+        # duplicate names
+        (_set("cameras.2.name", "cam_00"), r"cameras\[2\]\.name", r"duplicate.*cameras\[0\]"),
+        # not a mapping at the top
+        (lambda d: [d], "", "expected a mapping"),
+        (lambda d: "just text", "", "expected a mapping"),
+    ],
+)
+def test_malformed_calibration(
+    tmp_path: Path, edit: Callable[[dict[str, Any]], Any], field: str, message: str
+) -> None:
+    err = str(_load_edited(tmp_path, edit))
+    if field:
+        assert re.search(rf"calibration\.yaml: {field}: ", err), err
+    assert re.search(message, err), err
+
+
+def test_malformed_yaml_syntax(tmp_path: Path) -> None:
+    path = tmp_path / "calibration.yaml"
+    path.write_text("format: bodymetry-calibration/1\ncameras: [\n  - name: a\n")
+    with pytest.raises(InputError, match=r"calibration\.yaml: not valid YAML at line \d+, col"):
+        load_calibration(path)
+
+
+def test_duplicate_yaml_key(tmp_path: Path) -> None:
+    path = tmp_path / "calibration.yaml"
+    path.write_text(dump_yaml(_valid_data()).replace("    dist:", "    K: [1]\n    dist:", 1))
+    with pytest.raises(InputError, match=r"calibration\.yaml: not valid YAML.*duplicate key 'K'"):
+        load_calibration(path)
+
+
+def test_empty_and_missing_file(tmp_path: Path) -> None:
+    path = tmp_path / "calibration.yaml"
+    path.write_text("")
+    with pytest.raises(InputError, match=r"calibration\.yaml: expected a mapping.*null"):
+        load_calibration(path)
+    with pytest.raises(InputError, match=r"nope\.yaml: calibration file not found"):
+        load_calibration(tmp_path / "nope.yaml")
+    with pytest.raises(InputError, match="found a folder"):
+        load_calibration(tmp_path)
+
+
+def test_calibration_dataclass_save(tmp_path: Path) -> None:
+    calib = Calibration(make_group(2), world={"frame": "floor"})
+    save_calibration(tmp_path / "c.yaml", calib, extra={"quality": {"cam_00": {"rms_px": 0.1}}})
+    back = read_calibration(tmp_path / "c.yaml")
+    assert back.world == {"frame": "floor"} and back.quality == {"cam_00": {"rms_px": 0.1}}

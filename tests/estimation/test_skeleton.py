@@ -1,0 +1,248 @@
+"""Tests for estimation.body_model.skeleton: θ layout, forward kinematics, joint limits.
+
+Synthetic skeletons only (random rest joints); the committed model's skeleton is
+covered in test_body_model.py.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimation.body_model import skeleton as sk
+from estimation.body_model.rotations import axis_rotation, euler_to_matrix
+
+# --------------------------------------------------------------------------------------
+# Tolerances, all in one place (absolute; metres for positions, entries for matrices).
+# --------------------------------------------------------------------------------------
+ATOL = 1e-12
+SEED = 20240613
+B = 64
+
+
+@pytest.fixture()
+def rng() -> np.random.Generator:
+    return np.random.default_rng(SEED)
+
+
+def _rest_joints(rng: np.random.Generator) -> np.ndarray:
+    """A body-sized random skeleton: each joint 5-40 cm from its parent."""
+    rest = np.zeros((sk.N_PARTS, 3))
+    rest[0] = rng.normal(size=3)
+    for k, parent in enumerate(sk.PART_PARENT):
+        if parent >= 0:
+            d = rng.normal(size=3)
+            rest[k] = rest[parent] + rng.uniform(0.05, 0.4) * d / np.linalg.norm(d)
+    return rest
+
+
+def _hinge_axes(rng: np.random.Generator) -> np.ndarray:
+    axes = np.zeros((sk.N_PARTS, 3))
+    for j in sk.HINGES:
+        a = rng.normal(size=3)
+        axes[j] = a / np.linalg.norm(a)
+    return axes
+
+
+def _random_theta(rng: np.random.Generator, n: int) -> np.ndarray:
+    return rng.uniform(-np.pi, np.pi, (n, sk.N_POSE))
+
+
+# --- layout -----------------------------------------------------------------------------------
+
+
+def test_dof_names_are_37_unique():
+    names = sk.dof_names()
+    assert sk.N_POSE == 37
+    assert len(names) == 37
+    assert len(set(names)) == 37
+    assert names[:3] == ("root.x", "root.y", "root.z")
+    assert names[sk.JOINT_SLICES[sk.JOINTS.index("knee_l")].start] == "knee_l"
+
+
+def test_joint_slices_tile_theta():
+    covered = np.concatenate([np.arange(s.start, s.stop) for s in sk.JOINT_SLICES])
+    np.testing.assert_array_equal(covered, np.arange(sk.N_POSE))
+    assert [s.stop - s.start for s in sk.JOINT_SLICES] == list(sk.JOINT_DOFS)
+    # Names follow the slices.
+    names = sk.dof_names()
+    for joint, sl in zip(sk.JOINTS, sk.JOINT_SLICES, strict=True):
+        assert all(n.split(".")[0] == joint for n in names[sl])
+
+
+def test_tree_is_topologically_ordered_and_mirrored():
+    assert len(sk.PARTS) == len(sk.JOINTS) == len(sk.PART_PARENT) == sk.N_PARTS == 15
+    assert sk.PART_PARENT[0] == -1
+    assert all(0 <= p < k for k, p in enumerate(sk.PART_PARENT) if k > 0)
+    assert {sk.JOINTS[j] for j in sk.HINGES} == {"elbow_l", "elbow_r", "knee_l", "knee_r"}
+    # Left and right limbs have the same structure.
+    for k, part in enumerate(sk.PARTS):
+        if part.endswith("_l"):
+            r = sk.PARTS.index(part[:-1] + "r")
+            pl, pr = sk.PART_PARENT[k], sk.PART_PARENT[r]
+            assert sk.PARTS[pl].replace("_l", "_r") == sk.PARTS[pr]
+            assert sk.JOINT_DOFS[k] == sk.JOINT_DOFS[r]
+
+
+# --- rotations and forward kinematics ---------------------------------------------------------
+
+
+def test_local_rotations(rng):
+    theta = _random_theta(rng, B)
+    hinge = _hinge_axes(rng)
+    local = sk.local_rotations(theta, hinge)
+    assert local.shape == (B, 15, 3, 3)
+    for j, sl in enumerate(sk.JOINT_SLICES):
+        if sk.JOINT_DOFS[j] == 3:
+            expected = euler_to_matrix(theta[:, sl])
+        else:
+            expected = axis_rotation(hinge[j], theta[:, sl.start])
+        np.testing.assert_allclose(local[:, j], expected, atol=ATOL)
+
+
+def test_local_rotations_rejects_wrong_length():
+    with pytest.raises(ValueError, match="theta"):
+        sk.local_rotations(np.zeros((2, 36)), np.zeros((15, 3)))
+
+
+def test_forward_kinematics_rest_pose(rng):
+    rest = _rest_joints(rng)
+    tau = rng.normal(size=(B, 3))
+    R, joints = sk.forward_kinematics(np.zeros((B, 37)), tau, rest, _hinge_axes(rng))
+    np.testing.assert_allclose(R, np.broadcast_to(np.eye(3), R.shape), atol=ATOL)
+    np.testing.assert_allclose(joints, rest - rest[0] + tau[:, None, :], atol=ATOL)
+
+
+def test_forward_kinematics_composes_along_the_chain(rng):
+    rest = _rest_joints(rng)
+    hinge = _hinge_axes(rng)
+    theta = _random_theta(rng, B)
+    R, joints = sk.forward_kinematics(theta, np.zeros(3), rest, hinge)
+    local = sk.local_rotations(theta, hinge)
+    for k, parent in enumerate(sk.PART_PARENT):
+        if parent < 0:
+            np.testing.assert_allclose(R[:, k], local[:, k], atol=ATOL)
+            np.testing.assert_allclose(joints[:, k], 0.0, atol=ATOL)
+        else:
+            np.testing.assert_allclose(R[:, k], R[:, parent] @ local[:, k], atol=ATOL)
+            # The child joint is a point of the parent part: p -> R (p - j_rest) + j.
+            moved = np.einsum("bij,j->bi", R[:, parent], rest[k] - rest[parent])
+            np.testing.assert_allclose(joints[:, k], joints[:, parent] + moved, atol=ATOL)
+
+
+def test_global_rotations_are_rotations(rng):
+    R, _ = sk.forward_kinematics(
+        _random_theta(rng, B), np.zeros(3), _rest_joints(rng), _hinge_axes(rng)
+    )
+    np.testing.assert_allclose(
+        R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape), atol=1e-11
+    )
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-11)
+
+
+def test_bone_lengths_are_preserved(rng):
+    rest = _rest_joints(rng)
+    _, joints = sk.forward_kinematics(
+        _random_theta(rng, B), rng.normal(size=(B, 3)), rest, _hinge_axes(rng)
+    )
+    for k, parent in enumerate(sk.PART_PARENT):
+        if parent >= 0:
+            np.testing.assert_allclose(
+                np.linalg.norm(joints[:, k] - joints[:, parent], axis=-1),
+                np.linalg.norm(rest[k] - rest[parent]),
+                atol=ATOL,
+            )
+
+
+def test_root_rotation_turns_the_body_rigidly_about_tau(rng):
+    rest = _rest_joints(rng)
+    hinge = _hinge_axes(rng)
+    theta = _random_theta(rng, B)
+    theta[:, sk.JOINT_SLICES[0]] = 0.0
+    tau = rng.normal(size=(B, 3))
+    R0, j0 = sk.forward_kinematics(theta, tau, rest, hinge)
+    root = rng.uniform(-1.0, 1.0, (B, 3))
+    turned = theta.copy()
+    turned[:, sk.JOINT_SLICES[0]] = root
+    R1, j1 = sk.forward_kinematics(turned, tau, rest, hinge)
+    Rroot = euler_to_matrix(root)
+    np.testing.assert_allclose(R1, Rroot[:, None] @ R0, atol=ATOL)
+    expected = np.einsum("bij,bkj->bki", Rroot, j0 - tau[:, None]) + tau[:, None]
+    np.testing.assert_allclose(j1, expected, atol=ATOL)
+
+
+def test_forward_kinematics_batched_rest_joints(rng):
+    rests = np.stack([_rest_joints(rng) for _ in range(4)])
+    hinge = _hinge_axes(rng)
+    theta = _random_theta(rng, 4)
+    R, joints = sk.forward_kinematics(theta, np.zeros(3), rests, hinge)
+    for b in range(4):
+        Rb, jb = sk.forward_kinematics(theta[b], np.zeros(3), rests[b], hinge)
+        np.testing.assert_allclose(R[b], Rb[0], atol=ATOL)
+        np.testing.assert_allclose(joints[b], jb[0], atol=ATOL)
+
+
+def test_a_joint_moves_only_its_subtree(rng):
+    rest = _rest_joints(rng)
+    hinge = _hinge_axes(rng)
+    theta = _random_theta(rng, 1)
+    _, j0 = sk.forward_kinematics(theta, np.zeros(3), rest, hinge)
+    knee = sk.JOINTS.index("knee_l")
+    bent = theta.copy()
+    bent[0, sk.JOINT_SLICES[knee]] += 0.7
+    _, j1 = sk.forward_kinematics(bent, np.zeros(3), rest, hinge)
+    moved = np.linalg.norm(j1 - j0, axis=-1)[0] > 1e-9
+    assert [sk.JOINTS[k] for k in np.flatnonzero(moved)] == ["ankle_l"]
+
+
+# --- limits -----------------------------------------------------------------------------------
+
+
+def test_default_limits_are_ordered_and_mirrored():
+    lim = sk.JointLimits.default()
+    assert lim.lower.shape == lim.upper.shape == (37,)
+    assert np.all(lim.lower < lim.upper)
+    assert lim.contains(np.zeros(37))  # the rest pose is allowed
+    # Mirroring x -> -x maps Euler angles (a, b, c) to (a, -b, -c) and swaps sides.
+    for j, joint in enumerate(sk.JOINTS):
+        if not joint.endswith("_l"):
+            continue
+        jr = sk.JOINTS.index(joint[:-1] + "r")
+        sl, sr = sk.JOINT_SLICES[j], sk.JOINT_SLICES[jr]
+        if sk.JOINT_DOFS[j] == 1:
+            np.testing.assert_array_equal(lim.lower[sl], lim.lower[sr])
+            np.testing.assert_array_equal(lim.upper[sl], lim.upper[sr])
+        else:
+            sign = np.array([1.0, -1.0, -1.0])
+            lo, hi = lim.lower[sl] * sign, lim.upper[sl] * sign
+            np.testing.assert_array_equal(np.minimum(lo, hi), lim.lower[sr])
+            np.testing.assert_array_equal(np.maximum(lo, hi), lim.upper[sr])
+
+
+def test_limits_clip_and_contains(rng):
+    lim = sk.JointLimits.default()
+    theta = rng.uniform(-4.0, 4.0, (200, 37))
+    inside = lim.contains(theta)
+    assert inside.shape == (200,)
+    assert not inside.all()
+    clipped = lim.clip(theta)
+    assert lim.contains(clipped).all()
+    # Clipping leaves in-range values alone and moves others to the nearest bound.
+    keep = (theta >= lim.lower) & (theta <= lim.upper)
+    np.testing.assert_array_equal(clipped[keep], theta[keep])
+    np.testing.assert_array_equal(
+        clipped[~keep], np.where(theta < lim.lower, lim.lower, lim.upper)[~keep]
+    )
+    np.testing.assert_array_equal(lim.clip(clipped), clipped)
+
+
+def test_limits_contains_tolerance():
+    lim = sk.JointLimits.default()
+    theta = lim.upper.copy()
+    assert lim.contains(theta)
+    theta[5] += 1e-10
+    assert lim.contains(theta)  # inside the default 1e-9 tolerance
+    theta[5] += 1e-6
+    assert not lim.contains(theta)
+    assert lim.contains(theta, tol=1e-5)
+    assert not lim.contains(lim.lower - 1e-6)
