@@ -14,7 +14,7 @@ A 3-DOF joint's angles ``(a, b, c)`` give ``R = Rz(c) Ry(b) Rx(a)`` about the
 axes of the canonical body frame (x to the subject's left, y backwards, z up;
 the body faces -y). A hinge (elbow, knee) rotates about an axis stored in the
 model, positive = flexion. θ = 0 is the rest pose of the model (MakeHuman's
-A-pose with slightly bent elbows).
+A-pose with the elbows bent about 47°).
 """
 
 from __future__ import annotations

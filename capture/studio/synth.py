@@ -1,0 +1,473 @@
+"""``bodymetry synth``: render a complete ground-truth session, as a lab would record it.
+
+A session folder (``docs/session-format.md``) holds, per camera, the recording
+(H.264), an empty-scene background clip and a ChArUco calibration clip; the true
+``calibration.yaml``; and ``ground_truth/`` with the subject's biometrics, the
+per-frame state and joints, and the true silhouettes of the kept frames.
+
+Cameras render in parallel worker processes (one camera per task); every random
+draw comes from the configuration's seed, so the same configuration gives the
+same session.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import multiprocessing as mp
+import queue as queue_module
+import shutil
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bodymetry.errors import InputError
+from bodymetry.fileio import save_npz, write_bytes_atomic, write_json_atomic
+from calibration.camera import Camera, CameraGroup
+from calibration.io import save_calibration
+from capture.session import (
+    GROUND_TRUTH_SILHOUETTES,
+    GROUND_TRUTH_STATES,
+    GROUND_TRUTH_SUBJECT,
+    BoardSpec,
+    Session,
+    SessionCamera,
+    save_session,
+)
+from capture.studio.motion import MOTIONS, RestPoseInfo, ground_motion, make_motion, seed_for
+from capture.studio.rig import studio_rig
+from capture.video import H264Writer
+from estimation.body_model.rotations import axis_rotation
+
+log = logging.getLogger(__name__)
+
+#: The board of the studio's calibration clips (a 1.0 x 0.8 m ChArUco print with large 4x4-bit
+#: markers, like the boards motion-capture labs use for room-sized volumes).
+STUDIO_BOARD = BoardSpec(
+    squares=(5, 4), square_mm=200.0, marker_mm=150.0, dictionary="DICT_4X4_50"
+)
+
+
+@dataclass(frozen=True)
+class SubjectSpec:
+    """Who is recorded.
+
+    Attributes
+    ----------
+    nu : (n_shape,) float or None
+        Explicit shape; None draws one.
+    heldout_index : int or None
+        Use body ``heldout_index`` of the calibrated prior's held-out bodies.
+    seed : int
+        Picks a held-out body when neither ``nu`` nor ``heldout_index`` is given.
+    """
+
+    nu: tuple[float, ...] | None = None
+    heldout_index: int | None = None
+    seed: int = 0
+
+    @classmethod
+    def parse(cls, text: str | None, default_seed: int) -> SubjectSpec:
+        """``None`` | ``"seed:N"`` | ``"heldout:N"`` | ``"nu:v1,v2,..."``."""
+        if text is None:
+            return cls(seed=default_seed)
+        kind, _, value = text.partition(":")
+        try:
+            if kind == "seed":
+                return cls(seed=int(value))
+            if kind == "heldout":
+                return cls(heldout_index=int(value))
+            if kind == "nu":
+                nu = tuple(float(v) for v in value.split(",") if v.strip())
+                if not nu or not np.all(np.isfinite(nu)):
+                    raise ValueError(value)
+                return cls(nu=nu)
+        except ValueError as exc:
+            raise InputError(f"--subject {text!r}: could not read the value ({exc})") from exc
+        raise InputError(f"--subject {text!r}: expected seed:N, heldout:N or nu:v1,v2,...")
+
+    def resolve(self, model) -> tuple[np.ndarray, dict]:
+        """The shape (n_shape,) and a description for ``subject.json``."""
+        heldout = model.prior_shapes("heldout")
+        if self.nu is not None:
+            if len(self.nu) > model.n_shape:
+                raise InputError(
+                    f"--subject nu: {len(self.nu)} values, the model uses {model.n_shape}"
+                )
+            nu = np.pad(np.asarray(self.nu, float), (0, model.n_shape - len(self.nu)))
+            return nu, {"source": "explicit nu"}
+        index = self.heldout_index
+        if index is None:
+            index = int(np.random.default_rng(seed_for("test", self.seed)).integers(len(heldout)))
+        if not 0 <= index < len(heldout):
+            raise InputError(f"--subject heldout:{index}: expected 0..{len(heldout) - 1}")
+        return heldout[index], {"source": "calibrated prior, held-out body", "heldout_index": index}
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    """What ``bodymetry synth`` renders.
+
+    Attributes
+    ----------
+    frames : int
+        Frames of the recording.
+    fps : float
+        Frame rate (the studio's cameras are synchronized; no offsets).
+    frame_step : int
+        Processing keeps every ``frame_step``-th frame; ground-truth silhouettes
+        are written for those.
+    cameras : int
+        Cameras around the volume.
+    size : (int, int)
+        Image width and height.
+    seed : int
+        Seeds the rig, the motion, the noise; the subject unless given.
+    motion : str
+        A name of ``capture.studio.motion.MOTIONS``.
+    subject : SubjectSpec
+    shadows : bool
+        The key light casts the person's shadow on the floor.
+    background_frames, calibration_frames : int
+        Lengths of the empty-scene and ChArUco clips.
+    crf : int
+        H.264 quality (lower = better, bigger).
+    """
+
+    frames: int = 200
+    fps: float = 60.0
+    frame_step: int = 25
+    cameras: int = 4
+    size: tuple[int, int] = (640, 480)
+    seed: int = 0
+    motion: str = "mixed"
+    subject: SubjectSpec = field(default_factory=SubjectSpec)
+    shadows: bool = True
+    background_frames: int = 30
+    calibration_frames: int = 300
+    crf: int = 20
+
+    def __post_init__(self) -> None:
+        if self.frames < 1:
+            raise InputError(f"--frames: expected at least 1, got {self.frames}")
+        if not self.fps > 0:
+            raise InputError(f"--fps: expected a positive rate, got {self.fps}")
+        if self.frame_step < 1:
+            raise InputError(f"--frame-step: expected at least 1, got {self.frame_step}")
+        if self.cameras < 1:
+            raise InputError(f"--cameras: expected at least 1, got {self.cameras}")
+        w, h = self.size
+        if w < 64 or h < 48 or w % 2 or h % 2:
+            raise InputError(f"--size: expected even width >= 64 and height >= 48, got {w}x{h}")
+        if self.motion not in MOTIONS:
+            raise InputError(
+                f"--motion {self.motion!r}: expected one of {', '.join(sorted(MOTIONS))}"
+            )
+        if self.background_frames < 1 or self.calibration_frames < 30:
+            raise InputError("background clips need >= 1 frame and calibration clips >= 30 frames")
+
+
+def board_trajectory(
+    n_frames: int,
+    fps: float,
+    rng: np.random.Generator,
+    board: BoardSpec,
+    camera_centers: np.ndarray,
+) -> np.ndarray:
+    """Poses of the calibration board through the clip, ``x_world = R x_board + t``.
+
+    The first second the board lies face up on the floor with its pattern origin
+    at the world origin and its x axis along world x: that defines the world
+    frame (docs/calibration-format.md). Then it is carried through the volume at
+    0.7-1.6 m and turned, as an operator would, to face each pair of neighbouring
+    cameras in turn (so each pair shares views), with a wobble of ±15°.
+
+    Parameters
+    ----------
+    camera_centers : (C, 3) float
+        Where the cameras are (the operator turns the board towards them).
+
+    Returns
+    -------
+    (n_frames, 4, 4) float
+        Homogeneous world_from_board transforms.
+    """
+    w = board.squares[0] * board.square_m
+    h = board.squares[1] * board.square_m
+    center = np.array([w / 2, h / 2, 0.0])
+    floor = np.eye(4)
+    # Printed side faces the board's -z; face up means board z = world -z.
+    floor[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    n_floor = min(n_frames, round(fps))
+    out = np.empty((n_frames, 4, 4))
+    out[:n_floor] = floor
+    n_move = n_frames - n_floor
+    if n_move <= 0:
+        return out
+    C = len(camera_centers)
+    azimuth = np.arctan2(camera_centers[:, 1], camera_centers[:, 0])
+    order = np.argsort(azimuth)
+    # Targets: the midpoint of each neighbouring pair, then each camera alone.
+    targets = [
+        0.5 * (camera_centers[order[i]] + camera_centers[order[(i + 1) % C]]) for i in range(C)
+    ]
+    targets += [camera_centers[order[i]] for i in range(C)] if C > 1 else []
+    seg = np.minimum(np.arange(n_move) * len(targets) // n_move, len(targets) - 1)
+    t = np.arange(n_move) / fps
+    key_pos = rng.uniform([-0.6, -0.6, 0.8], [0.6, 0.6, 1.5], size=(len(targets), 3))
+    # Positions glide between segment keys (smoothed), orientation aims at the target.
+    pos = key_pos[seg]
+    kernel = np.exp(-0.5 * (np.arange(-40, 41) / 15.0) ** 2)
+    kernel /= kernel.sum()
+    pos = np.stack(
+        [np.convolve(np.pad(pos[:, d], 40, mode="edge"), kernel, "valid") for d in range(3)], 1
+    )
+    aims = np.asarray(targets)[seg]
+    aims = np.stack(
+        [np.convolve(np.pad(aims[:, d], 40, mode="edge"), kernel, "valid") for d in range(3)], 1
+    )
+    phase = rng.uniform(0, 2 * np.pi, 3)
+    wobble = np.deg2rad(15.0) * np.stack(
+        [np.sin(2 * np.pi * f * t + p) for f, p in zip((0.45, 0.6, 0.35), phase, strict=True)], 1
+    )
+    for i in range(n_move):
+        normal = aims[i] - pos[i]
+        normal /= np.linalg.norm(normal)
+        z_b = -normal  # the printed side looks along -z_b, towards the target
+        x_b = np.cross([0.0, 0.0, 1.0], z_b)
+        x_b /= np.linalg.norm(x_b)
+        y_b = np.cross(z_b, x_b)
+        R = np.stack([x_b, y_b, z_b], axis=1)
+        Rx, Ry, Rz = axis_rotation(np.eye(3), wobble[i])  # about the board's own axes
+        R = R @ Rz @ Ry @ Rx
+        out[n_floor + i] = np.eye(4)
+        out[n_floor + i, :3, :3] = R
+        out[n_floor + i, :3, 3] = pos[i] - R @ center
+    return out
+
+
+def _png(mask: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", mask.astype(np.uint8) * 255)
+    if not ok:  # pragma: no cover - OpenCV failure
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+@dataclass(frozen=True)
+class _CameraJob:
+    index: int
+    camera: Camera
+    config: SynthConfig
+    out: Path
+    tau: np.ndarray
+    theta: np.ndarray
+    nu: np.ndarray
+    board_poses: np.ndarray
+
+
+def _render_camera(job: _CameraJob, progress) -> dict:
+    """Render one camera's recording, background and calibration clips and masks."""
+    from capture.studio.render import Effects, Studio
+    from capture.studio.scene import BoardPose, BoardTexture, Light
+    from estimation.body_model.model import BodyModel, BodyState
+
+    cfg, cam = job.config, job.camera
+    model = BodyModel.load(n_shape=len(job.nu))
+    studio = Studio.from_model(
+        model,
+        shadows=cfg.shadows,
+        effects=Effects(seed=cfg.seed),
+        # Key light from between two cameras, so every camera sees the cast shadow.
+        light=Light(direction=Light.direction_from_angles(azimuth_deg=0.0, elevation_deg=50.0)),
+    )
+    rng = np.random.default_rng([cfg.seed, job.index, 1])
+    shadow_fraction = []
+    kept = set(range(0, cfg.frames, cfg.frame_step))
+    sil_dir = job.out / "ground_truth" / GROUND_TRUTH_SILHOUETTES / cam.name
+    with H264Writer(job.out / "videos" / f"{cam.name}.mp4", cfg.fps, cfg.size, cfg.crf) as writer:
+        for start in range(0, cfg.frames, 16):
+            stop = min(cfg.frames, start + 16)
+            verts = model.pose(
+                BodyState(job.tau[start:stop], job.theta[start:stop], job.nu[None])
+            ).vertices
+            for k, frame in enumerate(range(start, stop)):
+                image, person, shadow = studio.render_frame(cam, verts[k], rng)
+                writer.write(image)
+                if frame in kept:
+                    write_bytes_atomic(sil_dir / f"{frame:06d}.png", _png(person))
+                    if person.any():
+                        shadow_fraction.append(float(shadow.sum() / person.sum()))
+                progress.put(1)
+    with H264Writer(
+        job.out / "background" / f"{cam.name}.mp4", cfg.fps, cfg.size, cfg.crf
+    ) as writer:
+        for _ in range(cfg.background_frames):
+            writer.write(studio.render_background(cam, rng))
+            progress.put(1)
+    board = STUDIO_BOARD.create_board()
+    texture = BoardTexture.from_charuco(board)
+    with H264Writer(
+        job.out / "calibration" / f"{cam.name}.mp4", cfg.fps, cfg.size, cfg.crf
+    ) as writer:
+        for T in job.board_poses:
+            frame = studio.render_board(cam, texture, BoardPose(T[:3, :3], T[:3, 3]), rng)
+            writer.write(frame.image)
+            progress.put(1)
+    return {"camera": cam.name, "shadow_to_person_area": shadow_fraction}
+
+
+def synthesize(
+    out: str | Path,
+    config: SynthConfig,
+    workers: int | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
+    overwrite: bool = False,
+) -> Session:
+    """Render a session folder.
+
+    Parameters
+    ----------
+    out : path
+        Session folder to create (must be empty or absent unless ``overwrite``).
+    config : SynthConfig
+    workers : int, optional
+        Worker processes (default: one per core, at most one per camera).
+    on_progress : callable(done, total), optional
+        Called as frames finish (for progress bars).
+    overwrite : bool
+        Replace an existing folder.
+
+    Returns
+    -------
+    Session
+        The session as written (loadable with ``capture.session.load_session``).
+    """
+    from estimation.body_model.biometrics import measure
+    from estimation.body_model.model import BodyModel
+
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        if not overwrite:
+            raise InputError(
+                f"{out}: folder exists and is not empty (use --overwrite to replace it)"
+            )
+        shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    model = BodyModel.load()
+    nu, subject_info = config.subject.resolve(model)
+    rest = RestPoseInfo.from_model(model, nu)
+    motion_seed = seed_for("test", config.seed)
+    motion = make_motion(
+        config.motion, config.frames, config.fps, motion_seed, limits=model.limits, rest=rest
+    )
+    motion = ground_motion(model, motion, nu, lod=False)
+    cameras = studio_rig(config.cameras, config.size, seed=config.seed)
+    group = CameraGroup(cameras)
+    board_poses = board_trajectory(
+        config.calibration_frames,
+        config.fps,
+        np.random.default_rng([config.seed, 99]),
+        STUDIO_BOARD,
+        group.centers,
+    )
+
+    # Ground truth that does not need rendering.
+    bio = measure(model, nu[None])[0].to_dict()
+    from estimation.body_model.model import BodyState
+
+    joints = model.pose(BodyState(motion.tau, motion.theta, nu[None])).joints
+    save_npz(
+        out / "ground_truth" / GROUND_TRUTH_STATES,
+        {
+            "frame": np.arange(config.frames),
+            "tau": motion.tau,
+            "theta": motion.theta,
+            "nu": nu,
+            "joints": joints,
+            "board_poses": board_poses,
+        },
+    )
+    write_json_atomic(
+        out / "ground_truth" / GROUND_TRUTH_SUBJECT,
+        {**{k: round(v, 3) for k, v in bio.items()}, "nu": nu.tolist(), **subject_info},
+    )
+    save_calibration(
+        out / "calibration.yaml",
+        group,
+        extra={
+            "world": {
+                "frame": "z up, floor z = 0, metres",
+                "note": "true cameras of a bodymetry studio session",
+            }
+        },
+    )
+
+    total = config.cameras * (config.frames + config.background_frames + config.calibration_frames)
+    jobs = [
+        _CameraJob(i, cam, config, out, motion.tau, motion.theta, nu, board_poses)
+        for i, cam in enumerate(cameras)
+    ]
+    n_workers = max(1, min(workers or mp.cpu_count() or 1, len(jobs)))
+    ctx = mp.get_context("fork")
+    with ctx.Manager() as manager:
+        queue = manager.Queue()
+        with ProcessPoolExecutor(n_workers, mp_context=ctx) as pool:
+            futures = [pool.submit(_render_camera, job, queue) for job in jobs]
+            done = 0
+            while done < total and not all(f.done() for f in futures):
+                with contextlib.suppress(queue_module.Empty):
+                    done += queue.get(timeout=0.2)
+                if on_progress:
+                    on_progress(done, total)
+            results = [f.result() for f in futures]  # re-raises worker errors
+        if on_progress:
+            on_progress(total, total)
+
+    session = Session(
+        folder=out,
+        name=out.name,
+        fps=config.fps,
+        frame_step=config.frame_step,
+        cameras=tuple(
+            SessionCamera(
+                cam.name, f"videos/{cam.name}.mp4", background=f"background/{cam.name}.mp4"
+            )
+            for cam in cameras
+        ),
+        calibration_file="calibration.yaml",
+        calibration_clips={cam.name: f"calibration/{cam.name}.mp4" for cam in cameras},
+        board=STUDIO_BOARD,
+        ground_truth="ground_truth",
+        subject={"note": "synthetic subject, see ground_truth/subject.json"},
+    )
+    save_session(session, out)
+    shadow = {r["camera"]: float(np.mean(r["shadow_to_person_area"] or [0.0])) for r in results}
+    write_json_atomic(
+        out / "ground_truth" / "studio.json",
+        {
+            "config": {**asdict(config), "subject": asdict(config.subject)},
+            "motion_seed": motion_seed,
+            "render_seconds": round(time.perf_counter() - t0, 2),
+            "shadow_to_person_area_mean": shadow,
+        },
+    )
+    log.info("rendered %s in %.1f s", out, time.perf_counter() - t0)
+    return session
+
+
+def describe(session: Session) -> str:
+    """A one-paragraph summary of a rendered session (for the CLI)."""
+    gt = json.loads((session.folder / "ground_truth" / GROUND_TRUTH_SUBJECT).read_text())
+    studio = json.loads((session.folder / "ground_truth" / "studio.json").read_text())
+    return (
+        f"{session.folder}: {len(session.cameras)} cameras, {studio['config']['frames']} frames at "
+        f"{session.fps:g} fps, subject {gt['height_mm']:.0f} mm / {gt['weight_kg']:.1f} kg, "
+        f"rendered in {studio['render_seconds']:.0f} s"
+    )
