@@ -26,6 +26,9 @@ from bodymetry.log import console, setup_logging
 
 log = logging.getLogger("bodymetry")
 
+#: The bundled demo recording (a studio session with ground truth).
+DEMO_SESSION = Path(__file__).resolve().parent.parent / "recordings" / "demo"
+
 
 def _friendly_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(func)
@@ -350,7 +353,16 @@ def demo(out: Path) -> None:
 
     console.print(
         "[bold]bodymetry demo[/]: the video pipeline is not built yet; "
-        "this runs the body model and its measurements."
+        "this checks the demo recording and runs the body model and its measurements."
+    )
+    from capture.session import load_session
+
+    session = load_session(DEMO_SESSION)
+    truth = json.loads((session.ground_truth_path / "subject.json").read_text())
+    console.print(
+        f"demo recording {DEMO_SESSION}: {len(session.cameras)} cameras, {session.fps:g} fps, "
+        f"every {session.frame_step}th frame kept; true height {truth['height_mm']:.0f} mm, "
+        f"arm span {truth['arm_span_mm']:.0f} mm, weight {truth['weight_kg']:.1f} kg"
     )
     m = _load_model(None, 9)
     shapes = {"mean": np.zeros(m.n_shape)}
