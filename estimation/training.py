@@ -1,0 +1,491 @@
+"""Per-rig training of the discriminative models (paper §4 and §6).
+
+For a camera rig, render a synthetic training set like the paper's: bodies with
+poses from the motion prior and shapes from the calibrated shape prior, placed
+in the capture volume, their silhouettes projected through the rig's calibrated
+cameras. From each view's silhouette, learn per camera the mixtures of experts
+p(ν | X_rdf), p(θ | X_sc), p(τ | X_rdf) and, for the uncalibrated mode,
+p(ν | X_sc); choose M and λ on held-out data; evaluate on a separate test set.
+Models are cached by a hash of the rig, the body model and the settings.
+
+θ is learned with the heading (root rotation about the vertical) replaced by
+its cosine and sine, which do not jump at ±π.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bodymetry.errors import InputError
+from bodymetry.fileio import load_npz, save_npz
+from calibration.camera import Camera, CameraGroup
+from estimation import features as feat
+from estimation.body_model.model import DEFAULT_MODEL_PATH, BodyModel, BodyState
+from estimation.body_model.skeleton import JOINT_SLICES
+from estimation.moe import MixtureOfExperts, fit_moe, select_moe
+from estimation.projection import project_silhouettes
+
+log = logging.getLogger(__name__)
+
+#: Bumped when training changes so that cached models are rebuilt.
+TRAINING_VERSION = 1
+YAW = JOINT_SLICES[0].start + 2
+MODEL_NAMES = ("nu_rdf", "theta_sc", "tau_rdf", "nu_sc")
+#: N = 100 directions + the centroid (paper §3).
+RDF_DIM = 102
+
+
+def default_cache_dir() -> Path:
+    """``$BODYMETRY_CACHE`` or ``~/.cache/bodymetry``."""
+    env = os.environ.get("BODYMETRY_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "bodymetry"
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Training-set and model-selection settings.
+
+    Attributes
+    ----------
+    n_train, n_test : int
+        Synthetic examples (paper: 3000 and 597); every example gives one
+        silhouette per camera.
+    seed : int
+        Seeds the draws (training and test draws use disjoint seeds).
+    volume : float
+        Half-width of the square floor area the root is placed in, metres.
+    codebook_size : int
+        K of the shape-context codebook (paper: 100).
+    codebook_examples : int
+        Training examples whose descriptors build the codebook.
+    sc_points : int
+        Contour points sampled per silhouette for shape contexts.
+    experts, ridges : tuples
+        Candidates for M and λ (chosen on a validation split of the training set).
+    val_fraction : float
+        Share of the training set held out for choosing M and λ.
+    max_iter : int
+        EM iterations per fit.
+    """
+
+    n_train: int = 3000
+    n_test: int = 597
+    seed: int = 0
+    volume: float = 1.0
+    codebook_size: int = 100
+    codebook_examples: int = 400
+    sc_points: int = 200
+    experts: tuple[int, ...] = (1, 2, 4, 8)
+    ridges: tuple[float, ...] = (1.0, 10.0, 100.0)
+    val_fraction: float = 0.2
+    max_iter: int = 30
+
+    def __post_init__(self) -> None:
+        if self.n_train < 50 or self.n_test < 1:
+            raise InputError(
+                f"training: need n_train >= 50 and n_test >= 1, got {self.n_train}, {self.n_test}"
+            )
+        if not 0 < self.val_fraction < 0.5:
+            raise InputError(f"training: val_fraction must be in (0, 0.5), got {self.val_fraction}")
+
+
+def rig_key(
+    cameras: list[Camera], config: TrainConfig, model_path: Path = DEFAULT_MODEL_PATH
+) -> str:
+    """Hash of everything a trained model depends on (hex, 16 characters)."""
+    h = hashlib.sha256()
+    h.update(f"v{TRAINING_VERSION}".encode())
+    h.update(json.dumps(asdict(config), sort_keys=True).encode())
+    h.update(hashlib.sha256(Path(model_path).read_bytes()).digest())
+    for cam in cameras:
+        h.update(cam.name.encode())
+        h.update(np.asarray(cam.size, np.int64).tobytes())
+        for arr in (cam.K, cam.dist, cam.R, cam.t):
+            h.update(np.round(np.asarray(arr, float), 9).tobytes())
+    return h.hexdigest()[:16]
+
+
+def theta_to_targets(theta: np.ndarray) -> np.ndarray:
+    """(N, 37) -> (N, 38): the heading replaced by its cosine and sine."""
+    yaw = theta[:, YAW]
+    return np.concatenate(
+        [np.delete(theta, YAW, axis=1), np.cos(yaw)[:, None], np.sin(yaw)[:, None]], 1
+    )
+
+
+def targets_to_theta(y: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`theta_to_targets`, (N, 38) -> (N, 37)."""
+    yaw = np.arctan2(y[:, -1], y[:, -2])
+    return np.insert(y[:, :-2], YAW, yaw, axis=1)
+
+
+def sample_states(model: BodyModel, n: int, purpose: str, seed: int, volume: float) -> BodyState:
+    """Training or test states: prior poses and shapes, feet on the floor.
+
+    Shapes: training draws jitter the prior's training bodies (σ = 0.15 per
+    component); test draws use its held-out bodies, so no test shape was seen.
+    Poses: ``capture.studio.motion.sample_pose_prior`` with disjoint seeds.
+    """
+    from capture.studio.motion import place_root, sample_pose_prior, seed_for
+
+    rng = np.random.default_rng(seed_for(purpose, seed))
+    bank = model.prior_shapes("train" if purpose == "train" else "heldout")
+    nu = bank[rng.integers(len(bank), size=n)]
+    if purpose == "train":
+        nu = nu + rng.normal(0.0, 0.15, nu.shape)
+    theta = sample_pose_prior(rng, n, model.limits)
+    tau = place_root(theta)
+    tau[:, :2] += rng.uniform(-volume, volume, (n, 2))
+    # Exact floor contact on the LOD mesh.
+    for s in range(0, n, 64):
+        e = min(n, s + 64)
+        body = model.pose(BodyState(tau[s:e], theta[s:e], nu[s:e]), lod=True)
+        tau[s:e, 2] -= body.vertices[..., 2].min(axis=1)
+    return BodyState(tau, theta, nu)
+
+
+def _render_features(args) -> tuple:
+    """Worker: silhouettes of a chunk of states -> RDF and SC descriptors or codes."""
+    states, cameras, codebook_arrays, seed, sc_config = args
+    model = BodyModel.load(n_shape=states.nu.shape[1])
+    codebook = None if codebook_arrays is None else feat.Codebook.from_arrays(codebook_arrays)
+    rng = np.random.default_rng(seed)
+    C, B = len(cameras), len(states)
+    rdfs = np.zeros((C, B, RDF_DIM))
+    codes = None if codebook is None else np.zeros((C, B, codebook.dim))
+    valid = np.zeros((C, B), bool)
+    descriptors = [] if sc_config is not None else None
+    faces = model.faces(lod=True)
+    for s in range(0, B, 64):
+        e = min(B, s + 64)
+        verts = model.pose(states[s:e], lod=True).vertices
+        for i in range(e - s):
+            masks = project_silhouettes(verts[i], faces, cameras)
+            for c in range(C):
+                if masks[c].sum() < 50:
+                    continue  # body (nearly) out of view: no training pair
+                valid[c, s + i] = True
+                rdfs[c, s + i] = feat.rdf(masks[c])
+                if codebook is not None:
+                    codes[c, s + i] = feat.sc_features(masks[c], codebook, rng)
+                if descriptors is not None:
+                    descriptors.append(feat.sc_descriptors(masks[c], rng, sc_config))
+    return rdfs, codes, valid, descriptors
+
+
+def _parallel_features(
+    states: BodyState,
+    cameras: list[Camera],
+    codebook,
+    seed: int,
+    workers: int,
+    progress: Callable[[int], None] | None,
+    sc_config: feat.ShapeContextConfig | None = None,
+):
+    chunk = 128
+    jobs = [
+        (
+            states[s : s + chunk],
+            cameras,
+            None if codebook is None else codebook.to_arrays(),
+            seed + s,
+            sc_config,
+        )
+        for s in range(0, len(states), chunk)
+    ]
+    results = []
+    if workers <= 1:
+        for job in jobs:
+            results.append(_render_features(job))
+            if progress:
+                progress(len(job[0]))
+    else:
+        import multiprocessing as mp
+
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
+            for job, res in zip(jobs, pool.map(_render_features, jobs), strict=True):
+                results.append(res)
+                if progress:
+                    progress(len(job[0]))
+    rdfs = np.concatenate([r[0] for r in results], axis=1)
+    codes = None if codebook is None else np.concatenate([r[1] for r in results], axis=1)
+    valid = np.concatenate([r[2] for r in results], axis=1)
+    descriptors = [d for r in results for d in (r[3] or [])] if sc_config is not None else None
+    return rdfs, codes, valid, descriptors
+
+
+@dataclass(frozen=True)
+class DiscriminativeModels:
+    """Trained per-camera mixtures for one rig.
+
+    Attributes
+    ----------
+    camera_names : tuple of str
+    codebook : features.Codebook
+    models : dict
+        ``models[camera][name]`` for name in ``MODEL_NAMES``.
+    metrics : dict
+        Test-set figures (see :func:`evaluate`).
+    key : str
+        The rig hash.
+    """
+
+    camera_names: tuple[str, ...]
+    codebook: feat.Codebook
+    models: dict[str, dict[str, MixtureOfExperts]]
+    metrics: dict = field(default_factory=dict)
+    key: str = ""
+
+    def save(self, path: Path) -> None:
+        arrays: dict[str, np.ndarray] = {
+            "camera_names": np.array(self.camera_names),
+            "metrics": np.array(json.dumps(self.metrics)),
+            "key": np.array(self.key),
+        }
+        arrays.update({f"codebook_{k}": v for k, v in self.codebook.to_arrays().items()})
+        for cam, models in self.models.items():
+            for name, moe in models.items():
+                arrays.update(moe.to_arrays(f"{cam}__{name}__"))
+        save_npz(path, arrays)
+
+    @classmethod
+    def load(cls, path: Path) -> DiscriminativeModels:
+        data = load_npz(path)
+        names = tuple(str(x) for x in data["camera_names"])
+        codebook = feat.Codebook.from_arrays(
+            {k.removeprefix("codebook_"): v for k, v in data.items() if k.startswith("codebook_")}
+        )
+        models = {
+            cam: {
+                name: MixtureOfExperts.from_arrays(data, f"{cam}__{name}__") for name in MODEL_NAMES
+            }
+            for cam in names
+        }
+        return cls(names, codebook, models, json.loads(str(data["metrics"])), str(data["key"]))
+
+    def features(
+        self, camera: str, mask: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(X_rdf, X_sc) of one silhouette seen by ``camera``."""
+        return feat.rdf(mask), feat.sc_features(mask, self.codebook, rng)
+
+
+def _outputs(states: BodyState) -> dict[str, np.ndarray]:
+    return {
+        "nu_rdf": states.nu,
+        "theta_sc": theta_to_targets(states.theta),
+        "tau_rdf": states.tau,
+        "nu_sc": states.nu,
+    }
+
+
+def _inputs(name: str, rdf: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    return rdf if name.endswith("rdf") else codes
+
+
+def train(
+    cameras: list[Camera] | CameraGroup,
+    config: TrainConfig | None = None,
+    workers: int | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> DiscriminativeModels:
+    """Render the training and test sets, fit and evaluate the mixtures."""
+    config = config or TrainConfig()
+    cameras = list(cameras)
+    workers = workers or os.cpu_count() or 1
+    t0 = time.perf_counter()
+    model = BodyModel.load()
+    train_states = sample_states(model, config.n_train, "train", config.seed, config.volume)
+    test_states = sample_states(model, config.n_test, "test", config.seed, config.volume)
+
+    def step(label: str, total: int):
+        done = [0]
+
+        def advance(k: int) -> None:
+            done[0] += k
+            if progress:
+                progress(label, done[0], total)
+
+        return advance
+
+    # Codebook from the descriptors of the first examples (all cameras); those
+    # examples are then encoded from their descriptors, not rendered again.
+    sc_config = feat.ShapeContextConfig(n_points=config.sc_points)
+    n_cb = min(config.codebook_examples, config.n_train)
+    rdf_cb, _, ok_cb, descriptors = _parallel_features(
+        train_states[:n_cb], cameras, None, config.seed, workers, step("codebook", n_cb), sc_config
+    )
+    codebook = feat.fit_codebook(
+        np.concatenate(descriptors, axis=1),
+        config.codebook_size,
+        np.random.default_rng(config.seed),
+        config=sc_config,
+    )
+    sc_cb = np.zeros((len(cameras), n_cb, codebook.dim))
+    it = iter(descriptors)
+    for b in range(n_cb):
+        for c in range(len(cameras)):
+            if ok_cb[c, b]:
+                sc_cb[c, b] = codebook.encode(next(it))
+    rdf_rest, sc_rest, ok_rest = _parallel_features(
+        train_states[n_cb:],
+        cameras,
+        codebook,
+        config.seed + 1,
+        workers,
+        step("training set", config.n_train - n_cb),
+    )[:3]
+    rdf_tr = np.concatenate([rdf_cb, rdf_rest], axis=1)
+    sc_tr = np.concatenate([sc_cb, sc_rest], axis=1)
+    ok_tr = np.concatenate([ok_cb, ok_rest], axis=1)
+    rdf_te, sc_te, ok_te = _parallel_features(
+        test_states, cameras, codebook, config.seed + 2, workers, step("test set", config.n_test)
+    )[:3]
+    t_render = time.perf_counter() - t0
+
+    outputs_tr = _outputs(train_states)
+    rng = np.random.default_rng(config.seed)
+    chosen: dict[str, dict] = {}
+    models: dict[str, dict[str, MixtureOfExperts]] = {}
+    for c, cam in enumerate(cameras):
+        idx = np.flatnonzero(ok_tr[c])
+        if len(idx) < 50:
+            raise InputError(
+                f"camera {cam.name}: the body is visible in only {len(idx)} training examples"
+            )
+        perm = rng.permutation(idx)
+        n_val = int(len(perm) * config.val_fraction)
+        val, fit_idx = perm[:n_val], perm[n_val:]
+        models[cam.name] = {}
+        for name in MODEL_NAMES:
+            X = _inputs(name, rdf_tr[c], sc_tr[c])
+            Y = outputs_tr[name]
+            if name not in chosen:
+                # Cross-validate M and λ on the first camera; reuse for the others.
+                sel = select_moe(
+                    X[fit_idx],
+                    Y[fit_idx],
+                    X[val],
+                    Y[val],
+                    config.experts,
+                    config.ridges,
+                    seed=config.seed,
+                    max_iter=config.max_iter,
+                )
+                chosen[name] = {"n_experts": sel.n_experts, "ridge": sel.ridge, "table": sel.table}
+            fit = fit_moe(
+                X[idx],
+                Y[idx],
+                chosen[name]["n_experts"],
+                chosen[name]["ridge"],
+                np.random.default_rng(config.seed),
+                max_iter=config.max_iter,
+            )
+            models[cam.name][name] = fit.model
+            if progress:
+                progress(
+                    "fitting", c * len(MODEL_NAMES) + MODEL_NAMES.index(name) + 1, len(cameras) * 4
+                )
+    trained = DiscriminativeModels(tuple(c.name for c in cameras), codebook, models)
+    metrics = evaluate(trained, model, test_states, rdf_te, sc_te, ok_te)
+    metrics["chosen"] = {k: {"M": v["n_experts"], "lambda": v["ridge"]} for k, v in chosen.items()}
+    metrics["selection"] = {k: v["table"] for k, v in chosen.items()}
+    metrics["render_seconds"] = round(t_render, 1)
+    metrics["train_seconds"] = round(time.perf_counter() - t0, 1)
+    metrics["n_train"], metrics["n_test"] = config.n_train, config.n_test
+    return DiscriminativeModels(
+        trained.camera_names, codebook, models, metrics, rig_key(cameras, config)
+    )
+
+
+def evaluate(
+    trained: DiscriminativeModels,
+    model: BodyModel,
+    states: BodyState,
+    rdf: np.ndarray,
+    codes: np.ndarray,
+    valid: np.ndarray,
+) -> dict:
+    """Test-set figures, averaged over cameras (each camera's own prediction).
+
+    * ``shape_*_improvement_over_mean``: 1 - (mean vertex error of the predicted
+      canonical body) / (that of the mean body), as the paper's "performance
+      increase over simply using the mean shape";
+    * ``pose_mean_angle_error_deg``: mean absolute joint-angle error (heading wrapped);
+    * ``position_error_mm``: root position error;
+    * ``mpjpe_mm``: mean per-joint position error of the posed skeleton.
+    """
+    faces_err = {}
+    truth_canon = model.canonical_vertices(states.nu)
+    mean_canon = model.canonical_vertices(np.zeros((1, model.n_shape)))
+    err_mean = np.linalg.norm(truth_canon - mean_canon, axis=-1).mean(axis=1)
+    per_cam = {}
+    for c, cam in enumerate(trained.camera_names):
+        idx = np.flatnonzero(valid[c])
+        m = trained.models[cam]
+        out = {}
+        for name in ("nu_rdf", "nu_sc"):
+            X = _inputs(name, rdf[c, idx], codes[c, idx])
+            pred = model.canonical_vertices(m[name].predict(X))
+            err = np.linalg.norm(pred - truth_canon[idx], axis=-1).mean(axis=1)
+            out[f"shape_{name.split('_')[1]}_improvement_over_mean"] = float(
+                1 - err.mean() / err_mean[idx].mean()
+            )
+            out[f"shape_{name.split('_')[1]}_vertex_error_mm"] = float(1000 * err.mean())
+        theta = targets_to_theta(m["theta_sc"].predict(codes[c, idx], mode="gate"))
+        d = theta - states.theta[idx]
+        d[:, YAW] = (d[:, YAW] + np.pi) % (2 * np.pi) - np.pi
+        out["pose_mean_angle_error_deg"] = float(np.degrees(np.abs(d).mean()))
+        tau = m["tau_rdf"].predict(rdf[c, idx])
+        out["position_error_mm"] = float(
+            1000 * np.linalg.norm(tau - states.tau[idx], axis=1).mean()
+        )
+        nu = m["nu_rdf"].predict(rdf[c, idx])
+        pred_j = model.pose(BodyState(tau, theta, nu), lod=True).joints
+        true_j = model.pose(states[idx], lod=True).joints
+        out["mpjpe_mm"] = float(1000 * np.linalg.norm(pred_j - true_j, axis=-1).mean())
+        per_cam[cam] = out
+        faces_err[cam] = len(idx)
+    keys = next(iter(per_cam.values())).keys()
+    summary = {k: float(np.mean([v[k] for v in per_cam.values()])) for k in keys}
+    summary["mean_shape_vertex_error_mm"] = float(1000 * err_mean.mean())
+    summary["per_camera"] = per_cam
+    summary["test_examples_per_camera"] = faces_err
+    return summary
+
+
+def load_or_train(
+    cameras: list[Camera] | CameraGroup,
+    config: TrainConfig | None = None,
+    cache_dir: Path | None = None,
+    workers: int | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> tuple[DiscriminativeModels, bool]:
+    """Cached models for this rig, training them first if needed.
+
+    Returns
+    -------
+    (models, reused) : reused is True when the cache already had them.
+    """
+    config = config or TrainConfig()
+    cameras = list(cameras)
+    key = rig_key(cameras, config)
+    path = (cache_dir or default_cache_dir()) / "discriminative" / f"{key}.npz"
+    if path.exists():
+        try:
+            return DiscriminativeModels.load(path), True
+        except (InputError, ValueError, KeyError) as exc:
+            log.warning("cached models %s unreadable (%s); retraining", path, exc)
+    models = train(cameras, config, workers=workers, progress=progress)
+    models.save(path)
+    return models, False

@@ -1,0 +1,106 @@
+"""Per-rig training of the discriminative models on a tiny rig and training set."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from capture.studio.rig import studio_rig
+from estimation.body_model.model import BodyModel
+from estimation.training import (
+    MODEL_NAMES,
+    DiscriminativeModels,
+    TrainConfig,
+    load_or_train,
+    rig_key,
+    sample_states,
+    targets_to_theta,
+    theta_to_targets,
+)
+
+TINY = TrainConfig(
+    n_train=60,
+    n_test=12,
+    codebook_size=8,
+    codebook_examples=20,
+    sc_points=40,
+    experts=(1, 2),
+    ridges=(10.0,),
+    max_iter=10,
+)
+#: Feet on the floor after grounding on the LOD mesh, metres.
+FLOOR_TOL = 1e-6
+
+
+@pytest.fixture(scope="module")
+def cameras():
+    return studio_rig(2, (160, 120), seed=1)
+
+
+@pytest.fixture(scope="module")
+def trained(cameras, tmp_path_factory):
+    cache = tmp_path_factory.mktemp("cache")
+    models, reused = load_or_train(cameras, TINY, cache, workers=1)
+    return models, cache, reused
+
+
+def test_heading_targets_round_trip():
+    rng = np.random.default_rng(0)
+    theta = rng.uniform(-1, 1, (20, 37))
+    theta[:, 2] = rng.uniform(-np.pi, np.pi, 20)
+    y = theta_to_targets(theta)
+    assert y.shape == (20, 38)
+    np.testing.assert_allclose(targets_to_theta(y), theta, atol=1e-12)
+
+
+def test_rig_key_tracks_cameras_and_settings(cameras):
+    base = rig_key(cameras, TINY)
+    assert base == rig_key(list(cameras), TINY)
+    assert base != rig_key(studio_rig(2, (160, 120), seed=2), TINY)
+    assert base != rig_key(cameras, TrainConfig(n_train=61, n_test=12))
+
+
+def test_sampled_states_stand_on_the_floor_and_split_shapes():
+    model = BodyModel.load()
+    train = sample_states(model, 30, "train", 0, 1.0)
+    test = sample_states(model, 30, "test", 0, 1.0)
+    for states in (train, test):
+        lowest = model.pose(states, lod=True).vertices[..., 2].min(axis=1)
+        np.testing.assert_allclose(lowest, 0.0, atol=FLOOR_TOL)
+        assert np.all(np.abs(states.tau[:, :2]) < 1.6)
+        assert model.limits.contains(states.theta).all()
+    # Test shapes are held-out bodies of the prior, exactly.
+    heldout = model.prior_shapes("heldout")
+    assert all(np.any(np.all(np.isclose(heldout, nu), axis=1)) for nu in test.nu)
+
+
+def test_training_produces_finite_figures(trained, cameras):
+    models, _, reused = trained
+    assert not reused
+    assert models.camera_names == tuple(c.name for c in cameras)
+    m = models.metrics
+    for key in (
+        "shape_rdf_improvement_over_mean",
+        "shape_sc_improvement_over_mean",
+        "pose_mean_angle_error_deg",
+        "position_error_mm",
+        "mpjpe_mm",
+        "train_seconds",
+    ):
+        assert np.isfinite(m[key]), key
+    assert set(m["chosen"]) == set(MODEL_NAMES)
+    assert m["position_error_mm"] < 1000  # metres-scale nonsense would show here
+
+
+def test_cache_is_reused_and_round_trips(trained, cameras, tmp_path):
+    models, cache, _ = trained
+    again, reused = load_or_train(cameras, TINY, cache, workers=1)
+    assert reused
+    x = np.random.default_rng(0).uniform(0, 100, (3, 102))
+    for name in ("nu_rdf", "tau_rdf"):
+        np.testing.assert_array_equal(
+            again.models["cam_00"][name].predict(x), models.models["cam_00"][name].predict(x)
+        )
+    models.save(tmp_path / "m.npz")
+    back = DiscriminativeModels.load(tmp_path / "m.npz")
+    assert back.key == models.key and back.metrics["n_train"] == 60
