@@ -104,3 +104,51 @@ def test_cache_is_reused_and_round_trips(trained, cameras, tmp_path):
     models.save(tmp_path / "m.npz")
     back = DiscriminativeModels.load(tmp_path / "m.npz")
     assert back.key == models.key and back.metrics["n_train"] == 60
+
+
+# --- uncalibrated mode (estimation/uncalibrated.py) on the tiny models -------------------
+def _mask_of(nu, cameras):
+    from estimation.body_model.model import BodyState
+    from estimation.projection import project_silhouettes
+
+    model = BodyModel.load()
+    state = BodyState([0.0, 0.0, 0.93], model.poses["apose"], nu)
+    verts = model.pose(state, lod=True).vertices[0]
+    return project_silhouettes(verts, model.faces(lod=True), cameras[:1])[0]
+
+
+def test_photo_estimate_is_scaled_to_the_reference_height(trained, cameras):
+    from estimation.uncalibrated import compare_photos, estimate_photo
+
+    models = trained[0]
+    body = BodyModel.load()
+    mask = _mask_of(np.zeros(9), cameras)
+    est = estimate_photo(mask, models, body, 1750.0)
+    bio = est.biometrics
+    assert bio.height_mm == pytest.approx(1750.0, rel=1e-9)
+    assert bio.bmi == pytest.approx(bio.weight_kg / 1.75**2, rel=1e-9)
+    # Same photo twice: no change at all.
+    change = compare_photos(est, estimate_photo(mask, models, body, 1750.0))
+    assert all(abs(v) < 1e-9 for v in change.values())
+    # A taller reference scales weight by the cube of the height ratio.
+    taller = estimate_photo(mask, models, body, 1750.0 * 1.1)
+    assert taller.biometrics.weight_kg == pytest.approx(bio.weight_kg * 1.1**3, rel=1e-9)
+
+
+def test_read_mask_errors(tmp_path):
+    import cv2
+
+    from bodymetry.errors import InputError
+    from estimation.uncalibrated import read_mask
+
+    with pytest.raises(InputError, match="not found"):
+        read_mask(tmp_path / "missing.png")
+    (tmp_path / "junk.png").write_bytes(b"not an image")
+    with pytest.raises(InputError, match="not a readable image"):
+        read_mask(tmp_path / "junk.png")
+    cv2.imwrite(str(tmp_path / "empty.png"), np.zeros((50, 50), np.uint8))
+    with pytest.raises(InputError, match="no person"):
+        read_mask(tmp_path / "empty.png")
+    cv2.imwrite(str(tmp_path / "full.png"), np.full((50, 50), 255, np.uint8))
+    with pytest.raises(InputError, match="inverted"):
+        read_mask(tmp_path / "full.png")
