@@ -15,7 +15,7 @@ from pathlib import Path
 # Many small sparse solves: threaded BLAS makes them much slower (set before numpy).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-BENCHMARKS = ("body_model", "studio")
+BENCHMARKS = ("body_model", "studio", "discriminative")
 
 
 def main(argv: list[str]) -> int:
