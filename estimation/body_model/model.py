@@ -20,6 +20,7 @@ import scipy.sparse as sp
 
 from bodymetry.errors import InputError
 from bodymetry.fileio import load_npz
+from estimation.body_model import geometry
 from estimation.body_model.scape import ScapeArrays, ScapeMesh
 from estimation.body_model.skeleton import (
     JOINTS,
@@ -241,8 +242,7 @@ class BodyModel:
     def _vertex_areas(self) -> np.ndarray:
         """(V,) a third of the template area of the triangles around each vertex."""
         faces = self.faces()
-        tri = self.full.arrays.template[faces]
-        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        area = geometry.triangle_areas(self.full.arrays.template, faces)
         return np.bincount(
             faces.reshape(-1), np.repeat(area / 3.0, 3), minlength=self.full.n_vertices
         )

@@ -22,22 +22,22 @@ from capture.studio.synth import (
 #: Joints reprojected with calibration.yaml must fall within this many pixels of the silhouette.
 JOINT_TO_MASK_PX = 2
 SIZE = (160, 120)
+TINY = dict(
+    frames=6,
+    frame_step=2,
+    cameras=2,
+    size=SIZE,
+    seed=3,
+    motion="random",
+    background_frames=2,
+    calibration_frames=30,
+)
 
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     out = tmp_path_factory.mktemp("synth") / "tiny"
-    config = SynthConfig(
-        frames=6,
-        frame_step=2,
-        cameras=2,
-        size=SIZE,
-        seed=3,
-        motion="random",
-        background_frames=2,
-        calibration_frames=30,
-    )
-    return synthesize(out, config, workers=1)
+    return synthesize(out, SynthConfig(**TINY), workers=1)
 
 
 def test_session_loads_with_every_file(session):
@@ -91,16 +91,7 @@ def test_same_config_same_ground_truth(session, tmp_path):
     assert config["seed"] == 3
     again = synthesize(
         tmp_path / "again",
-        SynthConfig(
-            frames=6,
-            frame_step=2,
-            cameras=2,
-            size=SIZE,
-            seed=3,
-            motion="random",
-            background_frames=2,
-            calibration_frames=30,
-        ),
+        SynthConfig(**TINY),
         workers=1,
     )
     a = load_npz(session.folder / "ground_truth" / "states.npz")
