@@ -1,0 +1,289 @@
+"""Generative refinement: annealed importance sampling over Y = (τ, θ, ν) (paper §5).
+
+The posterior p(Y | I) ∝ p(I | Y) p(Y) is represented by N weighted particles.
+Layer k draws from q_k(Y) = Σ_i π_i N(y_i, Σ_k), a kernel density of the
+previous layer's particles whose bandwidth Σ_k is the particles' own spread
+times a factor that shrinks every layer, and weighs them by the likelihood
+raised to a temperature β_k (annealing, Deutscher et al. 2000). β_k is chosen
+adaptively: the largest value whose weights keep an effective sample size of
+``target_ess`` × N (Deutscher's "survival rate"), so early layers explore and
+late layers exploit. Joint limits bound θ; particles are clipped to them.
+
+The likelihood compares, in every view, the observed silhouette O with the
+projection S of the hypothesized body (the ~3,000-triangle level of detail):
+pixels of S outside O are penalized by their distance to O, pixels of O
+outside S by their distance to S (a bidirectional chamfer measure; the
+observed side's distance map is computed once per frame), normalized by O's
+area:  cost_c = (Σ_{S\\O} d_O + Σ_{O\\S} d_S) / |O|,  log p(I | Y) = -Σ_c cost_c / σ².
+Images are compared at a reduced scale (``image_scale``); distances are in
+full-resolution pixels.
+
+The estimate is the weighted mean of the last layer (heading averaged on the
+circle): with a narrow final kernel the particles share one mode, and the mean
+is less noisy than the single best particle (which overfits silhouette noise).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from calibration.camera import Camera
+from estimation.body_model.model import BodyModel, BodyState
+from estimation.body_model.skeleton import JOINT_SLICES, N_POSE
+from estimation.projection import fill_silhouette
+
+YAW = JOINT_SLICES[0].start + 2
+
+
+@dataclass(frozen=True)
+class AnnealingConfig:
+    """Settings of the annealed particle filter.
+
+    Attributes
+    ----------
+    n_particles : int
+    n_layers : int
+    image_scale : float
+        Silhouettes are compared at this fraction of the camera resolution.
+    target_ess : float
+        Effective sample size fraction kept by each layer's temperature.
+    bandwidth : float
+        Kernel bandwidth as a fraction of the particles' standard deviation,
+        first layer; multiplied by ``shrink`` each layer.
+    shrink : float
+    sigma_px : float
+        Chamfer cost scale (pixels): log p(I|Y) = -Σ_c cost_c / sigma_px².
+    min_std : (3,) float
+        Floors of the kernel's standard deviation for τ (m), θ (rad), ν.
+    """
+
+    n_particles: int = 120
+    n_layers: int = 8
+    image_scale: float = 0.25
+    target_ess: float = 0.5
+    bandwidth: float = 0.6
+    shrink: float = 0.8
+    sigma_px: float = 1.0
+    min_std: tuple[float, float, float] = (0.005, 0.01, 0.02)
+
+    @classmethod
+    def preset(cls, quality: str) -> AnnealingConfig:
+        """``fast``, ``default`` or ``best``."""
+        presets = {
+            "fast": cls(n_particles=60, n_layers=5, image_scale=0.25),
+            "default": cls(),
+            "best": cls(n_particles=300, n_layers=12, image_scale=0.5),
+        }
+        if quality not in presets:
+            raise ValueError(f"quality: expected one of {sorted(presets)}, got {quality!r}")
+        return presets[quality]
+
+
+@dataclass
+class Observation:
+    """One frame's observed silhouettes, prepared for the likelihood.
+
+    Attributes
+    ----------
+    cameras : list of Camera
+        Scaled to the comparison resolution.
+    masks : (C, h, w) bool
+    dist_outside : (C, h, w) float32
+        Distance (full-resolution pixels) from each pixel to the observed silhouette.
+    area : (C,) float
+    """
+
+    cameras: list[Camera]
+    masks: np.ndarray
+    dist_outside: np.ndarray
+    area: np.ndarray
+    scale: float = 1.0
+    valid: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+
+
+def scaled_camera(camera: Camera, scale: float) -> Camera:
+    """The same camera with its image resampled by ``scale``."""
+    K = camera.K.copy()
+    K[:2] *= scale
+    # Pixel centres: x' = (x + 0.5) * s - 0.5.
+    K[:2, 2] += 0.5 * scale - 0.5
+    w, h = camera.size
+    return Camera(
+        camera.name,
+        (max(1, round(w * scale)), max(1, round(h * scale))),
+        K,
+        camera.dist,
+        camera.R,
+        camera.t,
+    )
+
+
+def prepare_observation(cameras: list[Camera], masks: np.ndarray, scale: float) -> Observation:
+    """Downscale the observed silhouettes and precompute their distance maps.
+
+    Parameters
+    ----------
+    cameras : list of Camera
+    masks : (C, H, W) bool
+        Observed silhouettes at camera resolution; an all-False mask marks a
+        view without a usable silhouette (it is left out of the likelihood).
+    scale : float
+    """
+    small_cams = [scaled_camera(c, scale) for c in cameras]
+    small, dist, area, valid = [], [], [], []
+    for cam, mask in zip(small_cams, masks, strict=True):
+        w, h = cam.size
+        m = cv2.resize(mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_AREA) > 0
+        small.append(m)
+        d = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3) / scale
+        dist.append(d)
+        area.append(max(m.sum(), 1) / scale**2)
+        valid.append(bool(m.any()))
+    return Observation(
+        small_cams, np.stack(small), np.stack(dist), np.asarray(area), scale, np.asarray(valid)
+    )
+
+
+def chamfer_costs(obs: Observation, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Bidirectional chamfer cost of one body in every view, (C,)."""
+    costs = np.zeros(len(obs.cameras))
+    for c, cam in enumerate(obs.cameras):
+        if not obs.valid[c]:
+            continue
+        model = fill_silhouette(cam.project(vertices), faces, cam.size)
+        observed = obs.masks[c]
+        extra = model & ~observed
+        missing = observed & ~model
+        cost = obs.dist_outside[c][extra].sum()
+        if missing.any():
+            d_model = cv2.distanceTransform((~model).astype(np.uint8), cv2.DIST_L2, 3)
+            cost += d_model[missing].sum() / obs.scale
+        costs[c] = cost / obs.scale**2 / obs.area[c]
+    return costs
+
+
+@dataclass(frozen=True)
+class AnnealingResult:
+    """Outcome of the annealed search for one frame.
+
+    Attributes
+    ----------
+    state : BodyState
+        The estimate (batch of one).
+    particles : (N, 3 + 37 + n) float
+        Last layer's particles ``[τ, θ, ν]``.
+    weights : (N,) float
+        Their normalized weights.
+    layer_log_likelihood : (L,) float
+        Weighted mean log-likelihood of each layer (for plots).
+    layer_beta : (L,) float
+        Temperatures chosen.
+    best_cost : float
+        Lowest summed chamfer cost seen (pixels).
+    """
+
+    state: BodyState
+    particles: np.ndarray
+    weights: np.ndarray
+    layer_log_likelihood: np.ndarray
+    layer_beta: np.ndarray
+    best_cost: float
+
+
+def _log_likelihoods(model: BodyModel, obs: Observation, Y: np.ndarray, sigma: float) -> np.ndarray:
+    states = BodyState.from_vector(Y)
+    faces = model.faces(lod=True)
+    out = np.empty(len(Y))
+    for s in range(0, len(Y), 64):
+        verts = model.pose(states[s : s + 64], lod=True).vertices
+        for i, v in enumerate(verts):
+            out[s + i] = -chamfer_costs(obs, v, faces).sum() / sigma**2
+    return out
+
+
+def _temperature(loglik: np.ndarray, target_ess: float) -> float:
+    """Largest β in (0, 1] whose weights keep ESS >= target_ess × N (bisection)."""
+    n = len(loglik)
+    ll = loglik - loglik.max()
+
+    def ess(beta: float) -> float:
+        w = np.exp(beta * ll)
+        return w.sum() ** 2 / (w**2).sum() / n
+
+    if ess(1.0) >= target_ess:
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ess(mid) >= target_ess else (lo, mid)
+    return max(lo, 1e-12)
+
+
+def _weighted_estimate(Y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    est = w @ Y
+    est[3 + YAW] = np.arctan2(w @ np.sin(Y[:, 3 + YAW]), w @ np.cos(Y[:, 3 + YAW]))
+    return est
+
+
+def anneal(
+    model: BodyModel,
+    obs: Observation,
+    initial: np.ndarray,
+    config: AnnealingConfig,
+    rng: np.random.Generator,
+) -> AnnealingResult:
+    """Run the annealed particle filter from initial particles.
+
+    Parameters
+    ----------
+    model : BodyModel
+    obs : Observation
+        From :func:`prepare_observation`.
+    initial : (N0, 40 + n_shape) float
+        Initial particles ``[τ, θ, ν]`` (e.g. drawn from the discriminative mixtures);
+        resampled to ``config.n_particles``.
+    config : AnnealingConfig
+    rng : Generator
+    """
+    if not obs.valid.any():
+        raise ValueError("no view has an observed silhouette")
+    lo = np.r_[np.full(3, -np.inf), model.limits.lower, np.full(model.n_shape, -4.0)]
+    hi = np.r_[np.full(3, np.inf), model.limits.upper, np.full(model.n_shape, 4.0)]
+    N = config.n_particles
+    Y = np.clip(initial[rng.integers(len(initial), size=N)], lo, hi)
+    floor = np.r_[
+        np.full(3, config.min_std[0]),
+        np.full(N_POSE, config.min_std[1]),
+        np.full(model.n_shape, config.min_std[2]),
+    ]
+    layer_ll, layer_beta = [], []
+    best = np.inf
+    w = np.full(N, 1.0 / N)
+    factor = config.bandwidth
+    for layer in range(config.n_layers):
+        if layer > 0:
+            # Resample by weight, then perturb with the shrinking kernel.
+            idx = rng.choice(N, size=N, p=w)
+            spread = np.sqrt(np.maximum(np.cov(Y.T, aweights=w).diagonal(), 0.0))
+            std = np.maximum(factor * spread, floor)
+            Y = np.clip(Y[idx] + rng.standard_normal(Y.shape) * std, lo, hi)
+            factor *= config.shrink
+        ll = _log_likelihoods(model, obs, Y, config.sigma_px)
+        best = min(best, -ll.max() * config.sigma_px**2)
+        beta = _temperature(ll, config.target_ess)
+        w = np.exp(beta * (ll - ll.max()))
+        w /= w.sum()
+        layer_ll.append(float(w @ ll))
+        layer_beta.append(beta)
+    est = _weighted_estimate(Y, w)
+    return AnnealingResult(
+        BodyState.from_vector(est[None]),
+        Y,
+        w,
+        np.asarray(layer_ll),
+        np.asarray(layer_beta),
+        float(best),
+    )

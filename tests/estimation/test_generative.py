@@ -1,0 +1,107 @@
+"""Generative refinement (paper §5): chamfer likelihood and annealed particle filter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from capture.studio.rig import studio_rig
+from estimation.body_model.model import BodyModel, BodyState
+from estimation.generative import (
+    AnnealingConfig,
+    _temperature,
+    anneal,
+    chamfer_costs,
+    prepare_observation,
+    scaled_camera,
+)
+from estimation.projection import project_silhouettes
+
+#: Chamfer cost (pixels) of a body against its own silhouette: only resampling.
+SELF_COST = 0.05
+
+
+@pytest.fixture(scope="module")
+def setup():
+    model = BodyModel.load()
+    cameras = studio_rig(3, (160, 120), seed=4)
+    truth = BodyState([0.1, -0.2, 0.93], model.poses["apose"], np.zeros(9))
+    verts = model.pose(truth, lod=True).vertices[0]
+    masks = project_silhouettes(verts, model.faces(lod=True), cameras)
+    return model, cameras, truth, verts, masks
+
+
+def test_scaled_camera_keeps_the_image_geometry():
+    cam = studio_rig(1, (640, 480), seed=0)[0]
+    half = scaled_camera(cam, 0.5)
+    pts = np.random.default_rng(0).uniform(-1, 1, (20, 3)) + [0, 0, 1]
+    np.testing.assert_allclose((half.project(pts) + 0.5) * 2 - 0.5, cam.project(pts), atol=1e-9)
+    assert half.size == (320, 240)
+
+
+def test_chamfer_cost_is_zero_for_the_true_body_and_grows_with_error(setup):
+    model, cameras, _, verts, masks = setup
+    obs = prepare_observation(cameras, masks, 1.0)
+    faces = model.faces(lod=True)
+    assert chamfer_costs(obs, verts, faces).sum() < SELF_COST
+    costs = []
+    for dx in (0.02, 0.05, 0.1):
+        costs.append(chamfer_costs(obs, verts + [dx, 0, 0], faces).sum())
+    assert costs[0] > SELF_COST and np.all(np.diff(costs) > 0)
+
+
+def test_views_without_silhouette_are_left_out(setup):
+    model, cameras, _, verts, masks = setup
+    masks = masks.copy()
+    masks[1] = False
+    obs = prepare_observation(cameras, masks, 1.0)
+    assert list(obs.valid) == [True, False, True]
+    assert chamfer_costs(obs, verts + [0.05, 0, 0], model.faces(lod=True))[1] == 0.0
+
+
+def test_temperature_keeps_the_target_effective_sample_size():
+    ll = np.random.default_rng(0).normal(0, 50, 200)
+    beta = _temperature(ll, 0.5)
+    w = np.exp(beta * (ll - ll.max()))
+    ess = w.sum() ** 2 / (w**2).sum() / len(w)
+    assert 0 < beta < 1 and ess == pytest.approx(0.5, abs=0.01)
+    assert _temperature(np.zeros(10), 0.5) == 1.0
+
+
+def test_annealing_moves_towards_the_truth(setup):
+    model, cameras, truth, _, masks = setup
+    rng = np.random.default_rng(1)
+    y0 = truth.vector()[0]
+    spread = np.r_[np.full(3, 0.06), np.full(37, 0.05), np.full(9, 0.5)]
+    init = y0 + rng.normal(0, 1, (60, len(y0))) * spread
+    obs = prepare_observation(cameras, masks, 1.0)
+    config = AnnealingConfig(n_particles=40, n_layers=4, image_scale=1.0)
+    result = anneal(model, obs, init, config, rng)
+    start = np.linalg.norm(init[:, :3] - y0[:3], axis=1).mean()
+    end = np.linalg.norm(result.state.tau[0] - y0[:3])
+    assert end < 0.5 * start
+    assert (
+        np.all(np.diff(result.layer_log_likelihood) > -1e-9)
+        or result.layer_log_likelihood[-1] > result.layer_log_likelihood[0]
+    )
+    assert model.limits.contains(result.particles[:, 3:40]).all()
+    np.testing.assert_allclose(result.weights.sum(), 1.0)
+
+
+def test_annealing_needs_a_silhouette(setup):
+    model, cameras, truth, _, masks = setup
+    obs = prepare_observation(cameras, np.zeros_like(masks), 1.0)
+    with pytest.raises(ValueError, match="no view"):
+        anneal(
+            model,
+            obs,
+            truth.vector(),
+            AnnealingConfig(n_particles=4, n_layers=1),
+            np.random.default_rng(0),
+        )
+
+
+def test_presets():
+    assert AnnealingConfig.preset("fast").n_particles < AnnealingConfig.preset("best").n_particles
+    with pytest.raises(ValueError, match="quality"):
+        AnnealingConfig.preset("ultra")
