@@ -43,10 +43,13 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = [
     "Codebook",
     "ShapeContextConfig",
+    "draw_rdf",
+    "draw_shape_context_grid",
     "fit_codebook",
     "multiscale_shape_contexts",
     "rdf",
     "rdf_batch",
+    "sample_contour_points",
     "sc_descriptors",
     "sc_features",
     "shape_context_descriptors",
@@ -96,7 +99,9 @@ def _kappas(kappas: object, name: str = "kappas") -> tuple[float, ...]:
     try:
         values = tuple(kappas)  # type: ignore[arg-type]
     except TypeError:
-        raise ValueError(f"{name}: expected a sequence of positive numbers, got {kappas!r}") from None
+        raise ValueError(
+            f"{name}: expected a sequence of positive numbers, got {kappas!r}"
+        ) from None
     if not values:
         raise ValueError(f"{name}: expected at least one scale, got an empty sequence")
     return tuple(_positive_float(k, f"{name}[{i}]") for i, k in enumerate(values))
@@ -222,29 +227,43 @@ def _ray_extents(
     ``polygon`` is ``(P, 2)``, implicitly closed. Returns ``(n,)`` distances;
     a ray that meets no edge (possible only if ``center`` lies outside the
     polygon) gets 0.
+
+    O(P + n * winding): each edge is intersected only with the rays inside the
+    angle it subtends at the centre (an edge never subtends pi or more unless
+    it passes through the centre, which is then handled as a zero distance).
     """
-    ang = np.arange(n) * (2.0 * np.pi / n)
-    d = np.stack([np.cos(ang), np.sin(ang)], axis=1)  # (n, 2)
-    if polygon.shape[0] == 1:
-        return np.full(n, float(np.hypot(*(polygon[0] - center))))
-    a = polygon - center  # (P, 2) edge starts relative to the centre
-    e = np.roll(polygon, -1, axis=0) - polygon  # (P, 2) edge vectors
-    # ray: t * d ; edge: a + u * e ; solve t d - u e = a with 2-D cross products
-    denom = d[:, :1] * e[None, :, 1] - d[:, 1:] * e[None, :, 0]  # (n, P): d x e
-    a_x_e = a[:, 0] * e[:, 1] - a[:, 1] * e[:, 0]  # (P,)
-    a_x_d = a[None, :, 0] * d[:, 1:] - a[None, :, 1] * d[:, :1]  # (n, P)
+    step = 2.0 * np.pi / n
+    a = polygon - center  # (P, 2) vertices relative to the centre
+    if a.shape[0] == 1:
+        return np.full(n, float(np.hypot(a[0, 0], a[0, 1])))
+    b = np.roll(a, -1, axis=0)
+    e = b - a  # edge vectors
+    phi = np.arctan2(a[:, 1], a[:, 0])  # vertex angles in (-pi, pi]
+    dphi = np.roll(phi, -1) - phi
+    dphi -= 2.0 * np.pi * np.round(dphi / (2.0 * np.pi))  # signed, in [-pi, pi]
+    lo = np.minimum(phi, phi + dphi) - 1e-9  # widened: no ray slips between edges
+    hi = np.maximum(phi, phi + dphi) + 1e-9
+    k_lo = np.ceil(lo / step).astype(np.int64)
+    k_hi = np.floor(hi / step).astype(np.int64)
+    count = np.maximum(k_hi - k_lo + 1, 0)
+    edge = np.repeat(np.arange(a.shape[0]), count)  # one (edge, ray) pair per row
+    first = np.repeat(np.cumsum(count) - count, count)
+    k = np.repeat(k_lo, count) + (np.arange(edge.size) - first)
+    ang = k * step
+    d = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    ae, ee = a[edge], e[edge]
+    denom = d[:, 0] * ee[:, 1] - d[:, 1] * ee[:, 0]  # d x e
+    a_x_d = ae[:, 0] * d[:, 1] - ae[:, 1] * d[:, 0]  # a x d
+    radial = np.abs(denom) <= 1e-12 * (1.0 + np.hypot(ee[:, 0], ee[:, 1]))
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = a_x_e[None, :] / denom
-        u = a_x_d / denom
-    eps = 1e-9
-    hit = (np.abs(denom) > 1e-12) & (u >= -eps) & (u <= 1.0 + eps) & (t >= 0.0)
-    t = np.where(hit, t, 0.0)
-    ext = t.max(axis=1)
-    # also the vertices themselves (covers edges parallel to a ray through them)
-    r = np.hypot(a[:, 0], a[:, 1])
-    on_ray = np.abs(a[None, :, 0] * d[:, 1:] - a[None, :, 1] * d[:, :1]) <= 1e-9 * (1.0 + r)
-    on_ray &= (a @ d.T).T >= 0.0
-    ext = np.maximum(ext, np.where(on_ray, r[None, :], 0.0).max(axis=1))
+        u = np.clip(np.where(radial, 0.0, a_x_d / denom), 0.0, 1.0)
+    p = ae + u[:, None] * ee
+    dist = np.hypot(p[:, 0], p[:, 1])
+    # an edge along the ray: its farther end
+    far = np.maximum(np.hypot(ae[:, 0], ae[:, 1]), np.hypot(*b[edge].T))
+    dist = np.where(radial, far, dist)
+    ext = np.zeros(n)
+    np.maximum.at(ext, k % n, dist)
     return ext
 
 
@@ -409,6 +428,28 @@ def _sample_points(
     return closed[j] + frac * (closed[j + 1] - closed[j])
 
 
+def sample_contour_points(contour: ArrayLike, n_points: int, rng: RngLike) -> NDArray[np.float64]:
+    """The points the shape context samples on a contour (for plots and overlays).
+
+    Parameters
+    ----------
+    contour : (P, 2) float
+        Boundary points ``(x, y)`` in order along the closed outline.
+    n_points : int
+        Number of points ``N``.
+    rng : numpy.random.Generator or int
+        The same generator state as given to :func:`multiscale_shape_contexts`
+        gives the same points.
+
+    Returns
+    -------
+    points : (N, 2) float64
+        Image coordinates, evenly spaced in arc length at a random phase.
+    """
+    c = _check_contour(contour)
+    return _sample_points(c, _positive_int(n_points, "n_points"), _as_rng(rng)) + c[0]
+
+
 def _histograms(
     points: NDArray[np.float64],
     height: float,
@@ -421,36 +462,48 @@ def _histograms(
     n = points.shape[0]
     x = np.ascontiguousarray(points[:, 0])
     y = np.ascontiguousarray(points[:, 1])
-    dx = x[None, :] - x[:, None]  # (N, N): other - self
+    # (N, N) work arrays, updated in place (fewer large temporaries)
+    dx = x[None, :] - x[:, None]  # other - self
     dy = y[None, :] - y[:, None]
-    dist = np.hypot(dx, dy)
-    np.fill_diagonal(dist, np.inf)  # a point is not its own neighbour
     # orientation bins centred on the image axes: bin k covers
     # [(k - 1/2), (k + 1/2)) * 2 pi / n_theta, so the frequent horizontal and
     # vertical pixel-grid directions never sit on a bin edge.
-    theta = np.arctan2(dy, dx)
-    tbin = np.floor(theta * (n_theta / (2.0 * np.pi)) + 0.5).astype(np.int64) % n_theta
+    # Orientation bin + n_theta, in [n_theta/2, 3 n_theta/2]: bins k and
+    # k + n_theta are the same bin and are merged after counting (cheaper
+    # than a modulo over N^2 floats).
+    base = np.arctan2(dy, dx)
+    base *= n_theta / (2.0 * np.pi)
+    base += 0.5 + n_theta
+    np.floor(base, out=base)
+    # flat bin index (kept in float64, exact for integers) into an
+    # (N, n_r + 1, 2 n_theta) array whose last radial row collects the points
+    # at r >= r_out (and the point itself), dropped below
+    width = (n_r + 1) * 2 * n_theta
+    base += (np.arange(n, dtype=np.float64) * width)[:, None]
+    log_d2 = dx
+    log_d2 *= dx
+    dy *= dy
+    log_d2 += dy
+    np.fill_diagonal(log_d2, np.inf)  # a point is not its own neighbour
     with np.errstate(divide="ignore"):
-        log_d = np.log(dist)
-    # flat bin index into an (N, n_r + 1, n_theta) array whose last radial row
-    # collects the points at r >= r_out (and the point itself), dropped below
-    width = (n_r + 1) * n_theta
-    base = np.arange(n, dtype=np.int64)[:, None] * width + tbin
-    log_span = np.log(1.0 / r_in_fraction)
-    q = np.empty_like(log_d)
+        np.log(log_d2, out=log_d2)  # log r^2 (-inf for a duplicate point)
+    q = dy
+    gain = n_r / (2.0 * np.log(1.0 / r_in_fraction))
     out = np.empty((len(kappas), n, n_theta * n_r))
     for s, kappa in enumerate(kappas):
         r_in = r_in_fraction * kappa * height
         # radial bin k covers [r_in g^k, r_in g^(k+1)), g = (r_out / r_in)^(1/n_r);
         # points closer than r_in fall into the innermost bin (as in
         # Belongie et al.'s reference code); points at r >= r_out are ignored.
-        np.subtract(log_d, np.log(r_in), out=q)
-        q *= n_r / log_span
+        np.subtract(log_d2, 2.0 * np.log(r_in), out=q)
+        q *= gain
         np.floor(q, out=q)
         np.clip(q, 0, n_r, out=q)
-        idx = base + q.astype(np.int64) * n_theta
-        counts = np.bincount(idx.ravel(), minlength=n * width).reshape(n, width)
-        counts = counts[:, : n_r * n_theta].astype(np.float64)
+        q *= 2 * n_theta
+        q += base
+        counts = np.bincount(q.astype(np.intp).ravel(), minlength=n * width)
+        counts = counts.reshape(n, n_r + 1, 2, n_theta)[:, :n_r].sum(axis=2)
+        counts = counts.reshape(n, n_r * n_theta).astype(np.float64)
         total = counts.sum(axis=1, keepdims=True)
         out[s] = counts / np.where(total > 0, total, 1.0)
     return out
@@ -474,25 +527,27 @@ def multiscale_shape_contexts(
     """Shape-context histograms at several scales, at the same sampled points.
 
     ``n_points`` points are sampled on the closed polyline through ``contour``
-    at random but evenly spaced in arc length: at ``(u + k) L / n_points``
-    for ``k = 0 .. n_points - 1`` with one random phase ``u ~ U[0, 1)``
-    (``L`` the perimeter). This stratified sampling is as unbiased as drawing
-    contour points independently but far less noisy: the same shape at two
-    scales or offsets gives nearly the same descriptor set. At each, the other sampled points within ``r_out = kappa * h``
-    are counted in a log-polar grid: ``n_theta`` orientation bins, bin ``k``
-    centred on the angle ``2 pi k / n_theta`` from ``+x`` towards ``+y`` (image
-    axes, so not rotation invariant), and ``n_r`` radial bins spaced
-    logarithmically from ``r_in = r_in_fraction * r_out`` to ``r_out`` (points
-    closer than ``r_in`` count in the innermost bin). Each histogram is divided
-    by its sum, so it sums to 1 (a point with no neighbour within ``r_out``
-    keeps an all-zero histogram). Since all radii are proportional to ``h``,
-    the descriptor is translation and scale invariant.
+    at random but evenly spaced in arc length: at ``(u + k) L / n_points`` for
+    ``k = 0 .. n_points - 1`` with one random phase ``u ~ U[0, 1)`` (``L`` the
+    perimeter). This stratified sampling is as unbiased as drawing contour
+    points independently but far less noisy: the same shape at two scales or
+    offsets gives nearly the same descriptor set.
+
+    At each sampled point, the other sampled points within
+    ``r_out = kappa * h`` are counted in a log-polar grid: ``n_theta``
+    orientation bins, bin ``k`` centred on the angle ``2 pi k / n_theta`` from
+    ``+x`` towards ``+y`` (image axes, so not rotation invariant), and ``n_r``
+    radial bins spaced logarithmically from ``r_in = r_in_fraction * r_out`` to
+    ``r_out`` (points closer than ``r_in`` count in the innermost bin). Each
+    histogram is divided by its sum, so it sums to 1 (a point with no neighbour
+    within ``r_out`` keeps an all-zero histogram). Since all radii are
+    proportional to ``h``, the descriptor is translation and scale invariant.
 
     Parameters
     ----------
     contour : (P, 2) float
-        Ordered or unordered boundary points ``(x, y)``, e.g. from
-        :func:`silhouette_contour`.
+        Boundary points ``(x, y)`` in order along the closed outline, e.g.
+        from :func:`silhouette_contour`.
     n_points : int
         Number of points to sample, ``N``.
     rng : numpy.random.Generator or int
@@ -878,8 +933,10 @@ def fit_codebook(
     max_samples = _positive_int(max_samples, "max_samples")
     max_iter = _positive_int(max_iter, "max_iter")
     if config is None:
-        config = ShapeContextConfig() if np.ndim(descriptors) == 3 else ShapeContextConfig(
-            kappas=(0.25,)
+        config = (
+            ShapeContextConfig()
+            if np.ndim(descriptors) == 3
+            else ShapeContextConfig(kappas=(0.25,))
         )
     gen = _as_rng(rng)
     centers = np.empty((s, k, dim))
@@ -918,3 +975,77 @@ def sc_features(mask: ArrayLike, codebook: Codebook, rng: RngLike) -> NDArray[np
     if not isinstance(codebook, Codebook):
         raise ValueError(f"codebook: expected a Codebook, got {type(codebook).__name__}")
     return codebook.encode(sc_descriptors(mask, rng, codebook.config))
+
+
+# --------------------------------------------------------------------------
+# drawing (docs figure, review overlays)
+# --------------------------------------------------------------------------
+
+
+def draw_rdf(
+    image: NDArray[np.uint8],
+    x_rdf: ArrayLike,
+    color: tuple[int, int, int] = (0, 90, 255),
+    thickness: int = 1,
+) -> NDArray[np.uint8]:
+    """Draw an RDF (rays from the centroid to the extents) on a BGR image, in place.
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8
+        BGR image (modified and returned).
+    x_rdf : (n + 2,) float
+        From :func:`rdf`.
+    """
+    x = np.asarray(x_rdf, dtype=np.float64)
+    if x.ndim != 1 or x.size < 3:
+        raise ValueError(f"x_rdf: expected an (n + 2,) vector, got shape {x.shape}")
+    c, r = x[:2], x[2:]
+    ang = np.arange(r.size) * (2.0 * np.pi / r.size)
+    ends = c + r[:, None] * np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    s = 1 << 4
+    c_i = tuple(int(v) for v in np.round(c * s))
+    for e in np.round(ends * s).astype(np.int64):
+        cv2.line(image, c_i, (int(e[0]), int(e[1])), color, thickness, cv2.LINE_AA, 4)
+        cv2.circle(image, (int(e[0]), int(e[1])), 2 * s, color, -1, cv2.LINE_AA, 4)
+    cv2.circle(image, c_i, 4 * s, (0, 0, 0), -1, cv2.LINE_AA, 4)
+    return image
+
+
+def draw_shape_context_grid(
+    image: NDArray[np.uint8],
+    point: ArrayLike,
+    r_out: float,
+    n_theta: int = 12,
+    n_r: int = 5,
+    r_in_fraction: float = DEFAULT_R_IN_FRACTION,
+    color: tuple[int, int, int] = (200, 120, 0),
+    thickness: int = 1,
+) -> NDArray[np.uint8]:
+    """Draw the log-polar shape-context grid around ``point`` on a BGR image, in place.
+
+    Circles at the radial bin edges ``r_in g^k`` (``k = 0 .. n_r``) and the
+    orientation bin edges (``(k + 1/2) 2 pi / n_theta``, bins centred on the
+    image axes) between ``r_in`` and ``r_out``.
+    """
+    p = np.asarray(point, dtype=np.float64).reshape(2)
+    r_in = r_in_fraction * r_out
+    radii = r_in * (r_out / r_in) ** (np.arange(n_r + 1) / n_r)
+    s = 1 << 4
+    c_i = tuple(int(v) for v in np.round(p * s))
+    for r in radii:
+        cv2.circle(image, c_i, round(r * s), color, thickness, cv2.LINE_AA, 4)
+    for k in range(n_theta):
+        a = (k + 0.5) * 2.0 * np.pi / n_theta
+        d = np.array([np.cos(a), np.sin(a)])
+        p0, p1 = np.round((p + r_in * d) * s), np.round((p + r_out * d) * s)
+        cv2.line(
+            image,
+            (int(p0[0]), int(p0[1])),
+            (int(p1[0]), int(p1[1])),
+            color,
+            thickness,
+            cv2.LINE_AA,
+            4,
+        )
+    return image

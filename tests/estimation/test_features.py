@@ -19,6 +19,7 @@ from estimation.features import (
     multiscale_shape_contexts,
     rdf,
     rdf_batch,
+    sample_contour_points,
     sc_descriptors,
     sc_features,
     shape_context_descriptors,
@@ -78,8 +79,8 @@ def figure_mask(scale, offset, shape=(480, 640), arm=1.0, leg=0.3):
 
 def ellipse_mask(center, axes, angle_deg=20.0, shape=(480, 640)):
     mask = np.zeros(shape, np.uint8)
-    c = tuple(int(round(v * (1 << SHIFT))) for v in center)
-    a = tuple(int(round(v * (1 << SHIFT))) for v in axes)
+    c = tuple(round(v * (1 << SHIFT)) for v in center)
+    a = tuple(round(v * (1 << SHIFT)) for v in axes)
     cv2.ellipse(mask, c, a, angle_deg, 0, 360, 1, -1, cv2.LINE_8, SHIFT)
     return mask.astype(bool)
 
@@ -126,15 +127,20 @@ def test_contour_is_ordered_boundary_of_largest_blob():
     assert tuple(c[0]) == (5.0, 10.0)
     x, y = c[:, 0], c[:, 1]
     assert np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)) > 0
+    # the RDF ignores the small blob too (centroid of the square alone)
+    alone = mask.copy()
+    alone[40:44, 40:44] = False
+    np.testing.assert_array_equal(rdf(mask), rdf(alone))
+    np.testing.assert_allclose(rdf(mask)[:2], (14.5, 19.5), atol=ATOL_EXACT)
 
 
 @pytest.mark.parametrize("bad", [np.zeros((20, 20), bool), np.zeros((20, 20), np.uint8)])
 def test_empty_mask_raises(bad, codebook):
-    with pytest.raises(ValueError, match="mask.*empty"):
+    with pytest.raises(ValueError, match=r"mask.*empty"):
         silhouette_contour(bad)
-    with pytest.raises(ValueError, match="mask.*empty"):
+    with pytest.raises(ValueError, match=r"mask.*empty"):
         rdf(bad)
-    with pytest.raises(ValueError, match="mask.*empty"):
+    with pytest.raises(ValueError, match=r"mask.*empty"):
         sc_features(bad, codebook, 0)
 
 
@@ -202,6 +208,23 @@ def test_rdf_batch_matches_single():
 # --------------------------------------------------------------------------
 # shape context
 # --------------------------------------------------------------------------
+
+
+def test_sampled_points_are_evenly_spaced_on_the_contour():
+    # a 40 x 20 rectangle of pixel centres: perimeter 2 * (39 + 19) = 116
+    mask = np.zeros((40, 60), bool)
+    mask[10:30, 5:45] = True
+    contour = silhouette_contour(mask)
+    pts = sample_contour_points(contour, 58, 4)
+    assert pts.shape == (58, 2)
+    on_x = np.isclose(pts[:, 0], 5) | np.isclose(pts[:, 0], 44)
+    on_y = np.isclose(pts[:, 1], 10) | np.isclose(pts[:, 1], 29)
+    assert np.all(on_x | on_y)
+    inside = (pts[:, 0] >= 5) & (pts[:, 0] <= 44) & (pts[:, 1] >= 10) & (pts[:, 1] <= 29)
+    assert np.all(inside)
+    # consecutive samples 2 px apart along the outline (116 / 58), away from corners
+    step = np.abs(np.diff(pts, axis=0)).sum(axis=1)
+    assert np.median(step) == pytest.approx(2.0, abs=ATOL_EXACT)
 
 
 def test_shape_context_histograms_sum_to_one():
@@ -275,8 +298,10 @@ def test_encoding_is_unit_length_and_non_negative(codebook):
 def test_codebook_is_deterministic_by_seed():
     cfg = ShapeContextConfig(kappas=(0.25, 0.5), n_points=100)
     desc = np.concatenate(
-        [sc_descriptors(figure_mask(200, (320, 40), arm=a), i, cfg)
-         for i, a in enumerate((0.3, 1.2, 2.4))],
+        [
+            sc_descriptors(figure_mask(200, (320, 40), arm=a), i, cfg)
+            for i, a in enumerate((0.3, 1.2, 2.4))
+        ],
         axis=1,
     )
     a = fit_codebook(desc, k=20, rng=5, config=cfg)
