@@ -496,6 +496,330 @@ def estimate_image(
         console.print(f"weight change: {result['change']['weight_kg_change']:+.1f} kg")
 
 
+# --- calibrate -------------------------------------------------------------------------
+@main.command()
+@click.argument("session_dir", metavar="SESSION", type=click.Path(file_okay=False, path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="calibration.yaml to write (default: the session's calibration path).",
+)
+@click.option("--overwrite", is_flag=True, help="Replace an existing calibration file.")
+@click.option(
+    "--floor-frames",
+    default=None,
+    help="Clip frames START:END where the board lies still on the floor, face up (it "
+    "defines the world: origin, z up); 'none' for no floor (world = first camera). "
+    "Default: the first second.",
+)
+@click.option(
+    "--step", default=None, type=click.IntRange(1), help="Detect every N-th frame (default: auto)."
+)
+@click.option("--workers", default=None, type=click.IntRange(1), help="Detection threads.")
+@_friendly_errors
+def calibrate(
+    session_dir: Path,
+    out: Path | None,
+    overwrite: bool,
+    floor_frames: str | None,
+    step: int | None,
+    workers: int | None,
+) -> None:
+    """Solve the cameras of SESSION from its ChArUco calibration clips."""
+    from rich.progress import BarColumn, Progress, TimeRemainingColumn
+    from rich.table import Table
+
+    from calibration.session_calibration import (
+        calibrate_session,
+        detect_session,
+        parse_floor_frames,
+        write_calibration,
+    )
+    from capture.session import DEFAULT_CALIBRATION_FILE, load_session
+
+    session = load_session(session_dir)
+    out = out or session.calibration_path or (session.folder / DEFAULT_CALIBRATION_FILE)
+    if out.exists() and not overwrite:
+        raise InputError(
+            f"{out} exists; pass --overwrite to replace it or --out to write elsewhere"
+        )
+    floor = parse_floor_frames(floor_frames, session.fps)
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        "{task.completed}/{task.total} frames",
+        TimeRemainingColumn(),
+        console=console,
+    ) as progress:
+        tasks = {
+            name: progress.add_task(f"detecting {name}", total=None)
+            for name in session.camera_names
+        }
+
+        def update(name: str, done: int, total: int) -> None:
+            progress.update(tasks[name], completed=done, total=total)
+
+        detections = detect_session(session, step=step, workers=workers, on_progress=update)
+    with console.status("solving (intrinsics, camera graph, bundle adjustment)"):
+        result, _ = calibrate_session(session, floor_frames=floor, detections=detections)
+    report_path = write_calibration(
+        result, out, overwrite=overwrite, extra={"session": str(session.folder)}
+    )
+    table = Table(title=f"calibration of {session.name}: RMS {result.rms_px:.3f} px")
+    for col in ("camera", "frames read", "boards detected", "corners used", "RMS px"):
+        table.add_column(col, justify="left" if col == "camera" else "right")
+    for name, fig in result.per_camera.items():
+        table.add_row(
+            name,
+            str(fig["frames_read"]),
+            str(fig["boards_detected"]),
+            str(fig["corners_used"]),
+            f"{fig['rms_px']:.3f}",
+        )
+    console.print(table)
+    console.print(f"world: {result.world.get('frame')}")
+    console.print(f"wrote {out} and {report_path}")
+
+
+# --- silhouettes -----------------------------------------------------------------------
+@main.command()
+@click.argument("session_dir", metavar="SESSION", type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Output folder (default: runs/<session name>/silhouettes).",
+)
+@click.option(
+    "--method",
+    type=click.Choice(["horprasert", "mog2", "none"]),
+    default="horprasert",
+    show_default=True,
+    help="Background subtraction: Horprasert shadow suppression, OpenCV MOG2, or none.",
+)
+@click.option(
+    "--read",
+    "read_method",
+    type=click.Choice(["sequential", "seek"]),
+    default="sequential",
+    show_default=True,
+    help="Decode straight through (fast for H.264) or seek to each kept frame.",
+)
+@click.option("--no-overlays", is_flag=True, help="Write the masks only.")
+@click.option("--strict", is_flag=True, help="Differing frame counts are an error.")
+@click.option(
+    "--no-shadow-eval",
+    is_flag=True,
+    help="With ground truth, skip re-rendering the true cast shadows (no shadow_false_positive).",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object (results) on stdout.")
+@_friendly_errors
+def silhouettes(
+    session_dir: Path,
+    out: Path | None,
+    method: str,
+    read_method: str,
+    no_overlays: bool,
+    strict: bool,
+    no_shadow_eval: bool,
+    as_json: bool,
+) -> None:
+    """Segment the person in every kept frame of SESSION (masks PNG + overlays)."""
+    import time
+
+    from rich.progress import BarColumn, Progress, TimeRemainingColumn
+
+    from capture.background import SubtractionConfig
+    from capture.evaluate import SilhouetteScores, load_ground_truth
+    from capture.ingest import check_sync
+    from capture.session import load_session
+    from capture.silhouette import background_models, save_silhouette_frame, segment_session
+
+    t0 = time.perf_counter()
+    session = load_session(session_dir)
+    out = out or Path("runs") / session.name / "silhouettes"
+    report = check_sync(session, strict=strict)
+    gt = load_ground_truth(session)
+    scores = SilhouetteScores(gt, shadows=not no_shadow_eval) if gt is not None else None
+    flags: dict[str, dict[str, list[int]]] = {name: {} for name in session.camera_names}
+    per_frame = []
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        "{task.completed}/{task.total} frames",
+        TimeRemainingColumn(),
+        console=console,
+        disable=as_json and not console.is_terminal,
+    ) as progress:
+        task = progress.add_task("background models", total=len(report.kept))
+        models = background_models(session, report, method=read_method)
+        progress.update(task, description="silhouettes")
+        for sf in segment_session(
+            session,
+            subtraction=SubtractionConfig(method=method),
+            report=report,
+            models=models,
+            read_method=read_method,
+        ):
+            save_silhouette_frame(out, sf, overlays=not no_overlays)
+            if scores is not None:
+                scores.update(sf)
+            for name, f in zip(sf.cameras, sf.flags, strict=True):
+                for flag in f:
+                    flags[name].setdefault(flag, []).append(sf.frame)
+            per_frame.append(
+                {
+                    "frame": sf.frame,
+                    "flags": dict(zip(sf.cameras, map(list, sf.flags), strict=True)),
+                }
+            )
+            progress.advance(task)
+    result: dict[str, Any] = {
+        "session": str(session.folder),
+        "out": str(out),
+        "method": method,
+        "frames": len(per_frame),
+        "frame_step": session.frame_step,
+        "session_frames": report.n_frames,
+        "background": {m.camera: m.source for m in models},
+        "warnings": list(report.warnings),
+        "seconds": round(time.perf_counter() - t0, 2),
+        "ground_truth": scores is not None,
+        "cameras": {},
+    }
+    summary = scores.summary() if scores is not None else {}
+    for name in session.camera_names:
+        entry: dict[str, Any] = {"frames": len(per_frame)}
+        entry.update(summary.get(name, {}))
+        entry["flags"] = flags[name]
+        result["cameras"][name] = entry
+    write_json_atomic(out / "silhouettes.json", {**result, "per_frame": per_frame})
+    if as_json:
+        click.echo(json.dumps(result))
+        return
+    from rich.table import Table
+
+    table = Table(title=f"silhouettes of {session.name} ({method})")
+    table.add_column("camera")
+    table.add_column("frames", justify="right")
+    if scores is not None:
+        table.add_column("IoU mean", justify="right")
+        table.add_column("IoU min", justify="right")
+        table.add_column("shadow FP", justify="right")
+    table.add_column("flags")
+    for name, entry in result["cameras"].items():
+        row = [name, str(entry["frames"])]
+        if scores is not None:
+            sfp = entry.get("shadow_false_positive")
+            row += [
+                f"{entry.get('iou_mean', float('nan')):.3f}",
+                f"{entry.get('iou_min', float('nan')):.3f}",
+                "-" if sfp is None else f"{100 * sfp:.2f} %",
+            ]
+        row.append(", ".join(f"{k} x{len(v)}" for k, v in entry["flags"].items()) or "-")
+        table.add_row(*row)
+    console.print(table)
+    console.print(f"wrote masks and overlays to {out}/ in {result['seconds']:.1f} s")
+
+
+# --- process -------------------------------------------------------------------------------
+@main.command()
+@click.argument("session", required=False, type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Run folder (default: runs/<session name>). An existing run resumes.",
+)
+@click.option(
+    "--quality",
+    type=click.Choice(["fast", "default", "best"]),
+    default="default",
+    show_default=True,
+    help="Particles, annealing layers and image scale.",
+)
+@click.option(
+    "--workers", default=None, type=int, help="Frames fitted in parallel (default: all cores)."
+)
+@click.option("--seed", default=0, show_default=True, type=int, help="Seeds the particle filter.")
+@click.option(
+    "--cache",
+    "cache_dir",
+    default=None,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Model cache folder (default: $BODYMETRY_CACHE or ~/.cache/bodymetry).",
+)
+@_friendly_errors
+def process(
+    session: Path | None,
+    out: Path | None,
+    quality: str,
+    workers: int | None,
+    seed: int,
+    cache_dir: Path | None,
+) -> None:
+    """Measure the person in SESSION (default: the demo recording): silhouettes,
+    discriminative estimate, generative refinement, biometrics per kept frame."""
+    from rich.progress import BarColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
+
+    from estimation.pipeline import ProcessConfig, process_session
+
+    session = session or DEMO_SESSION
+    out = out or Path("runs") / session.resolve().name
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        "{task.completed}/{task.total}",
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+    ) as bar:
+        tasks: dict[str, int] = {}
+
+        def update(label: str, done: int, total: int) -> None:
+            if label not in tasks:
+                tasks[label] = bar.add_task(label, total=total)
+            bar.update(tasks[label], completed=done, total=total)
+
+        results = process_session(
+            session,
+            out,
+            ProcessConfig(quality=quality, seed=seed),
+            workers=workers,
+            cache_dir=cache_dir,
+            progress=update,
+        )
+    _print_summary(results)
+    console.print(f"wrote {out / 'results.json'} and frames/ (per-frame records)")
+
+
+def _print_summary(results: dict) -> None:
+    from rich.table import Table
+
+    frames = results["frames"]
+    failed = [f for f in frames if f.get("status") != "ok"]
+    name = results["session"]["name"]
+    table = Table(title=f"{name}: {len(frames) - len(failed)} of {len(frames)} frames fitted")
+    table.add_column("measurement")
+    truth = results.get("ground_truth")
+    if truth:
+        table.add_column("actual", justify="right")
+    for stage in ("discriminative", "generative"):
+        table.add_column(f"{stage} mean ± std", justify="right")
+    for key in ("height_mm", "arm_span_mm", "weight_kg", "chest_mm", "waist_mm", "hip_mm"):
+        row = [key]
+        if truth:
+            row.append(f"{truth[key]:.1f}")
+        for stage in ("discriminative", "generative"):
+            s = results["summary"][stage].get(key)
+            row.append("-" if not s or s["mean"] is None else f"{s['mean']:.1f} ± {s['std']:.1f}")
+        table.add_row(*row)
+    console.print(table)
+    for f in failed:
+        console.print(f"frame {f['frame']}: {f['status']}")
+
+
 # --- demo ----------------------------------------------------------------------------
 @main.command()
 @click.option(

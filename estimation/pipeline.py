@@ -1,0 +1,336 @@
+"""``bodymetry process``: from a session folder to measurements, one frame at a time.
+
+For every kept frame: silhouettes (capture stage) -> discriminative estimate
+(per camera mixtures of experts, paper §4) -> generative refinement (annealed
+particle filter, §5) -> biometrics of the canonical body of the fitted ν.
+Frames run in parallel worker processes; each finished frame is written to
+``RUN/frames/FFFFFF.json`` atomically, so a killed run resumes from the
+frames it finished. ``results.json`` (schema: docs/outputs.md) summarizes the
+run: per frame and per stage the measurements, and mean / std / n per stage
+over the frames that succeeded.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import multiprocessing as mp
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bodymetry.errors import InputError
+from bodymetry.fileio import write_json_atomic
+from calibration.camera import Camera
+from capture.session import Session, load_session
+from estimation.body_model.biometrics import measure
+from estimation.body_model.model import BodyModel, BodyState
+from estimation.generative import AnnealingConfig, anneal, chamfer_costs, prepare_observation
+from estimation.projection import project_silhouettes
+from estimation.training import DiscriminativeModels, TrainConfig, load_or_train, targets_to_theta
+
+log = logging.getLogger(__name__)
+
+#: The three measurements of the paper's Figure 3.
+CORE = ("height_mm", "arm_span_mm", "weight_kg")
+#: Views with fewer person pixels than this are treated as having no silhouette.
+MIN_PIXELS = 400
+
+
+@dataclass(frozen=True)
+class ProcessConfig:
+    """What ``bodymetry process`` does.
+
+    Attributes
+    ----------
+    quality : str
+        ``fast``, ``default`` or ``best`` (particles, layers, image scale).
+    seed : int
+    density : float
+        kg/m³ for weight.
+    initial_particles : int
+        Draws from the discriminative mixtures that start the search.
+    """
+
+    quality: str = "default"
+    seed: int = 0
+    density: float = 1000.0
+    initial_particles: int = 400
+
+    @property
+    def annealing(self) -> AnnealingConfig:
+        return AnnealingConfig.preset(self.quality)
+
+
+def _jsonable_state(state: BodyState) -> dict:
+    return {
+        "tau": state.tau[0].tolist(),
+        "theta": state.theta[0].tolist(),
+        "nu": state.nu[0].tolist(),
+    }
+
+
+def _core(bio: dict) -> dict:
+    return {k: round(bio[k], 3) for k in bio}
+
+
+def discriminative_particles(
+    models: DiscriminativeModels,
+    masks: np.ndarray,
+    valid: np.ndarray,
+    n: int,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Initial particles [τ, θ, ν] drawn from every usable camera's mixtures.
+
+    Returns the particles (n, 40 + n_shape) and each camera's point prediction.
+    """
+    cams = [c for c, ok in zip(models.camera_names, valid, strict=True) if ok]
+    per = max(1, n // max(1, len(cams)))
+    particles, points = [], []
+    for c, name in enumerate(models.camera_names):
+        if not valid[c]:
+            continue
+        x_rdf, x_sc = models.features(name, masks[c], rng)
+        m = models.models[name]
+        nu = m["nu_rdf"].sample(x_rdf, per, rng)
+        theta = targets_to_theta(m["theta_sc"].sample(x_sc, per, rng))
+        tau = m["tau_rdf"].sample(x_rdf, per, rng)
+        particles.append(np.hstack([tau, theta, nu]))
+        point = np.hstack(
+            [
+                m["tau_rdf"].predict(x_rdf[None])[0],
+                targets_to_theta(m["theta_sc"].predict(x_sc[None], mode="gate"))[0],
+                m["nu_rdf"].predict(x_rdf[None])[0],
+            ]
+        )
+        points.append(point)
+    return np.vstack(particles), points
+
+
+def fit_frame(
+    frame: int,
+    masks: np.ndarray,
+    flags: list[list[str]],
+    cameras: list[Camera],
+    models: DiscriminativeModels,
+    config: ProcessConfig,
+    initial: np.ndarray | None = None,
+) -> dict:
+    """Fit one frame; returns its record for ``results.json`` (never raises for bad data)."""
+    t0 = time.perf_counter()
+    body = BodyModel.load()
+    rng = np.random.default_rng([config.seed, frame])
+    valid = np.array(
+        [m.sum() >= MIN_PIXELS and "unreadable" not in f for m, f in zip(masks, flags, strict=True)]
+    )
+    record: dict = {
+        "frame": int(frame),
+        "flags": {c.name: list(f) for c, f in zip(cameras, flags, strict=True)},
+    }
+    if valid.sum() == 0:
+        record["status"] = "no silhouette in any camera"
+        return record
+    limits_lo, limits_hi = body.limits.lower, body.limits.upper
+    try:
+        if initial is None:
+            particles, points = discriminative_particles(
+                models, masks, valid, config.initial_particles, rng
+            )
+        else:
+            particles, points = initial, [initial.mean(axis=0)]
+        particles[:, 3:40] = np.clip(particles[:, 3:40], limits_lo, limits_hi)
+        obs = prepare_observation(
+            cameras, np.where(valid[:, None, None], masks, False), config.annealing.image_scale
+        )
+        faces = body.faces(lod=True)
+        # Discriminative estimate: the camera prediction that explains all views best.
+        costs = []
+        for p in points:
+            p = p.copy()
+            p[3:40] = np.clip(p[3:40], limits_lo, limits_hi)
+            verts = body.pose(BodyState.from_vector(p[None]), lod=True).vertices[0]
+            costs.append(chamfer_costs(obs, verts, faces).sum())
+        disc = points[int(np.argmin(costs))].copy()
+        disc[3:40] = np.clip(disc[3:40], limits_lo, limits_hi)
+        disc_state = BodyState.from_vector(disc[None])
+        t_disc = time.perf_counter() - t0
+        result = anneal(body, obs, particles, config.annealing, rng)
+        t_gen = time.perf_counter() - t0 - t_disc
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        record["status"] = f"fit failed: {exc}"
+        return record
+    if not np.all(np.isfinite(result.state.vector())) or not np.isfinite(result.best_cost):
+        record["status"] = "likelihood collapse (non-finite estimate)"
+        return record
+    bios = measure(body, np.vstack([disc_state.nu, result.state.nu]), density=config.density)
+    fitted = body.pose(result.state, lod=True).vertices[0]
+    model_masks = project_silhouettes(fitted, faces, cameras)
+    iou = {}
+    for c, cam in enumerate(cameras):
+        if valid[c]:
+            inter = np.logical_and(model_masks[c], masks[c]).sum()
+            iou[cam.name] = round(
+                float(inter / max(np.logical_or(model_masks[c], masks[c]).sum(), 1)), 4
+            )
+    record.update(
+        {
+            "status": "ok",
+            "discriminative": {**_core(bios[0].to_dict()), "state": _jsonable_state(disc_state)},
+            "generative": {**_core(bios[1].to_dict()), "state": _jsonable_state(result.state)},
+            "silhouette_iou": iou,
+            "annealing": {
+                "layer_log_likelihood": result.layer_log_likelihood.round(4).tolist(),
+                "layer_beta": result.layer_beta.round(6).tolist(),
+                "particle_std": {
+                    "tau_m": result.particles[:, :3].std(axis=0).round(4).tolist(),
+                    "nu": result.particles[:, 40:].std(axis=0).round(4).tolist(),
+                },
+            },
+            "seconds": {
+                "discriminative": round(t_disc, 2),
+                "generative": round(t_gen, 2),
+                "total": round(time.perf_counter() - t0, 2),
+            },
+        }
+    )
+    return record
+
+
+def summarize(records: list[dict]) -> dict:
+    """Mean, std and n per stage and measurement over the frames that succeeded."""
+    ok = [r for r in records if r.get("status") == "ok"]
+    out = {}
+    for stage in ("discriminative", "generative"):
+        out[stage] = {}
+        for key in ok[0][stage] if ok else CORE:
+            if key == "state":
+                continue
+            values = np.array([r[stage][key] for r in ok], float)
+            out[stage][key] = {
+                "mean": float(values.mean()) if len(values) else None,
+                "std": float(values.std(ddof=1))
+                if len(values) > 1
+                else 0.0
+                if len(values)
+                else None,
+                "n": len(values),
+            }
+    return out
+
+
+def _fit_worker(args) -> dict:
+    frame, masks, flags, cameras, models_path, config = args
+    models = DiscriminativeModels.load(models_path)
+    return fit_frame(frame, masks, flags, cameras, models, config)
+
+
+def process_session(
+    session_path: str | Path,
+    out: str | Path,
+    config: ProcessConfig | None = None,
+    workers: int | None = None,
+    cache_dir: Path | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> dict:
+    """Run the whole pipeline on a session; writes ``out/results.json`` and returns it."""
+    from capture.silhouette import segment_session
+
+    config = config or ProcessConfig()
+    AnnealingConfig.preset(config.quality)  # an unknown preset fails before any work
+    session: Session = load_session(session_path)
+    out = Path(out)
+    frames_dir = out / "frames"
+    frames_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    cameras = _session_cameras(session)
+    models, reused = load_or_train(
+        cameras,
+        TrainConfig(),
+        cache_dir,
+        workers=workers,
+        progress=(lambda label, d, t: progress(f"training: {label}", d, t)) if progress else None,
+    )
+    t_train = time.perf_counter() - t0
+    models_path = _models_file(models, cache_dir)
+
+    done = {int(p.stem): json.loads(p.read_text()) for p in frames_dir.glob("*.json")}
+    pending = []
+    t1 = time.perf_counter()
+    n_kept = 0
+    for sil in segment_session(session, keep_images=False):
+        n_kept += 1
+        if sil.frame in done:
+            continue
+        pending.append(
+            (sil.frame, sil.stack(), [list(f) for f in sil.flags], cameras, models_path, config)
+        )
+    t_sil = time.perf_counter() - t1
+    if progress:
+        progress("frames", len(done), n_kept)
+    workers = max(1, workers or mp.cpu_count() or 1)
+    t2 = time.perf_counter()
+    ctx = mp.get_context("fork")
+    with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+        futures = [pool.submit(_fit_worker, job) for job in pending]
+        for fut in as_completed(futures):
+            record = fut.result()
+            write_json_atomic(frames_dir / f"{record['frame']:06d}.json", record)
+            done[record["frame"]] = record
+            if progress:
+                progress("frames", len(done), n_kept)
+    records = [done[f] for f in sorted(done)]
+    results = {
+        "session": {
+            "path": str(Path(session_path).resolve()),
+            "name": session.name,
+            "cameras": list(session.camera_names),
+            "fps": session.fps,
+            "frame_step": session.frame_step,
+        },
+        "config": {
+            **asdict(config),
+            "annealing": asdict(config.annealing),
+            "models": models.key,
+            "models_reused": reused,
+        },
+        "frames": records,
+        "summary": summarize(records),
+        "timing_seconds": {
+            "training": round(t_train, 1),
+            "silhouettes": round(t_sil, 1),
+            "fitting": round(time.perf_counter() - t2, 1),
+            "total": round(time.perf_counter() - t0, 1),
+        },
+    }
+    truth = _ground_truth(session)
+    if truth is not None:
+        results["ground_truth"] = truth
+    write_json_atomic(out / "results.json", results)
+    return results
+
+
+def _session_cameras(session: Session) -> list[Camera]:
+    if session.calibration_path is None or not session.calibration_path.is_file():
+        raise InputError(
+            f"{session.folder}: no calibration.yaml; "
+            f"run `bodymetry calibrate {session.folder}` first"
+        )
+    return list(session.calibration())
+
+
+def _models_file(models: DiscriminativeModels, cache_dir: Path | None) -> Path:
+    from estimation.training import default_cache_dir
+
+    return (cache_dir or default_cache_dir()) / "discriminative" / f"{models.key}.npz"
+
+
+def _ground_truth(session: Session) -> dict | None:
+    gt = session.ground_truth_path
+    if gt is None or not (gt / "subject.json").is_file():
+        return None
+    return json.loads((gt / "subject.json").read_text())
