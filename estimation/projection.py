@@ -1,19 +1,17 @@
 """Model silhouettes: project the body's level of detail into camera images.
 
 Used to render the discriminative training set and by the generative
-likelihood. The ~3,000-triangle LOD is filled with one ``cv2.fillPoly`` call per
-view (sub-pixel vertex positions, 1/16 px); a silhouette needs no depth order.
+likelihood. Triangles are rasterized by the studio's vectorized coverage test
+(``capture.studio.render.rasterize``): one ``cv2.fillPoly`` call with all
+triangles would apply the even-odd rule and punch holes where the body
+overlaps itself (front and back faces, an arm before the torso).
 """
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from calibration.camera import Camera
-
-#: Fixed-point bits of cv2.fillPoly vertex coordinates.
-_SHIFT = 4
 
 
 def fill_silhouette(pixels: np.ndarray, faces: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -32,15 +30,14 @@ def fill_silhouette(pixels: np.ndarray, faces: np.ndarray, size: tuple[int, int]
     -------
     (H, W) bool
     """
+    from capture.studio.render import rasterize
+
     w, h = size
-    mask = np.zeros((h, w), np.uint8)
-    tri = pixels[faces]  # (T, 3, 2)
-    ok = np.all(np.isfinite(tri), axis=(1, 2))
-    # Keep coordinates in a range fillPoly's fixed point can hold.
-    tri = np.clip(tri[ok], -4 * max(w, h), 5 * max(w, h))
-    if len(tri):
-        cv2.fillPoly(mask, np.round(tri * (1 << _SHIFT)).astype(np.int32), 1, shift=_SHIFT)
-    return mask.astype(bool)
+    valid = np.all(np.isfinite(pixels), axis=1)
+    xy = np.where(valid[:, None], pixels, 0.0)
+    # Depth does not matter for coverage; a constant keeps the raster orthographic.
+    raster = rasterize(xy, np.ones(len(xy)), faces, (w, h), perspective=False, valid=valid)
+    return raster.tri >= 0
 
 
 def project_silhouettes(

@@ -38,7 +38,7 @@ from estimation.projection import project_silhouettes
 log = logging.getLogger(__name__)
 
 #: Bumped when training changes so that cached models are rebuilt.
-TRAINING_VERSION = 1
+TRAINING_VERSION = 2
 YAW = JOINT_SLICES[0].start + 2
 MODEL_NAMES = ("nu_rdf", "theta_sc", "tau_rdf", "nu_sc")
 #: N = 100 directions + the centroid (paper §3).

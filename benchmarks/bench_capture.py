@@ -1,0 +1,192 @@
+"""Capture: silhouette quality with and without shadow suppression, and throughput.
+
+Targets (issue 5):
+
+- on studio sessions with cast shadows (3 seeds, 640x480, 4 cameras): silhouette
+  IoU against ground truth >= 0.95 mean and >= 0.90 worst frame per camera;
+  shadow false positives (true cast-shadow pixels labelled person, pooled over a
+  camera's frames) < 2 %; side by side for Horprasert shadow suppression (the
+  default), OpenCV MOG2 with shadow detection, and no shadow suppression;
+- throughput: decoding and segmenting the kept frames of ``recordings/demo``
+  (850 frames, 34 kept, 4 cameras), background models included, under 10 s;
+  decoding alone by sequential grab vs by seeking to each kept frame.
+
+Sessions are rendered into a temporary folder (100 frames, a kept frame every
+10 to have 10 per camera; about 2 minutes each on 2 cores). Set
+``BODYMETRY_BENCH_CAPTURE_DIR`` to keep and reuse them.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from capture.background import METHODS, SubtractionConfig
+from capture.evaluate import GroundTruth, SilhouetteScores
+from capture.ingest import check_sync, read_frame_sets
+from capture.session import load_session
+from capture.silhouette import background_models, segment_session
+
+SEEDS = (1, 2, 3)
+DEMO = Path(__file__).resolve().parent.parent / "recordings" / "demo"
+TARGET_IOU_MEAN = 0.95
+TARGET_IOU_MIN = 0.90
+TARGET_SHADOW_FP = 0.02
+TARGET_SECONDS = 10.0
+
+
+def _session(folder: Path, seed: int) -> Path:
+    from capture.studio.synth import SynthConfig, synthesize
+
+    out = folder / f"studio_seed{seed}"
+    if not (out / "session.yaml").is_file():
+        synthesize(
+            out,
+            SynthConfig(
+                frames=100,
+                frame_step=10,
+                seed=seed,
+                background_frames=30,
+                calibration_frames=30,
+            ),
+            overwrite=True,
+        )
+    return out
+
+
+def quality(folders: list[Path]) -> dict:
+    """Per method, per session, per camera: IoU mean/min and shadow false positives."""
+    out: dict = {m: {} for m in METHODS}
+    for folder in folders:
+        session = load_session(folder)
+        report = check_sync(session)
+        models = background_models(session, report)
+        gt = GroundTruth(session)  # one per session: the true shadows are rendered once
+        for method in METHODS:
+            scores = SilhouetteScores(gt)
+            for sf in segment_session(
+                session,
+                subtraction=SubtractionConfig(method=method),
+                report=report,
+                models=models,
+                keep_images=False,
+            ):
+                scores.update(sf)
+            out[method][folder.name] = scores.summary()
+    summary = {}
+    for method, sessions in out.items():
+        cams = [c for s in sessions.values() for c in s.values()]
+        summary[method] = {
+            "iou_mean": round(float(np.mean([c["iou_mean"] for c in cams])), 4),
+            "worst_camera_iou_mean": round(min(c["iou_mean"] for c in cams), 4),
+            "worst_frame_iou": round(min(c["iou_min"] for c in cams), 4),
+            "worst_camera_shadow_false_positive": round(
+                max(c["shadow_false_positive"] for c in cams), 4
+            ),
+            "mean_shadow_false_positive": round(
+                float(np.mean([c["shadow_false_positive"] for c in cams])), 4
+            ),
+            "meets_targets": bool(
+                all(c["iou_mean"] >= TARGET_IOU_MEAN for c in cams)
+                and all(c["iou_min"] >= TARGET_IOU_MIN for c in cams)
+                and all(c["shadow_false_positive"] < TARGET_SHADOW_FP for c in cams)
+            ),
+        }
+    return {"summary": summary, "per_camera": out}
+
+
+def throughput(folder: Path = DEMO) -> dict:
+    """Seconds to decode and segment the kept frames (background models included)."""
+    if not (folder / "session.yaml").is_file():
+        return {"skipped": f"{folder} not found"}
+    result: dict = {"session": str(folder)}
+    session = load_session(folder)
+    for method in ("sequential", "seek"):
+        t0 = time.perf_counter()
+        n = sum(1 for _ in read_frame_sets(session, method=method))
+        result[f"decode_{method}_seconds"] = round(time.perf_counter() - t0, 2)
+    t0, c0 = time.perf_counter(), time.process_time()
+    session = load_session(folder)
+    report = check_sync(session)
+    models = background_models(session, report)
+    t1 = time.perf_counter()
+    n = sum(1 for _ in segment_session(session, report=report, models=models, keep_images=False))
+    t2, c2 = time.perf_counter(), time.process_time()
+    result.update(
+        {
+            "cameras": len(session.cameras),
+            "session_frames": report.n_frames,
+            "kept_frames": n,
+            "background_model_seconds": round(t1 - t0, 2),
+            "decode_and_segment_seconds": round(t2 - t1, 2),
+            "total_seconds": round(t2 - t0, 2),
+            "total_cpu_seconds": round(c2 - c0, 2),
+            "load_average_1min": round(os.getloadavg()[0], 2),
+            "target_seconds": TARGET_SECONDS,
+            "meets_target": bool(t2 - t0 < TARGET_SECONDS),
+        }
+    )
+    return result
+
+
+def real_video() -> dict:
+    """Flags on OpenCV's real pedestrian video (Debian opencv-doc), when installed."""
+    path = Path("/usr/share/doc/opencv-doc/examples/data/vtest.avi")
+    if not path.is_file():
+        return {"skipped": f"{path} not installed (Debian package opencv-doc)"}
+    import cv2
+
+    from capture.background import BackgroundModel, Subtractor
+    from capture.silhouette import clean_mask
+
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, image = cap.read()
+        if not ok:
+            break
+        frames.append(image)
+    stack = np.stack(frames[:: max(1, len(frames) // 60)])
+    model = BackgroundModel.from_frames("vtest", stack, "session")
+    sub = Subtractor(model)
+    flags: dict[str, int] = {}
+    for image in frames[::25]:
+        raw, shadow = sub.labels(image)
+        _, f = clean_mask(raw, None, image, model.median, shadow)
+        for flag in f:
+            flags[flag] = flags.get(flag, 0) + 1
+    return {"frames": len(frames[::25]), "flags": flags}
+
+
+def run() -> dict:
+    keep = os.environ.get("BODYMETRY_BENCH_CAPTURE_DIR")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(keep) if keep else Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        t0 = time.perf_counter()
+        sessions = [_session(folder, seed) for seed in SEEDS]
+        render_seconds = time.perf_counter() - t0
+        result = {
+            "sessions": "studio, cast shadows, 640x480, 4 cameras, 100 frames, "
+            f"10 kept per camera, seeds {list(SEEDS)}",
+            "render_seconds": round(render_seconds, 1),
+            "targets": {
+                "iou_mean": TARGET_IOU_MEAN,
+                "iou_min": TARGET_IOU_MIN,
+                "shadow_false_positive": TARGET_SHADOW_FP,
+            },
+            "quality": quality(sessions),
+            "throughput": throughput(),
+            "real_video": real_video(),
+        }
+    return result
+
+
+if __name__ == "__main__":  # pragma: no cover
+    import json
+
+    print(json.dumps(run(), indent=2))

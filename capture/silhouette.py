@@ -1,0 +1,599 @@
+"""Silhouettes: clean-up of the raw background-subtraction mask, per-frame flags,
+and the whole capture stage (session -> one silhouette per camera per kept frame).
+
+Clean-up (:func:`clean_mask`), on the raw person mask of one image:
+
+1. opening with a small disc (isolated noise pixels), then closing (joins parts
+   split by thin misclassified seams);
+2. connected components: the person is the largest blob plus the blobs near it
+   (within ``join_distance`` of the person's bounding box, grown by a fraction
+   of its height) that are not tiny: hands and feet cut off by a shadow-like seam;
+3. holes smaller than ``max_hole_fraction`` of the person's area are filled
+   when most of their pixels differ from the background (clothing taken for
+   shadow); holes showing the unchanged background (the gap between an arm and
+   the torso) stay open, as do large ones;
+4. edge refinement (when the image and background are given): optical blur and
+   4:2:0 chroma subsampling spread the person's colour 1-2 pixels into the
+   background, so a noise-level threshold labels a band around the person too
+   wide, and the darker mix of person and floor at the feet passes for shadow.
+   Within ``edge_radius`` of the outline each pixel goes to whichever is nearer
+   in colour: the background, or the person's local colour (the mean of the
+   person's interior pixels in an ``edge_window`` square). That is the
+   half-coverage point of a blurred edge; it raised the mean IoU on the demo
+   recording from 0.93 to 0.96.
+
+Flags per camera and frame (:data:`FLAGS`):
+
+``empty``
+    no blob of at least ``min_person_fraction`` of the image: nobody in view
+    (the mask is then all False).
+``border``
+    the person touches the image border (cut off: its silhouette is incomplete).
+``multiple``
+    another large blob (at least ``other_blob_fraction`` of the person's area)
+    away from the person: a second person or a moved object. Only the
+    person's blob is kept.
+``unreadable``
+    the camera's video did not decode at that frame (mask all False).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bodymetry.errors import InputError
+from capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
+from capture.ingest import SyncReport, check_sync, read_frame_sets
+from capture.session import Session
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "FLAGS",
+    "CleanupConfig",
+    "SilhouetteFrame",
+    "background_models",
+    "clean_mask",
+    "overlay",
+    "refine_edges",
+    "save_silhouette_frame",
+    "segment_session",
+]
+
+FLAGS = ("empty", "border", "multiple", "unreadable")
+
+
+@dataclass(frozen=True)
+class CleanupConfig:
+    """Parameters of :func:`clean_mask` (lengths in pixels at 640x480; they scale
+    with the image diagonal).
+
+    Attributes
+    ----------
+    open_radius, close_radius : int
+        Disc radii of the opening and closing (0 = skip).
+    min_person_fraction : float
+        Smallest person, as a fraction of the image area (smaller: ``empty``).
+    join_distance : float
+        Blobs within this fraction of the person's height of its bounding box join it.
+    min_part_pixels : int
+        Smaller blobs never join (noise).
+    other_blob_fraction : float
+        A blob away from the person with at least this fraction of its area
+        raises ``multiple``.
+    max_hole_fraction : float
+        Holes smaller than this fraction of the person's area are filled.
+    edge_radius : int
+        Half-width of the band around the outline that edge refinement decides
+        (0 = no refinement).
+    edge_window : int
+        Side of the square over which the person's local colour is averaged.
+    """
+
+    open_radius: int = 1
+    close_radius: int = 2
+    min_person_fraction: float = 0.002
+    join_distance: float = 0.08
+    min_part_pixels: int = 12
+    other_blob_fraction: float = 0.25
+    max_hole_fraction: float = 0.02
+    edge_radius: int = 2
+    edge_window: int = 7
+
+    def __post_init__(self) -> None:
+        if self.open_radius < 0 or self.close_radius < 0:
+            raise InputError("open_radius and close_radius must be >= 0")
+        if not 0 < self.min_person_fraction < 1:
+            raise InputError(
+                f"min_person_fraction: expected in (0, 1), got {self.min_person_fraction}"
+            )
+
+
+@dataclass(frozen=True)
+class SilhouetteFrame:
+    """The silhouettes of one kept session frame.
+
+    Attributes
+    ----------
+    frame : int
+        Session frame.
+    cameras : tuple of str
+        Camera names (session order).
+    masks : tuple of (H, W) bool, length C
+        Cleaned person mask per camera (all False when empty or unreadable).
+    flags : tuple of tuple of str, length C
+        Flags per camera (:data:`FLAGS`).
+    images : tuple of ((H, W, 3) uint8 or None), length C
+        The decoded images (None when unreadable), for overlays.
+    shadows : tuple of (H, W) bool, length C
+        Pixels suppressed as cast shadow (before clean-up).
+    """
+
+    frame: int
+    cameras: tuple[str, ...]
+    masks: tuple[np.ndarray, ...]
+    flags: tuple[tuple[str, ...], ...]
+    images: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
+    shadows: tuple[np.ndarray, ...] = field(default=(), repr=False)
+
+    def stack(self) -> np.ndarray:
+        """(C, H, W) bool masks (all cameras must have the same size)."""
+        return np.stack(self.masks)
+
+
+def _disc(radius: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
+def _scaled(value: float, shape: tuple[int, ...]) -> int:
+    return round(value * np.hypot(shape[0], shape[1]) / 800.0)
+
+
+def clean_mask(
+    raw: np.ndarray,
+    config: CleanupConfig | None = None,
+    image: np.ndarray | None = None,
+    background: np.ndarray | None = None,
+    shadow: np.ndarray | None = None,
+) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Clean a raw person mask and flag it.
+
+    Parameters
+    ----------
+    raw : (H, W) bool
+    config : CleanupConfig
+    image : (H, W, 3) uint8, optional
+        The image, for edge refinement.
+    background : (H, W, 3) float, optional
+        Its background colour (:attr:`BackgroundModel.median`), for edge refinement.
+    shadow : (H, W) bool, optional
+        Pixels the subtraction labelled cast shadow: edge refinement does not add
+        them, and holes are filled only when mostly shadow-labelled (without it,
+        every hole up to ``max_hole_fraction`` is filled).
+
+    Returns
+    -------
+    mask : (H, W) bool
+        The person's blob(s), holes filled.
+    flags : tuple of str
+        Subset of ``("empty", "border", "multiple")``.
+    """
+    cfg = config or CleanupConfig()
+    raw = np.asarray(raw)
+    if raw.ndim != 2:
+        raise InputError(f"mask: expected (H, W), got {raw.shape}")
+    h, w = raw.shape
+    m = raw.astype(np.uint8)
+    r_open = _scaled(cfg.open_radius, raw.shape) if cfg.open_radius else 0
+    r_close = max(_scaled(cfg.close_radius, raw.shape), 1) if cfg.close_radius else 0
+    if r_open:
+        m = cv2.morphologyEx(m, cv2.MORPH_OPEN, _disc(r_open))
+    if r_close:
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, _disc(r_close))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    empty = np.zeros((h, w), bool)
+    if n <= 1:
+        return empty, ("empty",)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    order = np.argsort(-areas)
+    main = int(order[0]) + 1
+    if stats[main, cv2.CC_STAT_AREA] < cfg.min_person_fraction * h * w:
+        return empty, ("empty",)
+    x0, y0, bw, bh = (int(v) for v in stats[main, :4])
+    grow = cfg.join_distance * bh
+    keep = [main]
+    flags: list[str] = []
+    for idx in order[1:]:
+        lab = int(idx) + 1
+        area = int(stats[lab, cv2.CC_STAT_AREA])
+        if area < cfg.min_part_pixels:
+            break
+        bx, by, bbw, bbh = (int(v) for v in stats[lab, :4])
+        gap_x = max(x0 - (bx + bbw), bx - (x0 + bw), 0)
+        gap_y = max(y0 - (by + bbh), by - (y0 + bh), 0)
+        near = max(gap_x, gap_y) <= grow
+        large = area >= cfg.other_blob_fraction * stats[main, cv2.CC_STAT_AREA]
+        if (
+            large
+            and area >= cfg.min_person_fraction * h * w
+            and not _overlaps(stats[main], stats[lab])
+        ):
+            flags.append("multiple")
+            continue
+        if near:
+            keep.append(lab)
+    mask = np.isin(labels, keep)
+    changed = None if shadow is None else (raw | shadow)
+    mask = _fill_holes(mask, cfg.max_hole_fraction * mask.sum(), changed, cfg.min_part_pixels)
+    if image is not None and background is not None and cfg.edge_radius > 0:
+        mask = refine_edges(
+            image,
+            background,
+            mask,
+            max(_scaled(cfg.edge_radius, raw.shape), 1),
+            max(_scaled(cfg.edge_window, raw.shape) | 1, 3),
+            shadow,
+        )
+    if mask[0, :].any() or mask[-1, :].any() or mask[:, 0].any() or mask[:, -1].any():
+        flags.append("border")
+    return mask, tuple(dict.fromkeys(flags))
+
+
+def refine_edges(
+    image: np.ndarray,
+    background: np.ndarray,
+    mask: np.ndarray,
+    radius: int = 2,
+    window: int = 7,
+    shadow: np.ndarray | None = None,
+) -> np.ndarray:
+    """Re-decide the pixels within ``radius`` of the outline of ``mask`` by colour.
+
+    A pixel of the band is person when its colour is nearer the person's local
+    colour (mean over the mask's interior in a ``window`` square) than the
+    background's. Pixels labelled shadow outside the mask stay out (the feet
+    touch their shadow: adding them measurably raised the shadow false
+    positives, 0.2 % -> 2 % on the demo recording). Works on the bounding box of
+    the band only.
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8
+    background : (H, W, 3) float
+    mask : (H, W) bool
+    radius, window : int
+        Band half-width and averaging window, pixels.
+    shadow : (H, W) bool, optional
+        Shadow-labelled pixels (never added).
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    ys, xs = np.nonzero(mask)
+    if ys.size == 0:
+        return mask
+    h, w = mask.shape
+    pad = radius + window
+    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, h)
+    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, w)
+    m = mask[y0:y1, x0:x1].astype(np.uint8)
+    img = image[y0:y1, x0:x1].astype(np.float32)
+    bg = background[y0:y1, x0:x1]
+    disc = _disc(radius)
+    band = (cv2.dilate(m, disc) > 0) & ~(cv2.erode(m, disc) > 0)
+    inner = cv2.erode(m, np.ones((3, 3), np.uint8)).astype(np.float32)
+    weight = cv2.boxFilter(inner, -1, (window, window), normalize=False)
+    local = cv2.boxFilter(img * inner[..., None], -1, (window, window), normalize=False)
+    local /= np.maximum(weight, 1e-6)[..., None]
+    d_person = ((img - local) ** 2).sum(axis=2)
+    d_background = ((img - bg) ** 2).sum(axis=2)
+    person = (d_person < d_background) & (weight > 0)
+    if shadow is not None:
+        person &= ~(shadow[y0:y1, x0:x1] & ~mask[y0:y1, x0:x1])
+    out = mask.copy()
+    crop = out[y0:y1, x0:x1]
+    crop[band] = person[band]
+    return out
+
+
+def _overlaps(a: np.ndarray, b: np.ndarray) -> bool:
+    """Bounding boxes (x, y, w, h, ...) overlap."""
+    return not (
+        a[0] + a[2] <= b[0] or b[0] + b[2] <= a[0] or a[1] + a[3] <= b[1] or b[1] + b[3] <= a[1]
+    )
+
+
+def _fill_holes(
+    mask: np.ndarray,
+    max_area: float,
+    changed: np.ndarray | None = None,
+    always_area: int = 0,
+) -> np.ndarray:
+    """Fill background regions enclosed by ``mask`` of at most ``max_area`` pixels.
+
+    With ``changed`` (pixels that differ from the background: raw person or
+    shadow), a hole larger than ``always_area`` is filled only when most of its
+    pixels changed: a gap between arm and torso shows the unchanged background
+    and stays open; a patch of clothing taken for shadow is filled.
+    """
+    ys, xs = np.nonzero(mask)
+    if ys.size == 0:
+        return mask
+    # Work on the bounding box grown by a pixel: its border is outside the mask.
+    h, w = mask.shape
+    y0, y1 = max(ys.min() - 1, 0), min(ys.max() + 2, h)
+    x0, x1 = max(xs.min() - 1, 0), min(xs.max() + 2, w)
+    crop = mask[y0:y1, x0:x1]
+    padded = np.pad(~crop, 1, constant_values=True).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(padded, connectivity=4)
+    area = stats[:, cv2.CC_STAT_AREA]
+    holes = area <= max_area
+    holes[0] = False  # the mask itself (label 0 = zeros of ``padded``)
+    holes[labels[0, 0]] = False  # the outside
+    if changed is not None and holes.any():
+        inside = labels[1:-1, 1:-1]
+        hits = np.bincount(inside[changed[y0:y1, x0:x1]], minlength=n)
+        holes &= (area <= always_area) | (2 * hits >= area)
+    if not holes.any():
+        return mask
+    out = mask.copy()
+    out[y0:y1, x0:x1] |= holes[labels[1:-1, 1:-1]]
+    return out
+
+
+def background_models(
+    session: Session,
+    report: SyncReport | None = None,
+    *,
+    max_frames: int = 60,
+    method: str = "sequential",
+) -> list[BackgroundModel]:
+    """A :class:`BackgroundModel` per camera (session order).
+
+    From the camera's empty-scene clip when the session names one; otherwise
+    the temporal median of the session's kept frames (at most ``max_frames``,
+    evenly spread), with a warning naming the camera.
+    """
+    report = report or check_sync(session)
+    models: list[BackgroundModel | None] = []
+    missing = []
+    for c, cam in enumerate(session.cameras):
+        path = session.background_path(cam.name)
+        if path is None:
+            models.append(None)
+            missing.append(c)
+            continue
+        frames = read_clip(path, cam.name, max_frames)
+        size = report.videos[c].size
+        if (frames.shape[2], frames.shape[1]) != size:
+            raise InputError(
+                f"camera {cam.name!r}: background clip {path} is "
+                f"{frames.shape[2]}x{frames.shape[1]}, its video {size[0]}x{size[1]}"
+            )
+        models.append(BackgroundModel.from_frames(cam.name, frames, "clip"))
+    if missing:
+        names = [session.cameras[c].name for c in missing]
+        log.warning(
+            "no background clip for camera(s) %s: using the temporal median of the session's "
+            "kept frames (a person who stands still in many of them becomes background)",
+            ", ".join(names),
+        )
+        kept = report.kept
+        if len(kept) > max_frames:
+            kept = kept[np.linspace(0, len(kept) - 1, max_frames).round().astype(int)]
+        stacks: dict[int, list[np.ndarray]] = {c: [] for c in missing}
+        for fs in read_frame_sets(session, report, frames=kept, method=method):
+            for c in missing:
+                if fs.images[c] is not None:
+                    stacks[c].append(fs.images[c])
+        for c in missing:
+            name = session.cameras[c].name
+            if not stacks[c]:
+                raise InputError(f"camera {name!r}: no frame decodes; cannot model its background")
+            models[c] = BackgroundModel.from_frames(name, np.stack(stacks[c]), "session")
+    return models  # type: ignore[return-value]
+
+
+def _prefetch(items: Iterator, depth: int = 2) -> Iterator:
+    """Iterate ``items`` in a background thread, ``depth`` ahead (decoding overlaps
+    segmentation; both release the GIL). Exceptions are re-raised here."""
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    done = object()
+    stop = threading.Event()
+
+    def put(entry: tuple) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(entry, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def work() -> None:
+        try:
+            for item in items:
+                if not put(("item", item)):
+                    break
+            else:
+                put(("item", done))
+        except BaseException as exc:  # re-raised in the consumer
+            put(("error", exc))
+        finally:
+            close = getattr(items, "close", None)
+            if close is not None:
+                close()
+
+    thread = threading.Thread(target=work, daemon=True)
+    thread.start()
+    try:
+        while True:
+            kind, item = q.get()
+            if kind == "error":
+                raise item
+            if item is done:
+                return
+            yield item
+    finally:
+        stop.set()
+        thread.join()
+
+
+def segment_session(
+    session: Session,
+    *,
+    subtraction: SubtractionConfig | None = None,
+    cleanup: CleanupConfig | None = None,
+    report: SyncReport | None = None,
+    models: Sequence[BackgroundModel] | None = None,
+    frames: Sequence[int] | None = None,
+    read_method: str = "sequential",
+    keep_images: bool = True,
+    on_frame: Callable[[SilhouetteFrame], None] | None = None,
+) -> Iterator[SilhouetteFrame]:
+    """The capture stage: yield a :class:`SilhouetteFrame` for every kept frame.
+
+    Parameters
+    ----------
+    session : Session
+    subtraction, cleanup : configs (defaults: Horprasert shadow suppression)
+    report : SyncReport, optional
+        From :func:`capture.ingest.check_sync` (computed when not given).
+    models : sequence of BackgroundModel, optional
+        Per camera (computed by :func:`background_models` when not given).
+    frames : sequence of int, optional
+        Session frames (default: the kept frames).
+    read_method : {"sequential", "seek"}
+    keep_images : bool
+        Keep the decoded images in the frames (for overlays).
+    """
+    report = report or check_sync(session)
+    if models is None:
+        models = background_models(session, report, method=read_method)
+    if len(models) != len(session.cameras):
+        raise InputError(f"expected {len(session.cameras)} background models, got {len(models)}")
+    subtractors = [Subtractor(m, subtraction) for m in models]
+    sets = read_frame_sets(session, report, frames=frames, method=read_method)
+    for fs in _prefetch(sets):
+        masks, flags, shadows = [], [], []
+        for c, image in enumerate(fs.images):
+            h, w = models[c].median.shape[:2]
+            if image is None:
+                masks.append(np.zeros((h, w), bool))
+                shadows.append(np.zeros((h, w), bool))
+                flags.append(("unreadable",))
+                continue
+            raw, shadow = subtractors[c].labels(image)
+            mask, f = clean_mask(raw, cleanup, image, models[c].median, shadow)
+            masks.append(mask)
+            shadows.append(shadow)
+            flags.append(f)
+        out = SilhouetteFrame(
+            frame=fs.frame,
+            cameras=fs.cameras,
+            masks=tuple(masks),
+            flags=tuple(flags),
+            images=fs.images if keep_images else (),
+            shadows=tuple(shadows),
+        )
+        if on_frame is not None:
+            on_frame(out)
+        yield out
+
+
+# --------------------------------------------------------------------------
+# Output for inspection
+# --------------------------------------------------------------------------
+#: Overlay colours (BGR): person tint and outline, suppressed shadow tint.
+_PERSON_BGR = np.array([60, 200, 60], np.float32)
+_SHADOW_BGR = np.array([220, 120, 0], np.float32)
+
+
+def overlay(
+    image: np.ndarray | None,
+    mask: np.ndarray,
+    shadow: np.ndarray | None = None,
+    flags: Sequence[str] = (),
+) -> np.ndarray:
+    """An inspection image: the person tinted green with its outline, pixels
+    suppressed as shadow tinted blue, flags written in the corner.
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8 or None (unreadable: a grey image)
+    mask, shadow : (H, W) bool
+    flags : sequence of str
+
+    Returns
+    -------
+    (H, W, 3) uint8 BGR
+    """
+    h, w = mask.shape
+    out = np.full((h, w, 3), 64, np.uint8) if image is None else image.copy()
+    if shadow is not None and shadow.any():
+        s = shadow & ~mask
+        out[s] = (0.55 * out[s] + 0.45 * _SHADOW_BGR).astype(np.uint8)
+    if mask.any():
+        out[mask] = (0.6 * out[mask] + 0.4 * _PERSON_BGR).astype(np.uint8)
+        contours, _ = cv2.findContours(
+            mask.astype(np.uint8), cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE
+        )
+        cv2.drawContours(out, contours, -1, (0, 255, 0), 1, cv2.LINE_AA)
+    if flags:
+        text = ", ".join(flags)
+        scale = max(h / 960.0, 0.4)
+        cv2.putText(
+            out,
+            text,
+            (6, int(22 * scale * 2)),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            scale,
+            (0, 0, 0),
+            3,
+            cv2.LINE_AA,
+        )
+        cv2.putText(
+            out,
+            text,
+            (6, int(22 * scale * 2)),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            scale,
+            (0, 220, 255),
+            1,
+            cv2.LINE_AA,
+        )
+    return out
+
+
+def save_silhouette_frame(out: str | Path, sf: SilhouetteFrame, overlays: bool = True) -> None:
+    """Write ``masks/<camera>/<frame:06d>.png`` (0 / 255) and, with ``overlays``,
+    ``overlays/<camera>/<frame:06d>.jpg`` under ``out`` (atomically per file)."""
+    from bodymetry.fileio import write_bytes_atomic
+
+    out = Path(out)
+    for c, name in enumerate(sf.cameras):
+        ok, png = cv2.imencode(".png", sf.masks[c].astype(np.uint8) * 255)
+        if not ok:  # pragma: no cover - OpenCV failure
+            raise RuntimeError("PNG encoding failed")
+        write_bytes_atomic(out / "masks" / name / f"{sf.frame:06d}.png", png.tobytes())
+        if overlays:
+            image = sf.images[c] if sf.images else None
+            shadow = sf.shadows[c] if sf.shadows else None
+            ok, jpg = cv2.imencode(
+                ".jpg",
+                overlay(image, sf.masks[c], shadow, sf.flags[c]),
+                [cv2.IMWRITE_JPEG_QUALITY, 90],
+            )
+            if not ok:  # pragma: no cover
+                raise RuntimeError("JPEG encoding failed")
+            write_bytes_atomic(out / "overlays" / name / f"{sf.frame:06d}.jpg", jpg.tobytes())

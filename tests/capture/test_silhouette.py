@@ -1,0 +1,240 @@
+"""Silhouette clean-up, flags, the capture stage end to end, and `bodymetry silhouettes`."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from bodymetry.cli import main
+from bodymetry.errors import InputError
+from capture.evaluate import SilhouetteScores, iou, load_ground_truth
+from capture.session import load_session
+from capture.silhouette import CleanupConfig, clean_mask, overlay, segment_session
+from capture.toy import write_toy_session
+
+H, W = 240, 320
+
+
+def _person(cx: int, cy: int = 120, ax: int = 18, ay: int = 70) -> np.ndarray:
+    m = np.zeros((H, W), np.uint8)
+    cv2.ellipse(m, (cx, cy), (ax, ay), 0, 0, 360, 1, -1)
+    return m > 0
+
+
+def test_empty_frame_is_flagged() -> None:
+    mask, flags = clean_mask(np.zeros((H, W), bool))
+    assert flags == ("empty",) and not mask.any()
+    noise = np.random.default_rng(0).random((H, W)) > 0.995  # speckle only
+    mask, flags = clean_mask(noise)
+    assert flags == ("empty",) and not mask.any()
+
+
+def test_person_kept_noise_removed_part_joined() -> None:
+    raw = _person(160)
+    raw[10:12, 10:12] = True  # speckle far away
+    raw[195:205, 150:158] = True  # a foot cut off by a seam, just below the body
+    raw[120, 160] = False  # a pinhole
+    mask, flags = clean_mask(raw)
+    assert flags == ()
+    assert not mask[10:12, 10:12].any()
+    assert mask[195:205, 150:158].all()
+    assert mask[120, 160]
+    assert iou(mask, raw & ~_speck()) > 0.97
+
+
+def _speck() -> np.ndarray:
+    m = np.zeros((H, W), bool)
+    m[10:12, 10:12] = True
+    return m
+
+
+def test_two_people_sized_blobs_are_flagged_and_the_larger_kept() -> None:
+    a, b = _person(80, ax=20), _person(250, ax=16)
+    mask, flags = clean_mask(a | b)
+    assert "multiple" in flags
+    assert iou(mask, a) > 0.97 and not (mask & b).any()
+
+
+def test_person_touching_the_border_is_flagged() -> None:
+    raw = _person(160, cy=60)  # head cut off by the top edge
+    mask, flags = clean_mask(raw)
+    assert flags == ("border",) and mask[0].any()
+
+
+def test_holes_filled_only_when_they_changed() -> None:
+    raw = _person(160, ax=40, ay=90)
+    hole = np.zeros((H, W), bool)
+    hole[100:110, 150:160] = True  # clothing labelled shadow
+    gap = np.zeros((H, W), bool)
+    gap[140:150, 170:180] = True  # background seen between arm and torso
+    raw &= ~(hole | gap)
+    mask, _ = clean_mask(raw, CleanupConfig(open_radius=0), shadow=hole)
+    assert mask[hole].all()
+    assert mask[gap].mean() < 0.1  # (the closing rounds the gap's corners)
+    # Without shadow information every small hole is filled.
+    mask, _ = clean_mask(raw, CleanupConfig(open_radius=0))
+    assert mask[hole].all() and mask[gap].all()
+
+
+def test_clean_mask_is_translation_equivariant() -> None:
+    raw = _person(140) | _person(140, cy=205, ax=6, ay=4)
+    mask, _ = clean_mask(raw)
+    shifted, _ = clean_mask(np.roll(raw, (7, 11), (0, 1)))
+    np.testing.assert_array_equal(shifted, np.roll(mask, (7, 11), (0, 1)))
+
+
+def test_bad_mask_shape() -> None:
+    with pytest.raises(InputError, match="mask"):
+        clean_mask(np.zeros((4, 4, 3), bool))
+
+
+def test_overlay_shapes() -> None:
+    img = np.zeros((H, W, 3), np.uint8)
+    out = overlay(img, _person(160), _person(200), ("border",))
+    assert out.shape == img.shape and out.dtype == np.uint8 and out.any()
+    assert overlay(None, np.zeros((H, W), bool)).shape == (H, W, 3)
+
+
+# --- the stage on toy sessions ---------------------------------------------------------------
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("toy") / "s"
+    write_toy_session(folder, cameras=2, frames=40, frame_step=10, empty_frames=(20,), seed=1)
+    return folder
+
+
+def test_stage_matches_ground_truth_and_flags_empty_frame(toy: Path) -> None:
+    session = load_session(toy)
+    scores = SilhouetteScores(load_ground_truth(session))
+    frames = list(segment_session(session))
+    assert [sf.frame for sf in frames] == [0, 10, 20, 30]
+    for sf in frames:
+        scores.update(sf)
+        assert sf.stack().shape == (2, 120, 160)
+        if sf.frame == 20:
+            assert sf.flags == (("empty",), ("empty",))
+            assert not sf.stack().any()
+        else:
+            assert sf.flags == ((), ())
+    summary = scores.summary()
+    for cam in ("cam_00", "cam_01"):
+        assert summary[cam]["frames"] == 4
+        assert summary[cam]["iou_min"] > 0.85  # MJPG at 160x120 smears the edges
+        assert summary[cam]["shadow_false_positive"] is None  # toy sessions have no states
+
+
+def test_cast_shadow_is_not_person(tmp_path: Path) -> None:
+    from capture.toy import ToyScene, toy_background, toy_frame
+
+    folder = tmp_path / "s"
+    write_toy_session(folder, cameras=1, frames=20, frame_step=10, seed=2)
+    session = load_session(folder)
+    # The toy shadow of frame 10 (same geometry as the written frame).
+    scene = ToyScene()
+    cx = (0.25 + 0.5 * (10 / 19)) * scene.size[0]
+    _, person, shadow = toy_frame(
+        scene, toy_background(scene, 200), [(cx, 0.5 * scene.size[1])], np.random.default_rng(0)
+    )
+    sf = next(segment_session(session, frames=[10]))
+    assert shadow.sum() > 100
+    assert (sf.masks[0] & shadow).sum() / shadow.sum() < 0.2
+    # Away from the feet (where person and shadow blur together) none of it is person.
+    near = cv2.dilate(person.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+    far = sf.masks[0] & shadow & ~near
+    assert far.sum() / shadow.sum() < 0.03
+    none = next(segment_session(session, frames=[10], subtraction=_cfg("none")))
+    assert (none.masks[0] & shadow).sum() / shadow.sum() > 0.5
+
+
+def _cfg(method: str):
+    from capture.background import SubtractionConfig
+
+    return SubtractionConfig(method=method)
+
+
+def test_second_person_is_flagged(tmp_path: Path) -> None:
+    folder = tmp_path / "s"
+    write_toy_session(folder, cameras=1, frames=20, frame_step=10, second_person=True, seed=3)
+    for sf in segment_session(load_session(folder)):
+        assert "multiple" in sf.flags[0]
+
+
+def test_without_background_clip_the_session_median_is_used(tmp_path: Path, caplog) -> None:
+    folder = tmp_path / "s"
+    write_toy_session(folder, cameras=2, frames=60, frame_step=5, backgrounds=False, seed=4)
+    session = load_session(folder)
+    assert session.background_path("cam_00") is None
+    from capture.silhouette import background_models
+
+    with caplog.at_level(logging.WARNING):
+        models = background_models(session)
+    assert [m.source for m in models] == ["session", "session"]
+    assert "cam_00, cam_01" in caplog.text
+    scores = SilhouetteScores(load_ground_truth(session))
+    for sf in segment_session(session, models=models):
+        scores.update(sf)
+    for entry in scores.summary().values():
+        assert entry["iou_mean"] > 0.8
+
+
+def test_unreadable_camera_gives_empty_flagged_masks(tmp_path: Path) -> None:
+    folder = tmp_path / "s"
+    write_toy_session(folder, cameras=2, frames=40, frame_step=5, seed=5)
+    video = folder / "videos" / "cam_00.avi"
+    video.write_bytes(video.read_bytes()[: video.stat().st_size // 2])
+    frames = list(segment_session(load_session(folder)))
+    assert frames[0].flags[0] == ()
+    assert frames[-1].flags[0] == ("unreadable",) and not frames[-1].masks[0].any()
+    assert frames[-1].flags[1] == ()
+
+
+# --- CLI ---------------------------------------------------------------------------------------
+def test_cli_silhouettes_json(toy: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    result = CliRunner().invoke(main, ["silhouettes", str(toy), "--out", str(out), "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.stdout)
+    assert data["frames"] == 4 and data["ground_truth"] is True
+    assert set(data["cameras"]) == {"cam_00", "cam_01"}
+    for entry in data["cameras"].values():
+        assert entry["frames"] == 4
+        assert entry["iou_mean"] > 0.85 and entry["iou_min"] > 0.85
+        assert "shadow_false_positive" in entry
+        assert entry["flags"] == {"empty": [20]}
+    assert (out / "masks" / "cam_01" / "000030.png").is_file()
+    assert (out / "overlays" / "cam_00" / "000000.jpg").is_file()
+    saved = json.loads((out / "silhouettes.json").read_text())
+    assert len(saved["per_frame"]) == 4
+    mask = cv2.imread(str(out / "masks" / "cam_00" / "000010.png"), cv2.IMREAD_GRAYSCALE)
+    assert set(np.unique(mask)) <= {0, 255} and mask.shape == (120, 160)
+
+
+def test_cli_missing_session_is_one_line_error(tmp_path: Path) -> None:
+    result = CliRunner().invoke(main, ["silhouettes", str(tmp_path / "nope")])
+    assert result.exit_code == 2
+    assert "not found" in result.output
+
+
+def test_camera_order_does_not_change_the_masks(toy: Path, tmp_path: Path) -> None:
+    import shutil
+
+    import yaml
+
+    folder = tmp_path / "s"
+    shutil.copytree(toy, folder)
+    data = yaml.safe_load((folder / "session.yaml").read_text())
+    data["cameras"] = data["cameras"][::-1]
+    (folder / "session.yaml").write_text(yaml.safe_dump(data))
+    a = list(segment_session(load_session(toy), keep_images=False))
+    b = list(segment_session(load_session(folder), keep_images=False))
+    assert b[0].cameras == ("cam_01", "cam_00")
+    for x, y in zip(a, b, strict=True):
+        assert x.flags == y.flags[::-1]
+        for u, v in zip(x.masks, y.masks[::-1], strict=True):
+            np.testing.assert_array_equal(u, v)
