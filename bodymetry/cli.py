@@ -820,6 +820,60 @@ def _print_summary(results: dict) -> None:
         console.print(f"frame {f['frame']}: {f['status']}")
 
 
+# --- evaluate ------------------------------------------------------------------------------
+@main.command()
+@click.argument("run", type=click.Path(file_okay=False, path_type=Path))
+@click.option(
+    "--workers", default=None, type=int, help="Frames fitted in parallel (default: all cores)."
+)
+@click.option(
+    "--json", "as_json", is_flag=True, help="Print one JSON object (also in RUN/evaluation.json)."
+)
+@_friendly_errors
+def evaluate(run: Path, workers: int | None, as_json: bool) -> None:
+    """The paper's Figure 3 for a processed session with ground truth (writes RUN/evaluation.json)."""
+    from rich.progress import BarColumn, Progress, TimeElapsedColumn
+    from rich.table import Table
+
+    from estimation.evaluation import evaluate_run
+
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        "{task.completed}/{task.total}",
+        TimeElapsedColumn(),
+        console=console,
+    ) as bar:
+        tasks: dict[str, int] = {}
+
+        def update(label: str, done: int, total: int) -> None:
+            if label not in tasks:
+                tasks[label] = bar.add_task(label, total=total)
+            bar.update(tasks[label], completed=done, total=total)
+
+        ev = evaluate_run(run, workers=workers, progress=update)
+    if as_json:
+        click.echo(json.dumps(ev))
+        return
+    table = Table(title=f"{ev['session']} ({ev['frames']} frames): Figure 3")
+    table.add_column("biometric")
+    table.add_column("actual", justify="right")
+    for col in ("discriminative", "disc. + generative", "GT + generative"):
+        table.add_column(f"{col} mean", justify="right")
+        table.add_column("std", justify="right")
+    for key, row in ev["table"].items():
+        cells = [key, f"{row['actual']:.1f}"]
+        for col in ("discriminative", "disc_generative", "gt_generative"):
+            cells += [f"{row[col]['mean']:.1f}", f"{row[col]['std']:.1f}"]
+        table.add_row(*cells)
+    console.print(table)
+    m = ev["mpjpe_mm"]
+    console.print(
+        f"MPJPE: discriminative {m['discriminative']:.0f} mm, disc. + generative {m['disc_generative']:.0f} mm, "
+        f"GT + generative {m['gt_generative']:.0f} mm; silhouette IoU of the fit {ev['silhouette_iou_mean']:.3f}"
+    )
+
+
 # --- demo ----------------------------------------------------------------------------
 @main.command()
 @click.option(
