@@ -831,7 +831,7 @@ def _print_summary(results: dict) -> None:
 )
 @_friendly_errors
 def evaluate(run: Path, workers: int | None, as_json: bool) -> None:
-    """The paper's Figure 3 for a processed session with ground truth (writes RUN/evaluation.json)."""
+    """The paper's Figure 3 for a processed session with ground truth (RUN/evaluation.json)."""
     from rich.progress import BarColumn, Progress, TimeElapsedColumn
     from rich.table import Table
 
@@ -869,8 +869,10 @@ def evaluate(run: Path, workers: int | None, as_json: bool) -> None:
     console.print(table)
     m = ev["mpjpe_mm"]
     console.print(
-        f"MPJPE: discriminative {m['discriminative']:.0f} mm, disc. + generative {m['disc_generative']:.0f} mm, "
-        f"GT + generative {m['gt_generative']:.0f} mm; silhouette IoU of the fit {ev['silhouette_iou_mean']:.3f}"
+        f"MPJPE: discriminative {m['discriminative']:.0f} mm, "
+        f"disc. + generative {m['disc_generative']:.0f} mm, "
+        f"GT + generative {m['gt_generative']:.0f} mm; "
+        f"silhouette IoU of the fit {ev['silhouette_iou_mean']:.3f}"
     )
 
 
