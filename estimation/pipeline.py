@@ -236,8 +236,13 @@ def process_session(
     workers: int | None = None,
     cache_dir: Path | None = None,
     progress: Callable[[str, int, int], None] | None = None,
+    train_config: TrainConfig | None = None,
 ) -> dict:
-    """Run the whole pipeline on a session; writes ``out/results.json`` and returns it."""
+    """Run the whole pipeline on a session; writes ``out/results.json`` and returns it.
+
+    ``train_config`` sets the discriminative training (default: the paper's 3000
+    examples); frames already in ``out/frames/`` are not fitted again.
+    """
     from capture.silhouette import segment_session
 
     config = config or ProcessConfig()
@@ -250,7 +255,7 @@ def process_session(
     cameras = _session_cameras(session)
     models, reused = load_or_train(
         cameras,
-        TrainConfig(),
+        train_config or TrainConfig(),
         cache_dir,
         workers=workers,
         progress=(lambda label, d, t: progress(f"training: {label}", d, t)) if progress else None,

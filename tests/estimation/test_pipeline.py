@@ -1,0 +1,110 @@
+"""End-to-end `process` on a tiny studio session: schema, failures, resume."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from capture.studio.synth import SynthConfig, synthesize
+from estimation.pipeline import ProcessConfig, fit_frame, process_session, summarize
+from estimation.training import DiscriminativeModels, TrainConfig
+
+TINY_TRAIN = TrainConfig(
+    n_train=60,
+    n_test=10,
+    codebook_size=8,
+    codebook_examples=20,
+    sc_points=40,
+    experts=(1,),
+    ridges=(10.0,),
+    max_iter=5,
+)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    base = tmp_path_factory.mktemp("pipeline")
+    session = synthesize(
+        base / "session",
+        SynthConfig(
+            frames=5,
+            frame_step=2,
+            cameras=2,
+            size=(240, 180),
+            seed=2,
+            motion="apose",
+            background_frames=3,
+            calibration_frames=30,
+        ),
+        workers=1,
+    )
+    out = base / "run"
+    results = process_session(
+        session.folder,
+        out,
+        ProcessConfig(quality="fast"),
+        workers=1,
+        cache_dir=base / "cache",
+        train_config=TINY_TRAIN,
+    )
+    return session, out, results, base
+
+
+def test_results_schema(run):
+    _, out, results, _ = run
+    on_disk = json.loads((out / "results.json").read_text())
+    assert on_disk["summary"] == results["summary"]
+    for key in ("session", "config", "frames", "summary", "ground_truth", "timing_seconds"):
+        assert key in results
+    assert [f["frame"] for f in results["frames"]] == [0, 2, 4]
+    for f in results["frames"]:
+        assert f["status"] == "ok", f["status"]
+        for stage in ("discriminative", "generative"):
+            for key in ("height_mm", "arm_span_mm", "weight_kg"):
+                assert np.isfinite(f[stage][key])
+            assert len(f[stage]["state"]["theta"]) == 37
+        assert set(f["silhouette_iou"]) <= {"cam_00", "cam_01"}
+    for stage in ("discriminative", "generative"):
+        assert results["summary"][stage]["height_mm"]["n"] == 3
+    assert 1300 < results["ground_truth"]["height_mm"] < 2200
+
+
+def test_resume_does_not_refit(run, monkeypatch):
+    session, out, results, base = run
+    import estimation.pipeline as pipeline
+
+    def boom(*args, **kwargs):
+        raise AssertionError("a finished frame was fitted again")
+
+    monkeypatch.setattr(pipeline, "_fit_worker", boom)
+    again = process_session(
+        session.folder,
+        out,
+        ProcessConfig(quality="fast"),
+        workers=1,
+        cache_dir=base / "cache",
+        train_config=TINY_TRAIN,
+    )
+    assert again["summary"] == results["summary"]
+    assert again["config"]["models_reused"]
+
+
+def test_frame_without_silhouette_is_marked_and_excluded(run):
+    session, _, results, base = run
+    models = DiscriminativeModels.load(next((base / "cache" / "discriminative").glob("*.npz")))
+    cams = list(session.calibration())
+    empty = np.zeros((2, 180, 240), bool)
+    record = fit_frame(
+        7, empty, [["empty"], ["empty"]], cams, models, ProcessConfig(quality="fast")
+    )
+    assert record["status"] == "no silhouette in any camera"
+    summary = summarize([*results["frames"], record])
+    assert summary["generative"]["height_mm"]["n"] == 3
+
+
+def test_unknown_quality_is_refused(run):
+    session, out, _, _ = run
+    with pytest.raises(ValueError, match="quality"):
+        process_session(session.folder, out, ProcessConfig(quality="ultra"))
