@@ -1,0 +1,174 @@
+"""Calibrate a session from its ChArUco clips: detection, solve, files.
+
+``calibrate_session`` is what ``bodymetry calibrate SESSION`` runs: it detects
+the board in every camera's clip (cameras in parallel threads; OpenCV releases
+the GIL), solves the cameras (:func:`calibration.solve.calibrate_cameras`) and
+returns a :class:`~calibration.solve.CalibrationResult`;
+``write_calibration`` writes ``calibration.yaml`` and ``calibration-report.json``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import cv2
+
+from bodymetry.errors import InputError
+from bodymetry.fileio import write_json_atomic
+from calibration.charuco import DEFAULT_UPSCALE, CameraDetections, board_geometry, detect_clip
+from calibration.io import save_calibration
+from calibration.solve import CalibrationOptions, CalibrationResult, calibrate_cameras
+
+__all__ = [
+    "REPORT_FILE",
+    "auto_step",
+    "calibrate_session",
+    "detect_session",
+    "parse_floor_frames",
+    "write_calibration",
+]
+
+#: Name of the report written beside calibration.yaml.
+REPORT_FILE = "calibration-report.json"
+
+#: Detection aims at about this many sampled frames per clip by default.
+TARGET_SAMPLES = 300
+
+
+def auto_step(n_frames: int, target: int = TARGET_SAMPLES) -> int:
+    """Sampling step giving at most ``target`` frames of an ``n_frames`` clip."""
+    return max(1, math.ceil(n_frames / target)) if n_frames > 0 else 1
+
+
+def parse_floor_frames(text: str | None, fps: float) -> tuple[int, int] | None:
+    """``"START:END"`` (clip frames, END exclusive), ``"none"``, or None (the first second)."""
+    if text is None or text == "":
+        return (0, max(1, round(fps)))
+    if text.strip().lower() == "none":
+        return None
+    try:
+        a, b = (int(v) for v in text.split(":"))
+    except ValueError as exc:
+        raise InputError(
+            f"--floor-frames {text!r}: expected START:END in clip frames (e.g. 0:60) or 'none'"
+        ) from exc
+    if not 0 <= a < b:
+        raise InputError(f"--floor-frames {text!r}: need 0 <= START < END")
+    return (a, b)
+
+
+def _clip_length(path: Path) -> int:
+    cap = cv2.VideoCapture(str(path))
+    try:
+        return int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+    finally:
+        cap.release()
+
+
+def detect_session(
+    session,
+    *,
+    step: int | None = None,
+    upscale: int = DEFAULT_UPSCALE,
+    workers: int | None = None,
+    on_progress: Callable[[str, int, int], None] | None = None,
+) -> list[CameraDetections]:
+    """Detect the board in every camera's calibration clip.
+
+    Parameters
+    ----------
+    session : capture.session.Session
+    step : sample every ``step``-th frame (None: about 300 frames per clip)
+    workers : threads (None: one per camera, at most the CPU count)
+    on_progress : ``on_progress(camera, done, total)`` after each sampled frame
+
+    Raises
+    ------
+    InputError
+        No board description, a camera without a clip, unreadable clips.
+    """
+    if session.board is None:
+        raise InputError(
+            f"{session.folder / 'session.yaml'}: board: the session describes no calibration "
+            "board, so its calibration clips cannot be used"
+        )
+    missing = [c for c in session.camera_names if c not in session.calibration_clips]
+    if missing:
+        raise InputError(
+            f"{session.folder / 'session.yaml'}: cameras {missing} have no calibration clip"
+        )
+    names = list(session.camera_names)
+    paths = {c: session.calibration_clip_path(c) for c in names}
+    if step is None:
+        step = auto_step(max(_clip_length(p) for p in paths.values()))
+    board = session.board.create_board()
+
+    def one(name: str) -> CameraDetections:
+        def cb(done: int, total: int) -> None:
+            if on_progress is not None:
+                on_progress(name, done, total)
+
+        return detect_clip(paths[name], board, name, step=step, upscale=upscale, on_frame=cb)
+
+    n_workers = workers or min(len(names), os.cpu_count() or 1)
+    with ThreadPoolExecutor(max_workers=max(1, n_workers)) as pool:
+        return list(pool.map(one, names))
+
+
+def calibrate_session(
+    session,
+    *,
+    floor_frames: tuple[int, int] | str | None = "auto",
+    step: int | None = None,
+    options: CalibrationOptions | None = None,
+    workers: int | None = None,
+    on_progress: Callable[[str, int, int], None] | None = None,
+    detections: list[CameraDetections] | None = None,
+) -> tuple[CalibrationResult, list[CameraDetections]]:
+    """Solve a session's cameras from its ChArUco clips.
+
+    ``floor_frames``: clip frames ``(start, end)`` where the board lies on the
+    floor; ``"auto"``: the first second of the clips; None: no floor board
+    (the world is then the first camera's frame). ``detections``: reuse
+    :func:`detect_session`'s output instead of detecting again.
+    """
+    if floor_frames == "auto":
+        floor_frames = (0, max(1, round(session.fps)))
+    opts = options or CalibrationOptions()
+    opts = CalibrationOptions(**{**opts.__dict__, "floor_frames": floor_frames})
+    if detections is None:
+        detections = detect_session(session, step=step, workers=workers, on_progress=on_progress)
+    geom = board_geometry(session.board.create_board(), session.board.square_m)
+    result = calibrate_cameras(detections, geom, opts)
+    frames = detections[0].frames
+    result.solver["detection_step"] = int(frames[1] - frames[0]) if len(frames) > 1 else 1
+    return result, detections
+
+
+def write_calibration(
+    result: CalibrationResult,
+    out: Path,
+    *,
+    overwrite: bool = False,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write ``out`` (calibration.yaml) and ``calibration-report.json`` beside it.
+
+    Refuses to replace an existing ``out`` unless ``overwrite``. Returns the
+    report path.
+    """
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise InputError(
+            f"{out} exists; pass --overwrite to replace it or --out to write elsewhere"
+        )
+    report_path = out.with_name(REPORT_FILE)
+    report = {"calibration": str(out), **result.report(), **(extra or {})}
+    save_calibration(out, result.cameras, {"world": result.world, "quality": result.quality()})
+    write_json_atomic(report_path, report)
+    return report_path

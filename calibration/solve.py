@@ -1,0 +1,972 @@
+"""Multi-camera calibration from ChArUco detections.
+
+Pipeline (docs/calibration.md):
+
+1. **Intrinsics** per camera: ``cv2.calibrateCamera`` on the board views with
+   enough corners; k3 = p1 = p2 = 0 and, unless the corners reach the image
+   borders, k2 = 0 (see :class:`CalibrationOptions`); 5 coefficients are stored.
+2. **Board poses** per camera and frame: IPPE PnP (both planar solutions tried)
+   refined by Levenberg-Marquardt.
+3. **Initial extrinsics**: a camera graph whose edges are pairs of cameras that
+   saw the board in the same frames; each edge's relative pose is the per-frame
+   estimate that best explains all the pair's shared frames (a RANSAC-like
+   choice); poses are chained along the maximum spanning tree (edge weight =
+   shared frames) from the camera that sees the floor board best.
+4. **World frame**: the board lying still on the floor in ``floor_frames``
+   defines it: ``world_from_board = [diag(1, -1, -1) | 0]`` (pattern origin at
+   the world origin, board x along world x, printed side up, z up). The scale is
+   metric because the board's object points are in metres.
+5. **Bundle adjustment** over every camera's pose and intrinsics (fx, fy, cx,
+   cy, k1[, k2]) and every moving board pose; the floor pose is fixed (it is the
+   gauge). Levenberg-Marquardt on sparse normal equations with a sparse
+   forward-difference Jacobian (column grouping: 20 residual evaluations per
+   Jacobian), robust ``soft_l1`` loss (1 px scale) by IRLS, then outlier
+   rejection (4 sigma of the robust error spread, at least ``outlier_min_px``)
+   and a second solve. (``scipy.optimize.least_squares`` with ``jac_sparsity``
+   was the first version: its LSMR steps stalled at the evaluation limit after
+   27 s on a studio session; this solver reaches the same optimum in 2-5 s.)
+
+Every failure raises :class:`bodymetry.errors.InputError` naming the camera and
+the problem; a result is only returned when it is finite and its RMS is sane.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy.sparse import csr_matrix, diags
+from scipy.sparse.linalg import spsolve
+
+from bodymetry.errors import InputError
+from calibration.camera import Camera, CameraGroup
+from calibration.charuco import BoardGeometry, CameraDetections
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "FLOOR_BOARD_POSE",
+    "CalibrationError",
+    "CalibrationOptions",
+    "CalibrationResult",
+    "calibrate_cameras",
+]
+
+#: world_from_board of the board lying face up on the floor (4, 4).
+FLOOR_BOARD_POSE = np.diag([1.0, -1.0, -1.0, 1.0])
+
+#: Intrinsic parameters per camera in the bundle adjustment.
+_INTR = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
+_NC = 6 + len(_INTR)
+
+
+class CalibrationError(InputError):
+    """The clips do not allow a trustworthy calibration (message says why)."""
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """Settings of :func:`calibrate_cameras`.
+
+    Attributes
+    ----------
+    floor_frames : (int, int) or None
+        Clip frames ``[start, end)`` in which the board lies still on the
+        floor, face up; it defines the world frame. None: the world is the
+        first camera's frame (z is then *not* up).
+    min_corners : int
+        Corners a view needs to count (intrinsics, PnP).
+    min_shared_views : int
+        Frames two cameras must both see the board in to link them.
+    max_intrinsic_views : int
+        Views given to ``cv2.calibrateCamera`` per camera (evenly subsampled).
+    refine_intrinsics : bool
+        Bundle-adjust intrinsics too (else keep the per-camera ones).
+    tangential : bool
+        Solve the tangential distortion p1, p2 (default: fixed at 0; they trade
+        off against the principal point and real lenses have |p| ~ 1e-4).
+    square_pixels : bool
+        Solve one focal length (fx = fy).
+    radial : int or None
+        Radial distortion terms solved: 2 (k1, k2), 1 (k1; k2 = 0) or 0. None
+        (default): per camera, k2 only when the detected corners reach at least
+        ``k2_min_coverage`` of the image half-diagonal; otherwise k2 cannot be
+        told apart from noise and, left free, extrapolates wildly towards the
+        image corners (measured: up to 100 px off there with k2 free).
+    k2_min_coverage : float
+        See ``radial``.
+    floor_weight : ``"frames"`` or ``"one"``
+        The floor board's corners are the median over the still frames; weight
+        them as that many observations (``"frames"``: what they are worth) or as
+        one view.
+    loss, f_scale_px : robust loss (``soft_l1``, ``huber``, ``cauchy``, ``linear``) on
+        each corner's 2-D error, and its scale (pixels).
+    max_iterations : Levenberg-Marquardt iterations per solve.
+    outlier_sigma, outlier_min_px : outlier threshold ``max(min, sigma * s)``
+        where ``s`` is the robust spread of the reprojection errors.
+    max_rms_px : a final RMS above this is a failure, not a calibration.
+    """
+
+    floor_frames: tuple[int, int] | None = (0, 60)
+    min_corners: int = 6
+    min_shared_views: int = 3
+    max_intrinsic_views: int = 60
+    refine_intrinsics: bool = True
+    tangential: bool = False
+    square_pixels: bool = False
+    radial: int | None = None
+    k2_min_coverage: float = 0.7
+    floor_weight: str = "one"
+    loss: str = "soft_l1"
+    f_scale_px: float = 1.0
+    outlier_sigma: float = 4.0
+    outlier_min_px: float = 1.0
+    max_rms_px: float = 2.0
+    max_iterations: int = 100
+
+
+@dataclass
+class CalibrationResult:
+    """Solved cameras and the figures that say how good they are."""
+
+    cameras: CameraGroup
+    rms_px: float
+    per_camera: dict[str, dict[str, Any]]
+    frames_used: int
+    observations: int
+    outliers: int
+    world: dict[str, Any] = field(default_factory=dict)
+    solver: dict[str, Any] = field(default_factory=dict)
+
+    def report(self) -> dict[str, Any]:
+        """JSON-ready summary (``calibration-report.json``)."""
+        return {
+            "rms_px": self.rms_px,
+            "frames_used": self.frames_used,
+            "observations": self.observations,
+            "outliers_rejected": self.outliers,
+            "world": self.world,
+            "solver": self.solver,
+            "cameras": self.per_camera,
+        }
+
+    def quality(self) -> dict[str, Any]:
+        """The ``quality:`` block of ``calibration.yaml``."""
+        out: dict[str, Any] = {"overall": {"rms_px": round(self.rms_px, 4)}}
+        for name, figures in self.per_camera.items():
+            out[name] = {
+                k: figures[k]
+                for k in ("frames_read", "boards_detected", "corners_used", "rms_px")
+                if k in figures
+            }
+        return out
+
+
+# ---------------------------------------------------------------------------------------
+# small geometry helpers
+# ---------------------------------------------------------------------------------------
+def rodrigues(rv: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) -> matrices (..., 3, 3)."""
+    rv = np.asarray(rv, dtype=float)
+    theta = np.linalg.norm(rv, axis=-1)[..., None, None]
+    k = rv / np.where(theta[..., 0] > 1e-12, theta[..., 0], 1.0)
+    Kx = np.zeros(rv.shape[:-1] + (3, 3))
+    Kx[..., 0, 1], Kx[..., 0, 2] = -k[..., 2], k[..., 1]
+    Kx[..., 1, 0], Kx[..., 1, 2] = k[..., 2], -k[..., 0]
+    Kx[..., 2, 0], Kx[..., 2, 1] = -k[..., 1], k[..., 0]
+    small = theta < 1e-8
+    s, c = np.sin(theta), np.cos(theta)
+    R = np.eye(3) + s * Kx + (1 - c) * (Kx @ Kx)
+    # First order near zero (keeps finite differences exact there).
+    Rs = np.eye(3) + _skew(rv)
+    return np.where(small, Rs, R)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
+    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
+    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
+    return S
+
+
+def _rvec(R: np.ndarray) -> np.ndarray:
+    return cv2.Rodrigues(np.asarray(R, dtype=float))[0].reshape(3)
+
+
+def _T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(t).reshape(3)
+    return T
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    R, t = T[:3, :3], T[:3, 3]
+    return _T(R.T, -R.T @ t)
+
+
+def _spans_plane(ids: np.ndarray, sx: int) -> bool:
+    """Corners ``ids`` are not all on one board row or column (a homography needs that)."""
+    cols, rows = ids % (sx - 1), ids // (sx - 1)
+    return len(np.unique(cols)) >= 2 and len(np.unique(rows)) >= 2 and len(ids) >= 4
+
+
+def _project(
+    K: np.ndarray, dist: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray
+) -> np.ndarray:
+    return Camera("x", (1, 1), K, dist, R, t)._project_any(X)
+
+
+# ---------------------------------------------------------------------------------------
+# stage 1-2: intrinsics and per-view board poses
+# ---------------------------------------------------------------------------------------
+@dataclass
+class _CamData:
+    det: CameraDetections
+    K: np.ndarray
+    dist: np.ndarray
+    intrinsic_rms: float
+    intrinsic_views: int
+    radial: int
+    coverage: float
+    #: sample index -> camera_from_board (4, 4) for views with a good PnP
+    poses: dict[int, np.ndarray]
+
+
+def _never_found(det: CameraDetections, geom: BoardGeometry) -> CalibrationError:
+    sx, sy = geom.squares
+    return CalibrationError(
+        f"camera {det.name!r}: the ChArUco board was never found in {det.source or 'its clip'} "
+        f"({det.frames_read} frames read). Likely causes: the board in the clip uses another "
+        f"ArUco dictionary or size than session.yaml says ({sx}x{sy} squares), the board is "
+        "too small or too blurred in this view, or the video is mirrored (a mirrored board "
+        "cannot be decoded)."
+    )
+
+
+def _coverage(det: CameraDetections) -> float:
+    """Farthest detected corner from the image centre / the half-diagonal."""
+    w, h = det.size
+    uv = det.corners[det.found]
+    if uv.size == 0:
+        return 0.0
+    r = np.linalg.norm(uv - [(w - 1) / 2, (h - 1) / 2], axis=1).max()
+    return float(r / np.hypot(w / 2, h / 2))
+
+
+def _intrinsics(
+    det: CameraDetections,
+    geom: BoardGeometry,
+    floor_mask: np.ndarray,
+    opts: CalibrationOptions,
+    radial: int,
+) -> tuple[np.ndarray, np.ndarray, float, int]:
+    found = det.found
+    n = found.sum(axis=1)
+    sx = geom.squares[0]
+    good = [
+        i
+        for i in np.flatnonzero(n >= opts.min_corners)
+        if _spans_plane(np.flatnonzero(found[i]), sx)
+    ]
+    # Floor frames are one board pose: one view is enough.
+    floor_views = [i for i in good if floor_mask[i]]
+    moving = [i for i in good if not floor_mask[i]]
+    if len(moving) > opts.max_intrinsic_views:
+        pick = np.linspace(0, len(moving) - 1, opts.max_intrinsic_views).round().astype(int)
+        moving = [moving[i] for i in pick]
+    views = moving + floor_views[:1]
+    if len(views) < 4:
+        if det.boards_detected == 0:
+            raise _never_found(det, geom)
+        raise CalibrationError(
+            f"camera {det.name!r}: the board was found in {det.boards_detected} of "
+            f"{det.frames_read} frames read, but only {len(views)} views have >= "
+            f"{opts.min_corners} corners spanning the board; intrinsics need at least 4 "
+            "(move the board closer to this camera and tilt it through more angles)"
+        )
+    obj = [geom.points[found[i]].astype(np.float32) for i in views]
+    img = [det.corners[i][found[i]].astype(np.float32) for i in views]
+    w, h = det.size
+    K0 = np.array([[max(w, h), 0, (w - 1) / 2], [0, max(w, h), (h - 1) / 2], [0, 0, 1.0]])
+    flags = cv2.CALIB_FIX_K3 | cv2.CALIB_USE_INTRINSIC_GUESS
+    if not opts.tangential:
+        flags |= cv2.CALIB_ZERO_TANGENT_DIST
+    if opts.square_pixels:
+        flags |= cv2.CALIB_FIX_ASPECT_RATIO
+    if radial < 2:
+        flags |= cv2.CALIB_FIX_K2
+    if radial < 1:
+        flags |= cv2.CALIB_FIX_K1
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+    try:
+        rms, K, dist, _, _ = cv2.calibrateCamera(
+            obj, img, (w, h), K0, np.zeros(5), flags=flags, criteria=crit
+        )
+    except cv2.error as exc:
+        raise CalibrationError(
+            f"camera {det.name!r}: OpenCV could not solve the intrinsics from {len(views)} "
+            f"board views ({exc.err})"
+        ) from exc
+    K = np.asarray(K, dtype=float)
+    dist = np.asarray(dist, dtype=float).reshape(-1)[:5]
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(dist)) and np.isfinite(rms)):
+        raise CalibrationError(f"camera {det.name!r}: the intrinsic solve gave NaN")
+    return K, dist, float(rms), len(views)
+
+
+def _pnp(
+    K: np.ndarray, dist: np.ndarray, obj: np.ndarray, img: np.ndarray
+) -> tuple[np.ndarray, float] | None:
+    """camera_from_board (4, 4) and its RMS (px), or None."""
+    try:
+        n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+            obj.astype(np.float64), img.astype(np.float64), K, dist, flags=cv2.SOLVEPNP_IPPE
+        )
+    except cv2.error:
+        return None
+    best = None
+    for rv, tv in zip(rvecs[:n], tvecs[:n], strict=True):
+        rv, tv = cv2.solvePnPRefineLM(obj, img, K, dist, rv.copy(), tv.copy())
+        R = cv2.Rodrigues(rv)[0]
+        proj = _project(K, dist, R, tv.reshape(3), obj)
+        rms = float(np.sqrt(np.mean(np.sum((proj - img) ** 2, axis=1))))
+        if np.isfinite(rms) and tv.reshape(3)[2] > 0 and (best is None or rms < best[1]):
+            best = (_T(R, tv.reshape(3)), rms)
+    return best
+
+
+def _board_poses(
+    det: CameraDetections, geom: BoardGeometry, K: np.ndarray, dist: np.ndarray, min_corners: int
+) -> dict[int, np.ndarray]:
+    found = det.found
+    sx = geom.squares[0]
+    out: dict[int, np.ndarray] = {}
+    for i in np.flatnonzero(found.sum(axis=1) >= min_corners):
+        ids = np.flatnonzero(found[i])
+        if not _spans_plane(ids, sx):
+            continue
+        res = _pnp(K, dist, geom.points[ids], det.corners[i, ids])
+        if res is not None and res[1] < 3.0:
+            out[int(i)] = res[0]
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# stage 3: camera graph
+# ---------------------------------------------------------------------------------------
+def _spanning_tree(
+    cams: list[_CamData],
+    root: int,
+    geom: BoardGeometry,
+    opts: CalibrationOptions,
+    floor_mask: np.ndarray,
+) -> list[np.ndarray]:
+    """camera_from_root (4, 4) per camera, chained over the maximum spanning tree."""
+    C = len(cams)
+    # frame -> sample index per camera; shared frames use clip frame numbers.
+    views = [
+        {int(c.det.frames[i]): i for i in c.poses if not floor_mask[c.det.frames[i]]} for c in cams
+    ]
+    shared = {}
+    for i in range(C):
+        for j in range(i + 1, C):
+            common = sorted(set(views[i]) & set(views[j]))
+            shared[i, j] = shared[j, i] = common
+    in_tree = {root}
+    T_from_root = {root: np.eye(4)}
+    while len(in_tree) < C:
+        best = None
+        for i in in_tree:
+            for j in range(C):
+                if j in in_tree:
+                    continue
+                n = len(shared[i, j])
+                if n >= opts.min_shared_views and (best is None or n > best[2]):
+                    best = (i, j, n)
+        if best is None:
+            missing = [cams[j].det.name for j in range(C) if j not in in_tree]
+            counts = {
+                cams[j].det.name: {cams[i].det.name: len(shared[i, j]) for i in range(C) if i != j}
+                for j in range(C)
+                if j not in in_tree
+            }
+            raise CalibrationError(
+                f"too few shared views to link camera(s) {missing} to the others: frames in "
+                f"which the board was seen well by both cameras {counts}; need >= "
+                f"{opts.min_shared_views} with at least one camera already linked. Show the "
+                "board to these cameras and a neighbour at the same time."
+            )
+        i, j, _ = best
+        a, b = cams[i], cams[j]
+        fr = shared[i, j]
+        T_ij, score = _edge(a, b, views[i], views[j], fr, geom)
+        log.info(
+            "linked %s to %s over %d shared views (median %.2f px)",
+            b.det.name,
+            a.det.name,
+            len(fr),
+            score,
+        )
+        T_from_root[j] = _inv(T_ij) @ T_from_root[i]  # b_from_root = b_from_a a_from_root
+        in_tree.add(j)
+    return [T_from_root[c] for c in range(C)]
+
+
+def _edge(
+    a: _CamData,
+    b: _CamData,
+    va: dict[int, int],
+    vb: dict[int, int],
+    frames: list[int],
+    geom: BoardGeometry,
+) -> tuple[np.ndarray, float]:
+    """a_from_b (4, 4) that best explains every shared frame, and its median error (px).
+
+    Candidates are the per-frame estimates ``a_from_board @ board_from_b``; each is
+    scored by the median reprojection error in ``a`` of the board seen by ``b`` in
+    all shared frames (a RANSAC-like choice: one bad PnP cannot spoil the edge).
+    ``va``/``vb`` map clip frame numbers to each camera's sample index.
+    """
+    pa = {f: a.poses[va[f]] for f in frames}
+    pb = {f: b.poses[vb[f]] for f in frames}
+    cands = [pa[f] @ _inv(pb[f]) for f in frames]
+    if len(cands) > 40:
+        cands = [cands[i] for i in np.linspace(0, len(cands) - 1, 40).round().astype(int)]
+    best = (cands[0], np.inf)
+    for T in cands:
+        errs = []
+        for f in frames:
+            Tb = T @ pb[f]
+            ids = a.det.found[va[f]]
+            X = geom.points[ids] @ Tb[:3, :3].T + Tb[:3, 3]
+            if np.any(X[:, 2] <= 0):
+                errs.append(1e6)
+                continue
+            proj = _project(a.K, a.dist, np.eye(3), np.zeros(3), X)
+            errs.append(float(np.median(np.linalg.norm(proj - a.det.corners[va[f], ids], axis=1))))
+        score = float(np.median(errs))
+        if score < best[1]:
+            best = (T, score)
+    return best
+
+
+# ---------------------------------------------------------------------------------------
+# stage 5: bundle adjustment
+# ---------------------------------------------------------------------------------------
+@dataclass
+class _Problem:
+    cam: np.ndarray  # (M,) camera index
+    pose: np.ndarray  # (M,) pose index, -1 = the fixed floor pose
+    point: np.ndarray  # (M,) corner id
+    uv: np.ndarray  # (M, 2) observed pixels
+    n_cams: int
+    n_poses: int
+    obj: np.ndarray  # (N, 3)
+    fixed_pose: np.ndarray  # (4, 4) world_from_board of pose -1
+    free: np.ndarray  # (n_params,) bool
+    sw: np.ndarray  # (M,) sqrt weight of each observation
+    square: bool = False  # fy := fx
+
+    def subset(self, keep: np.ndarray) -> _Problem:
+        return _Problem(
+            self.cam[keep],
+            self.pose[keep],
+            self.point[keep],
+            self.uv[keep],
+            self.n_cams,
+            self.n_poses,
+            self.obj,
+            self.fixed_pose,
+            self.free,
+            self.sw[keep],
+            self.square,
+        )
+
+
+def _pack(
+    cams: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], poses: np.ndarray
+) -> np.ndarray:
+    """cams: (K, dist, R, t) camera_from_world; poses (P, 4, 4) world_from_board."""
+    blocks = []
+    for K, dist, R, t in cams:
+        d = np.zeros(5)
+        d[: min(5, dist.size)] = dist[:5]
+        blocks.append(np.concatenate([_rvec(R), t, [K[0, 0], K[1, 1], K[0, 2], K[1, 2]], d[:4]]))
+    for T in poses:
+        blocks.append(np.concatenate([_rvec(T[:3, :3]), T[:3, 3]]))
+    return np.concatenate(blocks) if blocks else np.zeros(0)
+
+
+def _unpack(x: np.ndarray, n_cams: int, n_poses: int):
+    cam = x[: n_cams * _NC].reshape(n_cams, _NC)
+    pose = x[n_cams * _NC :].reshape(n_poses, 6)
+    return cam, pose
+
+
+def _residuals(x: np.ndarray, pb: _Problem) -> np.ndarray:
+    cam, pose = _unpack(x, pb.n_cams, pb.n_poses)
+    Rb = rodrigues(pose[:, :3])
+    tb = pose[:, 3:]
+    Rb = np.concatenate([Rb, pb.fixed_pose[None, :3, :3]])  # index -1 -> fixed
+    tb = np.concatenate([tb, pb.fixed_pose[None, :3, 3]])
+    Rc = rodrigues(cam[:, :3])
+    X = np.einsum("mij,mj->mi", Rb[pb.pose], pb.obj[pb.point]) + tb[pb.pose]
+    c = cam[pb.cam]
+    Xc = np.einsum("mij,mj->mi", Rc[pb.cam], X) + c[:, 3:6]
+    z = Xc[:, 2]
+    zs = np.where(np.abs(z) > 1e-6, z, 1e-6)
+    x_, y_ = Xc[:, 0] / zs, Xc[:, 1] / zs
+    fx, fy, cx, cy, k1, k2, p1, p2 = c[:, 6:14].T
+    if pb.square:
+        fy = fx
+    r2 = x_ * x_ + y_ * y_
+    rad = 1 + r2 * (k1 + r2 * k2)
+    xd = x_ * rad + 2 * p1 * x_ * y_ + p2 * (r2 + 2 * x_ * x_)
+    yd = y_ * rad + p1 * (r2 + 2 * y_ * y_) + 2 * p2 * x_ * y_
+    u = fx * xd + cx
+    v = fy * yd + cy
+    return np.stack([u - pb.uv[:, 0], v - pb.uv[:, 1]], axis=1).reshape(-1)
+
+
+def _errors(x: np.ndarray, pb: _Problem) -> np.ndarray:
+    """Reprojection error per observation (M,), pixels."""
+    return np.linalg.norm(_residuals(x, pb).reshape(-1, 2), axis=1)
+
+
+def _jacobian(x: np.ndarray, pb: _Problem, r0: np.ndarray) -> csr_matrix:
+    """Sparse forward-difference Jacobian (2M, n_free) by column grouping.
+
+    Parameter ``k`` of every camera touches disjoint rows (each observation has
+    one camera), and so does parameter ``k`` of every board pose: 14 + 6
+    residual evaluations give the whole Jacobian.
+    """
+    M = len(pb.cam)
+    C, P = pb.n_cams, pb.n_poses
+    rows = np.arange(2 * M)
+    obs = rows // 2
+    data, rr, cc = [], [], []
+    col_of = -np.ones(len(x), dtype=int)
+    col_of[pb.free] = np.arange(int(pb.free.sum()))
+    for k in range(_NC):
+        cols = np.arange(C) * _NC + k
+        if not np.any(pb.free[cols]):
+            continue
+        h = 1e-6 * np.maximum(1.0, np.abs(x[cols]))
+        xp = x.copy()
+        xp[cols] += h * pb.free[cols]
+        d = (_residuals(xp, pb) - r0) / h[pb.cam[obs]]
+        c = col_of[cols][pb.cam[obs]]
+        ok = c >= 0
+        data.append(d[ok]), rr.append(rows[ok]), cc.append(c[ok])
+    if P:
+        moving = pb.pose[obs] >= 0
+        for k in range(6):
+            cols = C * _NC + np.arange(P) * 6 + k
+            h = 1e-7 * np.maximum(1.0, np.abs(x[cols]))
+            xp = x.copy()
+            xp[cols] += h
+            pidx = np.where(moving, pb.pose[obs], 0)
+            d = (_residuals(xp, pb) - r0) / h[pidx]
+            c = col_of[cols][pidx]
+            ok = moving & (c >= 0)
+            data.append(d[ok]), rr.append(rows[ok]), cc.append(c[ok])
+    n = int(pb.free.sum())
+    return csr_matrix(
+        (np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))), shape=(2 * M, n)
+    )
+
+
+@dataclass
+class _SolveResult:
+    success: bool
+    status: int
+    message: str
+    nfev: int
+    iterations: int
+
+
+def _robust_weights(
+    r: np.ndarray, loss: str, f_scale: float, sw: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """IRLS weights per residual (2M,) and the robust cost ``sum sw^2 rho(|e|^2)``.
+
+    The loss acts on each corner's 2-D error; ``sw`` (M,) are square-root
+    observation weights.
+    """
+    e2 = (r.reshape(-1, 2) ** 2).sum(axis=1) / f_scale**2
+    if loss == "linear":
+        w = np.ones_like(e2)
+        cost = e2
+    elif loss == "soft_l1":
+        w = 1.0 / np.sqrt(1.0 + e2)
+        cost = 2.0 * (np.sqrt(1.0 + e2) - 1.0)
+    elif loss == "huber":
+        w = np.where(e2 <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(e2, 1e-300)))
+        cost = np.where(e2 <= 1.0, e2, 2.0 * np.sqrt(e2) - 1.0)
+    elif loss == "cauchy":
+        w = 1.0 / (1.0 + e2)
+        cost = np.log1p(e2)
+    else:
+        raise ValueError(f"unknown loss {loss!r}; use linear, soft_l1, huber or cauchy")
+    s2 = sw**2
+    return np.repeat(w * s2, 2), float(f_scale**2 * np.sum(s2 * cost))
+
+
+def _solve(pb: _Problem, x0: np.ndarray, opts: CalibrationOptions, loss: str):
+    """Levenberg-Marquardt with IRLS robust weights and sparse normal equations."""
+    x = x0.copy()
+    free = pb.free
+    r = _residuals(x, pb)
+    w, cost = _robust_weights(r, loss, opts.f_scale_px, pb.sw)
+    lam = 1e-3
+    nfev = 1
+    status, message = 0, "maximum number of iterations reached"
+    it = 0
+    while it < opts.max_iterations:
+        it += 1
+        J = _jacobian(x, pb, r)
+        nfev += 20
+        Jw = J.multiply(w[:, None]).tocsr()
+        A = (J.T @ Jw).tocsc()
+        g = Jw.T @ r
+        diag = A.diagonal().copy()
+        diag[diag <= 0] = 1e-12
+        improved = False
+        while lam < 1e12:
+            H = A + diags(lam * diag)
+            try:
+                step = spsolve(H.tocsc(), -g)
+            except RuntimeError:
+                step = np.full_like(g, np.nan)
+            if not np.all(np.isfinite(step)):
+                lam *= 10
+                continue
+            xn = x.copy()
+            xn[free] += step
+            rn = _residuals(xn, pb)
+            nfev += 1
+            if not np.all(np.isfinite(rn)):
+                lam *= 10
+                continue
+            wn, cn = _robust_weights(rn, loss, opts.f_scale_px, pb.sw)
+            if cn < cost:
+                improved = True
+                rel = (cost - cn) / max(cost, 1e-300)
+                x, r, w, cost = xn, rn, wn, cn
+                lam = max(lam / 10, 1e-12)
+                break
+            lam *= 10
+        if not improved:
+            status, message = 2, "converged (no further decrease)"
+            break
+        if rel < 1e-12 or np.max(np.abs(step) / np.maximum(np.abs(x[free]), 1.0)) < 1e-12:
+            status, message = 1, "converged"
+            break
+    return x, _SolveResult(status > 0, status, message, nfev, it)
+
+
+# ---------------------------------------------------------------------------------------
+# main entry point
+# ---------------------------------------------------------------------------------------
+def calibrate_cameras(
+    detections: Sequence[CameraDetections],
+    geom: BoardGeometry,
+    options: CalibrationOptions | None = None,
+) -> CalibrationResult:
+    """Solve every camera's intrinsics and pose from board detections.
+
+    Parameters
+    ----------
+    detections : one :class:`CameraDetections` per camera, sampled at the same
+        clip frames (the clips are synchronized).
+    geom : the board's corner geometry (metres).
+    options : :class:`CalibrationOptions`.
+
+    Raises
+    ------
+    CalibrationError (an InputError)
+        Board never found in a camera; too few views for intrinsics; too few
+        shared views to link a camera; no camera sees the floor board; the
+        bundle adjustment does not converge, gives NaN or a large RMS.
+    """
+    opts = options or CalibrationOptions()
+    if not detections:
+        raise CalibrationError("no cameras to calibrate")
+    C = len(detections)
+    for det in detections:
+        if det.boards_detected == 0:
+            raise _never_found(det, geom)
+
+    max_frame = max(int(d.frames.max()) for d in detections) + 1
+    floor_frame = np.zeros(max_frame + 1, dtype=bool)
+    if opts.floor_frames is not None:
+        a, b = opts.floor_frames
+        if not 0 <= a < b:
+            raise CalibrationError(
+                f"floor frames must be START:END with 0 <= START < END, got {a}:{b}"
+            )
+        floor_frame[a : min(b, max_frame + 1)] = True
+
+    # 1-2. intrinsics and per-view board poses
+    cams: list[_CamData] = []
+    for det in detections:
+        fmask = floor_frame[det.frames]
+        coverage = _coverage(det)
+        if opts.radial is not None:
+            radial = opts.radial
+        else:
+            radial = 2 if coverage >= opts.k2_min_coverage else 1
+        K, dist, rms, nv = _intrinsics(det, geom, fmask, opts, radial)
+        poses = _board_poses(det, geom, K, dist, opts.min_corners)
+        cams.append(_CamData(det, K, dist, rms, nv, radial, coverage, poses))
+        log.info("%s: intrinsics from %d views, RMS %.3f px", det.name, nv, rms)
+
+    # 4a. the floor board as seen by each camera (median over the still frames)
+    floor_obs: dict[int, np.ndarray] = {}
+    floor_count: dict[int, np.ndarray] = {}
+    floor_pose_cam: dict[int, tuple[np.ndarray, float]] = {}
+    if opts.floor_frames is not None:
+        for ci, c in enumerate(cams):
+            fm = floor_frame[c.det.frames]
+            if not np.any(fm):
+                continue
+            pts = c.det.corners[fm]  # (n, N, 2)
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN corners
+                med = np.nanmedian(pts, axis=0)
+            seen = np.isfinite(pts).all(-1)
+            # a corner counts when found in at least half the floor frames
+            ok = np.isfinite(med).all(-1) & (seen.sum(0) >= max(1, fm.sum() // 2))
+            ids = np.flatnonzero(ok)
+            if len(ids) < opts.min_corners or not _spans_plane(ids, geom.squares[0]):
+                continue
+            spread = np.nanmax(np.linalg.norm(pts[:, ids] - med[ids], axis=-1))
+            if spread > 5.0:
+                raise CalibrationError(
+                    f"camera {c.det.name!r}: the board moved during the floor frames "
+                    f"{opts.floor_frames[0]}:{opts.floor_frames[1]} (corners move by up to "
+                    f"{spread:.1f} px); it must lie still on the floor there (--floor-frames)"
+                )
+            obs = np.full_like(med, np.nan)
+            obs[ids] = med[ids]
+            res = _pnp(c.K, c.dist, geom.points[ids], med[ids])
+            if res is None:
+                continue
+            floor_obs[ci] = obs
+            floor_count[ci] = seen.sum(0)
+            floor_pose_cam[ci] = res
+        if not floor_obs:
+            raise CalibrationError(
+                f"no camera saw the board lying on the floor in frames "
+                f"{opts.floor_frames[0]}:{opts.floor_frames[1]} (it defines the world frame); "
+                "lay the board flat, printed side up, where at least one camera sees it, at "
+                "the start of the clip, or give its frames with --floor-frames START:END"
+            )
+
+    # 3. camera graph, rooted at the camera that sees the floor board best
+    if floor_obs:
+        root = max(
+            floor_obs,
+            key=lambda ci: np.isfinite(floor_obs[ci]).all(-1).sum() - floor_pose_cam[ci][1],
+        )
+    else:
+        root = 0
+    cam_from_root = _spanning_tree(cams, root, geom, opts, floor_frame)
+
+    # 4b. world frame
+    root_from_world = floor_pose_cam[root][0] @ _inv(FLOOR_BOARD_POSE) if floor_obs else np.eye(4)
+    cam_from_world = [T @ root_from_world for T in cam_from_root]
+
+    # initial board poses: from the camera with the most corners in each frame
+    frame_views: dict[int, list[tuple[int, int]]] = {}
+    for ci, c in enumerate(cams):
+        for i in c.poses:
+            f = int(c.det.frames[i])
+            if not floor_frame[f]:
+                frame_views.setdefault(f, []).append((ci, i))
+    frames = sorted(frame_views)
+    pose_index = {f: k for k, f in enumerate(frames)}
+    poses0 = np.empty((len(frames), 4, 4))
+    for f in frames:
+        ci, i = max(frame_views[f], key=lambda v: cams[v[0]].det.found[v[1]].sum())
+        poses0[pose_index[f]] = _inv(cam_from_world[ci]) @ cams[ci].poses[i]
+
+    # observations: every detected corner of a frame with an initial pose
+    cam_l, pose_l, pt_l, uv_l, sw_l = [], [], [], [], []
+    for ci, c in enumerate(cams):
+        for i, f in enumerate(c.det.frames):
+            f = int(f)
+            if f not in pose_index:
+                continue
+            ids = np.flatnonzero(c.det.found[i])
+            cam_l.append(np.full(len(ids), ci))
+            pose_l.append(np.full(len(ids), pose_index[f]))
+            pt_l.append(ids)
+            uv_l.append(c.det.corners[i, ids])
+            sw_l.append(np.ones(len(ids)))
+        if ci in floor_obs:
+            ids = np.flatnonzero(np.isfinite(floor_obs[ci]).all(-1))
+            cam_l.append(np.full(len(ids), ci))
+            pose_l.append(np.full(len(ids), -1))
+            pt_l.append(ids)
+            uv_l.append(floor_obs[ci][ids])
+            n_still = floor_count[ci][ids] if opts.floor_weight == "frames" else np.ones(len(ids))
+            sw_l.append(np.sqrt(n_still))
+    n_params = C * _NC + len(frames) * 6
+    free = np.ones(n_params, dtype=bool)
+    if not opts.refine_intrinsics:
+        for ci in range(C):
+            free[ci * _NC + 6 : (ci + 1) * _NC] = False
+    if not opts.tangential:
+        for ci in range(C):
+            free[ci * _NC + 12 : ci * _NC + 14] = False
+    if opts.square_pixels:
+        for ci in range(C):
+            free[ci * _NC + 7] = False
+    for ci in range(C):
+        free[ci * _NC + 10 + cams[ci].radial : ci * _NC + 12] = False
+    if not floor_obs:
+        free[root * _NC : root * _NC + 6] = False  # gauge: the root camera is the world
+    pb = _Problem(
+        cam=np.concatenate(cam_l).astype(int),
+        pose=np.concatenate(pose_l).astype(int),
+        point=np.concatenate(pt_l).astype(int),
+        uv=np.concatenate(uv_l),
+        n_cams=C,
+        n_poses=len(frames),
+        obj=geom.points,
+        fixed_pose=FLOOR_BOARD_POSE,
+        free=free,
+        sw=np.concatenate(sw_l),
+        square=opts.square_pixels,
+    )
+    x0 = _pack(
+        [(c.K, c.dist, T[:3, :3], T[:3, 3]) for c, T in zip(cams, cam_from_world, strict=True)],
+        poses0,
+    )
+    init_err = np.linalg.norm(_residuals(x0, pb).reshape(-1, 2), axis=1)
+    log.info(
+        "bundle adjustment: %d cameras, %d board poses, %d corners; initial median %.2f px",
+        C,
+        len(frames),
+        len(pb.cam),
+        float(np.median(init_err)),
+    )
+
+    # 5. robust solve, reject outliers, solve again
+    x1, res1 = _solve(pb, x0, opts, opts.loss)
+    err = np.linalg.norm(_residuals(x1, pb).reshape(-1, 2), axis=1)
+    _check_finite(err, x1, "first")
+    sigma = float(np.median(err)) / 1.1774  # Rayleigh: median = 1.1774 sigma
+    thr = max(opts.outlier_min_px, opts.outlier_sigma * sigma)
+    keep = err <= thr
+    n_out = int((~keep).sum())
+    pb2 = pb.subset(keep)
+    x2, res2 = _solve(pb2, x1, opts, opts.loss)
+    err2 = np.linalg.norm(_residuals(x2, pb2).reshape(-1, 2), axis=1)
+    _check_finite(err2, x2, "second")
+    rms = float(np.sqrt(np.mean(err2**2)))
+
+    cam_params, _ = _unpack(x2, C, len(frames))
+    out_cams = []
+    per_camera: dict[str, dict[str, Any]] = {}
+    for ci, c in enumerate(cams):
+        p = cam_params[ci]
+        fy = p[6] if opts.square_pixels else p[7]
+        K = np.array([[p[6], 0, p[8]], [0, fy, p[9]], [0, 0, 1.0]])
+        dist = np.array([p[10], p[11], p[12], p[13], 0.0])
+        R = rodrigues(p[:3])
+        try:
+            cam = Camera(c.det.name, c.det.size, K, dist, R, p[3:6])
+        except ValueError as exc:
+            raise CalibrationError(
+                f"bundle adjustment gave an invalid camera {c.det.name!r}: {exc}"
+            ) from exc
+        out_cams.append(cam)
+        mine = pb2.cam == ci
+        e = err2[mine]
+        crms = float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
+        w, h = c.det.size
+        if not (0 < p[8] < w and 0 < p[9] < h):
+            raise CalibrationError(
+                f"camera {c.det.name!r}: the principal point ({p[8]:.1f}, {p[9]:.1f}) px left "
+                f"the {w}x{h} image in the bundle adjustment; the views do not constrain this "
+                "camera (show the board closer and at more angles)"
+            )
+        per_camera[c.det.name] = {
+            "frames_read": int(c.det.frames_read),
+            "boards_detected": int(c.det.boards_detected),
+            "corners_detected": int(c.det.corners_detected),
+            "corners_used": int(mine.sum()),
+            "outliers_rejected": int((pb.cam[~keep] == ci).sum()),
+            "rms_px": round(crms, 4),
+            "intrinsic_views": c.intrinsic_views,
+            "intrinsic_only_rms_px": round(c.intrinsic_rms, 4),
+            "sees_floor": ci in floor_obs,
+            "image_coverage": round(c.coverage, 3),
+            "radial_terms": ["k1", "k2"][: c.radial],
+        }
+        if not np.isfinite(crms) or crms > opts.max_rms_px:
+            raise CalibrationError(
+                f"camera {c.det.name!r}: bundle adjustment did not converge to a trustworthy "
+                f"solution (reprojection RMS {crms:.2f} px > {opts.max_rms_px} px); check that "
+                "the clips are synchronized and the board description is right"
+            )
+    if not res2.success:
+        raise CalibrationError(
+            f"bundle adjustment did not converge within {opts.max_iterations} iterations "
+            f"(RMS {rms:.3f} px); the views may be too few or inconsistent"
+        )
+    if rms > opts.max_rms_px:
+        raise CalibrationError(
+            f"bundle adjustment did not converge to a trustworthy solution: RMS {rms:.2f} px "
+            f"> {opts.max_rms_px} px"
+        )
+    world = (
+        {
+            "frame": "ChArUco board on the floor, z up, metres",
+            "note": (
+                f"origin at the board's pattern origin, x along its columns; floor frames "
+                f"{opts.floor_frames[0]}:{opts.floor_frames[1]}; seen by "
+                f"{[cams[ci].det.name for ci in sorted(floor_obs)]}"
+            ),
+        }
+        if floor_obs
+        else {
+            "frame": f"camera {cams[root].det.name} (no floor board: z is NOT up)",
+            "note": "no floor frames were given",
+        }
+    )
+    return CalibrationResult(
+        cameras=CameraGroup(out_cams),
+        rms_px=rms,
+        per_camera=per_camera,
+        frames_used=len(frames),
+        observations=len(pb2.cam),
+        outliers=n_out,
+        world=world,
+        solver={
+            "initial_median_px": round(float(np.median(init_err)), 4),
+            "outlier_threshold_px": round(thr, 4),
+            "evaluations": int(res1.nfev + res2.nfev),
+            "iterations": int(res1.iterations + res2.iterations),
+            "status": int(res2.status),
+            "message": str(res2.message),
+            "root_camera": cams[root].det.name,
+        },
+    )
+
+
+def _check_finite(err: np.ndarray, x: np.ndarray, which: str) -> None:
+    if not (np.all(np.isfinite(err)) and np.all(np.isfinite(x))):
+        raise CalibrationError(
+            f"bundle adjustment gave NaN or infinite values in its {which} solve; "
+            "the initial camera poses are inconsistent (check synchronization and the board)"
+        )
