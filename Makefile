@@ -19,8 +19,9 @@ $(VENV)/.installed-test: $(VENV)/.installed
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $@
 
+# The main job: measure the person in the bundled demo recording (runs/demo/).
 demo: $(VENV)/.installed
-	$(BIN)/bodymetry demo
+	$(BIN)/bodymetry process recordings/demo --out runs/demo
 
 test: $(VENV)/.installed-test
 	$(BIN)/ruff check .

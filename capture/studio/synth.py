@@ -49,9 +49,7 @@ log = logging.getLogger(__name__)
 
 #: The board of the studio's calibration clips (a 1.0 x 0.8 m ChArUco print with large 4x4-bit
 #: markers, like the boards motion-capture labs use for room-sized volumes).
-STUDIO_BOARD = BoardSpec(
-    squares=(5, 4), square_mm=200.0, marker_mm=150.0, dictionary="DICT_4X4_50"
-)
+STUDIO_BOARD = BoardSpec(squares=(5, 4), square_mm=200.0, marker_mm=150.0, dictionary="DICT_4X4_50")
 
 
 @dataclass(frozen=True)
@@ -185,8 +183,9 @@ def board_trajectory(
     The first second the board lies face up on the floor with its pattern origin
     at the world origin and its x axis along world x: that defines the world
     frame (docs/calibration-format.md). Then it is carried through the volume at
-    0.7-1.6 m and turned, as an operator would, to face each pair of neighbouring
-    cameras in turn (so each pair shares views), with a wobble of ±15°.
+    0.8-1.5 m and turned, as an operator would, to face each pair of neighbouring
+    cameras in turn (so each pair shares views), then brought to 1.9 m of each
+    camera and swept across its field of view, with a wobble of ±15°.
 
     Parameters
     ----------
@@ -222,7 +221,22 @@ def board_trajectory(
     t = np.arange(n_move) / fps
     key_pos = rng.uniform([-0.6, -0.6, 0.8], [0.6, 0.6, 1.5], size=(len(targets), 3))
     # Positions glide between segment keys (smoothed), orientation aims at the target.
-    pos = key_pos[seg]
+    pos = key_pos[seg].copy()
+    # Facing one camera, the operator steps up to it (1.9 m away) and sweeps the
+    # board across its whole field of view, so corners reach the image borders
+    # (intrinsics and lens distortion need them).
+    for k in range(C, len(targets)):
+        frames = np.flatnonzero(seg == k)
+        if len(frames) == 0:
+            continue
+        u = np.linspace(0.0, 1.0, len(frames))
+        cam = np.asarray(targets[k])
+        toward = cam[:2] / np.linalg.norm(cam[:2])
+        side = np.array([-toward[1], toward[0]])
+        reach = max(np.linalg.norm(cam[:2]) - 1.9, 0.0)
+        sweep = 0.75 * np.sin(2 * np.pi * u + rng.uniform(0, 2 * np.pi))
+        pos[frames, :2] = toward * reach + side[None] * sweep[:, None]
+        pos[frames, 2] = 1.25 + 0.45 * np.sin(4 * np.pi * u + rng.uniform(0, 2 * np.pi))
     kernel = np.exp(-0.5 * (np.arange(-40, 41) / 15.0) ** 2)
     kernel /= kernel.sum()
     pos = np.stack(

@@ -147,10 +147,11 @@ def test_board_trajectory_starts_flat_on_the_floor_then_faces_the_cameras():
     # Floor: printed side (-z of the board) up, pattern origin at the world origin.
     np.testing.assert_allclose(poses[:60, :3, 2], [[0.0, 0.0, -1.0]] * 60, atol=1e-12)
     np.testing.assert_allclose(poses[:60, :3, 3], 0.0, atol=1e-12)
-    # Afterwards the printed side faces some camera (within 90°) and stays in the volume.
+    # Afterwards the printed side faces the cameras and the board stays at hand height.
     centre = poses[60:, :3, 3] + np.einsum("nij,j->ni", R[60:], [0.5, 0.4, 0.0])
     assert np.all((centre[:, 2] > 0.5) & (centre[:, 2] < 2.0))
     facing = -R[60:, :, 2]
     to_cams = centers[None] - centre[:, None]
     cos = np.einsum("nd,ncd->nc", facing, to_cams) / np.linalg.norm(to_cams, axis=-1)
-    assert np.all(cos.max(axis=1) > 0.5)
+    # Within 60° of some camera almost always (turns between cameras pass further), never away.
+    assert np.mean(cos.max(axis=1) > 0.5) > 0.9 and np.all(cos.max(axis=1) > 0.0)
