@@ -61,11 +61,11 @@ class AnnealingConfig:
     """
 
     n_particles: int = 120
-    n_layers: int = 8
+    n_layers: int = 14
     image_scale: float = 0.25
-    target_ess: float = 0.5
+    target_ess: float = 0.3
     bandwidth: float = 0.6
-    shrink: float = 0.8
+    shrink: float = 0.85
     sigma_px: float = 1.0
     min_std: tuple[float, float, float] = (0.005, 0.01, 0.02)
 
@@ -73,9 +73,9 @@ class AnnealingConfig:
     def preset(cls, quality: str) -> AnnealingConfig:
         """``fast``, ``default`` or ``best``."""
         presets = {
-            "fast": cls(n_particles=60, n_layers=5, image_scale=0.25),
+            "fast": cls(n_particles=60, n_layers=6, image_scale=0.25),
             "default": cls(),
-            "best": cls(n_particles=300, n_layers=12, image_scale=0.5),
+            "best": cls(n_particles=200, n_layers=20, image_scale=0.5),
         }
         if quality not in presets:
             raise ValueError(f"quality: expected one of {sorted(presets)}, got {quality!r}")
