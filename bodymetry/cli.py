@@ -7,11 +7,12 @@ a bug and keeps its traceback.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import logging
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +47,29 @@ def _friendly_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             sys.exit(2)
 
     return wrapper
+
+
+@contextlib.contextmanager
+def labelled_progress() -> Iterator[Callable[[str, int, int], None]]:
+    """Progress bars on stderr, one per label; yields ``update(label, done, total)``."""
+    from rich.progress import BarColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
+
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        "{task.completed}/{task.total}",
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+    ) as bar:
+        tasks: dict[str, int] = {}
+
+        def update(label: str, done: int, total: int) -> None:
+            if label not in tasks:
+                tasks[label] = bar.add_task(label, total=total)
+            bar.update(tasks[label], completed=done, total=total)
+
+        yield update
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -375,7 +399,6 @@ def train(
     as_json: bool,
 ) -> None:
     """Train the discriminative models for the rig of SOURCE (a session or calibration.yaml)."""
-    from rich.progress import BarColumn, Progress, TimeElapsedColumn
 
     from estimation.training import TrainConfig, default_cache_dir, load_or_train, rig_key
 
@@ -385,20 +408,7 @@ def train(
     if retrain:
         stale = cache / "discriminative" / f"{rig_key(list(cameras), config)}.npz"
         stale.unlink(missing_ok=True)
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        "{task.completed}/{task.total}",
-        TimeElapsedColumn(),
-        console=console,
-    ) as bar:
-        tasks: dict[str, int] = {}
-
-        def update(label: str, done: int, total: int) -> None:
-            if label not in tasks:
-                tasks[label] = bar.add_task(label, total=total)
-            bar.update(tasks[label], completed=done, total=total)
-
+    with labelled_progress() as update:
         models, reused = load_or_train(cameras, config, cache, workers=workers, progress=update)
     metrics = {k: v for k, v in models.metrics.items() if k not in ("selection",)}
     metrics["reused_cache"] = reused
@@ -761,27 +771,12 @@ def process(
 ) -> None:
     """Measure the person in SESSION (default: the demo recording): silhouettes,
     discriminative estimate, generative refinement, biometrics per kept frame."""
-    from rich.progress import BarColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
 
     from estimation.pipeline import ProcessConfig, process_session
 
     session = session or DEMO_SESSION
     out = out or Path("runs") / session.resolve().name
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        "{task.completed}/{task.total}",
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=console,
-    ) as bar:
-        tasks: dict[str, int] = {}
-
-        def update(label: str, done: int, total: int) -> None:
-            if label not in tasks:
-                tasks[label] = bar.add_task(label, total=total)
-            bar.update(tasks[label], completed=done, total=total)
-
+    with labelled_progress() as update:
         results = process_session(
             session,
             out,
@@ -832,25 +827,11 @@ def _print_summary(results: dict) -> None:
 @_friendly_errors
 def evaluate(run: Path, workers: int | None, as_json: bool) -> None:
     """The paper's Figure 3 for a processed session with ground truth (RUN/evaluation.json)."""
-    from rich.progress import BarColumn, Progress, TimeElapsedColumn
     from rich.table import Table
 
     from estimation.evaluation import evaluate_run
 
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        "{task.completed}/{task.total}",
-        TimeElapsedColumn(),
-        console=console,
-    ) as bar:
-        tasks: dict[str, int] = {}
-
-        def update(label: str, done: int, total: int) -> None:
-            if label not in tasks:
-                tasks[label] = bar.add_task(label, total=total)
-            bar.update(tasks[label], completed=done, total=total)
-
+    with labelled_progress() as update:
         ev = evaluate_run(run, workers=workers, progress=update)
     if as_json:
         click.echo(json.dumps(ev))

@@ -552,26 +552,18 @@ def overlay(
     if flags:
         text = ", ".join(flags)
         scale = max(h / 960.0, 0.4)
-        cv2.putText(
-            out,
-            text,
-            (6, int(22 * scale * 2)),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            scale,
-            (0, 0, 0),
-            3,
-            cv2.LINE_AA,
-        )
-        cv2.putText(
-            out,
-            text,
-            (6, int(22 * scale * 2)),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            scale,
-            (0, 220, 255),
-            1,
-            cv2.LINE_AA,
-        )
+        # A dark outline under the text keeps it readable on any background.
+        for color, thickness in (((0, 0, 0), 3), ((0, 220, 255), 1)):
+            cv2.putText(
+                out,
+                text,
+                (6, int(44 * scale)),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                scale,
+                color,
+                thickness,
+                cv2.LINE_AA,
+            )
     return out
 
 
