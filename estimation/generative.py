@@ -244,7 +244,7 @@ def anneal(
         From :func:`prepare_observation`.
     initial : (N0, 40 + n_shape) float
         Initial particles ``[τ, θ, ν]`` (e.g. drawn from the discriminative mixtures);
-        resampled to ``config.n_particles``.
+        all are weighed in the first layer, which resamples ``config.n_particles``.
     config : AnnealingConfig
     rng : Generator
     """
@@ -253,7 +253,9 @@ def anneal(
     lo = np.r_[np.full(3, -np.inf), model.limits.lower, np.full(model.n_shape, -4.0)]
     hi = np.r_[np.full(3, np.inf), model.limits.upper, np.full(model.n_shape, 4.0)]
     N = config.n_particles
-    Y = np.clip(initial[rng.integers(len(initial), size=N)], lo, hi)
+    # The first layer weighs every initial draw (they are cheap next to a search
+    # that starts in the wrong mode); later layers carry N particles.
+    Y = np.clip(np.atleast_2d(initial), lo, hi)
     floor = np.r_[
         np.full(3, config.min_std[0]),
         np.full(N_POSE, config.min_std[1]),
@@ -261,15 +263,15 @@ def anneal(
     ]
     layer_ll, layer_beta = [], []
     best = np.inf
-    w = np.full(N, 1.0 / N)
+    w = np.full(len(Y), 1.0 / len(Y))
     factor = config.bandwidth
     for layer in range(config.n_layers):
         if layer > 0:
             # Resample by weight, then perturb with the shrinking kernel.
-            idx = rng.choice(N, size=N, p=w)
+            idx = rng.choice(len(Y), size=N, p=w)
             spread = np.sqrt(np.maximum(np.cov(Y.T, aweights=w).diagonal(), 0.0))
             std = np.maximum(factor * spread, floor)
-            Y = np.clip(Y[idx] + rng.standard_normal(Y.shape) * std, lo, hi)
+            Y = np.clip(Y[idx] + rng.standard_normal((N, Y.shape[1])) * std, lo, hi)
             factor *= config.shrink
         ll = _log_likelihoods(model, obs, Y, config.sigma_px)
         best = min(best, -ll.max() * config.sigma_px**2)
