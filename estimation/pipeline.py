@@ -12,6 +12,7 @@ over the frames that succeeded.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import multiprocessing as mp
@@ -123,7 +124,7 @@ def fit_frame(
 ) -> dict:
     """Fit one frame; returns its record for ``results.json`` (never raises for bad data)."""
     t0 = time.perf_counter()
-    body = BodyModel.load()
+    body = _body_model()
     rng = np.random.default_rng([config.seed, frame])
     valid = np.array(
         [m.sum() >= MIN_PIXELS and "unreadable" not in f for m, f in zip(masks, flags, strict=True)]
@@ -223,10 +224,20 @@ def summarize(records: list[dict]) -> dict:
     return out
 
 
+@functools.lru_cache(maxsize=1)
+def _body_model() -> BodyModel:
+    """The body model, loaded once per process (workers fit many frames)."""
+    return BodyModel.load()
+
+
+@functools.lru_cache(maxsize=2)
+def _discriminative(path: Path) -> DiscriminativeModels:
+    return DiscriminativeModels.load(path)
+
+
 def _fit_worker(args) -> dict:
     frame, masks, flags, cameras, models_path, config = args
-    models = DiscriminativeModels.load(models_path)
-    return fit_frame(frame, masks, flags, cameras, models, config)
+    return fit_frame(frame, masks, flags, cameras, _discriminative(models_path), config)
 
 
 def process_session(

@@ -41,7 +41,11 @@ def run(tmp_path_factory):
         workers=1,
     )
     out = base / "run"
-    results = process_session(
+    return session, out, _process(session, out, base), base
+
+
+def _process(session, out, base) -> dict:
+    return process_session(
         session.folder,
         out,
         ProcessConfig(quality="fast"),
@@ -49,7 +53,6 @@ def run(tmp_path_factory):
         cache_dir=base / "cache",
         train_config=TINY_TRAIN,
     )
-    return session, out, results, base
 
 
 def test_results_schema(run):
@@ -79,14 +82,7 @@ def test_resume_does_not_refit(run, monkeypatch):
         raise AssertionError("a finished frame was fitted again")
 
     monkeypatch.setattr(pipeline, "_fit_worker", boom)
-    again = process_session(
-        session.folder,
-        out,
-        ProcessConfig(quality="fast"),
-        workers=1,
-        cache_dir=base / "cache",
-        train_config=TINY_TRAIN,
-    )
+    again = _process(session, out, base)
     assert again["summary"] == results["summary"]
     assert again["config"]["models_reused"]
 
