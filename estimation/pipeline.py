@@ -263,7 +263,7 @@ def process_session(
     frames_dir = out / "frames"
     frames_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    cameras = _session_cameras(session)
+    cameras = _session_cameras(session, out, progress)
     models, reused = load_or_train(
         cameras,
         train_config or TrainConfig(),
@@ -330,13 +330,37 @@ def process_session(
     return results
 
 
-def _session_cameras(session: Session) -> list[Camera]:
-    if session.calibration_path is None or not session.calibration_path.is_file():
-        raise InputError(
-            f"{session.folder}: no calibration.yaml; "
-            f"run `bodymetry calibrate {session.folder}` first"
+def _session_cameras(
+    session: Session, out: Path, progress: Callable[[str, int, int], None] | None = None
+) -> list[Camera]:
+    """The session's cameras: its calibration file, or solved from its ChArUco clips.
+
+    A solved calibration is written to ``out/calibration.yaml`` (with its report)
+    and reused when the run resumes; the session folder is not modified.
+    """
+    if session.calibration_path is not None and session.calibration_path.is_file():
+        return list(session.calibration())
+    solved = out / "calibration.yaml"
+    if solved.is_file():
+        from calibration.io import load_calibration
+
+        return list(load_calibration(solved).subset(session.camera_names))
+    if session.calibration_clips and session.board is not None:
+        from calibration.session_calibration import calibrate_session, write_calibration
+
+        log.info("%s: no calibration.yaml; solving it from the ChArUco clips", session.folder)
+        result, _ = calibrate_session(
+            session,
+            on_progress=(lambda label, d, t: progress(f"calibration: {label}", d, t))
+            if progress
+            else None,
         )
-    return list(session.calibration())
+        write_calibration(result, solved)
+        return list(result.cameras.subset(session.camera_names))
+    raise InputError(
+        f"{session.folder}: no calibration.yaml and no ChArUco clips to solve one from "
+        "(see docs/session-format.md)"
+    )
 
 
 def _models_file(models: DiscriminativeModels, cache_dir: Path | None) -> Path:

@@ -104,3 +104,41 @@ def test_unknown_quality_is_refused(run):
     session, out, _, _ = run
     with pytest.raises(ValueError, match="quality"):
         process_session(session.folder, out, ProcessConfig(quality="ultra"))
+
+
+def test_session_without_calibration_is_calibrated_from_its_clips(run, tmp_path, monkeypatch):
+    import dataclasses
+
+    import calibration.session_calibration as sc
+    from estimation.pipeline import _session_cameras
+
+    session = run[0]
+    truth = session.calibration()
+    uncalibrated = dataclasses.replace(session, calibration_file=None)
+    calls = []
+
+    class Solved:
+        cameras = truth
+
+        def __init__(self):
+            self.world = {"frame": "floor board"}
+
+        def report(self):
+            return {"rms_px": 0.2}
+
+        def quality(self):
+            return {}
+
+    def fake_calibrate(sess, **kwargs):
+        calls.append(sess.folder)
+        return Solved(), []
+
+    monkeypatch.setattr(sc, "calibrate_session", fake_calibrate)
+    cams = _session_cameras(uncalibrated, tmp_path)
+    assert [c.name for c in cams] == list(session.camera_names) and len(calls) == 1
+    assert (tmp_path / "calibration.yaml").is_file()
+    assert (tmp_path / "calibration-report.json").is_file()
+    # A resumed run reuses the solved file instead of solving again.
+    again = _session_cameras(uncalibrated, tmp_path)
+    assert len(calls) == 1
+    np.testing.assert_allclose(again[0].K, cams[0].K)
