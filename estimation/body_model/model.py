@@ -222,8 +222,18 @@ class BodyModel:
         return self.data[f"{split}_nu"][:, : self.n_shape].astype(float)
 
     def faces(self, lod: bool = False) -> np.ndarray:
-        """Triangles (T, 3) of the full mesh or of the level of detail, in file order."""
-        return self.data["lod_faces" if lod else "full_faces"].astype(np.int64)
+        """Triangles (T, 3) of the full mesh or of the level of detail, in file order.
+
+        The array is shared (converted once at load); do not modify it.
+        """
+        return self._faces[lod]
+
+    @cached_property
+    def _faces(self) -> dict[bool, np.ndarray]:
+        return {
+            lod: self.data["lod_faces" if lod else "full_faces"].astype(np.int64)
+            for lod in (False, True)
+        }
 
     def _mesh(self, lod: bool) -> ScapeMesh:
         return self.lod if lod else self.full
@@ -232,9 +242,13 @@ class BodyModel:
     @cached_property
     def _canonical_basis(self) -> np.ndarray:
         """(1 + n, V, 3): unposed full mesh = basis[0] + Σ ν_i basis[1 + i] (vertex 0 pinned)."""
+        return self._unposed_basis(self.full)
+
+    def _unposed_basis(self, mesh: ScapeMesh) -> np.ndarray:
+        """(1 + n, V, 3): the mean unposed mesh and the change per unit of each ν_i."""
         n = self.n_shape
         nu = np.vstack([np.zeros(n), np.eye(n)])
-        solved = self.full.solve(self.full.edges(None, None, nu))
+        solved = mesh.solve(mesh.edges(None, None, nu))
         solved[1:] -= solved[0]
         return solved
 
@@ -262,25 +276,24 @@ class BodyModel:
         out = {}
         root = self._keypoint_basis[:, 0]
         for lod in (False, True):
-            mesh = self._mesh(lod)
             if lod:
-                n = self.n_shape
-                nu = np.vstack([np.zeros(n), np.eye(n)])
-                solved = mesh.solve(mesh.edges(None, None, nu))
-                solved[1:] -= solved[0]
+                solved = self._unposed_basis(self.lod)
                 # Align the LOD frame to the full one through the barycentric map.
                 mapped = np.stack([self.lod_map @ b for b in self._canonical_basis])
                 solved = solved + (mapped - solved).mean(axis=1, keepdims=True)
             else:
                 solved = self._canonical_basis
-            pelvis = self._pelvis_vertices(lod)
-            out[lod] = solved[:, pelvis].mean(axis=1) - root
+            out[lod] = solved[:, self._pelvis_vertices[lod]].mean(axis=1) - root
         return out
 
-    def _pelvis_vertices(self, lod: bool) -> np.ndarray:
-        faces = self.faces(lod)
-        parts = self._mesh(lod).arrays.parts
-        return np.unique(faces[parts == PARTS.index("pelvis")])
+    @cached_property
+    def _pelvis_vertices(self) -> dict[bool, np.ndarray]:
+        """Per resolution, the vertices of the pelvis part (the placement anchor)."""
+        pelvis = PARTS.index("pelvis")
+        return {
+            lod: np.unique(self.faces(lod)[self._mesh(lod).arrays.parts == pelvis])
+            for lod in (False, True)
+        }
 
     def _check_nu(self, nu: np.ndarray) -> np.ndarray:
         nu = np.atleast_2d(np.asarray(nu, dtype=float))
@@ -378,7 +391,7 @@ class BodyModel:
         verts = mesh.solve(mesh.edges(rot, local, nu))
         anchor = self._linear(self._anchor_basis[lod], nu)  # (B, 3)
         want = state.tau + np.einsum("bij,bj->bi", rot[:, 0], anchor)
-        have = verts[:, self._pelvis_vertices(lod)].mean(axis=1)
+        have = verts[:, self._pelvis_vertices[lod]].mean(axis=1)
         verts += (want - have)[:, None, :]
         # Extra keypoints ride rigidly on their part.
         parts = self.keypoint_parts
