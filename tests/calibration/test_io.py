@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import yaml
 from scipy.spatial.transform import Rotation
+from yaml_edits import delete_at, set_at
 
 from bodymetry.errors import InputError
 from calibration.camera import Camera, CameraGroup
@@ -241,30 +242,6 @@ def _load_edited(tmp_path: Path, edit: Callable[[dict[str, Any]], Any]) -> Input
     return info.value
 
 
-def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
-    """Edit ``data`` at a dotted path like ``cameras.2.K``."""
-
-    def edit(data: dict[str, Any]) -> None:
-        *parents, last = path.split(".")
-        node: Any = data
-        for p in parents:
-            node = node[int(p)] if p.isdigit() else node[p]
-        node[int(last) if last.isdigit() else last] = value
-
-    return edit
-
-
-def _delete(path: str) -> Callable[[dict[str, Any]], None]:
-    def edit(data: dict[str, Any]) -> None:
-        *parents, last = path.split(".")
-        node: Any = data
-        for p in parents:
-            node = node[int(p)] if p.isdigit() else node[p]
-        del node[last]
-
-    return edit
-
-
 def _rename(old: str, new: str) -> Callable[[dict[str, Any]], None]:
     def edit(data: dict[str, Any]) -> None:
         data[new] = data.pop(old)
@@ -284,44 +261,48 @@ def _reflection(data: dict[str, Any]) -> None:
     ("edit", "field", "message"),
     [
         # missing key
-        (_delete("format"), "format", "missing key 'format'"),
-        (_delete("cameras"), "cameras", "missing key 'cameras'"),
-        (_delete("cameras.2.K"), r"cameras\[2\]\.K", "missing key 'K'"),
-        (_delete("cameras.0.dist"), r"cameras\[0\]\.dist", "missing key 'dist'"),
+        (delete_at("format"), "format", "missing key 'format'"),
+        (delete_at("cameras"), "cameras", "missing key 'cameras'"),
+        (delete_at("cameras.2.K"), r"cameras\[2\]\.K", "missing key 'K'"),
+        (delete_at("cameras.0.dist"), r"cameras\[0\]\.dist", "missing key 'dist'"),
         # unknown key / typo
-        (_set("cameras.0.distortion", [0, 0, 0, 0]), r"cameras\[0\]\.distortion", "unknown key"),
+        (set_at("cameras.0.distortion", [0, 0, 0, 0]), r"cameras\[0\]\.distortion", "unknown key"),
         (_rename("cameras", "camers"), "cameras", "'camers': a typo"),
         # unknown format version / kind
-        (_set("format", "bodymetry-calibration/2"), "format", "unknown format version"),
-        (_set("format", "bodymetry-session/1"), "format", "wrong kind of file"),
-        (_set("format", 1), "format", "expected the string"),
+        (set_at("format", "bodymetry-calibration/2"), "format", "unknown format version"),
+        (set_at("format", "bodymetry-session/1"), "format", "wrong kind of file"),
+        (set_at("format", 1), "format", "expected the string"),
         # wrong type
-        (_set("cameras.1.name", 7), r"cameras\[1\]\.name", "expected a string"),
-        (_set("cameras.1.K", "eye(3)"), r"cameras\[1\]\.K", "expected a 3x3"),
-        (_set("cameras.1.t.2", "far"), r"cameras\[1\]\.t\[2\]", "expected a number"),
-        (_set("cameras.1.t.2", True), r"cameras\[1\]\.t\[2\]", "expected a number"),
-        (_set("cameras.1.size", 640), r"cameras\[1\]\.size", r"\[width, height\]"),
-        (_set("cameras.1.size.0", 640.5), r"cameras\[1\]\.size\[0\]", "expected an integer"),
-        (_set("cameras.1.size.1", 0), r"cameras\[1\]\.size\[1\]", ">= 1"),
-        (_set("cameras", {"a": 1}), "cameras", "expected a list of cameras"),
-        (_set("cameras", []), "cameras", "at least one camera"),
-        (_set("cameras.0", [1, 2]), r"cameras\[0\]", "expected a mapping"),
-        (_set("world", "lab"), "world", "expected a mapping"),
+        (set_at("cameras.1.name", 7), r"cameras\[1\]\.name", "expected a string"),
+        (set_at("cameras.1.K", "eye(3)"), r"cameras\[1\]\.K", "expected a 3x3"),
+        (set_at("cameras.1.t.2", "far"), r"cameras\[1\]\.t\[2\]", "expected a number"),
+        (set_at("cameras.1.t.2", True), r"cameras\[1\]\.t\[2\]", "expected a number"),
+        (set_at("cameras.1.size", 640), r"cameras\[1\]\.size", r"\[width, height\]"),
+        (set_at("cameras.1.size.0", 640.5), r"cameras\[1\]\.size\[0\]", "expected an integer"),
+        (set_at("cameras.1.size.1", 0), r"cameras\[1\]\.size\[1\]", ">= 1"),
+        (set_at("cameras", {"a": 1}), "cameras", "expected a list of cameras"),
+        (set_at("cameras", []), "cameras", "at least one camera"),
+        (set_at("cameras.0", [1, 2]), r"cameras\[0\]", "expected a mapping"),
+        (set_at("world", "lab"), "world", "expected a mapping"),
         # wrong matrix shape
-        (_set("cameras.2.K", [[800, 0, 320], [0, 800, 240]]), r"cameras\[2\]\.K", "3 items, got 2"),
-        (_set("cameras.2.R.1", [0, 1]), r"cameras\[2\]\.R\[1\]", "3 items, got 2"),
-        (_set("cameras.2.t", [0, 1]), r"cameras\[2\]\.t", "3 items, got 2"),
-        (_set("cameras.2.dist", [0, 0, 0]), r"cameras\[2\]\.dist", "4 or 5 or 8 or 12 or 14"),
+        (
+            set_at("cameras.2.K", [[800, 0, 320], [0, 800, 240]]),
+            r"cameras\[2\]\.K",
+            "3 items, got 2",
+        ),
+        (set_at("cameras.2.R.1", [0, 1]), r"cameras\[2\]\.R\[1\]", "3 items, got 2"),
+        (set_at("cameras.2.t", [0, 1]), r"cameras\[2\]\.t", "3 items, got 2"),
+        (set_at("cameras.2.dist", [0, 0, 0]), r"cameras\[2\]\.dist", "4 or 5 or 8 or 12 or 14"),
         # bad values
-        (_set("cameras.0.K.2", [0, 0, 2]), r"cameras\[0\]\.K", r"\[0, 0, 1\]"),
-        (_set("cameras.0.K.0.0", -800), r"cameras\[0\]\.K", "positive focal"),
+        (set_at("cameras.0.K.2", [0, 0, 2]), r"cameras\[0\]\.K", r"\[0, 0, 1\]"),
+        (set_at("cameras.0.K.0.0", -800), r"cameras\[0\]\.K", "positive focal"),
         (_not_rotation, r"cameras\[1\]\.R", "rotation matrix"),
         (_reflection, r"cameras\[1\]\.R", "reflection"),
         # non-finite numbers
-        (_set("cameras.0.t.1", float("nan")), r"cameras\[0\]\.t\[1\]", "finite"),
-        (_set("cameras.0.K.0.2", float("inf")), r"cameras\[0\]\.K\[0\]\[2\]", "finite"),
+        (set_at("cameras.0.t.1", float("nan")), r"cameras\[0\]\.t\[1\]", "finite"),
+        (set_at("cameras.0.K.0.2", float("inf")), r"cameras\[0\]\.K\[0\]\[2\]", "finite"),
         # duplicate names
-        (_set("cameras.2.name", "cam_00"), r"cameras\[2\]\.name", r"duplicate.*cameras\[0\]"),
+        (set_at("cameras.2.name", "cam_00"), r"cameras\[2\]\.name", r"duplicate.*cameras\[0\]"),
         # not a mapping at the top
         (lambda d: [d], "", "expected a mapping"),
         (lambda d: "just text", "", "expected a mapping"),

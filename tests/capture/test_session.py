@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from yaml_edits import delete_at, set_at
 
 from bodymetry.errors import InputError
 from calibration.camera import Camera, CameraGroup
@@ -164,26 +165,6 @@ def test_studio_style_construction(tmp_path: Path) -> None:
 
 
 # -- malformed session.yaml: one case per class ---------------------------------------------
-def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
-    def edit(data: dict[str, Any]) -> None:
-        *parents, last = path.split(".")
-        node: Any = data
-        for p in parents:
-            node = node[int(p)] if p.isdigit() else node[p]
-        node[int(last) if last.isdigit() else last] = value
-
-    return edit
-
-
-def _delete(path: str) -> Callable[[dict[str, Any]], None]:
-    def edit(data: dict[str, Any]) -> None:
-        *parents, last = path.split(".")
-        node: Any = data
-        for p in parents:
-            node = node[int(p)] if p.isdigit() else node[p]
-        del node[last]
-
-    return edit
 
 
 def _too_many_markers(data: dict[str, Any]) -> None:
@@ -192,73 +173,73 @@ def _too_many_markers(data: dict[str, Any]) -> None:
 
 CASES = [
     # missing key
-    (_delete("format"), "format", "missing key 'format'"),
-    (_delete("name"), "name", "missing key 'name'"),
-    (_delete("fps"), "fps", "missing key 'fps'"),
-    (_delete("cameras"), "cameras", "missing key 'cameras'"),
-    (_delete("cameras.1.video"), r"cameras\[1\]\.video", "missing key 'video'"),
-    (_delete("board.dictionary"), r"board\.dictionary", "missing key 'dictionary'"),
-    (_delete("board"), "board", "calibration_clips need a description of the board"),
+    (delete_at("format"), "format", "missing key 'format'"),
+    (delete_at("name"), "name", "missing key 'name'"),
+    (delete_at("fps"), "fps", "missing key 'fps'"),
+    (delete_at("cameras"), "cameras", "missing key 'cameras'"),
+    (delete_at("cameras.1.video"), r"cameras\[1\]\.video", "missing key 'video'"),
+    (delete_at("board.dictionary"), r"board\.dictionary", "missing key 'dictionary'"),
+    (delete_at("board"), "board", "calibration_clips need a description of the board"),
     # unknown keys
-    (_set("frame_stpe", 5), "frame_stpe", "unknown key"),
-    (_set("cameras.0.offset", 5), r"cameras\[0\]\.offset", "unknown key"),
+    (set_at("frame_stpe", 5), "frame_stpe", "unknown key"),
+    (set_at("cameras.0.offset", 5), r"cameras\[0\]\.offset", "unknown key"),
     # wrong type
-    (_set("fps", "fast"), "fps", "expected a number"),
-    (_set("name", 12), "name", "expected a string"),
-    (_set("frame_step", 2.5), "frame_step", "expected an integer"),
-    (_set("cameras", "cam_00"), "cameras", "expected a list"),
-    (_set("cameras.2", "cam_02"), r"cameras\[2\]", "expected a mapping"),
-    (_set("cameras.0.video", ["a.mp4"]), r"cameras\[0\]\.video", "expected a string"),
-    (_set("board.legacy", "no"), r"board\.legacy", "expected true or false"),
-    (_set("board.squares", [7]), r"board\.squares", r"expected \[x, y\]"),
-    (_set("subject", 5), "subject", "expected notes"),
+    (set_at("fps", "fast"), "fps", "expected a number"),
+    (set_at("name", 12), "name", "expected a string"),
+    (set_at("frame_step", 2.5), "frame_step", "expected an integer"),
+    (set_at("cameras", "cam_00"), "cameras", "expected a list"),
+    (set_at("cameras.2", "cam_02"), r"cameras\[2\]", "expected a mapping"),
+    (set_at("cameras.0.video", ["a.mp4"]), r"cameras\[0\]\.video", "expected a string"),
+    (set_at("board.legacy", "no"), r"board\.legacy", "expected true or false"),
+    (set_at("board.squares", [7]), r"board\.squares", r"expected \[x, y\]"),
+    (set_at("subject", 5), "subject", "expected notes"),
     # out of range
-    (_set("fps", 0), "fps", "> 0"),
-    (_set("fps", -30), "fps", "> 0"),
-    (_set("fps", float("nan")), "fps", "finite"),
-    (_set("frame_step", 0), "frame_step", ">= 1"),
-    (_set("cameras.1.frame_offset", -3), r"cameras\[1\]\.frame_offset", ">= 0"),
-    (_set("cameras", []), "cameras", "at least one camera"),
+    (set_at("fps", 0), "fps", "> 0"),
+    (set_at("fps", -30), "fps", "> 0"),
+    (set_at("fps", float("nan")), "fps", "finite"),
+    (set_at("frame_step", 0), "frame_step", ">= 1"),
+    (set_at("cameras.1.frame_offset", -3), r"cameras\[1\]\.frame_offset", ">= 0"),
+    (set_at("cameras", []), "cameras", "at least one camera"),
     # unknown format version / kind
-    (_set("format", "bodymetry-session/2"), "format", "unknown format version"),
-    (_set("format", "bodymetry-calibration/1"), "format", "wrong kind of file"),
+    (set_at("format", "bodymetry-session/2"), "format", "unknown format version"),
+    (set_at("format", "bodymetry-calibration/1"), "format", "wrong kind of file"),
     # duplicate camera
-    (_set("cameras.2.name", "cam_00"), r"cameras\[2\]\.name", r"duplicate.*cameras\[0\]"),
+    (set_at("cameras.2.name", "cam_00"), r"cameras\[2\]\.name", r"duplicate.*cameras\[0\]"),
     # paths outside the folder
-    (_set("cameras.0.video", "../x.mp4"), r"cameras\[0\]\.video", "leaves the session folder"),
-    (_set("cameras.0.video", "videos/../../x.mp4"), r"cameras\[0\]\.video", "leaves the"),
-    (_set("cameras.0.video", "/tmp/x.mp4"), r"cameras\[0\]\.video", "absolute path"),
-    (_set("cameras.0.video", "C:/data/x.mp4"), r"cameras\[0\]\.video", "absolute path"),
-    (_set("cameras.0.video", "videos\\cam_00.mp4"), r"cameras\[0\]\.video", "forward slashes"),
-    (_set("calibration", "../calibration.yaml"), "calibration", "leaves the session folder"),
-    (_set("ground_truth", "/"), "ground_truth", "absolute path"),
+    (set_at("cameras.0.video", "../x.mp4"), r"cameras\[0\]\.video", "leaves the session folder"),
+    (set_at("cameras.0.video", "videos/../../x.mp4"), r"cameras\[0\]\.video", "leaves the"),
+    (set_at("cameras.0.video", "/tmp/x.mp4"), r"cameras\[0\]\.video", "absolute path"),
+    (set_at("cameras.0.video", "C:/data/x.mp4"), r"cameras\[0\]\.video", "absolute path"),
+    (set_at("cameras.0.video", "videos\\cam_00.mp4"), r"cameras\[0\]\.video", "forward slashes"),
+    (set_at("calibration", "../calibration.yaml"), "calibration", "leaves the session folder"),
+    (set_at("ground_truth", "/"), "ground_truth", "absolute path"),
     # missing files (message names the camera and the file)
     (
-        _set("cameras.1.video", "videos/missing.mp4"),
+        set_at("cameras.1.video", "videos/missing.mp4"),
         r"cameras\[1\]\.video",
         r"video of camera 'cam_01' not found: .*videos/missing\.mp4",
     ),
     (
-        _set("cameras.2.background", "background/none.mp4"),
+        set_at("cameras.2.background", "background/none.mp4"),
         r"cameras\[2\]\.background",
         r"background clip of camera 'cam_02' not found",
     ),
     (
-        _set("calibration_clips.cam_01", "calib/none.mp4"),
+        set_at("calibration_clips.cam_01", "calib/none.mp4"),
         r"calibration_clips\.cam_01",
         r"calibration clip of camera 'cam_01' not found",
     ),
-    (_set("calibration", "calib.yaml"), "calibration", "calibration file not found"),
-    (_set("ground_truth", "gt"), "ground_truth", "ground-truth folder not found"),
-    (_set("ground_truth", "videos/cam_00.mp4"), "ground_truth", "must be a folder"),
-    (_set("cameras.0.video", "videos"), r"cameras\[0\]\.video", "must be a file"),
+    (set_at("calibration", "calib.yaml"), "calibration", "calibration file not found"),
+    (set_at("ground_truth", "gt"), "ground_truth", "ground-truth folder not found"),
+    (set_at("ground_truth", "videos/cam_00.mp4"), "ground_truth", "must be a folder"),
+    (set_at("cameras.0.video", "videos"), r"cameras\[0\]\.video", "must be a file"),
     # calibration clips / board
-    (_set("calibration_clips.cam_07", "calib/cam_00.mp4"), r"calibration_clips\.cam_07", "no "),
-    (_delete("calibration_clips.cam_02"), "calibration_clips", "no clip for camera.*'cam_02'"),
-    (_set("board.dictionary", "DICT_5X5_99"), r"board\.dictionary", "unknown ArUco dictionary"),
+    (set_at("calibration_clips.cam_07", "calib/cam_00.mp4"), r"calibration_clips\.cam_07", "no "),
+    (delete_at("calibration_clips.cam_02"), "calibration_clips", "no clip for camera.*'cam_02'"),
+    (set_at("board.dictionary", "DICT_5X5_99"), r"board\.dictionary", "unknown ArUco dictionary"),
     (_too_many_markers, r"board\.dictionary", "60 markers but DICT_4X4_50 holds only 50"),
-    (_set("board.marker_mm", 45), r"board\.marker_mm", "smaller than the square"),
-    (_set("board.type", "chessboard"), r"board\.type", "unknown board type"),
+    (set_at("board.marker_mm", 45), r"board\.marker_mm", "smaller than the square"),
+    (set_at("board.type", "chessboard"), r"board\.type", "unknown board type"),
     # not a mapping
     (lambda d: [d], "", "expected a mapping"),
 ]
