@@ -90,8 +90,7 @@ def discriminative_particles(
 
     Returns the particles (n, 40 + n_shape) and each camera's point prediction.
     """
-    cams = [c for c, ok in zip(models.camera_names, valid, strict=True) if ok]
-    per = max(1, n // max(1, len(cams)))
+    per = max(1, n // max(1, int(np.count_nonzero(valid))))
     particles, points = [], []
     for c, name in enumerate(models.camera_names):
         if not valid[c]:
@@ -120,7 +119,6 @@ def fit_frame(
     cameras: list[Camera],
     models: DiscriminativeModels,
     config: ProcessConfig,
-    initial: np.ndarray | None = None,
 ) -> dict:
     """Fit one frame; returns its record for ``results.json`` (never raises for bad data)."""
     t0 = time.perf_counter()
@@ -136,29 +134,24 @@ def fit_frame(
     if valid.sum() == 0:
         record["status"] = "no silhouette in any camera"
         return record
-    limits_lo, limits_hi = body.limits.lower, body.limits.upper
     try:
-        if initial is None:
-            particles, points = discriminative_particles(
-                models, masks, valid, config.initial_particles, rng
-            )
-        else:
-            particles, points = initial, [initial.mean(axis=0)]
-        particles[:, 3:40] = np.clip(particles[:, 3:40], limits_lo, limits_hi)
+        particles, points = discriminative_particles(
+            models, masks, valid, config.initial_particles, rng
+        )
+        particles[:, 3:40] = body.limits.clip(particles[:, 3:40])
+        points = [np.r_[p[:3], body.limits.clip(p[3:40]), p[40:]] for p in points]
         obs = prepare_observation(
             cameras, np.where(valid[:, None, None], masks, False), config.annealing.image_scale
         )
         faces = body.faces(lod=True)
         # Discriminative estimate: the camera prediction that explains all views best.
-        costs = []
-        for p in points:
-            p = p.copy()
-            p[3:40] = np.clip(p[3:40], limits_lo, limits_hi)
-            verts = body.pose(BodyState.from_vector(p[None]), lod=True).vertices[0]
-            costs.append(chamfer_costs(obs, verts, faces).sum())
-        disc = points[int(np.argmin(costs))].copy()
-        disc[3:40] = np.clip(disc[3:40], limits_lo, limits_hi)
-        disc_state = BodyState.from_vector(disc[None])
+        costs = [
+            chamfer_costs(
+                obs, body.pose(BodyState.from_vector(p[None]), lod=True).vertices[0], faces
+            ).sum()
+            for p in points
+        ]
+        disc_state = BodyState.from_vector(points[int(np.argmin(costs))][None])
         t_disc = time.perf_counter() - t0
         result = anneal(body, obs, particles, config.annealing, rng)
         t_gen = time.perf_counter() - t0 - t_disc

@@ -425,7 +425,7 @@ def evaluate(
     * ``position_error_mm``: root position error;
     * ``mpjpe_mm``: mean per-joint position error of the posed skeleton.
     """
-    faces_err = {}
+    n_examples = {}
     truth_canon = model.canonical_vertices(states.nu)
     mean_canon = model.canonical_vertices(np.zeros((1, model.n_shape)))
     err_mean = np.linalg.norm(truth_canon - mean_canon, axis=-1).mean(axis=1)
@@ -455,12 +455,12 @@ def evaluate(
         true_j = model.pose(states[idx], lod=True).joints
         out["mpjpe_mm"] = float(1000 * np.linalg.norm(pred_j - true_j, axis=-1).mean())
         per_cam[cam] = out
-        faces_err[cam] = len(idx)
+        n_examples[cam] = len(idx)
     keys = next(iter(per_cam.values())).keys()
     summary = {k: float(np.mean([v[k] for v in per_cam.values()])) for k in keys}
     summary["mean_shape_vertex_error_mm"] = float(1000 * err_mean.mean())
     summary["per_camera"] = per_cam
-    summary["test_examples_per_camera"] = faces_err
+    summary["test_examples_per_camera"] = n_examples
     return summary
 
 
