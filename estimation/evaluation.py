@@ -21,17 +21,18 @@ from bodymetry.errors import InputError
 from bodymetry.fileio import load_npz, write_json_atomic
 from capture.session import load_session
 from estimation.body_model.biometrics import measure
-from estimation.body_model.model import BodyModel, BodyState
+from estimation.body_model.model import BodyState
 from estimation.generative import AnnealingConfig, anneal, prepare_observation
-from estimation.pipeline import CORE
+from estimation.pipeline import CORE, shared_body_model
 
 #: Spread of the GT + Generative start around the true pose (τ m, θ rad, ν).
 GT_START_STD = (0.01, 0.02, 0.3)
 
 
 def _gt_generative(args) -> tuple[int, dict, list]:
-    frame, masks, cameras, tau, theta, quality, seed, n_shape = args
-    body = BodyModel.load(n_shape=n_shape)
+    frame, masks, cameras, tau, theta, quality, seed = args
+    body = shared_body_model()  # loaded once per worker process
+    n_shape = body.n_shape
     cfg = AnnealingConfig.preset(quality)
     rng = np.random.default_rng([seed, frame, 7])
     y0 = np.r_[tau, theta, np.zeros(n_shape)]
@@ -80,7 +81,7 @@ def evaluate_run(
     quality = results["config"]["quality"]
     seed = results["config"]["seed"]
     cameras = list(session.calibration())
-    body = BodyModel.load()
+    body = shared_body_model()
     wanted = {f["frame"] for f in ok}
     jobs = []
     for sil in segment_session(session, frames=sorted(wanted), keep_images=False):
@@ -94,7 +95,6 @@ def evaluate_run(
                 states["theta"][f],
                 quality,
                 seed,
-                body.n_shape,
             )
         )
     gt_gen: dict[int, tuple[dict, list]] = {}

@@ -122,7 +122,7 @@ def fit_frame(
 ) -> dict:
     """Fit one frame; returns its record for ``results.json`` (never raises for bad data)."""
     t0 = time.perf_counter()
-    body = _body_model()
+    body = shared_body_model()
     rng = np.random.default_rng([config.seed, frame])
     valid = np.array(
         [m.sum() >= MIN_PIXELS and "unreadable" not in f for m, f in zip(masks, flags, strict=True)]
@@ -218,7 +218,7 @@ def summarize(records: list[dict]) -> dict:
 
 
 @functools.lru_cache(maxsize=1)
-def _body_model() -> BodyModel:
+def shared_body_model() -> BodyModel:
     """The body model, loaded once per process (workers fit many frames)."""
     return BodyModel.load()
 

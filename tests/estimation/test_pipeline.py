@@ -142,3 +142,30 @@ def test_session_without_calibration_is_calibrated_from_its_clips(run, tmp_path,
     again = _session_cameras(uncalibrated, tmp_path)
     assert len(calls) == 1
     np.testing.assert_allclose(again[0].K, cams[0].K)
+
+
+def test_evaluate_writes_the_figure_3_table(run):
+    from estimation.evaluation import evaluate_run
+
+    _, out, results, _ = run
+    ev = evaluate_run(out, workers=1)
+    assert json.loads((out / "evaluation.json").read_text()) == ev
+    assert ev["frames"] == 3 and ev["frames_failed"] == 0
+    for key in ("height_mm", "arm_span_mm", "weight_kg"):
+        row = ev["table"][key]
+        assert row["actual"] == results["ground_truth"][key]
+        assert row["disc_generative"]["mean"] == pytest.approx(
+            results["summary"]["generative"][key]["mean"]
+        )
+        assert row["gt_generative"]["n"] == 3
+    # Started from the true pose, the fit's joints are closer to the truth than the
+    # discriminative guess.
+    assert ev["mpjpe_mm"]["gt_generative"] < ev["mpjpe_mm"]["discriminative"]
+
+
+def test_evaluate_needs_a_run(tmp_path):
+    from bodymetry.errors import InputError
+    from estimation.evaluation import evaluate_run
+
+    with pytest.raises(InputError, match=r"results\.json"):
+        evaluate_run(tmp_path)
