@@ -2,7 +2,7 @@
 
 Used to render the discriminative training set and by the generative
 likelihood. Triangles are rasterized by the studio's vectorized coverage test
-(``capture.studio.render.rasterize``): one ``cv2.fillPoly`` call with all
+(``bodymetry.raster.rasterize``): one ``cv2.fillPoly`` call with all
 triangles would apply the even-odd rule and punch holes where the body
 overlaps itself (front and back faces, an arm before the torso).
 """
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bodymetry.raster import rasterize
 from calibration.camera import Camera
 
 
@@ -30,8 +31,6 @@ def fill_silhouette(pixels: np.ndarray, faces: np.ndarray, size: tuple[int, int]
     -------
     (H, W) bool
     """
-    from capture.studio.render import rasterize
-
     w, h = size
     valid = np.all(np.isfinite(pixels), axis=1)
     xy = np.where(valid[:, None], pixels, 0.0)

@@ -1,0 +1,250 @@
+"""Vectorized triangle rasterization (z-buffer and coverage) shared by every stage.
+
+The studio renders its images with it and the estimation stage projects model
+silhouettes with it. No per-triangle Python loop: per-triangle bounding boxes
+are expanded into candidate pixels, an inside test keeps the covered ones and
+the nearest triangle wins each pixel. (``cv2.fillPoly`` with many triangles
+applies the even-odd rule and leaves holes where a mesh overlaps itself.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Tolerance of the inside test, in barycentric units.
+_INSIDE_EPS = 1e-9
+
+
+@dataclass(frozen=True)
+class Raster:
+    """Result of rasterizing a triangle mesh.
+
+    Attributes
+    ----------
+    size : tuple of int
+        ``(width, height)`` in pixels.
+    tri : (H, W) int32
+        Index of the visible triangle per pixel (into the ``faces`` passed in),
+        -1 where no triangle covers the pixel.
+    depth : (H, W) float32
+        Depth of the visible surface (camera z, or the orthographic depth),
+        ``inf`` where nothing is covered.
+    pixels : (N,) int64
+        Flat indices (``row * W + col``) of the covered pixels.
+    bary : (N, 3) float32
+        Barycentric coordinates of each covered pixel's centre in its visible
+        triangle (perspective-correct when rasterized with ``perspective=True``),
+        weights of ``faces[tri, 0..2]``.
+    """
+
+    size: tuple[int, int]
+    tri: np.ndarray
+    depth: np.ndarray
+    pixels: np.ndarray
+    bary: np.ndarray
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) bool: pixels covered by some triangle."""
+        return self.tri >= 0
+
+    @property
+    def bary_image(self) -> np.ndarray:
+        """(H, W, 3) float32 barycentrics, 0 where nothing is covered."""
+        w, h = self.size
+        out = np.zeros((h * w, 3), np.float32)
+        out[self.pixels] = self.bary
+        return out.reshape(h, w, 3)
+
+
+def signed_area2(xy: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Twice the signed screen area of each triangle (T,).
+
+    Positive means the vertices run clockwise on screen (image y points down),
+    i.e. counter-clockwise seen from the camera in a right-handed view with y up:
+    for a mesh with outward counter-clockwise faces projected by an OpenCV
+    camera, front faces have a *negative* value.
+    """
+    p = xy[faces]
+    return (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (
+        p[:, 1, 1] - p[:, 0, 1]
+    )
+
+
+def rasterize(
+    xy: np.ndarray,
+    depth: np.ndarray,
+    faces: np.ndarray,
+    size: tuple[int, int],
+    *,
+    perspective: bool = True,
+    cull: str = "none",
+    valid: np.ndarray | None = None,
+    max_candidates: int = 50_000_000,
+) -> Raster:
+    """Z-buffer rasterization of triangles given in pixel coordinates.
+
+    Parameters
+    ----------
+    xy : (N, 2) float
+        Vertex positions in pixels (x right, y down; pixel centres at integers).
+    depth : (N,) float
+        Vertex depth: camera z (> 0) for ``perspective=True``, any linear depth
+        otherwise (orthographic). Smaller is nearer.
+    faces : (T, 3) int
+        Vertex indices per triangle.
+    size : (width, height)
+        Image size in pixels.
+    perspective : bool
+        Interpolate depth and barycentrics perspective-correctly (1/z linear in
+        screen space); False interpolates linearly (orthographic projection).
+    cull : {"none", "back", "front"}
+        Drop triangles by screen winding: "back" keeps triangles with negative
+        :func:`signed_area2` (front faces of an outward counter-clockwise mesh
+        seen by an OpenCV camera).
+    valid : (N,) bool, optional
+        Vertices that may be drawn; triangles touching an invalid vertex are
+        dropped (e.g. behind the camera, or outside the lens model's range).
+    max_candidates : int
+        Upper bound on candidate pixels (bounding-box area summed over
+        triangles), a guard against runaway memory.
+
+    Returns
+    -------
+    Raster
+    """
+    xy = np.asarray(xy, dtype=np.float64)
+    depth = np.asarray(depth, dtype=np.float64).reshape(-1)
+    faces = np.asarray(faces)
+    w_img, h_img = int(size[0]), int(size[1])
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise ValueError(f"rasterize: xy must have shape (N, 2), got {xy.shape}")
+    if depth.shape[0] != xy.shape[0]:
+        raise ValueError(f"rasterize: depth must have {xy.shape[0]} values, got {depth.shape[0]}")
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise ValueError(f"rasterize: faces must have shape (T, 3), got {faces.shape}")
+    if w_img <= 0 or h_img <= 0:
+        raise ValueError(f"rasterize: size must be (width, height) > 0, got {size}")
+    if cull not in ("none", "back", "front"):
+        raise ValueError(f"rasterize: cull must be 'none', 'back' or 'front', got {cull!r}")
+
+    ok_v = np.all(np.isfinite(xy), axis=1) & np.isfinite(depth)
+    if perspective:
+        ok_v &= depth > 1e-9
+    if valid is not None:
+        ok_v &= np.asarray(valid, dtype=bool).reshape(-1)
+    keep = np.all(ok_v[faces], axis=1)
+
+    p = xy[faces]  # (T, 3, 2)
+    x0, x1, x2 = p[:, 0, 0], p[:, 1, 0], p[:, 2, 0]
+    y0, y1, y2 = p[:, 0, 1], p[:, 1, 1], p[:, 2, 1]
+    area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+    with np.errstate(invalid="ignore"):
+        keep &= np.abs(area2) > 1e-12
+        if cull == "back":
+            keep &= area2 < 0
+        elif cull == "front":
+            keep &= area2 > 0
+
+        xmin = np.ceil(np.minimum(np.minimum(x0, x1), x2))
+        xmax = np.floor(np.maximum(np.maximum(x0, x1), x2))
+        ymin = np.ceil(np.minimum(np.minimum(y0, y1), y2))
+        ymax = np.floor(np.maximum(np.maximum(y0, y1), y2))
+        keep &= (xmax >= 0) & (ymax >= 0) & (xmin <= w_img - 1) & (ymin <= h_img - 1)
+    ids = np.flatnonzero(keep)
+
+    empty = Raster(
+        (w_img, h_img),
+        np.full((h_img, w_img), -1, np.int32),
+        np.full((h_img, w_img), np.inf, np.float32),
+        np.zeros(0, np.int64),
+        np.zeros((0, 3), np.float32),
+    )
+    if ids.size == 0:
+        return empty
+
+    bx0 = np.clip(xmin[ids], 0, w_img - 1).astype(np.int64)
+    bx1 = np.clip(xmax[ids], 0, w_img - 1).astype(np.int64)
+    by0 = np.clip(ymin[ids], 0, h_img - 1).astype(np.int64)
+    by1 = np.clip(ymax[ids], 0, h_img - 1).astype(np.int64)
+    bw = bx1 - bx0 + 1
+    bh = by1 - by0 + 1
+    n = bw * bh
+    good = (bw > 0) & (bh > 0)
+    if not np.all(good):
+        ids, bx0, by0, bw, n = ids[good], bx0[good], by0[good], bw[good], n[good]
+    total = int(n.sum())
+    if total > max_candidates:
+        raise ValueError(
+            f"rasterize: {total} candidate pixels exceed max_candidates={max_candidates}"
+        )
+    if total == 0:
+        return empty
+
+    # Affine barycentric functions per triangle: l_i(x, y) = a_i x + b_i y + c_i.
+    inv = 1.0 / area2[ids]
+    X0, X1, X2 = x0[ids], x1[ids], x2[ids]
+    Y0, Y1, Y2 = y0[ids], y1[ids], y2[ids]
+    a0 = (Y1 - Y2) * inv
+    b0 = (X2 - X1) * inv
+    c0 = (X1 * Y2 - X2 * Y1) * inv
+    a1 = (Y2 - Y0) * inv
+    b1 = (X0 - X2) * inv
+    c1 = (X2 * Y0 - X0 * Y2) * inv
+
+    # Candidate pixels: expand each bounding box (row-major within the box).
+    local_tri = np.repeat(np.arange(ids.size), n)
+    start = np.cumsum(n) - n
+    local = np.arange(total) - start[local_tri]
+    bw_c = bw[local_tri]
+    px = bx0[local_tri] + local % bw_c
+    py = by0[local_tri] + local // bw_c
+    fx = px.astype(np.float64)
+    fy = py.astype(np.float64)
+    l0 = a0[local_tri] * fx + b0[local_tri] * fy + c0[local_tri]
+    l1 = a1[local_tri] * fx + b1[local_tri] * fy + c1[local_tri]
+    l2 = 1.0 - l0 - l1
+    inside = (l0 >= -_INSIDE_EPS) & (l1 >= -_INSIDE_EPS) & (l2 >= -_INSIDE_EPS)
+    cand = np.flatnonzero(inside)
+    if cand.size == 0:
+        return empty
+    ct = local_tri[cand]
+    l0, l1, l2 = l0[cand], l1[cand], l2[cand]
+    pix = py[cand] * w_img + px[cand]
+
+    tri_glob = ids[ct]
+    f = faces[tri_glob]
+    d0, d1, d2 = depth[f[:, 0]], depth[f[:, 1]], depth[f[:, 2]]
+    # Perspective: 1/z is linear in screen space, and the nearest has the largest 1/z.
+    key = -(l0 / d0 + l1 / d1 + l2 / d2) if perspective else l0 * d0 + l1 * d1 + l2 * d2
+
+    zbuf = np.full(h_img * w_img, np.inf)
+    np.minimum.at(zbuf, pix, key)
+    win = np.flatnonzero(key == zbuf[pix])
+    # Ties (shared edges at equal depth): the last written wins, deterministically.
+    tri_flat = np.full(h_img * w_img, -1, np.int64)
+    cand_flat = np.empty(h_img * w_img, np.int64)
+    tri_flat[pix[win]] = tri_glob[win]
+    cand_flat[pix[win]] = win
+    pixels = np.flatnonzero(tri_flat >= 0)
+    wsel = cand_flat[pixels]
+
+    b = np.stack([l0[wsel], l1[wsel], l2[wsel]], axis=1)
+    if perspective:
+        b = b / np.stack([d0[wsel], d1[wsel], d2[wsel]], axis=1)
+        zinv = b.sum(axis=1)
+        b = b / zinv[:, None]
+        zval = 1.0 / zinv
+    else:
+        zval = key[wsel]
+    depth_img = np.full(h_img * w_img, np.inf, np.float32)
+    depth_img[pixels] = zval
+    return Raster(
+        (w_img, h_img),
+        tri_flat.reshape(h_img, w_img).astype(np.int32),
+        depth_img.reshape(h_img, w_img),
+        pixels,
+        b.astype(np.float32),
+    )
