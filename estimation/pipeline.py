@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from bodymetry.errors import InputError
-from bodymetry.fileio import write_json_atomic
+from bodymetry.fileio import save_npz, write_json_atomic
 from calibration.camera import Camera
 from capture.session import Session, load_session
 from estimation.body_model.biometrics import measure
@@ -119,8 +119,15 @@ def fit_frame(
     cameras: list[Camera],
     models: DiscriminativeModels,
     config: ProcessConfig,
+    out: Path | None = None,
 ) -> dict:
-    """Fit one frame; returns its record for ``results.json`` (never raises for bad data)."""
+    """Fit one frame; returns its record for ``results.json`` (never raises for bad data).
+
+    With ``out`` (the run folder), a fitted frame also writes
+    ``out/meshes/FFFFFF.ply`` (the fitted full-resolution body) and
+    ``out/frames/FFFFFF.npz`` (the last annealing layer's particles and weights,
+    for review), both atomically and before the caller writes the record.
+    """
     t0 = time.perf_counter()
     body = shared_body_model()
     rng = np.random.default_rng([config.seed, frame])
@@ -171,6 +178,8 @@ def fit_frame(
             iou[cam.name] = round(
                 float(inter / max(np.logical_or(model_masks[c], masks[c]).sum(), 1)), 4
             )
+    if out is not None:
+        _write_frame_artifacts(out, frame, body, result)
     record.update(
         {
             "status": "ok",
@@ -193,6 +202,21 @@ def fit_frame(
         }
     )
     return record
+
+
+def _write_frame_artifacts(out: Path, frame: int, body: BodyModel, result) -> None:
+    from review.meshes import write_mesh
+
+    full = body.pose(result.state).vertices[0]
+    write_mesh(out / "meshes" / f"{frame:06d}.ply", full, body.faces(), body.full.arrays.parts)
+    save_npz(
+        out / "frames" / f"{frame:06d}.npz",
+        {
+            "particles": result.particles.astype(np.float32),
+            "weights": result.weights.astype(np.float32),
+            "state": result.state.vector()[0],
+        },
+    )
 
 
 def summarize(records: list[dict]) -> dict:
@@ -229,8 +253,8 @@ def _discriminative(path: Path) -> DiscriminativeModels:
 
 
 def _fit_worker(args) -> dict:
-    frame, masks, flags, cameras, models_path, config = args
-    return fit_frame(frame, masks, flags, cameras, _discriminative(models_path), config)
+    frame, masks, flags, cameras, models_path, config, out = args
+    return fit_frame(frame, masks, flags, cameras, _discriminative(models_path), config, out)
 
 
 def process_session(
@@ -276,7 +300,15 @@ def process_session(
         if sil.frame in done:
             continue
         pending.append(
-            (sil.frame, sil.stack(), [list(f) for f in sil.flags], cameras, models_path, config)
+            (
+                sil.frame,
+                sil.stack(),
+                [list(f) for f in sil.flags],
+                cameras,
+                models_path,
+                config,
+                out,
+            )
         )
     t_sil = time.perf_counter() - t1
     if progress:

@@ -74,6 +74,24 @@ def test_results_schema(run):
     assert 1300 < results["ground_truth"]["height_mm"] < 2200
 
 
+def test_frame_artifacts(run):
+    """Every fitted frame leaves its mesh (PLY) and its last particles (npz)."""
+    import trimesh
+
+    from bodymetry.fileio import load_npz
+
+    _, out, results, _ = run
+    for f in results["frames"]:
+        mesh = trimesh.load(out / "meshes" / f"{f['frame']:06d}.ply", process=False)
+        assert mesh.is_watertight
+        assert 1.0 < np.ptp(mesh.vertices[:, 2]) < 2.3
+        arrays = load_npz(out / "frames" / f"{f['frame']:06d}.npz")
+        assert arrays["particles"].shape[0] == arrays["weights"].shape[0]
+        assert abs(float(arrays["weights"].sum()) - 1.0) < 1e-4
+        state = np.r_[f["generative"]["state"]["tau"], f["generative"]["state"]["theta"]]
+        np.testing.assert_allclose(arrays["state"][:40], state, atol=1e-9)
+
+
 def test_resume_does_not_refit(run, monkeypatch):
     session, out, results, base = run
     import estimation.pipeline as pipeline
