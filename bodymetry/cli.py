@@ -754,12 +754,26 @@ def silhouettes(
 )
 @click.option("--seed", default=0, show_default=True, type=int, help="Seeds the particle filter.")
 @click.option(
+    "--min-iou",
+    default=0.85,
+    show_default=True,
+    type=click.FloatRange(0.0, 1.0),
+    help="Frames whose fit overlaps the silhouettes less (mean IoU) are marked 'poor fit' "
+    "and left out of the summary.",
+)
+@click.option(
     "--cache",
     "cache_dir",
     default=None,
     type=click.Path(file_okay=False, path_type=Path),
     help="Model cache folder (default: $BODYMETRY_CACHE or ~/.cache/bodymetry).",
 )
+@click.option(
+    "--no-review",
+    is_flag=True,
+    help="Skip the review outputs (recording.rrd, recording.mcap, report.html, measurements.csv).",
+)
+@click.option("--pdf", is_flag=True, help="Also write the report as report.pdf.")
 @_friendly_errors
 def process(
     session: Path | None,
@@ -767,26 +781,121 @@ def process(
     quality: str,
     workers: int | None,
     seed: int,
+    min_iou: float,
     cache_dir: Path | None,
+    no_review: bool,
+    pdf: bool,
 ) -> None:
     """Measure the person in SESSION (default: the demo recording): silhouettes,
-    discriminative estimate, generative refinement, biometrics per kept frame."""
+    discriminative estimate, generative refinement, biometrics per kept frame,
+    then the review outputs (docs/review.md)."""
 
     from estimation.pipeline import ProcessConfig, process_session
 
+    if no_review and pdf:
+        raise InputError("--pdf: the report is part of the review; drop --no-review")
     session = session or DEMO_SESSION
     out = out or Path("runs") / session.resolve().name
     with labelled_progress() as update:
         results = process_session(
             session,
             out,
-            ProcessConfig(quality=quality, seed=seed),
+            ProcessConfig(quality=quality, seed=seed, min_iou=min_iou),
             workers=workers,
             cache_dir=cache_dir,
             progress=update,
+            review=not no_review,
+            pdf=pdf,
         )
     _print_summary(results)
     console.print(f"wrote {out / 'results.json'} and frames/ (per-frame records)")
+    if not no_review:
+        _print_review_files(out)
+
+
+def _print_review_files(run: Path) -> None:
+    from review.run_data import (
+        MEASUREMENTS_CSV,
+        RECORDING_MCAP,
+        RECORDING_RRD,
+        REPORT_HTML,
+        REPORT_PDF,
+    )
+
+    names = (RECORDING_RRD, RECORDING_MCAP, REPORT_HTML, REPORT_PDF, MEASUREMENTS_CSV)
+    written = [n for n in names if (run / n).is_file()]
+    if written:
+        console.print(f"review: {', '.join(written)} in {run}/ (open with `bodymetry view {run}`)")
+
+
+# --- view / report -------------------------------------------------------------------------
+def _launch_viewer(args: list[str]) -> int:
+    """Run the Rerun viewer (the ``rerun`` executable of the rerun-sdk package)."""
+    import shutil
+    import subprocess
+
+    exe = Path(sys.executable).with_name("rerun")
+    rerun = str(exe) if exe.is_file() else shutil.which("rerun")
+    if rerun is None:
+        raise InputError("the Rerun viewer (`rerun`, from the rerun-sdk package) is not installed")
+    return subprocess.call([rerun, *args])
+
+
+@main.command()
+@click.argument("run", type=click.Path(path_type=Path))
+@click.option("--web", is_flag=True, help="Serve the web viewer (open the printed address).")
+@click.option("--mcap", "use_mcap", is_flag=True, help="Open recording.mcap instead of the .rrd.")
+@click.option(
+    "--port", default=None, type=click.IntRange(1, 65535), help="Web viewer port (with --web)."
+)
+@_friendly_errors
+def view(run: Path, web: bool, use_mcap: bool, port: int | None) -> None:
+    """Open the recording of RUN (a run folder or a .rrd / .mcap file) in the Rerun viewer."""
+    from review.run_data import RECORDING_MCAP, RECORDING_RRD
+
+    path = run / (RECORDING_MCAP if use_mcap else RECORDING_RRD) if run.is_dir() else run
+    if not path.is_file():
+        hint = (
+            "run `bodymetry report` or `bodymetry process` (without --no-review) first"
+            if run.is_dir()
+            else "expected a run folder, a .rrd or a .mcap file"
+        )
+        raise InputError(f"{path}: not found; {hint}")
+    if path.suffix.lower() not in (".rrd", ".mcap"):
+        raise InputError(f"{path}: expected a .rrd or .mcap recording")
+    if port is not None and not web:
+        raise InputError("--port: only with --web")
+    args = [str(path)]
+    if web:
+        args.insert(0, "--web-viewer")
+        if port is not None:
+            args[1:1] = ["--web-viewer-port", str(port)]
+    rc = _launch_viewer(args)
+    if rc:
+        raise click.exceptions.Exit(rc)
+
+
+@main.command()
+@click.argument("run", type=click.Path(path_type=Path))
+@click.option("--pdf", is_flag=True, help="Also write report.pdf.")
+@click.option(
+    "--recordings",
+    is_flag=True,
+    help="Also rewrite recording.rrd and recording.mcap (reads every frame's images again).",
+)
+@_friendly_errors
+def report(run: Path, pdf: bool, recordings: bool) -> None:
+    """Rebuild report.html and measurements.csv of RUN from its results.json (no refitting)."""
+    from review.build import build_review
+
+    with labelled_progress() as update:
+        summary = build_review(run, recordings=recordings, pdf=pdf, progress=update)
+    for name, path in summary.files.items():
+        console.print(f"wrote {path}" if name != "csv" else f"wrote {path} (one row per frame)")
+    for name, why in summary.errors.items():
+        console.print(f"[bold red]{name} failed:[/] {rich.markup.escape(why)}", highlight=False)
+    if summary.errors:
+        sys.exit(1)
 
 
 def _print_summary(results: dict) -> None:

@@ -22,8 +22,7 @@ from bodymetry.fileio import load_npz, write_json_atomic
 from capture.session import load_session
 from estimation.body_model.biometrics import measure
 from estimation.body_model.model import BodyState
-from estimation.generative import AnnealingConfig, anneal, prepare_observation
-from estimation.pipeline import CORE, shared_body_model
+from estimation.pipeline import CORE, ProcessConfig, generative_fit, shared_body_model
 
 #: Spread of the GT + Generative start around the true pose (τ m, θ rad, ν).
 GT_START_STD = (0.01, 0.02, 0.3)
@@ -33,17 +32,17 @@ def _gt_generative(args) -> tuple[int, dict, list]:
     frame, masks, cameras, tau, theta, quality, seed = args
     body = shared_body_model()  # loaded once per worker process
     n_shape = body.n_shape
-    cfg = AnnealingConfig.preset(quality)
+    config = ProcessConfig(quality=quality, seed=seed)
+    cfg = config.annealing
     rng = np.random.default_rng([seed, frame, 7])
     y0 = np.r_[tau, theta, np.zeros(n_shape)]
     std = np.r_[
         np.full(3, GT_START_STD[0]), np.full(37, GT_START_STD[1]), np.full(n_shape, GT_START_STD[2])
     ]
     init = y0 + rng.standard_normal((cfg.n_particles, len(y0))) * std
-    obs = prepare_observation(cameras, masks, cfg.image_scale)
-    result = anneal(body, obs, init, cfg, rng)
-    bio = measure(body, result.state.nu)[0].to_dict()
-    joints = body.pose(result.state).joints[0].tolist()
+    state = generative_fit(body, cameras, masks, init, config, rng).refined.state
+    bio = measure(body, state.nu)[0].to_dict()
+    joints = body.pose(state).joints[0].tolist()
     return frame, bio, joints
 
 

@@ -1,0 +1,177 @@
+"""The review stage: every review output of a run in one pass over its frames.
+
+``build_review(RUN)`` reads ``RUN/results.json`` (and the session for images),
+then for every kept frame poses the fitted body, projects it into the cameras
+and writes the frame to ``recording.rrd`` and ``recording.mcap``; the report
+(``report.html``, ``measurements.csv``, optionally ``report.pdf``) reuses the
+overlays of a few frames from the same pass. ``bodymetry process`` calls it
+after ``results.json`` is written; a failure here never loses the results.
+
+Each output is written to a temporary file and moved into place when
+complete. A writer that fails is dropped (its previous file, if any, stays)
+and the others go on; the failure is logged and listed in the summary.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bodymetry.fileio import atomic_path
+from review.report import OverlayRow, build_report, overlay_row, select_overlay_frames
+from review.run_data import RECORDING_MCAP, RECORDING_RRD, RunData, frame_views, load_run
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ReviewSummary:
+    """What :func:`build_review` wrote.
+
+    Attributes
+    ----------
+    files : dict of str to Path
+        Output name (``rrd``, ``mcap``, ``html``, ``csv``, ``pdf``) -> path written.
+    errors : dict of str to str
+        Output name -> why it was not written.
+    frames : int
+        Frames written to the recordings.
+    seconds : float
+        Wall time of the review stage.
+    """
+
+    files: dict[str, Path] = field(default_factory=dict)
+    errors: dict[str, str] = field(default_factory=dict)
+    frames: int = 0
+    seconds: float = 0.0
+
+
+class _Output:
+    """A recording writer bound to a temporary file that replaces ``final`` on success."""
+
+    def __init__(self, name: str, final: Path, factory: Callable[[Path], Any]) -> None:
+        self.name = name
+        self.final = final
+        self._stack = contextlib.ExitStack()
+        self._tmp = self._stack.enter_context(atomic_path(final))
+        self.writer = factory(self._tmp)
+
+    def finish(self) -> None:
+        self.writer.close()
+        self._stack.close()  # moves the temporary file onto the final path
+
+    def discard(self) -> None:
+        with contextlib.suppress(Exception):
+            self.writer.close()
+        # Leaving the atomic block with an exception removes the temporary file.
+        with contextlib.suppress(RuntimeError):
+            self._stack.__exit__(RuntimeError, RuntimeError("discarded"), None)
+
+
+def build_review(
+    run: RunData | str | Path,
+    *,
+    recordings: bool = True,
+    report: bool = True,
+    pdf: bool = False,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> ReviewSummary:
+    """Write a run's review outputs into its folder.
+
+    Parameters
+    ----------
+    run : RunData or path
+        The run folder (or one already read).
+    recordings : bool
+        Write ``recording.rrd`` and ``recording.mcap``.
+    report : bool
+        Write ``report.html`` and ``measurements.csv``.
+    pdf : bool
+        Also write ``report.pdf``.
+    progress : callable, optional
+        ``progress("review", done, total)`` after each frame.
+
+    Raises
+    ------
+    InputError
+        When the run folder has no readable ``results.json``.
+    """
+    from estimation.pipeline import shared_body_model
+    from review.mcap_recording import McapWriter
+    from review.rerun_recording import RerunWriter
+
+    t0 = time.perf_counter()
+    if not isinstance(run, RunData):
+        run = load_run(run)
+    body = shared_body_model()
+    files: dict[str, Path] = {}
+    errors: dict[str, str] = {}
+    outputs: list[_Output] = []
+    if recordings:
+        for name, filename, cls in (
+            ("rrd", RECORDING_RRD, RerunWriter),
+            ("mcap", RECORDING_MCAP, McapWriter),
+        ):
+            try:
+                outputs.append(
+                    _Output(name, run.folder / filename, lambda p, c=cls: c(p, run, body))
+                )
+            except Exception as exc:
+                log.exception("%s: could not start %s", run.folder, filename)
+                errors[name] = f"{type(exc).__name__}: {exc}"
+    overlay_frames = set(select_overlay_frames(run)) if report else set()
+    overlays: list[OverlayRow] = []
+    n_frames = len(run.frames)
+    done = 0
+    wanted = None if recordings else sorted(overlay_frames)
+    if progress:
+        progress("review", 0, n_frames if recordings else len(overlay_frames))
+    for view in frame_views(run, body, frames=wanted):
+        for out in list(outputs):
+            try:
+                out.writer.add(view)
+            except Exception as exc:
+                log.exception("%s: writing frame %d failed", out.final, view.frame)
+                errors[out.name] = f"frame {view.frame}: {type(exc).__name__}: {exc}"
+                out.discard()
+                outputs.remove(out)
+        if view.frame in overlay_frames:
+            row = overlay_row(run, view)
+            if row is not None:
+                overlays.append(row)
+        done += 1
+        if progress:
+            progress("review", done, n_frames if recordings else len(overlay_frames))
+    for out in outputs:
+        try:
+            out.finish()
+            files[out.name] = out.final
+        except Exception as exc:
+            log.exception("%s: could not finish", out.final)
+            errors[out.name] = f"{type(exc).__name__}: {exc}"
+            out.discard()
+    if report:
+        try:
+            written = build_report(run, body, overlays=overlays, pdf=pdf)
+            files["html"], files["csv"] = written.html, written.csv
+            if written.pdf is not None:
+                files["pdf"] = written.pdf
+        except Exception as exc:
+            log.exception("%s: could not write the report", run.folder)
+            errors["report"] = f"{type(exc).__name__}: {exc}"
+    seconds = time.perf_counter() - t0
+    log.info(
+        "review of %s: %s in %.1f s%s",
+        run.folder,
+        ", ".join(p.name for p in files.values()) or "nothing written",
+        seconds,
+        f"; failed: {', '.join(errors)}" if errors else "",
+    )
+    return ReviewSummary(
+        files=files, errors=errors, frames=done if recordings else 0, seconds=seconds
+    )

@@ -1,0 +1,693 @@
+"""The measurement report of a run: ``report.html``, ``measurements.csv``, ``report.pdf``.
+
+``report.html`` is one self-contained file (images embedded as base64, no
+external resources): the session and subject summary, the measurements per
+stage (mean ± std, and the paper's Figure 3 layout beside the ground truth
+when the session has one; the GT + Generative column when ``bodymetry
+evaluate`` wrote ``evaluation.json``), per-frame plots, silhouette overlays of
+a few frames in every camera, front and side renders of the fitted body, the
+calibration quality and a per-frame table. ``report.pdf`` (``--pdf``) has the
+same content, composed with matplotlib (no system libraries needed).
+``measurements.csv`` has one row per kept frame.
+
+Everything is rebuilt from ``results.json`` (``bodymetry report RUN``); only the
+overlays need the session's videos (the silhouettes are recomputed for those
+few frames), and they are left out with a note when the videos are gone.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import datetime as _dt
+import io
+import logging
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bodymetry import __version__
+from bodymetry.fileio import atomic_path, write_text_atomic
+from estimation.body_model.biometrics import MEASUREMENTS
+from review import plots
+from review.run_data import (
+    MEASUREMENTS_CSV,
+    REPORT_HTML,
+    REPORT_PDF,
+    STAGES,
+    FrameView,
+    RunData,
+    frame_views,
+    load_run,
+)
+
+log = logging.getLogger(__name__)
+
+#: The three measurements of the paper's Figure 3.
+CORE = ("height_mm", "arm_span_mm", "weight_kg")
+#: Frames shown with silhouette overlays (evenly spaced, plus the worst fit).
+OVERLAY_FRAMES = 3
+#: Width of one overlay tile in the report (pixels).
+OVERLAY_WIDTH = 320
+
+
+@dataclass(frozen=True)
+class ReportFiles:
+    """Paths written by :func:`build_report` (``pdf`` is None without ``--pdf``)."""
+
+    html: Path
+    csv: Path
+    pdf: Path | None = None
+
+
+@dataclass(frozen=True)
+class OverlayRow:
+    """Silhouette overlays of one frame in every camera.
+
+    Attributes
+    ----------
+    frame : int
+    caption : str
+    images : list of (H, W, 3) uint8 RGB, one per camera (downscaled)
+    cameras : list of str
+    """
+
+    frame: int
+    caption: str
+    images: list[np.ndarray] = field(default_factory=list)
+    cameras: list[str] = field(default_factory=list)
+
+
+def select_overlay_frames(run: RunData, n: int = OVERLAY_FRAMES) -> list[int]:
+    """Frames to show with overlays: ``n`` evenly spaced fitted frames and the worst fit."""
+    ok = run.fitted_frames
+    if not ok:
+        return []
+    idx = np.unique(np.linspace(0, len(ok) - 1, min(n, len(ok))).round().astype(int))
+    frames = [ok[i]["frame"] for i in idx]
+    worst = min(ok, key=lambda r: np.nan_to_num(_mean_iou(r), nan=np.inf))
+    if worst["frame"] not in frames:
+        frames.append(worst["frame"])
+    return sorted(frames)
+
+
+def _mean_iou(record: dict[str, Any]) -> float:
+    values = list(record.get("silhouette_iou", {}).values())
+    return float(np.mean(values)) if values else float("nan")
+
+
+def overlay_row(run: RunData, view: FrameView) -> OverlayRow | None:
+    """The overlay tiles of a frame (None when its images are not available)."""
+    import cv2
+
+    from review.mcap_recording import overlay_silhouettes
+
+    if not view.images and not view.observed:
+        return None
+    tiles, names = [], []
+    for c, cam in enumerate(run.cameras):
+        image = view.images[c] if c < len(view.images) else None
+        observed = view.observed[c] if c < len(view.observed) else None
+        model = view.model[c] if view.model is not None else None
+        if image is None and observed is None:
+            continue
+        bgr = overlay_silhouettes(image, observed, model)
+        h, w = bgr.shape[:2]
+        scale = OVERLAY_WIDTH / w
+        small = cv2.resize(bgr, (OVERLAY_WIDTH, round(h * scale)), interpolation=cv2.INTER_AREA)
+        iou = view.record.get("silhouette_iou", {}).get(cam.name)
+        text = cam.name + ("" if iou is None else f"  IoU {iou:.2f}")
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
+        box = small[2 : 10 + th, 2 : 10 + tw]
+        box[:] = (0.35 * box).astype(np.uint8)  # a dark box keeps the label readable
+        cv2.putText(
+            small,
+            text,
+            (6, 6 + th),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.45,
+            (255, 255, 255),
+            1,
+            cv2.LINE_AA,
+        )
+        tiles.append(small[:, :, ::-1].copy())
+        names.append(cam.name)
+    if not tiles:
+        return None
+    iou = _mean_iou(view.record)
+    caption = f"frame {view.frame} (t = {run.time_seconds(view.frame):.2f} s)"
+    if np.isfinite(iou):
+        caption += f", mean IoU {iou:.2f}"
+    return OverlayRow(view.frame, caption, tiles, names)
+
+
+def compute_overlays(run: RunData, body: Any, frames: Sequence[int]) -> list[OverlayRow]:
+    """Overlay rows for ``frames``, recomputing their silhouettes from the session."""
+    rows = []
+    for view in frame_views(run, body, frames=frames):
+        row = overlay_row(run, view)
+        if row is not None:
+            rows.append(row)
+    return rows
+
+
+# --- tables -------------------------------------------------------------------------------
+def _stat(summary: dict[str, Any], stage: str, key: str) -> tuple[float, float] | None:
+    s = summary.get(stage, {}).get(key)
+    if not s or s.get("mean") is None:
+        return None
+    return float(s["mean"]), float(s.get("std") or 0.0)
+
+
+def figure3_rows(run: RunData) -> list[dict[str, Any]]:
+    """The paper's Figure 3 rows: Actual, Discriminative, Disc. + Generative, GT + Generative.
+
+    Each row: ``key``, ``label``, ``actual`` (float or None) and
+    ``discriminative``, ``disc_generative``, ``gt_generative`` as (mean, std) or None.
+    """
+    summary = run.results.get("summary", {})
+    truth = run.ground_truth or {}
+    table = (run.evaluation or {}).get("table", {})
+    rows = []
+    for key in CORE:
+        gt_gen = table.get(key, {}).get("gt_generative")
+        rows.append(
+            {
+                "key": key,
+                "label": plots.label(key),
+                "actual": truth.get(key),
+                "discriminative": _stat(summary, "discriminative", key),
+                "disc_generative": _stat(summary, "generative", key),
+                "gt_generative": (float(gt_gen["mean"]), float(gt_gen["std"])) if gt_gen else None,
+            }
+        )
+    return rows
+
+
+def measurement_rows(run: RunData) -> list[dict[str, Any]]:
+    """Every measurement: actual, mean ± std per stage, n, and the error of the final mean."""
+    summary = run.results.get("summary", {})
+    truth = run.ground_truth or {}
+    rows = []
+    for key in MEASUREMENTS:
+        disc = _stat(summary, "discriminative", key)
+        gen = _stat(summary, "generative", key)
+        if disc is None and gen is None:
+            continue
+        actual = truth.get(key)
+        error = None
+        if actual is not None and gen is not None and actual:
+            error = 100.0 * (gen[0] - actual) / actual
+        rows.append(
+            {
+                "key": key,
+                "label": plots.label(key),
+                "actual": actual,
+                "discriminative": disc,
+                "generative": gen,
+                "n": summary.get("generative", {}).get(key, {}).get("n", 0),
+                "error_pct": error,
+            }
+        )
+    return rows
+
+
+def csv_columns(run: RunData) -> list[str]:
+    """Columns of ``measurements.csv``."""
+    keys = _measurement_keys(run)
+    cols = ["frame", "time_s", "status", "flags"]
+    cols += [f"{stage}_{key}" for stage in STAGES for key in keys]
+    cols += [f"iou_{name}" for name in run.camera_names]
+    cols += ["iou_mean", "final_log_likelihood", "seconds_total"]
+    return cols
+
+
+def _measurement_keys(run: RunData) -> list[str]:
+    ok = run.fitted_frames
+    present = set(ok[0].get("generative", {})) if ok else set(CORE)
+    return [k for k in MEASUREMENTS if k in present]
+
+
+def write_measurements_csv(run: RunData, path: str | Path) -> Path:
+    """``measurements.csv``: one row per kept frame (failed frames with empty values)."""
+    path = Path(path)
+    keys = _measurement_keys(run)
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(csv_columns(run))
+    for r in run.frames:
+        flags = ";".join(
+            f"{cam}:{flag}" for cam, fl in sorted(r.get("flags", {}).items()) for flag in fl
+        )
+        row: list[Any] = [r["frame"], f"{run.time_seconds(r['frame']):.4f}", r.get("status"), flags]
+        for stage in STAGES:
+            values = r.get(stage, {})
+            row += [_fmt_csv(values.get(k)) for k in keys]
+        ious = r.get("silhouette_iou", {})
+        row += [_fmt_csv(ious.get(name)) for name in run.camera_names]
+        iou = _mean_iou(r)
+        lls = r.get("annealing", {}).get("layer_log_likelihood", [])
+        row += [
+            _fmt_csv(iou if np.isfinite(iou) else None),
+            _fmt_csv(lls[-1] if lls else None),
+            _fmt_csv(r.get("seconds", {}).get("total")),
+        ]
+        writer.writerow(row)
+    write_text_atomic(path, buf.getvalue())
+    return path
+
+
+def _fmt_csv(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)
+
+
+def calibration_summary(run: RunData) -> dict[str, Any]:
+    """Calibration quality for the report: source, overall RMS, per-camera figures."""
+    out: dict[str, Any] = {
+        "source": run.calibration_source,
+        "solved": False,
+        "rms_px": None,
+        "frames_used": None,
+        "cameras": [],
+    }
+    report = run.calibration_report
+    quality = run.calibration_quality or {}
+    per_camera = {}
+    if report is not None:
+        out["solved"] = True
+        out["rms_px"] = report.get("rms_px")
+        out["frames_used"] = report.get("frames_used")
+        out["outliers_rejected"] = report.get("outliers_rejected")
+        per_camera = report.get("cameras", {}) or {}
+    elif quality:
+        out["rms_px"] = quality.get("overall", {}).get("rms_px")
+        per_camera = {k: v for k, v in quality.items() if k != "overall" and isinstance(v, dict)}
+    for cam in run.cameras:
+        fig = per_camera.get(cam.name, {})
+        out["cameras"].append(
+            {
+                "name": cam.name,
+                "size": f"{cam.size[0]}×{cam.size[1]}",
+                "fx": cam.K[0, 0],
+                "fy": cam.K[1, 1],
+                "cx": cam.K[0, 2],
+                "cy": cam.K[1, 2],
+                "centre": cam.center,
+                "distance_m": float(np.linalg.norm(cam.center[:2])),
+                "rms_px": fig.get("rms_px"),
+                "boards": fig.get("boards_detected"),
+                "corners": fig.get("corners_used"),
+            }
+        )
+    return out
+
+
+# --- report ------------------------------------------------------------------------------
+def _data_uri(data: bytes, mime: str) -> str:
+    return f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
+
+
+def _jpeg_uri(rgb: np.ndarray, quality: int = 85) -> str:
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", rgb[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:  # pragma: no cover
+        raise RuntimeError("JPEG encoding failed")
+    return _data_uri(buf.tobytes(), "image/jpeg")
+
+
+def _png_uri_rgb(rgb: np.ndarray) -> str:
+    import cv2
+
+    ok, buf = cv2.imencode(".png", rgb[:, :, ::-1])
+    if not ok:  # pragma: no cover
+        raise RuntimeError("PNG encoding failed")
+    return _data_uri(buf.tobytes(), "image/png")
+
+
+def body_renders(run: RunData, body: Any) -> dict[str, dict[str, np.ndarray]]:
+    """Front and side renders of the fitted canonical body (mean ν over fitted frames),
+    and of the true body when the ground truth has its shape."""
+    ok = run.ok_frames or run.fitted_frames
+    renders: dict[str, dict[str, np.ndarray]] = {}
+    if ok:
+        nu = np.mean([r["generative"]["state"]["nu"] for r in ok], axis=0)
+        if len(nu) == body.n_shape:
+            renders["fitted (mean shape)"] = plots.body_views(body, nu)
+    truth_nu = (run.ground_truth or {}).get("nu")
+    if truth_nu is not None and len(truth_nu) == body.n_shape:
+        renders["actual (ground truth)"] = plots.body_views(body, np.asarray(truth_nu, float))
+    return renders
+
+
+@dataclass
+class _Content:
+    """Everything the HTML and PDF reports show, computed once."""
+
+    context: dict[str, Any]
+    figures: dict[str, Any]
+    overlays: list[OverlayRow]
+    renders: dict[str, dict[str, np.ndarray]]
+
+
+def _content(run: RunData, body: Any, overlays: list[OverlayRow]) -> _Content:
+    results = run.results
+    session = results.get("session", {})
+    config = results.get("config", {})
+    frames = run.frames
+    ok = run.ok_frames
+    truth = run.ground_truth
+    summary = results.get("summary", {})
+    headline = []
+    for key in CORE:
+        gen = _stat(summary, "generative", key)
+        if gen is not None:
+            headline.append(
+                {
+                    "label": plots.LABELS[key],
+                    "unit": MEASUREMENTS[key],
+                    "mean": gen[0],
+                    "std": gen[1],
+                    "actual": (truth or {}).get(key),
+                }
+            )
+    figures = {}
+    if run.fitted_frames:
+        figures["measurements"] = plots.measurement_plots(run)
+        figures["fit"] = plots.fit_quality_plots(run)
+    renders = body_renders(run, body) if body is not None else {}
+    if renders:
+        figures["body"] = plots.body_figure(renders)
+    per_frame = []
+    for r in frames:
+        gen = r.get("generative", {})
+        iou = _mean_iou(r)
+        per_frame.append(
+            {
+                "frame": r["frame"],
+                "status": r.get("status", ""),
+                "flags": ", ".join(
+                    f"{cam}: {', '.join(fl)}"
+                    for cam, fl in sorted(r.get("flags", {}).items())
+                    if fl
+                ),
+                "values": [gen.get(k) for k in CORE],
+                "iou": iou if np.isfinite(iou) else None,
+                "seconds": r.get("seconds", {}).get("total"),
+            }
+        )
+    annealing = config.get("annealing", {})
+    context = {
+        "title": f"bodymetry report: {run.name}",
+        "name": run.name,
+        "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "version": __version__,
+        "session": {
+            "path": session.get("path", ""),
+            "cameras": ", ".join(run.camera_names),
+            "n_cameras": len(run.camera_names),
+            "fps": session.get("fps"),
+            "frame_step": session.get("frame_step"),
+            "image_size": (
+                f"{run.cameras[0].size[0]}×{run.cameras[0].size[1]}" if run.cameras else "?"
+            ),
+        },
+        "frames": {"kept": len(frames), "ok": len(ok), "failed": len(frames) - len(ok)},
+        "failed": [r for r in frames if r.get("status") != "ok"],
+        "config": {
+            "quality": config.get("quality"),
+            "seed": config.get("seed"),
+            "density": config.get("density"),
+            "particles": annealing.get("n_particles"),
+            "layers": annealing.get("n_layers"),
+            "models": config.get("models"),
+        },
+        "timing": results.get("timing_seconds", {}),
+        "truth": truth,
+        "truth_source": (truth or {}).get("source"),
+        "headline": headline,
+        "figure3": figure3_rows(run),
+        "has_evaluation": run.evaluation is not None,
+        "measurements": measurement_rows(run),
+        "core_labels": [plots.label(k) for k in CORE],
+        "per_frame": per_frame,
+        "calibration": calibration_summary(run),
+        "run_folder": str(run.folder.resolve()),
+        "overlay_note": (
+            ""
+            if overlays
+            else "Overlays need the session's videos, which were not found."
+            if run.session_folder is None
+            else "No fitted frame to show."
+        ),
+    }
+    return _Content(context, figures, overlays, renders)
+
+
+def render_html(content: _Content) -> str:
+    """The report as one self-contained HTML page."""
+    import jinja2
+
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("review", "templates"),
+        autoescape=jinja2.select_autoescape(["html", "j2"]),
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+    env.filters["num"] = _num
+    images = {
+        name: _data_uri(plots.png_bytes(fig), "image/png") for name, fig in content.figures.items()
+    }
+    overlays = [
+        {
+            "caption": row.caption,
+            "tiles": [_jpeg_uri(t) for t in row.images],
+            "cameras": row.cameras,
+        }
+        for row in content.overlays
+    ]
+    template = env.get_template("report.html.j2")
+    return template.render(**content.context, images=images, overlays=overlays)
+
+
+def _num(value: Any, digits: int = 1) -> str:
+    """A number for the report (``–`` when missing)."""
+    if value is None:
+        return "–"
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    if not np.isfinite(v):
+        return "–"
+    return f"{v:,.{digits}f}".replace(",", " ")
+
+
+def build_report(
+    run: RunData | str | Path,
+    body: Any = None,
+    *,
+    overlays: Iterable[OverlayRow] | None = None,
+    pdf: bool = False,
+) -> ReportFiles:
+    """Write ``report.html`` and ``measurements.csv`` (and ``report.pdf``) into the run folder.
+
+    Parameters
+    ----------
+    run : RunData or path
+        The run (a folder is read with :func:`review.run_data.load_run`).
+    body : BodyModel, optional
+        For the body renders and overlays (default: the shared model).
+    overlays : iterable of OverlayRow, optional
+        Precomputed overlays (the review stage collects them while it writes the
+        recordings); computed from the session when not given.
+    pdf : bool
+        Also write ``report.pdf``.
+    """
+    if not isinstance(run, RunData):
+        run = load_run(run)
+    if body is None:
+        from estimation.pipeline import shared_body_model
+
+        body = shared_body_model()
+    if overlays is None:
+        rows = compute_overlays(run, body, select_overlay_frames(run))
+    else:
+        rows = list(overlays)
+    content = _content(run, body, rows)
+    csv_path = write_measurements_csv(run, run.folder / MEASUREMENTS_CSV)
+    html_path = run.folder / REPORT_HTML
+    write_text_atomic(html_path, render_html(content))
+    log.info("wrote %s and %s", html_path, csv_path)
+    pdf_path = None
+    if pdf:
+        pdf_path = write_pdf(content, run.folder / REPORT_PDF)
+        log.info("wrote %s", pdf_path)
+    return ReportFiles(html=html_path, csv=csv_path, pdf=pdf_path)
+
+
+# --- PDF ----------------------------------------------------------------------------------
+def write_pdf(content: _Content, path: str | Path) -> Path:
+    """The report as a PDF (A4 landscape-ish pages composed with matplotlib)."""
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    path = Path(path)
+    ctx = content.context
+    metadata = {"Title": ctx["title"], "Creator": f"bodymetry {ctx['version']}"}
+    with atomic_path(path) as tmp, PdfPages(tmp, metadata=metadata) as pdf:
+        pdf.savefig(_summary_page(ctx))
+        for name in ("measurements", "fit"):
+            if name in content.figures:
+                pdf.savefig(content.figures[name])
+        if content.overlays:
+            fig = plots.image_grid(
+                [(f"frame {row.frame}", row.images) for row in content.overlays],
+                content.overlays[0].cameras,
+            )
+            fig.suptitle(
+                "Silhouette overlays: observed only light blue, model only dark red, both orange",
+                fontsize=10,
+            )
+            pdf.savefig(fig)
+        pdf.savefig(_body_and_calibration_page(content))
+    return path
+
+
+def _summary_page(ctx: dict[str, Any]) -> Any:
+    fig = plots.figure(11.69, 8.27)
+    fig.set_layout_engine("none")
+    fig.text(0.04, 0.95, ctx["title"], fontsize=16, weight="bold")
+    s = ctx["session"]
+    f = ctx["frames"]
+    c = ctx["config"]
+    lines = [
+        f"Session {s['path']}: {s['n_cameras']} cameras ({s['image_size']}), {s['fps']} fps, "
+        f"every {s['frame_step']}th frame kept.",
+        f"{f['ok']} of {f['kept']} kept frames in the measurements ({f['failed']} left out); "
+        f"quality {c['quality']}, {c['particles']} particles x {c['layers']} layers, "
+        f"seed {c['seed']}, density {c['density']} kg/m³.",
+        f"Calibration: {ctx['calibration']['source']}.",
+        f"Generated {ctx['generated']} by bodymetry {ctx['version']}.",
+    ]
+    for i, line in enumerate(lines):
+        fig.text(0.04, 0.90 - 0.03 * i, line, fontsize=9)
+    # Figure 3 table.
+    ax = fig.add_axes((0.04, 0.52, 0.92, 0.22))
+    ax.set_axis_off()
+    ax.set_title(
+        "Basic biometric measurements (paper, Figure 3): mean / std over frames", fontsize=10
+    )
+    header = ["Biometric", "Actual", "Disc. mean", "std", "Disc.+Gen. mean", "std"]
+    if ctx["has_evaluation"]:
+        header += ["GT+Gen. mean", "std"]
+    cells = []
+    for row in ctx["figure3"]:
+        line = [row["label"], _num(row["actual"])]
+        cols = ["discriminative", "disc_generative"] + (
+            ["gt_generative"] if ctx["has_evaluation"] else []
+        )
+        for col in cols:
+            value = row[col]
+            line += [_num(value[0]), _num(value[1])] if value else ["–", "–"]
+        cells.append(line)
+    table = ax.table(cellText=cells, colLabels=header, loc="upper center", cellLoc="right")
+    table.auto_set_font_size(False)
+    table.set_fontsize(9)
+    table.scale(1, 1.4)
+    # All measurements.
+    ax2 = fig.add_axes((0.04, 0.04, 0.92, 0.42))
+    ax2.set_axis_off()
+    ax2.set_title("All measurements (mean ± std over fitted frames)", fontsize=10)
+    rows = [
+        [
+            r["label"],
+            _num(r["actual"]),
+            _pm(r["discriminative"]),
+            _pm(r["generative"]),
+            str(r["n"]),
+            "–" if r["error_pct"] is None else f"{r['error_pct']:+.1f} %",
+        ]
+        for r in ctx["measurements"]
+    ]
+    if rows:
+        t2 = ax2.table(
+            cellText=rows,
+            colLabels=[
+                "Measurement",
+                "Actual",
+                "Discriminative",
+                "Disc. + generative",
+                "n",
+                "Error",
+            ],
+            loc="upper center",
+            cellLoc="right",
+        )
+        t2.auto_set_font_size(False)
+        t2.set_fontsize(8)
+        t2.scale(1, 1.25)
+    return fig
+
+
+def _pm(value: tuple[float, float] | None) -> str:
+    return "–" if value is None else f"{_num(value[0])} ± {_num(value[1])}"
+
+
+def _body_and_calibration_page(content: _Content) -> Any:
+    ctx = content.context
+    fig = plots.figure(11.69, 8.27)
+    fig.set_layout_engine("none")
+    fig.text(0.04, 0.95, "Fitted body and calibration", fontsize=14, weight="bold")
+    views = [
+        (f"{who}: {view}", img) for who, v in content.renders.items() for view, img in v.items()
+    ]
+    # Box widths proportional to the image widths: every render at the same scale.
+    total = sum(img.shape[1] for _, img in views) or 1
+    x = 0.04
+    for title, image in views:
+        width = 0.92 * image.shape[1] / total
+        ax = fig.add_axes((x, 0.40, width, 0.50))
+        ax.imshow(image)
+        ax.set_title(title, fontsize=8)
+        ax.set_axis_off()
+        x += width
+    cal = ctx["calibration"]
+    ax = fig.add_axes((0.04, 0.04, 0.92, 0.3))
+    ax.set_axis_off()
+    rms = cal.get("rms_px")
+    ax.set_title(
+        f"Calibration ({'solved from ChArUco clips' if cal['solved'] else 'given'}; "
+        f"reprojection RMS {'–' if rms is None else f'{rms:.3f} px'})",
+        fontsize=10,
+    )
+    if cal["cameras"]:
+        rows = [
+            [
+                cam["name"],
+                cam["size"],
+                _num(cam["fx"]),
+                _num(cam["fy"]),
+                f"{_num(cam['cx'])}, {_num(cam['cy'])}",
+                ", ".join(_num(x, 2) for x in cam["centre"]),
+                "–" if cam["rms_px"] is None else f"{cam['rms_px']:.3f}",
+            ]
+            for cam in cal["cameras"]
+        ]
+        t = ax.table(
+            cellText=rows,
+            colLabels=["Camera", "Size", "fx", "fy", "cx, cy", "Centre (m)", "RMS px"],
+            loc="upper center",
+            cellLoc="right",
+        )
+        t.auto_set_font_size(False)
+        t.set_fontsize(8)
+        t.scale(1, 1.3)
+    return fig

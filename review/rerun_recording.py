@@ -1,0 +1,329 @@
+"""``RUN/recording.rrd``: the run as a Rerun recording (layout in docs/review.md).
+
+Entity paths (world z up, metres; every per-frame value on the ``frame``
+timeline, a sequence of session frame numbers, and on ``time``, seconds from
+the start of the recording):
+
+``/world``
+    view coordinates (right-handed, z up), static.
+``/world/rig/cam_NN``
+    Transform3D (camera to world) and Pinhole, static;
+    ``image`` (JPEG), ``observed`` (the observed silhouette) and ``model``
+    (the fitted model's silhouette) per frame, as segmentation images over the
+    image (class 1: observed, light blue; class 2: model, dark red; the colours
+    of the paper's Figure 4).
+``/world/body/mesh``
+    the fitted body: triangles and colours once (static), vertex positions per frame.
+``/world/body/skeleton``, ``/world/body/keypoints``
+    bones and keypoints per frame.
+``/world/body/particles``
+    the root positions τ of the last annealing layer's particles (the cloud's
+    spread), coloured by weight.
+``/metrics/biometrics/<name>/{discriminative,generative,actual}``
+    every measurement per stage, and the ground truth when known.
+``/metrics/likelihood/layer_NN``
+    log-likelihood of the estimate after each annealing layer.
+``/metrics/silhouette_iou/cam_NN``, ``/metrics/particle_std/tau_{x,y,z}_mm``
+    fit quality and the particle cloud's spread.
+
+The blueprint opens with the 3D view beside the camera grid and the plots below.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from estimation.body_model.biometrics import MEASUREMENTS
+from review.meshes import PART_COLORS
+from review.run_data import FrameView, RunData, skeleton_segments, stage_state
+
+log = logging.getLogger(__name__)
+
+#: Segmentation classes and colours (paper Figure 4: light blue observed, dark red model).
+OBSERVED_CLASS, MODEL_CLASS = 1, 2
+OBSERVED_RGB = (120, 190, 255)
+MODEL_RGB = (170, 20, 30)
+#: Series colours per stage.
+STAGE_RGB = {
+    "discriminative": (70, 130, 230),
+    "generative": (220, 80, 40),
+    "actual": (90, 200, 90),
+}
+#: Biometrics shown in their own plot below the views (the others are in tabs).
+MAIN_PLOTS = ("height_mm", "arm_span_mm", "weight_kg")
+#: JPEG quality of the camera images.
+JPEG_QUALITY = 80
+
+
+def camera_to_world(cam) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (3, 3) and translation (3,) taking camera coordinates to the world.
+
+    Raises
+    ------
+    ValueError
+        If the rotation is not proper (det != +1): the viewer would reject it.
+    """
+    rot = cam.R.T
+    det = float(np.linalg.det(rot))
+    if not np.isclose(det, 1.0, atol=1e-6):
+        raise ValueError(f"camera {cam.name!r}: rotation has det {det:.6f}, expected +1")
+    return rot, cam.center
+
+
+def jpeg(image_bgr: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
+    """JPEG bytes of a BGR image (H, W, 3) uint8."""
+    ok, buf = cv2.imencode(".jpg", image_bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:  # pragma: no cover - OpenCV failure
+        raise RuntimeError("JPEG encoding failed")
+    return buf.tobytes()
+
+
+def vertex_colors(body) -> np.ndarray:
+    """(V, 3) uint8 per-vertex colours of the full mesh from its per-face part colours."""
+    faces = body.faces()
+    rgb = PART_COLORS[np.asarray(body.full.arrays.parts)]
+    out = np.zeros((body.full.n_vertices, 3), np.uint8)
+    # Later faces overwrite earlier ones; every vertex gets one of its faces' colours.
+    for k in range(3):
+        out[faces[:, k]] = rgb
+    return out
+
+
+def blueprint(
+    camera_names: list[str], biometrics: list[str], eye: tuple[np.ndarray, np.ndarray] | None = None
+) -> Any:
+    """3D view beside the camera grid, the time series below.
+
+    Parameters
+    ----------
+    camera_names : list of str
+    biometrics : list of str
+        Measurement keys with series under ``/metrics/biometrics``.
+    eye : ((3,) float, (3,) float), optional
+        Initial 3D eye position and look target (world, metres).
+    """
+    import rerun.blueprint as rrb
+
+    cams = [rrb.Spatial2DView(origin=f"/world/rig/{name}", name=name) for name in camera_names]
+    plots = [
+        rrb.TimeSeriesView(origin=f"/metrics/biometrics/{key}", name=key)
+        for key in MAIN_PLOTS
+        if key in biometrics
+    ]
+    more = [
+        rrb.TimeSeriesView(origin="/metrics/likelihood", name="log-likelihood per layer"),
+        rrb.TimeSeriesView(origin="/metrics/silhouette_iou", name="silhouette IoU"),
+        rrb.TimeSeriesView(origin="/metrics/particle_std", name="particle spread (mm)"),
+        *(
+            rrb.TimeSeriesView(origin=f"/metrics/biometrics/{key}", name=key)
+            for key in biometrics
+            if key not in MAIN_PLOTS
+        ),
+    ]
+    eye_controls = None
+    if eye is not None:
+        eye_controls = rrb.EyeControls3D(
+            position=eye[0].tolist(), look_target=eye[1].tolist(), eye_up=[0.0, 0.0, 1.0]
+        )
+    top = rrb.Horizontal(
+        rrb.Spatial3DView(origin="/world", name="3D", eye_controls=eye_controls),
+        rrb.Grid(*cams, name="cameras") if cams else rrb.TextDocumentView(origin="/notes"),
+        column_shares=[1, 1],
+    )
+    bottom = rrb.Horizontal(*plots, rrb.Tabs(*more), column_shares=[1] * len(plots) + [1.5])
+    return rrb.Blueprint(
+        rrb.Vertical(top, bottom, row_shares=[3, 2]),
+        rrb.TimePanel(state="expanded", timeline="frame"),
+        collapse_panels=True,
+    )
+
+
+class RerunWriter:
+    """Writes a run's recording to ``path``, one frame at a time.
+
+    Uses its own :class:`rerun.RecordingStream`, never the global one. The
+    caller makes the write atomic (:func:`bodymetry.fileio.atomic_path`).
+
+    Parameters
+    ----------
+    path : path
+        The file to write (a temporary name is fine: Rerun ignores the suffix).
+    run : RunData
+    body : BodyModel
+    """
+
+    def __init__(self, path: str | Path, run: RunData, body) -> None:
+        import rerun as rr
+
+        self.path = Path(path)
+        self.run = run
+        self._rec = rr.RecordingStream("bodymetry", recording_id=f"bodymetry-{run.name}")
+        names = [c.name for c in run.cameras]
+        ok = run.fitted_frames
+        self.biometrics = [k for k in MEASUREMENTS if ok and k in ok[0].get("generative", {})]
+        eye = None
+        if run.cameras:
+            # Between the first two cameras, a little farther out and higher than
+            # they are, looking at the middle of the rig at hip height.
+            centres = np.array([c.center for c in run.cameras])
+            target = np.r_[centres[:, :2].mean(axis=0), 0.9]
+            side = centres[:2, :2].mean(axis=0) - target[:2]
+            if np.linalg.norm(side) < 1e-6:
+                side = centres[0, :2] - target[:2] + [1e-3, 0.0]
+            radius = np.linalg.norm(centres[:, :2] - target[:2], axis=1).mean()
+            horizontal = side / np.linalg.norm(side) * radius * 1.1
+            eye = (target + np.r_[horizontal, centres[:, 2].mean() + 0.6], target)
+        self._rec.save(self.path, default_blueprint=blueprint(names, self.biometrics, eye))
+        self._frames = 0
+        self._log_static(body)
+
+    # -- static content --------------------------------------------------------------
+    def _log_static(self, body) -> None:
+        import rerun as rr
+
+        rec = self._rec
+        rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log(
+            "/world/rig",
+            rr.AnnotationContext(
+                [
+                    # Class 0 must be transparent, else the viewer colours it.
+                    (0, "background", (0, 0, 0, 0)),
+                    (OBSERVED_CLASS, "observed silhouette", OBSERVED_RGB),
+                    (MODEL_CLASS, "model silhouette", MODEL_RGB),
+                ]
+            ),
+            static=True,
+        )
+        for cam in self.run.cameras:
+            rot, centre = camera_to_world(cam)
+            base = f"/world/rig/{cam.name}"
+            rec.log(base, rr.Transform3D(translation=centre, mat3x3=rot), static=True)
+            rec.log(
+                base,
+                rr.Pinhole(
+                    image_from_camera=cam.K,
+                    resolution=list(cam.size),
+                    camera_xyz=rr.ViewCoordinates.RDF,
+                    image_plane_distance=0.5,
+                ),
+                static=True,
+            )
+        rec.log(
+            "/world/body/mesh",
+            rr.Mesh3D.from_fields(
+                triangle_indices=body.faces().astype(np.uint32),
+                vertex_colors=vertex_colors(body),
+            ),
+            static=True,
+        )
+        for key in self.biometrics:
+            for stage in ("discriminative", "generative", "actual"):
+                rec.log(
+                    f"/metrics/biometrics/{key}/{stage}",
+                    rr.SeriesLines(colors=[STAGE_RGB[stage]], names=[stage]),
+                    static=True,
+                )
+        truth = self.run.ground_truth or {}
+        self._truth = {k: float(truth[k]) for k in self.biometrics if k in truth}
+        summary = _summary_text(self.run)
+        rec.log("/notes", rr.TextDocument(summary, media_type="text/markdown"), static=True)
+
+    # -- per frame ---------------------------------------------------------------------
+    def add(self, view: FrameView) -> None:
+        """Log one frame."""
+        import rerun as rr
+
+        rec = self._rec
+        frame = view.frame
+        rec.set_time("frame", sequence=frame)
+        rec.set_time("time", duration=self.run.time_seconds(frame))
+        self._frames += 1
+        for c, cam in enumerate(self.run.cameras):
+            base = f"/world/rig/{cam.name}"
+            if c < len(view.images) and view.images[c] is not None:
+                rec.log(
+                    f"{base}/image",
+                    rr.EncodedImage(contents=jpeg(view.images[c]), media_type="image/jpeg"),
+                )
+            if c < len(view.observed) and view.observed[c] is not None:
+                rec.log(
+                    f"{base}/observed",
+                    rr.SegmentationImage(
+                        view.observed[c].astype(np.uint8) * OBSERVED_CLASS, opacity=0.45
+                    ),
+                )
+            if view.model is not None:
+                rec.log(
+                    f"{base}/model",
+                    rr.SegmentationImage(
+                        view.model[c].astype(np.uint8) * MODEL_CLASS, opacity=0.45
+                    ),
+                )
+        if view.vertices is not None:
+            rec.log("/world/body/mesh", rr.Mesh3D.from_fields(vertex_positions=view.vertices))
+        if view.keypoints is not None:
+            rec.log(
+                "/world/body/skeleton",
+                rr.LineStrips3D(
+                    skeleton_segments(view.keypoints), radii=0.012, colors=[(30, 30, 30)]
+                ),
+            )
+            rec.log(
+                "/world/body/keypoints",
+                rr.Points3D(view.keypoints, radii=0.02, colors=[(250, 200, 0)]),
+            )
+        if view.particles is not None and view.weights is not None:
+            w = view.weights / max(float(view.weights.max()), 1e-12)
+            colors = np.stack([255 * w, 80 + 0 * w, 255 * (1 - w)], axis=1).astype(np.uint8)
+            rec.log(
+                "/world/body/particles",
+                rr.Points3D(view.particles[:, :3], radii=0.008, colors=colors),
+            )
+        self._log_metrics(view.record)
+
+    def _log_metrics(self, record: dict[str, Any]) -> None:
+        import rerun as rr
+
+        rec = self._rec
+        if stage_state(record) is None:  # no fit: nothing to plot
+            return
+        for key in self.biometrics:
+            for stage in ("discriminative", "generative"):
+                value = record.get(stage, {}).get(key)
+                if value is not None:
+                    rec.log(f"/metrics/biometrics/{key}/{stage}", rr.Scalars(float(value)))
+            if key in self._truth:
+                rec.log(f"/metrics/biometrics/{key}/actual", rr.Scalars(self._truth[key]))
+        annealing = record.get("annealing", {})
+        for i, value in enumerate(annealing.get("layer_log_likelihood", [])):
+            rec.log(f"/metrics/likelihood/layer_{i:02d}", rr.Scalars(float(value)))
+        for name, iou in record.get("silhouette_iou", {}).items():
+            rec.log(f"/metrics/silhouette_iou/{name}", rr.Scalars(float(iou)))
+        tau_std = annealing.get("particle_std", {}).get("tau_m", [])
+        for axis, value in zip("xyz", tau_std, strict=False):
+            rec.log(f"/metrics/particle_std/tau_{axis}_mm", rr.Scalars(1000.0 * float(value)))
+
+    @property
+    def frames(self) -> int:
+        """Frames logged so far."""
+        return self._frames
+
+    def close(self) -> None:
+        """Flush the recording and close the file (footer included)."""
+        self._rec.flush()
+        self._rec.disconnect()
+
+
+def _summary_text(run: RunData) -> str:
+    lines = [f"# {run.name}", ""]
+    ok = len(run.ok_frames)
+    lines.append(
+        f"{ok} of {len(run.frames)} kept frames fitted; cameras: {run.calibration_source}."
+    )
+    return "\n".join(lines)
