@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import logging
 import re
 
 import numpy as np
@@ -27,16 +26,6 @@ ATOL_INFO_MM = 0.05
 ATOL_INFO_KG = 0.005
 # The LOD's triangle count (target 3,000).
 LOD_TRIANGLES = (2500, 3500)
-
-
-@pytest.fixture(autouse=True)
-def _restore_root_logger():
-    """The CLI configures the root logger (basicConfig(force=True)); undo it after each test."""
-    root = logging.getLogger()
-    handlers, level = root.handlers[:], root.level
-    yield
-    root.handlers[:] = handlers
-    root.setLevel(level)
 
 
 @pytest.fixture(scope="module")

@@ -6,40 +6,16 @@ import json
 
 import numpy as np
 import pytest
+from tiny_run import TINY_TRAIN, tiny_session
 
-from capture.studio.synth import SynthConfig, synthesize
 from estimation.pipeline import ProcessConfig, fit_frame, process_session, summarize
-from estimation.training import DiscriminativeModels, TrainConfig
-
-TINY_TRAIN = TrainConfig(
-    n_train=60,
-    n_test=10,
-    codebook_size=8,
-    codebook_examples=20,
-    sc_points=40,
-    experts=(1,),
-    ridges=(10.0,),
-    max_iter=5,
-)
+from estimation.training import DiscriminativeModels
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     base = tmp_path_factory.mktemp("pipeline")
-    session = synthesize(
-        base / "session",
-        SynthConfig(
-            frames=5,
-            frame_step=2,
-            cameras=2,
-            size=(240, 180),
-            seed=2,
-            motion="apose",
-            background_frames=3,
-            calibration_frames=30,
-        ),
-        workers=1,
-    )
+    session = tiny_session(base / "session", seed=2)
     out = base / "run"
     return session, out, _process(session, out, base), base
 

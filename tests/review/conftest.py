@@ -8,27 +8,14 @@ outputs at its end, so the fixture also exercises that wiring.
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from tiny_run import TINY_TRAIN, tiny_session
 
 from capture.session import Session
-from capture.studio.synth import SynthConfig, synthesize
 from estimation.pipeline import ProcessConfig, process_session
-from estimation.training import TrainConfig
-
-TINY_TRAIN = TrainConfig(
-    n_train=60,
-    n_test=10,
-    codebook_size=8,
-    codebook_examples=20,
-    sc_points=40,
-    experts=(1,),
-    ridges=(10.0,),
-    max_iter=5,
-)
 
 
 @dataclass(frozen=True)
@@ -44,20 +31,7 @@ class ReviewRun:
 @pytest.fixture(scope="session")
 def review_run(tmp_path_factory) -> ReviewRun:
     base = tmp_path_factory.mktemp("review")
-    session = synthesize(
-        base / "session",
-        SynthConfig(
-            frames=5,
-            frame_step=2,
-            cameras=2,
-            size=(240, 180),
-            seed=3,
-            motion="apose",
-            background_frames=3,
-            calibration_frames=30,
-        ),
-        workers=1,
-    )
+    session = tiny_session(base / "session", seed=3)
     calls: list[tuple[str, int, int]] = []
     results = process_session(
         session.folder,
@@ -70,13 +44,3 @@ def review_run(tmp_path_factory) -> ReviewRun:
         pdf=True,
     )
     return ReviewRun(session, base / "run", results, calls)
-
-
-@pytest.fixture(autouse=True)
-def _restore_root_logger():
-    """The CLI configures the root logger (basicConfig(force=True)); undo it after each test."""
-    root = logging.getLogger()
-    handlers, level = root.handlers[:], root.level
-    yield
-    root.handlers[:] = handlers
-    root.setLevel(level)

@@ -1,0 +1,42 @@
+"""A tiny studio session and tiny discriminative models, shared by the end-to-end tests.
+
+A 2-camera 240x180 studio session with 5 frames (3 kept) and training settings
+small enough that ``process_session`` runs in seconds.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from capture.session import Session
+from capture.studio.synth import SynthConfig, synthesize
+from estimation.training import TrainConfig
+
+TINY_TRAIN = TrainConfig(
+    n_train=60,
+    n_test=10,
+    codebook_size=8,
+    codebook_examples=20,
+    sc_points=40,
+    experts=(1,),
+    ridges=(10.0,),
+    max_iter=5,
+)
+
+
+def tiny_session(folder: Path, seed: int) -> Session:
+    """Render the tiny A-pose studio session into ``folder``."""
+    return synthesize(
+        folder,
+        SynthConfig(
+            frames=5,
+            frame_step=2,
+            cameras=2,
+            size=(240, 180),
+            seed=seed,
+            motion="apose",
+            background_frames=3,
+            calibration_frames=30,
+        ),
+        workers=1,
+    )
