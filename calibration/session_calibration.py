@@ -75,6 +75,7 @@ def detect_session(
     *,
     step: int | None = None,
     upscale: int = DEFAULT_UPSCALE,
+    refine: bool = True,
     workers: int | None = None,
     on_progress: Callable[[str, int, int], None] | None = None,
 ) -> list[CameraDetections]:
@@ -84,6 +85,8 @@ def detect_session(
     ----------
     session : capture.session.Session
     step : sample every ``step``-th frame (None: about 300 frames per clip)
+    upscale : detection upscale factor (:func:`calibration.charuco.detect_image`)
+    refine : place the corners with :class:`calibration.charuco.CornerRefiner`
     workers : threads (None: one per camera, at most the CPU count)
     on_progress : ``on_progress(camera, done, total)`` after each sampled frame
 
@@ -113,7 +116,9 @@ def detect_session(
             if on_progress is not None:
                 on_progress(name, done, total)
 
-        return detect_clip(paths[name], board, name, step=step, upscale=upscale, on_frame=cb)
+        return detect_clip(
+            paths[name], board, name, step=step, upscale=upscale, refine=refine, on_frame=cb
+        )
 
     n_workers = workers or min(len(names), os.cpu_count() or 1)
     with ThreadPoolExecutor(max_workers=max(1, n_workers)) as pool:

@@ -43,7 +43,6 @@ from capture.session import (
 from capture.studio.motion import MOTIONS, RestPoseInfo, ground_motion, make_motion, seed_for
 from capture.studio.rig import studio_rig
 from capture.video import H264Writer
-from estimation.body_model.rotations import axis_rotation
 
 log = logging.getLogger(__name__)
 
@@ -171,32 +170,70 @@ class SynthConfig:
             raise InputError("background clips need >= 1 frame and calibration clips >= 30 frames")
 
 
+#: Where the close sweep puts the board centre in each camera's image, in units of the
+#: half image size from the principal point: a serpentine over a 3 x 3 grid (corners
+#: first), so that partly visible boards reach every image corner and border.
+SWEEP_GRID = ((-1, -1), (0, -1), (1, -1), (1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (0, 0))
+
+
+def _facing(normal: np.ndarray) -> np.ndarray:
+    """world_from_board rotation (3, 3) of an upright board whose printed side faces ``normal``."""
+    z_b = -normal / np.linalg.norm(normal)  # the printed side looks along -z_b
+    x_b = np.cross([0.0, 0.0, 1.0], z_b)
+    x_b /= np.linalg.norm(x_b)
+    return np.stack([x_b, np.cross(z_b, x_b), z_b], axis=1)
+
+
 def board_trajectory(
     n_frames: int,
     fps: float,
     rng: np.random.Generator,
     board: BoardSpec,
-    camera_centers: np.ndarray,
+    cameras: list[Camera],
+    *,
+    sweep_reach: float = 0.7,
+    sweep_depth_m: tuple[float, float] = (1.5, 2.3),
+    tilt_deg: float = 35.0,
+    height_m: tuple[float, float] = (0.5, 2.2),
 ) -> np.ndarray:
     """Poses of the calibration board through the clip, ``x_world = R x_board + t``.
 
-    The first second the board lies face up on the floor with its pattern origin
-    at the world origin and its x axis along world x: that defines the world
-    frame (docs/calibration-format.md). Then it is carried through the volume at
-    0.8-1.5 m and turned, as an operator would, to face each pair of neighbouring
-    cameras in turn (so each pair shares views), then brought to 1.9 m of each
-    camera and swept across its field of view, with a wobble of ±15°.
+    The protocol of docs/calibration.md ("Recording the clip"), as a time-lapse:
+
+    1. The first second the board lies face up on the floor with its pattern
+       origin at the world origin and its x axis along world x: that defines
+       the world frame (docs/calibration-format.md).
+    2. Shared views: for each pair of neighbouring cameras, the board is held
+       in the volume at 0.9-1.6 m, facing between the two, at three tilted
+       poses (±25°).
+    3. Close sweeps: the operator steps up to each camera in turn and holds
+       the board 1.5-2.3 m in front of it at nine poses whose centres lie on a
+       3 x 3 grid over the image (:data:`SWEEP_GRID`, ``sweep_reach`` of the
+       half image size out from the centre, so that partly visible boards
+       cover the image corners), each tilted by up to ``tilt_deg`` about both
+       board axes. The image corners pin down distortion and the principal
+       point; the tilts pin down the focal length.
+
+    The board holds each key pose for 40 % of its share of the frames and moves
+    smoothly (position eased, rotation slerped) to the next. Pair poses get
+    one share, close sweeps two (per segment).
 
     Parameters
     ----------
-    camera_centers : (C, 3) float
-        Where the cameras are (the operator turns the board towards them).
+    cameras : list of Camera
+        The rig (the operator watches each camera's live image to aim the board).
+    sweep_reach, sweep_depth_m, tilt_deg : close-sweep geometry (see above).
+    height_m : (float, float)
+        Range of the board centre's height during the close sweeps (the
+        sweep distance is shortened or lengthened to stay within it).
 
     Returns
     -------
     (n_frames, 4, 4) float
         Homogeneous world_from_board transforms.
     """
+    from scipy.spatial.transform import Rotation, Slerp
+
     w = board.squares[0] * board.square_m
     h = board.squares[1] * board.square_m
     center = np.array([w / 2, h / 2, 0.0])
@@ -207,62 +244,64 @@ def board_trajectory(
     out = np.empty((n_frames, 4, 4))
     out[:n_floor] = floor
     n_move = n_frames - n_floor
-    if n_move <= 0:
+    if n_move <= 0 or not cameras:
+        out[n_floor:] = floor
         return out
-    C = len(camera_centers)
-    azimuth = np.arctan2(camera_centers[:, 1], camera_centers[:, 0])
-    order = np.argsort(azimuth)
-    # Targets: the midpoint of each neighbouring pair, then each camera alone.
-    targets = [
-        0.5 * (camera_centers[order[i]] + camera_centers[order[(i + 1) % C]]) for i in range(C)
-    ]
-    targets += [camera_centers[order[i]] for i in range(C)] if C > 1 else []
-    seg = np.minimum(np.arange(n_move) * len(targets) // n_move, len(targets) - 1)
-    t = np.arange(n_move) / fps
-    key_pos = rng.uniform([-0.6, -0.6, 0.8], [0.6, 0.6, 1.5], size=(len(targets), 3))
-    # Positions glide between segment keys (smoothed), orientation aims at the target.
-    pos = key_pos[seg].copy()
-    # Facing one camera, the operator steps up to it (1.9 m away) and sweeps the
-    # board across its whole field of view, so corners reach the image borders
-    # (intrinsics and lens distortion need them).
-    for k in range(C, len(targets)):
-        frames = np.flatnonzero(seg == k)
-        if len(frames) == 0:
-            continue
-        u = np.linspace(0.0, 1.0, len(frames))
-        cam = np.asarray(targets[k])
-        toward = cam[:2] / np.linalg.norm(cam[:2])
-        side = np.array([-toward[1], toward[0]])
-        reach = max(np.linalg.norm(cam[:2]) - 1.9, 0.0)
-        sweep = 0.75 * np.sin(2 * np.pi * u + rng.uniform(0, 2 * np.pi))
-        pos[frames, :2] = toward * reach + side[None] * sweep[:, None]
-        pos[frames, 2] = 1.25 + 0.45 * np.sin(4 * np.pi * u + rng.uniform(0, 2 * np.pi))
-    kernel = np.exp(-0.5 * (np.arange(-40, 41) / 15.0) ** 2)
-    kernel /= kernel.sum()
-    pos = np.stack(
-        [np.convolve(np.pad(pos[:, d], 40, mode="edge"), kernel, "valid") for d in range(3)], 1
-    )
-    aims = np.asarray(targets)[seg]
-    aims = np.stack(
-        [np.convolve(np.pad(aims[:, d], 40, mode="edge"), kernel, "valid") for d in range(3)], 1
-    )
-    phase = rng.uniform(0, 2 * np.pi, 3)
-    wobble = np.deg2rad(15.0) * np.stack(
-        [np.sin(2 * np.pi * f * t + p) for f, p in zip((0.45, 0.6, 0.35), phase, strict=True)], 1
-    )
-    for i in range(n_move):
-        normal = aims[i] - pos[i]
-        normal /= np.linalg.norm(normal)
-        z_b = -normal  # the printed side looks along -z_b, towards the target
-        x_b = np.cross([0.0, 0.0, 1.0], z_b)
-        x_b /= np.linalg.norm(x_b)
-        y_b = np.cross(z_b, x_b)
-        R = np.stack([x_b, y_b, z_b], axis=1)
-        Rx, Ry, Rz = axis_rotation(np.eye(3), wobble[i])  # about the board's own axes
-        R = R @ Rz @ Ry @ Rx
-        out[n_floor + i] = np.eye(4)
-        out[n_floor + i, :3, :3] = R
-        out[n_floor + i, :3, 3] = pos[i] - R @ center
+    centers = np.stack([cam.center for cam in cameras])
+    C = len(cameras)
+    order = np.argsort(np.arctan2(centers[:, 1], centers[:, 0]))
+    segments: list[tuple[float, list[tuple[np.ndarray, np.ndarray]]]] = []
+    for i in range(C if C > 1 else 0):
+        mid = 0.5 * (centers[order[i]] + centers[order[(i + 1) % C]])
+        toward = mid[:2] / max(np.linalg.norm(mid[:2]), 1e-9)
+        keys = []
+        for _ in range(3):
+            p = np.array([*(0.35 * toward + rng.uniform(-0.4, 0.4, 2)), rng.uniform(0.9, 1.6)])
+            tilt = rng.uniform(-1.0, 1.0, 3) * np.deg2rad([25.0, 25.0, 15.0])
+            keys.append((_facing(mid - p) @ Rotation.from_euler("xyz", tilt).as_matrix(), p))
+        segments.append((1.0, keys))
+    for i in range(C):
+        cam = cameras[order[i]]
+        (fx, _, cx), (_, fy, cy) = cam.K[:2]
+        half = np.array([cam.size[0], cam.size[1]]) / 2.0
+        first = int(rng.integers(len(SWEEP_GRID)))
+        keys = []
+        for k in range(len(SWEEP_GRID)):
+            g = np.asarray(SWEEP_GRID[(first + k) % len(SWEEP_GRID)], dtype=float)
+            u, v = np.array([cx, cy]) + g * sweep_reach * half
+            ray = np.array([(u - cx) / fx, (v - cy) / fy, 1.0])  # camera frame, z = 1
+            ray_w = cam.R.T @ ray
+            depth = rng.uniform(*sweep_depth_m)
+            z = cam.center[2] + depth * ray_w[2]
+            if abs(ray_w[2]) > 1e-9 and not height_m[0] <= z <= height_m[1]:
+                zc = np.clip(z, *height_m)
+                depth = float(np.clip((zc - cam.center[2]) / ray_w[2], 1.0, 3.5))
+            p_cam = depth * ray
+            # Upright in the image (board x along image x), facing the camera, then tilted.
+            z_b = p_cam / np.linalg.norm(p_cam)
+            x_b = np.cross(z_b, np.cross([1.0, 0.0, 0.0], z_b))
+            x_b /= np.linalg.norm(x_b)
+            R_cb = np.stack([x_b, np.cross(z_b, x_b), z_b], axis=1)
+            tilt = rng.uniform(-1.0, 1.0, 3) * np.deg2rad([tilt_deg, tilt_deg, 15.0])
+            R_cb = R_cb @ Rotation.from_euler("xyz", tilt).as_matrix()
+            keys.append((cam.R.T @ R_cb, cam.R.T @ (p_cam - cam.t)))
+        segments.append((2.0, keys))
+    keys = [key for _, seg in segments for key in seg]
+    share = np.array([weight / len(seg) for weight, seg in segments for _ in seg])
+    bounds = np.concatenate([[0.0], np.cumsum(share) / share.sum() * n_move])
+    rotations = Rotation.from_matrix(np.stack([R for R, _ in keys]))
+    positions = np.stack([p for _, p in keys])
+    for f in range(n_move):
+        k = min(int(np.searchsorted(bounds, f, side="right")) - 1, len(keys) - 1)
+        nxt = min(k + 1, len(keys) - 1)
+        s = (f - bounds[k]) / max(bounds[k + 1] - bounds[k], 1e-9)
+        a = float(np.clip((s - 0.4) / 0.6, 0.0, 1.0))
+        a = a * a * (3.0 - 2.0 * a)  # smoothstep
+        R = Slerp([0.0, 1.0], rotations[[k, nxt]])(a).as_matrix()
+        p = (1.0 - a) * positions[k] + a * positions[nxt]
+        out[n_floor + f] = np.eye(4)
+        out[n_floor + f, :3, :3] = R
+        out[n_floor + f, :3, 3] = p - R @ center
     return out
 
 
@@ -389,7 +428,7 @@ def synthesize(
         config.fps,
         np.random.default_rng([config.seed, 99]),
         STUDIO_BOARD,
-        group.centers,
+        cameras,
     )
 
     # Ground truth that does not need rendering.

@@ -230,3 +230,37 @@ def test_nan_in_bundle_adjustment_is_an_error(scene, monkeypatch) -> None:
     monkeypatch.setattr(solve, "_solve", broken)
     with pytest.raises(CalibrationError, match="NaN"):
         calibrate_cameras(dets, GEOM, OPTS)
+
+
+def test_corners_the_refiner_could_not_place_are_down_weighted(scene) -> None:
+    """Precise (refined) corners plus 20 % biased ones marked unrefined: the
+    down-weighted solve stays with the precise ones."""
+    rig, poses, _ = scene
+    rng = np.random.default_rng(11)
+    dets = observe(rig, poses, 0.02, rng)
+    marked = []
+    for d in dets:
+        c = d.corners.copy()
+        refined = np.ones(d.found.shape, dtype=bool)
+        pick = d.found & (rng.random(d.found.shape) < 0.2)
+        pick[:N_FLOOR] = False
+        c[pick] += [0.6, 0.0]  # under the 1 px outlier floor
+        refined[pick] = False
+        marked.append(
+            CameraDetections(d.name, d.size, d.frames_read, d.frames, c, d.source, refined)
+        )
+    plain = [
+        CameraDetections(d.name, d.size, d.frames_read, d.frames, d.corners, d.source)
+        for d in marked
+    ]
+
+    def cx_error(result) -> float:
+        return max(abs(c.K[0, 2] - rig[c.name].K[0, 2]) for c in result.cameras)
+
+    weighted = calibrate_cameras(marked, GEOM, OPTS)
+    unweighted = calibrate_cameras(plain, GEOM, OPTS)
+    assert cx_error(weighted) < 0.3 * cx_error(unweighted)
+    for d in marked:
+        fig = weighted.per_camera[d.name]
+        assert fig["corners_refined"] == int((d.refined & d.found).sum())
+        assert unweighted.per_camera[d.name]["corners_refined"] is None

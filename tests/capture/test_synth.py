@@ -136,9 +136,11 @@ def test_subject_parse():
 
 
 def test_board_trajectory_starts_flat_on_the_floor_then_faces_the_cameras():
+    from capture.studio.rig import studio_rig
+
     rng = np.random.default_rng(0)
-    centers = np.array([[3.0, 3.0, 2.0], [-3.0, 3.0, 2.0], [-3.0, -3.0, 2.0], [3.0, -3.0, 2.0]])
-    poses = board_trajectory(180, 60.0, rng, STUDIO_BOARD, centers)
+    cams = studio_rig(4, (640, 480), seed=0)
+    poses = board_trajectory(300, 60.0, rng, STUDIO_BOARD, cams)
     R = poses[:, :3, :3]
     np.testing.assert_allclose(
         np.einsum("nij,nkj->nik", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-9
@@ -147,11 +149,20 @@ def test_board_trajectory_starts_flat_on_the_floor_then_faces_the_cameras():
     # Floor: printed side (-z of the board) up, pattern origin at the world origin.
     np.testing.assert_allclose(poses[:60, :3, 2], [[0.0, 0.0, -1.0]] * 60, atol=1e-12)
     np.testing.assert_allclose(poses[:60, :3, 3], 0.0, atol=1e-12)
-    # Afterwards the printed side faces the cameras and the board stays at hand height.
+    # Afterwards the printed side faces the cameras and the board stays within reach.
     centre = poses[60:, :3, 3] + np.einsum("nij,j->ni", R[60:], [0.5, 0.4, 0.0])
-    assert np.all((centre[:, 2] > 0.5) & (centre[:, 2] < 2.0))
+    assert np.all((centre[:, 2] > 0.5) & (centre[:, 2] < 2.25))
+    centers = np.stack([c.center for c in cams])
     facing = -R[60:, :, 2]
     to_cams = centers[None] - centre[:, None]
     cos = np.einsum("nd,ncd->nc", facing, to_cams) / np.linalg.norm(to_cams, axis=-1)
-    # Within 60° of some camera almost always (turns between cameras pass further), never away.
+    # Within 60 deg of some camera almost always (turns between cameras pass further).
     assert np.mean(cos.max(axis=1) > 0.5) > 0.9 and np.all(cos.max(axis=1) > 0.0)
+    # Every camera sees board corners close to each of its four image corners.
+    corners = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.8, 0.0], [1.0, 0.8, 0.0]])
+    for cam in cams:
+        world = np.einsum("nij,kj->nki", R[60:], corners) + poses[60:, None, :3, 3]
+        uv = cam.project(world.reshape(-1, 3))
+        w, h = cam.size
+        for cx, cy in [(0, 0), (w, 0), (0, h), (w, h)]:
+            assert np.nanmin(np.linalg.norm(uv - [cx, cy], axis=1)) < 0.25 * h, (cam.name, cx, cy)
