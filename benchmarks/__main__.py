@@ -15,7 +15,7 @@ from pathlib import Path
 # Many small sparse solves: threaded BLAS makes them much slower (set before numpy).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-BENCHMARKS = ("body_model", "studio", "discriminative", "calibration", "capture")
+BENCHMARKS = ("body_model", "studio", "discriminative", "calibration", "capture", "pipeline")
 
 
 def main(argv: list[str]) -> int:

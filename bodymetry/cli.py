@@ -288,6 +288,12 @@ def _parse_size(text: str) -> tuple[int, int]:
 @click.option(
     "--seed", default=0, show_default=True, type=int, help="Seeds the rig, motion, noise, subject."
 )
+@click.option(
+    "--rig-seed",
+    default=None,
+    type=int,
+    help="Seeds the camera rig alone (default: --seed); sessions of one lab share a rig.",
+)
 @click.option("--no-shadows", is_flag=True, help="No cast shadow from the key light.")
 @click.option(
     "--calibration-frames", default=300, show_default=True, type=int, help="ChArUco clip length."
@@ -311,6 +317,7 @@ def synth(
     cameras: int,
     size: str,
     seed: int,
+    rig_seed: int | None,
     no_shadows: bool,
     calibration_frames: int,
     background_frames: int,
@@ -330,6 +337,7 @@ def synth(
         cameras=cameras,
         size=_parse_size(size),
         seed=seed,
+        rig_seed=rig_seed,
         motion=motion,
         subject=SubjectSpec.parse(subject, seed),
         shadows=not no_shadows,
@@ -755,7 +763,7 @@ def silhouettes(
 @click.option("--seed", default=0, show_default=True, type=int, help="Seeds the particle filter.")
 @click.option(
     "--min-iou",
-    default=0.85,
+    default=0.9,
     show_default=True,
     type=click.FloatRange(0.0, 1.0),
     help="Frames whose fit overlaps the silhouettes less (mean IoU) are marked 'poor fit' "

@@ -130,31 +130,11 @@ def rasterize(
     if cull not in ("none", "back", "front"):
         raise ValueError(f"rasterize: cull must be 'none', 'back' or 'front', got {cull!r}")
 
-    ok_v = np.all(np.isfinite(xy), axis=1) & np.isfinite(depth)
+    ok_v = np.isfinite(depth)
     if perspective:
         ok_v &= depth > 1e-9
     if valid is not None:
         ok_v &= np.asarray(valid, dtype=bool).reshape(-1)
-    keep = np.all(ok_v[faces], axis=1)
-
-    p = xy[faces]  # (T, 3, 2)
-    x0, x1, x2 = p[:, 0, 0], p[:, 1, 0], p[:, 2, 0]
-    y0, y1, y2 = p[:, 0, 1], p[:, 1, 1], p[:, 2, 1]
-    area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-    with np.errstate(invalid="ignore"):
-        keep &= np.abs(area2) > 1e-12
-        if cull == "back":
-            keep &= area2 < 0
-        elif cull == "front":
-            keep &= area2 > 0
-
-        xmin = np.ceil(np.minimum(np.minimum(x0, x1), x2))
-        xmax = np.floor(np.maximum(np.maximum(x0, x1), x2))
-        ymin = np.ceil(np.minimum(np.minimum(y0, y1), y2))
-        ymax = np.floor(np.maximum(np.maximum(y0, y1), y2))
-        keep &= (xmax >= 0) & (ymax >= 0) & (xmin <= w_img - 1) & (ymin <= h_img - 1)
-    ids = np.flatnonzero(keep)
-
     empty = Raster(
         (w_img, h_img),
         np.full((h_img, w_img), -1, np.int32),
@@ -162,59 +142,10 @@ def rasterize(
         np.zeros(0, np.int64),
         np.zeros((0, 3), np.float32),
     )
-    if ids.size == 0:
+    found = _covered(xy, faces, (w_img, h_img), cull, ok_v, max_candidates)
+    if found is None:
         return empty
-
-    bx0 = np.clip(xmin[ids], 0, w_img - 1).astype(np.int64)
-    bx1 = np.clip(xmax[ids], 0, w_img - 1).astype(np.int64)
-    by0 = np.clip(ymin[ids], 0, h_img - 1).astype(np.int64)
-    by1 = np.clip(ymax[ids], 0, h_img - 1).astype(np.int64)
-    bw = bx1 - bx0 + 1
-    bh = by1 - by0 + 1
-    n = bw * bh
-    good = (bw > 0) & (bh > 0)
-    if not np.all(good):
-        ids, bx0, by0, bw, n = ids[good], bx0[good], by0[good], bw[good], n[good]
-    total = int(n.sum())
-    if total > max_candidates:
-        raise ValueError(
-            f"rasterize: {total} candidate pixels exceed max_candidates={max_candidates}"
-        )
-    if total == 0:
-        return empty
-
-    # Affine barycentric functions per triangle: l_i(x, y) = a_i x + b_i y + c_i.
-    inv = 1.0 / area2[ids]
-    X0, X1, X2 = x0[ids], x1[ids], x2[ids]
-    Y0, Y1, Y2 = y0[ids], y1[ids], y2[ids]
-    a0 = (Y1 - Y2) * inv
-    b0 = (X2 - X1) * inv
-    c0 = (X1 * Y2 - X2 * Y1) * inv
-    a1 = (Y2 - Y0) * inv
-    b1 = (X0 - X2) * inv
-    c1 = (X2 * Y0 - X0 * Y2) * inv
-
-    # Candidate pixels: expand each bounding box (row-major within the box).
-    local_tri = np.repeat(np.arange(ids.size), n)
-    start = np.cumsum(n) - n
-    local = np.arange(total) - start[local_tri]
-    bw_c = bw[local_tri]
-    px = bx0[local_tri] + local % bw_c
-    py = by0[local_tri] + local // bw_c
-    fx = px.astype(np.float64)
-    fy = py.astype(np.float64)
-    l0 = a0[local_tri] * fx + b0[local_tri] * fy + c0[local_tri]
-    l1 = a1[local_tri] * fx + b1[local_tri] * fy + c1[local_tri]
-    l2 = 1.0 - l0 - l1
-    inside = (l0 >= -_INSIDE_EPS) & (l1 >= -_INSIDE_EPS) & (l2 >= -_INSIDE_EPS)
-    cand = np.flatnonzero(inside)
-    if cand.size == 0:
-        return empty
-    ct = local_tri[cand]
-    l0, l1, l2 = l0[cand], l1[cand], l2[cand]
-    pix = py[cand] * w_img + px[cand]
-
-    tri_glob = ids[ct]
+    pix, tri_glob, l0, l1, l2 = found
     f = faces[tri_glob]
     d0, d1, d2 = depth[f[:, 0]], depth[f[:, 1]], depth[f[:, 2]]
     # Perspective: 1/z is linear in screen space, and the nearest has the largest 1/z.
@@ -248,3 +179,129 @@ def rasterize(
         pixels,
         b.astype(np.float32),
     )
+
+
+def _covered(
+    xy: np.ndarray,
+    faces: np.ndarray,
+    size: tuple[int, int],
+    cull: str,
+    valid: np.ndarray,
+    max_candidates: int,
+) -> tuple[np.ndarray, ...] | None:
+    """Every (pixel, triangle) pair whose pixel centre the triangle covers.
+
+    Returns flat pixel indices (M,), triangle indices (M,) and the pixel's
+    three barycentric coordinates (M,) each; None when nothing is covered.
+    """
+    w_img, h_img = size
+    # Column by column: fancy indexing of (N, 2) rows and reductions over a short
+    # last axis cost several times more (measured: 0.26 of 1.1 ms per call).
+    xs, ys = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
+    ok_v = np.isfinite(xs) & np.isfinite(ys) & valid
+    f0, f1, f2 = (np.ascontiguousarray(faces[:, k]) for k in range(3))
+    keep = ok_v[f0] & ok_v[f1] & ok_v[f2]
+    x0, x1, x2 = xs[f0], xs[f1], xs[f2]
+    y0, y1, y2 = ys[f0], ys[f1], ys[f2]
+    area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+    with np.errstate(invalid="ignore"):
+        if cull == "back":
+            keep &= area2 < -1e-12
+        elif cull == "front":
+            keep &= area2 > 1e-12
+        else:
+            keep &= np.abs(area2) > 1e-12
+    ids = np.flatnonzero(keep)
+    if ids.size == 0:
+        return None
+    X0, X1, X2 = x0[ids], x1[ids], x2[ids]
+    Y0, Y1, Y2 = y0[ids], y1[ids], y2[ids]
+    xmin = np.ceil(np.minimum(np.minimum(X0, X1), X2))
+    xmax = np.floor(np.maximum(np.maximum(X0, X1), X2))
+    ymin = np.ceil(np.minimum(np.minimum(Y0, Y1), Y2))
+    ymax = np.floor(np.maximum(np.maximum(Y0, Y1), Y2))
+    bx0 = np.clip(xmin, 0, w_img - 1).astype(np.int64)
+    by0 = np.clip(ymin, 0, h_img - 1).astype(np.int64)
+    bw = np.clip(xmax, 0, w_img - 1).astype(np.int64) - bx0 + 1
+    bh = np.clip(ymax, 0, h_img - 1).astype(np.int64) - by0 + 1
+    # Boxes off the image or holding no pixel centre get no candidates.
+    good = (bw > 0) & (bh > 0) & (xmax >= 0) & (ymax >= 0)
+    good &= (xmin <= w_img - 1) & (ymin <= h_img - 1)
+    n = np.where(good, bw * bh, 0)
+    total = int(n.sum())
+    if total > max_candidates:
+        raise ValueError(
+            f"rasterize: {total} candidate pixels exceed max_candidates={max_candidates}"
+        )
+    if total == 0:
+        return None
+
+    # Affine barycentric functions per triangle: l_i(x, y) = a_i x + b_i y + c_i.
+    inv = 1.0 / area2[ids]
+    a0 = (Y1 - Y2) * inv
+    b0 = (X2 - X1) * inv
+    c0 = (X1 * Y2 - X2 * Y1) * inv
+    a1 = (Y2 - Y0) * inv
+    b1 = (X0 - X2) * inv
+    c1 = (X2 * Y0 - X0 * Y2) * inv
+
+    # Candidate pixels: expand each bounding box (row-major within the box).
+    local_tri = np.repeat(np.arange(ids.size), n)
+    start = np.cumsum(n) - n
+    local = np.arange(total) - start[local_tri]
+    bw_c = bw[local_tri]
+    px = bx0[local_tri] + local % bw_c
+    py = by0[local_tri] + local // bw_c
+    fx = px.astype(np.float64)
+    fy = py.astype(np.float64)
+    l0 = a0[local_tri] * fx + b0[local_tri] * fy + c0[local_tri]
+    l1 = a1[local_tri] * fx + b1[local_tri] * fy + c1[local_tri]
+    l2 = 1.0 - l0 - l1
+    inside = (l0 >= -_INSIDE_EPS) & (l1 >= -_INSIDE_EPS) & (l2 >= -_INSIDE_EPS)
+    cand = np.flatnonzero(inside)
+    if cand.size == 0:
+        return None
+    pix = py[cand] * w_img + px[cand]
+    return pix, ids[local_tri[cand]], l0[cand], l1[cand], l2[cand]
+
+
+def coverage(
+    xy: np.ndarray,
+    faces: np.ndarray,
+    size: tuple[int, int],
+    *,
+    closed: bool = False,
+    valid: np.ndarray | None = None,
+) -> np.ndarray:
+    """Pixels whose centre some triangle covers: a silhouette, without depth.
+
+    The inside rule of :func:`rasterize` without its z-buffer and barycentrics.
+
+    Parameters
+    ----------
+    xy : (N, 2) float
+        Vertex positions in pixels (x right, y down; pixel centres at integers).
+    faces : (T, 3) int
+    size : (width, height)
+    closed : bool
+        The faces are a closed, outward counter-clockwise mesh projected by an
+        OpenCV camera: only its front faces are drawn (every pixel the mesh
+        covers is covered by a front face; half the work).
+    valid : (N,) bool, optional
+        Vertices that may be drawn; triangles touching another are dropped.
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    xy = np.asarray(xy, dtype=np.float64)
+    faces = np.asarray(faces)
+    w_img, h_img = int(size[0]), int(size[1])
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise ValueError(f"coverage: xy must have shape (N, 2), got {xy.shape}")
+    ok_v = np.ones(len(xy), bool) if valid is None else np.asarray(valid, bool).reshape(-1)
+    mask = np.zeros(h_img * w_img, bool)
+    found = _covered(xy, faces, (w_img, h_img), "back" if closed else "none", ok_v, 50_000_000)
+    if found is not None:
+        mask[found[0]] = True
+    return mask.reshape(h_img, w_img)

@@ -96,6 +96,13 @@ class Camera:
         k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = d[:12]
         x, y = xy[..., 0], xy[..., 1]
         r2 = x * x + y * y
+        if not d[5:].any():
+            # The usual 5-coefficient lens: the same numbers without the zero terms
+            # (the likelihood projects ~10^5 points per batch of particles).
+            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+            yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+            return np.stack([xd, yd], axis=-1)
         radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
         xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + r2 * (s1 + r2 * s2)
         yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + r2 * (s3 + r2 * s4)

@@ -97,7 +97,7 @@ class CleanupConfig:
     """
 
     open_radius: int = 1
-    close_radius: int = 2
+    close_radius: int = 1
     min_person_fraction: float = 0.002
     join_distance: float = 0.08
     min_part_pixels: int = 12

@@ -151,21 +151,38 @@ def prepare_observation(cameras: list[Camera], masks: np.ndarray, scale: float) 
 
 
 def chamfer_costs(obs: Observation, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Bidirectional chamfer cost of one body in every view, (C,)."""
-    costs = np.zeros(len(obs.cameras))
+    """Bidirectional chamfer cost of bodies in every view.
+
+    Parameters
+    ----------
+    obs : Observation
+    vertices : (V, 3) or (B, V, 3) float
+        One body or a batch (projected together, camera by camera).
+    faces : (T, 3) int
+        A closed mesh (:func:`estimation.projection.fill_silhouette`).
+
+    Returns
+    -------
+    (C,) or (B, C) float
+    """
+    verts = np.asarray(vertices, dtype=float)
+    single = verts.ndim == 2
+    verts = verts[None] if single else verts
+    costs = np.zeros((len(verts), len(obs.cameras)))
     for c, cam in enumerate(obs.cameras):
         if not obs.valid[c]:
             continue
-        model = fill_silhouette(cam.project(vertices), faces, cam.size)
         observed = obs.masks[c]
-        extra = model & ~observed
-        missing = observed & ~model
-        cost = obs.dist_outside[c][extra].sum()
-        if missing.any():
-            d_model = cv2.distanceTransform((~model).astype(np.uint8), cv2.DIST_L2, 3)
-            cost += d_model[missing].sum() / obs.scale
-        costs[c] = cost / obs.scale**2 / obs.area[c]
-    return costs
+        for b, pixels in enumerate(cam.project(verts)):
+            model = fill_silhouette(pixels, faces, cam.size)
+            extra = model & ~observed
+            missing = observed & ~model
+            cost = obs.dist_outside[c][extra].sum()
+            if missing.any():
+                d_model = cv2.distanceTransform((~model).astype(np.uint8), cv2.DIST_L2, 3)
+                cost += d_model[missing].sum() / obs.scale
+            costs[b, c] = cost / obs.scale**2 / obs.area[c]
+    return costs[0] if single else costs
 
 
 @dataclass(frozen=True)
@@ -202,8 +219,7 @@ def _log_likelihoods(model: BodyModel, obs: Observation, Y: np.ndarray, sigma: f
     out = np.empty(len(Y))
     for s in range(0, len(Y), 64):
         verts = model.pose(states[s : s + 64], lod=True).vertices
-        for i, v in enumerate(verts):
-            out[s + i] = -chamfer_costs(obs, v, faces).sum() / sigma**2
+        out[s : s + len(verts)] = -chamfer_costs(obs, verts, faces).sum(axis=1) / sigma**2
     return out
 
 

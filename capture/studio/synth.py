@@ -125,7 +125,12 @@ class SynthConfig:
     size : (int, int)
         Image width and height.
     seed : int
-        Seeds the rig, the motion, the noise; the subject unless given.
+        Seeds the rig (unless ``rig_seed`` is given), the motion, the noise;
+        the subject unless given.
+    rig_seed : int or None
+        Seeds the camera rig alone: sessions of one lab share their rig (and
+        so their calibration and trained discriminative models) while subject,
+        motion and noise change with ``seed``.
     motion : str
         A name of ``capture.studio.motion.MOTIONS``.
     subject : SubjectSpec
@@ -143,6 +148,7 @@ class SynthConfig:
     cameras: int = 4
     size: tuple[int, int] = (640, 480)
     seed: int = 0
+    rig_seed: int | None = None
     motion: str = "mixed"
     subject: SubjectSpec = field(default_factory=SubjectSpec)
     shadows: bool = True
@@ -421,7 +427,8 @@ def synthesize(
         config.motion, config.frames, config.fps, motion_seed, limits=model.limits, rest=rest
     )
     motion = ground_motion(model, motion, nu, lod=False)
-    cameras = studio_rig(config.cameras, config.size, seed=config.seed)
+    rig_seed = config.seed if config.rig_seed is None else config.rig_seed
+    cameras = studio_rig(config.cameras, config.size, seed=rig_seed)
     group = CameraGroup(cameras)
     board_poses = board_trajectory(
         config.calibration_frames,

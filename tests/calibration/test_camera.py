@@ -190,3 +190,15 @@ def test_group_construction_errors() -> None:
         CameraGroup([])
     with pytest.raises(ValueError, match="must be a Camera"):
         CameraGroup([cam, "cam_01"])  # type: ignore[list-item]
+
+
+def test_five_coefficient_lens_projects_bit_for_bit_like_the_general_model() -> None:
+    """The 5-coefficient fast path drops only zero terms: identical numbers (cached
+    training sets rendered before it stay valid)."""
+    rng = np.random.default_rng(2)
+    R = Rotation.from_rotvec(rng.normal(0, 0.2, 3)).as_matrix()
+    five = Camera("a", (640, 480), K, DISTORTIONS[5], R, np.array([0.1, -0.2, 3.0]))
+    # k6 = 1e-300 takes the general path and adds exactly nothing.
+    eight = Camera("a", (640, 480), K, [*DISTORTIONS[5], 0.0, 0.0, 1e-300], R, five.t)
+    pts = rng.uniform(-1.0, 1.0, (500, 3))
+    np.testing.assert_array_equal(five.project(pts), eight.project(pts))

@@ -166,3 +166,18 @@ def test_board_trajectory_starts_flat_on_the_floor_then_faces_the_cameras():
         w, h = cam.size
         for cx, cy in [(0, 0), (w, 0), (0, h), (w, h)]:
             assert np.nanmin(np.linalg.norm(uv - [cx, cy], axis=1)) < 0.25 * h, (cam.name, cx, cy)
+
+
+def test_rig_seed_keeps_the_cameras_and_changes_the_rest(session, tmp_path):
+    """Sessions of one lab: --rig-seed fixes the cameras, --seed the subject and motion."""
+    other = synthesize(
+        tmp_path / "other", SynthConfig(**{**TINY, "seed": 4, "rig_seed": 3}), workers=1
+    )
+    assert (other.folder / "calibration.yaml").read_text() == (
+        session.folder / "calibration.yaml"
+    ).read_text()
+    a = load_npz(session.folder / "ground_truth" / "states.npz")
+    b = load_npz(other.folder / "ground_truth" / "states.npz")
+    assert not np.allclose(a["theta"], b["theta"])
+    config = json.loads((other.folder / "ground_truth" / "studio.json").read_text())["config"]
+    assert config["rig_seed"] == 3 and config["seed"] == 4
