@@ -279,6 +279,7 @@ def occluding_contour(
     camera: Camera,
     center: np.ndarray,
     silhouette: np.ndarray | None = None,
+    frames: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Edges on the visible outline of a mesh seen by one camera.
 
@@ -304,20 +305,32 @@ def occluding_contour(
         midpoint lies on the boundary of the silhouette (within one pixel of
         the outside).
     """
-    v0, v1, v2 = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
-    normal = np.cross(v1 - v0, v2 - v0)
-    facing = np.einsum("ij,ij->i", normal, (v0 + v1 + v2) / 3.0 - center) < 0
+    normal, centroid = face_frames(vertices, faces) if frames is None else frames
+    facing = np.einsum("ij,ij->i", normal, centroid - center) < 0
     generator = np.nonzero(facing[edge_faces[:, 0]] != facing[edge_faces[:, 1]])[0]
-    pixels = camera.project(vertices)
-    mask = fill_silhouette(pixels, faces, camera.size) if silhouette is None else silhouette
+    ends = edges[generator]
+    if silhouette is None:
+        pixels = camera.project(vertices)
+        mask = fill_silhouette(pixels, faces, camera.size)
+        mid = 0.5 * (pixels[ends[:, 0]] + pixels[ends[:, 1]])
+    else:
+        # Only the contour edges' ends need projecting (a full mesh has 13k vertices).
+        mask = silhouette
+        p = camera.project(vertices[ends.reshape(-1)]).reshape(-1, 2, 2)
+        mid = 0.5 * (p[:, 0] + p[:, 1])
     inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 3)
-    mid = 0.5 * (pixels[edges[generator, 0]] + pixels[edges[generator, 1]])
     w, h = camera.size
     ij = np.round(np.nan_to_num(mid, nan=-1.0)).astype(int)
     ok = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
     keep = np.zeros(len(generator), bool)
     keep[ok] = inside[ij[ok, 1], ij[ok, 0]] <= 1.0
     return generator[keep]
+
+
+def face_frames(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unnormalized normals (T, 3) and centroids (T, 3) of a mesh's triangles."""
+    v0, v1, v2 = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+    return np.cross(v1 - v0, v2 - v0), (v0 + v1 + v2) / 3.0
 
 
 @dataclass(frozen=True)
@@ -356,6 +369,7 @@ class _ContourCost:
         self.faces = model.faces(lod=not full)
         self.edges, self.edge_faces = _edges(model, lod=not full)
         self.map = full_from_lod(model) if full else None
+        self._last: tuple[bytes, np.ndarray] | None = None
         originals = obs.originals or obs.cameras
         self.visibility = [scaled_camera(c, config.visibility_scale) for c in originals]
 
@@ -376,7 +390,7 @@ class _ContourCost:
         lod = self.vertices(np.vstack([y, y + np.diag(step)]), lod=True)
         if not self.full:
             return lod
-        base = self.vertices(y)[0]
+        base = self._posed(y)
         rows = np.arange(len(base)) if rows is None else rows
         d = lod[1:] - lod[0]  # (n, V_lod, 3)
         n, v_lod, _ = d.shape
@@ -396,6 +410,7 @@ class _ContourCost:
         the visibility of a full mesh's contour edges.
         """
         out = []
+        frames = face_frames(V, self.faces)
         for c in range(len(self.obs.cameras)):
             tree = self.obs.trees[c]
             if tree is None:
@@ -405,7 +420,14 @@ class _ContourCost:
                 None if lod is None else fill_silhouette(vis.project(lod), self.lod_faces, vis.size)
             )
             ids = occluding_contour(
-                V, self.faces, self.edges, self.edge_faces, vis, self.obs.centers[c], visible
+                V,
+                self.faces,
+                self.edges,
+                self.edge_faces,
+                vis,
+                self.obs.centers[c],
+                visible,
+                frames,
             )
             if len(ids) == 0:
                 continue
@@ -434,9 +456,17 @@ class _ContourCost:
             robust.append(np.sqrt(np.where(length <= h, 1.0, h / np.maximum(length, 1e-12))))
         return np.concatenate(res, axis=-1), np.concatenate(robust)
 
+    def _posed(self, y: np.ndarray) -> np.ndarray:
+        """Residual-mesh vertices (V, 3) of one state; the last one is remembered (the
+        iteration evaluates a state, then differentiates at it)."""
+        key = np.asarray(y, dtype=float).tobytes()
+        if self._last is None or self._last[0] != key:
+            self._last = (key, self.vertices(y)[0])
+        return self._last[1]
+
     def evaluate(self, y: np.ndarray) -> tuple[float, list[_Pairs]]:
         """Cost of a state and the correspondences found for it."""
-        V = self.vertices(y)[0]
+        V = self._posed(y)
         pairs = self.pairs(V, self.vertices(y, lod=True)[0] if self.full else None)
         if not pairs:
             return np.inf, pairs

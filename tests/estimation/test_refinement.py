@@ -96,15 +96,20 @@ def test_occluding_contour_of_a_sphere_is_its_outline():
     assert np.abs(cosine).max() < 0.1
 
 
-@pytest.fixture(scope="module")
-def scene():
+def _scene(size: tuple[int, int]):
+    """A known body in the A-pose seen by 4 studio cameras; its silhouettes come
+    from the full mesh. Returns (model, cameras, truth, masks)."""
     model = BodyModel.load()
-    cameras = studio_rig(4, (320, 240), seed=4)
+    cameras = studio_rig(4, size, seed=4)
     nu = np.array([0.8, -0.5, 0.3, 0.0, 0.4, 0.0, -0.3, 0.0, 0.2])
     truth = BodyState([0.1, -0.2, 0.93], model.poses["apose"], nu)
-    # The observation comes from the full mesh, the fit uses the level of detail.
     masks = project_silhouettes(model.pose(truth).vertices[0], model.faces(), cameras)
     return model, cameras, truth, masks
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return _scene((320, 240))
 
 
 def test_refine_recovers_a_perturbed_body(scene):
@@ -170,13 +175,8 @@ def test_full_from_lod_moves_the_full_mesh_with_its_level_of_detail(scene):
 
 @pytest.fixture(scope="module")
 def studio_scene():
-    """The scene at the studio's 640x480, where the bias of the contour sampling shows."""
-    model = BodyModel.load()
-    cameras = studio_rig(4, (640, 480), seed=4)
-    nu = np.array([0.8, -0.5, 0.3, 0.0, 0.4, 0.0, -0.3, 0.0, 0.2])
-    truth = BodyState([0.1, -0.2, 0.93], model.poses["apose"], nu)
-    masks = project_silhouettes(model.pose(truth).vertices[0], model.faces(), cameras)
-    return model, cameras, truth, masks
+    """The scene at the studio's 640x480."""
+    return _scene((640, 480))
 
 
 def test_the_truth_stays_put_with_the_full_mesh(studio_scene):
