@@ -50,6 +50,41 @@ def test_chamfer_cost_is_zero_for_the_true_body_and_grows_with_error(setup):
     assert costs[0] > SELF_COST and np.all(np.diff(costs) > 0)
 
 
+def _reference_costs(obs, verts, faces) -> np.ndarray:
+    """The chamfer cost written out on whole images (no crops, one body at a time)."""
+    import cv2
+
+    from estimation.projection import fill_silhouette
+
+    out = np.zeros(len(obs.cameras))
+    for c, cam in enumerate(obs.cameras):
+        model = fill_silhouette(cam.project(verts), faces, cam.size)
+        observed = obs.masks[c]
+        d_model = cv2.distanceTransform((~model).astype(np.uint8), cv2.DIST_L2, 3)
+        cost = obs.dist_outside[c][model & ~observed].sum()
+        cost += d_model[observed & ~model].sum() / obs.scale
+        out[c] = cost / obs.scale**2 / obs.area[c]
+    return out
+
+
+def test_batched_cropped_chamfer_equals_the_whole_image_cost(setup):
+    """A batch of bodies, some far off or partly outside the images: the batched cost
+    (distance transforms on crops) is the whole-image cost exactly."""
+    model, cameras, truth, _, masks = setup
+    obs = prepare_observation(cameras, masks, 0.5)
+    faces = model.faces(lod=True)
+    rng = np.random.default_rng(4)
+    Y = np.repeat(truth.vector(), 6, axis=0)
+    Y[:, :3] += rng.normal(0.0, [0.05, 0.05, 0.02], (6, 3))
+    Y[4, :3] += [1.5, 0.0, 0.0]  # far to one side: partly outside some images
+    Y[5, 3:40] += rng.normal(0.0, 0.3, 37)
+    verts = model.pose(BodyState.from_vector(Y), lod=True).vertices
+    batched = chamfer_costs(obs, verts, faces)
+    assert batched.shape == (6, 3)
+    for b in range(6):
+        np.testing.assert_allclose(batched[b], _reference_costs(obs, verts[b], faces), rtol=1e-12)
+
+
 def test_views_without_silhouette_are_left_out(setup):
     model, cameras, _, verts, masks = setup
     masks = masks.copy()
