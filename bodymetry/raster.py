@@ -188,8 +188,13 @@ def _covered(
     cull: str,
     valid: np.ndarray,
     max_candidates: int,
+    face_tiles: np.ndarray | None = None,
+    tile_height: int = 0,
 ) -> tuple[np.ndarray, ...] | None:
     """Every (pixel, triangle) pair whose pixel centre the triangle covers.
+
+    With ``face_tiles`` (T,) the image is a stack of tiles ``tile_height`` rows
+    high and each triangle is clipped to the rows of its own tile.
 
     Returns flat pixel indices (M,), triangle indices (M,) and the pixel's
     three barycentric coordinates (M,) each; None when nothing is covered.
@@ -221,12 +226,17 @@ def _covered(
     ymin = np.ceil(np.minimum(np.minimum(Y0, Y1), Y2))
     ymax = np.floor(np.maximum(np.maximum(Y0, Y1), Y2))
     bx0 = np.clip(xmin, 0, w_img - 1).astype(np.int64)
-    by0 = np.clip(ymin, 0, h_img - 1).astype(np.int64)
+    if face_tiles is None:
+        row_lo, row_hi = 0, h_img - 1
+    else:
+        row_lo = face_tiles[ids] * tile_height
+        row_hi = row_lo + tile_height - 1
+    by0 = np.clip(ymin, row_lo, row_hi).astype(np.int64)
     bw = np.clip(xmax, 0, w_img - 1).astype(np.int64) - bx0 + 1
-    bh = np.clip(ymax, 0, h_img - 1).astype(np.int64) - by0 + 1
-    # Boxes off the image or holding no pixel centre get no candidates.
-    good = (bw > 0) & (bh > 0) & (xmax >= 0) & (ymax >= 0)
-    good &= (xmin <= w_img - 1) & (ymin <= h_img - 1)
+    bh = np.clip(ymax, row_lo, row_hi).astype(np.int64) - by0 + 1
+    # Boxes off the image (tile) or holding no pixel centre get no candidates.
+    good = (bw > 0) & (bh > 0) & (xmax >= 0) & (ymax >= row_lo)
+    good &= (xmin <= w_img - 1) & (ymin <= row_hi)
     n = np.where(good, bw * bh, 0)
     total = int(n.sum())
     if total > max_candidates:
@@ -305,3 +315,57 @@ def coverage(
     if found is not None:
         mask[found[0]] = True
     return mask.reshape(h_img, w_img)
+
+
+def coverage_views(
+    xy: np.ndarray,
+    faces: np.ndarray,
+    size: tuple[int, int],
+    *,
+    closed: bool = False,
+) -> np.ndarray:
+    """:func:`coverage` of one mesh in several views of one size, in one pass.
+
+    The views are rasterized as tiles of one tall image, so numpy's per-call
+    overhead is paid once (the level of detail at a quarter of the camera
+    resolution in 4 views: 2.1 instead of 2.4 ms). Vertices with a NaN
+    coordinate (behind a camera) drop their triangles in that view.
+
+    Parameters
+    ----------
+    xy : (C, N, 2) float
+        The mesh's vertices projected into each view (pixels).
+    faces : (T, 3) int
+    size : (width, height)
+        Of every view.
+    closed : bool
+        As in :func:`coverage`.
+
+    Returns
+    -------
+    (C, H, W) bool
+    """
+    xy = np.asarray(xy, dtype=np.float64)
+    faces = np.asarray(faces)
+    if xy.ndim != 3 or xy.shape[2] != 2:
+        raise ValueError(f"coverage_views: xy must have shape (C, N, 2), got {xy.shape}")
+    C, N, _ = xy.shape
+    w_img, h_img = int(size[0]), int(size[1])
+    stacked = xy + np.stack([np.zeros(C), np.arange(C) * h_img], axis=1)[:, None, :]
+    valid = np.all(np.isfinite(stacked), axis=2).reshape(-1)
+    all_faces = (faces[None] + (np.arange(C) * N)[:, None, None]).reshape(-1, 3)
+    tiles = np.repeat(np.arange(C), len(faces))
+    mask = np.zeros(C * h_img * w_img, bool)
+    found = _covered(
+        np.where(valid[:, None], stacked.reshape(-1, 2), 0.0),
+        all_faces,
+        (w_img, C * h_img),
+        "back" if closed else "none",
+        valid,
+        50_000_000,
+        tiles,
+        h_img,
+    )
+    if found is not None:
+        mask[found[0]] = True
+    return mask.reshape(C, h_img, w_img)

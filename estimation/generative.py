@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from bodymetry.raster import coverage_views
 from calibration.camera import Camera
 from estimation.body_model.model import BodyModel, BodyState
 from estimation.body_model.skeleton import JOINT_SLICES, N_POSE
@@ -184,32 +185,49 @@ def chamfer_costs(obs: Observation, vertices: np.ndarray, faces: np.ndarray) -> 
     single = verts.ndim == 2
     verts = verts[None] if single else verts
     costs = np.zeros((len(verts), len(obs.cameras)))
-    for c, cam in enumerate(obs.cameras):
-        if not obs.valid[c]:
-            continue
-        observed = obs.masks[c]
-        w, h = cam.size
-        ox0, oy0, ox1, oy1 = obs.boxes[c]
-        for b, pixels in enumerate(cam.project(verts)):
-            model = fill_silhouette(pixels, faces, cam.size)
-            extra = model & ~observed
-            missing = observed & ~model
-            cost = obs.dist_outside[c][extra].sum()
-            if missing.any():
-                # The distance to the model only matters inside the observed box; the
-                # box of both silhouettes holds every model pixel, so the distance
-                # transform of that crop is exact (and 2-4x smaller than the image).
-                lo = np.nan_to_num(np.nanmin(pixels, axis=0), nan=0.0)
-                hi = np.nan_to_num(np.nanmax(pixels, axis=0), nan=0.0)
-                x0 = int(max(0, min(ox0, np.floor(lo[0]))))
-                y0 = int(max(0, min(oy0, np.floor(lo[1]))))
-                x1 = int(min(w, max(ox1, np.ceil(hi[0]) + 1)))
-                y1 = int(min(h, max(oy1, np.ceil(hi[1]) + 1)))
-                crop = (~model[y0:y1, x0:x1]).astype(np.uint8)
-                d_model = cv2.distanceTransform(crop, cv2.DIST_L2, 3)
-                cost += d_model[missing[y0:y1, x0:x1]].sum() / obs.scale
-            costs[b, c] = cost / obs.scale**2 / obs.area[c]
+    views = np.flatnonzero(obs.valid)
+    if len(views) == 0:
+        return costs[0] if single else costs
+    size = obs.cameras[views[0]].size
+    same_size = all(obs.cameras[c].size == size for c in views)
+    # (B, C', V, 2): every body in every usable view, projected camera by camera.
+    pixels = np.stack([obs.cameras[c].project(verts) for c in views], axis=1)
+    for b in range(len(verts)):
+        if same_size:
+            models = coverage_views(pixels[b], faces, size, closed=True)
+        else:
+            models = [
+                fill_silhouette(p, faces, obs.cameras[c].size)
+                for p, c in zip(pixels[b], views, strict=True)
+            ]
+        for k, c in enumerate(views):
+            costs[b, c] = _view_cost(obs, c, models[k], pixels[b, k])
     return costs[0] if single else costs
+
+
+def _view_cost(obs: Observation, c: int, model: np.ndarray, pixels: np.ndarray) -> float:
+    """The chamfer cost of one model silhouette (h, w) in view ``c``; ``pixels`` (V, 2)
+    are the projected vertices (for the crop of the model's distance transform)."""
+    observed = obs.masks[c]
+    w, h = obs.cameras[c].size
+    extra = model & ~observed
+    missing = observed & ~model
+    cost = obs.dist_outside[c][extra].sum()
+    if missing.any():
+        # The distance to the model only matters inside the observed box; the box of
+        # both silhouettes holds every model pixel, so the distance transform of that
+        # crop is exact (and 2-4x smaller than the image).
+        ox0, oy0, ox1, oy1 = obs.boxes[c]
+        lo = np.nan_to_num(np.nanmin(pixels, axis=0), nan=0.0)
+        hi = np.nan_to_num(np.nanmax(pixels, axis=0), nan=0.0)
+        x0 = int(max(0, min(ox0, np.floor(lo[0]))))
+        y0 = int(max(0, min(oy0, np.floor(lo[1]))))
+        x1 = int(min(w, max(ox1, np.ceil(hi[0]) + 1)))
+        y1 = int(min(h, max(oy1, np.ceil(hi[1]) + 1)))
+        crop = (~model[y0:y1, x0:x1]).astype(np.uint8)
+        d_model = cv2.distanceTransform(crop, cv2.DIST_L2, 3)
+        cost += d_model[missing[y0:y1, x0:x1]].sum() / obs.scale
+    return float(cost / obs.scale**2 / obs.area[c])
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from bodymetry.raster import coverage, rasterize
+from bodymetry.raster import coverage, coverage_views, rasterize
 
 
 def _zbuffer_mask(xy: np.ndarray, faces: np.ndarray, size, valid=None) -> np.ndarray:
@@ -46,3 +46,20 @@ def test_coverage_skips_invalid_vertices_and_validates():
     assert not coverage(np.zeros((0, 2)), np.zeros((0, 3), int), (10, 10)).any()
     with pytest.raises(ValueError, match="xy must have shape"):
         coverage(np.zeros((3, 3)), faces, (10, 10))
+
+
+def test_views_in_one_pass_equal_one_call_per_view():
+    """Tiles do not bleed: triangles reaching past their view's bottom or top are cut
+    at its edge; a NaN vertex drops its triangles in that view only."""
+    rng = np.random.default_rng(7)
+    xy = rng.uniform(-30, 130, (3, 300, 2))
+    xy[1, 5] = np.nan
+    faces = rng.integers(0, 300, (200, 3))
+    stacked = coverage_views(xy, faces, (100, 80))
+    assert stacked.shape == (3, 80, 100)
+    for c in range(3):
+        valid = np.isfinite(xy[c]).all(axis=1)
+        alone = coverage(np.nan_to_num(xy[c]), faces, (100, 80), valid=valid)
+        np.testing.assert_array_equal(stacked[c], alone)
+    with pytest.raises(ValueError, match="xy must have shape"):
+        coverage_views(xy[0], faces, (100, 80))
