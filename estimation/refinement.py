@@ -297,6 +297,9 @@ def occluding_contour(
         rasterized here). A coarser mesh of the same body gives the same
         answer at a fraction of the cost (the full mesh's contour lies within
         a fraction of a pixel of its level of detail's).
+    frames : ((T, 3), (T, 3)) float, optional
+        :func:`face_frames` of the mesh, when the caller has them (they do not
+        depend on the camera).
 
     Returns
     -------
@@ -353,18 +356,16 @@ class _Pairs:
 class _ContourCost:
     """The alignment cost of one frame for one body model (see the module docstring).
 
-    With ``full``, residuals are measured on the full-resolution mesh and its
+    With ``config.full_mesh``, residuals are measured on the full-resolution mesh and its
     Jacobian comes from the level of detail through :func:`full_from_lod`;
     otherwise everything is the level of detail.
     """
 
-    def __init__(
-        self, model: BodyModel, obs: ContourObservation, config: RefineConfig, full: bool = False
-    ):
+    def __init__(self, model: BodyModel, obs: ContourObservation, config: RefineConfig):
         self.model = model
         self.obs = obs
         self.config = config
-        self.full = full
+        full = self.full = config.full_mesh
         self.lod_faces = model.faces(lod=True)
         self.faces = model.faces(lod=not full)
         self.edges, self.edge_faces = _edges(model, lod=not full)
@@ -562,7 +563,7 @@ def refine(
         np.full(37, config.steps[1]),
         np.full(model.n_shape, config.steps[2]),
     ]
-    cost_fn = _ContourCost(model, obs, config, full=config.full_mesh)
+    cost_fn = _ContourCost(model, obs, config)
     f, pairs = cost_fn.evaluate(y)
     f0, accepted, lam = f, 0, 1e-2
     if not np.isfinite(f):
