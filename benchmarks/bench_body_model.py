@@ -11,8 +11,7 @@ import json
 import time
 
 import numpy as np
-
-from estimation.body_model.model import DEFAULT_MODEL_PATH, BodyModel, BodyState
+from bodymetry.estimation.body_model.model import DEFAULT_MODEL_PATH, BodyModel, BodyState
 
 
 def _states(model: BodyModel, n: int, rng: np.random.Generator) -> BodyState:

@@ -23,10 +23,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-from calibration.io import load_calibration
-from calibration.session_calibration import calibrate_session, detect_session
-from capture.session import load_session
+from bodymetry.calibration.io import load_calibration
+from bodymetry.calibration.session_calibration import calibrate_session, detect_session
+from bodymetry.capture.session import load_session
 
 SEEDS = (1, 2, 3)
 TARGETS = {
@@ -139,7 +138,7 @@ def run() -> dict:
             "sessions": sessions,
             "summary": _summary(sessions),
         }
-    from capture.studio.synth import SynthConfig, synthesize
+    from bodymetry.studio.synth import SynthConfig, synthesize
 
     sessions = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -24,12 +24,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-from capture.background import METHODS, SubtractionConfig
-from capture.evaluate import GroundTruth, SilhouetteScores
-from capture.ingest import check_sync, read_frame_sets
-from capture.session import load_session
-from capture.silhouette import background_models, segment_session
+from bodymetry.capture.background import METHODS, SubtractionConfig
+from bodymetry.capture.evaluate import GroundTruth, SilhouetteScores
+from bodymetry.capture.ingest import check_sync, read_frame_sets
+from bodymetry.capture.session import load_session
+from bodymetry.capture.silhouette import background_models, segment_session
 
 SEEDS = (1, 2, 3)
 DEMO = Path(__file__).resolve().parent.parent / "recordings" / "demo"
@@ -40,7 +39,7 @@ TARGET_SECONDS = 10.0
 
 
 def _session(folder: Path, seed: int) -> Path:
-    from capture.studio.synth import SynthConfig, synthesize
+    from bodymetry.studio.synth import SynthConfig, synthesize
 
     out = folder / f"studio_seed{seed}"
     if not (out / "session.yaml").is_file():
@@ -139,9 +138,8 @@ def real_video() -> dict:
     if not path.is_file():
         return {"skipped": f"{path} not installed (Debian package opencv-doc)"}
     import cv2
-
-    from capture.background import BackgroundModel, Subtractor
-    from capture.silhouette import clean_mask
+    from bodymetry.capture.background import BackgroundModel, Subtractor
+    from bodymetry.capture.silhouette import clean_mask
 
     cap = cv2.VideoCapture(str(path))
     frames = []

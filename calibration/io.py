@@ -40,11 +40,11 @@ from typing import Any
 
 import numpy as np
 import yaml
+from bodymetry.calibration.camera import Camera, CameraGroup
 from scipy.spatial.transform import Rotation
 
 from bodymetry.errors import InputError
 from bodymetry.fileio import write_text_atomic
-from calibration.camera import Camera, CameraGroup
 
 __all__ = [
     "CALIBRATION_FORMAT",

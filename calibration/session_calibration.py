@@ -17,12 +17,17 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+from bodymetry.calibration.charuco import (
+    DEFAULT_UPSCALE,
+    CameraDetections,
+    board_geometry,
+    detect_clip,
+)
+from bodymetry.calibration.io import save_calibration
+from bodymetry.calibration.solve import CalibrationOptions, CalibrationResult, calibrate_cameras
 
 from bodymetry.errors import InputError
 from bodymetry.fileio import write_json_atomic
-from calibration.charuco import DEFAULT_UPSCALE, CameraDetections, board_geometry, detect_clip
-from calibration.io import save_calibration
-from calibration.solve import CalibrationOptions, CalibrationResult, calibrate_cameras
 
 __all__ = [
     "REPORT_FILE",

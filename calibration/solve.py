@@ -42,12 +42,12 @@ from typing import Any
 
 import cv2
 import numpy as np
+from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.charuco import BoardGeometry, CameraDetections
 from scipy.sparse import csr_matrix, diags
 from scipy.sparse.linalg import spsolve
 
 from bodymetry.errors import InputError
-from calibration.camera import Camera, CameraGroup
-from calibration.charuco import BoardGeometry, CameraDetections
 
 log = logging.getLogger(__name__)
 

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from bodymetry.capture.session import GROUND_TRUTH_STATES, Session
 
 from bodymetry.errors import InputError
-from capture.session import GROUND_TRUTH_STATES, Session
 
 __all__ = ["GroundTruth", "SilhouetteScores", "iou", "load_ground_truth"]
 
@@ -64,10 +64,11 @@ class GroundTruth:
         return mask > 0
 
     def _setup(self) -> None:
+        from bodymetry.estimation.body_model.model import BodyModel
+        from bodymetry.studio.render import Studio
+        from bodymetry.studio.scene import Light
+
         from bodymetry.fileio import load_npz
-        from capture.studio.render import Studio
-        from capture.studio.scene import Light
-        from estimation.body_model.model import BodyModel
 
         gt = self.session.ground_truth_path
         self._states = load_npz(gt / GROUND_TRUTH_STATES)
@@ -96,7 +97,7 @@ class GroundTruth:
             return None
         if self._studio is None:
             self._setup()
-        from estimation.body_model.model import BodyState
+        from bodymetry.estimation.body_model.model import BodyState
 
         s = self._states
         rows = np.flatnonzero(s["frame"] == frame)

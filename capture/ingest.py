@@ -37,9 +37,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from bodymetry.capture.session import Session
 
 from bodymetry.errors import InputError
-from capture.session import Session
 
 log = logging.getLogger(__name__)
 

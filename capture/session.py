@@ -28,10 +28,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-
-from bodymetry.errors import InputError
-from bodymetry.fileio import write_text_atomic
-from calibration.io import (
+from bodymetry.calibration.io import (
     Fields,
     check_format,
     describe,
@@ -42,10 +39,12 @@ from calibration.io import (
     read_yaml_mapping,
 )
 
+from bodymetry.errors import InputError
+from bodymetry.fileio import write_text_atomic
+
 if TYPE_CHECKING:
     import cv2
-
-    from calibration.camera import CameraGroup
+    from bodymetry.calibration.camera import CameraGroup
 
 __all__ = [
     "DEFAULT_FRAME_STEP",

@@ -46,11 +46,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from bodymetry.capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
+from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
+from bodymetry.capture.session import Session
 
 from bodymetry.errors import InputError
-from capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
-from capture.ingest import SyncReport, check_sync, read_frame_sets
-from capture.session import Session
 
 log = logging.getLogger(__name__)
 

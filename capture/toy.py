@@ -15,10 +15,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from calibration.camera import Camera, CameraGroup
-from calibration.io import save_calibration
-from capture.session import Session, SessionCamera, save_session
+from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.io import save_calibration
+from bodymetry.capture.session import Session, SessionCamera, save_session
 
 __all__ = ["ToyScene", "toy_background", "toy_frame", "write_toy_session", "write_video"]
 

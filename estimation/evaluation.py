@@ -16,13 +16,13 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from bodymetry.capture.session import load_session
+from bodymetry.estimation.body_model.biometrics import measure
+from bodymetry.estimation.body_model.model import BodyState
+from bodymetry.estimation.pipeline import CORE, ProcessConfig, generative_fit, shared_body_model
 
 from bodymetry.errors import InputError
 from bodymetry.fileio import load_npz, write_json_atomic
-from capture.session import load_session
-from estimation.body_model.biometrics import measure
-from estimation.body_model.model import BodyState
-from estimation.pipeline import CORE, ProcessConfig, generative_fit, shared_body_model
 
 #: Spread of the GT + Generative start around the true pose (τ m, θ rad, ν).
 GT_START_STD = (0.01, 0.02, 0.3)
@@ -61,7 +61,7 @@ def evaluate_run(
     progress: Callable[[str, int, int], None] | None = None,
 ) -> dict:
     """Compute the Figure 3 numbers for a run and write ``run/evaluation.json``."""
-    from capture.silhouette import segment_session
+    from bodymetry.capture.silhouette import segment_session
 
     run = Path(run)
     path = run / "results.json"

@@ -29,12 +29,11 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-
-from bodymetry.raster import coverage_views
-from calibration.camera import Camera
-from estimation.body_model.model import BodyModel, BodyState
-from estimation.body_model.skeleton import JOINT_SLICES, N_POSE
-from estimation.projection import fill_silhouette
+from bodymetry.calibration.camera import Camera
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.skeleton import JOINT_SLICES, N_POSE
+from bodymetry.estimation.projection import fill_silhouette
+from bodymetry.estimation.raster import coverage_views
 
 YAW = JOINT_SLICES[0].start + 2
 

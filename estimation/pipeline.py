@@ -23,14 +23,11 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
-
-from bodymetry.errors import InputError
-from bodymetry.fileio import save_npz, write_json_atomic
-from calibration.camera import Camera
-from capture.session import Session, load_session
-from estimation.body_model.biometrics import measure
-from estimation.body_model.model import BodyModel, BodyState
-from estimation.generative import (
+from bodymetry.calibration.camera import Camera
+from bodymetry.capture.session import Session, load_session
+from bodymetry.estimation.body_model.biometrics import measure
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.generative import (
     AnnealingConfig,
     AnnealingResult,
     Observation,
@@ -38,15 +35,23 @@ from estimation.generative import (
     chamfer_costs,
     prepare_observation,
 )
-from estimation.projection import project_silhouettes
-from estimation.refinement import (
+from bodymetry.estimation.projection import project_silhouettes
+from bodymetry.estimation.refinement import (
     ContourObservation,
     RefineConfig,
     RefineResult,
     prepare_contours,
     refine,
 )
-from estimation.training import DiscriminativeModels, TrainConfig, load_or_train, targets_to_theta
+from bodymetry.estimation.training import (
+    DiscriminativeModels,
+    TrainConfig,
+    load_or_train,
+    targets_to_theta,
+)
+
+from bodymetry.errors import InputError
+from bodymetry.fileio import save_npz, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -372,7 +377,7 @@ def polish(
 def _write_frame_artifacts(
     out: Path, frame: int, body: BodyModel, state: BodyState, result
 ) -> None:
-    from review.meshes import write_mesh
+    from bodymetry.review.meshes import write_mesh
 
     full = body.pose(state).vertices[0]
     write_mesh(out / "meshes" / f"{frame:06d}.ply", full, body.faces(), body.full.arrays.parts)
@@ -444,7 +449,7 @@ def process_session(
     docs/review.md); they are built after ``results.json`` is written and a
     failure there is logged, never raised.
     """
-    from capture.silhouette import segment_session
+    from bodymetry.capture.silhouette import segment_session
 
     config = config or ProcessConfig()
     AnnealingConfig.preset(config.quality)  # an unknown preset fails before any work
@@ -533,7 +538,7 @@ def process_session(
 
 def _build_review(out: Path, pdf: bool, progress: Callable[[str, int, int], None] | None) -> None:
     """The review stage (review.build); the results are already safe on disk."""
-    from review.build import build_review
+    from bodymetry.review.build import build_review
 
     try:
         build_review(out, pdf=pdf, progress=progress)
@@ -553,11 +558,11 @@ def _session_cameras(
         return list(session.calibration())
     solved = out / "calibration.yaml"
     if solved.is_file():
-        from calibration.io import load_calibration
+        from bodymetry.calibration.io import load_calibration
 
         return list(load_calibration(solved).subset(session.camera_names))
     if session.calibration_clips and session.board is not None:
-        from calibration.session_calibration import calibrate_session, write_calibration
+        from bodymetry.calibration.session_calibration import calibrate_session, write_calibration
 
         log.info("%s: no calibration.yaml; solving it from the ChArUco clips", session.folder)
         result, _ = calibrate_session(
@@ -575,7 +580,7 @@ def _session_cameras(
 
 
 def _models_file(models: DiscriminativeModels, cache_dir: Path | None) -> Path:
-    from estimation.training import default_cache_dir
+    from bodymetry.estimation.training import default_cache_dir
 
     return (cache_dir or default_cache_dir()) / "discriminative" / f"{models.key}.npz"
 

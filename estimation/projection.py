@@ -2,7 +2,7 @@
 
 Used to render the discriminative training set and by the generative
 likelihood. Triangles are rasterized by the studio's vectorized coverage test
-(``bodymetry.raster.coverage``, the inside rule of its z-buffer without the
+(``bodymetry.estimation.raster.coverage``, the inside rule of its z-buffer without the
 depth): one ``cv2.fillPoly`` call with all triangles would apply the even-odd
 rule and punch holes where the body overlaps itself (front and back faces, an
 arm before the torso). The body is a closed mesh, so only its front faces are
@@ -13,9 +13,8 @@ the speed, measured on the level of detail.
 from __future__ import annotations
 
 import numpy as np
-
-from bodymetry.raster import coverage
-from calibration.camera import Camera
+from bodymetry.calibration.camera import Camera
+from bodymetry.estimation.raster import coverage
 
 
 def fill_silhouette(

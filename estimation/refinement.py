@@ -31,14 +31,13 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from bodymetry.calibration.camera import Camera
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.generative import YAW, scaled_camera, state_bounds
+from bodymetry.estimation.projection import fill_silhouette
 from scipy import sparse
 from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
-
-from calibration.camera import Camera
-from estimation.body_model.model import BodyModel, BodyState
-from estimation.generative import YAW, scaled_camera, state_bounds
-from estimation.projection import fill_silhouette
 
 
 @dataclass(frozen=True)

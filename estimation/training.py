@@ -25,15 +25,15 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.estimation import features as feat
+from bodymetry.estimation.body_model.model import DEFAULT_MODEL_PATH, BodyModel, BodyState
+from bodymetry.estimation.body_model.skeleton import JOINT_SLICES
+from bodymetry.estimation.moe import MixtureOfExperts, fit_moe, select_moe
+from bodymetry.estimation.projection import project_silhouettes
 
 from bodymetry.errors import InputError
 from bodymetry.fileio import load_npz, save_npz
-from calibration.camera import Camera, CameraGroup
-from estimation import features as feat
-from estimation.body_model.model import DEFAULT_MODEL_PATH, BodyModel, BodyState
-from estimation.body_model.skeleton import JOINT_SLICES
-from estimation.moe import MixtureOfExperts, fit_moe, select_moe
-from estimation.projection import project_silhouettes
 
 log = logging.getLogger(__name__)
 
@@ -134,9 +134,9 @@ def sample_states(model: BodyModel, n: int, purpose: str, seed: int, volume: flo
 
     Shapes: training draws jitter the prior's training bodies (σ = 0.15 per
     component); test draws use its held-out bodies, so no test shape was seen.
-    Poses: ``capture.studio.motion.sample_pose_prior`` with disjoint seeds.
+    Poses: ``bodymetry.studio.motion.sample_pose_prior`` with disjoint seeds.
     """
-    from capture.studio.motion import place_root, sample_pose_prior, seed_for
+    from bodymetry.studio.motion import place_root, sample_pose_prior, seed_for
 
     rng = np.random.default_rng(seed_for(purpose, seed))
     bank = model.prior_shapes("train" if purpose == "train" else "heldout")

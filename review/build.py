@@ -22,9 +22,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bodymetry.review.report import OverlayRow, build_report, overlay_row, select_overlay_frames
+from bodymetry.review.run_data import RECORDING_MCAP, RECORDING_RRD, RunData, frame_views, load_run
+
 from bodymetry.fileio import atomic_path
-from review.report import OverlayRow, build_report, overlay_row, select_overlay_frames
-from review.run_data import RECORDING_MCAP, RECORDING_RRD, RunData, frame_views, load_run
 
 log = logging.getLogger(__name__)
 
@@ -101,9 +102,9 @@ def build_review(
     InputError
         When the run folder has no readable ``results.json``.
     """
-    from estimation.pipeline import shared_body_model
-    from review.mcap_recording import McapWriter
-    from review.rerun_recording import RerunWriter
+    from bodymetry.estimation.pipeline import shared_body_model
+    from bodymetry.review.mcap_recording import McapWriter
+    from bodymetry.review.rerun_recording import RerunWriter
 
     t0 = time.perf_counter()
     if not isinstance(run, RunData):

@@ -27,10 +27,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from review.meshes import PART_COLORS
-from review.rerun_recording import camera_to_world, jpeg
-from review.run_data import FrameView, RunData, skeleton_segments
+from bodymetry.review.meshes import PART_COLORS
+from bodymetry.review.rerun_recording import camera_to_world, jpeg
+from bodymetry.review.run_data import FrameView, RunData, skeleton_segments
 
 log = logging.getLogger(__name__)
 

@@ -13,11 +13,10 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-
-from bodymetry.raster import rasterize
-from estimation.body_model.biometrics import MEASUREMENTS
-from review.meshes import PART_COLORS
-from review.run_data import RunData
+from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
+from bodymetry.estimation.raster import rasterize
+from bodymetry.review.meshes import PART_COLORS
+from bodymetry.review.run_data import RunData
 
 #: Colours per stage (matplotlib), as in the Rerun recording.
 STAGE_COLORS = {"discriminative": "#4682e6", "generative": "#dc5028", "actual": "#222222"}
@@ -174,7 +173,7 @@ def _colormap(name: str) -> Any:
 # --- body renders ------------------------------------------------------------------------
 def front_direction(body: Any, vertices: np.ndarray) -> np.ndarray:
     """Horizontal unit vector (3,) the body faces: from the ankles towards the toes."""
-    from estimation.body_model.skeleton import PARTS
+    from bodymetry.estimation.body_model.skeleton import PARTS
 
     faces = body.faces()
     parts = np.asarray(body.full.arrays.parts)

@@ -28,12 +28,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from bodymetry import __version__
-from bodymetry.fileio import atomic_path, write_text_atomic
-from estimation.body_model.biometrics import MEASUREMENTS
-from review import plots
-from review.run_data import (
+from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
+from bodymetry.review import plots
+from bodymetry.review.run_data import (
     MEASUREMENTS_CSV,
     REPORT_HTML,
     REPORT_PDF,
@@ -43,6 +40,9 @@ from review.run_data import (
     frame_views,
     load_run,
 )
+
+from bodymetry import __version__
+from bodymetry.fileio import atomic_path, write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -102,8 +102,7 @@ def _mean_iou(record: dict[str, Any]) -> float:
 def overlay_row(run: RunData, view: FrameView) -> OverlayRow | None:
     """The overlay tiles of a frame (None when its images are not available)."""
     import cv2
-
-    from review.mcap_recording import overlay_silhouettes
+    from bodymetry.review.mcap_recording import overlay_silhouettes
 
     if not view.images and not view.observed:
         return None
@@ -515,7 +514,7 @@ def build_report(
     if not isinstance(run, RunData):
         run = load_run(run)
     if body is None:
-        from estimation.pipeline import shared_body_model
+        from bodymetry.estimation.pipeline import shared_body_model
 
         body = shared_body_model()
     if overlays is None:

@@ -37,10 +37,9 @@ from typing import Any
 
 import cv2
 import numpy as np
-
-from estimation.body_model.biometrics import MEASUREMENTS
-from review.meshes import PART_COLORS
-from review.run_data import FrameView, RunData, skeleton_segments, stage_state
+from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
+from bodymetry.review.meshes import PART_COLORS
+from bodymetry.review.run_data import FrameView, RunData, skeleton_segments, stage_state
 
 log = logging.getLogger(__name__)
 

@@ -19,11 +19,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bodymetry.calibration.camera import Camera
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.skeleton import PART_PARENT
 
 from bodymetry.errors import InputError
-from calibration.camera import Camera
-from estimation.body_model.model import BodyModel, BodyState
-from estimation.body_model.skeleton import PART_PARENT
 
 log = logging.getLogger(__name__)
 
@@ -182,8 +182,8 @@ def _run_cameras(
     Returns cameras, their source, the calibration's quality block and the
     solved calibration's report (when the calibration was solved from clips).
     """
-    from calibration.io import read_calibration
-    from capture.session import load_session
+    from bodymetry.calibration.io import read_calibration
+    from bodymetry.capture.session import load_session
 
     candidates: list[tuple[Path, Path | None]] = []
     names: Sequence[str] | None = None
@@ -323,7 +323,7 @@ def pose_frame(
     model : (C, H, W) bool or None
         The level of detail projected in every camera (as the fit's IoU).
     """
-    from estimation.projection import project_silhouettes
+    from bodymetry.estimation.projection import project_silhouettes
 
     vector = stage_state(record)
     if vector is None:
@@ -383,8 +383,8 @@ def _silhouettes(run: RunData, frames: Sequence[int]) -> Iterator[Any]:
     """Silhouette frames (with images) of the run's session, or nothing when unavailable."""
     if run.session_folder is None or not frames:
         return
-    from capture.session import load_session
-    from capture.silhouette import segment_session
+    from bodymetry.capture.session import load_session
+    from bodymetry.capture.silhouette import segment_session
 
     try:
         session = load_session(run.session_folder)

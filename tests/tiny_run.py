@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from capture.session import Session
-from capture.studio.synth import SynthConfig, synthesize
-from estimation.training import TrainConfig
+from bodymetry.capture.session import Session
+from bodymetry.estimation.training import TrainConfig
+from bodymetry.studio.synth import SynthConfig, synthesize
 
 TINY_TRAIN = TrainConfig(
     n_train=60,

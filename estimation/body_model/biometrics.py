@@ -20,10 +20,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-
-from estimation.body_model import geometry
-from estimation.body_model.model import BodyModel, BodyState
-from estimation.body_model.skeleton import JOINTS, PARTS
+from bodymetry.estimation.body_model import geometry
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.skeleton import JOINTS, PARTS
 
 #: Density of the body, kg/m^3 (paper: water).
 DEFAULT_DENSITY = 1000.0

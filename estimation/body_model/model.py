@@ -17,12 +17,9 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-
-from bodymetry.errors import InputError
-from bodymetry.fileio import load_npz
-from estimation.body_model import geometry
-from estimation.body_model.scape import ScapeArrays, ScapeMesh
-from estimation.body_model.skeleton import (
+from bodymetry.estimation.body_model import geometry
+from bodymetry.estimation.body_model.scape import ScapeArrays, ScapeMesh
+from bodymetry.estimation.body_model.skeleton import (
     JOINTS,
     N_POSE,
     PARTS,
@@ -30,6 +27,9 @@ from estimation.body_model.skeleton import (
     forward_kinematics,
     local_rotations,
 )
+
+from bodymetry.errors import InputError
+from bodymetry.fileio import load_npz
 
 #: The committed model file.
 DEFAULT_MODEL_PATH = Path(__file__).with_name("data") / "body_model.npz"

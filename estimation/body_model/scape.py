@@ -26,8 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-
-from estimation.body_model.rotations import matrix_to_axis_angle
+from bodymetry.estimation.body_model.rotations import matrix_to_axis_angle
 
 #: Features per triangle for Q: two joints' rotation vectors. No constant term:
 #: Q must be the identity in the rest pose, where the body is the template.

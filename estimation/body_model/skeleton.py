@@ -22,8 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from estimation.body_model.rotations import axis_rotation, euler_to_matrix
+from bodymetry.estimation.body_model.rotations import axis_rotation, euler_to_matrix
 
 PARTS: tuple[str, ...] = (
     "pelvis",

@@ -11,12 +11,8 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from scipy.spatial.transform import Rotation
-from yaml_edits import delete_at, set_at
-
-from bodymetry.errors import InputError
-from calibration.camera import Camera, CameraGroup
-from calibration.io import (
+from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.io import (
     CALIBRATION_FORMAT,
     Calibration,
     dump_yaml,
@@ -26,6 +22,10 @@ from calibration.io import (
     read_calibration,
     save_calibration,
 )
+from scipy.spatial.transform import Rotation
+from yaml_edits import delete_at, set_at
+
+from bodymetry.errors import InputError
 
 
 def make_group(n: int = 3, seed: int = 0) -> CameraGroup:

@@ -11,18 +11,17 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-
-from calibration.charuco import (
+from bodymetry.calibration.charuco import (
     CornerRefiner,
     board_geometry,
     detect_clip,
     detect_image,
     make_detector,
 )
-from capture.session import BoardSpec
-from capture.studio.rig import studio_rig
-from capture.studio.synth import STUDIO_BOARD
-from capture.video import H264Writer
+from bodymetry.capture.session import BoardSpec
+from bodymetry.capture.video import H264Writer
+from bodymetry.studio.rig import studio_rig
+from bodymetry.studio.synth import STUDIO_BOARD
 
 FLOOR = np.diag([1.0, -1.0, -1.0, 1.0])
 
@@ -43,9 +42,9 @@ def _facing_camera(cam, depth: float, pixel: tuple[float, float], tilt: tuple[fl
 def views():
     """Studio renders: the floor board seen from 4 m, a tilted board at 2 m, a partly
     visible board in an image corner. Returns (camera, board, [(image, world_from_board)])."""
-    from capture.studio.render import Studio
-    from capture.studio.scene import BoardPose, BoardTexture
-    from estimation.body_model.model import BodyModel
+    from bodymetry.estimation.body_model.model import BodyModel
+    from bodymetry.studio.render import Studio
+    from bodymetry.studio.scene import BoardPose, BoardTexture
 
     cam = studio_rig(1, (640, 480), seed=1)[0]
     studio = Studio.from_model(BodyModel.load())

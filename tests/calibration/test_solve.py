@@ -8,17 +8,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from calibration import solve
-from calibration.camera import Camera, CameraGroup
-from calibration.charuco import CameraDetections, board_geometry
-from calibration.solve import (
+from bodymetry.calibration import solve
+from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.charuco import CameraDetections, board_geometry
+from bodymetry.calibration.solve import (
     FLOOR_BOARD_POSE,
     CalibrationError,
     CalibrationOptions,
     calibrate_cameras,
 )
-from capture.session import BoardSpec
+from bodymetry.capture.session import BoardSpec
 
 BOARD = BoardSpec(squares=(5, 4), square_mm=200.0, marker_mm=150.0, dictionary="DICT_4X4_50")
 GEOM = board_geometry(BOARD.create_board(), BOARD.square_m)

@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from bodymetry.errors import InputError
-from capture.background import (
+from bodymetry.capture.background import (
     BackgroundModel,
     SubtractionConfig,
     Subtractor,
     horprasert_distortions,
     read_clip,
 )
-from capture.toy import ToyScene, toy_background, toy_frame, write_video
+from bodymetry.capture.toy import ToyScene, toy_background, toy_frame, write_video
+
+from bodymetry.errors import InputError
 
 SCENE = ToyScene(size=(160, 120))
 

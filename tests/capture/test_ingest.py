@@ -7,11 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from bodymetry.capture.ingest import check_sync, probe_video, read_frame_sets
+from bodymetry.capture.session import load_session
+from bodymetry.capture.toy import write_toy_session
 
 from bodymetry.errors import InputError
-from capture.ingest import check_sync, probe_video, read_frame_sets
-from capture.session import load_session
-from capture.toy import write_toy_session
 
 
 def _stamp(image: np.ndarray) -> int:

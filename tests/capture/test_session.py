@@ -12,12 +12,9 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from yaml_edits import delete_at, set_at
-
-from bodymetry.errors import InputError
-from calibration.camera import Camera, CameraGroup
-from calibration.io import save_calibration
-from capture.session import (
+from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.io import save_calibration
+from bodymetry.capture.session import (
     SESSION_FORMAT,
     BoardSpec,
     Session,
@@ -25,6 +22,9 @@ from capture.session import (
     load_session,
     save_session,
 )
+from yaml_edits import delete_at, set_at
+
+from bodymetry.errors import InputError
 
 NAMES = ("cam_00", "cam_01", "cam_02")
 

@@ -9,14 +9,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from bodymetry.capture.evaluate import SilhouetteScores, iou, load_ground_truth
+from bodymetry.capture.session import load_session
+from bodymetry.capture.silhouette import CleanupConfig, clean_mask, overlay, segment_session
+from bodymetry.capture.toy import write_toy_session
 from click.testing import CliRunner
 
 from bodymetry.cli import main
 from bodymetry.errors import InputError
-from capture.evaluate import SilhouetteScores, iou, load_ground_truth
-from capture.session import load_session
-from capture.silhouette import CleanupConfig, clean_mask, overlay, segment_session
-from capture.toy import write_toy_session
 
 H, W = 240, 320
 
@@ -130,7 +130,7 @@ def test_stage_matches_ground_truth_and_flags_empty_frame(toy: Path) -> None:
 
 
 def test_cast_shadow_is_not_person(tmp_path: Path) -> None:
-    from capture.toy import ToyScene, toy_background, toy_frame
+    from bodymetry.capture.toy import ToyScene, toy_background, toy_frame
 
     folder = tmp_path / "s"
     write_toy_session(folder, cameras=1, frames=20, frame_step=10, seed=2)
@@ -153,7 +153,7 @@ def test_cast_shadow_is_not_person(tmp_path: Path) -> None:
 
 
 def _cfg(method: str):
-    from capture.background import SubtractionConfig
+    from bodymetry.capture.background import SubtractionConfig
 
     return SubtractionConfig(method=method)
 
@@ -170,7 +170,7 @@ def test_without_background_clip_the_session_median_is_used(tmp_path: Path, capl
     write_toy_session(folder, cameras=2, frames=60, frame_step=5, backgrounds=False, seed=4)
     session = load_session(folder)
     assert session.background_path("cam_00") is None
-    from capture.silhouette import background_models
+    from bodymetry.capture.silhouette import background_models
 
     with caplog.at_level(logging.WARNING):
         models = background_models(session)

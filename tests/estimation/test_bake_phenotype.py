@@ -19,9 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from estimation.body_model.bake import phenotype as ph
-from estimation.body_model.bake.torch_pickle import load_state_dict
+from bodymetry.estimation.body_model.bake import phenotype as ph
+from bodymetry.estimation.body_model.bake.torch_pickle import load_state_dict
 
 # --------------------------------------------------------------------------------------
 # A torch-like .pth writer (no torch): GLOBAL opcodes for torch names, storages as

@@ -9,11 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-
-from estimation.body_model.bake import pose_space as ps
-from estimation.body_model.rotations import matrix_to_axis_angle
-from estimation.body_model.scape import N_POSE_FEATURES
-from estimation.body_model.skeleton import (
+from bodymetry.estimation.body_model.bake import pose_space as ps
+from bodymetry.estimation.body_model.rotations import matrix_to_axis_angle
+from bodymetry.estimation.body_model.scape import N_POSE_FEATURES
+from bodymetry.estimation.body_model.skeleton import (
     JOINT_SLICES,
     JOINTS,
     N_PARTS,

@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import trimesh
-
-from estimation.body_model.bake import rigging as rg
-from estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS
+from bodymetry.estimation.body_model.bake import rigging as rg
+from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS
 
 # --------------------------------------------------------------------------------------
 # Tolerances, all in one place.

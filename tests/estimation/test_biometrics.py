@@ -10,16 +10,15 @@ import dataclasses
 
 import numpy as np
 import pytest
-
-from estimation.body_model import geometry
-from estimation.body_model.biometrics import (
+from bodymetry.estimation.body_model import geometry
+from bodymetry.estimation.body_model.biometrics import (
     DEFAULT_DENSITY,
     MEASUREMENTS,
     Biometrics,
     measure,
 )
-from estimation.body_model.model import BodyModel
-from estimation.body_model.skeleton import JOINTS, PARTS
+from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.body_model.skeleton import JOINTS, PARTS
 
 # --------------------------------------------------------------------------------------
 # Tolerances and plausible ranges, all in one place.

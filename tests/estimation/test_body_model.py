@@ -6,19 +6,16 @@ import re
 
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
-
-from bodymetry.errors import InputError
-from estimation.body_model import geometry
-from estimation.body_model.bake.lod import closest_points
-from estimation.body_model.model import (
+from bodymetry.estimation.body_model import geometry
+from bodymetry.estimation.body_model.bake.lod import closest_points
+from bodymetry.estimation.body_model.model import (
     DEFAULT_MODEL_PATH,
     DEFAULT_SHAPE_DOFS,
     BodyModel,
     BodyState,
 )
-from estimation.body_model.rotations import euler_to_matrix
-from estimation.body_model.skeleton import (
+from bodymetry.estimation.body_model.rotations import euler_to_matrix
+from bodymetry.estimation.body_model.skeleton import (
     HINGES,
     JOINT_DOFS,
     JOINT_SLICES,
@@ -27,6 +24,9 @@ from estimation.body_model.skeleton import (
     PARTS,
     forward_kinematics,
 )
+from scipy.spatial import cKDTree
+
+from bodymetry.errors import InputError
 
 # --------------------------------------------------------------------------------------
 # Tolerances, all in one place (metres unless stated).
@@ -503,7 +503,7 @@ def test_apose_arms_are_45_degrees_down(model):
 
 def _joint_moves(model: BodyModel, dof: str, value: float) -> np.ndarray:
     """Displacement (15, 3) of every joint of the mean body when one DOF is set."""
-    from estimation.body_model.skeleton import dof_names
+    from bodymetry.estimation.body_model.skeleton import dof_names
 
     rest = model.rest_keypoints(np.zeros((1, model.n_shape)))[:, : len(JOINTS)]
     theta = np.zeros((2, N_POSE))

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from capture.studio.rig import studio_rig
-from estimation.body_model.model import BodyModel, BodyState
-from estimation.generative import (
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.generative import (
     AnnealingConfig,
     _temperature,
     anneal,
@@ -15,7 +13,8 @@ from estimation.generative import (
     prepare_observation,
     scaled_camera,
 )
-from estimation.projection import project_silhouettes
+from bodymetry.estimation.projection import project_silhouettes
+from bodymetry.studio.rig import studio_rig
 
 #: Chamfer cost (pixels) of a body against its own silhouette: only resampling.
 SELF_COST = 0.05
@@ -53,8 +52,7 @@ def test_chamfer_cost_is_zero_for_the_true_body_and_grows_with_error(setup):
 def _reference_costs(obs, verts, faces) -> np.ndarray:
     """The chamfer cost written out on whole images (no crops, one body at a time)."""
     import cv2
-
-    from estimation.projection import fill_silhouette
+    from bodymetry.estimation.projection import fill_silhouette
 
     out = np.zeros(len(obs.cameras))
     for c, cam in enumerate(obs.cameras):

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from bodymetry.estimation.body_model import geometry as g
 from scipy.spatial.transform import Rotation
-
-from estimation.body_model import geometry as g
 
 # --------------------------------------------------------------------------
 # Tolerances, all in one place (relative unless the name says ABS, in metres).

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from estimation.moe import MixtureOfExperts, fit_moe, select_moe
+from bodymetry.estimation.moe import MixtureOfExperts, fit_moe, select_moe
 
 #: Known-answer tolerance on a noise-free-ish piecewise-linear function (output units).
 PIECEWISE_RMSE = 0.05

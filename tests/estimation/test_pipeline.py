@@ -6,10 +6,9 @@ import json
 
 import numpy as np
 import pytest
+from bodymetry.estimation.pipeline import ProcessConfig, fit_frame, process_session, summarize
+from bodymetry.estimation.training import DiscriminativeModels
 from tiny_run import TINY_TRAIN, tiny_session
-
-from estimation.pipeline import ProcessConfig, fit_frame, process_session, summarize
-from estimation.training import DiscriminativeModels
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +71,7 @@ def test_frame_artifacts(run):
 
 def test_resume_does_not_refit(run, monkeypatch):
     session, out, results, base = run
-    import estimation.pipeline as pipeline
+    import bodymetry.estimation.pipeline as pipeline
 
     def boom(*args, **kwargs):
         raise AssertionError("a finished frame was fitted again")
@@ -98,7 +97,7 @@ def test_frame_without_silhouette_is_marked_and_excluded(run):
 
 def test_poor_fit_is_marked_kept_and_excluded(run):
     """Below the IoU gate a frame keeps its numbers but leaves the summary."""
-    from capture.silhouette import segment_session
+    from bodymetry.capture.silhouette import segment_session
 
     session, _, results, base = run
     models = DiscriminativeModels.load(next((base / "cache" / "discriminative").glob("*.npz")))
@@ -136,8 +135,8 @@ def test_unknown_quality_is_refused(run):
 def test_session_without_calibration_is_calibrated_from_its_clips(run, tmp_path, monkeypatch):
     import dataclasses
 
-    import calibration.session_calibration as sc
-    from estimation.pipeline import _session_cameras
+    import bodymetry.calibration.session_calibration as sc
+    from bodymetry.estimation.pipeline import _session_cameras
 
     session = run[0]
     truth = session.calibration()
@@ -172,7 +171,7 @@ def test_session_without_calibration_is_calibrated_from_its_clips(run, tmp_path,
 
 
 def test_evaluate_writes_the_figure_3_table(run):
-    from estimation.evaluation import evaluate_run
+    from bodymetry.estimation.evaluation import evaluate_run
 
     _, out, results, _ = run
     ev = evaluate_run(out, workers=1)
@@ -191,8 +190,9 @@ def test_evaluate_writes_the_figure_3_table(run):
 
 
 def test_evaluate_needs_a_run(tmp_path):
+    from bodymetry.estimation.evaluation import evaluate_run
+
     from bodymetry.errors import InputError
-    from estimation.evaluation import evaluate_run
 
     with pytest.raises(InputError, match=r"results\.json"):
         evaluate_run(tmp_path)

@@ -7,12 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-
-from capture.studio.rig import studio_rig
-from estimation.body_model.biometrics import measure
-from estimation.body_model.model import BodyModel, BodyState
-from estimation.projection import project_silhouettes
-from estimation.refinement import (
+from bodymetry.estimation.body_model.biometrics import measure
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.projection import project_silhouettes
+from bodymetry.estimation.refinement import (
     RefineConfig,
     boundary_points,
     full_from_lod,
@@ -22,6 +20,7 @@ from estimation.refinement import (
     prepare_contours,
     refine,
 )
+from bodymetry.studio.rig import studio_rig
 
 #: The bundled demo recording (a studio session with ground truth).
 DEMO = Path(__file__).resolve().parents[2] / "recordings" / "demo"
@@ -200,9 +199,9 @@ def test_contour_sampling_bias_on_the_demo_frames():
     import json
 
     import cv2
+    from bodymetry.capture.session import load_session
 
     from bodymetry.fileio import load_npz
-    from capture.session import load_session
 
     session = load_session(DEMO)
     cameras = list(session.calibration())

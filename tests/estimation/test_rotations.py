@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from estimation.body_model import rotations as rot
+from bodymetry.estimation.body_model import rotations as rot
 
 # --------------------------------------------------------------------------------------
 # Tolerances, all in one place (absolute, on matrix entries or radians).

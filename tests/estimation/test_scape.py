@@ -9,9 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-
-from estimation.body_model import scape
-from estimation.body_model.rotations import axis_angle_to_matrix, euler_to_matrix
+from bodymetry.estimation.body_model import scape
+from bodymetry.estimation.body_model.rotations import axis_angle_to_matrix, euler_to_matrix
 
 # --------------------------------------------------------------------------------------
 # Tolerances, all in one place (absolute, metres on a unit-radius sphere).

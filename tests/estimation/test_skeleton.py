@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from estimation.body_model import skeleton as sk
-from estimation.body_model.rotations import axis_rotation, euler_to_matrix
+from bodymetry.estimation.body_model import skeleton as sk
+from bodymetry.estimation.body_model.rotations import axis_rotation, euler_to_matrix
 
 # --------------------------------------------------------------------------------------
 # Tolerances, all in one place (absolute; metres for positions, entries for matrices).

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from capture.studio.rig import studio_rig
-from estimation.body_model.model import BodyModel
-from estimation.training import (
+from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.training import (
     MODEL_NAMES,
     DiscriminativeModels,
     TrainConfig,
@@ -17,6 +15,7 @@ from estimation.training import (
     targets_to_theta,
     theta_to_targets,
 )
+from bodymetry.studio.rig import studio_rig
 
 TINY = TrainConfig(
     n_train=60,
@@ -108,8 +107,8 @@ def test_cache_is_reused_and_round_trips(trained, cameras, tmp_path):
 
 # --- uncalibrated mode (estimation/uncalibrated.py) on the tiny models -------------------
 def _mask_of(nu, cameras):
-    from estimation.body_model.model import BodyState
-    from estimation.projection import project_silhouettes
+    from bodymetry.estimation.body_model.model import BodyState
+    from bodymetry.estimation.projection import project_silhouettes
 
     model = BodyModel.load()
     state = BodyState([0.0, 0.0, 0.93], model.poses["apose"], nu)
@@ -118,7 +117,7 @@ def _mask_of(nu, cameras):
 
 
 def test_photo_estimate_is_scaled_to_the_reference_height(trained, cameras):
-    from estimation.uncalibrated import compare_photos, estimate_photo
+    from bodymetry.estimation.uncalibrated import compare_photos, estimate_photo
 
     models = trained[0]
     body = BodyModel.load()
@@ -137,9 +136,9 @@ def test_photo_estimate_is_scaled_to_the_reference_height(trained, cameras):
 
 def test_read_mask_errors(tmp_path):
     import cv2
+    from bodymetry.estimation.uncalibrated import read_mask
 
     from bodymetry.errors import InputError
-    from estimation.uncalibrated import read_mask
 
     with pytest.raises(InputError, match="not found"):
         read_mask(tmp_path / "missing.png")

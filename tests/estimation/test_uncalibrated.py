@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from capture.studio.rig import studio_rig
-from estimation.body_model.biometrics import measure
-from estimation.body_model.model import BodyModel, BodyState
-from estimation.projection import project_silhouettes
-from estimation.training import TrainConfig, load_or_train
-from estimation.uncalibrated import compare_photos, estimate_photo
+from bodymetry.estimation.body_model.biometrics import measure
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.projection import project_silhouettes
+from bodymetry.estimation.training import TrainConfig, load_or_train
+from bodymetry.estimation.uncalibrated import compare_photos, estimate_photo
+from bodymetry.studio.rig import studio_rig
 
 #: The estimated change must have the true sign and lie within this fraction range of it
 #: (the paper's own example recovered half of the reported change; SC regresses to the mean).

@@ -12,10 +12,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from bodymetry.capture.session import Session
+from bodymetry.estimation.pipeline import ProcessConfig, process_session
 from tiny_run import TINY_TRAIN, tiny_session
-
-from capture.session import Session
-from estimation.pipeline import ProcessConfig, process_session
 
 
 @dataclass(frozen=True)

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import shutil
 
+import bodymetry.review.mcap_recording as mcap_recording
 import pytest
-
-import review.mcap_recording as mcap_recording
-from review.build import build_review
+from bodymetry.review.build import build_review
 
 
 @pytest.fixture

@@ -11,8 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import rerun.chunk as rc
-
-from review.rerun_recording import camera_to_world
+from bodymetry.review.rerun_recording import camera_to_world
 
 
 @pytest.fixture(scope="module")

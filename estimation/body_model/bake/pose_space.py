@@ -10,9 +10,8 @@ is the triangle's deformation gradient and ``R_p`` its part's rigid rotation.
 from __future__ import annotations
 
 import numpy as np
-
-from estimation.body_model.scape import N_POSE_FEATURES, deformation_gradients
-from estimation.body_model.skeleton import (
+from bodymetry.estimation.body_model.scape import N_POSE_FEATURES, deformation_gradients
+from bodymetry.estimation.body_model.skeleton import (
     JOINT_SLICES,
     JOINTS,
     N_PARTS,

@@ -2,7 +2,7 @@
 clothing, and a printed ChArUco calibration board.
 
 Everything here is geometry and reflectance (albedo in [0, 1], BGR channel
-order); :mod:`capture.studio.render` turns it into camera images.
+order); :mod:`bodymetry.studio.render` turns it into camera images.
 
 World frame (DESIGN.md): right-handed, z up, floor at z = 0, metres.
 """
@@ -13,8 +13,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-
-from review.meshes import PART_COLORS
+from bodymetry.review.meshes import PART_COLORS
 
 # --- light --------------------------------------------------------------------
 

@@ -26,12 +26,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from bodymetry.errors import InputError
-from bodymetry.fileio import save_npz, write_bytes_atomic, write_json_atomic
-from calibration.camera import Camera, CameraGroup
-from calibration.io import save_calibration
-from capture.session import (
+from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.io import save_calibration
+from bodymetry.capture.session import (
     GROUND_TRUTH_SILHOUETTES,
     GROUND_TRUTH_STATES,
     GROUND_TRUTH_SUBJECT,
@@ -40,9 +37,12 @@ from capture.session import (
     SessionCamera,
     save_session,
 )
-from capture.studio.motion import MOTIONS, RestPoseInfo, ground_motion, make_motion, seed_for
-from capture.studio.rig import studio_rig
-from capture.video import H264Writer
+from bodymetry.capture.video import H264Writer
+from bodymetry.studio.motion import MOTIONS, RestPoseInfo, ground_motion, make_motion, seed_for
+from bodymetry.studio.rig import studio_rig
+
+from bodymetry.errors import InputError
+from bodymetry.fileio import save_npz, write_bytes_atomic, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +132,7 @@ class SynthConfig:
         so their calibration and trained discriminative models) while subject,
         motion and noise change with ``seed``.
     motion : str
-        A name of ``capture.studio.motion.MOTIONS``.
+        A name of ``bodymetry.studio.motion.MOTIONS``.
     subject : SubjectSpec
     shadows : bool
         The key light casts the person's shadow on the floor.
@@ -332,9 +332,9 @@ class _CameraJob:
 
 def _render_camera(job: _CameraJob, progress) -> dict:
     """Render one camera's recording, background and calibration clips and masks."""
-    from capture.studio.render import Effects, Studio
-    from capture.studio.scene import BoardPose, BoardTexture, Light
-    from estimation.body_model.model import BodyModel, BodyState
+    from bodymetry.estimation.body_model.model import BodyModel, BodyState
+    from bodymetry.studio.render import Effects, Studio
+    from bodymetry.studio.scene import BoardPose, BoardTexture, Light
 
     cfg, cam = job.config, job.camera
     model = BodyModel.load(n_shape=len(job.nu))
@@ -407,8 +407,8 @@ def synthesize(
     Session
         The session as written (loadable with ``capture.session.load_session``).
     """
-    from estimation.body_model.biometrics import measure
-    from estimation.body_model.model import BodyModel
+    from bodymetry.estimation.body_model.biometrics import measure
+    from bodymetry.estimation.body_model.model import BodyModel
 
     out = Path(out)
     if out.exists() and any(out.iterdir()):
@@ -440,7 +440,7 @@ def synthesize(
 
     # Ground truth that does not need rendering.
     bio = measure(model, nu[None])[0].to_dict()
-    from estimation.body_model.model import BodyState
+    from bodymetry.estimation.body_model.model import BodyState
 
     joints = model.pose(BodyState(motion.tau, motion.theta, nu[None])).joints
     save_npz(

@@ -7,17 +7,17 @@ import json
 import cv2
 import numpy as np
 import pytest
-
-from bodymetry.errors import InputError
-from bodymetry.fileio import load_npz
-from capture.session import load_session
-from capture.studio.synth import (
+from bodymetry.capture.session import load_session
+from bodymetry.studio.synth import (
     STUDIO_BOARD,
     SubjectSpec,
     SynthConfig,
     board_trajectory,
     synthesize,
 )
+
+from bodymetry.errors import InputError
+from bodymetry.fileio import load_npz
 
 #: Joints reprojected with calibration.yaml must fall within this many pixels of the silhouette.
 JOINT_TO_MASK_PX = 2
@@ -136,7 +136,7 @@ def test_subject_parse():
 
 
 def test_board_trajectory_starts_flat_on_the_floor_then_faces_the_cameras():
-    from capture.studio.rig import studio_rig
+    from bodymetry.studio.rig import studio_rig
 
     rng = np.random.default_rng(0)
     cams = studio_rig(4, (640, 480), seed=0)

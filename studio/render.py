@@ -32,11 +32,11 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 import scipy.sparse as sp
+from bodymetry.calibration.camera import Camera
 
 # The rasterizer is shared with the estimation stage (re-exported here).
-from bodymetry.raster import Raster, rasterize, signed_area2  # noqa: F401
-from calibration.camera import Camera
-from capture.studio.scene import (
+from bodymetry.estimation.raster import Raster, rasterize, signed_area2  # noqa: F401
+from bodymetry.studio.scene import (
     Appearance,
     BoardPose,
     BoardTexture,
@@ -372,7 +372,7 @@ class Studio:
     @classmethod
     def from_model(cls, model, **kwargs) -> Studio:
         """A studio for ``estimation.body_model.BodyModel``'s full mesh, with hair."""
-        from estimation.body_model.skeleton import PARTS
+        from bodymetry.estimation.body_model.skeleton import PARTS
 
         appearance = kwargs.pop("appearance", None) or Appearance()
         faces = model.faces()

@@ -35,14 +35,13 @@ from functools import cached_property
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-
-from estimation.body_model.rotations import (
+from bodymetry.estimation.body_model.rotations import (
     axis_rotation,
     euler_to_matrix,
     matrix_to_euler,
     rotation_between,
 )
-from estimation.body_model.skeleton import (
+from bodymetry.estimation.body_model.skeleton import (
     JOINT_DOFS,
     JOINT_SLICES,
     JOINTS,
@@ -54,7 +53,7 @@ from estimation.body_model.skeleton import (
 )
 
 if TYPE_CHECKING:  # pragma: no cover - typing only; keeps this module numpy-only at run time
-    from estimation.body_model.model import BodyModel
+    from bodymetry.estimation.body_model.model import BodyModel
 
 # ----------------------------------------------------------------------------------------
 # Plausibility bounds (SI units). Gait-lab figures for comparison: the knee peaks at about
@@ -1293,7 +1292,7 @@ def ground_motion(
     batch : int
         Frames posed per call.
     """
-    from estimation.body_model.model import BodyState  # deferred: keeps import numpy-only
+    from bodymetry.estimation.body_model.model import BodyState  # deferred: keeps import numpy-only
 
     nu = np.atleast_2d(np.asarray(nu, dtype=float))
     lowest = np.empty(len(motion))

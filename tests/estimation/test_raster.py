@@ -1,12 +1,11 @@
-"""Coverage rasterization (bodymetry.raster.coverage) against the z-buffer's inside rule."""
+"""Coverage rasterization (estimation.raster.coverage) against the z-buffer's inside rule."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import trimesh
-
-from bodymetry.raster import coverage, coverage_views, rasterize
+from bodymetry.estimation.raster import coverage, coverage_views, rasterize
 
 
 def _zbuffer_mask(xy: np.ndarray, faces: np.ndarray, size, valid=None) -> np.ndarray:

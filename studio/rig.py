@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-
-from calibration.camera import Camera
+from bodymetry.calibration.camera import Camera
 
 
 def look_at(

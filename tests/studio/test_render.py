@@ -5,10 +5,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-
-from calibration.camera import Camera
-from capture.studio.render import Studio, pixel_rays, rasterize, signed_area2
-from capture.studio.scene import BoardPose, BoardTexture, Light
+from bodymetry.calibration.camera import Camera
+from bodymetry.studio.render import Studio, pixel_rays, rasterize, signed_area2
+from bodymetry.studio.scene import BoardPose, BoardTexture, Light
 
 SIZE = (320, 240)
 MILD_DIST = np.array([-0.09, 0.03, 0.0005, -0.0004, 0.0])
@@ -28,7 +27,7 @@ def look_at(center, target, name="cam", dist=None, f=260.0, size=SIZE) -> Camera
 
 @pytest.fixture(scope="module")
 def body():
-    from estimation.body_model.model import BodyModel, BodyState
+    from bodymetry.estimation.body_model.model import BodyModel, BodyState
 
     model = BodyModel.load()
     theta = model.poses["apose"][None].copy()

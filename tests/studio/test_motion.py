@@ -1,4 +1,4 @@
-"""Tests for capture.studio.motion: the seeded motion library and pose prior.
+"""Tests for bodymetry.studio.motion: the seeded motion library and pose prior.
 
 Bounds come from the module (``MAX_JOINT_SPEED`` etc.); every motion is checked
 against them at 60 fps by finite differences. Semantic checks pose the skeleton
@@ -12,10 +12,9 @@ import itertools
 
 import numpy as np
 import pytest
-
-from capture.studio import motion as mo
-from estimation.body_model.model import BodyModel, BodyState
-from estimation.body_model.skeleton import JOINTS, N_POSE, JointLimits, forward_kinematics
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.skeleton import JOINTS, N_POSE, JointLimits, forward_kinematics
+from bodymetry.studio import motion as mo
 
 # --------------------------------------------------------------------------------------
 # Tolerances and sizes, all in one place.
