@@ -11,6 +11,7 @@ import json
 import time
 
 import numpy as np
+
 from bodymetry.estimation.body_model.model import DEFAULT_MODEL_PATH, BodyModel, BodyState
 
 

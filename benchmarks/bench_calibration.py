@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+
 from bodymetry.calibration.io import load_calibration
 from bodymetry.calibration.session_calibration import calibrate_session, detect_session
 from bodymetry.capture.session import load_session

@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+
 from bodymetry.capture.background import METHODS, SubtractionConfig
 from bodymetry.capture.evaluate import GroundTruth, SilhouetteScores
 from bodymetry.capture.ingest import check_sync, read_frame_sets
@@ -138,6 +139,7 @@ def real_video() -> dict:
     if not path.is_file():
         return {"skipped": f"{path} not installed (Debian package opencv-doc)"}
     import cv2
+
     from bodymetry.capture.background import BackgroundModel, Subtractor
     from bodymetry.capture.silhouette import clean_mask
 

@@ -12,14 +12,14 @@ import time
 from pathlib import Path
 
 import numpy as np
+
 from bodymetry.capture.session import load_session
+from bodymetry.cli import DEMO_SESSION
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.training import TrainConfig, load_or_train
 from bodymetry.estimation.uncalibrated import compare_photos, estimate_photo
-
-from bodymetry.cli import DEMO_SESSION
 
 
 def weight_change_check(models, cameras) -> dict:

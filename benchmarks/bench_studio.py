@@ -16,10 +16,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from bodymetry.capture.session import load_session
-from bodymetry.studio.synth import SynthConfig, synthesize
 
+from bodymetry.capture.session import load_session
 from bodymetry.fileio import load_npz
+from bodymetry.studio.synth import SynthConfig, synthesize
 
 #: A pixel differs from the empty scene when some channel changes by more than this (DN).
 DIFF_THRESHOLD = 4

@@ -40,9 +40,9 @@ from typing import Any
 
 import numpy as np
 import yaml
-from bodymetry.calibration.camera import Camera, CameraGroup
 from scipy.spatial.transform import Rotation
 
+from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.errors import InputError
 from bodymetry.fileio import write_text_atomic
 

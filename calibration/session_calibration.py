@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+
 from bodymetry.calibration.charuco import (
     DEFAULT_UPSCALE,
     CameraDetections,
@@ -25,7 +26,6 @@ from bodymetry.calibration.charuco import (
 )
 from bodymetry.calibration.io import save_calibration
 from bodymetry.calibration.solve import CalibrationOptions, CalibrationResult, calibrate_cameras
-
 from bodymetry.errors import InputError
 from bodymetry.fileio import write_json_atomic
 

@@ -42,11 +42,11 @@ from typing import Any
 
 import cv2
 import numpy as np
-from bodymetry.calibration.camera import Camera, CameraGroup
-from bodymetry.calibration.charuco import BoardGeometry, CameraDetections
 from scipy.sparse import csr_matrix, diags
 from scipy.sparse.linalg import spsolve
 
+from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.charuco import BoardGeometry, CameraDetections
 from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from bodymetry.capture.session import GROUND_TRUTH_STATES, Session
 
+from bodymetry.capture.session import GROUND_TRUTH_STATES, Session
 from bodymetry.errors import InputError
 
 __all__ = ["GroundTruth", "SilhouetteScores", "iou", "load_ground_truth"]
@@ -65,10 +65,9 @@ class GroundTruth:
 
     def _setup(self) -> None:
         from bodymetry.estimation.body_model.model import BodyModel
+        from bodymetry.fileio import load_npz
         from bodymetry.studio.render import Studio
         from bodymetry.studio.scene import Light
-
-        from bodymetry.fileio import load_npz
 
         gt = self.session.ground_truth_path
         self._states = load_npz(gt / GROUND_TRUTH_STATES)

@@ -37,8 +37,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from bodymetry.capture.session import Session
 
+from bodymetry.capture.session import Session
 from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)

@@ -28,6 +28,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
 from bodymetry.calibration.io import (
     Fields,
     check_format,
@@ -38,12 +39,12 @@ from bodymetry.calibration.io import (
     read_calibration,
     read_yaml_mapping,
 )
-
 from bodymetry.errors import InputError
 from bodymetry.fileio import write_text_atomic
 
 if TYPE_CHECKING:
     import cv2
+
     from bodymetry.calibration.camera import CameraGroup
 
 __all__ = [

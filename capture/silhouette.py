@@ -46,10 +46,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
 from bodymetry.capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.session import Session
-
 from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)

@@ -16,12 +16,12 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
 from bodymetry.capture.session import load_session
+from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import BodyState
 from bodymetry.estimation.pipeline import CORE, ProcessConfig, generative_fit, shared_body_model
-
-from bodymetry.errors import InputError
 from bodymetry.fileio import load_npz, write_json_atomic
 
 #: Spread of the GT + Generative start around the true pose (τ m, θ rad, ν).

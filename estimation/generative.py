@@ -29,13 +29,12 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
-from bodymetry.estimation.body_model.skeleton import JOINT_SLICES, N_POSE
+from bodymetry.estimation.body_model.skeleton import N_POSE, YAW
 from bodymetry.estimation.projection import fill_silhouette
 from bodymetry.estimation.raster import coverage_views
-
-YAW = JOINT_SLICES[0].start + 2
 
 
 @dataclass(frozen=True)

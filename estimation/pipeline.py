@@ -23,8 +23,10 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
+
 from bodymetry.calibration.camera import Camera
 from bodymetry.capture.session import Session, load_session
+from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.generative import (
@@ -49,8 +51,6 @@ from bodymetry.estimation.training import (
     load_or_train,
     targets_to_theta,
 )
-
-from bodymetry.errors import InputError
 from bodymetry.fileio import save_npz, write_json_atomic
 
 log = logging.getLogger(__name__)

@@ -13,6 +13,7 @@ the speed, measured on the level of detail.
 from __future__ import annotations
 
 import numpy as np
+
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.raster import coverage
 

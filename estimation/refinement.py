@@ -31,13 +31,15 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from bodymetry.calibration.camera import Camera
-from bodymetry.estimation.body_model.model import BodyModel, BodyState
-from bodymetry.estimation.generative import YAW, scaled_camera, state_bounds
-from bodymetry.estimation.projection import fill_silhouette
 from scipy import sparse
 from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
+
+from bodymetry.calibration.camera import Camera
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.skeleton import YAW
+from bodymetry.estimation.generative import scaled_camera, state_bounds
+from bodymetry.estimation.projection import fill_silhouette
 
 
 @dataclass(frozen=True)

@@ -25,21 +25,20 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+
 from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.errors import InputError
 from bodymetry.estimation import features as feat
 from bodymetry.estimation.body_model.model import DEFAULT_MODEL_PATH, BodyModel, BodyState
-from bodymetry.estimation.body_model.skeleton import JOINT_SLICES
+from bodymetry.estimation.body_model.skeleton import YAW
 from bodymetry.estimation.moe import MixtureOfExperts, fit_moe, select_moe
 from bodymetry.estimation.projection import project_silhouettes
-
-from bodymetry.errors import InputError
 from bodymetry.fileio import load_npz, save_npz
 
 log = logging.getLogger(__name__)
 
 #: Bumped when training changes so that cached models are rebuilt.
 TRAINING_VERSION = 2
-YAW = JOINT_SLICES[0].start + 2
 MODEL_NAMES = ("nu_rdf", "theta_sc", "tau_rdf", "nu_sc")
 #: N = 100 directions + the centroid (paper §3).
 RDF_DIM = 102

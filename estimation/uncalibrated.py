@@ -16,11 +16,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import Biometrics, measure
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.training import DiscriminativeModels
-
-from bodymetry.errors import InputError
 
 #: Silhouettes smaller than this many pixels are refused as "no person".
 MIN_MASK_PIXELS = 200

@@ -22,10 +22,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bodymetry.fileio import atomic_path
 from bodymetry.review.report import OverlayRow, build_report, overlay_row, select_overlay_frames
 from bodymetry.review.run_data import RECORDING_MCAP, RECORDING_RRD, RunData, frame_views, load_run
-
-from bodymetry.fileio import atomic_path
 
 log = logging.getLogger(__name__)
 

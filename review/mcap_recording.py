@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from bodymetry.review.meshes import PART_COLORS
 from bodymetry.review.rerun_recording import camera_to_world, jpeg
 from bodymetry.review.run_data import FrameView, RunData, skeleton_segments

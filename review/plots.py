@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
 from bodymetry.estimation.raster import rasterize
 from bodymetry.review.meshes import PART_COLORS

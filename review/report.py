@@ -28,7 +28,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bodymetry import __version__
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
+from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
 from bodymetry.review.run_data import (
     MEASUREMENTS_CSV,
@@ -40,9 +43,6 @@ from bodymetry.review.run_data import (
     frame_views,
     load_run,
 )
-
-from bodymetry import __version__
-from bodymetry.fileio import atomic_path, write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +102,7 @@ def _mean_iou(record: dict[str, Any]) -> float:
 def overlay_row(run: RunData, view: FrameView) -> OverlayRow | None:
     """The overlay tiles of a frame (None when its images are not available)."""
     import cv2
+
     from bodymetry.review.mcap_recording import overlay_silhouettes
 
     if not view.images and not view.observed:

@@ -37,6 +37,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
 from bodymetry.review.meshes import PART_COLORS
 from bodymetry.review.run_data import FrameView, RunData, skeleton_segments, stage_state

@@ -19,11 +19,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from bodymetry.calibration.camera import Camera
+from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import PART_PARENT
-
-from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)
 

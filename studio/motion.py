@@ -35,6 +35,7 @@ from functools import cached_property
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
+
 from bodymetry.estimation.body_model.rotations import (
     axis_rotation,
     euler_to_matrix,
@@ -47,6 +48,7 @@ from bodymetry.estimation.body_model.skeleton import (
     JOINTS,
     N_PARTS,
     N_POSE,
+    YAW,
     JointLimits,
     dof_names,
     forward_kinematics,
@@ -75,7 +77,6 @@ KEY_ACCEL = 15.0
 
 _NAMES = dof_names()
 _IX = {name: i for i, name in enumerate(_NAMES)}
-YAW = _IX["root.z"]
 _FOOT_JOINTS = (JOINTS.index("ankle_l"), JOINTS.index("ankle_r"))
 
 # ----------------------------------------------------------------------------------------

@@ -32,6 +32,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 import scipy.sparse as sp
+
 from bodymetry.calibration.camera import Camera
 
 # The rasterizer is shared with the estimation stage (re-exported here).

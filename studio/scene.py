@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+
 from bodymetry.review.meshes import PART_COLORS
 
 # --- light --------------------------------------------------------------------

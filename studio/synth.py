@@ -26,6 +26,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import save_calibration
 from bodymetry.capture.session import (
@@ -38,11 +39,10 @@ from bodymetry.capture.session import (
     save_session,
 )
 from bodymetry.capture.video import H264Writer
-from bodymetry.studio.motion import MOTIONS, RestPoseInfo, ground_motion, make_motion, seed_for
-from bodymetry.studio.rig import studio_rig
-
 from bodymetry.errors import InputError
 from bodymetry.fileio import save_npz, write_bytes_atomic, write_json_atomic
+from bodymetry.studio.motion import MOTIONS, RestPoseInfo, ground_motion, make_motion, seed_for
+from bodymetry.studio.rig import studio_rig
 
 log = logging.getLogger(__name__)
 

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
+
+from bodymetry.errors import InputError
 from bodymetry.estimation.body_model import geometry
 from bodymetry.estimation.body_model.scape import ScapeArrays, ScapeMesh
 from bodymetry.estimation.body_model.skeleton import (
@@ -27,8 +29,6 @@ from bodymetry.estimation.body_model.skeleton import (
     forward_kinematics,
     local_rotations,
 )
-
-from bodymetry.errors import InputError
 from bodymetry.fileio import load_npz
 
 #: The committed model file.

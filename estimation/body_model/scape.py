@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
 from bodymetry.estimation.body_model.rotations import matrix_to_axis_angle
 
 #: Features per triangle for Q: two joints' rotation vectors. No constant term:

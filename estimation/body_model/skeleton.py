@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from bodymetry.estimation.body_model.rotations import axis_rotation, euler_to_matrix
 
 PARTS: tuple[str, ...] = (
@@ -69,6 +70,8 @@ JOINT_SLICES: tuple[slice, ...] = tuple(
     slice(int(s), int(s) + d)
     for s, d in zip(np.cumsum((0, *JOINT_DOFS[:-1])), JOINT_DOFS, strict=True)
 )
+#: Index in θ of the global heading (rotation of the root about the vertical z axis).
+YAW: int = JOINT_SLICES[0].start + 2
 HINGES: tuple[int, ...] = tuple(i for i, d in enumerate(JOINT_DOFS) if d == 1)
 
 

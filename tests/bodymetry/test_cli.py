@@ -8,13 +8,13 @@ import re
 import numpy as np
 import pytest
 import trimesh
-from bodymetry.estimation.body_model.biometrics import MEASUREMENTS, measure
-from bodymetry.estimation.body_model.model import BodyModel
 from click.testing import CliRunner, Result
 
 import bodymetry
 from bodymetry import cli
 from bodymetry.cli import main
+from bodymetry.estimation.body_model.biometrics import MEASUREMENTS, measure
+from bodymetry.estimation.body_model.model import BodyModel
 
 # --------------------------------------------------------------------------------------
 # Tolerances, all in one place.

@@ -5,8 +5,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from bodymetry.calibration.camera import Camera, CameraGroup
 from scipy.spatial.transform import Rotation
+
+from bodymetry.calibration.camera import Camera, CameraGroup
 
 K = np.array([[900.0, 0.0, 330.0], [0.0, 905.0, 235.0], [0.0, 0.0, 1.0]])
 _D12 = [-0.2, 0.05, 0.001, -0.0005, 0.01, 0.02, 0.001, 0.003, 0.001, -0.002, 0.0015, 5e-4]

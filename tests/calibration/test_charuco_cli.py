@@ -12,12 +12,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from click.testing import CliRunner
+
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.charuco import board_geometry, detect_clip, detect_image, make_detector
 from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.session import BoardSpec, Session, SessionCamera, save_session
-from click.testing import CliRunner
-
 from bodymetry.cli import main
 
 BOARD = BoardSpec(squares=(5, 4), square_mm=200.0, marker_mm=150.0, dictionary="DICT_4X4_50")

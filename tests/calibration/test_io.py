@@ -11,6 +11,9 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from scipy.spatial.transform import Rotation
+from yaml_edits import delete_at, set_at
+
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import (
     CALIBRATION_FORMAT,
@@ -22,9 +25,6 @@ from bodymetry.calibration.io import (
     read_calibration,
     save_calibration,
 )
-from scipy.spatial.transform import Rotation
-from yaml_edits import delete_at, set_at
-
 from bodymetry.errors import InputError
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+
 from bodymetry.calibration.charuco import (
     CornerRefiner,
     board_geometry,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from bodymetry.calibration import solve
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.charuco import CameraDetections, board_geometry

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from bodymetry.capture.background import (
     BackgroundModel,
     SubtractionConfig,
@@ -12,7 +13,6 @@ from bodymetry.capture.background import (
     read_clip,
 )
 from bodymetry.capture.toy import ToyScene, toy_background, toy_frame, write_video
-
 from bodymetry.errors import InputError
 
 SCENE = ToyScene(size=(160, 120))

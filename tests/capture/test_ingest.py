@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from bodymetry.capture.ingest import check_sync, probe_video, read_frame_sets
 from bodymetry.capture.session import load_session
 from bodymetry.capture.toy import write_toy_session
-
 from bodymetry.errors import InputError
 
 

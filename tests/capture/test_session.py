@@ -12,6 +12,8 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from yaml_edits import delete_at, set_at
+
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import save_calibration
 from bodymetry.capture.session import (
@@ -22,8 +24,6 @@ from bodymetry.capture.session import (
     load_session,
     save_session,
 )
-from yaml_edits import delete_at, set_at
-
 from bodymetry.errors import InputError
 
 NAMES = ("cam_00", "cam_01", "cam_02")

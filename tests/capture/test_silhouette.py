@@ -9,12 +9,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from click.testing import CliRunner
+
 from bodymetry.capture.evaluate import SilhouetteScores, iou, load_ground_truth
 from bodymetry.capture.session import load_session
 from bodymetry.capture.silhouette import CleanupConfig, clean_mask, overlay, segment_session
 from bodymetry.capture.toy import write_toy_session
-from click.testing import CliRunner
-
 from bodymetry.cli import main
 from bodymetry.errors import InputError
 

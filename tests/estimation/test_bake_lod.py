@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.sparse as sp
+
 from bodymetry.estimation.body_model.bake import lod
 
 fast_simplification = pytest.importorskip("fast_simplification")

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from bodymetry.estimation.body_model.bake import phenotype as ph
 from bodymetry.estimation.body_model.bake.torch_pickle import load_state_dict
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+
 from bodymetry.estimation.body_model.bake import pose_space as ps
 from bodymetry.estimation.body_model.rotations import matrix_to_axis_angle
 from bodymetry.estimation.body_model.scape import N_POSE_FEATURES

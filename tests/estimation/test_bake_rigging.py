@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import trimesh
+
 from bodymetry.estimation.body_model.bake import rigging as rg
 from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS
 

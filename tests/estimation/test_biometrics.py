@@ -10,6 +10,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+
 from bodymetry.estimation.body_model import geometry
 from bodymetry.estimation.body_model.biometrics import (
     DEFAULT_DENSITY,

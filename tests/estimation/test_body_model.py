@@ -6,6 +6,9 @@ import re
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
+
+from bodymetry.errors import InputError
 from bodymetry.estimation.body_model import geometry
 from bodymetry.estimation.body_model.bake.lod import closest_points
 from bodymetry.estimation.body_model.model import (
@@ -24,9 +27,6 @@ from bodymetry.estimation.body_model.skeleton import (
     PARTS,
     forward_kinematics,
 )
-from scipy.spatial import cKDTree
-
-from bodymetry.errors import InputError
 
 # --------------------------------------------------------------------------------------
 # Tolerances, all in one place (metres unless stated).

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.generative import (
     AnnealingConfig,
@@ -52,6 +53,7 @@ def test_chamfer_cost_is_zero_for_the_true_body_and_grows_with_error(setup):
 def _reference_costs(obs, verts, faces) -> np.ndarray:
     """The chamfer cost written out on whole images (no crops, one body at a time)."""
     import cv2
+
     from bodymetry.estimation.projection import fill_silhouette
 
     out = np.zeros(len(obs.cameras))

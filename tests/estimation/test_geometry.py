@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from bodymetry.estimation.body_model import geometry as g
 from scipy.spatial.transform import Rotation
+
+from bodymetry.estimation.body_model import geometry as g
 
 # --------------------------------------------------------------------------
 # Tolerances, all in one place (relative unless the name says ABS, in metres).

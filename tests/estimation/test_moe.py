@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from bodymetry.estimation.moe import MixtureOfExperts, fit_moe, select_moe
 
 #: Known-answer tolerance on a noise-free-ish piecewise-linear function (output units).

@@ -6,9 +6,10 @@ import json
 
 import numpy as np
 import pytest
+from tiny_run import TINY_TRAIN, tiny_session
+
 from bodymetry.estimation.pipeline import ProcessConfig, fit_frame, process_session, summarize
 from bodymetry.estimation.training import DiscriminativeModels
-from tiny_run import TINY_TRAIN, tiny_session
 
 
 @pytest.fixture(scope="module")
@@ -190,9 +191,8 @@ def test_evaluate_writes_the_figure_3_table(run):
 
 
 def test_evaluate_needs_a_run(tmp_path):
-    from bodymetry.estimation.evaluation import evaluate_run
-
     from bodymetry.errors import InputError
+    from bodymetry.estimation.evaluation import evaluate_run
 
     with pytest.raises(InputError, match=r"results\.json"):
         evaluate_run(tmp_path)

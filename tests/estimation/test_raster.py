@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+
 from bodymetry.estimation.raster import coverage, coverage_views, rasterize
 
 

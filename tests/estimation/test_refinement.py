@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.projection import project_silhouettes
@@ -199,8 +200,8 @@ def test_contour_sampling_bias_on_the_demo_frames():
     import json
 
     import cv2
-    from bodymetry.capture.session import load_session
 
+    from bodymetry.capture.session import load_session
     from bodymetry.fileio import load_npz
 
     session = load_session(DEMO)

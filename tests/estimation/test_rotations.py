@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from bodymetry.estimation.body_model import rotations as rot
 
 # --------------------------------------------------------------------------------------

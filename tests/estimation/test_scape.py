@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+
 from bodymetry.estimation.body_model import scape
 from bodymetry.estimation.body_model.rotations import axis_angle_to_matrix, euler_to_matrix
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from bodymetry.estimation.body_model import skeleton as sk
 from bodymetry.estimation.body_model.rotations import axis_rotation, euler_to_matrix
 

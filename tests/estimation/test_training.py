@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.training import (
     MODEL_NAMES,
@@ -136,9 +137,9 @@ def test_photo_estimate_is_scaled_to_the_reference_height(trained, cameras):
 
 def test_read_mask_errors(tmp_path):
     import cv2
-    from bodymetry.estimation.uncalibrated import read_mask
 
     from bodymetry.errors import InputError
+    from bodymetry.estimation.uncalibrated import read_mask
 
     with pytest.raises(InputError, match="not found"):
         read_mask(tmp_path / "missing.png")

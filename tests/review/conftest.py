@@ -12,9 +12,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from tiny_run import TINY_TRAIN, tiny_session
+
 from bodymetry.capture.session import Session
 from bodymetry.estimation.pipeline import ProcessConfig, process_session
-from tiny_run import TINY_TRAIN, tiny_session
 
 
 @dataclass(frozen=True)

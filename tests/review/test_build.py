@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import shutil
 
-import bodymetry.review.mcap_recording as mcap_recording
 import pytest
+
+import bodymetry.review.mcap_recording as mcap_recording
 from bodymetry.review.build import build_review
 
 

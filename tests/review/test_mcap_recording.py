@@ -7,8 +7,9 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from bodymetry.review.mcap_recording import overlay_silhouettes
 from mcap.reader import make_reader
+
+from bodymetry.review.mcap_recording import overlay_silhouettes
 
 
 @pytest.fixture(scope="module")

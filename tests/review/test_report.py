@@ -11,11 +11,11 @@ import shutil
 import cv2
 import numpy as np
 import pytest
+
+from bodymetry.errors import InputError
 from bodymetry.review.build import build_review
 from bodymetry.review.report import build_report, csv_columns, select_overlay_frames
 from bodymetry.review.run_data import load_run
-
-from bodymetry.errors import InputError
 
 IMG_SRC = re.compile(r'<img[^>]*\bsrc="([^"]*)"')
 

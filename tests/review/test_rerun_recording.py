@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import rerun.chunk as rc
+
 from bodymetry.review.rerun_recording import camera_to_world
 
 

@@ -12,6 +12,7 @@ import itertools
 
 import numpy as np
 import pytest
+
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import JOINTS, N_POSE, JointLimits, forward_kinematics
 from bodymetry.studio import motion as mo

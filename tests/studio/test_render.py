@@ -5,6 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+
 from bodymetry.calibration.camera import Camera
 from bodymetry.studio.render import Studio, pixel_rays, rasterize, signed_area2
 from bodymetry.studio.scene import BoardPose, BoardTexture, Light

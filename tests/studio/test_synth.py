@@ -7,7 +7,10 @@ import json
 import cv2
 import numpy as np
 import pytest
+
 from bodymetry.capture.session import load_session
+from bodymetry.errors import InputError
+from bodymetry.fileio import load_npz
 from bodymetry.studio.synth import (
     STUDIO_BOARD,
     SubjectSpec,
@@ -15,9 +18,6 @@ from bodymetry.studio.synth import (
     board_trajectory,
     synthesize,
 )
-
-from bodymetry.errors import InputError
-from bodymetry.fileio import load_npz
 
 #: Joints reprojected with calibration.yaml must fall within this many pixels of the silhouette.
 JOINT_TO_MASK_PX = 2

@@ -25,6 +25,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+
+import bodymetry
 from bodymetry.estimation.body_model import geometry
 from bodymetry.estimation.body_model.bake import lod as lod_mod
 from bodymetry.estimation.body_model.bake import phenotype
@@ -67,8 +69,6 @@ from bodymetry.estimation.body_model.skeleton import (
     forward_kinematics,
     local_rotations,
 )
-
-import bodymetry
 from bodymetry.fileio import save_npz, write_json_atomic
 
 log = logging.getLogger(__name__)

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from bodymetry.estimation.body_model.bake.torch_pickle import load_state_dict
 
 __all__ = [

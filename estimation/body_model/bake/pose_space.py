@@ -10,6 +10,7 @@ is the triangle's deformation gradient and ``R_p`` its part's rigid rotation.
 from __future__ import annotations
 
 import numpy as np
+
 from bodymetry.estimation.body_model.scape import N_POSE_FEATURES, deformation_gradients
 from bodymetry.estimation.body_model.skeleton import (
     JOINT_SLICES,

@@ -18,9 +18,10 @@ import re
 
 import numpy as np
 import scipy.sparse as sp
-from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+
+from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS
 
 _HEAD_BONES = (
     r"(neck0[23]|head|jaw|eye\..|levator.*|oculi.*|orbicularis.*|oris.*|risorius.*"
