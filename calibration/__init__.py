@@ -1,1 +1,1 @@
-"""calibration stage of bodymetry (see docs/ and DESIGN.md)."""
+"""The calibration stage of bodymetry (``bodymetry.calibration``; see docs/design.md)."""

@@ -1,6 +1,6 @@
 """Pinhole camera with OpenCV lens distortion, and a group of synchronized cameras.
 
-Conventions (DESIGN.md): world right-handed, z up, metres; camera frame OpenCV
+Conventions (docs/design.md): world right-handed, z up, metres; camera frame OpenCV
 (x right, y down, z forward); extrinsics ``x_cam = R @ x_world + t``. Distortion
 coefficients in OpenCV order ``(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tau_x, tau_y]]]])``.
 """

@@ -545,11 +545,6 @@ def _residuals(x: np.ndarray, pb: _Problem) -> np.ndarray:
     return np.stack([u - pb.uv[:, 0], v - pb.uv[:, 1]], axis=1).reshape(-1)
 
 
-def _errors(x: np.ndarray, pb: _Problem) -> np.ndarray:
-    """Reprojection error per observation (M,), pixels."""
-    return np.linalg.norm(_residuals(x, pb).reshape(-1, 2), axis=1)
-
-
 def _jacobian(x: np.ndarray, pb: _Problem, r0: np.ndarray) -> csr_matrix:
     """Sparse forward-difference Jacobian (2M, n_free) by column grouping.
 

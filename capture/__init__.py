@@ -1,1 +1,1 @@
-"""capture stage of bodymetry (see docs/ and DESIGN.md)."""
+"""The capture stage of bodymetry (``bodymetry.capture``; see docs/design.md)."""

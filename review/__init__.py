@@ -1,1 +1,1 @@
-"""review stage of bodymetry (see docs/ and DESIGN.md)."""
+"""The review stage of bodymetry (``bodymetry.review``; see docs/design.md)."""

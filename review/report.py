@@ -323,15 +323,6 @@ def _jpeg_uri(rgb: np.ndarray, quality: int = 85) -> str:
     return _data_uri(buf.tobytes(), "image/jpeg")
 
 
-def _png_uri_rgb(rgb: np.ndarray) -> str:
-    import cv2
-
-    ok, buf = cv2.imencode(".png", rgb[:, :, ::-1])
-    if not ok:  # pragma: no cover
-        raise RuntimeError("PNG encoding failed")
-    return _data_uri(buf.tobytes(), "image/png")
-
-
 def body_renders(run: RunData, body: Any) -> dict[str, dict[str, np.ndarray]]:
     """Front and side renders of the fitted canonical body (mean ν over fitted frames),
     and of the true body when the ground truth has its shape."""

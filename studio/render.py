@@ -20,7 +20,7 @@ Pipeline of :meth:`Studio.render_frame` for one camera:
    (read noise + shot noise); 8-bit quantization. Compression is the video
    writer's job.
 
-Coordinates follow DESIGN.md: world z up, floor z = 0, metres; cameras OpenCV.
+Coordinates follow docs/design.md: world z up, floor z = 0, metres; cameras OpenCV.
 """
 
 from __future__ import annotations
@@ -34,9 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from bodymetry.calibration.camera import Camera
-
-# The rasterizer is shared with the estimation stage (re-exported here).
-from bodymetry.estimation.raster import Raster, rasterize, signed_area2  # noqa: F401
+from bodymetry.estimation.raster import Raster, rasterize
 from bodymetry.studio.scene import (
     Appearance,
     BoardPose,

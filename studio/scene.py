@@ -4,7 +4,7 @@ clothing, and a printed ChArUco calibration board.
 Everything here is geometry and reflectance (albedo in [0, 1], BGR channel
 order); :mod:`bodymetry.studio.render` turns it into camera images.
 
-World frame (DESIGN.md): right-handed, z up, floor at z = 0, metres.
+World frame (docs/design.md): right-handed, z up, floor at z = 0, metres.
 """
 
 from __future__ import annotations

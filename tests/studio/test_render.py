@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from bodymetry.calibration.camera import Camera
-from bodymetry.studio.render import Studio, pixel_rays, rasterize, signed_area2
+from bodymetry.estimation.raster import rasterize, signed_area2
+from bodymetry.studio.render import Studio, pixel_rays
 from bodymetry.studio.scene import BoardPose, BoardTexture, Light
 
 SIZE = (320, 240)
