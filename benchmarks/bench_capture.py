@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from bodymetry.capture.background import METHODS, SubtractionConfig
-from bodymetry.capture.evaluate import GroundTruth, SilhouetteScores
 from bodymetry.capture.ingest import check_sync, read_frame_sets
 from bodymetry.capture.session import load_session
 from bodymetry.capture.silhouette import background_models, segment_session
+from bodymetry.studio.evaluate import GroundTruth, SilhouetteScores
 
 SEEDS = (1, 2, 3)
 DEMO = Path(__file__).resolve().parent.parent / "recordings" / "demo"

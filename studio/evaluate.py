@@ -1,0 +1,365 @@
+"""Silhouette quality against a studio session's ground truth.
+
+- ``iou``: intersection over union of the computed and the true person mask
+  (``ground_truth/silhouettes/<camera>/<frame:06d>.png``);
+- ``shadow_false_positive``: the fraction of true cast-shadow pixels labelled
+  person. The studio does not store shadow masks, so they are recomputed: the
+  session's state (``ground_truth/states.npz``) is posed and rendered again
+  through the true cameras with the studio's key light, without noise (the
+  shadow geometry does not depend on the noise).
+
+:func:`segment_and_score` runs the capture stage on a session (any session;
+the scoring only where it has ground truth), writes the masks and
+``silhouettes.json`` and returns a :class:`SilhouetteRun` (what ``bodymetry
+silhouettes`` prints). It lives here, not in the capture stage, because the
+scoring renders the studio's shadows and capture must not import the studio.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from bodymetry.capture.background import SubtractionConfig
+from bodymetry.capture.ingest import check_sync
+from bodymetry.capture.session import GROUND_TRUTH_STATES, Session
+from bodymetry.capture.silhouette import (
+    SilhouetteFrame,
+    background_models,
+    save_silhouette_frame,
+    segment_session,
+)
+from bodymetry.errors import InputError
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.fileio import load_npz, write_json_atomic
+from bodymetry.studio.render import Studio
+from bodymetry.studio.scene import Light
+
+__all__ = [
+    "SILHOUETTES_JSON",
+    "GroundTruth",
+    "SilhouetteRun",
+    "SilhouetteScores",
+    "iou",
+    "load_ground_truth",
+    "segment_and_score",
+]
+
+#: The stage's summary file in the output folder (:meth:`SilhouetteRun.to_dict`
+#: plus ``per_frame``).
+SILHOUETTES_JSON = "silhouettes.json"
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two (H, W) bool masks (1.0 when both are empty)."""
+    union = np.count_nonzero(a | b)
+    return float(np.count_nonzero(a & b) / union) if union else 1.0
+
+
+@dataclass
+class GroundTruth:
+    """Lazy access to a studio session's true person and shadow masks."""
+
+    session: Session
+    with_shadows: bool = True
+
+    def __post_init__(self) -> None:
+        self._studio = None
+        self._states = None
+        self._model = None
+        self._cameras = None
+        self._shadow_cache: dict[tuple[str, int], np.ndarray | None] = {}
+
+    def has_silhouettes(self) -> bool:
+        gt = self.session.ground_truth_path
+        return gt is not None and (gt / "silhouettes").is_dir()
+
+    def has_states(self) -> bool:
+        gt = self.session.ground_truth_path
+        return gt is not None and (gt / GROUND_TRUTH_STATES).is_file()
+
+    def person(self, camera: str, frame: int) -> np.ndarray | None:
+        """(H, W) bool true silhouette, or None when the session has none for that frame."""
+        if self.session.ground_truth is None:
+            return None
+        path = self.session.ground_truth_silhouette_path(camera, frame)
+        if not path.is_file():
+            return None
+        mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if mask is None:
+            raise InputError(f"{path}: not a readable PNG mask")
+        return mask > 0
+
+    def _setup(self) -> None:
+        gt = self.session.ground_truth_path
+        self._states = load_npz(gt / GROUND_TRUTH_STATES)
+        shadows = True
+        studio_json = gt / "studio.json"
+        if studio_json.is_file():
+            shadows = bool(json.loads(studio_json.read_text())["config"].get("shadows", True))
+        self._model = BodyModel.load(n_shape=len(self._states["nu"]))
+        # The light of studio/synth.py (_render_camera).
+        self._studio = Studio.from_model(
+            self._model,
+            shadows=shadows,
+            light=Light(direction=Light.direction_from_angles(azimuth_deg=0.0, elevation_deg=50.0)),
+        )
+        self._cameras = {cam.name: cam for cam in self.session.calibration()}
+
+    def shadow(self, camera: str, frame: int) -> np.ndarray | None:
+        """(H, W) bool true cast-shadow pixels (not person), or None without states."""
+        key = (camera, int(frame))
+        if key not in self._shadow_cache:
+            self._shadow_cache[key] = self._render_shadow(camera, int(frame))
+        return self._shadow_cache[key]
+
+    def _render_shadow(self, camera: str, frame: int) -> np.ndarray | None:
+        if not self.has_states():
+            return None
+        if self._studio is None:
+            self._setup()
+        s = self._states
+        rows = np.flatnonzero(s["frame"] == frame)
+        if rows.size == 0:
+            return None
+        r = int(rows[0])
+        state = BodyState(s["tau"][r], s["theta"][r], s["nu"][None])
+        vertices = self._model.pose(state).vertices[0]
+        out = self._studio.render_frame(self._cameras[camera], vertices, effects=False)
+        return out.shadow_mask & ~out.person_mask
+
+
+def load_ground_truth(session: Session) -> GroundTruth | None:
+    """The session's ground truth, or None when it has no silhouettes."""
+    gt = GroundTruth(session)
+    return gt if gt.has_silhouettes() else None
+
+
+class SilhouetteScores:
+    """Accumulates IoU and shadow false positives over :class:`SilhouetteFrame` s.
+
+    Parameters
+    ----------
+    ground_truth : GroundTruth
+    shadows : bool
+        Also score cast shadows (re-renders each frame; slower).
+    """
+
+    def __init__(self, ground_truth: GroundTruth, shadows: bool = True) -> None:
+        self.gt = ground_truth
+        self.shadows = shadows and ground_truth.has_states()
+        self.ious: dict[str, list[float]] = {}
+        self.shadow_hits: dict[str, int] = {}
+        self.shadow_total: dict[str, int] = {}
+        self.shadow_fractions: dict[str, list[float]] = {}
+
+    def update(self, sf: SilhouetteFrame) -> None:
+        """Score one frame of the capture stage."""
+        for name, mask in zip(sf.cameras, sf.masks, strict=True):
+            truth = self.gt.person(name, sf.frame)
+            if truth is None:
+                continue
+            if truth.shape != mask.shape:
+                raise InputError(
+                    f"camera {name!r}: ground-truth silhouette of frame {sf.frame} is "
+                    f"{truth.shape[1]}x{truth.shape[0]}, the video {mask.shape[1]}x{mask.shape[0]}"
+                )
+            self.ious.setdefault(name, []).append(iou(mask, truth))
+            if self.shadows:
+                shadow = self.gt.shadow(name, sf.frame)
+                if shadow is not None:
+                    hits = int(np.count_nonzero(mask & shadow))
+                    total = int(np.count_nonzero(shadow))
+                    self.shadow_hits[name] = self.shadow_hits.get(name, 0) + hits
+                    self.shadow_total[name] = self.shadow_total.get(name, 0) + total
+                    if total:
+                        self.shadow_fractions.setdefault(name, []).append(hits / total)
+
+    def summary(self) -> dict[str, dict]:
+        """Per camera: ``iou_mean``, ``iou_min``, ``shadow_false_positive`` (pooled
+        over frames: true shadow pixels labelled person / true shadow pixels;
+        None when not scored), ``shadow_false_positive_max`` (worst frame), ``frames``."""
+        out = {}
+        for name, values in self.ious.items():
+            total = self.shadow_total.get(name, 0)
+            fractions = self.shadow_fractions.get(name, [])
+            out[name] = {
+                "iou_mean": round(float(np.mean(values)), 4),
+                "iou_min": round(float(np.min(values)), 4),
+                "shadow_false_positive": (
+                    round(self.shadow_hits[name] / total, 4) if total else None
+                ),
+                "shadow_false_positive_max": round(max(fractions), 4) if fractions else None,
+                "frames": len(values),
+            }
+        return out
+
+
+@dataclass
+class SilhouetteRun:
+    """What :func:`segment_and_score` did: the figures ``bodymetry silhouettes`` prints.
+
+    Attributes
+    ----------
+    session, out : str
+        The session folder and the output folder.
+    method : str
+        Background subtraction (:data:`bodymetry.capture.background.METHODS`).
+    frames : int
+        Kept frames segmented.
+    frame_step : int
+        The session's kept-frame step.
+    session_frames : int
+        Session frames every camera covers.
+    background : dict
+        Per camera, where its background model came from (clip or session median).
+    warnings : list of str
+        Synchronisation problems that did not stop the stage.
+    seconds : float
+        Wall time of the stage.
+    ground_truth : bool
+        Whether the masks were scored against the session's true silhouettes.
+    cameras : dict
+        Per camera: ``frames``, the :meth:`SilhouetteScores.summary` entries (with
+        ground truth) and ``flags`` (flag -> frames that raised it).
+    per_frame : list of dict
+        Per kept frame: ``frame`` and ``flags`` (camera -> flags); written to the
+        file only, not part of :meth:`to_dict`.
+    """
+
+    session: str
+    out: str
+    method: str
+    frames: int
+    frame_step: int
+    session_frames: int
+    background: dict[str, str]
+    warnings: list[str]
+    seconds: float
+    ground_truth: bool
+    cameras: dict[str, dict[str, Any]]
+    per_frame: list[dict[str, Any]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The summary as JSON-ready data (without ``per_frame``)."""
+        return {
+            "session": self.session,
+            "out": self.out,
+            "method": self.method,
+            "frames": self.frames,
+            "frame_step": self.frame_step,
+            "session_frames": self.session_frames,
+            "background": dict(self.background),
+            "warnings": list(self.warnings),
+            "seconds": self.seconds,
+            "ground_truth": self.ground_truth,
+            "cameras": {name: dict(entry) for name, entry in self.cameras.items()},
+        }
+
+
+def segment_and_score(
+    session: Session,
+    out: str | Path,
+    *,
+    method: str = "horprasert",
+    read_method: str = "sequential",
+    overlays: bool = True,
+    strict: bool = False,
+    shadows: bool = True,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> SilhouetteRun:
+    """Segment every kept frame of ``session`` into ``out`` and score it where it has ground truth.
+
+    Writes ``out/masks/<camera>/<frame>.png`` (and overlays) per kept frame, and
+    ``out/silhouettes.json`` (:meth:`SilhouetteRun.to_dict` plus ``per_frame``).
+
+    Parameters
+    ----------
+    session : Session
+    out : path
+        Output folder (created).
+    method : {"horprasert", "mog2", "none"}
+        Background subtraction.
+    read_method : {"sequential", "seek"}
+        Decode straight through or seek to each kept frame.
+    overlays : bool
+        Also write the overlay images.
+    strict : bool
+        Differing frame counts between cameras are an error, not a warning.
+    shadows : bool
+        With ground truth, also score cast shadows (re-renders the true shadows; slower).
+    progress : callable, optional
+        ``progress(label, done, total)``: "background models" once, then
+        "silhouettes" after each frame.
+
+    Returns
+    -------
+    SilhouetteRun
+
+    Raises
+    ------
+    InputError
+        Unreadable or unsynchronised videos (with ``strict``), ground truth of
+        another image size.
+    """
+    t0 = time.perf_counter()
+    out = Path(out)
+    report = check_sync(session, strict=strict)
+    gt = load_ground_truth(session)
+    scores = SilhouetteScores(gt, shadows=shadows) if gt is not None else None
+    flags: dict[str, dict[str, list[int]]] = {name: {} for name in session.camera_names}
+    per_frame: list[dict[str, Any]] = []
+    total = len(report.kept)
+    if progress is not None:
+        progress("background models", 0, total)
+    models = background_models(session, report, method=read_method)
+    if progress is not None:
+        progress("silhouettes", 0, total)
+    for sf in segment_session(
+        session,
+        subtraction=SubtractionConfig(method=method),
+        report=report,
+        models=models,
+        read_method=read_method,
+    ):
+        save_silhouette_frame(out, sf, overlays=overlays)
+        if scores is not None:
+            scores.update(sf)
+        for name, f in zip(sf.cameras, sf.flags, strict=True):
+            for flag in f:
+                flags[name].setdefault(flag, []).append(sf.frame)
+        per_frame.append(
+            {"frame": sf.frame, "flags": dict(zip(sf.cameras, map(list, sf.flags), strict=True))}
+        )
+        if progress is not None:
+            progress("silhouettes", len(per_frame), total)
+    summary = scores.summary() if scores is not None else {}
+    cameras: dict[str, dict[str, Any]] = {}
+    for name in session.camera_names:
+        entry: dict[str, Any] = {"frames": len(per_frame)}
+        entry.update(summary.get(name, {}))
+        entry["flags"] = flags[name]
+        cameras[name] = entry
+    run = SilhouetteRun(
+        session=str(session.folder),
+        out=str(out),
+        method=method,
+        frames=len(per_frame),
+        frame_step=session.frame_step,
+        session_frames=report.n_frames,
+        background={m.camera: m.source for m in models},
+        warnings=list(report.warnings),
+        seconds=round(time.perf_counter() - t0, 2),
+        ground_truth=scores is not None,
+        cameras=cameras,
+        per_frame=per_frame,
+    )
+    write_json_atomic(out / SILHOUETTES_JSON, {**run.to_dict(), "per_frame": per_frame})
+    return run
