@@ -30,6 +30,9 @@ from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.errors import InputError
 from bodymetry.estimation import features as feat
 from bodymetry.estimation.body_model.model import DEFAULT_MODEL_PATH, BodyModel, BodyState
+from bodymetry.estimation.body_model.motion.contact import place_root
+from bodymetry.estimation.body_model.motion.prior import sample_pose_prior
+from bodymetry.estimation.body_model.motion.seeds import seed_for
 from bodymetry.estimation.body_model.skeleton import YAW
 from bodymetry.estimation.moe import MixtureOfExperts, fit_moe, select_moe
 from bodymetry.estimation.projection import project_silhouettes
@@ -133,10 +136,9 @@ def sample_states(model: BodyModel, n: int, purpose: str, seed: int, volume: flo
 
     Shapes: training draws jitter the prior's training bodies (σ = 0.15 per
     component); test draws use its held-out bodies, so no test shape was seen.
-    Poses: ``bodymetry.studio.motion.sample_pose_prior`` with disjoint seeds.
+    Poses: ``bodymetry.estimation.body_model.motion.prior.sample_pose_prior`` with
+    disjoint seeds.
     """
-    from bodymetry.studio.motion import place_root, sample_pose_prior, seed_for
-
     rng = np.random.default_rng(seed_for(purpose, seed))
     bank = model.prior_shapes("train" if purpose == "train" else "heldout")
     nu = bank[rng.integers(len(bank), size=n)]

@@ -6,31 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
+# Defined with the body model (the studio uses it too); other review modules import it from here.
+from bodymetry.estimation.body_model.parts import PART_COLORS
 from bodymetry.fileio import atomic_path
 
 MESH_FORMATS = (".ply", ".obj", ".glb", ".stl")
-
-#: One clothing-like RGB colour per body part (order of ``skeleton.PARTS``).
-PART_COLORS = np.array(
-    [
-        [60, 70, 120],  # pelvis
-        [180, 60, 60],  # torso
-        [230, 190, 160],  # head
-        [180, 60, 60],
-        [230, 190, 160],
-        [230, 190, 160],  # left arm: sleeve, skin, skin
-        [180, 60, 60],
-        [230, 190, 160],
-        [230, 190, 160],  # right arm
-        [60, 70, 120],
-        [60, 70, 120],
-        [40, 40, 40],  # left leg: trousers, trousers, shoe
-        [60, 70, 120],
-        [60, 70, 120],
-        [40, 40, 40],  # right leg
-    ],
-    dtype=np.uint8,
-)
 
 
 def write_mesh(

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from bodymetry.calibration.camera import Camera
+from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.raster import Raster, rasterize
 from bodymetry.studio.scene import (
     Appearance,
@@ -371,8 +372,6 @@ class Studio:
     @classmethod
     def from_model(cls, model, **kwargs) -> Studio:
         """A studio for ``estimation.body_model.BodyModel``'s full mesh, with hair."""
-        from bodymetry.estimation.body_model.skeleton import PARTS
-
         appearance = kwargs.pop("appearance", None) or Appearance()
         faces = model.faces()
         face_parts = model.full.arrays.parts

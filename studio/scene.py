@@ -13,8 +13,9 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+import scipy.sparse as sp
 
-from bodymetry.review.meshes import PART_COLORS
+from bodymetry.estimation.body_model.parts import PART_COLORS
 
 # --- light --------------------------------------------------------------------
 
@@ -429,8 +430,6 @@ class Appearance:
         skin_color : (3,) float, optional
             Albedo of the head part (to turn into hair colour by modulation).
         """
-        import scipy.sparse as sp
-
         rng = np.random.default_rng(self.seed)
         f = np.asarray(faces)
         rows = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])

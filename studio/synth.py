@@ -26,6 +26,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import save_calibration
@@ -40,9 +41,15 @@ from bodymetry.capture.session import (
 )
 from bodymetry.capture.video import H264Writer
 from bodymetry.errors import InputError
+from bodymetry.estimation.body_model.biometrics import measure
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.motion.library import MOTIONS, ground_motion, make_motion
+from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
+from bodymetry.estimation.body_model.motion.seeds import seed_for
 from bodymetry.fileio import save_npz, write_bytes_atomic, write_json_atomic
-from bodymetry.studio.motion import MOTIONS, RestPoseInfo, ground_motion, make_motion, seed_for
+from bodymetry.studio.render import Effects, Studio
 from bodymetry.studio.rig import studio_rig
+from bodymetry.studio.scene import BoardPose, BoardTexture, Light
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +139,7 @@ class SynthConfig:
         so their calibration and trained discriminative models) while subject,
         motion and noise change with ``seed``.
     motion : str
-        A name of ``bodymetry.studio.motion.MOTIONS``.
+        A name of ``bodymetry.estimation.body_model.motion.library.MOTIONS``.
     subject : SubjectSpec
     shadows : bool
         The key light casts the person's shadow on the floor.
@@ -238,8 +245,6 @@ def board_trajectory(
     (n_frames, 4, 4) float
         Homogeneous world_from_board transforms.
     """
-    from scipy.spatial.transform import Rotation, Slerp
-
     w = board.squares[0] * board.square_m
     h = board.squares[1] * board.square_m
     center = np.array([w / 2, h / 2, 0.0])
@@ -332,10 +337,6 @@ class _CameraJob:
 
 def _render_camera(job: _CameraJob, progress) -> dict:
     """Render one camera's recording, background and calibration clips and masks."""
-    from bodymetry.estimation.body_model.model import BodyModel, BodyState
-    from bodymetry.studio.render import Effects, Studio
-    from bodymetry.studio.scene import BoardPose, BoardTexture, Light
-
     cfg, cam = job.config, job.camera
     model = BodyModel.load(n_shape=len(job.nu))
     studio = Studio.from_model(
@@ -407,9 +408,6 @@ def synthesize(
     Session
         The session as written (loadable with ``capture.session.load_session``).
     """
-    from bodymetry.estimation.body_model.biometrics import measure
-    from bodymetry.estimation.body_model.model import BodyModel
-
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         if not overwrite:
@@ -440,8 +438,6 @@ def synthesize(
 
     # Ground truth that does not need rendering.
     bio = measure(model, nu[None])[0].to_dict()
-    from bodymetry.estimation.body_model.model import BodyState
-
     joints = model.pose(BodyState(motion.tau, motion.theta, nu[None])).joints
     save_npz(
         out / "ground_truth" / GROUND_TRUTH_STATES,

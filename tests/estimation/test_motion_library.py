@@ -1,6 +1,6 @@
-"""Tests for bodymetry.studio.motion: the seeded motion library and pose prior.
+"""Tests for bodymetry.estimation.body_model.motion.library (and its clips): the motion library.
 
-Bounds come from the module (``MAX_JOINT_SPEED`` etc.); every motion is checked
+Bounds come from ``clips`` (``MAX_JOINT_SPEED`` etc.); every motion is checked
 against them at 60 fps by finite differences. Semantic checks pose the skeleton
 with forward kinematics to catch sign errors (a squat must bend the knees forward,
 a bend must tip the trunk forward, a T-pose must hold the arms out level).
@@ -8,21 +8,41 @@ a bend must tip the trunk forward, a T-pose must hold the arms out level).
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import pytest
 
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
-from bodymetry.estimation.body_model.skeleton import JOINTS, N_POSE, JointLimits, forward_kinematics
-from bodymetry.studio import motion as mo
+from bodymetry.estimation.body_model.motion.clips import (
+    MAX_JOINT_ACCEL,
+    MAX_JOINT_SPEED,
+    MAX_ROOT_SPEED,
+    MAX_YAW_RATE,
+    RANDOM_JOINT_SPEED,
+)
+from bodymetry.estimation.body_model.motion.contact import arm_intrusion
+from bodymetry.estimation.body_model.motion.library import (
+    DEFAULT_MOTION,
+    MOTIONS,
+    Motion,
+    ground_motion,
+    make_motion,
+)
+from bodymetry.estimation.body_model.motion.rest import RestPoseInfo, default_limits
+from bodymetry.estimation.body_model.motion.seeds import seed_for
+from bodymetry.estimation.body_model.skeleton import (
+    JOINTS,
+    N_POSE,
+    YAW,
+    JointLimits,
+    forward_kinematics,
+)
 
 # --------------------------------------------------------------------------------------
 # Tolerances and sizes, all in one place.
 # --------------------------------------------------------------------------------------
 FPS = 60.0
 N_FRAMES = 600  # 10 s at 60 fps
-SEEDS = (mo.seed_for("test", 0), mo.seed_for("test", 1))
+SEEDS = (seed_for("test", 0), seed_for("test", 1))
 # ground_motion on the LOD puts its lowest vertex on the floor (float round-off only).
 GROUND_LOD_ATOL = 1e-6
 # The full mesh's lowest vertex against the LOD's: the LOD lies within 1.2 cm of the
@@ -31,8 +51,6 @@ GROUND_FULL_ATOL = 0.02
 # Skeleton-only root placement (place_root) against the mesh grounding: measured
 # -10..+8 mm over all motions and 6 seeds.
 PLACE_ROOT_ATOL = 0.02
-# RestPoseInfo.default() against the committed model: rounded to 0.1 mm / 1e-5 rad.
-DEFAULTS_ATOL = 1e-3
 HEADING_BINS = 36
 
 
@@ -41,21 +59,21 @@ def model() -> BodyModel:
     return BodyModel.load()
 
 
-def _finite_differences(motion: mo.Motion) -> tuple[np.ndarray, np.ndarray]:
+def _finite_differences(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame velocity (F-1, 37) and acceleration (F-2, 37), heading unwrapped."""
     d = np.diff(motion.theta, axis=0)
-    d[:, mo.YAW] = (d[:, mo.YAW] + np.pi) % (2.0 * np.pi) - np.pi
+    d[:, YAW] = (d[:, YAW] + np.pi) % (2.0 * np.pi) - np.pi
     return d * motion.fps, np.diff(d, axis=0) * motion.fps**2
 
 
-def _fk(motion: mo.Motion) -> tuple[np.ndarray, np.ndarray]:
-    rest = mo.RestPoseInfo.default()
+def _fk(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
+    rest = RestPoseInfo.default()
     return forward_kinematics(motion.theta, motion.tau, rest.joints, rest.hinge_axes)
 
 
-def _forward(motion: mo.Motion) -> np.ndarray:
+def _forward(motion: Motion) -> np.ndarray:
     """(F, 3) the direction each frame's body faces (heading applied to -y)."""
-    h = motion.theta[:, mo.YAW]
+    h = motion.theta[:, YAW]
     return np.stack([np.sin(h), -np.cos(h), np.zeros_like(h)], axis=1)
 
 
@@ -77,68 +95,68 @@ def test_library_has_the_required_motions() -> None:
         "apose",
         "mixed",
     }
-    assert required <= set(mo.MOTIONS)
-    assert mo.DEFAULT_MOTION == "mixed"
+    assert required <= set(MOTIONS)
+    assert DEFAULT_MOTION == "mixed"
 
 
-@pytest.mark.parametrize("name", sorted(mo.MOTIONS))
+@pytest.mark.parametrize("name", sorted(MOTIONS))
 def test_motion_shapes_limits_and_root_height(name: str) -> None:
-    limits = mo.default_limits()
+    limits = default_limits()
     for seed in SEEDS:
-        m = mo.make_motion(name, N_FRAMES, FPS, seed)
+        m = make_motion(name, N_FRAMES, FPS, seed)
         assert m.theta.shape == (N_FRAMES, N_POSE)
         assert m.tau.shape == (N_FRAMES, 3)
         assert m.fps == FPS and m.name == name and len(m) == N_FRAMES
         assert np.all(limits.contains(m.theta))
-        assert np.all(m.theta[:, mo.YAW] >= -np.pi) and np.all(m.theta[:, mo.YAW] < np.pi)
+        assert np.all(m.theta[:, YAW] >= -np.pi) and np.all(m.theta[:, YAW] < np.pi)
         assert np.all(m.tau[:, 2] > 0.3)
 
 
-@pytest.mark.parametrize("name", sorted(mo.MOTIONS))
+@pytest.mark.parametrize("name", sorted(MOTIONS))
 def test_motion_is_smooth_within_stated_bounds(name: str) -> None:
     for seed in SEEDS:
-        m = mo.make_motion(name, N_FRAMES, FPS, seed)
+        m = make_motion(name, N_FRAMES, FPS, seed)
         vel, acc = _finite_differences(m)
-        joint_vel = np.delete(vel, mo.YAW, axis=1)
-        assert np.abs(joint_vel).max() <= mo.MAX_JOINT_SPEED
-        assert np.abs(acc).max() <= mo.MAX_JOINT_ACCEL
-        assert np.abs(vel[:, mo.YAW]).max() <= mo.MAX_YAW_RATE
+        joint_vel = np.delete(vel, YAW, axis=1)
+        assert np.abs(joint_vel).max() <= MAX_JOINT_SPEED
+        assert np.abs(acc).max() <= MAX_JOINT_ACCEL
+        assert np.abs(vel[:, YAW]).max() <= MAX_YAW_RATE
         root_speed = np.linalg.norm(np.diff(m.tau, axis=0), axis=1) * m.fps
-        assert root_speed.max() <= mo.MAX_ROOT_SPEED
+        assert root_speed.max() <= MAX_ROOT_SPEED
 
 
 def test_random_motion_stays_under_its_design_speed() -> None:
-    m = mo.make_motion("random", N_FRAMES, FPS, SEEDS[0])
+    m = make_motion("random", N_FRAMES, FPS, SEEDS[0])
     vel, _ = _finite_differences(m)
     # The arm fade (keep-clear) may add up to ~1 rad/s on top of the design speed.
-    assert np.abs(np.delete(vel, mo.YAW, axis=1)).max() <= mo.RANDOM_JOINT_SPEED + 1.0
+    assert np.abs(np.delete(vel, YAW, axis=1)).max() <= RANDOM_JOINT_SPEED + 1.0
 
 
-@pytest.mark.parametrize("name", sorted(mo.MOTIONS))
+@pytest.mark.parametrize("name", sorted(MOTIONS))
 def test_same_seed_same_motion_other_seed_other_motion(name: str) -> None:
-    a = mo.make_motion(name, 200, FPS, SEEDS[0])
-    b = mo.make_motion(name, 200, FPS, SEEDS[0])
-    c = mo.make_motion(name, 200, FPS, SEEDS[1])
+    a = make_motion(name, 200, FPS, SEEDS[0])
+    b = make_motion(name, 200, FPS, SEEDS[0])
+    c = make_motion(name, 200, FPS, SEEDS[1])
     assert np.array_equal(a.theta, b.theta) and np.array_equal(a.tau, b.tau)
     assert not np.allclose(a.theta, c.theta)
 
 
 def test_motions_with_the_same_seed_are_independent() -> None:
-    a = mo.make_motion("random", 100, FPS, 7)
-    b = mo.make_motion("mixed", 100, FPS, 7)
-    assert not np.allclose(a.theta[:, mo.YAW], b.theta[:, mo.YAW])
+    a = make_motion("random", 100, FPS, 7)
+    b = make_motion("mixed", 100, FPS, 7)
+    assert not np.allclose(a.theta[:, YAW], b.theta[:, YAW])
 
 
 def test_narrower_limits_are_respected() -> None:
     limits = JointLimits.default()  # elbow cannot straighten fully here
     for name in ("tpose", "arm_raises", "mixed"):
-        m = mo.make_motion(name, 300, FPS, SEEDS[0], limits=limits)
+        m = make_motion(name, 300, FPS, SEEDS[0], limits=limits)
         assert np.all(limits.contains(m.theta))
 
 
 def test_root_height_scales_with_the_subject() -> None:
-    short = mo.make_motion("squat", 300, FPS, SEEDS[0], root_height=0.75)
-    tall = mo.make_motion("squat", 300, FPS, SEEDS[0], root_height=1.05)
+    short = make_motion("squat", 300, FPS, SEEDS[0], root_height=0.75)
+    tall = make_motion("squat", 300, FPS, SEEDS[0], root_height=1.05)
     assert np.array_equal(short.theta, tall.theta)
     ratio = tall.tau[:, 2] / short.tau[:, 2]
     # Proportional up to the 2 mm softness of the lowest-contact minimum (not scaled).
@@ -153,21 +171,21 @@ def test_root_height_scales_with_the_subject() -> None:
 # --------------------------------------------------------------------------------------
 def test_walk_turn_covers_all_headings() -> None:
     for seed in SEEDS:
-        m = mo.make_motion("walk_turn", 360, FPS, seed)  # 6 s
-        heading = m.theta[:, mo.YAW]
+        m = make_motion("walk_turn", 360, FPS, seed)  # 6 s
+        heading = m.theta[:, YAW]
         counts, _ = np.histogram(heading, bins=HEADING_BINS, range=(-np.pi, np.pi))
         assert np.all(counts > 0)
         assert abs(np.unwrap(heading)[-1] - heading[0]) >= 2.0 * np.pi
 
 
 def test_random_heading_drifts_through_a_full_turn() -> None:
-    m = mo.make_motion("random", 1200, 30.0, SEEDS[0])  # 40 s
-    turned = np.unwrap(m.theta[:, mo.YAW])
+    m = make_motion("random", 1200, 30.0, SEEDS[0])  # 40 s
+    turned = np.unwrap(m.theta[:, YAW])
     assert abs(turned[-1] - turned[0]) >= 2.0 * np.pi
 
 
 def test_start_headings_are_uniform_over_seeds() -> None:
-    starts = [mo.make_motion("tpose", 2, FPS, s).theta[0, mo.YAW] for s in range(200)]
+    starts = [make_motion("tpose", 2, FPS, s).theta[0, YAW] for s in range(200)]
     counts, _ = np.histogram(starts, bins=4, range=(-np.pi, np.pi))
     assert np.all(counts > 25)
 
@@ -176,7 +194,7 @@ def test_start_headings_are_uniform_over_seeds() -> None:
 # Semantics (sign conventions) via forward kinematics
 # --------------------------------------------------------------------------------------
 def test_tpose_holds_the_arms_out_level() -> None:
-    m = mo.make_motion("tpose", 60, FPS, SEEDS[0])
+    m = make_motion("tpose", 60, FPS, SEEDS[0])
     _, joints = _fk(m)
     for side in "lr":
         s, w = joints[:, J[f"shoulder_{side}"]], joints[:, J[f"wrist_{side}"]]
@@ -189,7 +207,7 @@ def test_tpose_holds_the_arms_out_level() -> None:
 
 
 def test_squat_bends_the_knees_forward_and_lowers_the_hips() -> None:
-    m = mo.make_motion("squat", N_FRAMES, FPS, SEEDS[0])
+    m = make_motion("squat", N_FRAMES, FPS, SEEDS[0])
     _, joints = _fk(m)
     f = int(np.argmin(m.tau[:, 2]))
     fwd = _forward(m)[f]
@@ -205,7 +223,7 @@ def test_squat_bends_the_knees_forward_and_lowers_the_hips() -> None:
 
 
 def test_bend_tips_the_trunk_forward() -> None:
-    m = mo.make_motion("bend", N_FRAMES, FPS, SEEDS[0])
+    m = make_motion("bend", N_FRAMES, FPS, SEEDS[0])
     _, joints = _fk(m)
     trunk = joints[:, J["neck"]] - joints[:, J["root"]]
     ahead = np.einsum("fi,fi->f", trunk, _forward(m))
@@ -218,7 +236,7 @@ def test_bend_tips_the_trunk_forward() -> None:
 
 
 def test_arm_raises_reach_shoulder_height_and_above() -> None:
-    m = mo.make_motion("arm_raises", 1200, FPS, SEEDS[0])
+    m = make_motion("arm_raises", 1200, FPS, SEEDS[0])
     _, joints = _fk(m)
     wrist_up = np.maximum(
         joints[:, J["wrist_l"], 2] - joints[:, J["shoulder_l"], 2],
@@ -229,7 +247,7 @@ def test_arm_raises_reach_shoulder_height_and_above() -> None:
 
 
 def test_walk_turn_lifts_the_knees_forward_alternately() -> None:
-    m = mo.make_motion("walk_turn", 360, FPS, SEEDS[0])
+    m = make_motion("walk_turn", 360, FPS, SEEDS[0])
     _, joints = _fk(m)
     fwd = _forward(m)
     for side in "lr":
@@ -242,104 +260,48 @@ def test_walk_turn_lifts_the_knees_forward_alternately() -> None:
     assert np.corrcoef(lift_l, lift_r)[0, 1] < 0  # alternate
 
 
-def test_mirror_pose_is_an_involution_and_limits_are_symmetric() -> None:
-    rng = np.random.default_rng(0)
-    theta = rng.normal(size=(5, N_POSE))
-    assert np.allclose(mo.mirror_pose(mo.mirror_pose(theta)), theta)
-    limits = mo.default_limits()
-    lo, hi = mo.mirror_pose(limits.lower), mo.mirror_pose(limits.upper)
-    assert np.allclose(np.minimum(lo, hi), limits.lower)
-    assert np.allclose(np.maximum(lo, hi), limits.upper)
-    rest = mo.RestPoseInfo.default()
-    assert np.allclose(mo.mirror_pose(rest.tpose), rest.tpose, atol=1e-4)
-
-
 @pytest.mark.parametrize("name", ["random", "reach", "mixed"])
 def test_arms_stay_out_of_head_and_chest(name: str) -> None:
     for seed in SEEDS:
-        m = mo.make_motion(name, N_FRAMES, 30.0, seed)
-        assert np.all(mo.arm_intrusion(m.theta) == 0.0)
+        m = make_motion(name, N_FRAMES, 30.0, seed)
+        assert np.all(arm_intrusion(m.theta) == 0.0)
 
 
 # --------------------------------------------------------------------------------------
-# Seeds
+# Argument checks
 # --------------------------------------------------------------------------------------
-def test_seed_ranges_are_disjoint() -> None:
-    for (pa, a), (pb, b) in itertools.combinations(mo.SEED_RANGES.items(), 2):
-        assert a.stop <= b.start or b.stop <= a.start, (pa, pb)
-    for purpose, span in mo.SEED_RANGES.items():
-        first, last = mo.seed_for(purpose, 0), mo.seed_for(purpose, len(span) - 1)
-        assert (first, last) == (span.start, span.stop - 1)
-        assert mo.seed_purpose(first) == purpose and mo.seed_purpose(last) == purpose
-    assert mo.seed_purpose(42) is None
-
-
-@pytest.mark.parametrize(
-    ("purpose", "index"), [("train", -1), ("train", 10**9), ("validation", 0), ("test", 1.5)]
-)
-def test_seed_for_rejects_bad_arguments(purpose: str, index: object) -> None:
-    with pytest.raises(ValueError, match="seed_for"):
-        mo.seed_for(purpose, index)  # type: ignore[arg-type]
-
-
 def test_make_motion_rejects_bad_arguments() -> None:
     with pytest.raises(ValueError, match="unknown name"):
-        mo.make_motion("moonwalk", 10)
+        make_motion("moonwalk", 10)
     with pytest.raises(ValueError, match="n_frames"):
-        mo.make_motion("random", 0)
+        make_motion("random", 0)
     with pytest.raises(ValueError, match="fps"):
-        mo.make_motion("random", 10, fps=0.0)
+        make_motion("random", 10, fps=0.0)
     with pytest.raises(ValueError, match="root_height"):
-        mo.make_motion("random", 10, root_height=-1.0)
+        make_motion("random", 10, root_height=-1.0)
     with pytest.raises(ValueError, match="seed"):
-        mo.make_motion("random", 10, seed=-3)
+        make_motion("random", 10, seed=-3)
 
 
 def test_motion_validates_its_arrays() -> None:
     with pytest.raises(ValueError, match="theta"):
-        mo.Motion(np.zeros((4, 36)), np.zeros((4, 3)), 60.0, "x")
+        Motion(np.zeros((4, 36)), np.zeros((4, 3)), 60.0, "x")
     with pytest.raises(ValueError, match="tau"):
-        mo.Motion(np.zeros((4, N_POSE)), np.zeros((3, 3)), 60.0, "x")
+        Motion(np.zeros((4, N_POSE)), np.zeros((3, 3)), 60.0, "x")
     with pytest.raises(ValueError, match="fps"):
-        mo.Motion(np.zeros((4, N_POSE)), np.zeros((4, 3)), 0.0, "x")
-    m = mo.Motion(np.zeros((4, N_POSE)), np.zeros((4, 3)), 60.0, "x")
+        Motion(np.zeros((4, N_POSE)), np.zeros((4, 3)), 0.0, "x")
+    m = Motion(np.zeros((4, N_POSE)), np.zeros((4, 3)), 60.0, "x")
     assert not m.theta.flags.writeable
     assert len(m[1:3]) == 2
 
 
 # --------------------------------------------------------------------------------------
-# Pose prior
+# Grounding on the body model
 # --------------------------------------------------------------------------------------
-def test_sample_pose_prior_draws_plausible_independent_poses() -> None:
-    limits = mo.default_limits()
-    rng = np.random.default_rng(mo.seed_for("test", 5))
-    poses = mo.sample_pose_prior(rng, 120, limits)
-    assert poses.shape == (120, N_POSE)
-    assert np.all(limits.contains(poses))
-    again = mo.sample_pose_prior(np.random.default_rng(mo.seed_for("test", 5)), 120, limits)
-    assert np.array_equal(poses, again)
-    counts, _ = np.histogram(poses[:, mo.YAW], bins=4, range=(-np.pi, np.pi))
-    assert np.all(counts > 10)
-    assert len(np.unique(poses[:, 3:], axis=0)) == 120
-    assert mo.sample_pose_prior(rng, 0).shape == (0, N_POSE)
-
-
-# --------------------------------------------------------------------------------------
-# Body model: defaults and grounding
-# --------------------------------------------------------------------------------------
-def test_defaults_match_the_committed_model(model: BodyModel) -> None:
-    default, actual = mo.RestPoseInfo.default(), mo.RestPoseInfo.from_model(model)
-    for field in ("joints", "hinge_axes", "soles", "tpose", "apose"):
-        assert np.allclose(getattr(default, field), getattr(actual, field), atol=DEFAULTS_ATOL)
-    limits = mo.default_limits()
-    assert np.allclose(limits.lower, model.limits.lower, atol=1e-6)
-    assert np.allclose(limits.upper, model.limits.upper, atol=1e-6)
-
-
 def test_ground_motion_puts_the_lowest_point_on_the_floor(model: BodyModel) -> None:
     nu = np.zeros(model.n_shape)
-    m = mo.make_motion("mixed", 240, FPS, SEEDS[0])
-    grounded = mo.ground_motion(model, m, nu)
+    m = make_motion("mixed", 240, FPS, SEEDS[0])
+    grounded = ground_motion(model, m, nu)
     assert np.array_equal(grounded.theta, m.theta)
     assert np.allclose(grounded.tau[:, :2], m.tau[:, :2])
     assert np.abs(grounded.tau[:, 2] - m.tau[:, 2]).max() < PLACE_ROOT_ATOL
@@ -348,14 +310,3 @@ def test_ground_motion_puts_the_lowest_point_on_the_floor(model: BodyModel) -> N
     frames = np.arange(0, 240, 60)
     full = model.pose(BodyState(grounded.tau[frames], grounded.theta[frames], nu[None]))
     assert np.abs(full.vertices[..., 2].min(axis=1)).max() < GROUND_FULL_ATOL
-
-
-def test_place_root_for_independent_poses_centres_the_feet(model: BodyModel) -> None:
-    poses = mo.sample_pose_prior(np.random.default_rng(3), 24)
-    tau = mo.place_root(poses)
-    assert tau.shape == (24, 3)
-    assert np.all(tau[:, 2] > 0.5)
-    rest = mo.RestPoseInfo.from_model(model)
-    assert np.allclose(
-        mo.place_root(np.zeros((1, N_POSE)), rest=rest)[0, 2], rest.root_height, atol=0.005
-    )
