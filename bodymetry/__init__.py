@@ -1,8 +1,12 @@
 """bodymetry: body pose, shape and biometrics from synchronized multi-camera video.
 
-The pipeline stages live in the top-level packages ``capture``, ``calibration``,
-``estimation`` and ``review``; this package holds the command line and the small
-pieces every stage shares (file I/O, logging, errors).
+One import name for the whole project (docs/design.md): the stages are the
+subpackages ``bodymetry.calibration``, ``bodymetry.capture``,
+``bodymetry.estimation`` and ``bodymetry.review`` (installed from the top-level
+folders of the same names), the synthetic studio is ``bodymetry.studio``, and
+this folder holds the application (CLI, ``process``, configuration) and the
+small foundation every stage shares (errors, file I/O, logging, settings).
+Importing ``bodymetry`` loads nothing else, so any stage can read ``__version__``.
 """
 
 __version__ = "0.1.0"

@@ -35,6 +35,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from bodymetry.errors import InputError
@@ -178,7 +179,6 @@ def read_clip(path: str | Path, camera: str, max_frames: int = 60) -> np.ndarray
 
     Raises InputError naming the camera when the clip is missing or has no frame.
     """
-    import cv2
 
     path = Path(path)
     if not path.is_file():
@@ -257,7 +257,6 @@ class Subtractor:
             self._mog2 = self._train_mog2()
 
     def _train_mog2(self):
-        import cv2
 
         cfg = self.config
         mog = cv2.createBackgroundSubtractorMOG2(
@@ -275,7 +274,6 @@ class Subtractor:
 
     def _distortions(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """alpha, CD^2, |(I - E) / sigma|^2 (H, W) float32, channel planes for speed."""
-        import cv2
 
         if self._planes is None:
             inv = 1.0 / self.sigma

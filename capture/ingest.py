@@ -36,6 +36,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from bodymetry.capture.session import Session
@@ -145,7 +146,6 @@ class FrameSet:
 
 
 def _open(path: Path, camera: str):
-    import cv2
 
     if not path.is_file():
         raise InputError(f"camera {camera!r}: video not found: {path}")
@@ -166,7 +166,6 @@ def probe_video(path: str | Path, camera: str = "?", frame_offset: int = 0) -> V
     InputError
         Missing file, not openable, no decodable frame, or no frame rate.
     """
-    import cv2
 
     path = Path(path)
     cap = _open(path, camera)
@@ -266,7 +265,6 @@ class _CameraReader:
         self.ended_at: int | None = None  # first video frame that did not decode
 
     def read(self, video_frame: int) -> np.ndarray | None:
-        import cv2
 
         if self.ended_at is not None and video_frame >= self.ended_at:
             return None

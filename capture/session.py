@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import TYPE_CHECKING, Any
 
+import cv2
 import numpy as np
 
 from bodymetry.calibration.io import (
@@ -43,8 +44,6 @@ from bodymetry.errors import InputError
 from bodymetry.fileio import write_text_atomic
 
 if TYPE_CHECKING:
-    import cv2
-
     from bodymetry.calibration.camera import CameraGroup
 
 __all__ = [
@@ -142,7 +141,6 @@ class BoardSpec:
 
     def create_board(self) -> cv2.aruco.CharucoBoard:
         """The OpenCV board object, lengths in metres (object points in metres)."""
-        import cv2
 
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         board = cv2.aruco.CharucoBoard(self.squares, self.square_m, self.marker_m, dictionary)
@@ -375,7 +373,6 @@ def _board_from_data(fields: Fields, value: Any, field_name: str) -> BoardSpec:
         )
     dict_field = join_field(field_name, "dictionary")
     name = fields.string(board["dictionary"], dict_field)
-    import cv2
 
     known = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
     if name not in known:

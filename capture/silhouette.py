@@ -40,6 +40,8 @@ Flags per camera and frame (:data:`FLAGS`):
 from __future__ import annotations
 
 import logging
+import queue
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +53,7 @@ from bodymetry.capture.background import BackgroundModel, SubtractionConfig, Sub
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.session import Session
 from bodymetry.errors import InputError
+from bodymetry.fileio import write_bytes_atomic
 
 log = logging.getLogger(__name__)
 
@@ -404,8 +407,6 @@ def background_models(
 def _prefetch(items: Iterator, depth: int = 2) -> Iterator:
     """Iterate ``items`` in a background thread, ``depth`` ahead (decoding overlaps
     segmentation; both release the GIL). Exceptions are re-raised here."""
-    import queue
-    import threading
 
     q: queue.Queue = queue.Queue(maxsize=depth)
     done = object()
@@ -570,7 +571,6 @@ def overlay(
 def save_silhouette_frame(out: str | Path, sf: SilhouetteFrame, overlays: bool = True) -> None:
     """Write ``masks/<camera>/<frame:06d>.png`` (0 / 255) and, with ``overlays``,
     ``overlays/<camera>/<frame:06d>.jpg`` under ``out`` (atomically per file)."""
-    from bodymetry.fileio import write_bytes_atomic
 
     out = Path(out)
     for c, name in enumerate(sf.cameras):

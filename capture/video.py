@@ -7,9 +7,11 @@ frame seeks.
 
 from __future__ import annotations
 
+from fractions import Fraction
 from pathlib import Path
 from types import TracebackType
 
+import av
 import numpy as np
 
 from bodymetry.fileio import atomic_path
@@ -36,7 +38,6 @@ class H264Writer:
     """
 
     def __init__(self, path: str | Path, fps: float, size: tuple[int, int], crf: int = 23) -> None:
-        import av
 
         width, height = (int(s) for s in size)
         if width % 2 or height % 2 or width <= 0 or height <= 0:
@@ -48,7 +49,6 @@ class H264Writer:
         self._atomic = atomic_path(self.path)
         tmp = self._atomic.__enter__()
         self._container = av.open(str(tmp), mode="w", format="mp4")
-        from fractions import Fraction
 
         rate = Fraction(fps).limit_denominator(1001)
         self._stream = self._container.add_stream("libx264", rate=rate)
@@ -59,7 +59,6 @@ class H264Writer:
 
     def write(self, frame: np.ndarray) -> None:
         """Append one frame (H, W, 3) uint8 BGR."""
-        import av
 
         if frame.shape != (self.size[1], self.size[0], 3) or frame.dtype != np.uint8:
             raise ValueError(

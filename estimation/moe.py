@@ -26,6 +26,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 from scipy.cluster.vq import kmeans2
+from scipy.linalg import solve_triangular
 from scipy.special import logsumexp
 
 #: Covariance floors (priors), relative to the standardized data (unit variance).
@@ -173,7 +174,6 @@ def _gauss_logpdf_each(Y: np.ndarray, means: np.ndarray, covs: np.ndarray) -> np
 
 
 def _solve_lower(L: np.ndarray, B: np.ndarray) -> np.ndarray:
-    from scipy.linalg import solve_triangular
 
     return solve_triangular(L, B, lower=True, check_finite=False)
 

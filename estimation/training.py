@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import multiprocessing as mp
 import os
 import time
 from collections.abc import Callable
@@ -51,6 +52,11 @@ def default_cache_dir() -> Path:
     """``$BODYMETRY_CACHE`` or ``~/.cache/bodymetry``."""
     env = os.environ.get("BODYMETRY_CACHE")
     return Path(env) if env else Path.home() / ".cache" / "bodymetry"
+
+
+def cached_models_path(key: str, cache_dir: Path | None = None) -> Path:
+    """Where :func:`load_or_train` keeps the models of a rig key."""
+    return (cache_dir or default_cache_dir()) / "discriminative" / f"{key}.npz"
 
 
 @dataclass(frozen=True)
@@ -211,8 +217,6 @@ def _parallel_features(
             if progress:
                 progress(len(job[0]))
     else:
-        import multiprocessing as mp
-
         with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
             for job, res in zip(jobs, pool.map(_render_features, jobs), strict=True):
                 results.append(res)
@@ -481,7 +485,7 @@ def load_or_train(
     config = config or TrainConfig()
     cameras = list(cameras)
     key = rig_key(cameras, config)
-    path = (cache_dir or default_cache_dir()) / "discriminative" / f"{key}.npz"
+    path = cached_models_path(key, cache_dir)
     if path.exists():
         try:
             return DiscriminativeModels.load(path), True

@@ -51,7 +51,7 @@ from bodymetry.estimation.body_model.bake.rigging import (
     part_weights,
     segment_triangles,
 )
-from bodymetry.estimation.body_model.model import MODEL_FORMAT
+from bodymetry.estimation.body_model.model import MODEL_FORMAT, BodyModel, BodyState
 from bodymetry.estimation.body_model.rotations import (
     axis_rotation,
     matrix_to_axis_angle,
@@ -462,8 +462,6 @@ def validate(
     thetas : (P, 37) float
         Their joint angles.
     """
-    from bodymetry.estimation.body_model.model import BodyModel, BodyState
-
     report: dict = {}
     true_h = heldout[..., 2].max(axis=1) - heldout[..., 2].min(axis=1)
     for k in (9, 20):
