@@ -4,15 +4,21 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
+import sys
+from pathlib import Path
 
+import click
+import cv2
 import numpy as np
 import pytest
 import trimesh
 from click.testing import CliRunner, Result
 
 import bodymetry
-from bodymetry import cli
-from bodymetry.cli import main
+import bodymetry.cli.model as cli_model
+from bodymetry.capture.toy import write_toy_session
+from bodymetry.cli import COMMANDS, main
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS, measure
 from bodymetry.estimation.body_model.model import BodyModel
 
@@ -36,12 +42,12 @@ def model() -> BodyModel:
 @pytest.fixture()
 def cached_model(monkeypatch, model):
     """Serve the default model from memory (loading it costs ~0.4 s per command)."""
-    real = cli._load_model
+    real = cli_model._load_model
 
     def load(path, n_shape):
         return model if path is None and n_shape == model.n_shape else real(path, n_shape)
 
-    monkeypatch.setattr(cli, "_load_model", load)
+    monkeypatch.setattr(cli_model, "_load_model", load)
     return model
 
 
@@ -194,24 +200,102 @@ def test_export_unknown_pose_is_a_usage_error(tmp_path):
     assert "Traceback" not in result.output
 
 
-# --- demo -------------------------------------------------------------------------------------
+# --- silhouettes ----------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory) -> Path:
+    """2 cameras, 40 frames, every 10th kept, nobody in view at frame 20; with ground truth."""
+    folder = tmp_path_factory.mktemp("toy") / "s"
+    write_toy_session(folder, cameras=2, frames=40, frame_step=10, empty_frames=(20,), seed=1)
+    return folder
 
 
-def test_demo(cached_model, tmp_path):
-    out = tmp_path / "demo"
-    result = _run("demo", "--out", str(out))
+def test_silhouettes_json(toy: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    result = _run("silhouettes", str(toy), "--out", str(out), "--json")
     assert result.exit_code == 0, result.output
-    measurements = json.loads((out / "measurements.json").read_text(encoding="utf-8"))
-    assert len(measurements) == 5 and "mean" in measurements
-    for values in measurements.values():
-        assert set(values) == set(MEASUREMENTS)
-    mean = measure(cached_model, np.zeros(cached_model.n_shape))[0].to_dict()
-    assert measurements["mean"] == pytest.approx(mean, rel=1e-12)
-    meshes = sorted(out.glob("body_*.ply"))
-    assert len(meshes) == 5
-    assert sorted(p.name for p in out.iterdir()) == sorted(
-        ["measurements.json", *(p.name for p in meshes)]
+    data = json.loads(result.stdout)
+    assert data["frames"] == 4 and data["ground_truth"] is True
+    assert set(data["cameras"]) == {"cam_00", "cam_01"}
+    for entry in data["cameras"].values():
+        assert entry["frames"] == 4
+        assert entry["iou_mean"] > 0.85 and entry["iou_min"] > 0.85
+        assert "shadow_false_positive" in entry
+        assert entry["flags"] == {"empty": [20]}
+    assert (out / "masks" / "cam_01" / "000030.png").is_file()
+    assert (out / "overlays" / "cam_00" / "000000.jpg").is_file()
+    saved = json.loads((out / "silhouettes.json").read_text())
+    assert len(saved["per_frame"]) == 4
+    assert {k: v for k, v in saved.items() if k != "per_frame"} == data
+    mask = cv2.imread(str(out / "masks" / "cam_00" / "000010.png"), cv2.IMREAD_GRAYSCALE)
+    assert set(np.unique(mask)) <= {0, 255} and mask.shape == (120, 160)
+
+
+def test_silhouettes_table(toy: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    result = _run("silhouettes", str(toy), "--out", str(out), "--no-overlays")
+    assert result.exit_code == 0, result.output
+    assert "IoU mean" in result.stderr and "empty x1" in result.stderr
+    assert f"wrote masks and overlays to {out}/" in " ".join(result.stderr.split())
+    assert not (out / "overlays").exists()
+
+
+def test_silhouettes_missing_session_is_one_line_error(tmp_path: Path) -> None:
+    _assert_user_error(_run("silhouettes", str(tmp_path / "nope")), "not found")
+
+
+# --- the command group ----------------------------------------------------------------------------
+
+
+def test_help_lists_every_command():
+    result = _run("--help")
+    assert result.exit_code == 0, result.output
+    listed = re.findall(r"^  (\S+)  ", result.stdout.split("Commands:")[1], re.MULTILINE)
+    assert listed == sorted(COMMANDS)
+    assert "demo" not in COMMANDS
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_each_command_has_help(name):
+    result = _run(name, "--help")
+    assert result.exit_code == 0, result.output
+    assert result.stdout.startswith("Usage: ") and f" {name} [OPTIONS]" in result.stdout
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_registered_help_line_is_the_docstring(name):
+    """The group's list shows the registered line; it must say what the command says."""
+    command = main.get_command(click.Context(main), name)
+    assert command is not None and command.name == name
+    registered = click.Command(name, help=COMMANDS[name][1])
+    assert registered.get_short_help_str(1000) == command.get_short_help_str(1000)
+
+
+def test_model_subcommands_have_help():
+    for sub in ("bake", "info", "export"):
+        result = _run("model", sub, "--help")
+        assert result.exit_code == 0, result.output
+
+
+def test_top_level_help_imports_no_command_module():
+    """`bodymetry --help` stays fast: it lists the commands without importing them."""
+    code = (
+        "import sys\n"
+        "from bodymetry.cli import main\n"
+        "try:\n"
+        "    main(['--help'])\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "mods = [m for m in sys.modules if m.startswith('bodymetry.') or m == 'numpy']\n"
+        "print(' '.join(sorted(mods)), file=sys.stderr)\n"
     )
-    for path in meshes[:2]:
-        mesh = _load_mesh(path)
-        assert len(mesh.vertices) == 13380 and len(mesh.faces) == 26756
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    )
+    loaded = set(proc.stderr.split())
+    assert loaded <= {
+        "bodymetry.cli",
+        "bodymetry.errors",
+        "bodymetry.log",
+        "bodymetry.cli.common",
+        "bodymetry.cli.lazy",
+    }, loaded

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from click.testing import CliRunner
 
-from bodymetry import cli
+import bodymetry.cli.runs
 from bodymetry.cli import main
 
 
@@ -18,7 +18,7 @@ def launched(monkeypatch):
         calls.append(list(args))
         return 0
 
-    monkeypatch.setattr(cli, "_launch_viewer", fake)
+    monkeypatch.setattr(bodymetry.cli.runs, "_launch_viewer", fake)
     return calls
 
 

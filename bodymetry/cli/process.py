@@ -1,0 +1,130 @@
+"""``bodymetry process``: measure the person in a session (the whole pipeline)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+from rich.table import Table
+
+from bodymetry.cli.common import DEMO_SESSION, console, friendly_errors, labelled_progress
+from bodymetry.errors import InputError
+
+# The pipeline's entry point, imported in this one place (it may move between packages).
+from bodymetry.estimation.pipeline import ProcessConfig, process_session
+from bodymetry.review.run_data import (
+    MEASUREMENTS_CSV,
+    RECORDING_MCAP,
+    RECORDING_RRD,
+    REPORT_HTML,
+    REPORT_PDF,
+)
+
+__all__ = ["process"]
+
+
+@click.command()
+@click.argument("session", required=False, type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Run folder (default: runs/<session name>). An existing run resumes.",
+)
+@click.option(
+    "--quality",
+    type=click.Choice(["fast", "default", "best"]),
+    default="default",
+    show_default=True,
+    help="Particles, annealing layers and image scale.",
+)
+@click.option(
+    "--workers", default=None, type=int, help="Frames fitted in parallel (default: all cores)."
+)
+@click.option("--seed", default=0, show_default=True, type=int, help="Seeds the particle filter.")
+@click.option(
+    "--min-iou",
+    default=0.9,
+    show_default=True,
+    type=click.FloatRange(0.0, 1.0),
+    help="Frames whose fit overlaps the silhouettes less (mean IoU) are marked 'poor fit' "
+    "and left out of the summary.",
+)
+@click.option(
+    "--cache",
+    "cache_dir",
+    default=None,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Model cache folder (default: $BODYMETRY_CACHE or ~/.cache/bodymetry).",
+)
+@click.option(
+    "--no-review",
+    is_flag=True,
+    help="Skip the review outputs (recording.rrd, recording.mcap, report.html, measurements.csv).",
+)
+@click.option("--pdf", is_flag=True, help="Also write the report as report.pdf.")
+@friendly_errors
+def process(
+    session: Path | None,
+    out: Path | None,
+    quality: str,
+    workers: int | None,
+    seed: int,
+    min_iou: float,
+    cache_dir: Path | None,
+    no_review: bool,
+    pdf: bool,
+) -> None:
+    """Measure the person in SESSION (default: the demo recording): silhouettes,
+    discriminative estimate, generative refinement, biometrics per kept frame,
+    then the review outputs (docs/review.md)."""
+    if no_review and pdf:
+        raise InputError("--pdf: the report is part of the review; drop --no-review")
+    session = session or DEMO_SESSION
+    out = out or Path("runs") / session.resolve().name
+    with labelled_progress() as update:
+        results = process_session(
+            session,
+            out,
+            ProcessConfig(quality=quality, seed=seed, min_iou=min_iou),
+            workers=workers,
+            cache_dir=cache_dir,
+            progress=update,
+            review=not no_review,
+            pdf=pdf,
+        )
+    _print_summary(results)
+    console.print(f"wrote {out / 'results.json'} and frames/ (per-frame records)")
+    if not no_review:
+        _print_review_files(out)
+
+
+def _print_review_files(run: Path) -> None:
+    names = (RECORDING_RRD, RECORDING_MCAP, REPORT_HTML, REPORT_PDF, MEASUREMENTS_CSV)
+    written = [n for n in names if (run / n).is_file()]
+    if written:
+        console.print(f"review: {', '.join(written)} in {run}/ (open with `bodymetry view {run}`)")
+
+
+def _print_summary(results: dict) -> None:
+    frames = results["frames"]
+    failed = [f for f in frames if f.get("status") != "ok"]
+    name = results["session"]["name"]
+    table = Table(title=f"{name}: {len(frames) - len(failed)} of {len(frames)} frames fitted")
+    table.add_column("measurement")
+    truth = results.get("ground_truth")
+    if truth:
+        table.add_column("actual", justify="right")
+    for stage in ("discriminative", "generative"):
+        table.add_column(f"{stage} mean ± std", justify="right")
+    for key in ("height_mm", "arm_span_mm", "weight_kg", "chest_mm", "waist_mm", "hip_mm"):
+        row = [key]
+        if truth:
+            row.append(f"{truth[key]:.1f}")
+        for stage in ("discriminative", "generative"):
+            s = results["summary"][stage].get(key)
+            row.append("-" if not s or s["mean"] is None else f"{s['mean']:.1f} ± {s['std']:.1f}")
+        table.add_row(*row)
+    console.print(table)
+    for f in failed:
+        console.print(f"frame {f['frame']}: {f['status']}")

@@ -1,0 +1,122 @@
+"""``bodymetry view``, ``report`` and ``evaluate``: what to do with a processed run."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import click
+import rich.markup
+from rich.table import Table
+
+from bodymetry.cli.common import console, friendly_errors, labelled_progress
+from bodymetry.errors import InputError
+
+# The evaluation's entry point, imported in this one place (it may move between packages).
+from bodymetry.estimation.evaluation import evaluate_run
+from bodymetry.review.build import build_review
+from bodymetry.review.run_data import RECORDING_MCAP, RECORDING_RRD
+
+__all__ = ["evaluate", "report", "view"]
+
+
+def _launch_viewer(args: list[str]) -> int:
+    """Run the Rerun viewer (the ``rerun`` executable of the rerun-sdk package)."""
+    exe = Path(sys.executable).with_name("rerun")
+    rerun = str(exe) if exe.is_file() else shutil.which("rerun")
+    if rerun is None:
+        raise InputError("the Rerun viewer (`rerun`, from the rerun-sdk package) is not installed")
+    return subprocess.call([rerun, *args])
+
+
+@click.command()
+@click.argument("run", type=click.Path(path_type=Path))
+@click.option("--web", is_flag=True, help="Serve the web viewer (open the printed address).")
+@click.option("--mcap", "use_mcap", is_flag=True, help="Open recording.mcap instead of the .rrd.")
+@click.option(
+    "--port", default=None, type=click.IntRange(1, 65535), help="Web viewer port (with --web)."
+)
+@friendly_errors
+def view(run: Path, web: bool, use_mcap: bool, port: int | None) -> None:
+    """Open the recording of RUN (a run folder or a .rrd / .mcap file) in the Rerun viewer."""
+    path = run / (RECORDING_MCAP if use_mcap else RECORDING_RRD) if run.is_dir() else run
+    if not path.is_file():
+        hint = (
+            "run `bodymetry report` or `bodymetry process` (without --no-review) first"
+            if run.is_dir()
+            else "expected a run folder, a .rrd or a .mcap file"
+        )
+        raise InputError(f"{path}: not found; {hint}")
+    if path.suffix.lower() not in (".rrd", ".mcap"):
+        raise InputError(f"{path}: expected a .rrd or .mcap recording")
+    if port is not None and not web:
+        raise InputError("--port: only with --web")
+    args = [str(path)]
+    if web:
+        args.insert(0, "--web-viewer")
+        if port is not None:
+            args[1:1] = ["--web-viewer-port", str(port)]
+    rc = _launch_viewer(args)
+    if rc:
+        raise click.exceptions.Exit(rc)
+
+
+@click.command()
+@click.argument("run", type=click.Path(path_type=Path))
+@click.option("--pdf", is_flag=True, help="Also write report.pdf.")
+@click.option(
+    "--recordings",
+    is_flag=True,
+    help="Also rewrite recording.rrd and recording.mcap (reads every frame's images again).",
+)
+@friendly_errors
+def report(run: Path, pdf: bool, recordings: bool) -> None:
+    """Rebuild report.html and measurements.csv of RUN from its results.json (no refitting)."""
+    with labelled_progress() as update:
+        summary = build_review(run, recordings=recordings, pdf=pdf, progress=update)
+    for name, path in summary.files.items():
+        console.print(f"wrote {path}" if name != "csv" else f"wrote {path} (one row per frame)")
+    for name, why in summary.errors.items():
+        console.print(f"[bold red]{name} failed:[/] {rich.markup.escape(why)}", highlight=False)
+    if summary.errors:
+        sys.exit(1)
+
+
+@click.command()
+@click.argument("run", type=click.Path(file_okay=False, path_type=Path))
+@click.option(
+    "--workers", default=None, type=int, help="Frames fitted in parallel (default: all cores)."
+)
+@click.option(
+    "--json", "as_json", is_flag=True, help="Print one JSON object (also in RUN/evaluation.json)."
+)
+@friendly_errors
+def evaluate(run: Path, workers: int | None, as_json: bool) -> None:
+    """The paper's Figure 3 for a processed session with ground truth (RUN/evaluation.json)."""
+    with labelled_progress() as update:
+        ev = evaluate_run(run, workers=workers, progress=update)
+    if as_json:
+        click.echo(json.dumps(ev))
+        return
+    table = Table(title=f"{ev['session']} ({ev['frames']} frames): Figure 3")
+    table.add_column("biometric")
+    table.add_column("actual", justify="right")
+    for col in ("discriminative", "disc. + generative", "GT + generative"):
+        table.add_column(f"{col} mean", justify="right")
+        table.add_column("std", justify="right")
+    for key, row in ev["table"].items():
+        cells = [key, f"{row['actual']:.1f}"]
+        for col in ("discriminative", "disc_generative", "gt_generative"):
+            cells += [f"{row[col]['mean']:.1f}", f"{row[col]['std']:.1f}"]
+        table.add_row(*cells)
+    console.print(table)
+    m = ev["mpjpe_mm"]
+    console.print(
+        f"MPJPE: discriminative {m['discriminative']:.0f} mm, "
+        f"disc. + generative {m['disc_generative']:.0f} mm, "
+        f"GT + generative {m['gt_generative']:.0f} mm; "
+        f"silhouette IoU of the fit {ev['silhouette_iou_mean']:.3f}"
+    )

@@ -1,0 +1,91 @@
+"""``bodymetry train``: the discriminative models for a camera rig."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+from rich.table import Table
+
+from bodymetry.calibration.camera import CameraGroup
+from bodymetry.calibration.io import load_calibration
+from bodymetry.capture.session import load_session
+from bodymetry.cli.common import console, friendly_errors, labelled_progress
+from bodymetry.errors import InputError
+from bodymetry.estimation.training import TrainConfig, default_cache_dir, load_or_train, rig_key
+
+__all__ = ["cameras_from", "train"]
+
+
+def cameras_from(path: Path) -> CameraGroup:
+    """A CameraGroup from a session folder, a session.yaml or a calibration.yaml."""
+    if path.is_dir() or path.name == "session.yaml":
+        return load_session(path).calibration()
+    if path.suffix.lower() in (".yaml", ".yml"):
+        return load_calibration(path)
+    raise InputError(f"{path}: expected a session folder, session.yaml or calibration.yaml")
+
+
+@click.command()
+@click.argument("source", type=click.Path(exists=True, path_type=Path))
+@click.option(
+    "--n-train", default=3000, show_default=True, type=int, help="Training examples (paper: 3000)."
+)
+@click.option(
+    "--n-test", default=597, show_default=True, type=int, help="Test examples (paper: 597)."
+)
+@click.option("--seed", default=0, show_default=True, type=int, help="Seeds the training draws.")
+@click.option("--workers", default=None, type=int, help="Worker processes (default: all cores).")
+@click.option(
+    "--cache",
+    "cache_dir",
+    default=None,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Model cache folder (default: $BODYMETRY_CACHE or ~/.cache/bodymetry).",
+)
+@click.option("--retrain", is_flag=True, help="Train even if a cached model fits the rig.")
+@click.option(
+    "--json", "as_json", is_flag=True, help="Print one JSON object with the test-set figures."
+)
+@friendly_errors
+def train(
+    source: Path,
+    n_train: int,
+    n_test: int,
+    seed: int,
+    workers: int | None,
+    cache_dir: Path | None,
+    retrain: bool,
+    as_json: bool,
+) -> None:
+    """Train the discriminative models for the rig of SOURCE (a session or calibration.yaml)."""
+    cameras = cameras_from(source)
+    config = TrainConfig(n_train=n_train, n_test=n_test, seed=seed)
+    cache = cache_dir or default_cache_dir()
+    if retrain:
+        stale = cache / "discriminative" / f"{rig_key(list(cameras), config)}.npz"
+        stale.unlink(missing_ok=True)
+    with labelled_progress() as update:
+        models, reused = load_or_train(cameras, config, cache, workers=workers, progress=update)
+    metrics = {k: v for k, v in models.metrics.items() if k not in ("selection",)}
+    metrics["reused_cache"] = reused
+    metrics["cache_key"] = models.key
+    if as_json:
+        click.echo(json.dumps(metrics))
+        return
+    table = Table(title=f"discriminative models for {source} ({'cached' if reused else 'trained'})")
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    for key in (
+        "shape_rdf_improvement_over_mean",
+        "shape_sc_improvement_over_mean",
+        "pose_mean_angle_error_deg",
+        "position_error_mm",
+        "mpjpe_mm",
+        "train_seconds",
+    ):
+        table.add_row(key, f"{metrics[key]:.3f}")
+    for name, choice in metrics["chosen"].items():
+        table.add_row(f"chosen {name}", f"M={choice['M']}, λ={choice['lambda']:g}")
+    console.print(table)
