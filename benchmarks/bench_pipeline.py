@@ -29,6 +29,10 @@ from pathlib import Path
 import numpy as np
 
 from bodymetry.cli import DEMO_SESSION
+from bodymetry.config import ProcessConfig
+from bodymetry.process import process_session
+from bodymetry.review.evaluation import evaluate_run
+from bodymetry.studio.synth import SubjectSpec, SynthConfig, synthesize
 
 #: The three extra studio sessions: (seed, motion). Rig of the demo (seed 5).
 SESSIONS = ((11, "walk_turn"), (12, "arm_raises"), (13, "reach"))
@@ -43,8 +47,6 @@ TARGETS = {
 
 
 def _render(folder: Path, seed: int, motion: str) -> Path:
-    from bodymetry.studio.synth import SubjectSpec, SynthConfig, synthesize
-
     config = SynthConfig(
         frames=FRAMES,
         seed=seed,
@@ -59,20 +61,17 @@ def _render(folder: Path, seed: int, motion: str) -> Path:
 
 def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) -> dict:
     """Process and evaluate one session; the figures of this benchmark."""
-    from bodymetry.estimation.evaluation import evaluate_run
-    from bodymetry.estimation.pipeline import process_session
-
     workers = os.cpu_count() or 1
     t0 = time.perf_counter()
-    results = process_session(session, run, workers=workers, cache_dir=cache_dir)
+    results = process_session(session, run, ProcessConfig(workers=workers, cache_dir=cache_dir))
     t_process = time.perf_counter() - t0
     t0 = time.perf_counter()
     ev = evaluate_run(run, workers=workers)
     t_eval = time.perf_counter() - t0
-    frames = results["frames"]
-    fitted = [f for f in frames if "seconds" in f]
+    frames = results.frames
+    fitted = [f for f in frames if f.fitted]
     per_frame = {
-        k: round(float(np.mean([f["seconds"][k] for f in fitted])), 2)
+        k: round(float(np.mean([f.seconds[k] for f in fitted])), 2)
         for k in ("discriminative", "annealing", "refinement", "total")
     }
     table = ev["table"]
@@ -88,19 +87,19 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
             "pass_std": row["disc_generative"]["std"] <= target["std"],
             "generative_better": abs(err) < abs(row["discriminative"]["mean"] - row["actual"]),
         }
-    fitting = results["timing_seconds"]["fitting"]
+    fitting = results.timing_seconds["fitting"]
     return {
         "session": str(session),
         "kept_frames": len(frames),
         "frames_in_summary": ev["frames"],
-        "left_out": {str(f["frame"]): f["status"] for f in frames if f["status"] != "ok"},
+        "left_out": {str(f.frame): f.status for f in frames if not f.ok},
         "figure3": table,
         "mpjpe_mm": ev["mpjpe_mm"],
         "silhouette_iou_mean": round(ev["silhouette_iou_mean"], 4),
         "checks": checks,
-        "models_reused": results["config"]["models_reused"],
+        "models_reused": results.config["models_reused"],
         "timing_seconds": {
-            **results["timing_seconds"],
+            **results.timing_seconds,
             "process_wall_with_review": round(t_process, 1),
             "evaluate_wall": round(t_eval, 1),
             "per_frame_mean": per_frame,

@@ -148,7 +148,9 @@ def _replace_path(obj: Any, path: list[str], value: Any, where: str) -> Any:
     names = [f.name for f in dataclasses.fields(obj)]
     head = path[0]
     if head not in names:
-        raise InputError(f"{where}: unknown setting {head!r}; expected one of {', '.join(names)}")
+        raise InputError(
+            f"{where or 'config'}: unknown setting {head!r}; expected one of {', '.join(names)}"
+        )
     hint = _field_types(type(obj))[head]
     current = getattr(obj, head)
     if len(path) == 1:

@@ -71,17 +71,19 @@ class AnnealingConfig:
     sigma_px: float = 1.0
     min_std: tuple[float, float, float] = (0.005, 0.01, 0.02)
 
-    @classmethod
-    def preset(cls, quality: str) -> AnnealingConfig:
-        """``fast``, ``default`` or ``best``."""
-        presets = {
-            "fast": cls(n_particles=60, n_layers=6, image_scale=0.25),
-            "default": cls(),
-            "best": cls(n_particles=200, n_layers=20, image_scale=0.5),
-        }
-        if quality not in presets:
-            raise ValueError(f"quality: expected one of {sorted(presets)}, got {quality!r}")
-        return presets[quality]
+    def __post_init__(self) -> None:
+        for name in ("n_particles", "n_layers"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
+        if not 0 < self.image_scale <= 1:
+            raise ValueError(f"image_scale: expected in (0, 1], got {self.image_scale}")
+        if not 0 < self.target_ess < 1:
+            raise ValueError(f"target_ess: expected in (0, 1), got {self.target_ess}")
+        for name in ("bandwidth", "shrink", "sigma_px"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name}: expected > 0, got {getattr(self, name)}")
+        if len(self.min_std) != 3 or min(self.min_std) < 0:
+            raise ValueError(f"min_std: expected 3 values >= 0, got {self.min_std}")
 
 
 @dataclass

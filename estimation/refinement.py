@@ -66,7 +66,7 @@ class RefineConfig:
         Stop when a step lowers the cost by less than this fraction.
     screen_iterations : int
         Steps given to each candidate start before the best one is refined
-        further (:func:`estimation.pipeline.polish`).
+        further (:func:`bodymetry.estimation.fit.polish`).
     full_mesh : bool
         Measure the residuals on the full-resolution mesh (its occluding
         contour), with the Jacobian of the level of detail mapped onto it
@@ -95,17 +95,22 @@ class RefineConfig:
     full_mesh: bool = True
     visibility_scale: float = 1.0
 
-    @classmethod
-    def preset(cls, quality: str) -> RefineConfig:
-        """``fast``, ``default`` or ``best``."""
-        presets = {
-            "fast": cls(iterations=10, screen_iterations=3),
-            "default": cls(),
-            "best": cls(iterations=40, screen_iterations=8, image_scale=1.0, max_points=800),
-        }
-        if quality not in presets:
-            raise ValueError(f"quality: expected one of {sorted(presets)}, got {quality!r}")
-        return presets[quality]
+    def __post_init__(self) -> None:
+        for name in ("iterations", "screen_iterations"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}: expected >= 0, got {getattr(self, name)}")
+        if self.max_points < 3:
+            raise ValueError(f"max_points: expected >= 3, got {self.max_points}")
+        for name in ("image_scale", "visibility_scale"):
+            if not 0 < getattr(self, name) <= 1:
+                raise ValueError(f"{name}: expected in (0, 1], got {getattr(self, name)}")
+        for name in ("huber_px", "tolerance"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name}: expected > 0, got {getattr(self, name)}")
+        if self.shape_prior < 0:
+            raise ValueError(f"shape_prior: expected >= 0, got {self.shape_prior}")
+        if len(self.steps) != 3 or min(self.steps) <= 0:
+            raise ValueError(f"steps: expected 3 values > 0, got {self.steps}")
 
 
 @dataclass(frozen=True)

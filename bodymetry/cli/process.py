@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
 from rich.table import Table
 
 from bodymetry.cli.common import DEMO_SESSION, console, friendly_errors, labelled_progress
+from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
-
-# The pipeline's entry point, imported in this one place (it may move between packages).
-from bodymetry.estimation.pipeline import ProcessConfig, process_session
+from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, RunResults
+from bodymetry.process import process_session
 from bodymetry.review.run_data import (
     MEASUREMENTS_CSV,
     RECORDING_MCAP,
@@ -63,6 +64,20 @@ __all__ = ["process"]
     help="Skip the review outputs (recording.rrd, recording.mcap, report.html, measurements.csv).",
 )
 @click.option("--pdf", is_flag=True, help="Also write the report as report.pdf.")
+@click.option(
+    "--set",
+    "overrides",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Override any setting of the run's config (repeatable), e.g. "
+    "--set annealing.n_particles=120, --set refinement.iterations=20, "
+    "--set training.n_train=1000, --set density=1010 (docs/outputs.md lists them).",
+)
+@click.option(
+    "--show-config",
+    is_flag=True,
+    help="Print the resulting config as JSON and exit (nothing is run).",
+)
 @friendly_errors
 def process(
     session: Path | None,
@@ -74,28 +89,27 @@ def process(
     cache_dir: Path | None,
     no_review: bool,
     pdf: bool,
+    overrides: tuple[str, ...],
+    show_config: bool,
 ) -> None:
     """Measure the person in SESSION (default: the demo recording): silhouettes,
     discriminative estimate, generative refinement, biometrics per kept frame,
     then the review outputs (docs/review.md)."""
     if no_review and pdf:
         raise InputError("--pdf: the report is part of the review; drop --no-review")
+    config = ProcessConfig.preset(
+        quality, workers=workers, cache_dir=cache_dir, review=not no_review, pdf=pdf
+    ).with_overrides([f"seed={seed}", f"min_iou={min_iou}", *overrides])
+    if show_config:
+        click.echo(json.dumps(config.to_json(), indent=2))
+        return
     session = session or DEMO_SESSION
     out = out or Path("runs") / session.resolve().name
     with labelled_progress() as update:
-        results = process_session(
-            session,
-            out,
-            ProcessConfig(quality=quality, seed=seed, min_iou=min_iou),
-            workers=workers,
-            cache_dir=cache_dir,
-            progress=update,
-            review=not no_review,
-            pdf=pdf,
-        )
+        results = process_session(session, out, config, progress=update)
     _print_summary(results)
     console.print(f"wrote {out / 'results.json'} and frames/ (per-frame records)")
-    if not no_review:
+    if config.review:
         _print_review_files(out)
 
 
@@ -106,25 +120,25 @@ def _print_review_files(run: Path) -> None:
         console.print(f"review: {', '.join(written)} in {run}/ (open with `bodymetry view {run}`)")
 
 
-def _print_summary(results: dict) -> None:
-    frames = results["frames"]
-    failed = [f for f in frames if f.get("status") != "ok"]
-    name = results["session"]["name"]
+def _print_summary(results: RunResults) -> None:
+    frames = results.frames
+    failed = [f for f in frames if not f.ok]
+    name = results.session.name
     table = Table(title=f"{name}: {len(frames) - len(failed)} of {len(frames)} frames fitted")
     table.add_column("measurement")
-    truth = results.get("ground_truth")
+    truth = results.ground_truth
     if truth:
         table.add_column("actual", justify="right")
-    for stage in ("discriminative", "generative"):
+    for stage in STAGES:
         table.add_column(f"{stage} mean ± std", justify="right")
-    for key in ("height_mm", "arm_span_mm", "weight_kg", "chest_mm", "waist_mm", "hip_mm"):
+    for key in (*CORE_MEASUREMENTS, "chest_mm", "waist_mm", "hip_mm"):
         row = [key]
         if truth:
-            row.append(f"{truth[key]:.1f}")
-        for stage in ("discriminative", "generative"):
-            s = results["summary"][stage].get(key)
-            row.append("-" if not s or s["mean"] is None else f"{s['mean']:.1f} ± {s['std']:.1f}")
+            row.append(f"{truth[key]:.1f}" if key in truth else "-")
+        for stage in STAGES:
+            s = results.summary.get(stage, {}).get(key)
+            row.append("-" if s is None or s.mean is None else f"{s.mean:.1f} ± {s.std:.1f}")
         table.add_row(*row)
     console.print(table)
     for f in failed:
-        console.print(f"frame {f['frame']}: {f['status']}")
+        console.print(f"frame {f.frame}: {f.status}")

@@ -14,10 +14,10 @@ from rich.table import Table
 
 from bodymetry.cli.common import console, friendly_errors, labelled_progress
 from bodymetry.errors import InputError
+from bodymetry.review.build import build_review
 
 # The evaluation's entry point, imported in this one place (it may move between packages).
-from bodymetry.estimation.evaluation import evaluate_run
-from bodymetry.review.build import build_review
+from bodymetry.review.evaluation import evaluate_run
 from bodymetry.review.run_data import RECORDING_MCAP, RECORDING_RRD
 
 __all__ = ["evaluate", "report", "view"]

@@ -136,7 +136,8 @@ def test_annealing_needs_a_silhouette(setup):
         )
 
 
-def test_presets():
-    assert AnnealingConfig.preset("fast").n_particles < AnnealingConfig.preset("best").n_particles
-    with pytest.raises(ValueError, match="quality"):
-        AnnealingConfig.preset("ultra")
+def test_annealing_config_validates_its_fields():
+    with pytest.raises(ValueError, match="n_particles"):
+        AnnealingConfig(n_particles=0)
+    with pytest.raises(ValueError, match="target_ess"):
+        AnnealingConfig(target_ess=1.5)

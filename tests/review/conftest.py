@@ -2,7 +2,7 @@
 
 A 2-camera 240x180 studio session (3 kept frames) fitted with tiny
 discriminative models and the ``fast`` annealing preset, as in
-tests/estimation/test_pipeline.py; ``process_session`` writes the review
+tests/bodymetry/test_process.py; ``process_session`` writes the review
 outputs at its end, so the fixture also exercises that wiring.
 """
 
@@ -15,7 +15,9 @@ import pytest
 from tiny_run import TINY_TRAIN, tiny_session
 
 from bodymetry.capture.session import Session
-from bodymetry.estimation.pipeline import ProcessConfig, process_session
+from bodymetry.config import ProcessConfig
+from bodymetry.estimation.records import RunResults
+from bodymetry.process import process_session
 
 
 @dataclass(frozen=True)
@@ -24,7 +26,7 @@ class ReviewRun:
 
     session: Session
     folder: Path
-    results: dict
+    results: RunResults
     progress: list[tuple[str, int, int]]
 
 
@@ -36,11 +38,9 @@ def review_run(tmp_path_factory) -> ReviewRun:
     results = process_session(
         session.folder,
         base / "run",
-        ProcessConfig(quality="fast"),
-        workers=1,
-        cache_dir=base / "cache",
+        ProcessConfig.preset(
+            "fast", training=TINY_TRAIN, workers=1, cache_dir=base / "cache", pdf=True
+        ),
         progress=lambda label, done, total: calls.append((label, done, total)),
-        train_config=TINY_TRAIN,
-        pdf=True,
     )
     return ReviewRun(session, base / "run", results, calls)

@@ -1,0 +1,95 @@
+"""``ProcessConfig``: everything ``bodymetry process`` does, in one validated tree.
+
+The quality presets (:data:`bodymetry.estimation.fit.PRESETS`) set the fit's
+annealing and refinement; any field can then be overridden from the command
+line with ``--set KEY=VALUE`` (e.g. ``--set annealing.n_particles=120``,
+``--set training.n_train=500``, ``--set workers=2``). The whole tree is
+recorded in ``results.json`` (``config``), so a run says exactly how it was
+made, and ``evaluate`` refits with the same settings.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from bodymetry.errors import InputError
+from bodymetry.estimation.fit import PRESETS, FitConfig
+from bodymetry.estimation.training import TrainConfig, default_cache_dir
+from bodymetry.settings import apply_overrides, from_jsonable, to_jsonable
+
+__all__ = ["OVERRIDE_ALIASES", "ProcessConfig"]
+
+#: Short ``--set`` keys: the fit's settings without the ``fit.`` prefix.
+OVERRIDE_ALIASES: dict[str, str] = {f.name: f"fit.{f.name}" for f in fields(FitConfig)}
+
+
+@dataclass(frozen=True)
+class ProcessConfig:
+    """What ``bodymetry process`` does.
+
+    Attributes
+    ----------
+    quality : str
+        The preset the fit settings started from (``fast``, ``default``, ``best``).
+    fit : FitConfig
+        Per-frame fit: seed, density, quality gate, annealing, refinement.
+    training : TrainConfig
+        Discriminative training for a new rig (paper §6: 3000 + 597 examples).
+    workers : int or None
+        Worker processes (None: one per core).
+    cache_dir : Path or None
+        Trained models (None: ``$BODYMETRY_CACHE`` or ``~/.cache/bodymetry``).
+    review : bool
+        Write the review outputs (recording, MCAP, report) after the results.
+    pdf : bool
+        Also write ``report.pdf``.
+    """
+
+    quality: str = "default"
+    fit: FitConfig = field(default_factory=FitConfig)
+    training: TrainConfig = field(default_factory=TrainConfig)
+    workers: int | None = None
+    cache_dir: Path | None = None
+    review: bool = True
+    pdf: bool = False
+
+    def __post_init__(self) -> None:
+        if self.quality not in PRESETS:
+            raise InputError(f"quality: expected one of {', '.join(PRESETS)}, got {self.quality!r}")
+        if self.workers is not None and self.workers < 1:
+            raise InputError(f"workers: expected >= 1, got {self.workers}")
+        if self.pdf and not self.review:
+            raise InputError("pdf: a PDF report needs the review outputs (review=true)")
+
+    @classmethod
+    def preset(cls, quality: str = "default", **kwargs: Any) -> ProcessConfig:
+        """The config of a quality preset; ``kwargs`` set other top-level fields."""
+        if quality not in PRESETS:
+            raise InputError(f"quality: expected one of {', '.join(PRESETS)}, got {quality!r}")
+        fit = kwargs.pop("fit", None) or FitConfig.preset(quality)
+        return cls(quality=quality, fit=fit, **kwargs)
+
+    def with_overrides(self, overrides: Iterable[str]) -> ProcessConfig:
+        """A copy with ``KEY=VALUE`` overrides (``annealing.x`` means ``fit.annealing.x``)."""
+        return apply_overrides(self, overrides, OVERRIDE_ALIASES)
+
+    @property
+    def workers_or_cores(self) -> int:
+        return self.workers or os.cpu_count() or 1
+
+    @property
+    def models_cache(self) -> Path:
+        return self.cache_dir or default_cache_dir()
+
+    def to_json(self) -> dict[str, Any]:
+        return to_jsonable(self)
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], where: str = "config") -> ProcessConfig:
+        """Read a recorded config (``results.json``'s ``config`` without its extra keys)."""
+        known = {f.name for f in fields(cls)}
+        return from_jsonable(cls, {k: v for k, v in data.items() if k in known}, where)

@@ -1,0 +1,184 @@
+"""``bodymetry process``: from a session folder to a run folder of measurements.
+
+The application's workflow, stage by stage: the cameras (:mod:`bodymetry.cameras`),
+the discriminative models of the rig (trained once, cached), the silhouettes
+of every kept frame (capture), the per-frame fit in worker processes
+(:func:`bodymetry.estimation.fit.fit_frame`), the summary and the review
+outputs. Every finished frame is written to the run folder atomically, its
+arrays and mesh before its record (``frames/FFFFFF.json``, which marks it
+done), so a killed run resumes from the frames it finished. The layout and
+schema of the run folder are :mod:`bodymetry.estimation.records`
+(docs/outputs.md).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import logging
+import multiprocessing as mp
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+
+from bodymetry.calibration.camera import Camera
+from bodymetry.cameras import resolve_cameras
+from bodymetry.capture.session import Session, load_session
+from bodymetry.capture.silhouette import segment_session
+from bodymetry.config import ProcessConfig
+from bodymetry.estimation.fit import FitConfig, FrameFit, fit_frame, shared_body_model
+from bodymetry.estimation.records import (
+    FrameRecord,
+    RunLayout,
+    RunResults,
+    SessionInfo,
+    summarize,
+)
+from bodymetry.estimation.training import DiscriminativeModels, cached_models_path, load_or_train
+from bodymetry.fileio import save_npz, write_json_atomic
+from bodymetry.review.build import build_review
+from bodymetry.review.meshes import write_mesh
+
+log = logging.getLogger(__name__)
+
+__all__ = ["process_session"]
+
+Progress = Callable[[str, int, int], None]
+
+
+@functools.lru_cache(maxsize=2)
+def _discriminative(path: Path) -> DiscriminativeModels:
+    # Loaded once per worker process (a worker fits many frames).
+    return DiscriminativeModels.load(path)
+
+
+def _fit_worker(
+    args: tuple[int, np.ndarray, list[list[str]], list[Camera], Path, FitConfig],
+) -> FrameFit:
+    frame, masks, flags, cameras, models_path, config = args
+    return fit_frame(frame, masks, flags, cameras, _discriminative(models_path), config)
+
+
+def write_frame(layout: RunLayout, fit: FrameFit) -> None:
+    """Write a fitted frame: arrays and mesh first, then the record that marks it done."""
+    frame = fit.record.frame
+    save_npz(layout.frame_arrays(frame), fit.arrays.to_arrays())
+    if fit.state is not None:
+        body = shared_body_model()
+        vertices = body.pose(fit.state).vertices[0]
+        write_mesh(layout.frame_mesh(frame), vertices, body.faces(), body.full.arrays.parts)
+    write_json_atomic(layout.frame_record(frame), fit.record.to_json())
+
+
+def read_done_frames(layout: RunLayout) -> dict[int, FrameRecord]:
+    """The frames a previous run of this folder finished (a record and its arrays)."""
+    done = {}
+    for frame in layout.recorded_frames():
+        record = FrameRecord.read(layout.frame_record(frame))
+        if not layout.frame_arrays(frame).is_file():
+            log.warning("%s: frame %d has no arrays; fitting it again", layout.folder, frame)
+            continue
+        done[frame] = record
+    return done
+
+
+def _ground_truth(session: Session) -> dict | None:
+    gt = session.ground_truth_path
+    if gt is None or not (gt / "subject.json").is_file():
+        return None
+    return json.loads((gt / "subject.json").read_text())
+
+
+def process_session(
+    session_path: str | Path,
+    out: str | Path,
+    config: ProcessConfig | None = None,
+    progress: Progress | None = None,
+) -> RunResults:
+    """Run the whole pipeline on a session; writes ``out/results.json`` and returns it.
+
+    Parameters
+    ----------
+    session_path : path
+        A session folder (docs/session-format.md).
+    out : path
+        The run folder; frames already recorded there are not fitted again.
+    config : ProcessConfig, optional
+    progress : callable, optional
+        ``progress(label, done, total)`` for each stage.
+
+    The review outputs (``config.review``) are built after ``results.json`` is
+    written; a failure there is logged, never raised (the results are safe).
+    """
+    config = config or ProcessConfig()
+    session = load_session(session_path)
+    layout = RunLayout(Path(out))
+    layout.frames_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    resolved = resolve_cameras(session, layout.folder, progress)
+    cameras = resolved.cameras
+    models, reused = load_or_train(
+        cameras,
+        config.training,
+        config.cache_dir,
+        workers=config.workers,
+        progress=(lambda label, d, t: progress(f"training: {label}", d, t)) if progress else None,
+    )
+    t_train = time.perf_counter() - t0
+    models_path = cached_models_path(models.key, config.cache_dir)
+
+    done = read_done_frames(layout)
+    pending = []
+    t1 = time.perf_counter()
+    n_kept = 0
+    for sil in segment_session(session, keep_images=False):
+        n_kept += 1
+        if sil.frame not in done:
+            flags = [list(f) for f in sil.flags]
+            pending.append((sil.frame, sil.stack(), flags, cameras, models_path, config.fit))
+    t_sil = time.perf_counter() - t1
+    if progress:
+        progress("frames", len(done), n_kept)
+    t2 = time.perf_counter()
+    if pending:
+        # fork: workers inherit the loaded modules (the spawn start method re-imports).
+        ctx = mp.get_context("fork")
+        with ProcessPoolExecutor(config.workers_or_cores, mp_context=ctx) as pool:
+            futures = [pool.submit(_fit_worker, job) for job in pending]
+            for fut in as_completed(futures):
+                fit = fut.result()
+                write_frame(layout, fit)
+                done[fit.record.frame] = fit.record
+                if progress:
+                    progress("frames", len(done), n_kept)
+    records = tuple(done[f] for f in sorted(done))
+    results = RunResults(
+        session=SessionInfo(
+            path=str(Path(session_path).resolve()),
+            name=session.name,
+            cameras=tuple(session.camera_names),
+            fps=session.fps,
+            frame_step=session.frame_step,
+        ),
+        config={**config.to_json(), "models": models.key, "models_reused": reused},
+        frames=records,
+        summary=summarize(records),
+        timing_seconds={
+            "training": round(t_train, 1),
+            "silhouettes": round(t_sil, 1),
+            "fitting": round(time.perf_counter() - t2, 1),
+            "total": round(time.perf_counter() - t0, 1),
+        },
+        calibration_source=resolved.source,
+        ground_truth=_ground_truth(session),
+    )
+    write_json_atomic(layout.results, results.to_json())
+    if config.review:
+        try:
+            build_review(layout.folder, pdf=config.pdf, progress=progress)
+        except Exception:  # results.json is written; the review is extra
+            log.exception("%s: building the review outputs failed", layout.folder)
+    return results

@@ -1,0 +1,605 @@
+"""The run schema: what ``bodymetry process`` records, read by every consumer.
+
+One typed schema for a run folder (docs/outputs.md): the per-frame records
+(``frames/FFFFFF.json``), the arrays a fit leaves for review
+(``frames/FFFFFF.npz``: observed and model silhouettes, the last annealing
+layer) and ``results.json``. ``process`` writes it; ``evaluate``, the review
+outputs, the report and ``batch`` read it. JSON keeps the layout of earlier
+versions (a stage's measurements beside its ``state``), and ``results.json``
+carries a ``format`` number: an older file gets a clear error, not a
+``KeyError``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bodymetry.errors import InputError
+from bodymetry.estimation.body_model.model import BodyState
+from bodymetry.fileio import load_npz
+
+__all__ = [
+    "CORE_MEASUREMENTS",
+    "RESULTS_FORMAT",
+    "STAGES",
+    "AnnealingTrace",
+    "FrameArrays",
+    "FrameRecord",
+    "RefinementTrace",
+    "RunLayout",
+    "RunResults",
+    "SessionInfo",
+    "StageEstimate",
+    "Stat",
+    "read_json_object",
+    "summarize",
+]
+
+#: The fitting stages, in pipeline order, as keyed in the records.
+STAGES: tuple[str, ...] = ("discriminative", "generative")
+#: The three measurements of the paper's Figure 3.
+CORE_MEASUREMENTS: tuple[str, ...] = ("height_mm", "arm_span_mm", "weight_kg")
+#: Version of ``results.json`` written by this code (1: before the typed schema).
+RESULTS_FORMAT = 2
+#: Status of a frame that counts in the summary.
+OK = "ok"
+
+
+def read_json_object(path: Path) -> dict[str, Any]:
+    """A JSON object from a file; InputError naming the file when it is unreadable."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: not a readable JSON file ({exc})") from exc
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a JSON object, got {type(data).__name__}")
+    return data
+
+
+def _finite_or_none(x: float | None, digits: int) -> float | None:
+    # Strict JSON has no NaN: a non-finite value is written as null.
+    if x is None or not math.isfinite(x):
+        return None
+    return round(float(x), digits)
+
+
+@dataclass(frozen=True)
+class RunLayout:
+    """Where a run folder keeps each record (docs/outputs.md).
+
+    Attributes
+    ----------
+    folder : Path
+    """
+
+    folder: Path
+
+    @property
+    def results(self) -> Path:
+        return self.folder / "results.json"
+
+    @property
+    def frames_dir(self) -> Path:
+        return self.folder / "frames"
+
+    @property
+    def meshes_dir(self) -> Path:
+        return self.folder / "meshes"
+
+    @property
+    def calibration(self) -> Path:
+        """The cameras the run was fitted with (copied or solved into the run)."""
+        return self.folder / "calibration.yaml"
+
+    @property
+    def calibration_report(self) -> Path:
+        return self.folder / "calibration-report.json"
+
+    @property
+    def evaluation(self) -> Path:
+        return self.folder / "evaluation.json"
+
+    def frame_record(self, frame: int) -> Path:
+        return self.frames_dir / f"{frame:06d}.json"
+
+    def frame_arrays(self, frame: int) -> Path:
+        return self.frames_dir / f"{frame:06d}.npz"
+
+    def frame_mesh(self, frame: int) -> Path:
+        return self.meshes_dir / f"{frame:06d}.ply"
+
+    def recorded_frames(self) -> list[int]:
+        """Frames that have a record, in order."""
+        if not self.frames_dir.is_dir():
+            return []
+        return sorted(int(p.stem) for p in self.frames_dir.glob("*.json") if p.stem.isdigit())
+
+
+def _state_to_json(state: BodyState) -> dict[str, list[float]]:
+    return {
+        "tau": state.tau[0].tolist(),
+        "theta": state.theta[0].tolist(),
+        "nu": state.nu[0].tolist(),
+    }
+
+
+def _state_from_json(data: Mapping[str, Any], where: str) -> BodyState:
+    try:
+        return BodyState(
+            np.asarray(data["tau"], float)[None],
+            np.asarray(data["theta"], float)[None],
+            np.asarray(data["nu"], float)[None],
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{where}: not a body state ({exc})") from exc
+
+
+@dataclass(frozen=True)
+class StageEstimate:
+    """One stage's estimate for one frame.
+
+    Attributes
+    ----------
+    state : BodyState
+        Batch of one: τ (1, 3) m, θ (1, 37) rad, ν (1, n_shape).
+    biometrics : dict of str to float
+        Measurements of the canonical body (``MEASUREMENTS`` keys: mm, kg, l).
+    """
+
+    state: BodyState
+    biometrics: dict[str, float]
+
+    def vector(self) -> np.ndarray:
+        """``[τ, θ, ν]`` (40 + n_shape,) float."""
+        return self.state.vector()[0]
+
+    @property
+    def finite(self) -> bool:
+        return bool(np.all(np.isfinite(self.vector())))
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            **{k: _finite_or_none(v, 3) for k, v in self.biometrics.items()},
+            "state": _state_to_json(self.state),
+        }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any], where: str = "estimate") -> StageEstimate:
+        if not isinstance(data, Mapping) or "state" not in data:
+            raise InputError(f"{where}: expected measurements and a 'state'")
+        bio = {k: float("nan") if v is None else float(v) for k, v in data.items() if k != "state"}
+        return cls(_state_from_json(data["state"], f"{where}.state"), bio)
+
+
+@dataclass(frozen=True)
+class AnnealingTrace:
+    """What the annealed particle filter did on one frame.
+
+    Attributes
+    ----------
+    layer_log_likelihood : tuple of float
+        Weighted mean log-likelihood per layer.
+    layer_beta : tuple of float
+        Temperature per layer.
+    tau_std_m : (3,) tuple of float
+        Spread of the last layer's τ (m).
+    nu_std : tuple of float
+        Spread of the last layer's ν.
+    """
+
+    layer_log_likelihood: tuple[float, ...] = ()
+    layer_beta: tuple[float, ...] = ()
+    tau_std_m: tuple[float, ...] = ()
+    nu_std: tuple[float, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "layer_log_likelihood": [_finite_or_none(v, 4) for v in self.layer_log_likelihood],
+            "layer_beta": [_finite_or_none(v, 6) for v in self.layer_beta],
+            "particle_std": {
+                "tau_m": [_finite_or_none(v, 4) for v in self.tau_std_m],
+                "nu": [_finite_or_none(v, 4) for v in self.nu_std],
+            },
+        }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> AnnealingTrace:
+        std = data.get("particle_std", {})
+
+        def floats(values: Sequence[Any]) -> tuple[float, ...]:
+            return tuple(float("nan") if v is None else float(v) for v in values)
+
+        return cls(
+            floats(data.get("layer_log_likelihood", [])),
+            floats(data.get("layer_beta", [])),
+            floats(std.get("tau_m", [])),
+            floats(std.get("nu", [])),
+        )
+
+
+@dataclass(frozen=True)
+class RefinementTrace:
+    """What the contour refinement did on one frame.
+
+    Attributes
+    ----------
+    start : str
+        The candidate the refinement started from.
+    initial_cost_px2, cost_px2 : float
+        Contour cost (mean squared working pixels) before and after.
+    iterations : int
+    """
+
+    start: str
+    initial_cost_px2: float
+    cost_px2: float
+    iterations: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "start": self.start,
+            "initial_cost_px2": _finite_or_none(self.initial_cost_px2, 4),
+            "cost_px2": _finite_or_none(self.cost_px2, 4),
+            "iterations": int(self.iterations),
+        }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> RefinementTrace:
+        def num(key: str) -> float:
+            v = data.get(key)
+            return float("nan") if v is None else float(v)
+
+        return cls(
+            str(data.get("start", "")),
+            num("initial_cost_px2"),
+            num("cost_px2"),
+            int(data.get("iterations", 0)),
+        )
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One kept frame's outcome (``frames/FFFFFF.json``, an entry of ``results.json``).
+
+    Attributes
+    ----------
+    frame : int
+        Session frame.
+    status : str
+        ``"ok"`` (counts in the summary), ``"poor fit: ..."`` (fitted, numbers
+        kept, left out of the summary), or why there is no fit.
+    flags : dict of str to tuple of str
+        Silhouette flags per camera.
+    estimates : dict of str to StageEstimate
+        Per stage (:data:`STAGES`); empty when there is no fit.
+    silhouette_iou : dict of str to float
+        IoU of the fitted body's silhouette with the observed one, per camera.
+    annealing : AnnealingTrace or None
+    refinement : RefinementTrace or None
+    seconds : dict of str to float
+        Time per step.
+    """
+
+    frame: int
+    status: str
+    flags: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    estimates: dict[str, StageEstimate] = field(default_factory=dict)
+    silhouette_iou: dict[str, float] = field(default_factory=dict)
+    annealing: AnnealingTrace | None = None
+    refinement: RefinementTrace | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        """Whether the frame counts in the summary."""
+        return self.status == OK
+
+    def estimate(self, stage: str = "generative") -> StageEstimate | None:
+        """A stage's estimate, or None when the frame has none (or a non-finite one)."""
+        est = self.estimates.get(stage)
+        return est if est is not None and est.finite else None
+
+    @property
+    def fitted(self) -> bool:
+        """Whether the frame carries a fit (``ok`` or left out by a quality gate)."""
+        return self.estimate() is not None
+
+    @property
+    def mean_iou(self) -> float:
+        values = [v for v in self.silhouette_iou.values() if math.isfinite(v)]
+        return float(np.mean(values)) if values else float("nan")
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "frame": int(self.frame),
+            "status": self.status,
+            "flags": {k: list(v) for k, v in self.flags.items()},
+        }
+        for stage, est in self.estimates.items():
+            out[stage] = est.to_json()
+        if self.silhouette_iou:
+            out["silhouette_iou"] = {
+                k: _finite_or_none(v, 4) for k, v in self.silhouette_iou.items()
+            }
+        if self.annealing is not None:
+            out["annealing"] = self.annealing.to_json()
+        if self.refinement is not None:
+            out["refinement"] = self.refinement.to_json()
+        if self.seconds:
+            out["seconds"] = {k: round(float(v), 2) for k, v in self.seconds.items()}
+        return out
+
+    @classmethod
+    def from_json(cls, data: Any, where: str = "frame record") -> FrameRecord:
+        """Read a record; InputError naming ``where`` when it is not one."""
+        if not isinstance(data, Mapping) or "frame" not in data or "status" not in data:
+            raise InputError(f"{where}: not a frame record of `bodymetry process`")
+        try:
+            frame = int(data["frame"])
+            return cls(
+                frame=frame,
+                status=str(data["status"]),
+                flags={k: tuple(v) for k, v in data.get("flags", {}).items()},
+                estimates={
+                    s: StageEstimate.from_json(data[s], f"{where}: {s}")
+                    for s in STAGES
+                    if s in data
+                },
+                silhouette_iou={
+                    k: float("nan") if v is None else float(v)
+                    for k, v in data.get("silhouette_iou", {}).items()
+                },
+                annealing=AnnealingTrace.from_json(data["annealing"])
+                if "annealing" in data
+                else None,
+                refinement=RefinementTrace.from_json(data["refinement"])
+                if "refinement" in data
+                else None,
+                seconds={k: float(v) for k, v in data.get("seconds", {}).items()},
+            )
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise InputError(f"{where}: malformed frame record ({exc})") from exc
+
+    @classmethod
+    def read(cls, path: Path) -> FrameRecord:
+        """Read ``frames/FFFFFF.json``; InputError naming the file when it is unreadable."""
+        return cls.from_json(read_json_object(path), str(path))
+
+
+@dataclass(frozen=True)
+class FrameArrays:
+    """The arrays a fitted frame leaves for review (``frames/FFFFFF.npz``).
+
+    Every camera keeps its own image size, so masks are stored per camera.
+
+    Attributes
+    ----------
+    observed : dict of str to (H, W) bool
+        The silhouettes the fit saw, per camera.
+    model : dict of str to (H, W) bool
+        The fitted body's level of detail projected in each camera (the IoU's
+        model side); empty when there is no fit.
+    particles : (N, 40 + n_shape) float or None
+        The last annealing layer ``[τ, θ, ν]``.
+    weights : (N,) float or None
+    """
+
+    observed: dict[str, np.ndarray] = field(default_factory=dict)
+    model: dict[str, np.ndarray] = field(default_factory=dict)
+    particles: np.ndarray | None = None
+    weights: np.ndarray | None = None
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {}
+        for kind, masks in (("observed", self.observed), ("model", self.model)):
+            for name, mask in masks.items():
+                out[f"{kind}/{name}"] = np.asarray(mask, bool)
+        if self.particles is not None and self.weights is not None:
+            out["particles"] = np.asarray(self.particles, np.float32)
+            out["weights"] = np.asarray(self.weights, np.float32)
+        return out
+
+    @classmethod
+    def load(cls, path: Path) -> FrameArrays:
+        """Read ``frames/FFFFFF.npz``; InputError naming the file when it is unreadable."""
+        arrays = load_npz(path)
+        observed = {
+            k.split("/", 1)[1]: v.astype(bool)
+            for k, v in arrays.items()
+            if k.startswith("observed/")
+        }
+        model = {
+            k.split("/", 1)[1]: v.astype(bool) for k, v in arrays.items() if k.startswith("model/")
+        }
+        particles = arrays.get("particles")
+        weights = arrays.get("weights")
+        return cls(
+            observed,
+            model,
+            None if particles is None else np.asarray(particles, float),
+            None if weights is None else np.asarray(weights, float),
+        )
+
+
+@dataclass(frozen=True)
+class Stat:
+    """Mean, sample standard deviation and count of a measurement over frames."""
+
+    mean: float | None
+    std: float | None
+    n: int
+
+    @classmethod
+    def of(cls, values: Sequence[float]) -> Stat:
+        v = np.asarray([x for x in values if math.isfinite(x)], float)
+        if len(v) == 0:
+            return cls(None, None, 0)
+        return cls(float(v.mean()), float(v.std(ddof=1)) if len(v) > 1 else 0.0, len(v))
+
+    def to_json(self) -> dict[str, Any]:
+        return {"mean": self.mean, "std": self.std, "n": self.n}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Stat:
+        mean, std = data.get("mean"), data.get("std")
+        return cls(
+            None if mean is None else float(mean),
+            None if std is None else float(std),
+            int(data.get("n", 0)),
+        )
+
+
+def summarize(records: Sequence[FrameRecord]) -> dict[str, dict[str, Stat]]:
+    """Mean, std and n per stage and measurement over the frames with status ``ok``."""
+    ok = [r for r in records if r.ok]
+    out: dict[str, dict[str, Stat]] = {}
+    for stage in STAGES:
+        keys = list(ok[0].estimates[stage].biometrics) if ok else list(CORE_MEASUREMENTS)
+        out[stage] = {k: Stat.of([r.estimates[stage].biometrics[k] for r in ok]) for k in keys}
+    return out
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    """The session a run measured.
+
+    Attributes
+    ----------
+    path : str
+        The session folder (absolute, as processed).
+    name : str
+    cameras : tuple of str
+    fps : float
+    frame_step : int
+    """
+
+    path: str
+    name: str
+    cameras: tuple[str, ...]
+    fps: float
+    frame_step: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "path": self.path,
+            "name": self.name,
+            "cameras": list(self.cameras),
+            "fps": self.fps,
+            "frame_step": self.frame_step,
+        }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> SessionInfo:
+        return cls(
+            str(data.get("path", "")),
+            str(data.get("name", "")),
+            tuple(data.get("cameras", ())),
+            float(data.get("fps") or 25.0),
+            int(data.get("frame_step", 1)),
+        )
+
+
+@dataclass(frozen=True)
+class RunResults:
+    """``results.json``: a whole run.
+
+    Attributes
+    ----------
+    session : SessionInfo
+    config : dict
+        The settings the run used, as recorded (``ProcessConfig`` as JSON, plus
+        the discriminative models' cache key); read back by ``evaluate``.
+    frames : tuple of FrameRecord
+        Every kept frame, in frame order.
+    summary : dict of str to dict of str to Stat
+        Per stage and measurement, over the ``ok`` frames.
+    timing_seconds : dict of str to float
+    calibration_source : str
+        Where the run's cameras came from (a file, or "solved from the clips").
+    ground_truth : dict or None
+        The studio subject's true measurements, when the session has them.
+    """
+
+    session: SessionInfo
+    config: dict[str, Any]
+    frames: tuple[FrameRecord, ...]
+    summary: dict[str, dict[str, Stat]]
+    timing_seconds: dict[str, float] = field(default_factory=dict)
+    calibration_source: str = ""
+    ground_truth: dict[str, Any] | None = None
+
+    @property
+    def ok_frames(self) -> list[FrameRecord]:
+        return [r for r in self.frames if r.ok]
+
+    @property
+    def fitted_frames(self) -> list[FrameRecord]:
+        return [r for r in self.frames if r.fitted]
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "format": RESULTS_FORMAT,
+            "session": self.session.to_json(),
+            "config": self.config,
+            "calibration_source": self.calibration_source,
+            "frames": [r.to_json() for r in self.frames],
+            "summary": {
+                stage: {k: s.to_json() for k, s in stats.items()}
+                for stage, stats in self.summary.items()
+            },
+            "timing_seconds": self.timing_seconds,
+        }
+        if self.ground_truth is not None:
+            out["ground_truth"] = self.ground_truth
+        return out
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any], where: str = "results.json") -> RunResults:
+        """Read ``results.json`` content; InputError naming ``where`` for old or foreign files."""
+        fmt = data.get("format")
+        if fmt is None:
+            raise InputError(
+                f"{where}: written by an older bodymetry (no 'format' key); "
+                "run `bodymetry process` again to update it"
+            )
+        if fmt != RESULTS_FORMAT:
+            raise InputError(
+                f"{where}: results format {fmt!r}, this bodymetry reads format {RESULTS_FORMAT}"
+            )
+        if not isinstance(data.get("frames"), list) or not isinstance(data.get("session"), Mapping):
+            raise InputError(
+                f"{where}: no 'frames' list; not a results file of `bodymetry process`"
+            )
+        frames = tuple(
+            sorted(
+                (
+                    FrameRecord.from_json(f, f"{where}: frames[{i}]")
+                    for i, f in enumerate(data["frames"])
+                ),
+                key=lambda r: r.frame,
+            )
+        )
+        summary = {
+            stage: {k: Stat.from_json(v) for k, v in stats.items()}
+            for stage, stats in data.get("summary", {}).items()
+        }
+        return cls(
+            session=SessionInfo.from_json(data["session"]),
+            config=dict(data.get("config", {})),
+            frames=frames,
+            summary=summary,
+            timing_seconds=dict(data.get("timing_seconds", {})),
+            calibration_source=str(data.get("calibration_source", "")),
+            ground_truth=data.get("ground_truth"),
+        )
+
+    @classmethod
+    def read(cls, path: Path) -> RunResults:
+        return cls.from_json(read_json_object(path), str(path))

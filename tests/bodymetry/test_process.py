@@ -1,0 +1,228 @@
+"""End-to-end `process` on a tiny studio session: schema, failures, resume, evaluate."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import trimesh
+from tiny_run import TINY_TRAIN, tiny_session
+
+import bodymetry.cameras as cameras_module
+import bodymetry.process as process_module
+from bodymetry.capture.silhouette import segment_session
+from bodymetry.config import ProcessConfig
+from bodymetry.errors import InputError
+from bodymetry.estimation.fit import FitConfig, fit_frame
+from bodymetry.estimation.records import (
+    CORE_MEASUREMENTS,
+    STAGES,
+    FrameArrays,
+    FrameRecord,
+    RunResults,
+    summarize,
+)
+from bodymetry.estimation.training import DiscriminativeModels
+from bodymetry.review.evaluation import evaluate_run
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    base = tmp_path_factory.mktemp("pipeline")
+    session = tiny_session(base / "session", seed=2)
+    out = base / "run"
+    return session, out, _process(session, out, base), base
+
+
+def _config(base, **fit) -> ProcessConfig:
+    # The tiny models and 240x180 images fit less tightly than the real
+    # setting; the quality gate has its own test.
+    return ProcessConfig.preset(
+        "fast",
+        fit=FitConfig.preset("fast", min_iou=0.5, **fit),
+        training=TINY_TRAIN,
+        workers=1,
+        cache_dir=base / "cache",
+        review=False,
+    )
+
+
+def _process(session, out, base) -> RunResults:
+    return process_module.process_session(session.folder, out, _config(base))
+
+
+def _models(base) -> DiscriminativeModels:
+    return DiscriminativeModels.load(next((base / "cache" / "discriminative").glob("*.npz")))
+
+
+def test_results_schema(run):
+    _, out, results, _ = run
+    on_disk = json.loads((out / "results.json").read_text())
+    assert on_disk == results.to_json()
+    assert RunResults.from_json(on_disk).to_json() == on_disk  # round trip
+    assert on_disk["format"] == 2
+    assert [f.frame for f in results.frames] == [0, 2, 4]
+    for f in results.frames:
+        assert f.status == "ok", f.status
+        for stage in STAGES:
+            est = f.estimates[stage]
+            for key in CORE_MEASUREMENTS:
+                assert np.isfinite(est.biometrics[key])
+            assert est.state.theta.shape == (1, 37)
+        assert set(f.silhouette_iou) <= {"cam_00", "cam_01"}
+    for stage in STAGES:
+        assert results.summary[stage]["height_mm"].n == 3
+    assert 1300 < results.ground_truth["height_mm"] < 2200
+    # The recorded config is the one that ran, and reads back as a config.
+    again = ProcessConfig.from_json(on_disk["config"])
+    assert again.fit.annealing.n_particles == 60 and again.training == TINY_TRAIN
+
+
+def test_frame_artifacts(run):
+    """Every fitted frame leaves its mesh (PLY), silhouettes and last particles (npz)."""
+    _, out, results, _ = run
+    for f in results.frames:
+        mesh = trimesh.load(out / "meshes" / f"{f.frame:06d}.ply", process=False)
+        assert mesh.is_watertight
+        assert 1.0 < np.ptp(mesh.vertices[:, 2]) < 2.3
+        arrays = FrameArrays.load(out / "frames" / f"{f.frame:06d}.npz")
+        assert arrays.particles.shape[0] == arrays.weights.shape[0]
+        assert abs(float(arrays.weights.sum()) - 1.0) < 1e-4
+        assert set(arrays.observed) == set(arrays.model) == {"cam_00", "cam_01"}
+        for name, iou in f.silhouette_iou.items():
+            obs, model = arrays.observed[name], arrays.model[name]
+            assert obs.shape == model.shape == (180, 240)
+            recomputed = (obs & model).sum() / (obs | model).sum()
+            assert recomputed == pytest.approx(iou, abs=1e-6)
+
+
+def test_resume_does_not_refit(run, monkeypatch):
+    session, out, results, base = run
+
+    def boom(*args, **kwargs):
+        raise AssertionError("a finished frame was fitted again")
+
+    monkeypatch.setattr(process_module, "_fit_worker", boom)
+    again = _process(session, out, base)
+    assert again.summary == results.summary
+    assert again.config["models_reused"]
+
+
+def test_frame_without_silhouette_is_marked_and_excluded(run):
+    session, _, results, base = run
+    cams = list(session.calibration())
+    empty = np.zeros((2, 180, 240), bool)
+    fit = fit_frame(7, empty, [["empty"], ["empty"]], cams, _models(base), FitConfig.preset("fast"))
+    assert fit.record.status == "no silhouette in any camera"
+    assert fit.state is None and set(fit.arrays.observed) == {"cam_00", "cam_01"}
+    assert FrameRecord.from_json(fit.record.to_json()) == fit.record
+    summary = summarize([*results.frames, fit.record])
+    assert summary["generative"]["height_mm"].n == 3
+
+
+def test_poor_fit_is_marked_kept_and_excluded(run):
+    """Below the IoU gate a frame keeps its numbers but leaves the summary."""
+    session, _, results, base = run
+    sil = next(iter(segment_session(session, keep_images=False)))
+    cams = list(session.calibration())
+    flags = [list(f) for f in sil.flags]
+    strict = fit_frame(
+        sil.frame, sil.stack(), flags, cams, _models(base), FitConfig.preset("fast", min_iou=1.0)
+    ).record
+    assert strict.status.startswith("poor fit: mean silhouette IoU")
+    assert strict.fitted and not strict.ok
+    assert np.isfinite(strict.estimates["generative"].biometrics["height_mm"])
+    assert 0.5 < strict.mean_iou < 1.0
+    summary = summarize([*results.frames[1:], strict])
+    assert summary["generative"]["height_mm"].n == 2
+
+
+def test_refinement_improves_on_the_annealing(run):
+    """The contour refinement lowers its cost from where the annealing left off."""
+    _, _, results, _ = run
+    for f in results.frames:
+        r = f.refinement
+        assert r.cost_px2 <= r.initial_cost_px2
+        assert r.start in ("annealing mean", "best particle") or r.start.startswith(
+            "discriminative cam_"
+        )
+
+
+def test_unknown_quality_is_refused():
+    with pytest.raises(InputError, match="quality"):
+        ProcessConfig(quality="ultra")
+    with pytest.raises(ValueError, match="quality"):
+        FitConfig.preset("ultra")
+
+
+def test_session_calibration_is_recorded_in_the_run(run):
+    session, out, results, _ = run
+    assert (out / "calibration.yaml").read_bytes() == session.calibration_path.read_bytes()
+    assert results.calibration_source == str(session.calibration_path)
+
+
+def test_session_without_calibration_is_calibrated_from_its_clips(run, tmp_path, monkeypatch):
+    session = run[0]
+    truth = session.calibration()
+    uncalibrated = dataclasses.replace(session, calibration_file=None)
+    calls = []
+
+    class Solved:
+        cameras = truth
+
+        def __init__(self):
+            self.world = {"frame": "floor board"}
+
+        def report(self):
+            return {"rms_px": 0.2}
+
+        def quality(self):
+            return {}
+
+    def fake_calibrate(sess, **kwargs):
+        calls.append(sess.folder)
+        return Solved(), []
+
+    monkeypatch.setattr(cameras_module, "calibrate_session", fake_calibrate)
+    resolved = cameras_module.resolve_cameras(uncalibrated, tmp_path)
+    cams = resolved.cameras
+    assert [c.name for c in cams] == list(session.camera_names) and len(calls) == 1
+    assert resolved.source == cameras_module.SOLVED
+    assert (tmp_path / "calibration.yaml").is_file()
+    assert (tmp_path / "calibration-report.json").is_file()
+    # A resumed run reuses the solved file instead of solving again.
+    again = cameras_module.resolve_cameras(uncalibrated, tmp_path).cameras
+    assert len(calls) == 1
+    np.testing.assert_allclose(again[0].K, cams[0].K)
+
+
+def test_evaluate_writes_the_figure_3_table(run):
+    _, out, results, _ = run
+    ev = evaluate_run(out, workers=1)
+    assert json.loads((out / "evaluation.json").read_text()) == ev
+    assert ev["frames"] == 3 and ev["frames_failed"] == 0
+    for key in CORE_MEASUREMENTS:
+        row = ev["table"][key]
+        assert row["actual"] == results.ground_truth[key]
+        assert row["disc_generative"]["mean"] == pytest.approx(
+            results.summary["generative"][key].mean
+        )
+        assert row["gt_generative"]["n"] == 3
+    # Started from the true pose, the fit's joints are closer to the truth than the
+    # discriminative guess.
+    assert ev["mpjpe_mm"]["gt_generative"] < ev["mpjpe_mm"]["discriminative"]
+
+
+def test_evaluate_needs_a_run(tmp_path):
+    with pytest.raises(InputError, match=r"results\.json"):
+        evaluate_run(tmp_path)
+
+
+def test_old_results_get_a_clear_error(run, tmp_path):
+    _, out, _, _ = run
+    old = json.loads((out / "results.json").read_text())
+    del old["format"]
+    with pytest.raises(InputError, match="older bodymetry"):
+        RunResults.from_json(old, "results.json")
