@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.progress import BarColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 
 from bodymetry.calibration.session_calibration import (
@@ -15,7 +14,7 @@ from bodymetry.calibration.session_calibration import (
     write_calibration,
 )
 from bodymetry.capture.session import DEFAULT_CALIBRATION_FILE, load_session
-from bodymetry.cli.common import console, friendly_errors
+from bodymetry.cli.common import console, frames_progress, friendly_errors
 from bodymetry.errors import InputError
 
 __all__ = ["calibrate"]
@@ -58,13 +57,7 @@ def calibrate(
             f"{out} exists; pass --overwrite to replace it or --out to write elsewhere"
         )
     floor = parse_floor_frames(floor_frames, session.fps)
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        "{task.completed}/{task.total} frames",
-        TimeRemainingColumn(),
-        console=console,
-    ) as progress:
+    with frames_progress() as progress:
         tasks = {
             name: progress.add_task(f"detecting {name}", total=None)
             for name in session.camera_names

@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import click
 import rich.markup
 from rich.progress import BarColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
 
@@ -67,3 +68,25 @@ def labelled_progress() -> Iterator[Callable[[str, int, int], None]]:
             bar.update(tasks[label], completed=done, total=total)
 
         yield update
+
+
+#: ``--cache``: the trained-model cache folder (train and process share it).
+cache_option = click.option(
+    "--cache",
+    "cache_dir",
+    default=None,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Model cache folder (default: $BODYMETRY_CACHE or ~/.cache/bodymetry).",
+)
+
+
+def frames_progress(**kwargs: Any) -> Progress:
+    """A rich progress display counting frames (``kwargs`` go to ``Progress``)."""
+    return Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        "{task.completed}/{task.total} frames",
+        TimeRemainingColumn(),
+        console=console,
+        **kwargs,
+    )

@@ -8,7 +8,13 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from bodymetry.cli.common import DEMO_SESSION, console, friendly_errors, labelled_progress
+from bodymetry.cli.common import (
+    DEMO_SESSION,
+    cache_option,
+    console,
+    friendly_errors,
+    labelled_progress,
+)
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, RunResults
@@ -51,13 +57,7 @@ __all__ = ["process"]
     help="Frames whose fit overlaps the silhouettes less (mean IoU) are marked 'poor fit' "
     "and left out of the summary.",
 )
-@click.option(
-    "--cache",
-    "cache_dir",
-    default=None,
-    type=click.Path(file_okay=False, path_type=Path),
-    help="Model cache folder (default: $BODYMETRY_CACHE or ~/.cache/bodymetry).",
-)
+@cache_option
 @click.option(
     "--no-review",
     is_flag=True,

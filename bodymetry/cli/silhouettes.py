@@ -6,11 +6,10 @@ import json
 from pathlib import Path
 
 import click
-from rich.progress import BarColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 
 from bodymetry.capture.session import load_session
-from bodymetry.cli.common import console, friendly_errors
+from bodymetry.cli.common import console, frames_progress, friendly_errors
 from bodymetry.studio.evaluate import SilhouetteRun, segment_and_score
 
 __all__ = ["silhouettes"]
@@ -62,14 +61,7 @@ def silhouettes(
     session = load_session(session_dir)
     out = out or Path("runs") / session.name / "silhouettes"
     # One bar whose label follows the stage's step (background models, then silhouettes).
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        "{task.completed}/{task.total} frames",
-        TimeRemainingColumn(),
-        console=console,
-        disable=as_json and not console.is_terminal,
-    ) as progress:
+    with frames_progress(disable=as_json and not console.is_terminal) as progress:
         task = progress.add_task("background models", total=None)
 
         def update(label: str, done: int, total: int) -> None:

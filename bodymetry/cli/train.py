@@ -11,7 +11,7 @@ from rich.table import Table
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.session import load_session
-from bodymetry.cli.common import console, friendly_errors, labelled_progress
+from bodymetry.cli.common import cache_option, console, friendly_errors, labelled_progress
 from bodymetry.errors import InputError
 from bodymetry.estimation.training import TrainConfig, default_cache_dir, load_or_train, rig_key
 
@@ -37,13 +37,7 @@ def cameras_from(path: Path) -> CameraGroup:
 )
 @click.option("--seed", default=0, show_default=True, type=int, help="Seeds the training draws.")
 @click.option("--workers", default=None, type=int, help="Worker processes (default: all cores).")
-@click.option(
-    "--cache",
-    "cache_dir",
-    default=None,
-    type=click.Path(file_okay=False, path_type=Path),
-    help="Model cache folder (default: $BODYMETRY_CACHE or ~/.cache/bodymetry).",
-)
+@cache_option
 @click.option("--retrain", is_flag=True, help="Train even if a cached model fits the rig.")
 @click.option(
     "--json", "as_json", is_flag=True, help="Print one JSON object with the test-set figures."
