@@ -1,8 +1,10 @@
 """The review stage: every review output of a run in one pass over its frames.
 
-``build_review(RUN)`` reads ``RUN/results.json`` (and the session for images),
-then for every kept frame poses the fitted body, projects it into the cameras
-and writes the frame to ``recording.rrd`` and ``recording.mcap``; the report
+``build_review(RUN)`` reads the run folder (``results.json``, the cameras of
+``calibration.yaml``, the silhouettes and particles of ``frames/FFFFFF.npz``;
+the session's videos only for the camera images), then for every kept frame
+poses the fitted body and writes the frame to ``recording.rrd`` and
+``recording.mcap``; the report
 (``report.html``, ``measurements.csv``, optionally ``report.pdf``) reuses the
 overlays of a few frames from the same pass. ``bodymetry process`` calls it
 after ``results.json`` is written; a failure here never loses the results.
@@ -22,8 +24,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bodymetry.estimation.fit import shared_body_model
 from bodymetry.fileio import atomic_path
+from bodymetry.review.mcap_recording import McapWriter
 from bodymetry.review.report import OverlayRow, build_report, overlay_row, select_overlay_frames
+from bodymetry.review.rerun_recording import RerunWriter
 from bodymetry.review.run_data import RECORDING_MCAP, RECORDING_RRD, RunData, frame_views, load_run
 
 log = logging.getLogger(__name__)
@@ -101,10 +106,6 @@ def build_review(
     InputError
         When the run folder has no readable ``results.json``.
     """
-    from bodymetry.estimation.pipeline import shared_body_model
-    from bodymetry.review.mcap_recording import McapWriter
-    from bodymetry.review.rerun_recording import RerunWriter
-
     t0 = time.perf_counter()
     if not isinstance(run, RunData):
         run = load_run(run)

@@ -17,6 +17,7 @@ Topics (one message per kept frame unless said otherwise; cameras ``cam_NN``):
 ``/particles``                   ``foxglove.PointCloud``  particle root positions τ and
                                  weights (fitted frames with particles)
 ``/measurements``                JSON  the frame's record from ``results.json``
+                                 (without the body states)
 """
 
 from __future__ import annotations
@@ -26,8 +27,15 @@ import logging
 from pathlib import Path
 from typing import Any
 
+import cv2
+import foxglove
 import numpy as np
+from foxglove import channels as ch
+from foxglove import messages as m
+from scipy.spatial.transform import Rotation
 
+from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.records import STAGES, FrameRecord
 from bodymetry.review.meshes import PART_COLORS
 from bodymetry.review.rerun_recording import camera_to_world, jpeg
 from bodymetry.review.run_data import FrameView, RunData, skeleton_segments
@@ -64,8 +72,6 @@ def overlay_silhouettes(
     -------
     (H, W, 3) uint8 BGR
     """
-    import cv2
-
     shape = next(a.shape[:2] for a in (image, observed, model) if a is not None)
     out = np.full((*shape, 3), 90, np.uint8) if image is None else image.copy()
     obs = np.zeros(shape, bool) if observed is None else observed
@@ -83,17 +89,13 @@ def overlay_silhouettes(
     return out
 
 
-def _timestamp(seconds: float):
-    from foxglove.messages import Timestamp
-
+def _timestamp(seconds: float) -> m.Timestamp:
     ns = round(seconds * 1e9)
-    return Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
+    return m.Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
 
 
 def _quaternion(rot: np.ndarray) -> tuple[float, float, float, float]:
     """(x, y, z, w) of a rotation matrix (3, 3)."""
-    from scipy.spatial.transform import Rotation
-
     x, y, z, w = Rotation.from_matrix(rot).as_quat()
     return float(x), float(y), float(z), float(w)
 
@@ -111,10 +113,7 @@ class McapWriter:
     body : BodyModel
     """
 
-    def __init__(self, path: str | Path, run: RunData, body) -> None:
-        import foxglove
-        from foxglove import channels as ch
-
+    def __init__(self, path: str | Path, run: RunData, body: BodyModel) -> None:
         self.path = Path(path)
         self.run = run
         self._ctx = foxglove.Context()
@@ -155,8 +154,6 @@ class McapWriter:
 
     def add(self, view: FrameView) -> None:
         """Write one frame."""
-        from foxglove import messages as m
-
         seconds = self.run.time_seconds(view.frame)
         log_time = round(seconds * 1e9)
         stamp = _timestamp(seconds)
@@ -219,9 +216,7 @@ class McapWriter:
             self._particles.log(_point_cloud(view, stamp), log_time=log_time)
         self._measurements.log(json.dumps(_measurement_message(view.record)), log_time=log_time)
 
-    def _scene(self, view: FrameView, stamp) -> Any:
-        from foxglove import messages as m
-
+    def _scene(self, view: FrameView, stamp: m.Timestamp) -> m.SceneUpdate:
         verts = np.asarray(view.vertices, float)
         triangles = []
         for used, indices, colour in self._groups:
@@ -259,9 +254,7 @@ class McapWriter:
         self._writer.close()
 
 
-def _point_cloud(view: FrameView, stamp) -> Any:
-    from foxglove import messages as m
-
+def _point_cloud(view: FrameView, stamp: m.Timestamp) -> m.PointCloud:
     f32 = m.PackedElementFieldNumericType.Float32
     data = np.hstack(
         [
@@ -285,11 +278,10 @@ def _point_cloud(view: FrameView, stamp) -> Any:
     )
 
 
-def _measurement_message(record: dict[str, Any]) -> dict[str, Any]:
-    """The frame record without the states (kept small; the states are in results.json)."""
-    out = {}
-    for key, value in record.items():
-        if key in ("discriminative", "generative") and isinstance(value, dict):
-            value = {k: v for k, v in value.items() if k != "state"}
-        out[key] = value
+def _measurement_message(record: FrameRecord) -> dict[str, Any]:
+    """The frame record as ``results.json`` has it, less the body states (kept small)."""
+    out = record.to_json()
+    for stage in STAGES:
+        if stage in out:
+            out[stage] = {k: v for k, v in out[stage].items() if k != "state"}
     return out

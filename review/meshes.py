@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 # Defined with the body model (the studio uses it too); other review modules import it from here.
 from bodymetry.estimation.body_model.parts import PART_COLORS
@@ -28,8 +29,6 @@ def write_mesh(
     face_parts : (T,) int, optional
         Part index per triangle, for per-face colours where the format has them.
     """
-    import trimesh
-
     path = Path(path)
     ext = path.suffix.lower()
     if ext not in MESH_FORMATS:

@@ -12,10 +12,16 @@ import io
 from collections.abc import Sequence
 from typing import Any
 
+import matplotlib
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
+from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.raster import rasterize
+from bodymetry.estimation.records import STAGES, FrameRecord
 from bodymetry.review.meshes import PART_COLORS
 from bodymetry.review.run_data import RunData
 
@@ -47,11 +53,8 @@ def label(key: str) -> str:
     return f"{LABELS.get(key, key)} ({MEASUREMENTS.get(key, '')})"
 
 
-def figure(width_in: float, height_in: float) -> Any:
+def figure(width_in: float, height_in: float) -> Figure:
     """A matplotlib figure without pyplot (Agg canvas)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     # No layout engine: constrained layout doubles the drawing time; each figure
     # places its axes with subplots_adjust.
     fig = Figure(figsize=(width_in, height_in), dpi=100)
@@ -73,7 +76,8 @@ def measurement_plots(run: RunData, keys: Sequence[str] | None = None) -> Any:
     by grey lines across the panels.
     """
     ok = run.fitted_frames
-    keys = list(keys or [k for k in MEASUREMENTS if ok and k in ok[0].get("generative", {})])
+    present = ok[0].estimates["generative"].biometrics if ok else {}
+    keys = list(keys or [k for k in MEASUREMENTS if k in present])
     cols = 3
     rows = max(1, -(-len(keys) // cols))
     height = 2.3 * rows
@@ -82,12 +86,12 @@ def measurement_plots(run: RunData, keys: Sequence[str] | None = None) -> Any:
     fig.subplots_adjust(
         left=0.06, right=0.99, top=1 - 0.3 / height, bottom=0.3 / height, hspace=0.45, wspace=0.2
     )
-    frames = np.array([r["frame"] for r in ok])
-    failed = [r["frame"] for r in run.frames if r.get("status") != "ok"]
+    frames = np.array([r.frame for r in ok])
+    failed = [r.frame for r in run.frames if not r.ok]
     truth = run.ground_truth or {}
     for ax, key in zip(axes.flat, keys, strict=False):
-        for stage in ("discriminative", "generative"):
-            values = np.array([(r.get(stage) or {}).get(key, np.nan) for r in ok], float)
+        for stage in STAGES:
+            values = np.array([_value(r, stage, key) for r in ok], float)
             ax.plot(
                 frames,
                 values,
@@ -117,17 +121,23 @@ def measurement_plots(run: RunData, keys: Sequence[str] | None = None) -> Any:
     return fig
 
 
+def _value(record: FrameRecord, stage: str, key: str) -> float:
+    """A stage's measurement of a frame (NaN when the stage or the value is missing)."""
+    est = record.estimates.get(stage)
+    return est.biometrics.get(key, np.nan) if est is not None else np.nan
+
+
 def fit_quality_plots(run: RunData) -> Any:
     """Silhouette IoU per camera and the annealing log-likelihood per frame."""
     ok = run.fitted_frames
     fig = figure(11.0, 2.6)
     ax_iou, ax_ll, ax_std = fig.subplots(1, 3)
     fig.subplots_adjust(left=0.05, right=0.99, top=0.9, bottom=0.17, wspace=0.18)
-    frames = [r["frame"] for r in ok]
+    frames = [r.frame for r in ok]
     for name in run.camera_names:
         ax_iou.plot(
             frames,
-            [r.get("silhouette_iou", {}).get(name, np.nan) for r in ok],
+            [r.silhouette_iou.get(name, np.nan) for r in ok],
             "o-",
             ms=2,
             lw=1,
@@ -136,9 +146,9 @@ def fit_quality_plots(run: RunData) -> Any:
     ax_iou.set_title("silhouette IoU of the fit", fontsize=9)
     ax_iou.set_ylim(0, 1)
     ax_iou.legend(fontsize=7, ncols=2)
-    layers = [r.get("annealing", {}).get("layer_log_likelihood", []) for r in ok]
+    layers = [r.annealing.layer_log_likelihood if r.annealing is not None else () for r in ok]
     n_layers = max((len(x) for x in layers), default=0)
-    cmap = _colormap("viridis")
+    cmap = matplotlib.colormaps["viridis"]
     for i in range(n_layers):
         ax_ll.plot(
             frames,
@@ -150,10 +160,7 @@ def fit_quality_plots(run: RunData) -> Any:
     ax_ll.set_title("log-likelihood per annealing layer", fontsize=9)
     if n_layers:
         ax_ll.legend(fontsize=7)
-    std = np.array(
-        [r.get("annealing", {}).get("particle_std", {}).get("tau_m", [np.nan] * 3) for r in ok],
-        float,
-    ).reshape(-1, 3)
+    std = np.array([_tau_std(r) for r in ok], float).reshape(-1, 3)
     for i, axis in enumerate("xyz"):
         ax_std.plot(frames, 1000 * std[:, i], lw=1, label=f"τ {axis}")
     ax_std.set_title("particle spread (std of τ, mm)", fontsize=9)
@@ -165,17 +172,17 @@ def fit_quality_plots(run: RunData) -> Any:
     return fig
 
 
-def _colormap(name: str) -> Any:
-    import matplotlib
-
-    return matplotlib.colormaps[name]
+def _tau_std(record: FrameRecord) -> tuple[float, ...]:
+    """The last annealing layer's spread of τ (m), NaN when the frame has no trace."""
+    trace = record.annealing
+    if trace is None or len(trace.tau_std_m) != 3:
+        return (np.nan, np.nan, np.nan)
+    return trace.tau_std_m
 
 
 # --- body renders ------------------------------------------------------------------------
-def front_direction(body: Any, vertices: np.ndarray) -> np.ndarray:
+def front_direction(body: BodyModel, vertices: np.ndarray) -> np.ndarray:
     """Horizontal unit vector (3,) the body faces: from the ankles towards the toes."""
-    from bodymetry.estimation.body_model.skeleton import PARTS
-
     faces = body.faces()
     parts = np.asarray(body.full.arrays.parts)
     feet = [PARTS.index("foot_l"), PARTS.index("foot_r")]
@@ -240,7 +247,7 @@ def render_body(
     return image
 
 
-def body_views(body: Any, nu: np.ndarray, height_px: int = 440) -> dict[str, Any]:
+def body_views(body: BodyModel, nu: np.ndarray, height_px: int = 440) -> dict[str, Any]:
     """Front and side renders of the canonical body of shape ``nu`` (9,).
 
     Returns

@@ -10,9 +10,12 @@ calibration quality and a per-frame table. ``report.pdf`` (``--pdf``) has the
 same content, composed with matplotlib (no system libraries needed).
 ``measurements.csv`` has one row per kept frame.
 
-Everything is rebuilt from ``results.json`` (``bodymetry report RUN``); only the
-overlays need the session's videos (the silhouettes are recomputed for those
-few frames), and they are left out with a note when the videos are gone.
+Everything is rebuilt from the run folder (``bodymetry report RUN``):
+``results.json``, the cameras of ``calibration.yaml`` and, for the overlays,
+the silhouettes recorded in ``frames/FFFFFF.npz``. Only the camera images
+under the overlays come from the session's videos; without them the
+silhouettes are drawn on grey, and without either the overlays are left out
+with a note.
 """
 
 from __future__ import annotations
@@ -27,17 +30,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
+import jinja2
 import numpy as np
 
 from bodymetry import __version__
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
+from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.fit import shared_body_model
+from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, Stat
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
+from bodymetry.review.mcap_recording import overlay_silhouettes
 from bodymetry.review.run_data import (
     MEASUREMENTS_CSV,
     REPORT_HTML,
     REPORT_PDF,
-    STAGES,
     FrameView,
     RunData,
     frame_views,
@@ -46,8 +54,6 @@ from bodymetry.review.run_data import (
 
 log = logging.getLogger(__name__)
 
-#: The three measurements of the paper's Figure 3.
-CORE = ("height_mm", "arm_span_mm", "weight_kg")
 #: Frames shown with silhouette overlays (evenly spaced, plus the worst fit).
 OVERLAY_FRAMES = 3
 #: Width of one overlay tile in the report (pixels).
@@ -87,24 +93,15 @@ def select_overlay_frames(run: RunData, n: int = OVERLAY_FRAMES) -> list[int]:
     if not ok:
         return []
     idx = np.unique(np.linspace(0, len(ok) - 1, min(n, len(ok))).round().astype(int))
-    frames = [ok[i]["frame"] for i in idx]
-    worst = min(ok, key=lambda r: np.nan_to_num(_mean_iou(r), nan=np.inf))
-    if worst["frame"] not in frames:
-        frames.append(worst["frame"])
+    frames = [ok[i].frame for i in idx]
+    worst = min(ok, key=lambda r: np.nan_to_num(r.mean_iou, nan=np.inf))
+    if worst.frame not in frames:
+        frames.append(worst.frame)
     return sorted(frames)
 
 
-def _mean_iou(record: dict[str, Any]) -> float:
-    values = list(record.get("silhouette_iou", {}).values())
-    return float(np.mean(values)) if values else float("nan")
-
-
 def overlay_row(run: RunData, view: FrameView) -> OverlayRow | None:
-    """The overlay tiles of a frame (None when its images are not available)."""
-    import cv2
-
-    from bodymetry.review.mcap_recording import overlay_silhouettes
-
+    """The overlay tiles of a frame (None when it has neither images nor silhouettes)."""
     if not view.images and not view.observed:
         return None
     tiles, names = [], []
@@ -118,8 +115,8 @@ def overlay_row(run: RunData, view: FrameView) -> OverlayRow | None:
         h, w = bgr.shape[:2]
         scale = OVERLAY_WIDTH / w
         small = cv2.resize(bgr, (OVERLAY_WIDTH, round(h * scale)), interpolation=cv2.INTER_AREA)
-        iou = view.record.get("silhouette_iou", {}).get(cam.name)
-        text = cam.name + ("" if iou is None else f"  IoU {iou:.2f}")
+        iou = view.record.silhouette_iou.get(cam.name, float("nan"))
+        text = cam.name + (f"  IoU {iou:.2f}" if np.isfinite(iou) else "")
         (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
         box = small[2 : 10 + th, 2 : 10 + tw]
         box[:] = (0.35 * box).astype(np.uint8)  # a dark box keeps the label readable
@@ -137,15 +134,15 @@ def overlay_row(run: RunData, view: FrameView) -> OverlayRow | None:
         names.append(cam.name)
     if not tiles:
         return None
-    iou = _mean_iou(view.record)
+    iou = view.record.mean_iou
     caption = f"frame {view.frame} (t = {run.time_seconds(view.frame):.2f} s)"
     if np.isfinite(iou):
         caption += f", mean IoU {iou:.2f}"
     return OverlayRow(view.frame, caption, tiles, names)
 
 
-def compute_overlays(run: RunData, body: Any, frames: Sequence[int]) -> list[OverlayRow]:
-    """Overlay rows for ``frames``, recomputing their silhouettes from the session."""
+def compute_overlays(run: RunData, body: BodyModel, frames: Sequence[int]) -> list[OverlayRow]:
+    """Overlay rows for ``frames``: recorded silhouettes over the session's images."""
     rows = []
     for view in frame_views(run, body, frames=frames):
         row = overlay_row(run, view)
@@ -155,11 +152,11 @@ def compute_overlays(run: RunData, body: Any, frames: Sequence[int]) -> list[Ove
 
 
 # --- tables -------------------------------------------------------------------------------
-def _stat(summary: dict[str, Any], stage: str, key: str) -> tuple[float, float] | None:
+def _stat(summary: dict[str, dict[str, Stat]], stage: str, key: str) -> tuple[float, float] | None:
     s = summary.get(stage, {}).get(key)
-    if not s or s.get("mean") is None:
+    if s is None or s.mean is None:
         return None
-    return float(s["mean"]), float(s.get("std") or 0.0)
+    return s.mean, s.std or 0.0
 
 
 def figure3_rows(run: RunData) -> list[dict[str, Any]]:
@@ -168,11 +165,11 @@ def figure3_rows(run: RunData) -> list[dict[str, Any]]:
     Each row: ``key``, ``label``, ``actual`` (float or None) and
     ``discriminative``, ``disc_generative``, ``gt_generative`` as (mean, std) or None.
     """
-    summary = run.results.get("summary", {})
+    summary = run.results.summary
     truth = run.ground_truth or {}
     table = (run.evaluation or {}).get("table", {})
     rows = []
-    for key in CORE:
+    for key in CORE_MEASUREMENTS:
         gt_gen = table.get(key, {}).get("gt_generative")
         rows.append(
             {
@@ -189,7 +186,7 @@ def figure3_rows(run: RunData) -> list[dict[str, Any]]:
 
 def measurement_rows(run: RunData) -> list[dict[str, Any]]:
     """Every measurement: actual, mean ± std per stage, n, and the error of the final mean."""
-    summary = run.results.get("summary", {})
+    summary = run.results.summary
     truth = run.ground_truth or {}
     rows = []
     for key in MEASUREMENTS:
@@ -208,7 +205,7 @@ def measurement_rows(run: RunData) -> list[dict[str, Any]]:
                 "actual": actual,
                 "discriminative": disc,
                 "generative": gen,
-                "n": summary.get("generative", {}).get(key, {}).get("n", 0),
+                "n": summary.get("generative", {}).get(key, Stat(None, None, 0)).n,
                 "error_pct": error,
             }
         )
@@ -226,8 +223,10 @@ def csv_columns(run: RunData) -> list[str]:
 
 
 def _measurement_keys(run: RunData) -> list[str]:
-    ok = run.fitted_frames
-    present = set(ok[0].get("generative", {})) if ok else set(CORE)
+    fitted = run.fitted_frames
+    present = (
+        set(fitted[0].estimates["generative"].biometrics) if fitted else set(CORE_MEASUREMENTS)
+    )
     return [k for k in MEASUREMENTS if k in present]
 
 
@@ -239,21 +238,18 @@ def write_measurements_csv(run: RunData, path: str | Path) -> Path:
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(csv_columns(run))
     for r in run.frames:
-        flags = ";".join(
-            f"{cam}:{flag}" for cam, fl in sorted(r.get("flags", {}).items()) for flag in fl
-        )
-        row: list[Any] = [r["frame"], f"{run.time_seconds(r['frame']):.4f}", r.get("status"), flags]
+        flags = ";".join(f"{cam}:{flag}" for cam, fl in sorted(r.flags.items()) for flag in fl)
+        row: list[Any] = [r.frame, f"{run.time_seconds(r.frame):.4f}", r.status, flags]
         for stage in STAGES:
-            values = r.get(stage, {})
+            est = r.estimates.get(stage)
+            values = est.biometrics if est is not None else {}
             row += [_fmt_csv(values.get(k)) for k in keys]
-        ious = r.get("silhouette_iou", {})
-        row += [_fmt_csv(ious.get(name)) for name in run.camera_names]
-        iou = _mean_iou(r)
-        lls = r.get("annealing", {}).get("layer_log_likelihood", [])
+        row += [_fmt_csv(r.silhouette_iou.get(name)) for name in run.camera_names]
+        lls = r.annealing.layer_log_likelihood if r.annealing is not None else ()
         row += [
-            _fmt_csv(iou if np.isfinite(iou) else None),
+            _fmt_csv(r.mean_iou),
             _fmt_csv(lls[-1] if lls else None),
-            _fmt_csv(r.get("seconds", {}).get("total")),
+            _fmt_csv(r.seconds.get("total")),
         ]
         writer.writerow(row)
     write_text_atomic(path, buf.getvalue())
@@ -261,7 +257,8 @@ def write_measurements_csv(run: RunData, path: str | Path) -> Path:
 
 
 def _fmt_csv(value: Any) -> str:
-    if value is None:
+    # Missing and non-finite values (NaN is how the records keep a JSON null) are empty cells.
+    if value is None or (isinstance(value, float) and not np.isfinite(value)):
         return ""
     if isinstance(value, float):
         return f"{value:.6g}"
@@ -315,21 +312,19 @@ def _data_uri(data: bytes, mime: str) -> str:
 
 
 def _jpeg_uri(rgb: np.ndarray, quality: int = 85) -> str:
-    import cv2
-
     ok, buf = cv2.imencode(".jpg", rgb[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not ok:  # pragma: no cover
         raise RuntimeError("JPEG encoding failed")
     return _data_uri(buf.tobytes(), "image/jpeg")
 
 
-def body_renders(run: RunData, body: Any) -> dict[str, dict[str, np.ndarray]]:
+def body_renders(run: RunData, body: BodyModel) -> dict[str, dict[str, np.ndarray]]:
     """Front and side renders of the fitted canonical body (mean ν over fitted frames),
     and of the true body when the ground truth has its shape."""
     ok = run.ok_frames or run.fitted_frames
     renders: dict[str, dict[str, np.ndarray]] = {}
     if ok:
-        nu = np.mean([r["generative"]["state"]["nu"] for r in ok], axis=0)
+        nu = np.mean([r.estimates["generative"].state.nu[0] for r in ok], axis=0)
         if len(nu) == body.n_shape:
             renders["fitted (mean shape)"] = plots.body_views(body, nu)
     truth_nu = (run.ground_truth or {}).get("nu")
@@ -348,16 +343,20 @@ class _Content:
     renders: dict[str, dict[str, np.ndarray]]
 
 
-def _content(run: RunData, body: Any, overlays: list[OverlayRow]) -> _Content:
+def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -> _Content:
     results = run.results
-    session = results.get("session", {})
-    config = results.get("config", {})
+    session = results.session
+    # The settings as the run recorded them (ProcessConfig as JSON): a run
+    # made with other settings than today's defaults reports its own.
+    config = results.config
+    fit = config.get("fit", {})
+    annealing = fit.get("annealing", {})
     frames = run.frames
     ok = run.ok_frames
     truth = run.ground_truth
-    summary = results.get("summary", {})
+    summary = results.summary
     headline = []
-    for key in CORE:
+    for key in CORE_MEASUREMENTS:
         gen = _stat(summary, "generative", key)
         if gen is not None:
             headline.append(
@@ -378,76 +377,88 @@ def _content(run: RunData, body: Any, overlays: list[OverlayRow]) -> _Content:
         figures["body"] = plots.body_figure(renders)
     per_frame = []
     for r in frames:
-        gen = r.get("generative", {})
-        iou = _mean_iou(r)
+        gen = r.estimate()
+        iou = r.mean_iou
         per_frame.append(
             {
-                "frame": r["frame"],
-                "status": r.get("status", ""),
+                "frame": r.frame,
+                "status": r.status,
                 "flags": ", ".join(
-                    f"{cam}: {', '.join(fl)}"
-                    for cam, fl in sorted(r.get("flags", {}).items())
-                    if fl
+                    f"{cam}: {', '.join(fl)}" for cam, fl in sorted(r.flags.items()) if fl
                 ),
-                "values": [gen.get(k) for k in CORE],
+                "values": [
+                    None if gen is None else gen.biometrics.get(k) for k in CORE_MEASUREMENTS
+                ],
                 "iou": iou if np.isfinite(iou) else None,
-                "seconds": r.get("seconds", {}).get("total"),
+                "seconds": r.seconds.get("total"),
             }
         )
-    annealing = config.get("annealing", {})
     context = {
         "title": f"bodymetry report: {run.name}",
         "name": run.name,
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "version": __version__,
         "session": {
-            "path": session.get("path", ""),
+            "path": session.path,
             "cameras": ", ".join(run.camera_names),
             "n_cameras": len(run.camera_names),
-            "fps": session.get("fps"),
-            "frame_step": session.get("frame_step"),
+            "fps": session.fps,
+            "frame_step": session.frame_step,
             "image_size": (
                 f"{run.cameras[0].size[0]}×{run.cameras[0].size[1]}" if run.cameras else "?"
             ),
         },
-        "frames": {"kept": len(frames), "ok": len(ok), "failed": len(frames) - len(ok)},
-        "failed": [r for r in frames if r.get("status") != "ok"],
+        "frames": {
+            "kept": len(frames),
+            "ok": len(ok),
+            "fitted": len(run.fitted_frames),
+            "failed": len(frames) - len(ok),
+        },
+        "failed": [r for r in frames if not r.ok],
         "config": {
             "quality": config.get("quality"),
-            "seed": config.get("seed"),
-            "density": config.get("density"),
+            "seed": fit.get("seed"),
+            "density": fit.get("density"),
             "particles": annealing.get("n_particles"),
             "layers": annealing.get("n_layers"),
             "models": config.get("models"),
         },
-        "timing": results.get("timing_seconds", {}),
+        "timing": results.timing_seconds,
         "truth": truth,
         "truth_source": (truth or {}).get("source"),
         "headline": headline,
         "figure3": figure3_rows(run),
         "has_evaluation": run.evaluation is not None,
         "measurements": measurement_rows(run),
-        "core_labels": [plots.label(k) for k in CORE],
+        "core_labels": [plots.label(k) for k in CORE_MEASUREMENTS],
         "per_frame": per_frame,
         "calibration": calibration_summary(run),
         "run_folder": str(run.folder.resolve()),
-        "overlay_note": (
-            ""
-            if overlays
-            else "Overlays need the session's videos, which were not found."
-            if run.session_folder is None
-            else "No fitted frame to show."
-        ),
+        "overlay_note": _overlay_note(run, overlays),
     }
     return _Content(context, figures, overlays, renders)
 
 
+def _overlay_note(run: RunData, overlays: list[OverlayRow]) -> str:
+    """Why the report has no overlays ("" when it has some)."""
+    if overlays:
+        return ""
+    if not run.fitted_frames:
+        return "No fitted frame to show."
+    if not run.cameras:
+        return "Overlays need the run's cameras (calibration.yaml), which were not found."
+    if run.session_folder is None:
+        return (
+            "Overlays need the recorded silhouettes (frames/*.npz) or the session's videos, "
+            "which were not found."
+        )
+    return "No recorded silhouettes or camera images for the frames shown."
+
+
 def render_html(content: _Content) -> str:
     """The report as one self-contained HTML page."""
-    import jinja2
-
     env = jinja2.Environment(
-        loader=jinja2.PackageLoader("review", "templates"),
+        loader=jinja2.PackageLoader("bodymetry.review", "templates"),
         autoescape=jinja2.select_autoescape(["html", "j2"]),
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
@@ -484,7 +495,7 @@ def _num(value: Any, digits: int = 1) -> str:
 
 def build_report(
     run: RunData | str | Path,
-    body: Any = None,
+    body: BodyModel | None = None,
     *,
     overlays: Iterable[OverlayRow] | None = None,
     pdf: bool = False,
@@ -506,8 +517,6 @@ def build_report(
     if not isinstance(run, RunData):
         run = load_run(run)
     if body is None:
-        from bodymetry.estimation.pipeline import shared_body_model
-
         body = shared_body_model()
     if overlays is None:
         rows = compute_overlays(run, body, select_overlay_frames(run))
@@ -528,6 +537,7 @@ def build_report(
 # --- PDF ----------------------------------------------------------------------------------
 def write_pdf(content: _Content, path: str | Path) -> Path:
     """The report as a PDF (A4 landscape-ish pages composed with matplotlib)."""
+    # Local: the PDF backend takes about a second to import and only --pdf needs it.
     from matplotlib.backends.backend_pdf import PdfPages
 
     path = Path(path)

@@ -37,10 +37,15 @@ from typing import Any
 
 import cv2
 import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
 
+from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
+from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.records import STAGES, FrameRecord
 from bodymetry.review.meshes import PART_COLORS
-from bodymetry.review.run_data import FrameView, RunData, skeleton_segments, stage_state
+from bodymetry.review.run_data import FrameView, RunData, skeleton_segments
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +65,7 @@ MAIN_PLOTS = ("height_mm", "arm_span_mm", "weight_kg")
 JPEG_QUALITY = 80
 
 
-def camera_to_world(cam) -> tuple[np.ndarray, np.ndarray]:
+def camera_to_world(cam: Camera) -> tuple[np.ndarray, np.ndarray]:
     """Rotation (3, 3) and translation (3,) taking camera coordinates to the world.
 
     Raises
@@ -83,7 +88,7 @@ def jpeg(image_bgr: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
     return buf.tobytes()
 
 
-def vertex_colors(body) -> np.ndarray:
+def vertex_colors(body: BodyModel) -> np.ndarray:
     """(V, 3) uint8 per-vertex colours of the full mesh from its per-face part colours."""
     faces = body.faces()
     rgb = PART_COLORS[np.asarray(body.full.arrays.parts)]
@@ -107,8 +112,6 @@ def blueprint(
     eye : ((3,) float, (3,) float), optional
         Initial 3D eye position and look target (world, metres).
     """
-    import rerun.blueprint as rrb
-
     cams = [rrb.Spatial2DView(origin=f"/world/rig/{name}", name=name) for name in camera_names]
     plots = [
         rrb.TimeSeriesView(origin=f"/metrics/biometrics/{key}", name=key)
@@ -157,15 +160,14 @@ class RerunWriter:
     body : BodyModel
     """
 
-    def __init__(self, path: str | Path, run: RunData, body) -> None:
-        import rerun as rr
-
+    def __init__(self, path: str | Path, run: RunData, body: BodyModel) -> None:
         self.path = Path(path)
         self.run = run
         self._rec = rr.RecordingStream("bodymetry", recording_id=f"bodymetry-{run.name}")
         names = [c.name for c in run.cameras]
-        ok = run.fitted_frames
-        self.biometrics = [k for k in MEASUREMENTS if ok and k in ok[0].get("generative", {})]
+        fitted = run.fitted_frames
+        present = fitted[0].estimates["generative"].biometrics if fitted else {}
+        self.biometrics = [k for k in MEASUREMENTS if k in present]
         eye = None
         if run.cameras:
             # Between the first two cameras, a little farther out and higher than
@@ -183,9 +185,7 @@ class RerunWriter:
         self._log_static(body)
 
     # -- static content --------------------------------------------------------------
-    def _log_static(self, body) -> None:
-        import rerun as rr
-
+    def _log_static(self, body: BodyModel) -> None:
         rec = self._rec
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         rec.log(
@@ -223,7 +223,7 @@ class RerunWriter:
             static=True,
         )
         for key in self.biometrics:
-            for stage in ("discriminative", "generative", "actual"):
+            for stage in (*STAGES, "actual"):
                 rec.log(
                     f"/metrics/biometrics/{key}/{stage}",
                     rr.SeriesLines(colors=[STAGE_RGB[stage]], names=[stage]),
@@ -237,8 +237,6 @@ class RerunWriter:
     # -- per frame ---------------------------------------------------------------------
     def add(self, view: FrameView) -> None:
         """Log one frame."""
-        import rerun as rr
-
         rec = self._rec
         frame = view.frame
         rec.set_time("frame", sequence=frame)
@@ -287,26 +285,27 @@ class RerunWriter:
             )
         self._log_metrics(view.record)
 
-    def _log_metrics(self, record: dict[str, Any]) -> None:
-        import rerun as rr
-
+    def _log_metrics(self, record: FrameRecord) -> None:
         rec = self._rec
-        if stage_state(record) is None:  # no fit: nothing to plot
+        if record.estimate() is None:  # no fit: nothing to plot
             return
         for key in self.biometrics:
-            for stage in ("discriminative", "generative"):
-                value = record.get(stage, {}).get(key)
-                if value is not None:
+            for stage in STAGES:
+                est = record.estimates.get(stage)
+                value = est.biometrics.get(key) if est is not None else None
+                # NaN stands for a value the record does not have: no point.
+                if value is not None and np.isfinite(value):
                     rec.log(f"/metrics/biometrics/{key}/{stage}", rr.Scalars(float(value)))
             if key in self._truth:
                 rec.log(f"/metrics/biometrics/{key}/actual", rr.Scalars(self._truth[key]))
-        annealing = record.get("annealing", {})
-        for i, value in enumerate(annealing.get("layer_log_likelihood", [])):
+        for name, iou in record.silhouette_iou.items():
+            if np.isfinite(iou):
+                rec.log(f"/metrics/silhouette_iou/{name}", rr.Scalars(float(iou)))
+        if record.annealing is None:
+            return
+        for i, value in enumerate(record.annealing.layer_log_likelihood):
             rec.log(f"/metrics/likelihood/layer_{i:02d}", rr.Scalars(float(value)))
-        for name, iou in record.get("silhouette_iou", {}).items():
-            rec.log(f"/metrics/silhouette_iou/{name}", rr.Scalars(float(iou)))
-        tau_std = annealing.get("particle_std", {}).get("tau_m", [])
-        for axis, value in zip("xyz", tau_std, strict=False):
+        for axis, value in zip("xyz", record.annealing.tau_std_m, strict=False):
             rec.log(f"/metrics/particle_std/tau_{axis}_mm", rr.Scalars(1000.0 * float(value)))
 
     @property

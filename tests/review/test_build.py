@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import pytest
+import rerun.chunk as rc
 
 import bodymetry.review.mcap_recording as mcap_recording
 from bodymetry.review.build import build_review
@@ -12,9 +14,11 @@ from bodymetry.review.build import build_review
 
 @pytest.fixture
 def run_copy(review_run, tmp_path):
+    """The run's records (results.json, calibration.yaml, frames/) without review outputs."""
     folder = tmp_path / "run"
     folder.mkdir()
-    shutil.copy(review_run.folder / "results.json", folder / "results.json")
+    for name in ("results.json", "calibration.yaml"):
+        shutil.copy(review_run.folder / name, folder / name)
     shutil.copytree(review_run.folder / "frames", folder / "frames")
     return folder
 
@@ -45,10 +49,6 @@ def test_a_failing_writer_keeps_the_previous_file(run_copy, monkeypatch):
 
 
 def test_frames_left_out_by_a_quality_gate_are_still_shown(run_copy):
-    import json
-
-    import rerun.chunk as rc
-
     path = run_copy / "results.json"
     results = json.loads(path.read_text())
     gated = results["frames"][1]

@@ -7,6 +7,7 @@ from collections import Counter
 
 import numpy as np
 import pytest
+import rerun.chunk as rc
 from mcap.reader import make_reader
 
 from bodymetry.review.mcap_recording import overlay_silhouettes
@@ -31,8 +32,8 @@ def messages(mcap_file):
 
 def test_channels_schemas_and_counts(review_run, messages):
     summary, msgs = messages
-    n = len(review_run.results["frames"])
-    cams = review_run.results["session"]["cameras"]
+    n = len(review_run.results.frames)
+    cams = review_run.results.session.cameras
     expected = {
         "/tf": "foxglove.FrameTransforms",
         "/body": "foxglove.SceneUpdate",
@@ -54,22 +55,34 @@ def test_channels_schemas_and_counts(review_run, messages):
 
 def test_log_times_are_session_times(review_run, messages):
     _, msgs = messages
-    fps = review_run.results["session"]["fps"]
+    fps = review_run.results.session.fps
     times = sorted({m.log_time for topic, _, m in msgs if topic == "/measurements"})
-    expected = [round(f["frame"] / fps * 1e9) for f in review_run.results["frames"]]
+    expected = [round(f.frame / fps * 1e9) for f in review_run.results.frames]
     assert times == expected
 
 
 def test_measurement_messages_carry_the_frame_records(review_run, messages):
     _, msgs = messages
-    records = {f["frame"]: f for f in review_run.results["frames"]}
+    records = {f.frame: f for f in review_run.results.frames}
+    seen = set()
     for topic, _, m in msgs:
         if topic != "/measurements":
             continue
         payload = json.loads(m.data)
         record = records[payload["frame"]]
-        assert payload["generative"]["height_mm"] == record["generative"]["height_mm"]
-        assert "state" not in payload["generative"]
+        seen.add(record.frame)
+        assert payload["status"] == record.status
+        for stage, estimate in record.estimates.items():
+            # results.json keeps 3 decimals; the message carries the same numbers.
+            assert payload[stage]["height_mm"] == pytest.approx(
+                estimate.biometrics["height_mm"], abs=1e-3
+            )
+            assert "state" not in payload[stage]
+        assert set(payload["silhouette_iou"]) == set(record.silhouette_iou)
+        assert len(payload["annealing"]["layer_log_likelihood"]) == len(
+            record.annealing.layer_log_likelihood
+        )
+    assert seen == set(records)
 
 
 def test_images_are_jpeg(messages):
@@ -79,13 +92,11 @@ def test_images_are_jpeg(messages):
 
 
 def test_rerun_loader_accepts_the_file(review_run, mcap_file):
-    import rerun.chunk as rc
-
     store = rc.McapReader(mcap_file).stream().collect()
     archetypes: dict[str, set[str]] = {}
     for col in store.schema().component_columns():
         archetypes.setdefault(col.entity_path, set()).add(col.archetype.rsplit(".", 1)[-1])
-    cam = review_run.results["session"]["cameras"][0]
+    cam = review_run.results.session.cameras[0]
     assert "EncodedImage" in archetypes[f"/cameras/{cam}/image"]
     assert "Pinhole" in archetypes[f"/cameras/{cam}/calibration"]
     assert "Transform3D" in archetypes["/tf"]

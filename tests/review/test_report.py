@@ -48,11 +48,11 @@ def test_report_is_self_contained_with_every_section(review_run):
     assert "calibration" in html and "Figure 3" in html
     assert not re.search(r'(src|href)="(https?:|file:|//)', html)
     images = _decode_images(html)
-    n_cams = len(review_run.results["session"]["cameras"])
+    n_cams = len(review_run.results.session.cameras)
     n_overlays = len(select_overlay_frames(load_run(review_run.folder)))
     # plots (measurements, fit quality, body) + one overlay tile per camera per frame
     assert len(images) == 3 + n_overlays * n_cams
-    truth = review_run.results["ground_truth"]
+    truth = review_run.results.ground_truth
     assert f"{truth['height_mm']:,.1f}".replace(",", " ") in html
 
 
@@ -61,14 +61,18 @@ def test_measurements_csv_has_one_row_per_kept_frame(review_run):
     with open(review_run.folder / "measurements.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert list(rows[0]) == csv_columns(run)
-    assert [int(r["frame"]) for r in rows] == [f["frame"] for f in review_run.results["frames"]]
-    for row, record in zip(rows, review_run.results["frames"], strict=True):
-        assert row["status"] == record["status"]
+    records = review_run.results.frames
+    assert [int(r["frame"]) for r in rows] == [f.frame for f in records]
+    for row, record in zip(rows, records, strict=True):
+        assert row["status"] == record.status
+        # results.json keeps 3 decimals of a measurement and 4 of an IoU.
         assert float(row["generative_height_mm"]) == pytest.approx(
-            record["generative"]["height_mm"], rel=1e-5
+            record.estimates["generative"].biometrics["height_mm"], rel=1e-5
         )
-        for cam, iou in record["silhouette_iou"].items():
-            assert float(row[f"iou_{cam}"]) == pytest.approx(iou)
+        for cam, iou in record.silhouette_iou.items():
+            assert float(row[f"iou_{cam}"]) == pytest.approx(iou, abs=1e-4)
+        ll = record.annealing.layer_log_likelihood[-1]
+        assert float(row["final_log_likelihood"]) == pytest.approx(ll, rel=1e-4, abs=1e-3)
 
 
 def test_pdf_has_the_report_pages(review_run):
@@ -81,41 +85,68 @@ def test_pdf_has_the_report_pages(review_run):
 
 
 @pytest.fixture
-def old_run(review_run, tmp_path):
-    """A copy of the run with results.json only (like runs made before the review stage)."""
-    folder = tmp_path / "old"
+def bare_run(review_run, tmp_path):
+    """A copy of the run with results.json only (no cameras, no frame records)."""
+    folder = tmp_path / "bare"
     folder.mkdir()
     shutil.copy(review_run.folder / "results.json", folder / "results.json")
     return folder
 
 
-def test_figure_3_gets_the_gt_generative_column_from_evaluation_json(review_run, old_run):
+def test_figure_3_gets_the_gt_generative_column_from_evaluation_json(review_run, bare_run):
     table = {
         key: {
-            "actual": review_run.results["ground_truth"][key],
+            "actual": review_run.results.ground_truth[key],
             "discriminative": {"mean": 1.0, "std": 0.1, "n": 3},
             "disc_generative": {"mean": 2.0, "std": 0.2, "n": 3},
             "gt_generative": {"mean": 4321.5, "std": 12.25, "n": 3},
         }
         for key in ("height_mm", "arm_span_mm", "weight_kg")
     }
-    (old_run / "evaluation.json").write_text(json.dumps({"table": table}))
-    files = build_report(old_run)
+    (bare_run / "evaluation.json").write_text(json.dumps({"table": table}))
+    files = build_report(bare_run)
     html = files.html.read_text()
     assert "GT + Generative" in html and "4 321.5" in html
     assert files.pdf is None and files.csv.is_file()
 
 
-def test_review_of_an_old_run_without_particles_or_session(review_run, old_run, caplog):
-    results = json.loads((old_run / "results.json").read_text())
-    results["session"]["path"] = str(old_run / "gone")
-    (old_run / "results.json").write_text(json.dumps(results))
-    summary = build_review(old_run)
+def test_review_of_a_run_without_frame_arrays_or_session(review_run, tmp_path, caplog):
+    # The run's records without its frames/*.npz, and the session moved away:
+    # no silhouettes, particles or images, yet every output is written.
+    folder = tmp_path / "old"
+    shutil.copytree(
+        review_run.folder,
+        folder,
+        ignore=shutil.ignore_patterns("*.npz", "recording.*", "report.*", "measurements.csv"),
+    )
+    assert list((folder / "frames").glob("*.json")) and not list(folder.glob("frames/*.npz"))
+    results = json.loads((folder / "results.json").read_text())
+    results["session"]["path"] = str(folder / "gone")
+    (folder / "results.json").write_text(json.dumps(results))
+    summary = build_review(folder)
     assert not summary.errors, summary.errors
     assert set(summary.files) == {"rrd", "mcap", "html", "csv"}
-    html = (old_run / "report.html").read_text()
-    assert "videos, which were not found" in html
-    assert "not found" in caplog.text
+    html = (folder / "report.html").read_text()
+    assert "which were not found" in html
+    assert len(_decode_images(html)) == 3  # the plots, no overlay tiles
+    assert "session folder" in caplog.text and "not found" in caplog.text
+
+
+def test_the_recorded_silhouettes_make_overlays_without_the_session(review_run, tmp_path):
+    folder = tmp_path / "moved"
+    shutil.copytree(
+        review_run.folder, folder, ignore=shutil.ignore_patterns("recording.*", "report.*")
+    )
+    results = json.loads((folder / "results.json").read_text())
+    results["session"]["path"] = str(folder / "gone")
+    (folder / "results.json").write_text(json.dumps(results))
+    run = load_run(folder)
+    assert run.session_folder is None
+    files = build_report(run)
+    n_overlays = len(select_overlay_frames(run))
+    n_cams = len(run.cameras)
+    assert n_overlays and n_cams
+    assert len(_decode_images(files.html.read_text())) == 3 + n_overlays * n_cams
 
 
 def test_report_needs_results_json(tmp_path):
@@ -124,3 +155,16 @@ def test_report_needs_results_json(tmp_path):
     (tmp_path / "results.json").write_text("{not json")
     with pytest.raises(InputError, match="not a readable JSON"):
         load_run(tmp_path)
+
+
+def test_results_of_an_older_version_are_refused_naming_the_file(review_run, tmp_path):
+    results = json.loads((review_run.folder / "results.json").read_text())
+    del results["format"]  # as written before the typed schema
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(results))
+    for build in (build_review, build_report):
+        with pytest.raises(InputError) as info:
+            build(tmp_path)
+        message = str(info.value)
+        assert message.startswith(str(path)) and "older bodymetry" in message
+        assert "\n" not in message

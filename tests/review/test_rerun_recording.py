@@ -27,7 +27,7 @@ def chunks(store):
 
 def test_entity_paths_follow_the_design_layout(review_run, store):
     paths = set(store.schema().entity_paths())
-    cams = review_run.results["session"]["cameras"]
+    cams = review_run.results.session.cameras
     expected = {
         "/world",
         "/world/rig",
@@ -54,7 +54,7 @@ def test_every_kept_frame_is_on_the_frame_timeline(review_run, chunks):
     for chunk in chunks:
         if "frame" in chunk.timeline_names:
             frames.update(chunk.to_record_batch().column("frame").to_pylist())
-    assert sorted(frames) == [f["frame"] for f in review_run.results["frames"]]
+    assert sorted(frames) == [f.frame for f in review_run.results.frames]
 
 
 def test_mesh_topology_is_static_and_positions_per_frame(review_run, chunks):
@@ -67,11 +67,11 @@ def test_mesh_topology_is_static_and_positions_per_frame(review_run, chunks):
         for c in mesh
         if not c.is_static and "Mesh3D:vertex_positions" in c.to_record_batch().schema.names
     )
-    assert rows == len(review_run.results["frames"])
+    assert rows == len(review_run.results.frames)
 
 
 def test_images_are_jpeg(review_run, chunks):
-    cam = review_run.results["session"]["cameras"][0]
+    cam = review_run.results.session.cameras[0]
     images = [c for c in chunks if c.entity_path == f"/world/rig/{cam}/image"]
     batch = images[0].to_record_batch()
     media = [n for n in batch.schema.names if n.endswith("media_type")]

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 from click.testing import CliRunner
 
@@ -71,6 +73,17 @@ def test_report_on_a_folder_without_results(tmp_path):
     result = _run("report", tmp_path)
     assert result.exit_code == 2
     assert "results.json: not found" in result.output
+
+
+def test_report_on_results_of_an_older_version(review_run, tmp_path):
+    results = json.loads((review_run.folder / "results.json").read_text())
+    del results["format"]  # as written before the typed schema
+    (tmp_path / "results.json").write_text(json.dumps(results))
+    result = _run("report", tmp_path)
+    assert result.exit_code == 2
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1, result.output
+    assert str(tmp_path / "results.json") in lines[0] and "older bodymetry" in lines[0]
 
 
 def test_process_refuses_pdf_without_review(tmp_path):
