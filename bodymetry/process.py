@@ -151,7 +151,8 @@ def process_session(
             for fut in as_completed(futures):
                 fit = fut.result()
                 write_frame(layout, fit)
-                done[fit.record.frame] = fit.record
+                # As written (rounded): a fresh run and a resumed one summarize the same numbers.
+                done[fit.record.frame] = FrameRecord.from_json(fit.record.to_json())
                 if progress:
                     progress("frames", len(done), n_kept)
     records = tuple(done[f] for f in sorted(done))

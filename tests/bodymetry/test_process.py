@@ -95,7 +95,7 @@ def test_frame_artifacts(run):
             obs, model = arrays.observed[name], arrays.model[name]
             assert obs.shape == model.shape == (180, 240)
             recomputed = (obs & model).sum() / (obs | model).sum()
-            assert recomputed == pytest.approx(iou, abs=1e-6)
+            assert recomputed == pytest.approx(iou, abs=5e-5)  # the record keeps 4 decimals
 
 
 def test_resume_does_not_refit(run, monkeypatch):
