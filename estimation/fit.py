@@ -18,7 +18,7 @@ import numpy as np
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
-from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.model import NU, TAU, BodyModel, BodyState
 from bodymetry.estimation.generative import (
     AnnealingConfig,
     AnnealingResult,
@@ -291,7 +291,6 @@ def fit_frame(
         if mean_iou >= config.min_iou
         else f"poor fit: mean silhouette IoU {mean_iou:.2f} < {config.min_iou:.2f}"
     )
-    n_shape = state.nu.shape[1]
     record = FrameRecord(
         frame=int(frame),
         status=status,
@@ -304,8 +303,8 @@ def fit_frame(
         annealing=AnnealingTrace(
             tuple(result.layer_log_likelihood.tolist()),
             tuple(result.layer_beta.tolist()),
-            tuple(result.particles[:, :3].std(axis=0).tolist()),
-            tuple(result.particles[:, -n_shape:].std(axis=0).tolist()),
+            tuple(result.particles[:, TAU].std(axis=0).tolist()),
+            tuple(result.particles[:, NU].std(axis=0).tolist()),
         ),
         refinement=RefinementTrace(
             fit.start, refined.initial_cost, refined.cost, refined.iterations

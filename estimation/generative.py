@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import Camera
-from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.model import THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import N_POSE, YAW
 from bodymetry.estimation.projection import fill_silhouette
 from bodymetry.estimation.raster import coverage_views
@@ -300,7 +300,8 @@ def state_bounds(model: BodyModel) -> tuple[np.ndarray, np.ndarray]:
 
 def _weighted_estimate(Y: np.ndarray, w: np.ndarray) -> np.ndarray:
     est = w @ Y
-    est[3 + YAW] = np.arctan2(w @ np.sin(Y[:, 3 + YAW]), w @ np.cos(Y[:, 3 + YAW]))
+    yaw = THETA.start + YAW
+    est[yaw] = np.arctan2(w @ np.sin(Y[:, yaw]), w @ np.cos(Y[:, yaw]))
     return est
 
 

@@ -36,7 +36,7 @@ from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
 
 from bodymetry.calibration.camera import Camera
-from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.model import NU, POSE_DIM, THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import YAW
 from bodymetry.estimation.generative import scaled_camera, state_bounds
 from bodymetry.estimation.projection import fill_silhouette
@@ -478,7 +478,7 @@ class _ContourCost:
         if not pairs:
             return np.inf, pairs
         r, w = self.residuals(V, pairs)
-        nu = y[40:]
+        nu = y[NU]
         return float(((r * w) ** 2).sum() + self.config.shape_prior * nu @ nu), pairs
 
 
@@ -558,11 +558,12 @@ def refine(
     config = config or RefineConfig()
     y = np.asarray(initial, dtype=float).copy()
     n = len(y)
-    if n != 40 + model.n_shape:
-        raise ValueError(f"initial: expected {40 + model.n_shape} values, got {n}")
+    if n != POSE_DIM + model.n_shape:
+        raise ValueError(f"initial: expected {POSE_DIM + model.n_shape} values, got {n}")
     lo, hi = state_bounds(model)
     # Heading is an angle: wrap it rather than clip it at ±π.
-    y[3 + YAW] = (y[3 + YAW] + np.pi) % (2 * np.pi) - np.pi
+    yaw = THETA.start + YAW
+    y[yaw] = (y[yaw] + np.pi) % (2 * np.pi) - np.pi
     y = np.clip(y, lo, hi)
     step = np.r_[
         np.full(3, config.steps[0]),
@@ -575,7 +576,7 @@ def refine(
     if not np.isfinite(f):
         return RefineResult(y, f, f0, 0)
     prior = np.zeros((model.n_shape, n))
-    prior[:, 40:] = np.eye(model.n_shape) * np.sqrt(config.shape_prior)
+    prior[:, NU] = np.eye(model.n_shape) * np.sqrt(config.shape_prior)
     for _ in range(config.iterations):
         # Only the vertices of the contour edges enter the residuals.
         used = np.unique(np.concatenate([p.edges.ravel() for p in pairs]))

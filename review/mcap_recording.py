@@ -34,7 +34,7 @@ from foxglove import channels as ch
 from foxglove import messages as m
 from scipy.spatial.transform import Rotation
 
-from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.body_model.model import TAU, BodyModel
 from bodymetry.estimation.records import STAGES, FrameRecord
 from bodymetry.review.meshes import PART_COLORS
 from bodymetry.review.rerun_recording import camera_to_world, jpeg
@@ -258,7 +258,7 @@ def _point_cloud(view: FrameView, stamp: m.Timestamp) -> m.PointCloud:
     f32 = m.PackedElementFieldNumericType.Float32
     data = np.hstack(
         [
-            np.asarray(view.particles, np.float32)[:, :3],
+            np.asarray(view.particles, np.float32)[:, TAU],
             np.asarray(view.weights, np.float32)[:, None],
         ]
     )

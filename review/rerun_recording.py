@@ -42,7 +42,7 @@ import rerun.blueprint as rrb
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
-from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.body_model.model import TAU, BodyModel
 from bodymetry.estimation.records import STAGES, FrameRecord
 from bodymetry.review.meshes import PART_COLORS
 from bodymetry.review.run_data import FrameView, RunData, skeleton_segments
@@ -281,7 +281,7 @@ class RerunWriter:
             colors = np.stack([255 * w, 80 + 0 * w, 255 * (1 - w)], axis=1).astype(np.uint8)
             rec.log(
                 "/world/body/particles",
-                rr.Points3D(view.particles[:, :3], radii=0.008, colors=colors),
+                rr.Points3D(view.particles[:, TAU], radii=0.008, colors=colors),
             )
         self._log_metrics(view.record)
 

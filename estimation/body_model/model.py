@@ -38,6 +38,14 @@ MODEL_FORMAT = 1
 DEFAULT_SHAPE_DOFS = 9
 
 
+#: Where τ, θ and ν sit in a state vector ``[τ, θ, ν]`` (:meth:`BodyState.vector`).
+TAU = slice(0, 3)
+THETA = slice(3, 3 + N_POSE)
+NU = slice(3 + N_POSE, None)
+#: Length of ``[τ, θ]`` (40): ν starts here.
+POSE_DIM = 3 + N_POSE
+
+
 @dataclass(frozen=True)
 class BodyState:
     """A batch of body states Y = (τ, θ, ν).
@@ -91,7 +99,7 @@ class BodyState:
     def from_vector(cls, y: np.ndarray) -> BodyState:
         """Inverse of :meth:`vector` for ``y`` of shape (B, 40 + n_shape)."""
         y = np.atleast_2d(np.asarray(y, dtype=float))
-        return cls(y[:, :3], y[:, 3 : 3 + N_POSE], y[:, 3 + N_POSE :])
+        return cls(y[:, TAU], y[:, THETA], y[:, NU])
 
     def __getitem__(self, index: int | slice | np.ndarray) -> BodyState:
         return BodyState(self.tau[index], self.theta[index], self.nu[index])

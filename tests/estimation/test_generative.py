@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.model import THETA, BodyModel, BodyState
 from bodymetry.estimation.generative import (
     AnnealingConfig,
     _temperature,
@@ -77,7 +77,7 @@ def test_batched_cropped_chamfer_equals_the_whole_image_cost(setup):
     Y = np.repeat(truth.vector(), 6, axis=0)
     Y[:, :3] += rng.normal(0.0, [0.05, 0.05, 0.02], (6, 3))
     Y[4, :3] += [1.5, 0.0, 0.0]  # far to one side: partly outside some images
-    Y[5, 3:40] += rng.normal(0.0, 0.3, 37)
+    Y[5, THETA] += rng.normal(0.0, 0.3, 37)
     verts = model.pose(BodyState.from_vector(Y), lod=True).vertices
     batched = chamfer_costs(obs, verts, faces)
     assert batched.shape == (6, 3)
@@ -119,7 +119,7 @@ def test_annealing_moves_towards_the_truth(setup):
         np.all(np.diff(result.layer_log_likelihood) > -1e-9)
         or result.layer_log_likelihood[-1] > result.layer_log_likelihood[0]
     )
-    assert model.limits.contains(result.particles[:, 3:40]).all()
+    assert model.limits.contains(result.particles[:, THETA]).all()
     np.testing.assert_allclose(result.weights.sum(), 1.0)
 
 

@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from bodymetry.estimation.body_model.biometrics import measure
-from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.model import NU, THETA, BodyModel, BodyState
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.refinement import (
     RefineConfig,
@@ -117,8 +117,8 @@ def test_refine_recovers_a_perturbed_body(scene):
     rng = np.random.default_rng(3)
     start = truth.vector()[0].copy()
     start[:3] += [0.03, -0.02, 0.02]
-    start[3:40] += rng.normal(0, 0.06, 37)
-    start[40:] = 0.0  # the mean shape
+    start[THETA] += rng.normal(0, 0.06, 37)
+    start[NU] = 0.0  # the mean shape
     obs = prepare_contours(cameras, masks, 1.0)
     result = refine(model, obs, start, RefineConfig(iterations=30))
     assert result.cost < result.initial_cost
@@ -138,7 +138,7 @@ def test_refine_keeps_joint_limits_and_wraps_heading(scene):
     start[3 + 2] += 2 * np.pi  # the same heading, one turn further
     obs = prepare_contours(cameras, masks, 0.5)
     result = refine(model, obs, start, RefineConfig(iterations=3))
-    assert np.all(model.limits.contains(result.vector[3:40][None]))
+    assert np.all(model.limits.contains(result.vector[THETA][None]))
     assert -np.pi <= result.vector[3 + 2] < np.pi
 
 
@@ -163,7 +163,7 @@ def test_full_from_lod_moves_the_full_mesh_with_its_level_of_detail(scene):
     rng = np.random.default_rng(5)
     y = scene[2].vector()[0]
     moved = y.copy()
-    moved[3:40] += rng.normal(0.0, 0.02, 37)
+    moved[THETA] += rng.normal(0.0, 0.02, 37)
     states = BodyState.from_vector(np.vstack([y, moved]))
     lod = model.pose(states, lod=True).vertices
     full = model.pose(states).vertices
