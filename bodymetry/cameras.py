@@ -16,21 +16,21 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import load_calibration
 from bodymetry.calibration.session_calibration import (
     REPORT_FILE,
     calibrate_session,
     write_calibration,
 )
-from bodymetry.capture.session import Session
+from bodymetry.capture.session import Session, load_session
 from bodymetry.errors import InputError
 from bodymetry.estimation.records import RunLayout
 from bodymetry.fileio import write_bytes_atomic
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ResolvedCameras", "resolve_cameras"]
+__all__ = ["ResolvedCameras", "load_rig", "resolve_cameras"]
 
 #: ``calibration_source`` of a calibration solved from the session's clips.
 SOLVED = "solved from the session's ChArUco clips"
@@ -103,3 +103,20 @@ def resolve_cameras(
         f"{session.folder}: no calibration.yaml and no ChArUco clips to solve one from "
         "(see docs/session-format.md)"
     )
+
+
+def load_rig(path: Path) -> CameraGroup:
+    """The cameras named by a command-line argument: a session folder, its
+    ``session.yaml``, or a ``calibration.yaml`` (``train``, ``estimate-image``).
+
+    Raises
+    ------
+    InputError
+        For any other file, or when the file is not valid.
+    """
+    path = Path(path)
+    if path.is_dir() or path.name == "session.yaml":
+        return load_session(path).calibration()
+    if path.suffix.lower() in (".yaml", ".yml"):
+        return load_calibration(path)
+    raise InputError(f"{path}: expected a session folder, session.yaml or calibration.yaml")

@@ -8,8 +8,8 @@ from pathlib import Path
 import click
 import cv2
 
+from bodymetry.cameras import load_rig
 from bodymetry.cli.common import DEMO_SESSION, console, friendly_errors
-from bodymetry.cli.train import cameras_from
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.training import load_or_train
@@ -62,7 +62,7 @@ def estimate_image(
             raise InputError(
                 f"{mask}: mask is {masks[0].shape[::-1]} px but {image} is {photo.shape[1::-1]}"
             )
-    cameras = cameras_from(rig or DEMO_SESSION)
+    cameras = load_rig(rig or DEMO_SESSION)
     with console.status("loading (or training, the first time: minutes) the discriminative models"):
         models, _ = load_or_train(cameras)
     body = BodyModel.load()

@@ -8,23 +8,11 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from bodymetry.calibration.camera import CameraGroup
-from bodymetry.calibration.io import load_calibration
-from bodymetry.capture.session import load_session
+from bodymetry.cameras import load_rig
 from bodymetry.cli.common import cache_option, console, friendly_errors, labelled_progress
-from bodymetry.errors import InputError
 from bodymetry.estimation.training import TrainConfig, default_cache_dir, load_or_train, rig_key
 
-__all__ = ["cameras_from", "train"]
-
-
-def cameras_from(path: Path) -> CameraGroup:
-    """A CameraGroup from a session folder, a session.yaml or a calibration.yaml."""
-    if path.is_dir() or path.name == "session.yaml":
-        return load_session(path).calibration()
-    if path.suffix.lower() in (".yaml", ".yml"):
-        return load_calibration(path)
-    raise InputError(f"{path}: expected a session folder, session.yaml or calibration.yaml")
+__all__ = ["train"]
 
 
 @click.command()
@@ -54,7 +42,7 @@ def train(
     as_json: bool,
 ) -> None:
     """Train the discriminative models for the rig of SOURCE (a session or calibration.yaml)."""
-    cameras = cameras_from(source)
+    cameras = load_rig(source)
     config = TrainConfig(n_train=n_train, n_test=n_test, seed=seed)
     cache = cache_dir or default_cache_dir()
     if retrain:
