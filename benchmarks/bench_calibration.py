@@ -27,6 +27,7 @@ import numpy as np
 from bodymetry.calibration.io import load_calibration
 from bodymetry.calibration.session_calibration import calibrate_session, detect_session
 from bodymetry.capture.session import load_session
+from bodymetry.studio.synth import SynthConfig, synthesize
 
 SEEDS = (1, 2, 3)
 TARGETS = {
@@ -139,8 +140,6 @@ def run() -> dict:
             "sessions": sessions,
             "summary": _summary(sessions),
         }
-    from bodymetry.studio.synth import SynthConfig, synthesize
-
     sessions = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in SEEDS:

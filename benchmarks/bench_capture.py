@@ -23,13 +23,15 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
-from bodymetry.capture.background import METHODS, SubtractionConfig
+from bodymetry.capture.background import METHODS, BackgroundModel, SubtractionConfig, Subtractor
 from bodymetry.capture.ingest import check_sync, read_frame_sets
 from bodymetry.capture.session import load_session
-from bodymetry.capture.silhouette import background_models, segment_session
+from bodymetry.capture.silhouette import background_models, clean_mask, segment_session
 from bodymetry.studio.evaluate import GroundTruth, SilhouetteScores
+from bodymetry.studio.synth import SynthConfig, synthesize
 
 SEEDS = (1, 2, 3)
 DEMO = Path(__file__).resolve().parent.parent / "recordings" / "demo"
@@ -40,8 +42,6 @@ TARGET_SECONDS = 10.0
 
 
 def _session(folder: Path, seed: int) -> Path:
-    from bodymetry.studio.synth import SynthConfig, synthesize
-
     out = folder / f"studio_seed{seed}"
     if not (out / "session.yaml").is_file():
         synthesize(
@@ -138,11 +138,6 @@ def real_video() -> dict:
     path = Path("/usr/share/doc/opencv-doc/examples/data/vtest.avi")
     if not path.is_file():
         return {"skipped": f"{path} not installed (Debian package opencv-doc)"}
-    import cv2
-
-    from bodymetry.capture.background import BackgroundModel, Subtractor
-    from bodymetry.capture.silhouette import clean_mask
-
     cap = cv2.VideoCapture(str(path))
     frames = []
     while True:

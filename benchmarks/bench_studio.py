@@ -18,7 +18,9 @@ import cv2
 import numpy as np
 
 from bodymetry.capture.session import load_session
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.fileio import load_npz
+from bodymetry.studio.render import Studio
 from bodymetry.studio.synth import SynthConfig, synthesize
 
 #: A pixel differs from the empty scene when some channel changes by more than this (DN).
@@ -32,9 +34,6 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 def silhouette_fidelity(folder: Path) -> dict:
     """IoU of each kept frame's ground-truth silhouette against a recomputed mask."""
-    from bodymetry.estimation.body_model.model import BodyModel, BodyState
-    from bodymetry.studio.render import Studio
-
     session = load_session(folder)
     states = load_npz(folder / "ground_truth" / "states.npz")
     model = BodyModel.load(n_shape=len(states["nu"]))

@@ -13,12 +13,14 @@ import cv2
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from scipy.spatial.transform import Rotation
 
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.charuco import board_geometry, detect_clip, detect_image, make_detector
 from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.session import BoardSpec, Session, SessionCamera, save_session
 from bodymetry.cli import main
+from bodymetry.errors import InputError
 
 BOARD = BoardSpec(squares=(5, 4), square_mm=200.0, marker_mm=150.0, dictionary="DICT_4X4_50")
 PX_PER_M = 1000
@@ -66,8 +68,6 @@ def make_rig() -> CameraGroup:
 
 
 def board_poses(rig: CameraGroup, rng: np.random.Generator, n_floor=6, n_moving=48):
-    from scipy.spatial.transform import Rotation
-
     out = [np.diag([1.0, -1.0, -1.0, 1.0])] * n_floor
     centers = rig.centers
     for k in range(n_moving):
@@ -105,8 +105,6 @@ def test_detect_image_finds_corners_where_the_camera_projects_them() -> None:
 
 
 def test_detect_clip_errors_name_camera_and_file(tmp_path: Path) -> None:
-    from bodymetry.errors import InputError
-
     board = BOARD.create_board()
     with pytest.raises(InputError, match=r"camera 'cam_07': calibration clip .*missing.mp4 does"):
         detect_clip(tmp_path / "missing.mp4", board, "cam_07")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from bodymetry.calibration import solve
 from bodymetry.calibration.camera import Camera, CameraGroup
@@ -62,8 +63,6 @@ def board_poses(n_moving: int, rig: CameraGroup, rng: np.random.Generator) -> np
         yb = np.cross(zb, xb)
         R = np.stack([xb, yb, zb], axis=1)
         ang = rng.uniform(-0.5, 0.5, 3)
-        from scipy.spatial.transform import Rotation
-
         R = R @ Rotation.from_rotvec(ang).as_matrix()
         T = np.eye(4)
         T[:3, :3] = R

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -160,8 +161,6 @@ def test_truncated_video_reads_what_it_can_and_flags_the_rest(tmp_path: Path, ca
 
 
 def test_truncated_mp4_without_index_is_an_error(tmp_path: Path) -> None:
-    import cv2
-
     path = tmp_path / "cut.mp4"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30, (64, 48))
     for i in range(10):

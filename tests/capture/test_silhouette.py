@@ -7,15 +7,24 @@ tests/studio/test_evaluate.py and tests/bodymetry/test_cli.py.
 from __future__ import annotations
 
 import logging
+import shutil
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+import yaml
 
+from bodymetry.capture.background import SubtractionConfig
 from bodymetry.capture.session import Session, load_session
-from bodymetry.capture.silhouette import CleanupConfig, clean_mask, overlay, segment_session
-from bodymetry.capture.toy import write_toy_session
+from bodymetry.capture.silhouette import (
+    CleanupConfig,
+    background_models,
+    clean_mask,
+    overlay,
+    segment_session,
+)
+from bodymetry.capture.toy import ToyScene, toy_background, toy_frame, write_toy_session
 from bodymetry.errors import InputError
 
 H, W = 240, 320
@@ -138,8 +147,6 @@ def test_stage_matches_ground_truth_and_flags_empty_frame(toy: Path) -> None:
 
 
 def test_cast_shadow_is_not_person(tmp_path: Path) -> None:
-    from bodymetry.capture.toy import ToyScene, toy_background, toy_frame
-
     folder = tmp_path / "s"
     write_toy_session(folder, cameras=1, frames=20, frame_step=10, seed=2)
     session = load_session(folder)
@@ -161,8 +168,6 @@ def test_cast_shadow_is_not_person(tmp_path: Path) -> None:
 
 
 def _cfg(method: str):
-    from bodymetry.capture.background import SubtractionConfig
-
     return SubtractionConfig(method=method)
 
 
@@ -178,8 +183,6 @@ def test_without_background_clip_the_session_median_is_used(tmp_path: Path, capl
     write_toy_session(folder, cameras=2, frames=60, frame_step=5, backgrounds=False, seed=4)
     session = load_session(folder)
     assert session.background_path("cam_00") is None
-    from bodymetry.capture.silhouette import background_models
-
     with caplog.at_level(logging.WARNING):
         models = background_models(session)
     assert [m.source for m in models] == ["session", "session"]
@@ -204,10 +207,6 @@ def test_unreadable_camera_gives_empty_flagged_masks(tmp_path: Path) -> None:
 
 
 def test_camera_order_does_not_change_the_masks(toy: Path, tmp_path: Path) -> None:
-    import shutil
-
-    import yaml
-
     folder = tmp_path / "s"
     shutil.copytree(toy, folder)
     data = yaml.safe_load((folder / "session.yaml").read_text())

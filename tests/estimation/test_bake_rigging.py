@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import trimesh
+from scipy.sparse.csgraph import connected_components
 
 from bodymetry.estimation.body_model.bake import rigging as rg
 from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS
@@ -33,8 +34,6 @@ def _sphere(subdivisions: int = 3) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _components(faces: np.ndarray, labels: np.ndarray, part: int) -> int:
-    from scipy.sparse.csgraph import connected_components
-
     idx = np.flatnonzero(labels == part)
     adj = rg.triangle_adjacency(faces)[idx][:, idx]
     return connected_components(adj, directed=False)[0]

@@ -25,6 +25,7 @@ from bodymetry.estimation.body_model.skeleton import (
     JOINTS,
     N_POSE,
     PARTS,
+    dof_names,
     forward_kinematics,
 )
 
@@ -503,8 +504,6 @@ def test_apose_arms_are_45_degrees_down(model):
 
 def _joint_moves(model: BodyModel, dof: str, value: float) -> np.ndarray:
     """Displacement (15, 3) of every joint of the mean body when one DOF is set."""
-    from bodymetry.estimation.body_model.skeleton import dof_names
-
     rest = model.rest_keypoints(np.zeros((1, model.n_shape)))[:, : len(JOINTS)]
     theta = np.zeros((2, N_POSE))
     theta[1, dof_names().index(dof)] = value

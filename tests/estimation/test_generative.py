@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -14,7 +15,7 @@ from bodymetry.estimation.generative import (
     prepare_observation,
     scaled_camera,
 )
-from bodymetry.estimation.projection import project_silhouettes
+from bodymetry.estimation.projection import fill_silhouette, project_silhouettes
 from bodymetry.studio.rig import studio_rig
 
 #: Chamfer cost (pixels) of a body against its own silhouette: only resampling.
@@ -52,10 +53,6 @@ def test_chamfer_cost_is_zero_for_the_true_body_and_grows_with_error(setup):
 
 def _reference_costs(obs, verts, faces) -> np.ndarray:
     """The chamfer cost written out on whole images (no crops, one body at a time)."""
-    import cv2
-
-    from bodymetry.estimation.projection import fill_silhouette
-
     out = np.zeros(len(obs.cameras))
     for c, cam in enumerate(obs.cameras):
         model = fill_silhouette(cam.project(verts), faces, cam.size)

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
 
+from bodymetry.capture.session import load_session
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import NU, THETA, BodyModel, BodyState
 from bodymetry.estimation.projection import project_silhouettes
@@ -21,6 +24,7 @@ from bodymetry.estimation.refinement import (
     prepare_contours,
     refine,
 )
+from bodymetry.fileio import load_npz
 from bodymetry.studio.rig import studio_rig
 
 #: The bundled demo recording (a studio session with ground truth).
@@ -197,13 +201,6 @@ def test_contour_sampling_bias_on_the_demo_frames():
     visibility raster (the earlier default) inflates the body, because contour
     edges just inside the outline are kept; the full mesh with a camera-resolution
     raster stays near the truth. Measured: +1.05, +1.91 kg against +0.33, +0.74 kg."""
-    import json
-
-    import cv2
-
-    from bodymetry.capture.session import load_session
-    from bodymetry.fileio import load_npz
-
     session = load_session(DEMO)
     cameras = list(session.calibration())
     states = load_npz(DEMO / "ground_truth" / "states.npz")

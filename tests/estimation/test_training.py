@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
-from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.errors import InputError
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.training import (
     MODEL_NAMES,
     DiscriminativeModels,
@@ -16,6 +19,7 @@ from bodymetry.estimation.training import (
     targets_to_theta,
     theta_to_targets,
 )
+from bodymetry.estimation.uncalibrated import compare_photos, estimate_photo, read_mask
 from bodymetry.studio.rig import studio_rig
 
 TINY = TrainConfig(
@@ -108,9 +112,6 @@ def test_cache_is_reused_and_round_trips(trained, cameras, tmp_path):
 
 # --- uncalibrated mode (estimation/uncalibrated.py) on the tiny models -------------------
 def _mask_of(nu, cameras):
-    from bodymetry.estimation.body_model.model import BodyState
-    from bodymetry.estimation.projection import project_silhouettes
-
     model = BodyModel.load()
     state = BodyState([0.0, 0.0, 0.93], model.poses["apose"], nu)
     verts = model.pose(state, lod=True).vertices[0]
@@ -118,8 +119,6 @@ def _mask_of(nu, cameras):
 
 
 def test_photo_estimate_is_scaled_to_the_reference_height(trained, cameras):
-    from bodymetry.estimation.uncalibrated import compare_photos, estimate_photo
-
     models = trained[0]
     body = BodyModel.load()
     mask = _mask_of(np.zeros(9), cameras)
@@ -136,11 +135,6 @@ def test_photo_estimate_is_scaled_to_the_reference_height(trained, cameras):
 
 
 def test_read_mask_errors(tmp_path):
-    import cv2
-
-    from bodymetry.errors import InputError
-    from bodymetry.estimation.uncalibrated import read_mask
-
     with pytest.raises(InputError, match="not found"):
         read_mask(tmp_path / "missing.png")
     (tmp_path / "junk.png").write_bytes(b"not an image")

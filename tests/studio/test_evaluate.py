@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -65,8 +66,6 @@ def test_scores_with_the_session_median_background(tmp_path: Path) -> None:
 
 
 def test_no_ground_truth_without_silhouettes(toy: Path, tmp_path: Path) -> None:
-    import shutil
-
     folder = tmp_path / "s"
     shutil.copytree(toy, folder)
     shutil.rmtree(folder / "ground_truth" / "silhouettes")

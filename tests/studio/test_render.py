@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from bodymetry.calibration.camera import Camera
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.raster import rasterize, signed_area2
 from bodymetry.studio.render import Studio, pixel_rays
 from bodymetry.studio.scene import BoardPose, BoardTexture, Light
@@ -29,8 +30,6 @@ def look_at(center, target, name="cam", dist=None, f=260.0, size=SIZE) -> Camera
 
 @pytest.fixture(scope="module")
 def body():
-    from bodymetry.estimation.body_model.model import BodyModel, BodyState
-
     model = BodyModel.load()
     theta = model.poses["apose"][None].copy()
     posed = model.pose(BodyState(np.zeros((1, 3)), theta, np.zeros((1, model.n_shape))))

@@ -11,6 +11,7 @@ import pytest
 from bodymetry.capture.session import load_session
 from bodymetry.errors import InputError
 from bodymetry.fileio import load_npz
+from bodymetry.studio.rig import studio_rig
 from bodymetry.studio.synth import (
     STUDIO_BOARD,
     SubjectSpec,
@@ -136,8 +137,6 @@ def test_subject_parse():
 
 
 def test_board_trajectory_starts_flat_on_the_floor_then_faces_the_cameras():
-    from bodymetry.studio.rig import studio_rig
-
     rng = np.random.default_rng(0)
     cams = studio_rig(4, (640, 480), seed=0)
     poses = board_trajectory(300, 60.0, rng, STUDIO_BOARD, cams)
