@@ -44,6 +44,15 @@ log = logging.getLogger(__name__)
 #: Bumped when training changes so that cached models are rebuilt.
 TRAINING_VERSION = 2
 MODEL_NAMES = ("nu_rdf", "theta_sc", "tau_rdf", "nu_sc")
+#: The test-set figures ``bodymetry train`` prints (keys of ``DiscriminativeModels.metrics``).
+HEADLINE_METRICS = (
+    "shape_rdf_improvement_over_mean",
+    "shape_sc_improvement_over_mean",
+    "pose_mean_angle_error_deg",
+    "position_error_mm",
+    "mpjpe_mm",
+    "train_seconds",
+)
 #: N = 100 directions + the centroid (paper §3).
 RDF_DIM = 102
 

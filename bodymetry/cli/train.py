@@ -10,7 +10,13 @@ from rich.table import Table
 
 from bodymetry.cameras import load_rig
 from bodymetry.cli.common import cache_option, console, friendly_errors, labelled_progress
-from bodymetry.estimation.training import TrainConfig, default_cache_dir, load_or_train, rig_key
+from bodymetry.estimation.training import (
+    HEADLINE_METRICS,
+    TrainConfig,
+    default_cache_dir,
+    load_or_train,
+    rig_key,
+)
 
 __all__ = ["train"]
 
@@ -59,14 +65,7 @@ def train(
     table = Table(title=f"discriminative models for {source} ({'cached' if reused else 'trained'})")
     table.add_column("figure")
     table.add_column("value", justify="right")
-    for key in (
-        "shape_rdf_improvement_over_mean",
-        "shape_sc_improvement_over_mean",
-        "pose_mean_angle_error_deg",
-        "position_error_mm",
-        "mpjpe_mm",
-        "train_seconds",
-    ):
+    for key in HEADLINE_METRICS:
         table.add_row(key, f"{metrics[key]:.3f}")
     for name, choice in metrics["chosen"].items():
         table.add_row(f"chosen {name}", f"M={choice['M']}, λ={choice['lambda']:g}")
