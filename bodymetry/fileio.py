@@ -5,6 +5,11 @@
 * ``.npz`` files are written with fixed zip timestamps so the same arrays give
   the same bytes (the body-model bake must be reproducible bit for bit).
 * ``.npz`` files are read with ``allow_pickle=False`` only.
+* JSON is written strict (no ``NaN``/``Infinity``, which other readers refuse):
+  numpy values become plain numbers and non-finite floats become ``null``.
+* Text files read whole (YAML, TOML, JSON) are read through
+  :func:`read_text_limited`, so a wrong path to a huge file is a clear error,
+  not minutes of parsing or an exhausted memory.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import os
 import tempfile
 import zipfile
@@ -69,9 +75,119 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
     write_bytes_atomic(path, text.encode("utf-8"))
 
 
+def json_safe(obj: Any, where: str = "") -> Any:
+    """``obj`` with numpy values made plain and non-finite floats made ``None``.
+
+    Strict JSON has no ``NaN`` or ``Infinity`` (Python writes them, most other
+    readers refuse them), and ``json`` cannot write numpy scalars or arrays.
+
+    Parameters
+    ----------
+    obj
+        Nested mappings, lists and tuples of ``None``, bool, int, float, str,
+        numpy scalars and numpy arrays.
+    where
+        Where ``obj`` sits in the whole (for the error message).
+
+    Returns
+    -------
+    The same structure with dicts, lists and plain scalars only.
+
+    Raises
+    ------
+    TypeError
+        For any other type (a programming error), naming where it sits.
+    """
+    if obj is None or isinstance(obj, (bool, int, str)):
+        return obj
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, np.generic):
+        return json_safe(obj.item(), where)
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist(), where)
+    if isinstance(obj, Mapping):
+        out = {}
+        for key, value in obj.items():
+            if isinstance(key, np.generic):
+                key = key.item()
+            if key is not None and not isinstance(key, (str, int, float, bool)):
+                raise TypeError(f"JSON{where}: key {key!r} of type {type(key).__name__}")
+            out[key] = json_safe(value, f"{where}[{key!r}]")
+        return out
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(value, f"{where}[{i}]") for i, value in enumerate(obj)]
+    raise TypeError(f"JSON{where}: cannot write a value of type {type(obj).__name__}")
+
+
 def write_json_atomic(path: str | os.PathLike[str], obj: Any) -> None:
-    """Write ``obj`` as indented JSON to ``path`` atomically."""
-    write_text_atomic(path, json.dumps(obj, indent=2, sort_keys=False) + "\n")
+    """Write ``obj`` as indented, strict JSON to ``path`` atomically.
+
+    Numpy scalars and arrays are written as numbers and lists, non-finite
+    floats (``nan``, ``inf``) as ``null`` (see :func:`json_safe`).
+
+    Raises
+    ------
+    TypeError
+        If ``obj`` holds a value JSON cannot represent (e.g. a ``Path``), naming
+        where; nothing is written then.
+    """
+    try:
+        safe = json_safe(obj)
+    except TypeError as exc:
+        raise TypeError(f"{path}: {exc}") from None
+    write_text_atomic(path, json.dumps(safe, indent=2, sort_keys=False, allow_nan=False) + "\n")
+
+
+def format_size(n_bytes: int) -> str:
+    """A file size for messages: ``"812 bytes"``, ``"3.2 kB"``, ``"52.4 MB"``, ``"1 MB"``."""
+    for unit, scale in (("GB", 10**9), ("MB", 10**6), ("kB", 10**3)):
+        if n_bytes >= scale:
+            text = f"{n_bytes / scale:.1f}"
+            return f"{text.removesuffix('.0')} {unit}"
+    return f"{n_bytes} bytes"
+
+
+def read_text_limited(
+    path: str | os.PathLike[str], max_bytes: int, what: str, encoding: str = "utf-8"
+) -> str:
+    """Read a whole text file, refusing one larger than ``max_bytes``.
+
+    Newlines are translated as :meth:`pathlib.Path.read_text` does.
+
+    Parameters
+    ----------
+    path
+        The file.
+    max_bytes
+        The largest size accepted (bytes).
+    what
+        What the file is, for the message (``"session file"``).
+    encoding
+        Text encoding (strict decoding).
+
+    Raises
+    ------
+    InputError
+        ``"<path>: 52.4 MB, larger than the 1 MB limit for a session file"``.
+    OSError, UnicodeDecodeError
+        As from :meth:`pathlib.Path.read_text`; callers name the file.
+    """
+    path = Path(path)
+    limit = format_size(max_bytes)
+    with open(path, "rb") as fh:
+        size = os.fstat(fh.fileno()).st_size
+        if size > max_bytes:
+            shown = format_size(size)
+            if shown == limit:  # 1,000,001 bytes is not "1 MB, larger than 1 MB"
+                shown = f"{size:,} bytes"
+            raise InputError(f"{path}: {shown}, larger than the {limit} limit for a {what}")
+        # Read one byte past the limit: a pipe or special file reports no size,
+        # and a file may grow while it is read.
+        data = fh.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise InputError(f"{path}: more than the {limit} limit for a {what}")
+    return data.decode(encoding).replace("\r\n", "\n").replace("\r", "\n")
 
 
 def npz_bytes(arrays: Mapping[str, np.ndarray], compress: bool = True) -> bytes:

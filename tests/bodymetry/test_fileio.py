@@ -205,3 +205,91 @@ def test_load_npz_refuses_pickles(tmp_path):
 def test_input_error_is_a_value_error(tmp_path):
     with pytest.raises(ValueError):
         fileio.load_npz(tmp_path / "missing.npz")
+
+
+# --- strict JSON ------------------------------------------------------------------------------
+
+
+def _strict_loads(text: str):
+    """json.loads that fails on NaN / Infinity (which strict JSON does not have)."""
+    return json.loads(text, parse_constant=lambda c: 1 / 0)
+
+
+def test_write_json_is_strict(tmp_path):
+    path = tmp_path / "a.json"
+    fileio.write_json_atomic(
+        path, {"a": float("nan"), "b": np.float32(1.5), "c": np.array([1, np.inf])}
+    )
+    assert _strict_loads(path.read_text()) == {"a": None, "b": 1.5, "c": [1.0, None]}
+
+
+def test_write_json_converts_nested_numpy_values(tmp_path):
+    path = tmp_path / "a.json"
+    obj = {
+        "ints": np.arange(3, dtype=np.int16),
+        "bool": np.bool_(True),
+        "nested": [(np.float64(-np.inf), 2), {"x": np.array([[np.nan, 0.25]])}],
+        np.int64(7): "numpy key",
+        "text": np.str_("ok"),
+    }
+    fileio.write_json_atomic(path, obj)
+    assert _strict_loads(path.read_text()) == {
+        "ints": [0, 1, 2],
+        "bool": True,
+        "nested": [[None, 2], {"x": [[None, 0.25]]}],
+        "7": "numpy key",
+        "text": "ok",
+    }
+
+
+def test_write_json_refuses_other_types_naming_where(tmp_path):
+    path = tmp_path / "a.json"
+    with pytest.raises(TypeError, match=r"a\.json.*\['frames'\]\[1\].*PosixPath"):
+        fileio.write_json_atomic(path, {"frames": [1, tmp_path]})
+    assert not path.exists() and _leftovers(tmp_path) == []
+
+
+# --- size limits ------------------------------------------------------------------------------
+
+
+def test_read_text_limited_reads_small_files(tmp_path):
+    path = tmp_path / "a.yaml"
+    path.write_bytes("a: 1\r\nb: é\r\n".encode())
+    assert fileio.read_text_limited(path, 100, "session file") == "a: 1\nb: é\n"
+
+
+def test_read_text_limited_refuses_a_large_file(tmp_path):
+    path = tmp_path / "big.yaml"
+    with open(path, "wb") as fh:
+        fh.truncate(52_400_000)  # sparse: instant, takes no disk
+    with pytest.raises(InputError) as info:
+        fileio.read_text_limited(path, 1_000_000, "session file")
+    assert str(info.value) == f"{path}: 52.4 MB, larger than the 1 MB limit for a session file"
+
+
+def test_read_text_limited_at_the_limit(tmp_path):
+    path = tmp_path / "a.txt"
+    path.write_bytes(b"x" * 1000)
+    assert len(fileio.read_text_limited(path, 1000, "file")) == 1000
+    path.write_bytes(b"x" * 1001)
+    with pytest.raises(InputError, match=r"1,001 bytes, larger than the 1 kB limit for a file"):
+        fileio.read_text_limited(path, 1000, "file")
+
+
+def test_read_text_limited_passes_os_errors_on(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        fileio.read_text_limited(tmp_path / "missing", 10, "file")
+
+
+@pytest.mark.parametrize(
+    ("n", "text"),
+    [
+        (0, "0 bytes"),
+        (999, "999 bytes"),
+        (1000, "1 kB"),
+        (1_500, "1.5 kB"),
+        (256_000_000, "256 MB"),
+    ],
+)
+def test_format_size(n, text):
+    assert fileio.format_size(n) == text
