@@ -44,10 +44,11 @@ from scipy.spatial.transform import Rotation
 
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.errors import InputError
-from bodymetry.fileio import write_text_atomic
+from bodymetry.fileio import read_text_limited, write_text_atomic
 
 __all__ = [
     "CALIBRATION_FORMAT",
+    "CALIBRATION_MAX_BYTES",
     "Calibration",
     "Fields",
     "calibration_from_data",
@@ -66,6 +67,9 @@ __all__ = [
 ]
 
 CALIBRATION_FORMAT = "bodymetry-calibration/1"
+#: The largest calibration.yaml or calibration.toml read (a rig of dozens of
+#: cameras is a few kB; anything near this is the wrong file).
+CALIBRATION_MAX_BYTES = 1_000_000
 
 _CAMERA_KEYS = ("name", "size", "K", "dist", "R", "t")
 _TOP_REQUIRED = ("format", "cameras")
@@ -136,7 +140,9 @@ def parse_yaml(text: str) -> Any:
     return yaml.load(text, Loader=_SafeStrictLoader)  # a SafeLoader subclass: safe
 
 
-def read_yaml_mapping(path: str | os.PathLike[str], kind: str) -> dict[str, Any]:
+def read_yaml_mapping(
+    path: str | os.PathLike[str], kind: str, max_bytes: int = CALIBRATION_MAX_BYTES
+) -> dict[str, Any]:
     """Read a YAML file whose top level must be a mapping.
 
     Parameters
@@ -145,12 +151,14 @@ def read_yaml_mapping(path: str | os.PathLike[str], kind: str) -> dict[str, Any]
         The file.
     kind
         What the file is, for messages (e.g. ``"calibration file"``).
+    max_bytes
+        The largest file read (bytes).
 
     Raises
     ------
     InputError
-        Missing or unreadable file, malformed YAML (with line and column),
-        duplicate keys, a top level that is not a mapping.
+        Missing, unreadable or too large file, malformed YAML (with line and
+        column), duplicate keys, a top level that is not a mapping.
     """
     path = Path(path)
     if not path.exists():
@@ -158,7 +166,7 @@ def read_yaml_mapping(path: str | os.PathLike[str], kind: str) -> dict[str, Any]
     if not path.is_file():
         raise InputError(f"{path}: expected a {kind} (a file), found a folder or special file")
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text_limited(path, max_bytes, kind)
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read the {kind}: {exc}") from exc
     try:
@@ -731,7 +739,9 @@ def import_anipose_toml(
     if not path.is_file():
         raise InputError(f"{path}: calibration TOML file not found")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(
+            read_text_limited(path, CALIBRATION_MAX_BYTES, "calibration TOML file")
+        )
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read the calibration TOML file: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:

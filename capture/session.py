@@ -53,6 +53,7 @@ __all__ = [
     "GROUND_TRUTH_SUBJECT",
     "SESSION_FILE",
     "SESSION_FORMAT",
+    "SESSION_MAX_BYTES",
     "BoardSpec",
     "Session",
     "SessionCamera",
@@ -63,6 +64,9 @@ __all__ = [
 
 SESSION_FORMAT = "bodymetry-session/1"
 SESSION_FILE = "session.yaml"
+#: The largest session.yaml read (a real one is a few kB; a larger file is the
+#: wrong file, e.g. a video renamed).
+SESSION_MAX_BYTES = 1_000_000
 DEFAULT_CALIBRATION_FILE = "calibration.yaml"
 DEFAULT_FRAME_STEP = 25
 
@@ -583,7 +587,7 @@ def load_session(path: str | os.PathLike[str]) -> Session:
             raise InputError(f"{path}: session folder not found")
         raise InputError(f"{yaml_path}: session file not found (a session folder holds one)")
     yaml_path = yaml_path.absolute()
-    data = read_yaml_mapping(yaml_path, "session file")
+    data = read_yaml_mapping(yaml_path, "session file", SESSION_MAX_BYTES)
     return _session_from_data(data, Fields(yaml_path), yaml_path.parent, check_files=True)
 
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyState
-from bodymetry.fileio import load_npz
+from bodymetry.fileio import load_npz, read_text_limited
 
 __all__ = [
     "CORE_MEASUREMENTS",
@@ -52,10 +52,37 @@ RESULTS_FORMAT = 2
 OK = "ok"
 
 
-def read_json_object(path: Path) -> dict[str, Any]:
-    """A JSON object from a file; InputError naming the file when it is unreadable."""
+#: The largest ``results.json`` read (a long session at the best quality stays
+#: well under; anything larger is the wrong file).
+RESULTS_MAX_BYTES = 256_000_000
+#: The largest per-frame record (``frames/FFFFFF.json``) read.
+FRAME_RECORD_MAX_BYTES = 4_000_000
+
+
+def read_json_object(path: Path, max_bytes: int | None = None) -> dict[str, Any]:
+    """A JSON object from a file; InputError naming the file when it is unreadable.
+
+    Parameters
+    ----------
+    path
+        The file.
+    max_bytes
+        The largest file read. Default: :data:`FRAME_RECORD_MAX_BYTES` for a
+        file in a ``frames`` folder, else :data:`RESULTS_MAX_BYTES` (results.json
+        and the run's other JSON files).
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable, too large or malformed file, or not a JSON object.
+    """
+    path = Path(path)
+    if max_bytes is None:
+        in_frames = path.parent.name == "frames"
+        max_bytes = FRAME_RECORD_MAX_BYTES if in_frames else RESULTS_MAX_BYTES
+    what = "frame record" if max_bytes == FRAME_RECORD_MAX_BYTES else "run JSON file"
     try:
-        data = json.loads(Path(path).read_text())
+        data = json.loads(read_text_limited(path, max_bytes, what))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{path}: not a readable JSON file ({exc})") from exc
     if not isinstance(data, dict):

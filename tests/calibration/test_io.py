@@ -17,6 +17,7 @@ from yaml_edits import delete_at, set_at
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import (
     CALIBRATION_FORMAT,
+    CALIBRATION_MAX_BYTES,
     Calibration,
     dump_yaml,
     export_anipose_toml,
@@ -340,6 +341,29 @@ def test_empty_and_missing_file(tmp_path: Path) -> None:
         load_calibration(tmp_path / "nope.yaml")
     with pytest.raises(InputError, match="found a folder"):
         load_calibration(tmp_path)
+
+
+def test_oversized_calibration_files(tmp_path: Path) -> None:
+    """calibration.yaml and calibration.toml are refused by their size before parsing."""
+    yaml_path = tmp_path / "calibration.yaml"
+    save_calibration(yaml_path, make_group())
+    with open(yaml_path, "ab") as fh:  # a valid file padded with 2 MB of spaces
+        fh.write(b" " * 2_000_000)
+    with pytest.raises(InputError) as info:
+        load_calibration(yaml_path)
+    message = str(info.value)
+    assert message.startswith(f"{yaml_path}: 2 MB, larger than the 1 MB limit")
+    assert message.endswith("for a calibration file")
+    toml_path = tmp_path / "calibration.toml"
+    export_anipose_toml(toml_path, make_group())
+    with open(toml_path, "r+b") as fh:
+        fh.truncate(CALIBRATION_MAX_BYTES + 1)
+    with pytest.raises(
+        InputError,
+        match=r"calibration\.toml: 1,000,001 bytes, larger than the 1 MB limit for a "
+        r"calibration TOML file",
+    ):
+        import_anipose_toml(toml_path)
 
 
 def test_calibration_dataclass_save(tmp_path: Path) -> None:

@@ -18,6 +18,7 @@ from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import save_calibration
 from bodymetry.capture.session import (
     SESSION_FORMAT,
+    SESSION_MAX_BYTES,
     BoardSpec,
     Session,
     SessionCamera,
@@ -302,6 +303,22 @@ def test_malformed_yaml_and_missing(session_dir: Path, tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
     with pytest.raises(InputError, match=r"session\.yaml: session file not found"):
         load_session(tmp_path / "empty")
+
+
+def test_oversized_session_file(session_dir: Path) -> None:
+    """A huge session.yaml (the wrong file) is refused by its size before it is parsed."""
+    path = session_dir / "session.yaml"
+    with open(path, "r+b") as fh:
+        fh.truncate(52_400_000)  # sparse: instant
+    with pytest.raises(InputError) as info:
+        load_session(session_dir)
+    assert str(info.value) == (f"{path}: 52.4 MB, larger than the 1 MB limit for a session file")
+    # Just over the limit: spaces after valid YAML still count.
+    _write(session_dir, _valid_data())
+    with open(path, "ab") as fh:
+        fh.write(b" " * (SESSION_MAX_BYTES - path.stat().st_size + 1))
+    with pytest.raises(InputError, match=r"session\.yaml: 1,000,001 bytes, larger than the 1 MB"):
+        load_session(session_dir)
 
 
 def test_calibration_method_without_file(session_dir: Path) -> None:
