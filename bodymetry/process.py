@@ -13,10 +13,16 @@ schema of the run folder are :mod:`bodymetry.estimation.records`
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import functools
 import json
 import logging
 import multiprocessing as mp
+import os
+import signal
+import sys
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -29,7 +35,8 @@ from bodymetry.cameras import resolve_cameras
 from bodymetry.capture.session import Session, load_session
 from bodymetry.capture.silhouette import segment_session
 from bodymetry.config import ProcessConfig
-from bodymetry.estimation.fit import FitConfig, FrameFit, fit_frame, shared_body_model
+from bodymetry.errors import InputError
+from bodymetry.estimation.fit import MIN_PIXELS, FitConfig, FrameFit, fit_frame, shared_body_model
 from bodymetry.estimation.records import (
     FrameRecord,
     RunLayout,
@@ -41,6 +48,7 @@ from bodymetry.estimation.training import DiscriminativeModels, cached_models_pa
 from bodymetry.fileio import save_npz, write_json_atomic
 from bodymetry.review.build import build_review
 from bodymetry.review.meshes import write_mesh
+from bodymetry.run_folder import prepare_run_folder
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +61,30 @@ Progress = Callable[[str, int, int], None]
 def _discriminative(path: Path) -> DiscriminativeModels:
     # Loaded once per worker process (a worker fits many frames).
     return DiscriminativeModels.load(path)
+
+
+def _die_with_parent(parent: int) -> None:
+    """Pool worker initializer: exit when the parent process is gone.
+
+    A SIGKILLed ``bodymetry process`` cannot tear its pool down, and orphaned
+    workers would keep fitting and writing. On Linux the kernel kills the worker
+    when its parent dies (``PR_SET_PDEATHSIG``); everywhere, a watchdog thread
+    checks the parent twice a second.
+    """
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            libc = ctypes.CDLL(None, use_errno=True)
+            pr_set_pdeathsig = 1
+            libc.prctl(pr_set_pdeathsig, signal.SIGKILL)
+    if os.getppid() != parent:  # the parent died before prctl took effect
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
 
 
 def _fit_worker(
@@ -74,15 +106,43 @@ def write_frame(layout: RunLayout, fit: FrameFit) -> None:
 
 
 def read_done_frames(layout: RunLayout) -> dict[int, FrameRecord]:
-    """The frames a previous run of this folder finished (a record and its arrays)."""
+    """The frames a previous run of this folder finished: record, arrays and mesh whole.
+
+    A frame whose record is unreadable (a truncated file) or whose arrays or mesh
+    are missing is fitted again, with a warning.
+    """
     done = {}
     for frame in layout.recorded_frames():
-        record = FrameRecord.read(layout.frame_record(frame))
-        if not layout.frame_arrays(frame).is_file():
-            log.warning("%s: frame %d has no arrays; fitting it again", layout.folder, frame)
+        path = layout.frame_record(frame)
+        try:
+            record = FrameRecord.read(path)
+        except InputError as exc:
+            log.warning("%s; fitting the frame again", exc)
+            path.unlink()
+            continue
+        missing = [
+            p.name
+            for p in (layout.frame_arrays(frame), layout.frame_mesh(frame))
+            if not p.is_file() and (p.suffix == ".npz" or record.fitted)
+        ]
+        if missing:
+            log.warning(
+                "%s: frame %d lacks %s; fitting it again", layout.folder, frame, ", ".join(missing)
+            )
+            path.unlink()
             continue
         done[frame] = record
     return done
+
+
+def camera_warnings(camera_frames: dict[str, int], n_kept: int) -> list[str]:
+    """Warnings for cameras that saw no usable silhouette in any kept frame."""
+    return [
+        f"camera {name!r} saw no person in any of the {n_kept} kept frames (covered, black "
+        "or pointing away?); it contributed nothing to the measurements"
+        for name, n in camera_frames.items()
+        if n == 0 and n_kept > 0
+    ]
 
 
 def _ground_truth(session: Session) -> dict | None:
@@ -97,6 +157,8 @@ def process_session(
     out: str | Path,
     config: ProcessConfig | None = None,
     progress: Progress | None = None,
+    *,
+    restart: bool = False,
 ) -> RunResults:
     """Run the whole pipeline on a session; writes ``out/results.json`` and returns it.
 
@@ -109,6 +171,9 @@ def process_session(
     config : ProcessConfig, optional
     progress : callable, optional
         ``progress(label, done, total)`` for each stage.
+    restart : bool
+        Replace a run of another session or other settings in ``out``
+        (:func:`bodymetry.run_folder.prepare_run_folder`); without it that is an error.
 
     The review outputs (``config.review``) are built after ``results.json`` is
     written; a failure there is logged, never raised (the results are safe).
@@ -116,6 +181,7 @@ def process_session(
     config = config or ProcessConfig()
     session = load_session(session_path)
     layout = RunLayout(Path(out))
+    prepare_run_folder(layout.folder, session, config, restart=restart)
     layout.frames_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     resolved = resolve_cameras(session, layout.folder, progress)
@@ -134,8 +200,11 @@ def process_session(
     pending = []
     t1 = time.perf_counter()
     n_kept = 0
+    camera_frames = dict.fromkeys(session.camera_names, 0)
     for sil in segment_session(session, keep_images=False):
         n_kept += 1
+        for name, mask in zip(sil.cameras, sil.masks, strict=True):
+            camera_frames[name] += int(np.count_nonzero(mask) >= MIN_PIXELS)
         if sil.frame not in done:
             flags = [list(f) for f in sil.flags]
             pending.append((sil.frame, sil.stack(), flags, cameras, models_path, config.fit))
@@ -146,7 +215,12 @@ def process_session(
     if pending:
         # fork: workers inherit the loaded modules (the spawn start method re-imports).
         ctx = mp.get_context("fork")
-        with ProcessPoolExecutor(config.workers_or_cores, mp_context=ctx) as pool:
+        with ProcessPoolExecutor(
+            config.workers_or_cores,
+            mp_context=ctx,
+            initializer=_die_with_parent,
+            initargs=(os.getpid(),),
+        ) as pool:
             futures = [pool.submit(_fit_worker, job) for job in pending]
             for fut in as_completed(futures):
                 fit = fut.result()
@@ -156,6 +230,11 @@ def process_session(
                 if progress:
                     progress("frames", len(done), n_kept)
     records = tuple(done[f] for f in sorted(done))
+    warnings = camera_warnings(camera_frames, n_kept)
+    if not any(r.ok for r in records):
+        warnings.append(f"no frame of the {n_kept} kept frames was measured")
+    for text in warnings:
+        log.warning("%s: %s", session.folder, text)
     results = RunResults(
         session=SessionInfo(
             path=str(Path(session_path).resolve()),
@@ -175,6 +254,8 @@ def process_session(
         },
         calibration_source=resolved.source,
         ground_truth=_ground_truth(session),
+        camera_frames=camera_frames,
+        warnings=tuple(warnings),
     )
     write_json_atomic(layout.results, results.to_json())
     if config.review:

@@ -109,6 +109,11 @@ class RunLayout:
     folder: Path
 
     @property
+    def manifest(self) -> Path:
+        """``run.json``: what the run is of (written first; see ``bodymetry.run_folder``)."""
+        return self.folder / "run.json"
+
+    @property
     def results(self) -> Path:
         return self.folder / "results.json"
 
@@ -552,6 +557,11 @@ class RunResults:
         Where the run's cameras came from (a file, or "solved from the clips").
     ground_truth : dict or None
         The studio subject's true measurements, when the session has them.
+    camera_frames : dict of str to int
+        Per camera, the kept frames in which it saw a usable silhouette (a camera
+        with none contributed nothing: covered, black, or no person in view).
+    warnings : tuple of str
+        What the user should know about the run (also logged).
     """
 
     session: SessionInfo
@@ -561,6 +571,8 @@ class RunResults:
     timing_seconds: dict[str, float] = field(default_factory=dict)
     calibration_source: str = ""
     ground_truth: dict[str, Any] | None = None
+    camera_frames: dict[str, int] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
 
     @property
     def ok_frames(self) -> list[FrameRecord]:
@@ -582,6 +594,8 @@ class RunResults:
                 for stage, stats in self.summary.items()
             },
             "timing_seconds": self.timing_seconds,
+            "camera_frames": self.camera_frames,
+            "warnings": list(self.warnings),
         }
         if self.ground_truth is not None:
             out["ground_truth"] = self.ground_truth
@@ -624,6 +638,8 @@ class RunResults:
             summary=summary,
             timing_seconds=dict(data.get("timing_seconds", {})),
             calibration_source=str(data.get("calibration_source", "")),
+            camera_frames={k: int(v) for k, v in data.get("camera_frames", {}).items()},
+            warnings=tuple(str(w) for w in data.get("warnings", [])),
             ground_truth=data.get("ground_truth"),
         )
 

@@ -24,12 +24,12 @@ TINY_TRAIN = TrainConfig(
 )
 
 
-def tiny_session(folder: Path, seed: int) -> Session:
-    """Render the tiny A-pose studio session into ``folder``."""
+def tiny_session(folder: Path, seed: int, frames: int = 5) -> Session:
+    """Render the tiny A-pose studio session into ``folder`` (every 2nd frame kept)."""
     return synthesize(
         folder,
         SynthConfig(
-            frames=5,
+            frames=frames,
             frame_step=2,
             cameras=2,
             size=(240, 180),
@@ -40,3 +40,11 @@ def tiny_session(folder: Path, seed: int) -> Session:
         ),
         workers=1,
     )
+
+
+def tiny_train_overrides() -> list[str]:
+    """``--set`` arguments that make ``bodymetry process`` train :data:`TINY_TRAIN`."""
+    return [
+        f"training.{name}={list(value) if isinstance(value, tuple) else value}"
+        for name, value in TINY_TRAIN.__dict__.items()
+    ]
