@@ -102,6 +102,13 @@ def test_a_run_without_run_json_needs_restart(session, tmp_path):
 
 
 def test_an_unwritable_folder_is_one_error(session, tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    with pytest.raises(InputError, match=r"a-file.*cannot write the run folder"):
+        prepare_run_folder(blocker / "run", session, ProcessConfig())  # a file in the path
+
+
+def test_a_read_only_folder_is_one_error(session, tmp_path):
     locked = tmp_path / "locked"
     locked.mkdir()
     locked.chmod(0o500)
