@@ -33,6 +33,7 @@ __all__ = [
     "REPORT_FILE",
     "auto_step",
     "calibrate_session",
+    "calibration_clip_lengths",
     "detect_session",
     "parse_floor_frames",
     "write_calibration",
@@ -75,6 +76,40 @@ def _clip_length(path: Path) -> int:
         cap.release()
 
 
+def calibration_clip_lengths(session) -> dict[str, int]:
+    """Frames in each camera's calibration clip, after checking every clip can be used.
+
+    Raises
+    ------
+    InputError
+        No board description, a camera without a clip, or clips that cannot be
+        read (all of them named, before any detection starts).
+    """
+    if session.board is None:
+        raise InputError(
+            f"{session.folder / 'session.yaml'}: board: the session describes no calibration "
+            "board, so its calibration clips cannot be used"
+        )
+    missing = [c for c in session.camera_names if c not in session.calibration_clips]
+    if missing:
+        raise InputError(
+            f"{session.folder / 'session.yaml'}: cameras {missing} have no calibration clip"
+        )
+    paths = {c: session.calibration_clip_path(c) for c in session.camera_names}
+    # Every clip is checked before any detection starts, and every bad one is named.
+    lengths = {c: _clip_length(p) if p.is_file() else -1 for c, p in paths.items()}
+    bad = [
+        f"{paths[c]} ({'not found' if n < 0 else 'no readable frames'})"
+        for c, n in lengths.items()
+        if n <= 0
+    ]
+    if bad:
+        raise InputError(
+            f"{session.folder / 'session.yaml'}: calibration clips cannot be read: {'; '.join(bad)}"
+        )
+    return lengths
+
+
 def detect_session(
     session,
     *,
@@ -100,20 +135,11 @@ def detect_session(
     InputError
         No board description, a camera without a clip, unreadable clips.
     """
-    if session.board is None:
-        raise InputError(
-            f"{session.folder / 'session.yaml'}: board: the session describes no calibration "
-            "board, so its calibration clips cannot be used"
-        )
-    missing = [c for c in session.camera_names if c not in session.calibration_clips]
-    if missing:
-        raise InputError(
-            f"{session.folder / 'session.yaml'}: cameras {missing} have no calibration clip"
-        )
+    lengths = calibration_clip_lengths(session)
     names = list(session.camera_names)
     paths = {c: session.calibration_clip_path(c) for c in names}
     if step is None:
-        step = auto_step(max(_clip_length(p) for p in paths.values()))
+        step = auto_step(max(lengths.values()))
     board = session.board.create_board()
 
     def one(name: str) -> CameraDetections:

@@ -9,6 +9,7 @@ from rich.table import Table
 
 from bodymetry.calibration.session_calibration import (
     calibrate_session,
+    calibration_clip_lengths,
     detect_session,
     parse_floor_frames,
     write_calibration,
@@ -57,6 +58,7 @@ def calibrate(
             f"{out} exists; pass --overwrite to replace it or --out to write elsewhere"
         )
     floor = parse_floor_frames(floor_frames, session.fps)
+    calibration_clip_lengths(session)  # every unusable clip named before any progress bar
     with frames_progress() as progress:
         tasks = {
             name: progress.add_task(f"detecting {name}", total=None)

@@ -7,6 +7,7 @@ known (distortion-free) camera: exact ground truth, no renderer needed.
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import cv2
@@ -172,3 +173,17 @@ def test_calibrate_command_end_to_end(tiny_session) -> None:
     # ... and a bad option is one clear line.
     res = runner.invoke(main, ["calibrate", str(folder), "--floor-frames", "six", "--overwrite"])
     assert res.exit_code == 2 and "--floor-frames 'six'" in res.output
+
+
+def test_missing_and_unreadable_clips_are_all_named_before_detection(tiny_session, tmp_path):
+    folder, _ = tiny_session
+    copy = tmp_path / "session"
+    shutil.copytree(folder, copy)
+    (copy / "calib" / "cam_00.avi").write_bytes(b"")
+    (copy / "calib" / "cam_01.avi").write_bytes(b"not a video")
+    res = CliRunner().invoke(main, ["calibrate", str(copy), "--overwrite"])
+    assert res.exit_code == 2, res.output
+    text = " ".join(res.output.split())  # rich may wrap the line
+    assert "calibration clips cannot be read" in text
+    assert "cam_00.avi (no readable frames)" in text and "cam_01.avi (no readable frames)" in text
+    assert "cam_02" not in text and "Traceback" not in text
