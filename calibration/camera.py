@@ -64,7 +64,8 @@ class Camera:
         if t.shape != (3,):
             raise ValueError(f"{where}: t must have 3 values, got shape {t.shape}")
         if len(self.size) != 2 or min(self.size) <= 0:
-            raise ValueError(f"{where}: size must be (width, height) > 0, got {self.size}")
+            shown = tuple(np.asarray(self.size).tolist())  # plain numbers, not np.int64(...)
+            raise ValueError(f"{where}: size must be (width, height) > 0, got {shown}")
         for arr in (K, dist, R, t):
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f"{where}: parameters contain NaN or infinity")

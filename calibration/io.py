@@ -61,6 +61,7 @@ __all__ = [
     "join_field",
     "load_calibration",
     "parse_yaml",
+    "plain_number",
     "read_calibration",
     "read_yaml_mapping",
     "save_calibration",
@@ -186,6 +187,18 @@ def read_yaml_mapping(
 # --------------------------------------------------------------------------
 # Validation toolkit
 # --------------------------------------------------------------------------
+def plain_number(value: Any) -> str:
+    """A number as a person writes it: ``-706.03``, ``0``, never ``np.float64(-706.03)``.
+
+    Under numpy 2 the ``repr`` of a numpy scalar names its type, which reads as
+    noise in an error message; Python numbers are kept as they are (``repr``,
+    which reads back to the same value).
+    """
+    if isinstance(value, np.generic):
+        value = value.item()
+    return repr(value)
+
+
 def describe(value: Any) -> str:
     """Short human description of a parsed YAML/TOML value, for error messages."""
     if value is None:
@@ -195,7 +208,7 @@ def describe(value: Any) -> str:
     if isinstance(value, int):
         return f"the integer {value}"
     if isinstance(value, float):
-        return f"the number {value!r}"
+        return f"the number {plain_number(value)}"
     if isinstance(value, str):
         shown = value if len(value) <= 60 else value[:57] + "..."
         return f"the string {shown!r}"
@@ -299,11 +312,13 @@ class Fields:
             raise self.error(field, f"expected a number, got {describe(value)}")
         x = float(value)
         if not math.isfinite(x):
-            raise self.error(field, f"expected a finite number, got {value!r}")
+            raise self.error(field, f"expected a finite number, got {plain_number(value)}")
         if positive and not x > 0:
-            raise self.error(field, f"expected a number > 0, got {value!r}")
+            raise self.error(field, f"expected a number > 0, got {plain_number(value)}")
         if minimum is not None and x < minimum:
-            raise self.error(field, f"expected a number >= {minimum}, got {value!r}")
+            raise self.error(
+                field, f"expected a number >= {plain_number(minimum)}, got {plain_number(value)}"
+            )
         return x
 
     def array(
@@ -525,7 +540,9 @@ def _intrinsics(fields: Fields, value: Any, field: str) -> np.ndarray:
         )
     if not (K[0, 0] > 0 and K[1, 1] > 0):
         raise fields.error(
-            field, f"expected positive focal lengths fx, fy, got {K[0, 0]!r}, {K[1, 1]!r}"
+            field,
+            f"expected positive focal lengths, got fx={plain_number(K[0, 0])}, "
+            f"fy={plain_number(K[1, 1])}",
         )
     return K
 

@@ -13,6 +13,10 @@ frame count, size) and reports what does not agree:
   camera(s); the session is cut to the frames every camera has (``strict=True``
   makes it an error).
 
+The same rules without raising, for a check that lists every problem at once
+(``bodymetry check``): :func:`video_sync_problems` (one camera),
+:func:`size_mismatch` and :func:`frame_count_mismatch`.
+
 :func:`read_frame_sets` decodes only what it must. H.264 seeks land on a
 keyframe and decode forward from there (x264 puts one every 250 frames), so
 for a step of 25 a seek per kept frame decodes about five times more than
@@ -50,8 +54,11 @@ __all__ = [
     "SyncReport",
     "VideoInfo",
     "check_sync",
+    "frame_count_mismatch",
     "probe_video",
     "read_frame_sets",
+    "size_mismatch",
+    "video_sync_problems",
 ]
 
 #: How frames are fetched: decode straight through (``grab``) or seek to each kept frame.
@@ -185,6 +192,98 @@ def probe_video(path: str | Path, camera: str = "?", frame_offset: int = 0) -> V
     return VideoInfo(camera, path, fps, frames, (width, height), int(frame_offset))
 
 
+def video_sync_problems(session: Session, info: VideoInfo) -> list[str]:
+    """What :func:`check_sync` refuses about one camera's video, without raising.
+
+    Parameters
+    ----------
+    session : Session
+    info : VideoInfo
+        From :func:`probe_video` (its ``camera`` and ``frame_offset`` are the session's).
+
+    Returns
+    -------
+    list of str
+        Empty when the video fits the session; else one message per problem (an
+        fps other than ``session.yaml``'s beyond :data:`FPS_TOLERANCE`, a
+        ``frame_offset`` at or past the end), each naming the camera and the file.
+    """
+    problems = []
+    if abs(info.fps - session.fps) > FPS_TOLERANCE * session.fps:
+        problems.append(
+            f"camera {info.camera!r}: {info.path} runs at {info.fps:g} fps but session.yaml "
+            f"says fps: {session.fps:g}; the cameras cannot be synchronized frame by frame"
+        )
+    if info.frame_offset >= info.frames:
+        problems.append(
+            f"camera {info.camera!r}: frame_offset {info.frame_offset} is past the end of "
+            f"{info.path} ({info.frames} frames)"
+        )
+    return problems
+
+
+def size_mismatch(
+    info: VideoInfo, calibrated: tuple[int, int], calibration_file: str | Path
+) -> str | None:
+    """The message :func:`check_sync` raises when a video's size is not the calibration's.
+
+    Parameters
+    ----------
+    info : VideoInfo
+        The camera's video (its ``size`` is compared).
+    calibrated : (int, int)
+        ``(width, height)`` the calibration gives the camera.
+    calibration_file : str or Path
+        The calibration, as the message should name it.
+
+    Returns
+    -------
+    str or None
+        None when the sizes agree.
+    """
+    w, h = (int(v) for v in calibrated)
+    if (w, h) == tuple(info.size):
+        return None
+    return (
+        f"camera {info.camera!r}: {info.path} is {info.size[0]}x{info.size[1]} but "
+        f"{calibration_file} says {w}x{h}"
+    )
+
+
+def frame_count_mismatch(videos: Sequence[VideoInfo]) -> str | None:
+    """The warning :func:`check_sync` gives when frame counts differ after the offsets.
+
+    Parameters
+    ----------
+    videos : sequence of VideoInfo
+        One per camera, session order.
+
+    Returns
+    -------
+    str or None
+        None when every camera covers the same number of session frames; else a
+        message naming the short camera(s) and how many frames will be used.
+    """
+    if not videos:
+        return None
+    counts = np.array([v.session_frames for v in videos])
+    longest = int(counts.max())
+    if (counts == longest).all():
+        return None
+    n_frames = int(counts.min())
+    short = [v for v in videos if v.session_frames < longest]
+    detail = "; ".join(
+        f"camera {v.camera!r} has {v.session_frames} ({v.frames} in {v.path.name}"
+        + (f" minus frame_offset {v.frame_offset}" if v.frame_offset else "")
+        + ")"
+        for v in short
+    )
+    return (
+        f"frame counts differ after the offsets: {detail}, the others {longest}; "
+        f"using the first {n_frames} session frames, which every camera has"
+    )
+
+
 def check_sync(session: Session, *, strict: bool = False, check_sizes: bool = True) -> SyncReport:
     """Probe every camera's video and check that they can be synchronized.
 
@@ -211,41 +310,21 @@ def check_sync(session: Session, *, strict: bool = False, check_sizes: bool = Tr
     videos = []
     for cam in session.cameras:
         info = probe_video(session.video_path(cam.name), cam.name, cam.frame_offset)
-        if abs(info.fps - session.fps) > FPS_TOLERANCE * session.fps:
-            raise InputError(
-                f"camera {cam.name!r}: {info.path} runs at {info.fps:g} fps but session.yaml "
-                f"says fps: {session.fps:g}; the cameras cannot be synchronized frame by frame"
-            )
-        if cam.frame_offset >= info.frames:
-            raise InputError(
-                f"camera {cam.name!r}: frame_offset {cam.frame_offset} is past the end of "
-                f"{info.path} ({info.frames} frames)"
-            )
+        problems = video_sync_problems(session, info)
+        if problems:
+            raise InputError(problems[0])
         videos.append(info)
     if check_sizes and session.calibration_file is not None:
         calib = session.calibration()
         for info, cam in zip(videos, calib, strict=True):
-            if tuple(cam.size) != info.size:
-                raise InputError(
-                    f"camera {info.camera!r}: {info.path} is {info.size[0]}x{info.size[1]} but "
-                    f"{session.calibration_file} says {cam.size[0]}x{cam.size[1]}"
-                )
+            problem = size_mismatch(info, cam.size, session.calibration_file)
+            if problem is not None:
+                raise InputError(problem)
     counts = np.array([v.session_frames for v in videos])
     n_frames = int(counts.min())
     warnings: list[str] = []
-    if (counts != counts.max()).any():
-        longest = int(counts.max())
-        short = [v for v in videos if v.session_frames < longest]
-        detail = "; ".join(
-            f"camera {v.camera!r} has {v.session_frames} ({v.frames} in {v.path.name}"
-            + (f" minus frame_offset {v.frame_offset}" if v.frame_offset else "")
-            + ")"
-            for v in short
-        )
-        msg = (
-            f"frame counts differ after the offsets: {detail}, the others {longest}; "
-            f"using the first {n_frames} session frames, which every camera has"
-        )
+    msg = frame_count_mismatch(videos)
+    if msg is not None:
         if strict:
             raise InputError(f"{session.folder / 'session.yaml'}: {msg}")
         warnings.append(msg)

@@ -29,6 +29,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "bodymetry.cli.calibrate:calibrate",
         "Solve the cameras of SESSION from its ChArUco calibration clips.",
     ),
+    "check": (
+        "bodymetry.cli.check:check",
+        "Check SESSION (and --out) and list every problem found, before any training or fitting.",
+    ),
     "estimate-image": (
         "bodymetry.cli.image:estimate_image",
         "Body shape and measurements from one segmented photo, uncalibrated (paper Figure 2).",
