@@ -49,7 +49,10 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
+    except OSError as exc:
+        raise _naming(exc, final) from exc
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -59,9 +62,20 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, final)
+    except OSError as exc:
+        # The user asked for ``final``: name it, not the temporary file beside it
+        # (a full disk, a folder that became read-only).
+        if exc.filename is not None and Path(exc.filename) == tmp:
+            raise _naming(exc, final) from exc
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def _naming(exc: OSError, path: Path) -> OSError:
+    """The same error (type and errno) about ``path``."""
+    return type(exc)(exc.errno, exc.strerror or str(exc), str(path))
 
 
 def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:

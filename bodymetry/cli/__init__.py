@@ -6,9 +6,13 @@ they share. The group loads a command's module only when that command runs (or
 its own ``--help`` is asked for), so ``bodymetry --help`` does not import the
 stage packages.
 
-Errors the user can fix (:class:`bodymetry.errors.BodymetryError`) are printed
-as one line naming the file or option and exit with status 2; anything else is
-a bug and keeps its traceback.
+Every command runs under one error handler (:func:`.common.reported_errors`):
+an error reaching the command line is printed as one line naming the file or
+option, with exit status 2 for bad input (:class:`bodymetry.errors.BodymetryError`,
+``OSError``, malformed JSON / YAML / text, OpenCV failures) and 1 for anything
+else (a bug); ``-v`` adds the traceback. ``process`` exits with 3 when no frame
+could be measured. Warnings are shown as log lines (numeric ones at debug
+level). docs/cli.md lists the exit statuses.
 """
 
 from __future__ import annotations
@@ -16,10 +20,10 @@ from __future__ import annotations
 import click
 
 from bodymetry import __version__
-from bodymetry.cli.common import DEMO_SESSION, setup_logging
+from bodymetry.cli.common import DEMO_SESSION, reported_errors, setup_logging, warnings_to_log
 from bodymetry.cli.lazy import LazyGroup
 
-__all__ = ["COMMANDS", "DEMO_SESSION", "main"]
+__all__ = ["COMMANDS", "DEMO_SESSION", "BodymetryGroup", "main"]
 
 #: Command name -> ("module:attribute" of its click command, the first line of its help).
 #: The help line is what ``bodymetry --help`` lists without importing the module;
@@ -74,13 +78,28 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+class BodymetryGroup(LazyGroup):
+    """The command group: lazily loaded commands, run under the one error handler."""
+
+    def invoke(self, ctx: click.Context) -> object:
+        # Here, not per command: an error anywhere (loading a command's module
+        # included) is reported the same way, and -v is parsed by now.
+        with reported_errors(ctx.params.get("verbose") or 0), warnings_to_log():
+            return super().invoke(ctx)
+
+
 @click.group(
-    cls=LazyGroup,
+    cls=BodymetryGroup,
     lazy_subcommands=COMMANDS,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 @click.version_option(__version__, prog_name="bodymetry")
-@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
+@click.option(
+    "-v",
+    "--verbose",
+    count=True,
+    help="More log output (-v info and tracebacks of errors, -vv debug).",
+)
 def main(verbose: int) -> None:
     """Body pose, shape and measurements from synchronized multi-camera video."""
     setup_logging(verbose)

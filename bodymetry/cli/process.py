@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import click
+import rich.markup
 from rich.table import Table
 
 from bodymetry.cli.common import (
     DEMO_SESSION,
+    EXIT_NO_FRAMES,
     cache_option,
     console,
     friendly_errors,
@@ -111,6 +114,38 @@ def process(
     console.print(f"wrote {out / 'results.json'} and frames/ (per-frame records)")
     if config.review:
         _print_review_files(out)
+    if not results.ok_frames:
+        # The run itself worked (results.json says why each frame failed), but
+        # there is no measurement: a script must not mistake it for success.
+        console.print(
+            f"[bold red]error:[/] {rich.markup.escape(no_frames_message(results, out))}",
+            highlight=False,
+            soft_wrap=True,
+        )
+        sys.exit(EXIT_NO_FRAMES)
+
+
+def no_frames_message(results: RunResults, run: Path) -> str:
+    """Why no frame of a run was measured: its frames' statuses, summarized on one line.
+
+    Statuses are grouped by their kind (the text before a ``:``, so "poor fit: mean
+    silhouette IoU 0.41 < 0.90" counts as "poor fit"), most frequent first, with
+    the first frames of each.
+    """
+    frames = results.frames
+    if not frames:
+        return f"no frame was measured: the session has no kept frame (see {run / 'results.json'})"
+    kinds: dict[str, list[int]] = {}
+    for f in frames:
+        kinds.setdefault(f.status.split(":", 1)[0].strip() or "unknown", []).append(f.frame)
+    parts = []
+    for kind, numbers in sorted(kinds.items(), key=lambda kv: (-len(kv[1]), kv[0])):
+        shown = ", ".join(str(n) for n in numbers[:3]) + (", ..." if len(numbers) > 3 else "")
+        parts.append(f"{len(numbers)} {kind} (frame{'s' if len(numbers) > 1 else ''} {shown})")
+    return (
+        f"no frame of {len(frames)} could be measured: {'; '.join(parts)}; "
+        f"per frame in {run / 'results.json'}"
+    )
 
 
 def _print_review_files(run: Path) -> None:

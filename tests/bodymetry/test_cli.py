@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import json
+import logging
+import os
 import re
+import shutil
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import click
@@ -13,14 +17,19 @@ import cv2
 import numpy as np
 import pytest
 import trimesh
+import yaml
 from click.testing import CliRunner, Result
 
 import bodymetry
 import bodymetry.cli.model as cli_model
 from bodymetry.capture.toy import write_toy_session
 from bodymetry.cli import COMMANDS, main
+from bodymetry.cli.common import describe_error, labelled_progress, warnings_to_log
+from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS, measure
 from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.records import FrameRecord, RunResults, SessionInfo
+from bodymetry.log import PROGRESS_LOGGER, setup_logging
 
 # --------------------------------------------------------------------------------------
 # Tolerances, all in one place.
@@ -299,3 +308,281 @@ def test_top_level_help_imports_no_command_module():
         "bodymetry.cli.common",
         "bodymetry.cli.lazy",
     }, loaded
+
+
+# --- one error handler: one line, the right exit status ---------------------------------------
+def _assert_one_line(result: Result, status: int, *patterns: str) -> str:
+    """Exit ``status``, one line on stderr (after any progress lines), no traceback."""
+    assert result.exit_code == status, (result.exit_code, result.output, result.exception)
+    assert isinstance(result.exception, SystemExit), result.exception
+    assert "Traceback" not in result.output
+    errors = [ln for ln in result.stderr.splitlines() if "error" in ln]
+    assert len(errors) == 1, result.stderr
+    line = errors[0]
+    for pattern in patterns:
+        assert re.search(pattern, line), (pattern, line)
+    return line
+
+
+@pytest.fixture()
+def read_only_folder(tmp_path: Path):
+    folder = tmp_path / "read-only"
+    folder.mkdir()
+    folder.chmod(0o500)
+    if os.access(folder, os.W_OK):  # root ignores the mode
+        folder.chmod(0o700)
+        pytest.skip("running as a user who can write to a read-only folder")
+    yield folder
+    folder.chmod(0o700)
+
+
+@pytest.mark.parametrize("command", ["process", "silhouettes"])
+def test_unwritable_out_is_one_line(toy: Path, read_only_folder: Path, command: str) -> None:
+    out = read_only_folder / "run"
+    result = _run(command, str(toy), "--out", str(out))
+    _assert_one_line(result, 2, r"^error: ", re.escape(str(out)), "Permission denied")
+
+
+def test_unwritable_out_file_names_the_file_not_a_temporary(
+    cached_model, read_only_folder: Path
+) -> None:
+    out = read_only_folder / "body.ply"
+    line = _assert_one_line(_run("model", "export", "--out", str(out)), 2, "Permission denied")
+    assert f"error: {out}: Permission denied" in " ".join(line.split())
+
+
+@pytest.fixture()
+def truncated_run(tmp_path: Path) -> Path:
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "results.json").write_text('{"format": 2, "session": {"name": "s"}, "fra')
+    return run
+
+
+@pytest.mark.parametrize("command", ["evaluate", "report"])
+def test_truncated_results_json_is_one_line(truncated_run: Path, command: str) -> None:
+    _assert_one_line(
+        _run(command, str(truncated_run)),
+        2,
+        r"^error: ",
+        re.escape(str(truncated_run / "results.json")),
+        "not a readable JSON file",
+    )
+
+
+def test_missing_session_is_one_line(tmp_path: Path) -> None:
+    _assert_one_line(
+        _run("process", str(tmp_path / "nope"), "--out", str(tmp_path / "run")),
+        2,
+        re.escape(str(tmp_path / "nope")),
+        "session folder not found",
+    )
+    assert not (tmp_path / "run").exists()
+
+
+def test_malformed_session_yaml_is_one_line(toy: Path, tmp_path: Path) -> None:
+    session = tmp_path / "s"
+    shutil.copytree(toy, session)
+    (session / "session.yaml").write_text("format: bodymetry-session/1\ncameras: [a\n")
+    _assert_one_line(
+        _run("process", str(session), "--out", str(tmp_path / "run")),
+        2,
+        re.escape(str(session / "session.yaml")),
+        "not valid YAML at line",
+    )
+
+
+def _boom(*args, **kwargs):
+    raise ZeroDivisionError("float division by zero")
+
+
+def test_internal_error_is_one_line_with_status_1(monkeypatch, toy: Path, tmp_path: Path) -> None:
+    import bodymetry.cli.process as cli_process
+
+    monkeypatch.setattr(cli_process, "process_session", _boom)
+    result = _run("process", str(toy), "--out", str(tmp_path / "run"))
+    line = _assert_one_line(result, 1)
+    assert line == (
+        "internal error: ZeroDivisionError: float division by zero (run with -v for the traceback)"
+    )
+
+
+def test_internal_error_with_v_prints_the_traceback(monkeypatch, toy: Path, tmp_path: Path) -> None:
+    import bodymetry.cli.process as cli_process
+
+    monkeypatch.setattr(cli_process, "process_session", _boom)
+    result = _run("-v", "process", str(toy), "--out", str(tmp_path / "run"))
+    assert result.exit_code == 1
+    assert "Traceback (most recent call last)" in result.stderr
+    assert "in _boom" in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last == "internal error: ZeroDivisionError: float division by zero"
+
+
+def _raise(exc: BaseException):
+    raise exc
+
+
+@pytest.mark.parametrize(
+    ("exc", "message", "status"),
+    [
+        (
+            PermissionError(13, "Permission denied", "/data/run/results.json"),
+            "error: /data/run/results.json: Permission denied",
+            2,
+        ),
+        (OSError(28, "No space left on device"), "error: No space left on device", 2),
+        (
+            FileNotFoundError(2, "No such file or directory", "/a", None, "/b"),
+            "error: /a -> /b: No such file or directory",
+            2,
+        ),
+        (
+            json.JSONDecodeError("Expecting value", "{", 1),
+            "error: not valid JSON: Expecting value: line 1 column 2 (char 1)",
+            2,
+        ),
+        (
+            UnicodeDecodeError("utf-8", b"\xff", 0, 1, "invalid start byte"),
+            "error: not utf-8 text: invalid start byte at byte 0",
+            2,
+        ),
+        (
+            yaml.YAMLError("mapping values\n  are not allowed here"),
+            "error: not valid YAML: mapping values are not allowed here",
+            2,
+        ),
+        (
+            InputError("session.yaml: fps: expected a number > 0, got 0"),
+            "error: session.yaml: fps: expected a number > 0, got 0",
+            2,
+        ),
+        (
+            KeyError("cam_00"),
+            "internal error: KeyError: 'cam_00' (run with -v for the traceback)",
+            1,
+        ),
+    ],
+)
+def test_describe_error(exc, message, status) -> None:
+    assert describe_error(exc) == (message, status)
+
+
+def test_describe_opencv_error() -> None:
+    try:
+        cv2.cvtColor(np.zeros((0, 0, 3), np.uint8), cv2.COLOR_BGR2GRAY)
+    except cv2.error as exc:
+        message, status = describe_error(exc)
+    assert status == 2
+    assert message.startswith("error: OpenCV could not process an image or video: ")
+    assert "\n" not in message and "cvtColor" in message
+
+
+def test_click_usage_errors_keep_their_status() -> None:
+    result = _run("process", "--quality", "superb")
+    assert result.exit_code == 2 and "superb" in result.stderr
+
+
+# --- process: no frame measured ---------------------------------------------------------------
+def _failed_results(statuses: dict[int, str]) -> RunResults:
+    return RunResults(
+        session=SessionInfo("/s", "s", ("cam_00",), 25.0, 10),
+        config={},
+        frames=tuple(FrameRecord(f, s) for f, s in statuses.items()),
+        summary={},
+    )
+
+
+def test_process_with_no_measured_frame_exits_3(monkeypatch, toy: Path, tmp_path: Path) -> None:
+    import bodymetry.cli.process as cli_process
+
+    results = _failed_results(
+        {
+            0: "no silhouette in any camera",
+            10: "poor fit: mean silhouette IoU 0.41 < 0.90",
+            20: "no silhouette in any camera",
+            30: "no silhouette in any camera",
+            40: "no silhouette in any camera",
+        }
+    )
+    monkeypatch.setattr(cli_process, "process_session", lambda *a, **k: results)
+    run = tmp_path / "run"
+    result = _run("process", str(toy), "--out", str(run), "--no-review")
+    line = _assert_one_line(result, 3)
+    assert " ".join(line.split()) == (
+        "error: no frame of 5 could be measured: 4 no silhouette in any camera "
+        "(frames 0, 20, 30, ...); 1 poor fit (frame 10); "
+        f"per frame in {run / 'results.json'}"
+    )
+
+
+# --- progress without a terminal --------------------------------------------------------------
+class _Clock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_log_progress_lines(caplog) -> None:
+    clock = _Clock()
+    caplog.set_level(logging.INFO, logger=PROGRESS_LOGGER)
+    with labelled_progress(terminal=False, clock=clock) as update:
+        label = "training: rendering examples"
+        update(label, 0, 3597)  # start: a line
+        for done in range(1, 1200):  # ~one per ms: nothing for 10 s
+            clock.now += 0.005
+            update(label, done, 3597)
+        clock.now = 1000.0 + 10.0
+        update(label, 1200, 3597)  # 10 s, a third done: eta 20 s
+        clock.now += 5.0
+        update(label, 1500, 3597)  # too soon
+        clock.now += 110.0
+        update(label, 2000, 3597)  # 125 s for 2000: eta ~100 s
+        clock.now += 1.0
+        update(label, 3597, 3597)  # completion, whenever it comes
+        update(label, 3597, 3597)  # once
+        update("review: recording", 3, 3)  # starts complete
+    lines = [r.getMessage() for r in caplog.records if r.name == PROGRESS_LOGGER]
+    assert lines == [
+        "training: rendering examples 0/3597 (0 %)",
+        "training: rendering examples 1200/3597 (33 %), eta 20 s",
+        "training: rendering examples 2000/3597 (55 %), eta 2 min",
+        "training: rendering examples 3597/3597 (100 %), took 2 min",
+        "review: recording 3/3 (100 %)",
+    ]
+    assert all(r.levelno == logging.INFO for r in caplog.records)
+
+
+def test_progress_lines_show_at_the_default_verbosity(capsys) -> None:
+    setup_logging(0)
+    try:
+        with labelled_progress(terminal=False) as update:
+            update("fitting", 0, 4)
+            logging.getLogger("bodymetry.process").info("not shown by default")
+        err = capsys.readouterr().err
+        assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d INFO fitting 0/4 \(0 %\)\n", err), err
+    finally:
+        logging.getLogger().handlers.clear()
+
+
+def test_without_a_terminal_commands_log_progress(truncated_run: Path) -> None:
+    """CliRunner's stderr is no terminal: no rich bar escape codes reach it."""
+    result = _run("report", str(truncated_run))
+    assert "\x1b[" not in result.stderr
+
+
+# --- warnings ---------------------------------------------------------------------------------
+def test_numeric_warnings_go_to_the_debug_log(caplog, capsys) -> None:
+    caplog.set_level(logging.DEBUG)
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        with warnings_to_log():
+            assert np.isnan(np.mean(np.array([])))  # "Mean of empty slice"
+            warnings.warn("old option", FutureWarning, stacklevel=1)
+    assert "Mean of empty slice" not in capsys.readouterr().err
+    debug = [r.getMessage() for r in caplog.records if r.levelno == logging.DEBUG]
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert debug[0].startswith("RuntimeWarning: Mean of empty slice")
+    assert warned == ["FutureWarning: old option"]

@@ -293,3 +293,20 @@ def test_read_text_limited_passes_os_errors_on(tmp_path):
 )
 def test_format_size(n, text):
     assert fileio.format_size(n) == text
+
+
+def test_atomic_write_errors_name_the_file_not_the_temporary(tmp_path, monkeypatch):
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device", args[0] if args else "x")
+
+    monkeypatch.setattr(fileio.tempfile, "mkstemp", full)
+    with pytest.raises(OSError) as info:
+        fileio.write_text_atomic(tmp_path / "a.txt", "x")
+    assert info.value.errno == 28 and info.value.filename == str(tmp_path / "a.txt")
+
+
+def test_atomic_write_errors_of_the_body_name_the_file(tmp_path):
+    with pytest.raises(PermissionError) as info, fileio.atomic_path(tmp_path / "a.txt") as tmp:
+        raise PermissionError(13, "Permission denied", str(tmp))
+    assert info.value.filename == str(tmp_path / "a.txt")
+    assert _leftovers(tmp_path) == []
