@@ -189,6 +189,10 @@ def front_direction(body: BodyModel, vertices: np.ndarray) -> np.ndarray:
     foot_vertices = np.unique(faces[np.isin(parts, feet)])
     legs = [PARTS.index("shin_l"), PARTS.index("shin_r")]
     shin_vertices = np.unique(faces[np.isin(parts, legs)])
+    if len(foot_vertices) == 0 or len(shin_vertices) == 0:
+        # A model without feet or shins faces nowhere in particular: the default
+        # (the mean of an empty selection would be NaN, and a RuntimeWarning).
+        return np.array([0.0, -1.0, 0.0])
     d = vertices[foot_vertices].mean(axis=0) - vertices[shin_vertices].mean(axis=0)
     d[2] = 0.0
     n = np.linalg.norm(d)
@@ -221,11 +225,22 @@ def render_body(
 
     Returns
     -------
-    (H, W, 3) uint8 RGB, white background.
+    (H, W, 3) uint8 RGB, white background (only that for an empty mesh).
+
+    Raises
+    ------
+    ValueError
+        If ``view`` is zero or not finite.
     """
     w, h = size
     fwd = np.asarray(view, float)
-    fwd = fwd / np.linalg.norm(fwd)
+    norm = np.linalg.norm(fwd)
+    if not norm > 0:  # also NaN
+        raise ValueError(f"render_body: view must be a non-zero direction, got {view!r}")
+    fwd = fwd / norm
+    image = np.full((h, w, 3), 255, np.uint8)
+    if len(vertices) == 0 or len(faces) == 0:
+        return image  # nothing to draw (and no centre to take the mean of)
     up = np.array([0.0, 0.0, 1.0])
     right = np.cross(fwd, up)
     scale = h / extent_m
@@ -238,7 +253,6 @@ def render_body(
     normals = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
     shade = 0.35 + 0.65 * np.clip(-(normals @ fwd), 0.0, 1.0)
-    image = np.full((h, w, 3), 255, np.uint8)
     tri = raster.tri
     covered = tri >= 0
     image[covered] = np.clip(face_rgb[tri[covered]] * shade[tri[covered], None], 0, 255).astype(
@@ -269,6 +283,8 @@ def body_views(body: BodyModel, nu: np.ndarray, height_px: int = 440) -> dict[st
 def body_figure(renders: dict[str, dict[str, np.ndarray]]) -> Any:
     """Renders side by side at one scale, e.g. ``{"fitted": body_views(...), "actual": ...}``."""
     views = [(f"{who}: {view}", img) for who, v in renders.items() for view, img in v.items()]
+    if not views:
+        raise ValueError("body_figure: no render to show")
     widths = [img.shape[1] for _, img in views]
     height = max(img.shape[0] for _, img in views)
     fig = figure(sum(widths) / height * 4.0 + 0.2 * len(views), 4.4)

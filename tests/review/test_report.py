@@ -7,14 +7,25 @@ import csv
 import json
 import re
 import shutil
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
 import pytest
 
 from bodymetry.errors import InputError
+from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.records import FrameRecord, RunResults, SessionInfo
+from bodymetry.review import plots
 from bodymetry.review.build import build_review
-from bodymetry.review.report import build_report, csv_columns, select_overlay_frames
+from bodymetry.review.report import (
+    body_renders,
+    build_report,
+    csv_columns,
+    figure3_rows,
+    measurement_rows,
+    select_overlay_frames,
+)
 from bodymetry.review.run_data import load_run
 
 IMG_SRC = re.compile(r'<img[^>]*\bsrc="([^"]*)"')
@@ -168,3 +179,85 @@ def test_results_of_an_older_version_are_refused_naming_the_file(review_run, tmp
         message = str(info.value)
         assert message.startswith(str(path)) and "older bodymetry" in message
         assert "\n" not in message
+
+
+# --- runs where nothing was measured: no numpy warnings (pytest turns them into errors) ----------
+def _run_without_measured_frames(review_run, tmp_path, status: str):
+    """A copy of the review run's results.json whose every frame failed with ``status``."""
+    results = json.loads((review_run.folder / "results.json").read_text())
+    fitted = status.startswith("poor fit")
+    for frame in results["frames"]:
+        frame["status"] = status
+        if not fitted:
+            for key in ("estimates", "silhouette_iou", "annealing", "refinement"):
+                frame.pop(key, None)
+    for stage in results["summary"].values():
+        for stat in stage.values():
+            stat.update(mean=None, std=None, n=0)
+    (tmp_path / "results.json").write_text(json.dumps(results))
+    return tmp_path
+
+
+@pytest.mark.parametrize(
+    "status", ["no silhouette in any camera", "poor fit: mean silhouette IoU 0.41 < 0.90"]
+)
+def test_review_of_a_run_with_no_measured_frame(review_run, tmp_path, status):
+    folder = _run_without_measured_frames(review_run, tmp_path, status)
+    summary = build_review(folder, recordings=False, pdf=True)
+    assert summary.errors == {}, summary.errors
+    html = (folder / "report.html").read_text()
+    assert status.split(":")[0] in html
+    with open(folder / "measurements.csv", newline="") as fh:
+        assert len(list(csv.DictReader(fh))) == len(review_run.results.frames)
+
+
+def _empty_run():
+    """A run-like object with two frames, neither fitted."""
+    frames = (FrameRecord(0, "no silhouette in any camera"), FrameRecord(10, "fit failed: x"))
+    results = RunResults(SessionInfo("/s", "s", ("cam_00",), 25.0, 10), {}, frames, {})
+    return SimpleNamespace(
+        fitted_frames=[],
+        ok_frames=[],
+        frames=list(frames),
+        ground_truth=None,
+        camera_names=["cam_00"],
+        results=results,
+        evaluation=None,
+    )
+
+
+def test_report_parts_of_a_run_without_fitted_frames():
+    run = _empty_run()
+    assert select_overlay_frames(run) == []
+    assert [row["disc_generative"] for row in figure3_rows(run)] == [None, None, None]
+    assert measurement_rows(run) == []
+    assert body_renders(run, BodyModel.load()) == {}
+    plots.measurement_plots(run)
+    plots.fit_quality_plots(run)
+
+
+def test_render_body_of_an_empty_mesh_is_blank():
+    image = plots.render_body(
+        np.zeros((0, 3)), np.zeros((0, 3), int), np.zeros((0, 3), np.uint8), np.array([1.0, 0, 0])
+    )
+    assert image.shape == (480, 240, 3) and (image == 255).all()
+
+
+def test_render_body_refuses_a_zero_view():
+    with pytest.raises(ValueError, match="non-zero direction"):
+        plots.render_body(
+            np.zeros((3, 3)), np.array([[0, 1, 2]]), np.zeros((1, 3), np.uint8), np.zeros(3)
+        )
+
+
+def test_front_direction_of_a_body_without_feet():
+    pelvis_only = SimpleNamespace(
+        faces=lambda: np.array([[0, 1, 2]]),
+        full=SimpleNamespace(arrays=SimpleNamespace(parts=np.array([0]))),
+    )
+    np.testing.assert_array_equal(plots.front_direction(pelvis_only, np.eye(3)), [0.0, -1.0, 0.0])
+
+
+def test_body_figure_needs_a_render():
+    with pytest.raises(ValueError, match="no render"):
+        plots.body_figure({})
