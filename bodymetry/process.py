@@ -46,6 +46,7 @@ from bodymetry.estimation.records import (
 )
 from bodymetry.estimation.training import DiscriminativeModels, cached_models_path, load_or_train
 from bodymetry.fileio import save_npz, write_json_atomic
+from bodymetry.preflight import check_session
 from bodymetry.review.build import build_review
 from bodymetry.review.meshes import write_mesh
 from bodymetry.run_folder import prepare_run_folder
@@ -179,6 +180,12 @@ def process_session(
     written; a failure there is logged, never raised (the results are safe).
     """
     config = config or ProcessConfig()
+    # Every problem with the inputs and the output folder, listed before any long work
+    # (and before the run folder is created, so a bad session leaves nothing behind).
+    report = check_session(session_path, Path(out))
+    report.raise_if_failed()
+    for warning in report.warnings:
+        log.warning("%s", warning)
     session = load_session(session_path)
     layout = RunLayout(Path(out))
     prepare_run_folder(layout.folder, session, config, restart=restart)
@@ -207,7 +214,7 @@ def process_session(
             camera_frames[name] += int(np.count_nonzero(mask) >= MIN_PIXELS)
         if sil.frame not in done:
             flags = [list(f) for f in sil.flags]
-            pending.append((sil.frame, sil.stack(), flags, cameras, models_path, config.fit))
+            pending.append((sil.frame, list(sil.masks), flags, cameras, models_path, config.fit))
     t_sil = time.perf_counter() - t1
     if progress:
         progress("frames", len(done), n_kept)

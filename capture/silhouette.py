@@ -35,6 +35,10 @@ Flags per camera and frame (:data:`FLAGS`):
     person's blob is kept.
 ``unreadable``
     the camera's video did not decode at that frame (mask all False).
+``scene_change``
+    the changed region covers more than ``max_person_fraction`` of the image:
+    not a person but a lighting change, a moved camera, a covered or black lens
+    (mask all False, so the view is left out of the fit).
 """
 
 from __future__ import annotations
@@ -69,7 +73,7 @@ __all__ = [
     "segment_session",
 ]
 
-FLAGS = ("empty", "border", "multiple", "unreadable")
+FLAGS = ("empty", "border", "multiple", "unreadable", "scene_change")
 
 
 @dataclass(frozen=True)
@@ -83,6 +87,10 @@ class CleanupConfig:
         Disc radii of the opening and closing (0 = skip).
     min_person_fraction : float
         Smallest person, as a fraction of the image area (smaller: ``empty``).
+    max_person_fraction : float
+        Largest changed region that can be a person, as a fraction of the image
+        area (larger: ``scene_change``). A person filling a portrait frame from
+        head to foot covers about a third of it.
     join_distance : float
         Blobs within this fraction of the person's height of its bounding box join it.
     min_part_pixels : int
@@ -102,6 +110,7 @@ class CleanupConfig:
     open_radius: int = 1
     close_radius: int = 1
     min_person_fraction: float = 0.002
+    max_person_fraction: float = 0.6
     join_distance: float = 0.08
     min_part_pixels: int = 12
     other_blob_fraction: float = 0.25
@@ -112,9 +121,10 @@ class CleanupConfig:
     def __post_init__(self) -> None:
         if self.open_radius < 0 or self.close_radius < 0:
             raise InputError("open_radius and close_radius must be >= 0")
-        if not 0 < self.min_person_fraction < 1:
+        if not 0 < self.min_person_fraction < self.max_person_fraction <= 1:
             raise InputError(
-                f"min_person_fraction: expected in (0, 1), got {self.min_person_fraction}"
+                "min_person_fraction, max_person_fraction: expected 0 < min < max <= 1, got "
+                f"{self.min_person_fraction}, {self.max_person_fraction}"
             )
 
 
@@ -146,7 +156,26 @@ class SilhouetteFrame:
     shadows: tuple[np.ndarray, ...] = field(default=(), repr=False)
 
     def stack(self) -> np.ndarray:
-        """(C, H, W) bool masks (all cameras must have the same size)."""
+        """(C, H, W) bool masks, for rigs whose cameras all have one image size.
+
+        Rigs that mix image sizes use :attr:`masks` (one (H_c, W_c) mask per
+        camera), which every estimation stage accepts.
+
+        Raises
+        ------
+        ValueError
+            If the cameras' masks differ in size (the message names each
+            camera with its size).
+        """
+        shapes = [np.shape(m) for m in self.masks]
+        if len(set(shapes)) > 1:
+            sizes = ", ".join(
+                f"{name} {s[1]}x{s[0]}" for name, s in zip(self.cameras, shapes, strict=True)
+            )
+            raise ValueError(
+                f"frame {self.frame}: the cameras' masks differ in size (width x height: "
+                f"{sizes}); use .masks, one mask per camera"
+            )
         return np.stack(self.masks)
 
 
@@ -185,7 +214,7 @@ def clean_mask(
     mask : (H, W) bool
         The person's blob(s), holes filled.
     flags : tuple of str
-        Subset of ``("empty", "border", "multiple")``.
+        Subset of ``("empty", "border", "multiple", "scene_change")``.
     """
     cfg = config or CleanupConfig()
     raw = np.asarray(raw)
@@ -208,6 +237,8 @@ def clean_mask(
     main = int(order[0]) + 1
     if stats[main, cv2.CC_STAT_AREA] < cfg.min_person_fraction * h * w:
         return empty, ("empty",)
+    if m.sum() > cfg.max_person_fraction * h * w:
+        return empty, ("scene_change",)
     x0, y0, bw, bh = (int(v) for v in stats[main, :4])
     grow = cfg.join_distance * bh
     keep = [main]

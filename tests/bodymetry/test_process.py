@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -12,7 +13,9 @@ from tiny_run import TINY_TRAIN, tiny_session
 
 import bodymetry.cameras as cameras_module
 import bodymetry.process as process_module
+from bodymetry.capture.session import load_session
 from bodymetry.capture.silhouette import segment_session
+from bodymetry.capture.video import H264Writer
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import FitConfig, fit_frame
@@ -226,3 +229,19 @@ def test_old_results_get_a_clear_error(run, tmp_path):
     del old["format"]
     with pytest.raises(InputError, match="older bodymetry"):
         RunResults.from_json(old, "results.json")
+
+
+def test_a_black_camera_is_named_and_the_results_stay_strict_json(run, tmp_path):
+    """A covered lens: the camera is named in a warning and results.json has no NaN."""
+    session, _, _, base = run
+    folder = tmp_path / "session"
+    shutil.copytree(session.folder, folder)
+    black = load_session(folder)
+    with H264Writer(black.video_path("cam_01"), black.fps, (240, 180)) as writer:
+        for _ in range(5):
+            writer.write(np.zeros((180, 240, 3), np.uint8))
+    results = process_module.process_session(folder, tmp_path / "run", _config(base))
+    assert results.camera_frames == {"cam_00": 3, "cam_01": 0}
+    assert any("camera 'cam_01' saw no person" in w for w in results.warnings)
+    text = (tmp_path / "run" / "results.json").read_text()
+    json.loads(text, parse_constant=lambda c: 1 / 0)  # strict JSON: no NaN or Infinity

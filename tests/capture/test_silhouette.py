@@ -19,6 +19,7 @@ from bodymetry.capture.background import SubtractionConfig
 from bodymetry.capture.session import Session, load_session
 from bodymetry.capture.silhouette import (
     CleanupConfig,
+    SilhouetteFrame,
     background_models,
     clean_mask,
     overlay,
@@ -54,6 +55,16 @@ def test_empty_frame_is_flagged() -> None:
     noise = np.random.default_rng(0).random((H, W)) > 0.995  # speckle only
     mask, flags = clean_mask(noise)
     assert flags == ("empty",) and not mask.any()
+
+
+def test_a_change_over_most_of_the_image_is_not_a_person() -> None:
+    """A black or covered lens, a light switched off: the whole view changed."""
+    mask, flags = clean_mask(np.ones((H, W), bool))
+    assert flags == ("scene_change",) and not mask.any()
+    big = np.zeros((H, W), bool)
+    big[:, : int(W * 0.55)] = True  # just under the default 0.6 of the image
+    mask, flags = clean_mask(big)
+    assert "scene_change" not in flags and mask.sum() == big.sum()
 
 
 def test_person_kept_noise_removed_part_joined() -> None:
@@ -120,6 +131,17 @@ def test_overlay_shapes() -> None:
     out = overlay(img, _person(160), _person(200), ("border",))
     assert out.shape == img.shape and out.dtype == np.uint8 and out.any()
     assert overlay(None, np.zeros((H, W), bool)).shape == (H, W, 3)
+
+
+def test_stack_refuses_cameras_of_different_sizes() -> None:
+    """Rigs that mix camera models keep one mask per camera; stack() names the sizes."""
+    masks = (np.zeros((120, 160), bool), np.zeros((128, 160), bool))
+    sf = SilhouetteFrame(4, ("cam_a", "cam_b"), masks, ((), ()))
+    with pytest.raises(ValueError, match=r"frame 4: .*cam_a 160x120, cam_b 160x128"):
+        sf.stack()
+    assert [m.shape for m in sf.masks] == [(120, 160), (128, 160)]
+    same = SilhouetteFrame(4, ("cam_a", "cam_b"), (masks[0], masks[0]), ((), ()))
+    assert same.stack().shape == (2, 120, 160)
 
 
 # --- the stage on toy sessions ---------------------------------------------------------------
