@@ -318,13 +318,14 @@ def rdf(mask: ArrayLike, n: int = 100) -> NDArray[np.float64]:
     return out
 
 
-def rdf_batch(masks: ArrayLike, n: int = 100) -> NDArray[np.float64]:
-    """:func:`rdf` of a stack of masks.
+def rdf_batch(masks: ArrayLike | Sequence[ArrayLike], n: int = 100) -> NDArray[np.float64]:
+    """:func:`rdf` of several masks, e.g. one per camera.
 
     Parameters
     ----------
-    masks : (B, H, W) bool
-        Silhouettes.
+    masks : (B, H, W) bool, or sequence of B (H_b, W_b) bool
+        Silhouettes; as a sequence they may differ in size (cameras of a rig
+        with different image sizes). Each RDF is in its own mask's pixels.
     n : int, default 100
         Number of directions.
 
@@ -337,17 +338,24 @@ def rdf_batch(masks: ArrayLike, n: int = 100) -> NDArray[np.float64]:
     Raises
     ------
     ValueError
-        If ``masks`` is not 3-D or any mask is empty (the message names the
-        index).
+        If ``masks`` is neither a 3-D stack nor a sequence of 2-D masks, or any
+        mask is empty (the message names the index).
     """
-    arr = np.asarray(masks)
-    if arr.ndim != 3:
-        raise ValueError(f"masks: expected a 3-D (B, H, W) stack, got shape {arr.shape}")
+    if isinstance(masks, np.ndarray) or not isinstance(masks, Sequence):
+        arr = np.asarray(masks)
+        if arr.ndim != 3:
+            raise ValueError(f"masks: expected a 3-D (B, H, W) stack, got shape {arr.shape}")
+        items: Sequence[ArrayLike] = list(arr)
+    else:
+        items = masks
+        for i, m in enumerate(items):
+            if np.ndim(m) != 2:
+                raise ValueError(f"masks[{i}]: expected a 2-D (H, W) mask, got shape {np.shape(m)}")
     n = _positive_int(n, "n")
-    out = np.empty((arr.shape[0], n + 2))
-    for i in range(arr.shape[0]):
+    out = np.empty((len(items), n + 2))
+    for i, mask in enumerate(items):
         try:
-            out[i] = rdf(arr[i], n)
+            out[i] = rdf(mask, n)
         except ValueError as exc:
             raise ValueError(f"masks[{i}]: {exc}") from None
     return out

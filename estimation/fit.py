@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -129,7 +130,7 @@ def shared_body_model() -> BodyModel:
 
 def discriminative_particles(
     models: DiscriminativeModels,
-    masks: np.ndarray,
+    masks: Sequence[np.ndarray] | np.ndarray,
     valid: np.ndarray,
     n: int,
     rng: np.random.Generator,
@@ -139,7 +140,8 @@ def discriminative_particles(
     Parameters
     ----------
     models : DiscriminativeModels
-    masks : (C, H, W) bool
+    masks : sequence of C (H_c, W_c) bool, or (C, H, W) bool
+        Per camera, each at its own size.
     valid : (C,) bool
         Cameras with a usable silhouette.
     n : int
@@ -202,7 +204,7 @@ class FrameFit:
 
 def fit_frame(
     frame: int,
-    masks: np.ndarray,
+    masks: Sequence[np.ndarray] | np.ndarray,
     flags: list[list[str]],
     cameras: list[Camera],
     models: DiscriminativeModels,
@@ -214,8 +216,10 @@ def fit_frame(
     ----------
     frame : int
         Session frame (seeds the draws with ``config.seed``).
-    masks : (C, H, W) bool
-        Observed silhouettes, camera order of ``cameras``.
+    masks : sequence of C (H_c, W_c) bool, or (C, H, W) bool
+        Observed silhouettes, camera order of ``cameras``, each at its camera's
+        size (cameras may differ in size; a mask of the wrong size gives a
+        ``"fit failed: ..."`` record naming the camera).
     flags : list of list of str
         Silhouette flags per camera.
     cameras : list of Camera
@@ -241,13 +245,15 @@ def fit_frame(
     if valid.sum() == 0:
         return failed("no silhouette in any camera")
     try:
+        # Unusable views become empty masks of their own size (left out downstream).
+        # Prepared first: it checks every mask against its camera's size.
+        observed = [m if ok else np.zeros_like(m) for m, ok in zip(masks, valid, strict=True)]
+        obs = prepare_observation(cameras, observed, config.annealing.image_scale)
         particles, points = discriminative_particles(
             models, masks, valid, config.initial_particles, rng
         )
         particles = _clip_pose(body, particles)
         points = [_clip_pose(body, p) for p in points]
-        observed = np.where(valid[:, None, None], masks, False)
-        obs = prepare_observation(cameras, observed, config.annealing.image_scale)
         faces = body.faces(lod=True)
         # Discriminative estimate: the camera prediction that explains all views best.
         costs = [
@@ -351,7 +357,7 @@ class GenerativeFit:
 def generative_fit(
     body: BodyModel,
     cameras: list[Camera],
-    masks: np.ndarray,
+    masks: Sequence[np.ndarray] | np.ndarray,
     initial: np.ndarray,
     config: FitConfig,
     rng: np.random.Generator,
@@ -364,8 +370,9 @@ def generative_fit(
     ----------
     body : BodyModel
     cameras : list of Camera
-    masks : (C, H, W) bool
-        Observed silhouettes; all-False views are left out.
+    masks : sequence of C (H_c, W_c) bool, or (C, H, W) bool
+        Observed silhouettes, each at its camera's size; all-False views are
+        left out.
     initial : (N0, 40 + n_shape) float
         Initial particles.
     config : FitConfig

@@ -16,7 +16,8 @@ outside S by their distance to S (a bidirectional chamfer measure; the
 observed side's distance map is computed once per frame), normalized by O's
 area:  cost_c = (Σ_{S\\O} d_O + Σ_{O\\S} d_S) / |O|,  log p(I | Y) = -Σ_c cost_c / σ².
 Images are compared at a reduced scale (``image_scale``); distances are in
-full-resolution pixels.
+full-resolution pixels. Each view is compared at its own camera's size, so a
+rig may mix camera models (per-view arrays, not one stacked array).
 
 The estimate is the weighted mean of the last layer (heading averaged on the
 circle): with a narrow final kernel the particles share one mode, and the mean
@@ -25,6 +26,7 @@ is less noisy than the single best particle (which overfits silhouette noise).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -33,7 +35,7 @@ import numpy as np
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import N_POSE, YAW
-from bodymetry.estimation.projection import fill_silhouette
+from bodymetry.estimation.projection import per_camera_masks
 from bodymetry.estimation.raster import coverage_views
 
 
@@ -94,8 +96,9 @@ class Observation:
     ----------
     cameras : list of Camera
         Scaled to the comparison resolution.
-    masks : (C, h, w) bool
-    dist_outside : (C, h, w) float32
+    masks : list of (h_c, w_c) bool
+        Per view, at that view's comparison size (views may differ in size).
+    dist_outside : list of (h_c, w_c) float32
         Distance (full-resolution pixels) from each pixel to the observed silhouette.
     area : (C,) float
     scale : float
@@ -107,8 +110,8 @@ class Observation:
     """
 
     cameras: list[Camera]
-    masks: np.ndarray
-    dist_outside: np.ndarray
+    masks: list[np.ndarray]
+    dist_outside: list[np.ndarray]
     area: np.ndarray
     scale: float = 1.0
     valid: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
@@ -132,17 +135,26 @@ def scaled_camera(camera: Camera, scale: float) -> Camera:
     )
 
 
-def prepare_observation(cameras: list[Camera], masks: np.ndarray, scale: float) -> Observation:
+def prepare_observation(
+    cameras: Sequence[Camera], masks: Sequence[np.ndarray] | np.ndarray, scale: float
+) -> Observation:
     """Downscale the observed silhouettes and precompute their distance maps.
 
     Parameters
     ----------
-    cameras : list of Camera
-    masks : (C, H, W) bool
-        Observed silhouettes at camera resolution; an all-False mask marks a
-        view without a usable silhouette (it is left out of the likelihood).
+    cameras : sequence of Camera
+    masks : sequence of C (H_c, W_c) bool, or (C, H, W) bool
+        Observed silhouettes, each at its camera's resolution (sizes may differ
+        between cameras); an all-False mask marks a view without a usable
+        silhouette (it is left out of the likelihood).
     scale : float
+
+    Raises
+    ------
+    ValueError
+        If the masks do not match the cameras in number or size.
     """
+    masks = per_camera_masks(cameras, masks)
     small_cams = [scaled_camera(c, scale) for c in cameras]
     small, dist, area, valid, boxes = [], [], [], [], []
     for cam, mask in zip(small_cams, masks, strict=True):
@@ -151,14 +163,19 @@ def prepare_observation(cameras: list[Camera], masks: np.ndarray, scale: float) 
         small.append(m)
         x, y, bw, bh = cv2.boundingRect(m.astype(np.uint8))
         boxes.append((x, y, x + bw, y + bh))
-        d = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3) / scale
+        if m.any():
+            d = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3) / scale
+        else:
+            # No silhouette: nothing to be near (OpenCV's "far" value over a small
+            # scale overflows float32). The view is left out of the likelihood.
+            d = np.full((h, w), np.inf, np.float32)
         dist.append(d)
         area.append(max(m.sum(), 1) / scale**2)
         valid.append(bool(m.any()))
     return Observation(
         small_cams,
-        np.stack(small),
-        np.stack(dist),
+        small,
+        dist,
         np.asarray(area),
         scale,
         np.asarray(valid),
@@ -188,18 +205,13 @@ def chamfer_costs(obs: Observation, vertices: np.ndarray, faces: np.ndarray) -> 
     views = np.flatnonzero(obs.valid)
     if len(views) == 0:
         return costs[0] if single else costs
-    size = obs.cameras[views[0]].size
-    same_size = all(obs.cameras[c].size == size for c in views)
+    # Views of different sizes share one pass on a padded canvas (exact, see
+    # coverage_views); one size is the plain stacked pass.
+    sizes = [obs.cameras[c].size for c in views]
     # (B, C', V, 2): every body in every usable view, projected camera by camera.
     pixels = np.stack([obs.cameras[c].project(verts) for c in views], axis=1)
     for b in range(len(verts)):
-        if same_size:
-            models = coverage_views(pixels[b], faces, size, closed=True)
-        else:
-            models = [
-                fill_silhouette(p, faces, obs.cameras[c].size)
-                for p, c in zip(pixels[b], views, strict=True)
-            ]
+        models = coverage_views(pixels[b], faces, sizes, closed=True)
         for k, c in enumerate(views):
             costs[b, c] = _view_cost(obs, c, models[k], pixels[b, k])
     return costs[0] if single else costs
@@ -214,6 +226,11 @@ def _view_cost(obs: Observation, c: int, model: np.ndarray, pixels: np.ndarray) 
     missing = observed & ~model
     cost = obs.dist_outside[c][extra].sum()
     if missing.any():
+        if not model.any():
+            # The body covers no pixel of this view (off the image or behind the
+            # camera): no distance to it exists. OpenCV would fill the map with
+            # FLT_MAX, whose sum overflows to the same infinity with a warning.
+            return float("inf")
         # The distance to the model only matters inside the observed box; the box of
         # both silhouettes holds every model pixel, so the distance transform of that
         # crop is exact (and 2-4x smaller than the image).
@@ -350,11 +367,15 @@ def anneal(
             Y = np.clip(Y[idx] + rng.standard_normal((N, Y.shape[1])) * std, lo, hi)
             factor *= config.shrink
         ll = _log_likelihoods(model, obs, Y, config.sigma_px)
+        if not np.isfinite(ll.max()):
+            raise ValueError("no particle's body is seen in the views with a silhouette")
         best = min(best, -ll.max() * config.sigma_px**2)
         beta = _temperature(ll, config.target_ess)
         w = np.exp(beta * (ll - ll.max()))
         w /= w.sum()
-        layer_ll.append(float(w @ ll))
+        # A body outside a view has log-likelihood -inf and weight 0: leave it out of
+        # the layer's mean (0 x -inf is NaN); finite terms are summed as before.
+        layer_ll.append(float(w @ np.where(w > 0, ll, 0.0)))
         layer_beta.append(beta)
     est = _weighted_estimate(Y, w)
     return AnnealingResult(

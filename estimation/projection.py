@@ -8,9 +8,15 @@ rule and punch holes where the body overlaps itself (front and back faces, an
 arm before the torso). The body is a closed mesh, so only its front faces are
 drawn: the same pixels at 1.6x (quarter resolution) to 2.8x (full resolution)
 the speed, measured on the level of detail.
+
+Cameras of one rig may differ in image size: each silhouette is at its own
+camera's size, and :func:`per_camera_masks` checks observed masks against
+their cameras for the stages that take them.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -45,19 +51,69 @@ def fill_silhouette(
 
 
 def project_silhouettes(
-    vertices: np.ndarray, faces: np.ndarray, cameras: list[Camera]
-) -> np.ndarray:
-    """Silhouettes of one mesh in every camera.
+    vertices: np.ndarray, faces: np.ndarray, cameras: Sequence[Camera]
+) -> np.ndarray | list[np.ndarray]:
+    """Silhouettes of one mesh in every camera, each at its camera's own size.
 
     Parameters
     ----------
     vertices : (V, 3) float
         World coordinates, metres.
     faces : (T, 3) int
-    cameras : list of Camera, all of one image size
+    cameras : sequence of Camera
+        Their image sizes may differ.
 
     Returns
     -------
-    (C, H, W) bool
+    (C, H, W) bool or list of (H_c, W_c) bool
+        One mask per camera: stacked when every camera has the same size (as
+        before mixed rigs were supported), a list otherwise. Either way
+        ``masks[c]`` is camera ``c``'s mask, the same as that camera alone gives.
     """
-    return np.stack([fill_silhouette(cam.project(vertices), faces, cam.size) for cam in cameras])
+    masks = [fill_silhouette(cam.project(vertices), faces, cam.size) for cam in cameras]
+    if len({m.shape for m in masks}) <= 1 and masks:
+        return np.stack(masks)
+    return masks
+
+
+def same_size(cameras: Sequence[Camera]) -> bool:
+    """True when every camera has one image size (an empty rig counts as one size)."""
+    return len({tuple(cam.size) for cam in cameras}) <= 1
+
+
+def per_camera_masks(
+    cameras: Sequence[Camera], masks: Sequence[np.ndarray] | np.ndarray
+) -> list[np.ndarray]:
+    """Check per-camera masks against their cameras' image sizes.
+
+    Parameters
+    ----------
+    cameras : sequence of Camera
+    masks : (C, H, W) array or sequence of (H_c, W_c) arrays
+        One mask per camera, in camera order, each at its camera's size
+        ``(width, height) = camera.size``.
+
+    Returns
+    -------
+    list of (H_c, W_c) bool
+        The masks as bool arrays (no copy when already bool).
+
+    Raises
+    ------
+    ValueError
+        If the counts differ or a mask's shape is not its camera's size (the
+        message names the camera and both sizes).
+    """
+    if len(masks) != len(cameras):
+        raise ValueError(f"expected one mask per camera ({len(cameras)}), got {len(masks)}")
+    out = []
+    for cam, mask in zip(cameras, masks, strict=True):
+        m = np.asarray(mask, dtype=bool)
+        w, h = cam.size
+        if m.shape != (h, w):
+            got = f"{m.shape[1]}x{m.shape[0]}" if m.ndim == 2 else f"of shape {m.shape}"
+            raise ValueError(
+                f"camera {cam.name}: mask is {got} (width x height), camera image is {w}x{h}"
+            )
+        out.append(m)
+    return out

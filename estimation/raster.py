@@ -9,6 +9,7 @@ applies the even-odd rule and leaves holes where a mesh overlaps itself.)
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -320,37 +321,53 @@ def coverage(
 def coverage_views(
     xy: np.ndarray,
     faces: np.ndarray,
-    size: tuple[int, int],
+    size: tuple[int, int] | Sequence[tuple[int, int]],
     *,
     closed: bool = False,
-) -> np.ndarray:
-    """:func:`coverage` of one mesh in several views of one size, in one pass.
+) -> np.ndarray | list[np.ndarray]:
+    """:func:`coverage` of one mesh in several views, in one pass.
 
     The views are rasterized as tiles of one tall image, so numpy's per-call
     overhead is paid once (the level of detail at a quarter of the camera
     resolution in 4 views: 2.1 instead of 2.4 ms). Vertices with a NaN
     coordinate (behind a camera) drop their triangles in that view.
 
+    Views of different sizes are tiled on a common canvas (the largest width
+    and height) and each is cropped back to its own size. That is exact:
+    whether a triangle covers a pixel centre does not depend on the image
+    size, and every pixel of a view's own image lies inside its tile; the
+    padding only costs the candidate pixels of triangles that reach past the
+    smaller views' edges.
+
     Parameters
     ----------
     xy : (C, N, 2) float
         The mesh's vertices projected into each view (pixels).
     faces : (T, 3) int
-    size : (width, height)
-        Of every view.
+    size : (width, height) or sequence of C (width, height)
+        Of every view, or of each view.
     closed : bool
         As in :func:`coverage`.
 
     Returns
     -------
-    (C, H, W) bool
+    (C, H, W) bool or list of (H_c, W_c) bool
+        Stacked when ``size`` is one size (or all the per-view sizes are
+        equal), a list of per-view masks otherwise.
     """
     xy = np.asarray(xy, dtype=np.float64)
     faces = np.asarray(faces)
     if xy.ndim != 3 or xy.shape[2] != 2:
         raise ValueError(f"coverage_views: xy must have shape (C, N, 2), got {xy.shape}")
     C, N, _ = xy.shape
-    w_img, h_img = int(size[0]), int(size[1])
+    sizes = np.asarray(size, dtype=np.int64)
+    if sizes.shape == (2,):
+        sizes = np.broadcast_to(sizes, (C, 2))
+    if sizes.shape != (C, 2):
+        raise ValueError(
+            f"coverage_views: size must be (width, height) or {C} of them, got {sizes.tolist()}"
+        )
+    w_img, h_img = (int(v) for v in sizes.max(axis=0))
     stacked = xy + np.stack([np.zeros(C), np.arange(C) * h_img], axis=1)[:, None, :]
     valid = np.all(np.isfinite(stacked), axis=2).reshape(-1)
     all_faces = (faces[None] + (np.arange(C) * N)[:, None, None]).reshape(-1, 3)
@@ -368,4 +385,7 @@ def coverage_views(
     )
     if found is not None:
         mask[found[0]] = True
-    return mask.reshape(C, h_img, w_img)
+    mask = mask.reshape(C, h_img, w_img)
+    if np.all(sizes == (w_img, h_img)):
+        return mask
+    return [mask[c, :h, :w] for c, (w, h) in enumerate(sizes.tolist())]

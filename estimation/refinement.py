@@ -27,6 +27,7 @@ Everything is deterministic (no random choices).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -39,7 +40,7 @@ from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import NU, POSE_DIM, THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import YAW
 from bodymetry.estimation.generative import scaled_camera, state_bounds
-from bodymetry.estimation.projection import fill_silhouette
+from bodymetry.estimation.projection import fill_silhouette, per_camera_masks
 
 
 @dataclass(frozen=True)
@@ -226,20 +227,32 @@ class ContourObservation:
 
 
 def prepare_contours(
-    cameras: list[Camera], masks: np.ndarray, scale: float, max_points: int = 400
+    cameras: Sequence[Camera],
+    masks: Sequence[np.ndarray] | np.ndarray,
+    scale: float,
+    max_points: int = 400,
 ) -> ContourObservation:
     """Boundary points of the observed silhouettes at the working scale.
 
+    Every view is handled at its own camera's size (a rig may mix sizes); the
+    points, normals and visibility rasters are per view.
+
     Parameters
     ----------
-    cameras : list of Camera
-    masks : (C, H, W) bool
-        Observed silhouettes at camera resolution; an all-False mask leaves the
-        view out.
+    cameras : sequence of Camera
+    masks : sequence of C (H_c, W_c) bool, or (C, H, W) bool
+        Observed silhouettes, each at its camera's resolution; an all-False
+        mask leaves the view out.
     scale : float
     max_points : int
         Evenly spread subset kept per view.
+
+    Raises
+    ------
+    ValueError
+        If the masks do not match the cameras in number or size.
     """
+    masks = per_camera_masks(cameras, masks)
     small = [scaled_camera(c, scale) for c in cameras]
     points, normals, trees = [], [], []
     for mask in masks:

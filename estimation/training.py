@@ -3,7 +3,8 @@
 For a camera rig, render a synthetic training set like the paper's: bodies with
 poses from the motion prior and shapes from the calibrated shape prior, placed
 in the capture volume, their silhouettes projected through the rig's calibrated
-cameras. From each view's silhouette, learn per camera the mixtures of experts
+cameras (each at its own image size: a rig may mix camera models). From each
+view's silhouette, learn per camera the mixtures of experts
 p(ν | X_rdf), p(θ | X_sc), p(τ | X_rdf) and, for the uncalibrated mode,
 p(ν | X_sc); choose M and λ on held-out data; evaluate on a separate test set.
 Models are cached by a hash of the rig, the body model and the settings.

@@ -100,7 +100,7 @@ def evaluate_run(
                 f"{layout.frame_arrays(record.frame)}: the frame's recorded silhouettes are "
                 "missing; run `bodymetry process` again"
             )
-        masks = np.stack([arrays.observed[n] for n in names])
+        masks = [arrays.observed[n] for n in names]
         f = record.frame
         jobs.append((f, masks, data.cameras, states["tau"][f], states["theta"][f], config))
     gt_gen: dict[int, tuple[dict, list]] = {}

@@ -404,8 +404,9 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
             "n_cameras": len(run.camera_names),
             "fps": session.fps,
             "frame_step": session.frame_step,
+            # Every distinct camera size, in camera order (rigs may mix camera models).
             "image_size": (
-                f"{run.cameras[0].size[0]}×{run.cameras[0].size[1]}" if run.cameras else "?"
+                ", ".join(dict.fromkeys(f"{c.size[0]}×{c.size[1]}" for c in run.cameras)) or "?"
             ),
         },
         "frames": {
