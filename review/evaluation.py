@@ -34,7 +34,7 @@ __all__ = ["GT_START_STD", "evaluate_run"]
 
 
 def _gt_generative(
-    args: tuple[int, np.ndarray, list[Camera], np.ndarray, np.ndarray, FitConfig],
+    args: tuple[int, list[np.ndarray], list[Camera], np.ndarray, np.ndarray, FitConfig],
 ) -> tuple[int, dict[str, float], list]:
     frame, masks, cameras, tau, theta, config = args
     body = shared_body_model()  # loaded once per worker process
