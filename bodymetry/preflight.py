@@ -136,8 +136,11 @@ class PreflightReport:
         Raises
         ------
         InputError
-            ``"N problem(s) in <session>:"`` and then one line per problem.
+            The problem itself when there is one; else ``"N problem(s) in
+            <session>:"`` and then one line per problem.
         """
+        if len(self.problems) == 1:
+            raise InputError(str(self.problems[0]))
         if self.problems:
             lines = [f"{len(self.problems)} problem(s) in {self.session}:"]
             lines += [f"  {p}" for p in self.problems]

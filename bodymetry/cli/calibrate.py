@@ -15,7 +15,7 @@ from bodymetry.calibration.session_calibration import (
     write_calibration,
 )
 from bodymetry.capture.session import DEFAULT_CALIBRATION_FILE, load_session
-from bodymetry.cli.common import console, frames_progress, friendly_errors
+from bodymetry.cli.common import console, friendly_errors, labelled_progress
 from bodymetry.errors import InputError
 
 __all__ = ["calibrate"]
@@ -59,14 +59,10 @@ def calibrate(
         )
     floor = parse_floor_frames(floor_frames, session.fps)
     calibration_clip_lengths(session)  # every unusable clip named before any progress bar
-    with frames_progress() as progress:
-        tasks = {
-            name: progress.add_task(f"detecting {name}", total=None)
-            for name in session.camera_names
-        }
+    with labelled_progress() as progress:
 
         def update(name: str, done: int, total: int) -> None:
-            progress.update(tasks[name], completed=done, total=total)
+            progress(f"detecting {name} (frames)", done, total)
 
         detections = detect_session(session, step=step, workers=workers, on_progress=update)
     with console.status("solving (intrinsics, camera graph, bundle adjustment)"):

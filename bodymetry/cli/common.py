@@ -95,7 +95,9 @@ def describe_error(exc: BaseException) -> tuple[str, int]:
     yaml_error = _optional_error_type("yaml", "YAMLError")
     cv2_error = _optional_error_type("cv2", "error")
     if isinstance(exc, BodymetryError):
-        text = str(exc)
+        # An error listing several problems keeps one line per problem.
+        lines = [_one_line(line) for line in str(exc).splitlines() if line.strip()]
+        return "\n  ".join([f"error: {lines[0]}", *lines[1:]]) if lines else "error", EXIT_INPUT
     elif isinstance(exc, OSError):
         # The user's paths: a folder that cannot be written, a missing file, a full disk.
         why = exc.strerror or str(exc) or type(exc).__name__
@@ -327,15 +329,3 @@ cache_option = click.option(
     type=click.Path(file_okay=False, path_type=Path),
     help="Model cache folder (default: $BODYMETRY_CACHE or ~/.cache/bodymetry).",
 )
-
-
-def frames_progress(**kwargs: Any) -> Progress:
-    """A rich progress display counting frames (``kwargs`` go to ``Progress``)."""
-    return Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        "{task.completed}/{task.total} frames",
-        TimeRemainingColumn(),
-        console=console,
-        **kwargs,
-    )

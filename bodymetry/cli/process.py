@@ -81,6 +81,12 @@ __all__ = ["process"]
     is_flag=True,
     help="Print the resulting config as JSON and exit (nothing is run).",
 )
+@click.option(
+    "--restart",
+    is_flag=True,
+    help="OUT holds a run of another session or other settings: replace it (its own "
+    "files only) instead of refusing.",
+)
 @friendly_errors
 def process(
     session: Path | None,
@@ -94,6 +100,7 @@ def process(
     pdf: bool,
     overrides: tuple[str, ...],
     show_config: bool,
+    restart: bool,
 ) -> None:
     """Measure the person in SESSION (default: the demo recording): silhouettes,
     discriminative estimate, generative refinement, biometrics per kept frame,
@@ -109,7 +116,7 @@ def process(
     session = session or DEMO_SESSION
     out = out or Path("runs") / session.resolve().name
     with labelled_progress() as update:
-        results = process_session(session, out, config, progress=update)
+        results = process_session(session, out, config, progress=update, restart=restart)
     _print_summary(results)
     console.print(f"wrote {out / 'results.json'} and frames/ (per-frame records)")
     if config.review:

@@ -9,7 +9,7 @@ import click
 from rich.table import Table
 
 from bodymetry.capture.session import load_session
-from bodymetry.cli.common import console, frames_progress, friendly_errors
+from bodymetry.cli.common import console, friendly_errors, labelled_progress
 from bodymetry.studio.evaluate import SilhouetteRun, segment_and_score
 
 __all__ = ["silhouettes"]
@@ -60,13 +60,8 @@ def silhouettes(
     """Segment the person in every kept frame of SESSION (masks PNG + overlays)."""
     session = load_session(session_dir)
     out = out or Path("runs") / session.name / "silhouettes"
-    # One bar whose label follows the stage's step (background models, then silhouettes).
-    with frames_progress(disable=as_json and not console.is_terminal) as progress:
-        task = progress.add_task("background models", total=None)
-
-        def update(label: str, done: int, total: int) -> None:
-            progress.update(task, description=label, completed=done, total=total)
-
+    # One bar per step (background models, then silhouettes); log lines off a terminal.
+    with labelled_progress() as update:
         run = segment_and_score(
             session,
             out,

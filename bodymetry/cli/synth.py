@@ -5,9 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.progress import BarColumn, Progress, TimeRemainingColumn
 
-from bodymetry.cli.common import console, friendly_errors
+from bodymetry.cli.common import console, friendly_errors, labelled_progress
 from bodymetry.errors import InputError
 from bodymetry.studio.synth import SubjectSpec, SynthConfig, describe, synthesize
 
@@ -97,17 +96,10 @@ def synth(
         calibration_frames=calibration_frames,
         crf=crf,
     )
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        "{task.completed}/{task.total} images",
-        TimeRemainingColumn(),
-        console=console,
-    ) as progress:
-        task = progress.add_task("rendering", total=None)
+    with labelled_progress() as progress:
 
         def update(done: int, total: int) -> None:
-            progress.update(task, completed=done, total=total)
+            progress("rendering (images)", done, total)
 
         session = synthesize(out, config, workers=workers, on_progress=update, overwrite=overwrite)
     console.print(describe(session))

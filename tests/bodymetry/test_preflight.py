@@ -121,6 +121,19 @@ def test_three_problems_are_all_listed(session: Path) -> None:
     assert any("cam_00.mp4" in line for line in lines[1:])
 
 
+def test_process_lists_every_problem_before_creating_the_run(session: Path, tmp_path: Path):
+    (session / "videos" / "cam_00.mp4").unlink()
+    _edit_yaml(session / "calibration.yaml", set_at("cameras.1.size", [320, 180]))
+    out = tmp_path / "run"
+    res = CliRunner().invoke(main, ["process", str(session), "--out", str(out)])
+    assert res.exit_code == 2, res.output
+    lines = res.output.strip().splitlines()
+    assert lines[0].startswith("error: 2 problem(s) in ") and len(lines) == 3, res.output
+    assert "cam_00.mp4" in lines[1] + lines[2] and "says 320x180" in lines[1] + lines[2]
+    assert not out.exists()  # nothing left behind
+    assert "Traceback" not in res.output
+
+
 def test_sizes_may_differ_across_cameras(session: Path) -> None:
     """A rig of mixed cameras is fine: only each camera's calibration against its video."""
     frames = [cv2.resize(f, (320, 240)) for f in _frames(session / "videos" / "cam_01.mp4")]
