@@ -29,6 +29,7 @@ __all__ = [
     "CORE_MEASUREMENTS",
     "RESULTS_FORMAT",
     "STAGES",
+    "STUDY_FORMAT",
     "AnnealingTrace",
     "FrameArrays",
     "FrameRecord",
@@ -38,6 +39,8 @@ __all__ = [
     "SessionInfo",
     "StageEstimate",
     "Stat",
+    "StudyResults",
+    "StudySession",
     "read_json_object",
     "summarize",
 ]
@@ -137,6 +140,14 @@ class RunLayout:
     @property
     def evaluation(self) -> Path:
         return self.folder / "evaluation.json"
+
+    @property
+    def review_files(self) -> tuple[Path, ...]:
+        """What the review writes (``bodymetry.review.run_data`` names each)."""
+        return tuple(
+            self.folder / n
+            for n in ("recording.rrd", "recording.mcap", "report.html", "measurements.csv")
+        )
 
     def frame_record(self, frame: int) -> Path:
         return self.frames_dir / f"{frame:06d}.json"
@@ -646,3 +657,91 @@ class RunResults:
     @classmethod
     def read(cls, path: Path) -> RunResults:
         return cls.from_json(read_json_object(path), str(path))
+
+
+#: Version of ``study.json`` written by ``bodymetry batch``.
+STUDY_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class StudySession:
+    """One session of a study (``bodymetry batch``).
+
+    Attributes
+    ----------
+    name : str
+        Its run folder's name inside the study folder (unique in the study).
+    session_path : str
+        The session folder.
+    status : str
+        ``"done"`` (results.json written), ``"failed"`` or ``"pending"``.
+    reason : str
+        Why it failed (one line), else empty.
+    rig : str
+        The discriminative models' key of its camera rig (empty when unknown).
+    """
+
+    name: str
+    session_path: str
+    status: str
+    reason: str = ""
+    rig: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any], where: str = "study.json") -> StudySession:
+        try:
+            return cls(
+                name=str(data["name"]),
+                session_path=str(data["session_path"]),
+                status=str(data["status"]),
+                reason=str(data.get("reason", "")),
+                rig=str(data.get("rig", "")),
+            )
+        except (KeyError, TypeError) as exc:
+            raise InputError(f"{where}: malformed session entry ({exc})") from exc
+
+
+@dataclass(frozen=True)
+class StudyResults:
+    """``study.json``: what ``bodymetry batch`` did, read by the cohort report.
+
+    Attributes
+    ----------
+    sessions : tuple of StudySession
+        In the order given on the command line.
+    rigs : dict of str to dict
+        Per rig key: ``{"trained": bool, "seconds": float, "sessions": [names]}``.
+    timing_seconds : dict of str to float
+    """
+
+    sessions: tuple[StudySession, ...]
+    rigs: dict[str, dict[str, Any]] = field(default_factory=dict)
+    timing_seconds: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "format": STUDY_FORMAT,
+            "sessions": [s.to_json() for s in self.sessions],
+            "rigs": self.rigs,
+            "timing_seconds": self.timing_seconds,
+        }
+
+    @classmethod
+    def read(cls, path: Path) -> StudyResults:
+        """Read ``STUDY/study.json``; InputError naming the file when it is not one."""
+        data = read_json_object(path)
+        if data.get("format") != STUDY_FORMAT or not isinstance(data.get("sessions"), list):
+            raise InputError(
+                f"{path}: not a study.json of `bodymetry batch` (format {STUDY_FORMAT})"
+            )
+        return cls(
+            sessions=tuple(
+                StudySession.from_json(s, f"{path}: sessions[{i}]")
+                for i, s in enumerate(data["sessions"])
+            ),
+            rigs=dict(data.get("rigs", {})),
+            timing_seconds=dict(data.get("timing_seconds", {})),
+        )
