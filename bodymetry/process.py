@@ -26,6 +26,7 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,7 @@ import numpy as np
 from bodymetry.calibration.camera import Camera
 from bodymetry.cameras import resolve_cameras
 from bodymetry.capture.session import Session, load_session
-from bodymetry.capture.silhouette import segment_session
+from bodymetry.capture.silhouette import SilhouetteFrame, segment_session
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import MIN_PIXELS, FitConfig, FrameFit, fit_frame, shared_body_model
@@ -53,7 +54,19 @@ from bodymetry.run_folder import prepare_run_folder
 
 log = logging.getLogger(__name__)
 
-__all__ = ["process_session"]
+__all__ = [
+    "FitJob",
+    "PreparedRun",
+    "RigModels",
+    "finish_run",
+    "fit_job",
+    "prepare_run",
+    "process_session",
+    "read_done_frames",
+    "rig_models",
+    "run_fit_job",
+    "write_frame",
+]
 
 Progress = Callable[[str, int, int], None]
 
@@ -88,22 +101,60 @@ def _die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
 
 
-def _fit_worker(
-    args: tuple[int, np.ndarray, list[list[str]], list[Camera], Path, FitConfig],
-) -> FrameFit:
-    frame, masks, flags, cameras, models_path, config = args
-    return fit_frame(frame, masks, flags, cameras, _discriminative(models_path), config)
+@dataclass(frozen=True)
+class FitJob:
+    """One kept frame to fit: what a worker needs (no session access).
+
+    Attributes
+    ----------
+    frame : int
+    masks : list of (H_c, W_c) bool
+        Observed silhouettes, camera order.
+    flags : list of list of str
+    cameras : list of Camera
+    models_path : Path
+        The rig's cached discriminative models.
+    fit : FitConfig
+    """
+
+    frame: int
+    masks: list[np.ndarray]
+    flags: list[list[str]]
+    cameras: list[Camera]
+    models_path: Path
+    fit: FitConfig
 
 
-def write_frame(layout: RunLayout, fit: FrameFit) -> None:
-    """Write a fitted frame: arrays and mesh first, then the record that marks it done."""
+def run_fit_job(job: FitJob) -> FrameFit:
+    """Fit one frame (in a worker: the rig's models are loaded once per process)."""
+    models = _discriminative(job.models_path)
+    return fit_frame(job.frame, job.masks, job.flags, job.cameras, models, job.fit)
+
+
+def fit_job(
+    sil: SilhouetteFrame, cameras: list[Camera], models_path: Path, fit: FitConfig
+) -> FitJob:
+    """The job of one segmented frame."""
+    return FitJob(
+        sil.frame, list(sil.masks), [list(f) for f in sil.flags], cameras, models_path, fit
+    )
+
+
+def write_frame(layout: RunLayout, fit: FrameFit) -> FrameRecord:
+    """Write a fitted frame: arrays and mesh first, then the record that marks it done.
+
+    Returns the record as written (rounded as in the file), so that a fresh run
+    and a resumed one summarize exactly the same numbers.
+    """
     frame = fit.record.frame
     save_npz(layout.frame_arrays(frame), fit.arrays.to_arrays())
     if fit.state is not None:
         body = shared_body_model()
         vertices = body.pose(fit.state).vertices[0]
         write_mesh(layout.frame_mesh(frame), vertices, body.faces(), body.full.arrays.parts)
-    write_json_atomic(layout.frame_record(frame), fit.record.to_json())
+    record = fit.record.to_json()
+    write_json_atomic(layout.frame_record(frame), record)
+    return FrameRecord.from_json(record)
 
 
 def read_done_frames(layout: RunLayout) -> dict[int, FrameRecord]:
@@ -153,6 +204,152 @@ def _ground_truth(session: Session) -> dict | None:
     return json.loads((gt / "subject.json").read_text())
 
 
+@dataclass(frozen=True)
+class PreparedRun:
+    """A session checked, its run folder ready and its cameras resolved.
+
+    Attributes
+    ----------
+    session : Session
+    layout : RunLayout
+    cameras : list of Camera
+    calibration_source : str
+    warnings : tuple of str
+        The up-front check's warnings.
+    """
+
+    session: Session
+    layout: RunLayout
+    cameras: list[Camera]
+    calibration_source: str
+    warnings: tuple[str, ...] = ()
+
+
+def prepare_run(
+    session_path: str | Path,
+    out: str | Path,
+    config: ProcessConfig,
+    progress: Progress | None = None,
+    *,
+    restart: bool = False,
+) -> PreparedRun:
+    """Check the session, create or resume the run folder and resolve the cameras.
+
+    Every problem with the inputs and the output folder is listed before any
+    long work, and before the run folder is created (a bad session leaves
+    nothing behind).
+
+    Raises
+    ------
+    InputError
+        Listing every problem found.
+    """
+    report = check_session(session_path, Path(out))
+    report.raise_if_failed()
+    for warning in report.warnings:
+        log.warning("%s", warning)
+    session = load_session(session_path)
+    layout = RunLayout(Path(out))
+    prepare_run_folder(layout.folder, session, config, restart=restart)
+    layout.frames_dir.mkdir(parents=True, exist_ok=True)
+    resolved = resolve_cameras(session, layout.folder, progress)
+    return PreparedRun(
+        session,
+        layout,
+        resolved.cameras,
+        resolved.source,
+        tuple(str(w) for w in report.warnings),
+    )
+
+
+@dataclass(frozen=True)
+class RigModels:
+    """The discriminative models of a rig, in the cache.
+
+    Attributes
+    ----------
+    key : str
+        :func:`bodymetry.estimation.training.rig_key`.
+    path : Path
+    reused : bool
+        Found in the cache (not trained by this call).
+    seconds : float
+    """
+
+    key: str
+    path: Path
+    reused: bool
+    seconds: float
+
+
+def rig_models(
+    cameras: list[Camera],
+    config: ProcessConfig,
+    progress: Progress | None = None,
+    workers: int | None = None,
+) -> RigModels:
+    """Load the rig's models from the cache, training them first if needed."""
+    t0 = time.perf_counter()
+    models, reused = load_or_train(
+        cameras,
+        config.training,
+        config.cache_dir,
+        workers=workers if workers is not None else config.workers,
+        progress=(lambda label, d, t: progress(f"training: {label}", d, t)) if progress else None,
+    )
+    path = cached_models_path(models.key, config.cache_dir)
+    return RigModels(models.key, path, reused, time.perf_counter() - t0)
+
+
+def finish_run(
+    prepared: PreparedRun,
+    config: ProcessConfig,
+    models: RigModels,
+    records: dict[int, FrameRecord],
+    timing: dict[str, float],
+    progress: Progress | None = None,
+) -> RunResults:
+    """Summarize the recorded frames, write ``results.json``, then the review outputs.
+
+    A failure of the review is logged, never raised: the results are safe on disk.
+    """
+    session = prepared.session
+    ordered = tuple(records[f] for f in sorted(records))
+    camera_frames = {
+        name: sum(r.person_pixels.get(name, 0) >= MIN_PIXELS for r in ordered)
+        for name in session.camera_names
+    }
+    warnings = camera_warnings(camera_frames, len(ordered))
+    if not any(r.ok for r in ordered):
+        warnings.append(f"no frame of the {len(ordered)} kept frames was measured")
+    for text in warnings:
+        log.warning("%s: %s", session.folder, text)
+    results = RunResults(
+        session=SessionInfo(
+            path=str(session.folder.resolve()),
+            name=session.name,
+            cameras=tuple(session.camera_names),
+            fps=session.fps,
+            frame_step=session.frame_step,
+        ),
+        config={**config.to_json(), "models": models.key, "models_reused": models.reused},
+        frames=ordered,
+        summary=summarize(ordered),
+        timing_seconds={k: round(v, 1) for k, v in timing.items()},
+        calibration_source=prepared.calibration_source,
+        ground_truth=_ground_truth(session),
+        camera_frames=camera_frames,
+        warnings=(*prepared.warnings, *warnings),
+    )
+    write_json_atomic(prepared.layout.results, results.to_json())
+    if config.review:
+        try:
+            build_review(prepared.layout.folder, pdf=config.pdf, progress=progress)
+        except Exception:  # results.json is written; the review is extra
+            log.exception("%s: building the review outputs failed", prepared.layout.folder)
+    return results
+
+
 def process_session(
     session_path: str | Path,
     out: str | Path,
@@ -176,45 +373,25 @@ def process_session(
         Replace a run of another session or other settings in ``out``
         (:func:`bodymetry.run_folder.prepare_run_folder`); without it that is an error.
 
-    The review outputs (``config.review``) are built after ``results.json`` is
-    written; a failure there is logged, never raised (the results are safe).
+    Raises
+    ------
+    InputError
+        For bad inputs, before any long work (:func:`prepare_run`).
     """
     config = config or ProcessConfig()
-    # Every problem with the inputs and the output folder, listed before any long work
-    # (and before the run folder is created, so a bad session leaves nothing behind).
-    report = check_session(session_path, Path(out))
-    report.raise_if_failed()
-    for warning in report.warnings:
-        log.warning("%s", warning)
-    session = load_session(session_path)
-    layout = RunLayout(Path(out))
-    prepare_run_folder(layout.folder, session, config, restart=restart)
-    layout.frames_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    resolved = resolve_cameras(session, layout.folder, progress)
-    cameras = resolved.cameras
-    models, reused = load_or_train(
-        cameras,
-        config.training,
-        config.cache_dir,
-        workers=config.workers,
-        progress=(lambda label, d, t: progress(f"training: {label}", d, t)) if progress else None,
-    )
+    prepared = prepare_run(session_path, out, config, progress, restart=restart)
+    models = rig_models(prepared.cameras, config, progress)
     t_train = time.perf_counter() - t0
-    models_path = cached_models_path(models.key, config.cache_dir)
-
+    layout = prepared.layout
     done = read_done_frames(layout)
-    pending = []
     t1 = time.perf_counter()
+    pending = []
     n_kept = 0
-    camera_frames = dict.fromkeys(session.camera_names, 0)
-    for sil in segment_session(session, keep_images=False):
+    for sil in segment_session(prepared.session, keep_images=False):
         n_kept += 1
-        for name, mask in zip(sil.cameras, sil.masks, strict=True):
-            camera_frames[name] += int(np.count_nonzero(mask) >= MIN_PIXELS)
         if sil.frame not in done:
-            flags = [list(f) for f in sil.flags]
-            pending.append((sil.frame, list(sil.masks), flags, cameras, models_path, config.fit))
+            pending.append(fit_job(sil, prepared.cameras, models.path, config.fit))
     t_sil = time.perf_counter() - t1
     if progress:
         progress("frames", len(done), n_kept)
@@ -228,46 +405,17 @@ def process_session(
             initializer=_die_with_parent,
             initargs=(os.getpid(),),
         ) as pool:
-            futures = [pool.submit(_fit_worker, job) for job in pending]
+            futures = [pool.submit(run_fit_job, job) for job in pending]
             for fut in as_completed(futures):
                 fit = fut.result()
-                write_frame(layout, fit)
-                # As written (rounded): a fresh run and a resumed one summarize the same numbers.
-                done[fit.record.frame] = FrameRecord.from_json(fit.record.to_json())
+                # As written (rounded): a fresh run and a resumed one summarize the same.
+                done[fit.record.frame] = write_frame(layout, fit)
                 if progress:
                     progress("frames", len(done), n_kept)
-    records = tuple(done[f] for f in sorted(done))
-    warnings = camera_warnings(camera_frames, n_kept)
-    if not any(r.ok for r in records):
-        warnings.append(f"no frame of the {n_kept} kept frames was measured")
-    for text in warnings:
-        log.warning("%s: %s", session.folder, text)
-    results = RunResults(
-        session=SessionInfo(
-            path=str(Path(session_path).resolve()),
-            name=session.name,
-            cameras=tuple(session.camera_names),
-            fps=session.fps,
-            frame_step=session.frame_step,
-        ),
-        config={**config.to_json(), "models": models.key, "models_reused": reused},
-        frames=records,
-        summary=summarize(records),
-        timing_seconds={
-            "training": round(t_train, 1),
-            "silhouettes": round(t_sil, 1),
-            "fitting": round(time.perf_counter() - t2, 1),
-            "total": round(time.perf_counter() - t0, 1),
-        },
-        calibration_source=resolved.source,
-        ground_truth=_ground_truth(session),
-        camera_frames=camera_frames,
-        warnings=tuple(warnings),
-    )
-    write_json_atomic(layout.results, results.to_json())
-    if config.review:
-        try:
-            build_review(layout.folder, pdf=config.pdf, progress=progress)
-        except Exception:  # results.json is written; the review is extra
-            log.exception("%s: building the review outputs failed", layout.folder)
-    return results
+    timing = {
+        "training": t_train,
+        "silhouettes": t_sil,
+        "fitting": time.perf_counter() - t2,
+        "total": time.perf_counter() - t0,
+    }
+    return finish_run(prepared, config, models, done, timing, progress)

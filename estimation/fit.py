@@ -239,8 +239,12 @@ def fit_frame(
         observed={n: np.asarray(m, bool) for n, m in zip(names, masks, strict=True)}
     )
 
+    pixels = {n: int(np.count_nonzero(m)) for n, m in zip(names, masks, strict=True)}
+
     def failed(status: str) -> FrameFit:
-        return FrameFit(FrameRecord(int(frame), status, flag_map), observed_arrays)
+        return FrameFit(
+            FrameRecord(int(frame), status, flag_map, person_pixels=pixels), observed_arrays
+        )
 
     if valid.sum() == 0:
         return failed("no silhouette in any camera")
@@ -301,6 +305,7 @@ def fit_frame(
         frame=int(frame),
         status=status,
         flags=flag_map,
+        person_pixels=pixels,
         estimates={
             "discriminative": StageEstimate(disc_state, bios[0].to_dict()),
             "generative": StageEstimate(state, bios[1].to_dict()),

@@ -324,6 +324,8 @@ class FrameRecord:
         Per stage (:data:`STAGES`); empty when there is no fit.
     silhouette_iou : dict of str to float
         IoU of the fitted body's silhouette with the observed one, per camera.
+    person_pixels : dict of str to int
+        Pixels of the observed silhouette per camera (0: the camera saw no one).
     annealing : AnnealingTrace or None
     refinement : RefinementTrace or None
     seconds : dict of str to float
@@ -335,6 +337,7 @@ class FrameRecord:
     flags: dict[str, tuple[str, ...]] = field(default_factory=dict)
     estimates: dict[str, StageEstimate] = field(default_factory=dict)
     silhouette_iou: dict[str, float] = field(default_factory=dict)
+    person_pixels: dict[str, int] = field(default_factory=dict)
     annealing: AnnealingTrace | None = None
     refinement: RefinementTrace | None = None
     seconds: dict[str, float] = field(default_factory=dict)
@@ -371,6 +374,8 @@ class FrameRecord:
             out["silhouette_iou"] = {
                 k: _finite_or_none(v, 4) for k, v in self.silhouette_iou.items()
             }
+        if self.person_pixels:
+            out["person_pixels"] = {k: int(v) for k, v in self.person_pixels.items()}
         if self.annealing is not None:
             out["annealing"] = self.annealing.to_json()
         if self.refinement is not None:
@@ -399,6 +404,7 @@ class FrameRecord:
                     k: float("nan") if v is None else float(v)
                     for k, v in data.get("silhouette_iou", {}).items()
                 },
+                person_pixels={k: int(v) for k, v in data.get("person_pixels", {}).items()},
                 annealing=AnnealingTrace.from_json(data["annealing"])
                 if "annealing" in data
                 else None,

@@ -107,7 +107,7 @@ def test_resume_does_not_refit(run, monkeypatch):
     def boom(*args, **kwargs):
         raise AssertionError("a finished frame was fitted again")
 
-    monkeypatch.setattr(process_module, "_fit_worker", boom)
+    monkeypatch.setattr(process_module, "run_fit_job", boom)
     again = _process(session, out, base)
     assert again.summary == results.summary
     assert again.config["models_reused"]
