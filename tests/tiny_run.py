@@ -24,8 +24,14 @@ TINY_TRAIN = TrainConfig(
 )
 
 
-def tiny_session(folder: Path, seed: int, frames: int = 5) -> Session:
-    """Render the tiny A-pose studio session into ``folder`` (every 2nd frame kept)."""
+def tiny_session(
+    folder: Path, seed: int, frames: int = 5, rig_seed: int | None = None
+) -> Session:
+    """Render the tiny A-pose studio session into ``folder`` (every 2nd frame kept).
+
+    Sessions with one ``rig_seed`` share their cameras (one rig); by default the
+    rig follows ``seed``.
+    """
     return synthesize(
         folder,
         SynthConfig(
@@ -34,6 +40,7 @@ def tiny_session(folder: Path, seed: int, frames: int = 5) -> Session:
             cameras=2,
             size=(240, 180),
             seed=seed,
+            rig_seed=rig_seed,
             motion="apose",
             background_frames=3,
             calibration_frames=30,

@@ -29,6 +29,11 @@ __all__ = ["COMMANDS", "DEMO_SESSION", "BodymetryGroup", "main"]
 #: The help line is what ``bodymetry --help`` lists without importing the module;
 #: tests/bodymetry/test_cli.py checks that it matches the command's docstring.
 COMMANDS: dict[str, tuple[str, str]] = {
+    "batch": (
+        "bodymetry.cli.batch:batch",
+        "Measure every session of a study on Dask (this machine or a cluster) into STUDY/, "
+        "with the cohort table and report.",
+    ),
     "calibrate": (
         "bodymetry.cli.calibrate:calibrate",
         "Solve the cameras of SESSION from its ChArUco calibration clips.",

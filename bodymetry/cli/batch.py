@@ -1,0 +1,109 @@
+"""``bodymetry batch``: measure every session of a study on Dask (docs/batch.md)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+from rich.table import Table
+
+from bodymetry.batch import dask_client, find_sessions, run_batch
+from bodymetry.cli.common import cache_option, console, friendly_errors, labelled_progress
+from bodymetry.config import ProcessConfig
+from bodymetry.estimation.records import CORE_MEASUREMENTS
+
+__all__ = ["EXIT_SESSIONS_FAILED", "batch"]
+
+#: Exit status when at least one session of the study failed (the others are done).
+EXIT_SESSIONS_FAILED = 4
+
+
+@click.command()
+@click.argument("sessions", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    "study",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Study folder: one run folder per session, study.json, cohort.csv, cohort.html.",
+)
+@click.option(
+    "--scheduler",
+    default=None,
+    metavar="ADDRESS",
+    help="A running Dask scheduler (tcp://host:8786); default: a local cluster.",
+)
+@click.option(
+    "--workers",
+    default=None,
+    type=click.IntRange(1),
+    help="Worker processes of the local cluster (default: one per core).",
+)
+@click.option(
+    "--quality",
+    type=click.Choice(["fast", "default", "best"]),
+    default="default",
+    show_default=True,
+    help="Particles, annealing layers and image scale.",
+)
+@click.option(
+    "--set",
+    "overrides",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Override any setting, as for `bodymetry process` (repeatable).",
+)
+@cache_option
+@click.option("--no-review", is_flag=True, help="Skip each session's review outputs.")
+@click.option(
+    "--restart",
+    is_flag=True,
+    help="Replace run folders of other sessions or settings instead of failing them.",
+)
+@friendly_errors
+def batch(
+    sessions: tuple[Path, ...],
+    study: Path,
+    scheduler: str | None,
+    workers: int | None,
+    quality: str,
+    overrides: tuple[str, ...],
+    cache_dir: Path | None,
+    no_review: bool,
+    restart: bool,
+) -> None:
+    """Measure every session of a study on Dask (this machine or a cluster) into STUDY/,
+    with the cohort table and report.
+
+    SESSIONS are session folders, folders of session folders, or text files
+    listing them. A rerun skips finished frames and sessions; a failed session
+    is reported and the others go on (exit status 4 when any failed).
+    """
+    found = find_sessions(sessions)
+    config = ProcessConfig.preset(
+        quality, cache_dir=cache_dir.resolve() if cache_dir else None, review=not no_review
+    ).with_overrides(overrides)
+    console.print(f"{len(found)} session(s) -> {study}/")
+    with dask_client(scheduler, workers) as client:
+        if client.dashboard_link:
+            console.print(f"Dask dashboard: {client.dashboard_link}")
+        with labelled_progress() as update:
+            outcome = run_batch(found, study, config, client, update, restart=restart)
+    _print_study(outcome.study, study)
+    if not outcome.ok:
+        sys.exit(EXIT_SESSIONS_FAILED)
+
+
+def _print_study(study, folder: Path) -> None:
+    table = Table(title=f"study {folder}")
+    for col in ("session", "status", "rig", "detail"):
+        table.add_column(col)
+    for entry in study.sessions:
+        table.add_row(entry.name, entry.status, entry.rig[:8], entry.reason)
+    console.print(table)
+    trained = sum(1 for r in study.rigs.values() if r.get("trained"))
+    console.print(
+        f"{len(study.rigs)} rig(s), {trained} trained now; cohort: {folder / 'cohort.csv'}, "
+        f"{folder / 'cohort.html'} ({', '.join(CORE_MEASUREMENTS)} per session)"
+    )

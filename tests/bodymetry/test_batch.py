@@ -1,0 +1,114 @@
+"""bodymetry batch on a local Dask cluster: rigs trained once, results as process writes them."""
+
+from __future__ import annotations
+
+import csv
+import shutil
+
+import pytest
+from tiny_run import TINY_TRAIN, tiny_session
+
+from bodymetry.batch import dask_client, find_sessions, run_batch, run_names
+from bodymetry.config import ProcessConfig
+from bodymetry.errors import InputError
+from bodymetry.estimation.records import RunResults, StudyResults
+from bodymetry.process import process_session
+
+
+def _config(base) -> ProcessConfig:
+    return ProcessConfig.preset(
+        "fast", training=TINY_TRAIN, cache_dir=base / "cache", review=False
+    ).with_overrides(["min_iou=0.5"])
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    base = tmp_path_factory.mktemp("batch")
+    sessions = base / "sessions"
+    tiny_session(sessions / "anna", seed=11, rig_seed=1)
+    tiny_session(sessions / "ben", seed=12, rig_seed=1)  # same rig as anna
+    tiny_session(sessions / "cleo", seed=13, rig_seed=2)  # another rig
+    broken = sessions / "dora"
+    shutil.copytree(sessions / "anna", broken)
+    (broken / "videos" / "cam_01.mp4").unlink()
+    paths = find_sessions([sessions])
+    with dask_client(workers=2) as client:
+        first = run_batch(paths, base / "study", _config(base), client)
+        again = run_batch(paths, base / "study", _config(base), client)
+    return base, paths, first, again
+
+
+def test_each_rig_is_trained_exactly_once(study):
+    _, _, first, _ = study
+    rigs = first.study.rigs
+    assert len(rigs) == 2
+    assert sorted(sorted(r["sessions"]) for r in rigs.values()) == [["anna", "ben"], ["cleo"]]
+    assert all(r["trained"] is True for r in rigs.values())
+
+
+def test_every_frame_is_fitted_and_a_bad_session_does_not_stop_the_others(study):
+    base, _, first, _ = study
+    status = {s.name: s for s in first.study.sessions}
+    assert [status[n].status for n in ("anna", "ben", "cleo")] == ["done"] * 3
+    assert status["dora"].status == "failed" and "cam_01.mp4" in status["dora"].reason
+    assert not first.ok
+    for name in ("anna", "ben", "cleo"):
+        results = RunResults.read(base / "study" / name / "results.json")
+        assert [r.frame for r in results.frames] == [0, 2, 4]
+        assert all(r.fitted for r in results.frames)
+    # study.json describes the last call (the rerun below).
+    assert StudyResults.read(base / "study" / "study.json").sessions == first.study.sessions
+
+
+def test_a_session_of_a_batch_is_what_process_writes(study):
+    base, paths, _, _ = study
+    alone = process_session(paths[0], base / "alone", _config(base))
+    batch = RunResults.read(base / "study" / "anna" / "results.json")
+    strip = [{k: v for k, v in r.to_json().items() if k != "seconds"} for r in alone.frames]
+    assert strip == [{k: v for k, v in r.to_json().items() if k != "seconds"} for r in batch.frames]
+    assert batch.summary == alone.summary
+
+    def settings(results: RunResults) -> dict:
+        return {k: v for k, v in results.config.items() if k != "models_reused"}
+
+    assert settings(batch) == settings(alone)
+    for name in ("calibration.yaml", "run.json"):
+        assert (base / "study" / "anna" / name).is_file()
+
+
+def test_the_cohort_table_matches_each_session(study):
+    base = study[0]
+    with (base / "study" / "cohort.csv").open() as f:
+        rows = {row["session"]: row for row in csv.DictReader(f)}
+    assert set(rows) == {"anna", "ben", "cleo", "dora"}
+    for name in ("anna", "ben", "cleo"):
+        results = RunResults.read(base / "study" / name / "results.json")
+        mean = results.summary["generative"]["height_mm"].mean
+        column = next(k for k in rows[name] if "generative" in k and "height" in k and "mean" in k)
+        assert float(rows[name][column]) == pytest.approx(mean, abs=0.1)
+    assert (base / "study" / "cohort.html").is_file()
+
+
+def test_a_rerun_skips_finished_sessions(study):
+    _, _, first, again = study
+    assert {s.name: s.status for s in again.study.sessions} == {
+        s.name: s.status for s in first.study.sessions
+    }
+    assert again.results == {}  # nothing was summarized again
+    assert all(r["trained"] is not True for r in again.study.rigs.values())
+
+
+def test_sessions_from_folders_lists_and_files(tmp_path, study):
+    _, paths, _, _ = study
+    listing = tmp_path / "sessions.txt"
+    listing.write_text(f"# the study\n{paths[2]}\n\n{paths[0] / 'session.yaml'}\n{paths[2]}\n")
+    assert find_sessions([listing]) == [paths[2], paths[0]]
+    with pytest.raises(InputError, match="no such session folder"):
+        find_sessions([tmp_path / "nope"])
+    with pytest.raises(InputError, match="no session folder"):
+        find_sessions([tmp_path])
+    assert run_names([paths[0], paths[0].parent / "x" / "anna", paths[1]]) == [
+        "anna",
+        "anna-2",
+        "ben",
+    ]
