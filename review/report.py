@@ -456,8 +456,12 @@ def _overlay_note(run: RunData, overlays: list[OverlayRow]) -> str:
     return "No recorded silhouettes or camera images for the frames shown."
 
 
-def render_html(content: _Content) -> str:
-    """The report as one self-contained HTML page."""
+def template_environment() -> jinja2.Environment:
+    """The Jinja2 environment of the review's HTML pages (``review/templates/``).
+
+    Autoescaped, strict about undefined names, with the ``num`` filter
+    (:func:`_num`); shared by ``report.html`` and the cohort's ``cohort.html``.
+    """
     env = jinja2.Environment(
         loader=jinja2.PackageLoader("bodymetry.review", "templates"),
         autoescape=jinja2.select_autoescape(["html", "j2"]),
@@ -466,9 +470,18 @@ def render_html(content: _Content) -> str:
         lstrip_blocks=True,
     )
     env.filters["num"] = _num
-    images = {
-        name: _data_uri(plots.png_bytes(fig), "image/png") for name, fig in content.figures.items()
-    }
+    return env
+
+
+def figure_uri(fig: Any) -> str:
+    """A matplotlib figure as a PNG ``data:`` URI (the pages embed every image)."""
+    return _data_uri(plots.png_bytes(fig), "image/png")
+
+
+def render_html(content: _Content) -> str:
+    """The report as one self-contained HTML page."""
+    env = template_environment()
+    images = {name: figure_uri(fig) for name, fig in content.figures.items()}
     overlays = [
         {
             "caption": row.caption,

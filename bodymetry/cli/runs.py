@@ -15,6 +15,7 @@ from rich.table import Table
 from bodymetry.cli.common import console, friendly_errors, labelled_progress
 from bodymetry.errors import InputError
 from bodymetry.review.build import build_review
+from bodymetry.review.cohort import STUDY_JSON, write_cohort
 
 # The evaluation's entry point, imported in this one place (it may move between packages).
 from bodymetry.review.evaluation import evaluate_run
@@ -74,7 +75,14 @@ def view(run: Path, web: bool, use_mcap: bool, port: int | None) -> None:
 )
 @friendly_errors
 def report(run: Path, pdf: bool, recordings: bool) -> None:
-    """Rebuild report.html and measurements.csv of RUN from its results.json (no refitting)."""
+    """Rebuild report.html and measurements.csv of RUN from its results.json (no refitting).
+
+    When RUN is a study folder of `bodymetry batch` (it holds study.json), rebuild
+    its cohort instead: cohort.csv, cohort.html and, with pyarrow, cohort.parquet.
+    """
+    if (run / STUDY_JSON).is_file():
+        _report_study(run, pdf=pdf, recordings=recordings)
+        return
     with labelled_progress() as update:
         summary = build_review(run, recordings=recordings, pdf=pdf, progress=update)
     for name, path in summary.files.items():
@@ -83,6 +91,23 @@ def report(run: Path, pdf: bool, recordings: bool) -> None:
         console.print(f"[bold red]{name} failed:[/] {rich.markup.escape(why)}", highlight=False)
     if summary.errors:
         sys.exit(1)
+
+
+def _report_study(study: Path, pdf: bool, recordings: bool) -> None:
+    """``bodymetry report STUDY``: the cohort of a study folder (docs/cohort.md)."""
+    if pdf or recordings:
+        # The options rebuild one run's outputs; a study has a run folder per session.
+        raise InputError(
+            f"{study}: a study folder (study.json); --pdf and --recordings apply to one "
+            f"run: `bodymetry report {study / '<session>'} --pdf`"
+        )
+    files = write_cohort(study)
+    console.print(f"wrote {files.csv} (one row per session)")
+    if files.parquet is not None:
+        console.print(f"wrote {files.parquet}")
+    else:
+        console.print("cohort.parquet not written: pyarrow is not installed")
+    console.print(f"wrote {files.html}")
 
 
 @click.command()
