@@ -6,9 +6,12 @@ import csv
 import shutil
 
 import pytest
+from click.testing import CliRunner
+from distributed import LocalCluster
 from tiny_run import TINY_TRAIN, tiny_session
 
 from bodymetry.batch import dask_client, find_sessions, run_batch, run_names
+from bodymetry.cli import main
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.records import RunResults, StudyResults
@@ -112,3 +115,25 @@ def test_sessions_from_folders_lists_and_files(tmp_path, study):
         "anna-2",
         "ben",
     ]
+
+
+def test_the_command_on_a_running_scheduler(study):
+    """--scheduler: submit to a cluster that is already running (here a local one)."""
+    base, paths, _, _ = study
+    options = [f"--set=training.{k}={list(v) if isinstance(v, tuple) else v}"
+               for k, v in TINY_TRAIN.__dict__.items()]  # fmt: skip
+    with LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster:
+        res = CliRunner().invoke(
+            main,
+            [
+                "batch", str(paths[0].parent), "--out", str(base / "study"),
+                "--scheduler", cluster.scheduler_address, "--quality", "fast",
+                "--cache", str(base / "cache"), "--no-review", "--set=min_iou=0.5", *options,
+            ],
+        )  # fmt: skip
+    assert res.exit_code == 4, res.output  # dora fails, the rest is done (skipped)
+    text = " ".join(res.output.split())
+    assert "4 session(s)" in text and "failed" in text and "cohort.csv" in text
+    assert "Traceback" not in res.output
+    with pytest.raises(InputError, match="cannot connect"), dask_client("tcp://127.0.0.1:1"):
+        pass
