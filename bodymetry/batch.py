@@ -28,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import logging
+import multiprocessing as mp
 import os
 import time
 import uuid
@@ -68,7 +69,14 @@ from bodymetry.review.cohort import write_cohort
 
 log = logging.getLogger(__name__)
 
-__all__ = ["BatchResult", "dask_client", "find_sessions", "run_batch", "run_names"]
+__all__ = [
+    "BatchResult",
+    "dashboard_link",
+    "dask_client",
+    "find_sessions",
+    "run_batch",
+    "run_names",
+]
 
 Progress = Callable[[str, int, int], None]
 #: A list of sessions given as a file is read whole; it is small.
@@ -165,7 +173,11 @@ def _prepare_task(
 
 
 def _train_task(prepared: PreparedRun, config: ProcessConfig) -> RigModels:
-    return rig_models(prepared.cameras, config)
+    # A worker of a cluster started with `dask worker` is a daemon process, which
+    # may not start processes: it trains in its own process (a local cluster's
+    # workers are not daemons and render the training set in parallel).
+    workers = 1 if mp.current_process().daemon else None
+    return rig_models(prepared.cameras, config, workers=workers)
 
 
 def _plan_task(prepared: PreparedRun, config: ProcessConfig) -> SessionPlan:
@@ -228,6 +240,12 @@ def _finish_task(
 
 
 # --- the cluster ----------------------------------------------------------------------------------
+def dashboard_link(client: Client) -> str | None:
+    """The cluster's dashboard address, or None when it runs without one."""
+    services = client.scheduler_info().get("services", {})
+    return client.dashboard_link if "dashboard" in services else None
+
+
 @contextlib.contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Client]:
     """A Dask client: of the cluster at ``scheduler``, or of a local cluster of ``workers``.

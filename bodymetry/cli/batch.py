@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from bodymetry.batch import dask_client, find_sessions, run_batch
+from bodymetry.batch import dashboard_link, dask_client, find_sessions, run_batch
 from bodymetry.cli.common import cache_option, console, friendly_errors, labelled_progress
 from bodymetry.config import ProcessConfig
 from bodymetry.estimation.records import CORE_MEASUREMENTS
@@ -86,8 +86,8 @@ def batch(
     ).with_overrides(overrides)
     console.print(f"{len(found)} session(s) -> {study}/")
     with dask_client(scheduler, workers) as client:
-        if client.dashboard_link:
-            console.print(f"Dask dashboard: {client.dashboard_link}")
+        link = dashboard_link(client)
+        console.print(f"Dask dashboard: {link}" if link else "Dask: no dashboard (needs bokeh)")
         with labelled_progress() as update:
             outcome = run_batch(found, study, config, client, update, restart=restart)
     _print_study(outcome.study, study)
