@@ -363,10 +363,14 @@ def run_batch(
             if frames_total:
                 progress("frames", frames_done, frames_total)
 
-    def fail(name: str, exc: BaseException) -> None:
+    def mark(name: str, status: str, reason: str = "") -> None:
         entries[name] = StudySession(
-            name, entries[name].session_path, "failed", _reason(exc), session_rig.get(name, "")
+            name, entries[name].session_path, status, reason, session_rig.get(name, "")
         )
+        report()
+
+    def fail(name: str, exc: BaseException) -> None:
+        mark(name, "failed", _reason(exc))
         log.error("%s: %s", name, entries[name].reason)
 
     # Keys unique to this call: a long-lived scheduler must not hand back old results.
@@ -404,7 +408,6 @@ def run_batch(
                 report()
             else:
                 fail(name, fut.exception())
-                report()
             continue
         if kind == "prepare":
             prepared: PreparedRun = fut.result()
@@ -429,11 +432,8 @@ def run_batch(
             frames_total += len(plan.kept)
             frames_done += len(plan.done)
             if plan.finished:
-                entries[name] = StudySession(
-                    name, entries[name].session_path, "done", rig=session_rig[name]
-                )
                 log.info("%s: already finished", name)
-                report()
+                mark(name, "done")
                 continue
             prep = prepared_futs[name]
             train = trains[session_rig[name]]
@@ -475,11 +475,8 @@ def run_batch(
             report()
         elif kind == "finish":
             results[name] = fut.result()
-            entries[name] = StudySession(
-                name, entries[name].session_path, "done", rig=session_rig[name]
-            )
             log.info("%s: done in %.0f s", name, time.perf_counter() - started[name])
-            report()
+            mark(name, "done")
     for info in rigs.values():
         info["sessions"] = sorted(info["sessions"])
     study_results = StudyResults(

@@ -9,7 +9,13 @@ import click
 from rich.table import Table
 
 from bodymetry.batch import dashboard_link, dask_client, find_sessions, run_batch
-from bodymetry.cli.common import cache_option, console, friendly_errors, labelled_progress
+from bodymetry.cli.common import (
+    cache_option,
+    console,
+    friendly_errors,
+    labelled_progress,
+    quality_option,
+)
 from bodymetry.config import ProcessConfig
 from bodymetry.estimation.records import CORE_MEASUREMENTS
 
@@ -40,13 +46,7 @@ EXIT_SESSIONS_FAILED = 4
     type=click.IntRange(1),
     help="Worker processes of the local cluster (default: one per core).",
 )
-@click.option(
-    "--quality",
-    type=click.Choice(["fast", "default", "best"]),
-    default="default",
-    show_default=True,
-    help="Particles, annealing layers and image scale.",
-)
+@quality_option
 @click.option(
     "--set",
     "overrides",

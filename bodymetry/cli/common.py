@@ -321,6 +321,15 @@ def labelled_progress(
         yield update
 
 
+#: ``--quality``: the row of the preset table (bodymetry.estimation.fit.PRESETS).
+quality_option = click.option(
+    "--quality",
+    type=click.Choice(["fast", "default", "best"]),
+    default="default",
+    show_default=True,
+    help="Particles, annealing layers and image scale.",
+)
+
 #: ``--cache``: the trained-model cache folder (train and process share it).
 cache_option = click.option(
     "--cache",

@@ -17,6 +17,7 @@ from bodymetry.cli.common import (
     console,
     friendly_errors,
     labelled_progress,
+    quality_option,
 )
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
@@ -41,13 +42,7 @@ __all__ = ["process"]
     default=None,
     help="Run folder (default: runs/<session name>). An existing run resumes.",
 )
-@click.option(
-    "--quality",
-    type=click.Choice(["fast", "default", "best"]),
-    default="default",
-    show_default=True,
-    help="Particles, annealing layers and image scale.",
-)
+@quality_option
 @click.option(
     "--workers", default=None, type=int, help="Frames fitted in parallel (default: all cores)."
 )
