@@ -39,6 +39,10 @@ class ProcessConfig:
         Per-frame fit: seed, density, quality gate, annealing, refinement.
     training : TrainConfig
         Discriminative training for a new rig (paper §6: 3000 + 597 examples).
+    frame_step : int or None
+        Fit every ``frame_step``-th frame instead of the session's own
+        ``frame_step`` (for clips too short for the default of 25); None keeps
+        the session's.
     workers : int or None
         Worker processes (None: one per core).
     cache_dir : Path or None
@@ -52,6 +56,7 @@ class ProcessConfig:
     quality: str = "default"
     fit: FitConfig = field(default_factory=FitConfig)
     training: TrainConfig = field(default_factory=TrainConfig)
+    frame_step: int | None = None
     workers: int | None = None
     cache_dir: Path | None = None
     review: bool = True
@@ -60,6 +65,8 @@ class ProcessConfig:
     def __post_init__(self) -> None:
         if self.quality not in PRESETS:
             raise InputError(f"quality: expected one of {', '.join(PRESETS)}, got {self.quality!r}")
+        if self.frame_step is not None and self.frame_step < 1:
+            raise InputError(f"frame_step: expected >= 1, got {self.frame_step}")
         if self.workers is not None and self.workers < 1:
             raise InputError(f"workers: expected >= 1, got {self.workers}")
         if self.pdf and not self.review:

@@ -26,7 +26,7 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -249,6 +249,14 @@ def prepare_run(
     for warning in report.warnings:
         log.warning("%s", warning)
     session = load_session(session_path)
+    if config.frame_step is not None and config.frame_step != session.frame_step:
+        log.info(
+            "%s: fitting every %d. frame (session.yaml says %d)",
+            session.folder,
+            config.frame_step,
+            session.frame_step,
+        )
+        session = replace(session, frame_step=config.frame_step)
     layout = RunLayout(Path(out))
     prepare_run_folder(layout.folder, session, config, restart=restart)
     layout.frames_dir.mkdir(parents=True, exist_ok=True)

@@ -46,6 +46,13 @@ __all__ = ["process"]
 @click.option(
     "--workers", default=None, type=int, help="Frames fitted in parallel (default: all cores)."
 )
+@click.option(
+    "--frame-step",
+    default=None,
+    type=click.IntRange(1),
+    help="Fit every N-th frame instead of the session's frame_step (e.g. 10 for a "
+    "100-frame clip); recorded in results.json.",
+)
 @click.option("--seed", default=0, show_default=True, type=int, help="Seeds the particle filter.")
 @click.option(
     "--min-iou",
@@ -88,6 +95,7 @@ def process(
     out: Path | None,
     quality: str,
     workers: int | None,
+    frame_step: int | None,
     seed: int,
     min_iou: float,
     cache_dir: Path | None,
@@ -103,7 +111,12 @@ def process(
     if no_review and pdf:
         raise InputError("--pdf: the report is part of the review; drop --no-review")
     config = ProcessConfig.preset(
-        quality, workers=workers, cache_dir=cache_dir, review=not no_review, pdf=pdf
+        quality,
+        workers=workers,
+        cache_dir=cache_dir,
+        review=not no_review,
+        pdf=pdf,
+        frame_step=frame_step,
     ).with_overrides([f"seed={seed}", f"min_iou={min_iou}", *overrides])
     if show_config:
         click.echo(json.dumps(config.to_json(), indent=2))

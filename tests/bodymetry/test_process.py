@@ -245,3 +245,13 @@ def test_a_black_camera_is_named_and_the_results_stay_strict_json(run, tmp_path)
     assert any("camera 'cam_01' saw no person" in w for w in results.warnings)
     text = (tmp_path / "run" / "results.json").read_text()
     json.loads(text, parse_constant=lambda c: 1 / 0)  # strict JSON: no NaN or Infinity
+
+
+def test_frame_step_override_is_used_and_recorded(run, tmp_path):
+    session, _, _, base = run
+    config = dataclasses.replace(_config(base), frame_step=4)
+    results = process_module.process_session(session.folder, tmp_path / "run", config)
+    assert [r.frame for r in results.frames] == [0, 4]
+    assert results.session.frame_step == 4 and results.config["frame_step"] == 4
+    with pytest.raises(InputError, match="other settings"):  # a resume must use the same step
+        process_module.process_session(session.folder, tmp_path / "run", _config(base))
