@@ -17,7 +17,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 BENCHMARKS = ("body_model", "studio", "discriminative", "calibration", "capture", "pipeline")
 #: Reports that are not timed benchmarks (run only when named).
-REPORTS = {"imports": "benchmarks.imports"}
+REPORTS = {"imports": "benchmarks.imports", "profile": "benchmarks.bench_profile"}
 
 
 def main(argv: list[str]) -> int:

@@ -1,0 +1,128 @@
+"""Where one frame's fit spends its time: ``python -m benchmarks profile``.
+
+Fits kept frames of the demo recording (default preset) under ``cProfile`` and
+splits the time by what the code does, from each function's own time (not
+counting what it calls), so the next bottleneck is visible:
+
+- ``rasterize``: the triangle rasterizer (``estimation/raster.py``);
+- ``pose``: posing the body model (SCAPE solve, skinning, ``estimation/body_model``);
+- ``chamfer``: the rest of the likelihood (``estimation/generative.py``: distance
+  transforms, sums) and the annealing's bookkeeping;
+- ``refinement``: the contour refinement (``estimation/refinement.py``);
+- ``discriminative``: features and mixtures of experts;
+- ``project``: projecting vertices through the cameras' lens model;
+- ``fit (other)``: the per-frame fit's own glue (``estimation/fit.py``);
+- ``other``: numpy and OpenCV calls made by none of the above's own code, Python.
+
+Time inside numpy or OpenCV is charged to the bodymetry function that called
+it. Uses the user's model cache (training the demo rig first when it is
+missing: minutes). ``BODYMETRY_PROFILE_FRAMES`` sets how many frames (default 3).
+"""
+
+from __future__ import annotations
+
+import cProfile
+import os
+import pstats
+import time
+from collections import defaultdict
+from pathlib import Path
+
+from bodymetry.capture.session import load_session
+from bodymetry.capture.silhouette import segment_session
+from bodymetry.cli import DEMO_SESSION
+from bodymetry.config import ProcessConfig
+from bodymetry.estimation.fit import shared_body_model
+from bodymetry.process import fit_job, rig_models, run_fit_job
+
+#: Source path fragments -> category (first match wins).
+CATEGORIES = (
+    ("estimation/raster.py", "rasterize"),
+    ("estimation/body_model/", "pose"),
+    ("estimation/projection.py", "rasterize"),
+    ("estimation/refinement.py", "refinement"),
+    ("estimation/generative.py", "chamfer"),
+    ("estimation/features.py", "discriminative"),
+    ("estimation/moe.py", "discriminative"),
+    ("estimation/training.py", "discriminative"),
+    ("calibration/camera.py", "project"),
+    ("estimation/fit.py", "fit (other)"),
+)
+
+
+def _category(filename: str) -> str | None:
+    path = filename.replace(os.sep, "/")
+    for fragment, name in CATEGORIES:
+        if fragment in path:
+            return name
+    return None
+
+
+def split(stats: pstats.Stats) -> dict[str, float]:
+    """Seconds per category: each function's own time; a library function's time
+    (numpy, OpenCV, builtins) goes to the categories of the bodymetry code that
+    called it, directly or through other library functions, in proportion to the
+    time each call path spent in it."""
+    raw = stats.stats  # type: ignore[attr-defined]
+    memo: dict[tuple, dict[str, float]] = {}
+
+    def owners(func: tuple, seen: frozenset) -> dict[str, float]:
+        """Fractions of ``func``'s time per category."""
+        if func in memo:
+            return memo[func]
+        own = _category(func[0])
+        if own is not None:
+            return {own: 1.0}
+        callers = raw.get(func, (0, 0, 0, 0, {}))[4]
+        mix: dict[str, float] = defaultdict(float)
+        total = 0.0
+        for caller, entry in callers.items():
+            if caller in seen:
+                continue
+            for name, frac in owners(caller, seen | {func}).items():
+                mix[name] += entry[2] * frac
+            total += entry[2]
+        result = {k: v / total for k, v in mix.items()} if total > 0 else {"other": 1.0}
+        memo[func] = result
+        return result
+
+    out: dict[str, float] = defaultdict(float)
+    for func, (_, _, tottime, _, _) in raw.items():
+        for name, frac in owners(func, frozenset()).items():
+            out[name] += tottime * frac
+    return dict(out)
+
+
+def run() -> dict:
+    n_frames = int(os.environ.get("BODYMETRY_PROFILE_FRAMES", "3"))
+    config = ProcessConfig()
+    session = load_session(DEMO_SESSION)
+    cameras = list(session.calibration())
+    models = rig_models(cameras, config)
+    shared_body_model()  # loaded outside the profile
+    kept = list(segment_session(session, keep_images=False))
+    # Spread the frames over the recording (standing, walking, arms raised).
+    step = max(1, len(kept) // n_frames)
+    frames = kept[::step][:n_frames]
+    jobs = [fit_job(sil, cameras, models.path, config.fit) for sil in frames]
+    profiler = cProfile.Profile()
+    t0 = time.perf_counter()
+    profiler.enable()
+    for job in jobs:
+        run_fit_job(job)
+    profiler.disable()
+    wall = time.perf_counter() - t0
+    parts = split(pstats.Stats(profiler))
+    per_frame = {
+        k: round(v / len(jobs), 2) for k, v in sorted(parts.items(), key=lambda kv: -kv[1])
+    }
+    return {
+        "setup": f"demo, frames {[s.frame for s in frames]}, default preset, one core, cProfile on",
+        "seconds_per_frame": round(wall / len(jobs), 2),
+        "split_seconds_per_frame": per_frame,
+        "split_fraction": {
+            k: round(v / max(sum(per_frame.values()), 1e-9), 3) for k, v in per_frame.items()
+        },
+        "note": "cProfile slows every Python call; compare the fractions, not the seconds",
+        "models": str(Path(models.path).name),
+    }
