@@ -50,6 +50,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "bodymetry.cli.runs:evaluate",
         "The paper's Figure 3 for a processed session with ground truth (RUN/evaluation.json).",
     ),
+    "import": (
+        "bodymetry.cli.import_:import_",
+        "Make a session folder OUT from a Pose2Sim, anipose / FreeMoCap or plain recording SOURCE.",
+    ),
     "model": (
         "bodymetry.cli.model:model",
         "The SCAPE body model: bake it, inspect it, export meshes.",
