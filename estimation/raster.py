@@ -1,21 +1,98 @@
 """Vectorized triangle rasterization (z-buffer and coverage) shared by every stage.
 
 The studio renders its images with it and the estimation stage projects model
-silhouettes with it. No per-triangle Python loop: per-triangle bounding boxes
-are expanded into candidate pixels, an inside test keeps the covered ones and
-the nearest triangle wins each pixel. (``cv2.fillPoly`` with many triangles
-applies the even-odd rule and leaves holes where a mesh overlaps itself.)
+silhouettes with it. A pixel belongs to a triangle when its centre (integer
+coordinates) passes the inside test ``l_i >= -_INSIDE_EPS`` of the triangle's
+affine barycentric functions, and the nearest triangle wins each pixel.
+(``cv2.fillPoly`` with many triangles applies the even-odd rule and leaves holes
+where a mesh overlaps itself.)
+
+Two implementations give the same pixels (tests/estimation/test_raster.py
+compares them bit for bit):
+
+- ``"numba"``: compiled kernels (``raster_kernels.py``) looping over triangles
+  and the pixel centres of their bounding boxes; several times faster, since
+  the numpy path's cost is per-triangle array overhead;
+- ``"numpy"``: the reference. No per-triangle Python loop: per-triangle
+  bounding boxes are expanded into candidate pixels, the inside test keeps the
+  covered ones and a ``minimum.at`` z-buffer picks the nearest.
+
+:data:`BACKEND` selects one, from ``$BODYMETRY_RASTER`` (``numba`` or
+``numpy``); by default numba when it is installed.
 """
 
 from __future__ import annotations
 
+import importlib.util
+import logging
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 
+log = logging.getLogger(__name__)
+
 #: Tolerance of the inside test, in barycentric units.
 _INSIDE_EPS = 1e-9
+
+_BACKENDS = ("numba", "numpy")
+
+
+def _default_backend(env: str | None) -> str:
+    """``$BODYMETRY_RASTER`` or, unset, numba when installed (without importing it)."""
+    if env:
+        if env not in _BACKENDS:
+            raise ValueError(f"BODYMETRY_RASTER must be 'numba' or 'numpy', got {env!r}")
+        return env
+    return "numba" if importlib.util.find_spec("numba") is not None else "numpy"
+
+
+#: The implementation behind :func:`rasterize`, :func:`coverage` and
+#: :func:`coverage_views`: ``"numba"`` or ``"numpy"``. Read at every call, so
+#: tests and benchmarks may set it; the one place the choice is made.
+BACKEND: str = _default_backend(os.environ.get("BODYMETRY_RASTER"))
+
+_kernel_module: ModuleType | None = None
+
+
+def _kernels() -> ModuleType | None:
+    """The compiled kernels when :data:`BACKEND` is ``"numba"``, else None.
+
+    Imported on first use, so that importing the rasterizer does not import
+    numba. When numba was chosen by default but fails to import (a broken
+    install), the numpy path is used with a log message; an explicit
+    ``BODYMETRY_RASTER=numba`` raises instead.
+    """
+    global BACKEND, _kernel_module
+    if BACKEND == "numpy":
+        return None
+    if BACKEND != "numba":
+        raise ValueError(f"raster.BACKEND must be 'numba' or 'numpy', got {BACKEND!r}")
+    if _kernel_module is None:
+        try:
+            from bodymetry.estimation import raster_kernels
+        except ImportError as exc:
+            if os.environ.get("BODYMETRY_RASTER") == "numba":
+                msg = f"BODYMETRY_RASTER=numba but numba fails to import: {exc}"
+                raise ImportError(msg) from exc
+            log.warning("numba fails to import (%s): using the numpy rasterizer", exc)
+            BACKEND = "numpy"
+            return None
+        _kernel_module = raster_kernels
+    return _kernel_module
+
+
+_CULL_CODES = {"none": 0, "back": 1, "front": 2}
+
+
+def _arg(a: np.ndarray, dtype: type) -> np.ndarray:
+    """``a`` as a C-contiguous, writable array of ``dtype`` for a kernel: numba
+    compiles (and caches) one version per layout and per read-only flag, so
+    every call passes the same kind (a read-only mesh would compile another)."""
+    a = np.ascontiguousarray(a, dtype=dtype)
+    return a if a.flags.writeable else a.copy()
 
 
 @dataclass(frozen=True)
@@ -111,6 +188,7 @@ def rasterize(
     max_candidates : int
         Upper bound on candidate pixels (bounding-box area summed over
         triangles), a guard against runaway memory.
+        Only the numpy path builds candidate arrays; the compiled one ignores it.
 
     Returns
     -------
@@ -136,6 +214,9 @@ def rasterize(
         ok_v &= depth > 1e-9
     if valid is not None:
         ok_v &= np.asarray(valid, dtype=bool).reshape(-1)
+    kernels = _kernels()
+    if kernels is not None:
+        return _rasterize_numba(kernels, xy, depth, faces, (w_img, h_img), perspective, cull, ok_v)
     empty = Raster(
         (w_img, h_img),
         np.full((h_img, w_img), -1, np.int32),
@@ -182,6 +263,67 @@ def rasterize(
     )
 
 
+def _rasterize_numba(
+    kernels: ModuleType,
+    xy: np.ndarray,
+    depth: np.ndarray,
+    faces: np.ndarray,
+    size: tuple[int, int],
+    perspective: bool,
+    cull: str,
+    valid: np.ndarray,
+) -> Raster:
+    """:func:`rasterize` by the compiled z-buffer, from its checked inputs.
+
+    The kernel keeps each pixel's winning triangle and affine barycentrics;
+    the perspective correction below is the numpy path's, operation for
+    operation, so both give the same bits. No candidate arrays, so no
+    ``max_candidates`` guard is needed.
+    """
+    w_img, h_img = size
+    xs, ys = _arg(xy[:, 0], np.float64), _arg(xy[:, 1], np.float64)
+    ok = valid & np.isfinite(xs) & np.isfinite(ys)
+    zbuf = np.full(h_img * w_img, np.inf)
+    tri_flat = np.full(h_img * w_img, -1, np.int64)
+    lam = np.empty((h_img * w_img, 3))
+    status = kernels.zbuffer_kernel(
+        xs,
+        ys,
+        _arg(depth, np.float64),
+        ok,
+        _arg(faces, np.int64),
+        w_img,
+        h_img,
+        _CULL_CODES[cull],
+        bool(perspective),
+        _INSIDE_EPS,
+        zbuf,
+        tri_flat,
+        lam,
+    )
+    if status != 0:
+        raise IndexError(f"rasterize: face indices out of range for {len(xs)} vertices")
+    tri_flat[np.isnan(zbuf)] = -1  # numpy's minimum.at: a NaN key leaves the pixel empty
+    pixels = np.flatnonzero(tri_flat >= 0)
+    b = lam[pixels]
+    if perspective:
+        b = b / depth[faces[tri_flat[pixels]]]
+        zinv = b.sum(axis=1)
+        b = b / zinv[:, None]
+        zval = 1.0 / zinv
+    else:
+        zval = zbuf[pixels]
+    depth_img = np.full(h_img * w_img, np.inf, np.float32)
+    depth_img[pixels] = zval
+    return Raster(
+        (w_img, h_img),
+        tri_flat.reshape(h_img, w_img).astype(np.int32),
+        depth_img.reshape(h_img, w_img),
+        pixels,
+        b.astype(np.float32),
+    )
+
+
 def _covered(
     xy: np.ndarray,
     faces: np.ndarray,
@@ -209,8 +351,9 @@ def _covered(
     keep = ok_v[f0] & ok_v[f1] & ok_v[f2]
     x0, x1, x2 = xs[f0], xs[f1], xs[f2]
     y0, y1, y2 = ys[f0], ys[f1], ys[f2]
-    area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+    # Infinite vertices (dropped by ``keep``) make inf - inf here: no warning.
     with np.errstate(invalid="ignore"):
+        area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
         if cull == "back":
             keep &= area2 < -1e-12
         elif cull == "front":
@@ -311,6 +454,12 @@ def coverage(
     if xy.ndim != 2 or xy.shape[1] != 2:
         raise ValueError(f"coverage: xy must have shape (N, 2), got {xy.shape}")
     ok_v = np.ones(len(xy), bool) if valid is None else np.asarray(valid, bool).reshape(-1)
+    kernels = _kernels()
+    if kernels is not None:
+        if len(ok_v) != len(xy):
+            raise ValueError(f"coverage: valid must have {len(xy)} values, got {len(ok_v)}")
+        sizes = np.array([[w_img, h_img]], np.int64)
+        return _coverage_numba(kernels, xy[None], faces, sizes, closed, ok_v[None])[0]
     mask = np.zeros(h_img * w_img, bool)
     found = _covered(xy, faces, (w_img, h_img), "back" if closed else "none", ok_v, 50_000_000)
     if found is not None:
@@ -368,6 +517,23 @@ def coverage_views(
             f"coverage_views: size must be (width, height) or {C} of them, got {sizes.tolist()}"
         )
     w_img, h_img = (int(v) for v in sizes.max(axis=0))
+    kernels = _kernels()
+    if kernels is not None:
+        mask = _coverage_numba(kernels, xy, faces, sizes, closed, np.ones((C, N), bool))
+    else:
+        mask = _coverage_views_numpy(xy, faces, (w_img, h_img), closed)
+    if np.all(sizes == (w_img, h_img)):
+        return mask
+    return [mask[c, :h, :w] for c, (w, h) in enumerate(sizes.tolist())]
+
+
+def _coverage_views_numpy(
+    xy: np.ndarray, faces: np.ndarray, canvas: tuple[int, int], closed: bool
+) -> np.ndarray:
+    """The numpy reference of :func:`coverage_views`: (C, H, W) bool on the
+    ``canvas`` (width, height), the views as tiles of one tall image."""
+    C, N, _ = xy.shape
+    w_img, h_img = canvas
     stacked = xy + np.stack([np.zeros(C), np.arange(C) * h_img], axis=1)[:, None, :]
     valid = np.all(np.isfinite(stacked), axis=2).reshape(-1)
     all_faces = (faces[None] + (np.arange(C) * N)[:, None, None]).reshape(-1, 3)
@@ -385,7 +551,54 @@ def coverage_views(
     )
     if found is not None:
         mask[found[0]] = True
-    mask = mask.reshape(C, h_img, w_img)
-    if np.all(sizes == (w_img, h_img)):
-        return mask
-    return [mask[c, :h, :w] for c, (w, h) in enumerate(sizes.tolist())]
+    return mask.reshape(C, h_img, w_img)
+
+
+def _coverage_numba(
+    kernels: ModuleType,
+    xy: np.ndarray,
+    faces: np.ndarray,
+    sizes: np.ndarray,
+    closed: bool,
+    valid: np.ndarray,
+) -> np.ndarray:
+    """Coverage of C views by the compiled kernel.
+
+    Parameters
+    ----------
+    kernels : module
+        :mod:`bodymetry.estimation.raster_kernels`.
+    xy : (C, N, 2) float64
+    faces : (T, 3) int
+    sizes : (C, 2) int64
+        ``(width, height)`` per view.
+    closed : bool
+    valid : (C, N) bool
+
+    Returns
+    -------
+    (C, H, W) bool
+        On the canvas of the largest width and height; view ``c``'s pixels
+        beyond its own size are False. The views are offset as numpy's tiles
+        (``y + c * H``), so that both paths round alike.
+    """
+    faces = np.asarray(faces)
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise ValueError(f"coverage: faces must have shape (T, 3), got {faces.shape}")
+    C = xy.shape[0]
+    w_img, h_img = (int(v) for v in sizes.max(axis=0)) if C else (0, 0)
+    out = np.zeros((C, h_img, w_img), bool)
+    status = kernels.coverage_kernel(
+        _arg(xy[..., 0], np.float64),
+        _arg(xy[..., 1], np.float64),
+        _arg(valid, np.bool_),
+        _arg(faces, np.int64),
+        _arg(sizes, np.int64),
+        h_img,
+        _CULL_CODES["back" if closed else "none"],
+        _INSIDE_EPS,
+        out,
+    )
+    if status != 0:
+        raise IndexError(f"coverage: face indices out of range for {xy.shape[1]} vertices")
+    return out
