@@ -246,14 +246,50 @@ def rasterize(
 
     b = np.stack([l0[wsel], l1[wsel], l2[wsel]], axis=1)
     if perspective:
-        b = b / np.stack([d0[wsel], d1[wsel], d2[wsel]], axis=1)
+        return _raster_from(
+            (w_img, h_img),
+            tri_flat,
+            pixels,
+            b,
+            vertex_depth=np.stack([d0[wsel], d1[wsel], d2[wsel]], axis=1),
+        )
+    return _raster_from((w_img, h_img), tri_flat, pixels, b, depth=key[wsel])
+
+
+def _raster_from(
+    size: tuple[int, int],
+    tri_flat: np.ndarray,
+    pixels: np.ndarray,
+    b: np.ndarray,
+    *,
+    vertex_depth: np.ndarray | None = None,
+    depth: np.ndarray | None = None,
+) -> Raster:
+    """The :class:`Raster` of a filled triangle index image (both implementations).
+
+    Parameters
+    ----------
+    size : (w, h)
+    tri_flat : (h * w,) int
+        Triangle per pixel, -1 where empty.
+    pixels : (P,) int
+        The non-empty pixels.
+    b : (P, 3) float
+        Screen-space barycentric weights of each pixel's triangle.
+    vertex_depth : (P, 3) float, optional
+        Perspective: the depth of the triangle's corners; the weights are then
+        made perspective-correct and the depth interpolated as 1 / sum(b / z).
+    depth : (P,) float, optional
+        Orthographic: each pixel's depth.
+    """
+    w_img, h_img = size
+    if vertex_depth is not None:
+        b = b / vertex_depth
         zinv = b.sum(axis=1)
         b = b / zinv[:, None]
-        zval = 1.0 / zinv
-    else:
-        zval = key[wsel]
+        depth = 1.0 / zinv
     depth_img = np.full(h_img * w_img, np.inf, np.float32)
-    depth_img[pixels] = zval
+    depth_img[pixels] = depth
     return Raster(
         (w_img, h_img),
         tri_flat.reshape(h_img, w_img).astype(np.int32),
@@ -307,21 +343,10 @@ def _rasterize_numba(
     pixels = np.flatnonzero(tri_flat >= 0)
     b = lam[pixels]
     if perspective:
-        b = b / depth[faces[tri_flat[pixels]]]
-        zinv = b.sum(axis=1)
-        b = b / zinv[:, None]
-        zval = 1.0 / zinv
-    else:
-        zval = zbuf[pixels]
-    depth_img = np.full(h_img * w_img, np.inf, np.float32)
-    depth_img[pixels] = zval
-    return Raster(
-        (w_img, h_img),
-        tri_flat.reshape(h_img, w_img).astype(np.int32),
-        depth_img.reshape(h_img, w_img),
-        pixels,
-        b.astype(np.float32),
-    )
+        return _raster_from(
+            (w_img, h_img), tri_flat, pixels, b, vertex_depth=depth[faces[tri_flat[pixels]]]
+        )
+    return _raster_from((w_img, h_img), tri_flat, pixels, b, depth=zbuf[pixels])
 
 
 def _covered(

@@ -121,6 +121,17 @@ def _setup(x0, y0, x1, y1, x2, y2, cull, w_img, row_lo, row_hi):  # pragma: no c
 
 
 @numba.njit(cache=True, nogil=True)
+def _faces_in_range(faces, n):  # pragma: no cover
+    """Whether every index of ``faces`` (T, 3) lies in ``0 .. n - 1``."""
+    for t in range(faces.shape[0]):
+        for k in range(3):
+            i = faces[t, k]
+            if i < 0 or i >= n:
+                return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
 def coverage_kernel(xs, ys, valid, faces, sizes, h_canvas, cull, eps, out):  # pragma: no cover
     """Front-face (or all-face) coverage of one mesh in C views, as tiles.
 
@@ -157,11 +168,8 @@ def coverage_kernel(xs, ys, valid, faces, sizes, h_canvas, cull, eps, out):  # p
     """
     C, N = xs.shape
     T = faces.shape[0]
-    for t in range(T):
-        for k in range(3):
-            i = faces[t, k]
-            if i < 0 or i >= N:
-                return -1
+    if not _faces_in_range(faces, N):
+        return -1
     for c in range(C):
         w_img = sizes[c, 0]
         row_lo = c * h_canvas
@@ -240,11 +248,8 @@ def zbuffer_kernel(
     """
     N = xs.shape[0]
     T = faces.shape[0]
-    for t in range(T):
-        for k in range(3):
-            i = faces[t, k]
-            if i < 0 or i >= N:
-                return -1
+    if not _faces_in_range(faces, N):
+        return -1
     for t in range(T):
         i0, i1, i2 = faces[t, 0], faces[t, 1], faces[t, 2]
         if not (valid[i0] and valid[i1] and valid[i2]):

@@ -24,9 +24,7 @@ TINY_TRAIN = TrainConfig(
 )
 
 
-def tiny_session(
-    folder: Path, seed: int, frames: int = 5, rig_seed: int | None = None
-) -> Session:
+def tiny_session(folder: Path, seed: int, frames: int = 5, rig_seed: int | None = None) -> Session:
     """Render the tiny A-pose studio session into ``folder`` (every 2nd frame kept).
 
     Sessions with one ``rig_seed`` share their cameras (one rig); by default the
