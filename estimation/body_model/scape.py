@@ -16,11 +16,19 @@ matrix depends only on the topology, so it is factorized once and every state
 Deformations are 3x3 because each triangle's frame includes a third, normal
 vector scaled by the inverse square root of the area (deformation transfer),
 which makes the per-triangle deformation gradient unique.
+
+:data:`SOLVER` selects the factorization of the (symmetric positive definite)
+normal equations, from ``$BODYMETRY_SCAPE_SOLVER`` (``cholespy`` or ``splu``);
+by default cholespy's sparse Cholesky when it is installed, else SciPy's SuperLU.
+Both give the same vertices to rounding (about 1e-12 m).
 """
 
 from __future__ import annotations
 
+import importlib.util
 import itertools
+import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +36,23 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from bodymetry.estimation.body_model.rotations import matrix_to_axis_angle
+
+_SOLVERS = ("cholespy", "splu")
+
+
+def _default_solver(env: str | None) -> str:
+    """``$BODYMETRY_SCAPE_SOLVER`` or, unset, cholespy when installed (without importing it)."""
+    if env:
+        if env not in _SOLVERS:
+            raise ValueError(f"BODYMETRY_SCAPE_SOLVER must be 'cholespy' or 'splu', got {env!r}")
+        return env
+    return "cholespy" if importlib.util.find_spec("cholespy") is not None else "splu"
+
+
+#: The factorization behind :meth:`ScapeMesh.solve`: ``"cholespy"`` or ``"splu"``.
+#: Read when a :class:`ScapeMesh` is built (the factorization is computed once
+#: then), so tests and benchmarks may set it; the one place the choice is made.
+SOLVER: str = _default_solver(os.environ.get("BODYMETRY_SCAPE_SOLVER"))
 
 #: Features per triangle for Q: two joints' rotation vectors. No constant term:
 #: Q must be the identity in the rest pose, where the body is the template.
@@ -115,9 +140,11 @@ class ScapeMesh:
     arrays : ScapeArrays
     n_shape : int
         Shape components to use (at most ``arrays.shape_basis.shape[0]``).
+    solver : {"cholespy", "splu"}, optional
+        Factorization of the vertex solve; default :data:`SOLVER`.
     """
 
-    def __init__(self, arrays: ScapeArrays, n_shape: int) -> None:
+    def __init__(self, arrays: ScapeArrays, n_shape: int, solver: str | None = None) -> None:
         n_max = arrays.shape_basis.shape[0]
         if not 0 < n_shape <= n_max:
             raise ValueError(f"n_shape: expected 1..{n_max}, got {n_shape}")
@@ -154,9 +181,9 @@ class ScapeMesh:
             j1, j2 = pairs[start]
             block = P[start:stop].transpose(1, 2, 3, 0).reshape(N_POSE_FEATURES, -1)
             self._pose_blocks.append((start, stop, int(j1), int(j2), np.ascontiguousarray(block)))
-        self._build_solver()
+        self._build_solver(SOLVER if solver is None else solver)
 
-    def _build_solver(self) -> None:
+    def _build_solver(self, solver: str) -> None:
         T, V = len(self.faces), self.n_vertices
         f = self.faces
         # Row e * T + t holds edge e of triangle t (matching the (xyz, edge, T) layout).
@@ -167,17 +194,8 @@ class ScapeMesh:
         # Vertex 0 is pinned at the origin: the edges fix the mesh up to a translation.
         A = A[:, 1:].tocsc()
         self._At = A.T.tocsr()
-        # A^T A is symmetric positive definite: no pivoting is needed, and SuperLU's
-        # symmetric mode keeps the fill-reducing ordering on both sides. Measured:
-        # solves 2x faster than with partial pivoting (192 right-hand sides on the
-        # level of detail 13 vs 25 ms; 3 on the full mesh 4 vs 9 ms), same values to
-        # rounding.
-        self._lu = spla.splu(
-            (self._At @ A).tocsc(),
-            permc_spec="MMD_AT_PLUS_A",
-            diag_pivot_thresh=0.0,
-            options={"SymmetricMode": True},
-        )
+        self._factor = _factorize((self._At @ A).tocsr(), solver)
+        self.solver = solver
 
     # --- Eq. (1) -------------------------------------------------------------
     def shape_deformations(self, nu: np.ndarray) -> np.ndarray:
@@ -286,10 +304,64 @@ class ScapeMesh:
         """
         B = edges.shape[0]
         E = np.ascontiguousarray(edges).reshape(B * 3, -1).T  # (2T, 3B)
-        X = self._lu.solve(np.asarray(self._At @ E))  # (V-1, 3B)
+        # Columns (state, xyz): the 3 coordinates of all states share one factorization.
+        X = self._factor(np.asarray(self._At @ E))  # (V-1, 3B)
         out = np.zeros((B, self.n_vertices, 3))
         out[:, 1:] = X.reshape(-1, B, 3).transpose(1, 0, 2)
         return out
+
+
+def _factorize(K: sp.csr_matrix, solver: str) -> Callable[[np.ndarray], np.ndarray]:
+    """Factorize the SPD matrix ``K`` once; return ``solve(rhs) -> x``.
+
+    Parameters
+    ----------
+    K : (N, N) sparse, symmetric positive definite
+    solver : {"cholespy", "splu"}
+
+    Returns
+    -------
+    callable
+        Takes rhs (N, k) float and returns x (N, k) float with ``K @ x = rhs``.
+    """
+    if solver == "cholespy":
+        # Supernodal sparse Cholesky: on the level of detail, 80 states (240
+        # right-hand sides) solve in 5 ms, SuperLU 10-12 ms; 80 full meshes in
+        # 66 vs 350-490 ms (measured, one thread). Same values to about 1e-12 m.
+        # (A dense inverse of the 1.5k-vertex LOD system was slower still: 26 ms
+        # for 80 states, 3.8 ms for one.)
+        from cholespy import CholeskySolverD, MatrixType
+
+        coo = K.tocoo()
+        chol = CholeskySolverD(
+            K.shape[0],
+            coo.row.astype(np.int32),
+            coo.col.astype(np.int32),
+            coo.data.astype(np.float64),
+            MatrixType.COO,
+        )
+
+        def solve(rhs: np.ndarray) -> np.ndarray:
+            # cholespy wants C-ordered (N, k) float64 arrays and writes into x.
+            rhs = np.ascontiguousarray(rhs, dtype=np.float64)
+            x = np.empty_like(rhs)
+            chol.solve(rhs, x)
+            return x
+
+        return solve
+    if solver == "splu":
+        # No pivoting is needed on an SPD matrix, and SuperLU's symmetric mode keeps
+        # the fill-reducing ordering on both sides. Measured: solves 2x faster than
+        # with partial pivoting (192 right-hand sides on the level of detail 13 vs
+        # 25 ms; 3 on the full mesh 4 vs 9 ms), same values to rounding.
+        lu = spla.splu(
+            K.tocsc(),
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+        return lu.solve
+    raise ValueError(f"solver: expected one of {_SOLVERS}, got {solver!r}")
 
 
 def _blocks(sorted_keys: np.ndarray) -> list[tuple[int, int]]:

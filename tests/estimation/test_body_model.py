@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import re
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from bodymetry.errors import InputError
-from bodymetry.estimation.body_model import geometry
+from bodymetry.estimation.body_model import geometry, scape
 from bodymetry.estimation.body_model.bake.lod import closest_points
 from bodymetry.estimation.body_model.model import (
     DEFAULT_MODEL_PATH,
@@ -35,6 +36,9 @@ from bodymetry.estimation.body_model.skeleton import (
 # Exact symmetries of the model (translation, rotation about the root, rest pose =
 # translated canonical body): only float64 round-off of the sparse solve on a 1.7 m body.
 ATOL_EXACT = 1e-6
+# Vertices of posed bodies from each factorization of the vertex solve against the
+# SuperLU reference (float64 round-off of two exact solvers, measured ~2e-12 m).
+ATOL_SOLVERS = 1e-9
 # ν recovered from its own canonical mesh (a well-posed linear least squares).
 ATOL_NU = 1e-6
 # The ~3k-triangle LOD against the full mesh of the same state: every LOD vertex
@@ -62,6 +66,8 @@ APOSE_DEG = 3.0
 PRIOR_MEAN = 1e-3
 PRIOR_STD = 1e-2
 SEED = 20240615
+#: Factorizations available here; the SuperLU reference always is.
+SOLVERS = [s for s in scape._SOLVERS if s != "cholespy" or importlib.util.find_spec("cholespy")]
 
 SIGN = np.array([1.0, -1.0, -1.0])  # mirror x -> -x on Euler angles (a, b, c) and hinge axes
 
@@ -375,6 +381,31 @@ def test_batched_pose_equals_single_poses(model, rng):
         np.testing.assert_allclose(
             lod.vertices[b], model.pose(state[b : b + 1], lod=True).vertices[0], atol=1e-9
         )
+
+
+@pytest.fixture(scope="module")
+def models_by_solver(model) -> dict[str, BodyModel]:
+    """The committed model built with each available factorization (everything,
+    including the cached unposed bases, goes through that solver)."""
+    out = {}
+    with pytest.MonkeyPatch.context() as mp:
+        for solver in SOLVERS:
+            mp.setattr(scape, "SOLVER", solver)
+            out[solver] = BodyModel(model.data, model.n_shape)
+    return out
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("lod", [False, True])
+@pytest.mark.parametrize("B", [1, 17])
+def test_solvers_pose_the_same_vertices(models_by_solver, rng, solver, lod, B):
+    candidate, ref = models_by_solver[solver], models_by_solver["splu"]
+    assert candidate.full.solver == candidate.lod.solver == solver
+    states = _random_states(ref, rng, B)
+    got = candidate.pose(states, lod=lod).vertices
+    want = ref.pose(states, lod=lod).vertices
+    assert got.shape == (B, ref._mesh(lod).n_vertices, 3)
+    np.testing.assert_allclose(got, want, rtol=0, atol=ATOL_SOLVERS)
 
 
 def test_translating_tau_translates_everything(model, rng):

@@ -6,6 +6,8 @@ hand-built :class:`ScapeArrays` (no baked model).
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 import pytest
 import trimesh
@@ -19,10 +21,15 @@ from bodymetry.estimation.body_model.rotations import axis_angle_to_matrix, eule
 # Consistent edges reconstructed by the prefactored sparse least squares: the
 # system is well conditioned on a 162-vertex sphere, so round-off stays tiny.
 ATOL_SOLVE = 1e-9
+# The factorizations against each other (cholespy vs the SuperLU reference) on the
+# same right-hand sides: both are exact up to float64 round-off.
+ATOL_SOLVERS = 1e-9
 # Closed-form per-triangle quantities (frames, deformation gradients, Eq. 1 edges).
 ATOL = 1e-12
 SEED = 20240614
 N_JOINTS = 5  # joints referenced by pose_joints in the synthetic model
+#: Factorizations available here; the SuperLU reference always is.
+SOLVERS = [s for s in scape._SOLVERS if s != "cholespy" or importlib.util.find_spec("cholespy")]
 
 
 @pytest.fixture()
@@ -226,6 +233,40 @@ def test_batched_solve_equals_per_state_solve(rng):
     for b in range(B):
         single = mesh.solve(mesh.edges(part_rot[b : b + 1], local[b : b + 1], nu[b : b + 1]))
         np.testing.assert_allclose(batch[b], single[0], atol=ATOL_SOLVE)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("B", [1, 17])
+def test_solvers_give_the_reference_vertices(rng, solver, B):
+    # Random (inconsistent) edges: a genuine least-squares fit, not an exact one.
+    arrays = _arrays(rng)
+    ref = scape.ScapeMesh(arrays, 2, solver="splu")
+    mesh = scape.ScapeMesh(arrays, 2, solver=solver)
+    assert mesh.solver == solver
+    edges = rng.normal(size=(B, 3, 2, len(arrays.faces)))
+    out = mesh.solve(edges)
+    assert out.shape == (B, len(arrays.template), 3)
+    np.testing.assert_allclose(out, ref.solve(edges), rtol=0, atol=ATOL_SOLVERS)
+    # The residual is orthogonal to the edge space (normal equations hold).
+    A = ref._At.T
+    E = edges.reshape(B * 3, -1).T
+    X = out[:, 1:].transpose(1, 0, 2).reshape(-1, B * 3)
+    np.testing.assert_allclose(ref._At @ (A @ X - E), 0.0, atol=ATOL_SOLVERS)
+
+
+def test_solver_choice(rng, monkeypatch):
+    assert scape._default_solver("splu") == "splu"
+    assert scape._default_solver("cholespy") == "cholespy"
+    default = "cholespy" if importlib.util.find_spec("cholespy") else "splu"
+    assert scape._default_solver(None) == default
+    assert scape._default_solver("") == default
+    with pytest.raises(ValueError, match="BODYMETRY_SCAPE_SOLVER"):
+        scape._default_solver("umfpack")
+    with pytest.raises(ValueError, match="solver"):
+        scape.ScapeMesh(_arrays(rng), 2, solver="umfpack")
+    # The module switch is read when a mesh is built.
+    monkeypatch.setattr(scape, "SOLVER", "splu")
+    assert scape.ScapeMesh(_arrays(rng), 2).solver == "splu"
 
 
 # --- Eq. (1) --------------------------------------------------------------------------------------
