@@ -20,8 +20,10 @@ $(VENV)/.installed-test: $(VENV)/.installed
 	touch $@
 
 # The main job: measure the person in the bundled demo recording (runs/demo/).
+# --restart: a runs/demo left by an older bodymetry, or with other settings, is
+# replaced (its own files only); a finished demo run with these settings is reused.
 demo: $(VENV)/.installed
-	$(BIN)/bodymetry process recordings/demo --out runs/demo
+	$(BIN)/bodymetry process recordings/demo --out runs/demo --restart
 
 test: $(VENV)/.installed-test
 	$(BIN)/ruff check .
