@@ -47,21 +47,6 @@ __all__ = [
 #: Version of ``run.json``.
 MANIFEST_FORMAT = 1
 _CHUNK = 1 << 20
-#: What a run writes into its folder (a restart removes these and nothing else).
-RUN_ENTRIES = (
-    "run.json",
-    "results.json",
-    "evaluation.json",
-    "frames",
-    "meshes",
-    "calibration.yaml",
-    "calibration-report.json",
-    "recording.rrd",
-    "recording.mcap",
-    "report.html",
-    "report.pdf",
-    "measurements.csv",
-)
 
 
 @dataclass(frozen=True)
@@ -133,8 +118,7 @@ def config_fingerprint(config: ProcessConfig) -> str:
 
 
 def _clear_run(layout: RunLayout) -> None:
-    for name in RUN_ENTRIES:
-        path = layout.folder / name
+    for path in layout.entries:
         if path.is_dir():
             shutil.rmtree(path)
         elif path.exists():

@@ -27,6 +27,11 @@ from bodymetry.fileio import load_npz, read_text_limited
 
 __all__ = [
     "CORE_MEASUREMENTS",
+    "MEASUREMENTS_CSV",
+    "RECORDING_MCAP",
+    "RECORDING_RRD",
+    "REPORT_HTML",
+    "REPORT_PDF",
     "RESULTS_FORMAT",
     "STAGES",
     "STUDY_FORMAT",
@@ -51,6 +56,12 @@ STAGES: tuple[str, ...] = ("discriminative", "generative")
 CORE_MEASUREMENTS: tuple[str, ...] = ("height_mm", "arm_span_mm", "weight_kg")
 #: Version of ``results.json`` written by this code (1: before the typed schema).
 RESULTS_FORMAT = 2
+#: Review files written into the run folder (docs/review.md).
+RECORDING_RRD = "recording.rrd"
+RECORDING_MCAP = "recording.mcap"
+REPORT_HTML = "report.html"
+REPORT_PDF = "report.pdf"
+MEASUREMENTS_CSV = "measurements.csv"
 #: Status of a frame that counts in the summary.
 OK = "ok"
 
@@ -143,10 +154,24 @@ class RunLayout:
 
     @property
     def review_files(self) -> tuple[Path, ...]:
-        """What the review writes (``bodymetry.review.run_data`` names each)."""
+        """What the review always writes (``report.pdf`` only on request)."""
         return tuple(
-            self.folder / n
-            for n in ("recording.rrd", "recording.mcap", "report.html", "measurements.csv")
+            self.folder / n for n in (RECORDING_RRD, RECORDING_MCAP, REPORT_HTML, MEASUREMENTS_CSV)
+        )
+
+    @property
+    def entries(self) -> tuple[Path, ...]:
+        """Everything a run writes into its folder (a restart removes these, nothing else)."""
+        return (
+            self.manifest,
+            self.results,
+            self.evaluation,
+            self.frames_dir,
+            self.meshes_dir,
+            self.calibration,
+            self.calibration_report,
+            *self.review_files,
+            self.folder / REPORT_PDF,
         )
 
     def frame_record(self, frame: int) -> Path:

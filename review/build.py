@@ -25,11 +25,12 @@ from pathlib import Path
 from typing import Any
 
 from bodymetry.estimation.fit import shared_body_model
+from bodymetry.estimation.records import RECORDING_MCAP, RECORDING_RRD
 from bodymetry.fileio import atomic_path
 from bodymetry.review.mcap_recording import McapWriter
 from bodymetry.review.report import OverlayRow, build_report, overlay_row, select_overlay_frames
 from bodymetry.review.rerun_recording import RerunWriter
-from bodymetry.review.run_data import RECORDING_MCAP, RECORDING_RRD, RunData, frame_views, load_run
+from bodymetry.review.run_data import RunData, frame_views, load_run
 
 log = logging.getLogger(__name__)
 

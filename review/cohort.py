@@ -35,6 +35,7 @@ from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
 from bodymetry.estimation.records import (
     CORE_MEASUREMENTS,
+    REPORT_HTML,
     STAGES,
     RunLayout,
     RunResults,
@@ -44,7 +45,6 @@ from bodymetry.estimation.records import (
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
 from bodymetry.review.report import figure_uri, template_environment
-from bodymetry.review.run_data import REPORT_HTML
 
 __all__ = [
     "COHORT_CSV",

@@ -38,19 +38,18 @@ from bodymetry import __version__
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.fit import shared_body_model
-from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, Stat
-from bodymetry.fileio import atomic_path, write_text_atomic
-from bodymetry.review import plots
-from bodymetry.review.mcap_recording import overlay_silhouettes
-from bodymetry.review.run_data import (
+from bodymetry.estimation.records import (
+    CORE_MEASUREMENTS,
     MEASUREMENTS_CSV,
     REPORT_HTML,
     REPORT_PDF,
-    FrameView,
-    RunData,
-    frame_views,
-    load_run,
+    STAGES,
+    Stat,
 )
+from bodymetry.fileio import atomic_path, write_text_atomic
+from bodymetry.review import plots
+from bodymetry.review.mcap_recording import overlay_silhouettes
+from bodymetry.review.run_data import FrameView, RunData, frame_views, load_run
 
 log = logging.getLogger(__name__)
 

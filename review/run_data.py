@@ -36,13 +36,6 @@ from bodymetry.estimation.records import (
 
 log = logging.getLogger(__name__)
 
-#: Review files written into the run folder.
-RECORDING_RRD = "recording.rrd"
-RECORDING_MCAP = "recording.mcap"
-REPORT_HTML = "report.html"
-REPORT_PDF = "report.pdf"
-MEASUREMENTS_CSV = "measurements.csv"
-
 
 @dataclass(frozen=True)
 class RunData:

@@ -21,15 +21,17 @@ from bodymetry.cli.common import (
 )
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, RunResults
-from bodymetry.process import process_session
-from bodymetry.review.run_data import (
+from bodymetry.estimation.records import (
+    CORE_MEASUREMENTS,
     MEASUREMENTS_CSV,
     RECORDING_MCAP,
     RECORDING_RRD,
     REPORT_HTML,
     REPORT_PDF,
+    STAGES,
+    RunResults,
 )
+from bodymetry.process import process_session
 
 __all__ = ["process"]
 

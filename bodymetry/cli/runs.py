@@ -14,12 +14,12 @@ from rich.table import Table
 
 from bodymetry.cli.common import console, friendly_errors, labelled_progress
 from bodymetry.errors import InputError
+from bodymetry.estimation.records import RECORDING_MCAP, RECORDING_RRD
 from bodymetry.review.build import build_review
 from bodymetry.review.cohort import STUDY_JSON, write_cohort
 
 # The evaluation's entry point, imported in this one place (it may move between packages).
 from bodymetry.review.evaluation import evaluate_run
-from bodymetry.review.run_data import RECORDING_MCAP, RECORDING_RRD
 
 __all__ = ["evaluate", "report", "view"]
 
