@@ -149,17 +149,22 @@ class SessionPlan:
 
     Attributes
     ----------
-    kept : tuple of int
-        The session's kept frames.
+    report : SyncReport
+        The session's videos and kept frames (probed once, reused by its tasks).
     done : dict of int to FrameRecord
         Frames already recorded whole.
     finished : bool
         ``results.json`` holds every kept frame and the review is written: nothing to do.
     """
 
-    kept: tuple[int, ...]
+    report: SyncReport
     done: dict[int, FrameRecord]
     finished: bool
+
+    @property
+    def kept(self) -> tuple[int, ...]:
+        """The session's kept frames."""
+        return tuple(int(f) for f in self.report.kept)
 
     @property
     def pending(self) -> list[int]:
@@ -181,38 +186,38 @@ def _train_task(prepared: PreparedRun, config: ProcessConfig) -> RigModels:
 
 
 def _plan_task(prepared: PreparedRun, config: ProcessConfig) -> SessionPlan:
-    kept = tuple(int(f) for f in check_sync(prepared.session).kept)
+    report = check_sync(prepared.session)
+    kept = {int(f) for f in report.kept}
     layout = prepared.layout
     done = read_done_frames(layout)
     finished = False
-    if layout.results.is_file() and set(done) == set(kept):
+    if layout.results.is_file() and set(done) == kept:
         try:
             recorded = RunResults.read(layout.results)
-            finished = {r.frame for r in recorded.frames} == set(kept) and (
+            finished = {r.frame for r in recorded.frames} == kept and (
                 not config.review or all(p.is_file() for p in layout.review_files)
             )
         except InputError as exc:
             log.warning("%s; summarizing the run again", exc)
-    return SessionPlan(kept, done, finished)
+    return SessionPlan(report, done, finished)
 
 
-def _background_task(prepared: PreparedRun) -> tuple[SyncReport, list[BackgroundModel]]:
-    report = check_sync(prepared.session)
-    return report, list(background_models(prepared.session, report, method="seek"))
+def _background_task(prepared: PreparedRun, plan: SessionPlan) -> list[BackgroundModel]:
+    return list(background_models(prepared.session, plan.report, method="seek"))
 
 
 def _frame_task(
     prepared: PreparedRun,
-    background: tuple[SyncReport, list[BackgroundModel]],
+    plan: SessionPlan,
+    bg: list[BackgroundModel],
     models: RigModels,
     frame: int,
     config: ProcessConfig,
 ) -> FrameRecord:
-    report, bg = background
     # One frame, read by seeking: the silhouettes never travel between machines.
     (sil,) = segment_session(
         prepared.session,
-        report=report,
+        report=plan.report,
         models=bg,
         frames=[frame],
         read_method="seek",
@@ -349,7 +354,6 @@ def run_batch(
     rigs: dict[str, dict[str, Any]] = {}
     trains: dict[str, Future] = {}
     prepared_futs: dict[str, Future] = {}
-    plans: dict[str, Future] = {}
     role: dict[str, tuple[str, str]] = {}  # future key -> (kind, session or rig)
     session_rig: dict[str, str] = {}
     started: dict[str, float] = {}
@@ -376,19 +380,18 @@ def run_batch(
     # Keys unique to this call: a long-lived scheduler must not hand back old results.
     token = uuid.uuid4().hex[:8]
     queue = as_completed()
-    for name, path in zip(names, sessions, strict=True):
-        fut = client.submit(
-            _prepare_task,
-            path,
-            study / name,
-            config,
-            restart,
-            key=f"prepare-{name}-{token}",
-            pure=False,
-        )
-        prepared_futs[name] = fut
-        role[fut.key] = ("prepare", name)
+
+    def submit(kind: str, owner: str, key: str, func: Callable, *args: Any) -> Future:
+        """Submit a task whose completion the loop below handles as ``kind`` of ``owner``."""
+        fut = client.submit(func, *args, key=f"{kind}-{key}-{token}", pure=False)
+        role[fut.key] = (kind, owner)
         queue.add(fut)
+        return fut
+
+    for name, path in zip(names, sessions, strict=True):
+        prepared_futs[name] = submit(
+            "prepare", name, name, _prepare_task, path, study / name, config, restart
+        )
     report()
     for fut in queue:
         kind, name = role[fut.key]
@@ -415,18 +418,10 @@ def run_batch(
             session_rig[name] = rig
             if rig not in trains:
                 # Keyed by the rig: sessions on one rig share one training task.
-                trains[rig] = client.submit(
-                    _train_task, fut, config, key=f"train-{rig}-{token}", pure=False
-                )
+                trains[rig] = submit("train", rig, rig, _train_task, fut, config)
                 rigs[rig] = {"trained": None, "sessions": []}
-                role[trains[rig].key] = ("train", rig)
-                queue.add(trains[rig])
             rigs[rig]["sessions"].append(name)
-            plans[name] = client.submit(
-                _plan_task, fut, config, key=f"plan-{name}-{token}", pure=False
-            )
-            role[plans[name].key] = ("plan", name)
-            queue.add(plans[name])
+            submit("plan", name, name, _plan_task, fut, config)
         elif kind == "plan":
             plan: SessionPlan = fut.result()
             frames_total += len(plan.kept)
@@ -440,35 +435,26 @@ def run_batch(
             started[name] = time.perf_counter()
             frame_futs = []
             if plan.pending:
+                # Kept on the cluster for the session's frame tasks (not tracked below).
                 background = client.submit(
-                    _background_task, prep, key=f"background-{name}-{token}", pure=False
+                    _background_task, prep, fut, key=f"background-{name}-{token}", pure=False
                 )
-                for frame in plan.pending:
-                    ff = client.submit(
+                frame_futs = [
+                    submit(
+                        "frame",
+                        name,
+                        f"{name}-{frame}",
                         _frame_task,
                         prep,
+                        fut,
                         background,
                         train,
                         frame,
                         config,
-                        key=f"frame-{name}-{frame}-{token}",
-                        pure=False,
                     )
-                    role[ff.key] = ("frame", name)
-                    queue.add(ff)
-                    frame_futs.append(ff)
-            finish = client.submit(
-                _finish_task,
-                prep,
-                config,
-                train,
-                fut,
-                *frame_futs,
-                key=f"finish-{name}-{token}",
-                pure=False,
-            )
-            role[finish.key] = ("finish", name)
-            queue.add(finish)
+                    for frame in plan.pending
+                ]
+            submit("finish", name, name, _finish_task, prep, config, train, fut, *frame_futs)
             report()
         elif kind == "frame":
             frames_done += 1
