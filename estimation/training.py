@@ -15,6 +15,7 @@ its cosine and sine, which do not jump at ±π.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
@@ -117,6 +118,12 @@ class TrainConfig:
             raise InputError(f"training: val_fraction must be in (0, 0.5), got {self.val_fraction}")
 
 
+@functools.lru_cache(maxsize=4)
+def _file_digest(path: str, size: int, mtime_ns: int) -> bytes:
+    # Keyed by size and modification time: a rebaked model file is hashed again.
+    return hashlib.sha256(Path(path).read_bytes()).digest()
+
+
 def rig_key(
     cameras: list[Camera], config: TrainConfig, model_path: Path = DEFAULT_MODEL_PATH
 ) -> str:
@@ -124,7 +131,10 @@ def rig_key(
     h = hashlib.sha256()
     h.update(f"v{TRAINING_VERSION}".encode())
     h.update(json.dumps(asdict(config), sort_keys=True).encode())
-    h.update(hashlib.sha256(Path(model_path).read_bytes()).digest())
+    # The body model file (12 MB) is hashed once per process, not per call (batch
+    # computes the key of every session).
+    stat = Path(model_path).stat()
+    h.update(_file_digest(str(Path(model_path).resolve()), stat.st_size, stat.st_mtime_ns))
     for cam in cameras:
         h.update(cam.name.encode())
         h.update(np.asarray(cam.size, np.int64).tobytes())
