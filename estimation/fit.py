@@ -231,15 +231,17 @@ def fit_frame(
     body = shared_body_model()
     rng = np.random.default_rng([config.seed, frame])
     names = [c.name for c in cameras]
+    pixels = {n: int(np.count_nonzero(m)) for n, m in zip(names, masks, strict=True)}
     valid = np.array(
-        [m.sum() >= MIN_PIXELS and "unreadable" not in f for m, f in zip(masks, flags, strict=True)]
+        [
+            pixels[n] >= MIN_PIXELS and "unreadable" not in f
+            for n, f in zip(names, flags, strict=True)
+        ]
     )
     flag_map = {n: tuple(f) for n, f in zip(names, flags, strict=True)}
     observed_arrays = FrameArrays(
         observed={n: np.asarray(m, bool) for n, m in zip(names, masks, strict=True)}
     )
-
-    pixels = {n: int(np.count_nonzero(m)) for n, m in zip(names, masks, strict=True)}
 
     def failed(status: str) -> FrameFit:
         return FrameFit(
