@@ -32,7 +32,7 @@ import contextlib
 import dataclasses
 import os
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -222,7 +222,14 @@ def check_session(
         if message is not None:
             findings.warn(session.folder / SESSION_FILE, message)
         _check_calibration(findings, session, videos, need_calibration)
-        _check_backgrounds(findings, session, videos)
+        _check_clip_sizes(
+            findings,
+            session,
+            videos,
+            "background clip",
+            session.background_path,
+            "record the empty scene with the same camera and settings",
+        )
         refused = findings.refused
         if refused is not None and not findings.mentions(str(refused)):
             # Whatever load_session refused is listed, even if no check here covers it.
@@ -394,19 +401,26 @@ def _decoded_size(
     return first.shape[1], first.shape[0]
 
 
-def _check_backgrounds(findings: _Findings, session: Session, videos: dict[str, VideoInfo]) -> None:
+def _check_clip_sizes(
+    findings: _Findings,
+    session: Session,
+    videos: dict[str, VideoInfo],
+    kind: str,
+    clip_path: Callable[[str], Path | None],
+    why: str,
+) -> None:
+    """Each camera's ``kind`` clip (``clip_path(camera)``, None: none) has its video's size."""
     for cam in session.cameras:
-        path = session.background_path(cam.name)
+        path = clip_path(cam.name)
         if path is None or path in findings.bad:
             continue
-        size = _decoded_size(findings, path, cam.name, "background clip")
+        size = _decoded_size(findings, path, cam.name, kind)
         video = videos.get(cam.name)
         if size is not None and video is not None and size != video.size:
             findings.problem(
                 path,
-                f"camera {cam.name!r}: the background clip {path} is {size[0]}x{size[1]} but "
-                f"its video {video.path.name} is {video.size[0]}x{video.size[1]}; "
-                "record the empty scene with the same camera and settings",
+                f"camera {cam.name!r}: the {kind} {path} is {size[0]}x{size[1]} but "
+                f"its video {video.path.name} is {video.size[0]}x{video.size[1]}; {why}",
             )
 
 
@@ -419,7 +433,15 @@ def _check_calibration(
     yaml_path = session.folder / SESSION_FILE
     if session.calibration_file is None:
         if session.calibration_clips and session.board is not None:
-            _check_clips(findings, session, videos)
+            # Clips to solve the calibration from must decode at their camera's size.
+            _check_clip_sizes(
+                findings,
+                session,
+                videos,
+                "calibration clip",
+                session.calibration_clip_path,
+                "cameras solved from it would not fit the video",
+            )
             return
         message = (
             f"{yaml_path}: calibration: the session has no calibration: give "
@@ -460,23 +482,6 @@ def _check_calibration(
                 f"point of camera {cam.name!r} (cx={cx:g}, cy={cy:g}) lies outside its "
                 f"{w}x{h} image (expected 0 <= cx <= {w}, 0 <= cy <= {h}); is K for "
                 "another image size?",
-            )
-
-
-def _check_clips(findings: _Findings, session: Session, videos: dict[str, VideoInfo]) -> None:
-    """Clips to solve the calibration from decode, at the size of their camera's video."""
-    for cam in session.cameras:
-        path = session.calibration_clip_path(cam.name)
-        if path in findings.bad:
-            continue
-        size = _decoded_size(findings, path, cam.name, "calibration clip")
-        video = videos.get(cam.name)
-        if size is not None and video is not None and size != video.size:
-            findings.problem(
-                path,
-                f"camera {cam.name!r}: the calibration clip {path} is {size[0]}x{size[1]} but "
-                f"its video {video.path.name} is {video.size[0]}x"
-                f"{video.size[1]}; cameras solved from it would not fit the video",
             )
 
 
