@@ -35,7 +35,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import Camera, CameraGroup
@@ -47,6 +46,7 @@ from bodymetry.calibration.io import (
     save_calibration,
 )
 from bodymetry.calibration.qualisys import natural_key, read_qca
+from bodymetry.capture.background import read_clip
 from bodymetry.capture.ingest import FPS_TOLERANCE, probe_video
 from bodymetry.capture.session import (
     DEFAULT_CALIBRATION_FILE,
@@ -268,14 +268,9 @@ def default_frame_step(n_frames: int) -> int:
 
 
 def _decoded_size(path: Path, camera: str) -> tuple[int, int]:
-    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
-    try:
-        ok, image = cap.read() if cap.isOpened() else (False, None)
-    finally:
-        cap.release()
-    if not ok or image is None:
-        raise InputError(f"camera {camera!r}: the first frame of {path} does not decode")
-    return int(image.shape[1]), int(image.shape[0])
+    """(width, height) of a video's first decoded frame."""
+    first = read_clip(path, camera, max_frames=1, what="video")[0]
+    return int(first.shape[1]), int(first.shape[0])
 
 
 # --------------------------------------------------------------------------

@@ -393,10 +393,9 @@ def _decoded_size(
 ) -> tuple[int, int] | None:
     """(width, height) of the first frame of a clip; None (reported) when it does not decode."""
     try:
-        first = read_clip(path, camera, max_frames=1)[0]
+        first = read_clip(path, camera, max_frames=1, what=what)[0]
     except InputError as exc:
-        # read_clip speaks of background clips; it reads calibration clips as well.
-        findings.problem(path, str(exc).replace("background clip", what), bad=True)
+        findings.problem(path, str(exc), bad=True)
         return None
     return first.shape[1], first.shape[0]
 

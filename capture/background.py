@@ -174,18 +174,22 @@ class BackgroundModel:
         )
 
 
-def read_clip(path: str | Path, camera: str, max_frames: int = 60) -> np.ndarray:
+def read_clip(
+    path: str | Path, camera: str, max_frames: int = 60, what: str = "background clip"
+) -> np.ndarray:
     """Up to ``max_frames`` frames of a clip, evenly spread (N, H, W, 3) uint8.
 
-    Raises InputError naming the camera when the clip is missing or has no frame.
+    Raises InputError naming the camera and the clip (called ``what`` in the
+    message: a background clip, a calibration clip, a video) when the clip is
+    missing or has no frame.
     """
 
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"camera {camera!r}: background clip not found: {path}")
+        raise InputError(f"camera {camera!r}: {what} not found: {path}")
     cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
     if not cap.isOpened():
-        raise InputError(f"camera {camera!r}: cannot open the background clip {path}")
+        raise InputError(f"camera {camera!r}: cannot open the {what} {path}")
     try:
         n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
         step = max(1, n // max_frames) if n > 0 else 1
@@ -202,7 +206,7 @@ def read_clip(path: str | Path, camera: str, max_frames: int = 60) -> np.ndarray
     finally:
         cap.release()
     if not frames:
-        raise InputError(f"camera {camera!r}: no frame of the background clip {path} decodes")
+        raise InputError(f"camera {camera!r}: no frame of the {what} {path} decodes")
     return np.stack(frames)
 
 
