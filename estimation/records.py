@@ -73,7 +73,9 @@ RESULTS_MAX_BYTES = 256_000_000
 FRAME_RECORD_MAX_BYTES = 4_000_000
 
 
-def read_json_object(path: Path, max_bytes: int | None = None) -> dict[str, Any]:
+def read_json_object(
+    path: Path, max_bytes: int = RESULTS_MAX_BYTES, what: str = "run JSON file"
+) -> dict[str, Any]:
     """A JSON object from a file; InputError naming the file when it is unreadable.
 
     Parameters
@@ -81,9 +83,9 @@ def read_json_object(path: Path, max_bytes: int | None = None) -> dict[str, Any]
     path
         The file.
     max_bytes
-        The largest file read. Default: :data:`FRAME_RECORD_MAX_BYTES` for a
-        file in a ``frames`` folder, else :data:`RESULTS_MAX_BYTES` (results.json
-        and the run's other JSON files).
+        The largest file read (:data:`FRAME_RECORD_MAX_BYTES` for a frame record).
+    what
+        What the file is, for the size-limit message.
 
     Raises
     ------
@@ -91,10 +93,6 @@ def read_json_object(path: Path, max_bytes: int | None = None) -> dict[str, Any]
         Missing, unreadable, too large or malformed file, or not a JSON object.
     """
     path = Path(path)
-    if max_bytes is None:
-        in_frames = path.parent.name == "frames"
-        max_bytes = FRAME_RECORD_MAX_BYTES if in_frames else RESULTS_MAX_BYTES
-    what = "frame record" if max_bytes == FRAME_RECORD_MAX_BYTES else "run JSON file"
     try:
         data = json.loads(read_text_limited(path, max_bytes, what))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -444,7 +442,8 @@ class FrameRecord:
     @classmethod
     def read(cls, path: Path) -> FrameRecord:
         """Read ``frames/FFFFFF.json``; InputError naming the file when it is unreadable."""
-        return cls.from_json(read_json_object(path), str(path))
+        data = read_json_object(path, FRAME_RECORD_MAX_BYTES, "frame record")
+        return cls.from_json(data, str(path))
 
 
 @dataclass(frozen=True)
