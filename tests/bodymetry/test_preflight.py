@@ -20,6 +20,7 @@ from click.testing import CliRunner
 from tiny_run import tiny_session
 from yaml_edits import Edit, delete_at, set_at
 
+from bodymetry.capture.background import read_clip
 from bodymetry.capture.video import H264Writer
 from bodymetry.cli import main
 from bodymetry.errors import InputError
@@ -47,15 +48,8 @@ def _edit_yaml(path: Path, *edits: Edit) -> None:
 
 
 def _frames(path: Path) -> list[np.ndarray]:
-    cap = cv2.VideoCapture(str(path))
-    frames = []
-    while True:
-        ok, image = cap.read()
-        if not ok:
-            break
-        frames.append(image)
-    cap.release()
-    return frames
+    """Every frame of a video (read_clip keeps all when asked for more than there are)."""
+    return list(read_clip(path, path.stem, max_frames=1_000_000))
 
 
 def _rewrite(path: Path, frames: list[np.ndarray], fps: float = 60.0) -> None:
