@@ -21,6 +21,7 @@ from bodymetry.cli.common import (
 )
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
+from bodymetry.estimation.fit import FitConfig
 from bodymetry.estimation.records import (
     CORE_MEASUREMENTS,
     MEASUREMENTS_CSV,
@@ -114,12 +115,13 @@ def process(
         raise InputError("--pdf: the report is part of the review; drop --no-review")
     config = ProcessConfig.preset(
         quality,
+        fit=FitConfig.preset(quality, seed=seed, min_iou=min_iou),
         workers=workers,
         cache_dir=cache_dir,
         review=not no_review,
         pdf=pdf,
         frame_step=frame_step,
-    ).with_overrides([f"seed={seed}", f"min_iou={min_iou}", *overrides])
+    ).with_overrides(overrides)
     if show_config:
         click.echo(json.dumps(config.to_json(), indent=2))
         return
