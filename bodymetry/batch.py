@@ -202,14 +202,17 @@ def _plan_task(prepared: PreparedRun, config: ProcessConfig) -> SessionPlan:
     return SessionPlan(report, done, finished)
 
 
-def _background_task(prepared: PreparedRun, plan: SessionPlan) -> list[BackgroundModel]:
-    return list(background_models(prepared.session, plan.report, method="seek"))
+def _background_task(
+    prepared: PreparedRun, plan: SessionPlan, config: ProcessConfig
+) -> list[BackgroundModel | None]:
+    median = not config.capture.uses_segmenter
+    return list(background_models(prepared.session, plan.report, method="seek", median=median))
 
 
 def _frame_task(
     prepared: PreparedRun,
     plan: SessionPlan,
-    bg: list[BackgroundModel],
+    bg: list[BackgroundModel | None],
     models: RigModels,
     frame: int,
     config: ProcessConfig,
@@ -217,6 +220,8 @@ def _frame_task(
     # One frame, read by seeking: the silhouettes never travel between machines.
     (sil,) = segment_session(
         prepared.session,
+        config=config.capture,
+        cameras=prepared.cameras,
         report=plan.report,
         models=bg,
         frames=[frame],
@@ -437,7 +442,12 @@ def run_batch(
             if plan.pending:
                 # Kept on the cluster for the session's frame tasks (not tracked below).
                 background = client.submit(
-                    _background_task, prep, fut, key=f"background-{name}-{token}", pure=False
+                    _background_task,
+                    prep,
+                    fut,
+                    config,
+                    key=f"background-{name}-{token}",
+                    pure=False,
                 )
                 frame_futs = [
                     submit(

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from bodymetry.capture.silhouette import CaptureConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import PRESETS, FitConfig
 from bodymetry.estimation.training import TrainConfig, default_cache_dir
@@ -35,6 +36,9 @@ class ProcessConfig:
     ----------
     quality : str
         The preset the fit settings started from (``fast``, ``default``, ``best``).
+    capture : CaptureConfig
+        How silhouettes are made (background subtraction, the learned person
+        segmenter, the multi-view check).
     fit : FitConfig
         Per-frame fit: seed, density, quality gate, annealing, refinement.
     training : TrainConfig
@@ -54,6 +58,7 @@ class ProcessConfig:
     """
 
     quality: str = "default"
+    capture: CaptureConfig = field(default_factory=CaptureConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     training: TrainConfig = field(default_factory=TrainConfig)
     frame_step: int | None = None

@@ -396,7 +396,9 @@ def process_session(
     t1 = time.perf_counter()
     pending = []
     n_kept = 0
-    for sil in segment_session(prepared.session, keep_images=False):
+    for sil in segment_session(
+        prepared.session, config=config.capture, cameras=prepared.cameras, keep_images=False
+    ):
         n_kept += 1
         if sil.frame not in done:
             pending.append(fit_job(sil, prepared.cameras, models.path, config.fit))

