@@ -11,8 +11,11 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-$(VENV)/.installed: $(BIN)/python pyproject.toml
+# The person segmenter (capture/person.py) goes in without its declared dependencies
+# (jax, non-headless OpenCV); its real needs are in pyproject.toml.
+$(VENV)/.installed: $(BIN)/python pyproject.toml requirements-segmenter.txt
 	$(BIN)/python -m pip install --quiet -e .
+	$(BIN)/python -m pip install --quiet --no-deps -r requirements-segmenter.txt
 	touch $@
 
 $(VENV)/.installed-test: $(VENV)/.installed

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.errors import InputError
@@ -152,6 +153,8 @@ class VisualHull:
         pix, seen = zip(*(_in_view(c, grid) for c in self.cameras), strict=True)
         seen = np.stack(seen)  # (C, N)
         keep = seen.sum(axis=0) >= cfg.min_views
+        self._shape = tuple(len(a) for a in axes)
+        self._index = np.flatnonzero(keep)  # (N,) into the full grid
         self.points = grid[keep]  # (N, 3)
         self.seen = seen[:, keep]  # (C, N)
         self.pixels = np.stack([p[keep] for p in pix])  # (C, N, 2)
@@ -189,7 +192,8 @@ class VisualHull:
         """Voxels inside the silhouettes of their cameras, ``misses`` disagreements allowed.
 
         Cameras with an empty silhouette abstain (a view with nobody found, or
-        unreadable, cannot vote against the others).
+        unreadable, cannot vote against the others). At least ``min_views``
+        cameras must agree on a voxel.
 
         Parameters
         ----------
@@ -217,8 +221,21 @@ class VisualHull:
             inside[seen] = mask[v, u]
             hits += inside
             votes += seen
-        need = np.maximum(votes - self.config.misses, 2)
-        return (hits >= need) & (votes >= 2)
+        # Never fewer than min_views agreeing cameras: the silhouette cones of two
+        # cameras always meet somewhere, far from the subject too.
+        need = np.maximum(votes - self.config.misses, self.config.min_views)
+        occupied = hits >= need
+        if not occupied.any():
+            return occupied
+        # The subject is the largest connected body of agreement; smaller ones are
+        # ghosts (a blob in one view whose cone crosses the subject's cones in others).
+        grid = np.zeros(int(np.prod(self._shape)), bool)
+        grid[self._index[occupied]] = True
+        labels, _ = ndimage.label(grid.reshape(self._shape), structure=np.ones((3, 3, 3)))
+        labels = labels.reshape(-1)[self._index]
+        sizes = np.bincount(labels[occupied])
+        sizes[0] = 0
+        return labels == int(np.argmax(sizes))
 
     def support(self, occupied: np.ndarray, c: int) -> np.ndarray:
         """(H, W) bool: where the occupied voxels project in camera ``c``."""
@@ -241,15 +258,18 @@ class VisualHull:
         Returns
         -------
         HullCheck
-            When the views agree on nothing (no occupied voxel), the masks are
-            returned unchanged and every non-empty view is ``inconsistent``.
+            With fewer than ``min_views`` non-empty views there is nothing to
+            check: the masks are returned unchanged. When the views agree on
+            nothing (no occupied voxel), the masks are returned unchanged and
+            every non-empty view is ``inconsistent``.
         """
         occ = self.occupied(masks)
         n_views = sum(bool(np.any(m)) for m in masks)
         if not occ.any():
+            judged = n_views >= self.config.min_views
             return HullCheck(
                 tuple(np.asarray(m, bool) for m in masks),
-                tuple(bool(np.any(m)) and n_views >= 2 for m in masks),
+                tuple(bool(np.any(m)) and judged for m in masks),
                 (None,) * len(masks),
                 0,
             )

@@ -28,7 +28,7 @@ from bodymetry.importers import (
 )
 from bodymetry.preflight import check_session
 
-QCA = Path(__file__).resolve().parents[1] / "data" / "pose2sim" / "Calib.qca.txt"
+QCA = Path(__file__).resolve().parents[1] / "data" / "pose2sim" / "calibration" / "Calib.qca.txt"
 FRAMES = 24  # default frame step 2: keeps 12 frames
 FPS = 60.0
 

