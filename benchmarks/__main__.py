@@ -15,7 +15,15 @@ from pathlib import Path
 # Many small sparse solves: threaded BLAS makes them much slower (set before numpy).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-BENCHMARKS = ("body_model", "studio", "discriminative", "calibration", "capture", "pipeline")
+BENCHMARKS = (
+    "body_model",
+    "studio",
+    "discriminative",
+    "calibration",
+    "capture",
+    "pipeline",
+    "real",
+)
 #: Reports that are not timed benchmarks (run only when named).
 REPORTS = {"imports": "benchmarks.imports", "profile": "benchmarks.bench_profile"}
 

@@ -26,10 +26,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.background import METHODS, BackgroundModel, SubtractionConfig, Subtractor
 from bodymetry.capture.ingest import check_sync, read_frame_sets
+from bodymetry.capture.person import segmenter_available
 from bodymetry.capture.session import load_session
-from bodymetry.capture.silhouette import background_models, clean_mask, segment_session
+from bodymetry.capture.silhouette import (
+    CaptureConfig,
+    background_models,
+    clean_mask,
+    segment_session,
+)
 from bodymetry.studio.evaluate import GroundTruth, SilhouetteScores
 from bodymetry.studio.synth import SynthConfig, synthesize
 
@@ -58,25 +65,44 @@ def _session(folder: Path, seed: int) -> Path:
     return out
 
 
+#: Capture configurations compared beside the subtraction methods (with the rig, so the
+#: multi-view check runs): the default, and the learned segmenter alone.
+CAPTURE_VARIANTS = {
+    "auto (segmenter + multi-view, the default)": CaptureConfig(method="auto"),
+    "person (segmenter alone + multi-view)": CaptureConfig(method="person"),
+}
+
+
 def quality(folders: list[Path]) -> dict:
-    """Per method, per session, per camera: IoU mean/min and shadow false positives."""
-    out: dict = {m: {} for m in METHODS}
+    """Per method, per session, per camera: IoU mean/min and shadow false positives.
+
+    The subtraction methods run as before the learned segmenter
+    (``capture.method=background``, no multi-view check); the capture variants
+    run as ``bodymetry process`` does.
+    """
+    variants = {m: (CaptureConfig(method="background"), m) for m in METHODS}
+    if segmenter_available():
+        variants.update({k: (v, "horprasert") for k, v in CAPTURE_VARIANTS.items()})
+    out: dict = {name: {} for name in variants}
     for folder in folders:
         session = load_session(folder)
         report = check_sync(session)
         models = background_models(session, report)
+        cameras = list(load_calibration(folder / "calibration.yaml"))
         gt = GroundTruth(session)  # one per session: the true shadows are rendered once
-        for method in METHODS:
+        for name, (config, method) in variants.items():
             scores = SilhouetteScores(gt)
             for sf in segment_session(
                 session,
+                config=config,
+                cameras=cameras if config.method != "background" else None,
                 subtraction=SubtractionConfig(method=method),
                 report=report,
                 models=models,
                 keep_images=False,
             ):
                 scores.update(sf)
-            out[method][folder.name] = scores.summary()
+            out[name][folder.name] = scores.summary()
     summary = {}
     for method, sessions in out.items():
         cams = [c for s in sessions.values() for c in s.values()]

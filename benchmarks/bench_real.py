@@ -38,6 +38,7 @@ import numpy as np
 
 from bodymetry.capture.video import H264Writer
 from bodymetry.estimation.fit import shared_body_model
+from bodymetry.estimation.records import RunResults
 from bodymetry.review.report import compute_overlays
 from bodymetry.review.run_data import load_run
 
@@ -163,24 +164,27 @@ def run() -> dict:
         if processed.returncode not in (0, 3):
             result["stderr"] = processed.stderr.strip()[-4000:]
             return result
-        results = json.loads((run_dir / "results.json").read_text())
-        frames = results["frames"]
-        ok = [f for f in frames if f.get("ok")]
-        ious = [f["iou"] for f in frames if f.get("iou") is not None]
-        heights = [f["generative"]["biometrics"]["height_mm"] for f in ok]
+        results = RunResults.read(run_dir / "results.json")
+        ok = [r for r in results.frames if r.ok]
+        ious = [r.mean_iou for r in results.fitted_frames]
+        heights = [r.estimates["generative"].biometrics["height_mm"] for r in ok]
         result.update(
             {
-                "frames": len(frames),
+                "frames": len(results.frames),
                 "frames_passing": len(ok),
                 "mean_iou": round(float(np.mean(ious)), 3) if ious else None,
-                "iou_per_frame": [round(v, 3) for v in ious],
+                "iou_per_frame": {r.frame: round(r.mean_iou, 3) for r in results.fitted_frames},
+                "status_per_frame": {r.frame: r.status for r in results.frames},
                 "height_mm_mean": round(float(np.mean(heights)), 1) if heights else None,
                 "height_std_mm": round(float(np.std(heights, ddof=1)), 1)
                 if len(heights) > 1
                 else None,
-                "summary": results["summary"],
-                "timing_seconds": results["timing_seconds"],
-                "warnings": results.get("warnings", []),
+                "summary": {
+                    stage: {k: v.to_json() for k, v in stats.items()}
+                    for stage, stats in results.summary.items()
+                },
+                "timing_seconds": results.timing_seconds,
+                "warnings": list(results.warnings),
             }
         )
         result["meets_targets"] = bool(

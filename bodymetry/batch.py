@@ -26,7 +26,6 @@ The workers need the session folders and the model cache at the same paths
 from __future__ import annotations
 
 import contextlib
-import importlib.util
 import logging
 import multiprocessing as mp
 import os
@@ -273,8 +272,10 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             yield client
         return
     n = workers or os.cpu_count() or 1
-    # The dashboard needs bokeh (optional); without it the cluster runs without one.
-    dashboard = ":0" if importlib.util.find_spec("bokeh") else None
+    # Any free port: the scheduler's HTTP server (the dashboard with bokeh installed, the
+    # health and metrics routes without) would otherwise take 8787 and warn when another
+    # cluster already has it.
+    dashboard = ":0"
     with dask.config.set({"distributed.worker.daemon": False}):
         cluster = LocalCluster(
             n_workers=n,

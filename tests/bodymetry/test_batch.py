@@ -122,7 +122,7 @@ def test_the_command_on_a_running_scheduler(study):
     base, paths, _, _ = study
     options = [f"--set=training.{k}={list(v) if isinstance(v, tuple) else v}"
                for k, v in TINY_TRAIN.__dict__.items()]  # fmt: skip
-    with LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=":0") as cluster:
         res = CliRunner().invoke(
             main,
             [
