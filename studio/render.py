@@ -102,6 +102,30 @@ def _radial_limit(camera: Camera, r_image: float) -> float:
     return float(min(1.5 * r_image, r_mono))
 
 
+def lens_radius_limit(camera: Camera) -> float:
+    """The lens model's valid normalized radius for ``camera`` (from its image border's
+    rays): points beyond it may fold back into the image and are not projected
+    (``project_for_raster``'s ``r_limit``)."""
+    w, h = camera.size
+    border = np.concatenate(
+        [
+            np.stack([np.arange(w), np.zeros(w)], 1),
+            np.stack([np.arange(w), np.full(w, h - 1)], 1),
+            np.stack([np.zeros(h), np.arange(h)], 1),
+            np.stack([np.full(h, w - 1), np.arange(h)], 1),
+        ]
+    ).astype(np.float64)
+    if np.any(camera.dist != 0):
+        und = cv2.undistortPoints(
+            border.reshape(-1, 1, 2), camera.K, camera.dist, R=np.eye(3), P=np.eye(3),
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
+        ).reshape(-1, 2)  # fmt: skip
+    else:
+        kinv = np.linalg.inv(camera.K)
+        und = border @ kinv[:2, :2].T + kinv[:2, 2]
+    return _radial_limit(camera, float(np.sqrt((und**2).sum(-1)).max()))
+
+
 def project_for_raster(
     camera: Camera, points: np.ndarray, supersample: int = 1, r_limit: float | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -529,24 +553,7 @@ class Studio:
             return self._cache[key].r_limit
         hit = self._r_limits.get(key)
         if hit is None:
-            w, h = camera.size
-            border = np.concatenate(
-                [
-                    np.stack([np.arange(w), np.zeros(w)], 1),
-                    np.stack([np.arange(w), np.full(w, h - 1)], 1),
-                    np.stack([np.zeros(h), np.arange(h)], 1),
-                    np.stack([np.full(h, w - 1), np.arange(h)], 1),
-                ]
-            ).astype(np.float64)
-            if np.any(camera.dist != 0):
-                und = cv2.undistortPoints(
-                    border.reshape(-1, 1, 2), camera.K, camera.dist, R=np.eye(3), P=np.eye(3),
-                    criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
-                ).reshape(-1, 2)  # fmt: skip
-            else:
-                kinv = np.linalg.inv(camera.K)
-                und = border @ kinv[:2, :2].T + kinv[:2, 2]
-            hit = _radial_limit(camera, float(np.sqrt((und**2).sum(-1)).max()))
+            hit = lens_radius_limit(camera)
             self._r_limits[key] = hit
         return hit
 
