@@ -101,7 +101,7 @@ class BystanderPlacement:
     camera_clearance_m: float = 0.6
     spacing_m: float = 0.8
     max_views: int = 2
-    min_visible_fraction: float = 0.3
+    min_visible_fraction: float = 0.5
     clearance_px: float = 10.0
     attempts: int = 500
 
