@@ -6,11 +6,13 @@ Pipeline of :meth:`Studio.render_frame` for one camera:
    by :func:`rasterize`, a vectorized numpy z-buffer (no per-triangle Python
    loop). Body triangles are small (a few pixels), so drawing them with
    straight edges between distorted vertices is exact to far below a pixel;
-   no image is resampled, and the person mask is exactly the raster.
+   no image is resampled, and the person mask is exactly the raster. Other
+   bodies (bystanders, :class:`Body`) go through the same raster and shading
+   into the same z-buffer; the person mask keeps the person's visible pixels.
 2. Room (floor, walls, ceiling) and calibration board are computed analytically
    per output pixel by intersecting the pixel's *undistorted* ray (cached per
    camera) with their planes, with box-filtered procedural textures.
-3. Shadows: the casters (body, board) are rasterized orthographically from the
+3. Shadows: the casters (bodies, board) are rasterized orthographically from the
    key light into a depth map (a shadow map, 1 cm texels) whose coverage is
    blurred for a soft penumbra; room and board pixels behind a caster in
    light space lose the key light's contribution and keep the ambient, so a
