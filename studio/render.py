@@ -6,11 +6,13 @@ Pipeline of :meth:`Studio.render_frame` for one camera:
    by :func:`rasterize`, a vectorized numpy z-buffer (no per-triangle Python
    loop). Body triangles are small (a few pixels), so drawing them with
    straight edges between distorted vertices is exact to far below a pixel;
-   no image is resampled, and the person mask is exactly the raster.
+   no image is resampled, and the person mask is exactly the raster. Other
+   bodies (bystanders, :class:`Body`) go through the same raster and shading
+   into the same z-buffer; the person mask keeps the person's visible pixels.
 2. Room (floor, walls, ceiling) and calibration board are computed analytically
    per output pixel by intersecting the pixel's *undistorted* ray (cached per
    camera) with their planes, with box-filtered procedural textures.
-3. Shadows: the casters (body, board) are rasterized orthographically from the
+3. Shadows: the casters (bodies, board) are rasterized orthographically from the
    key light into a depth map (a shadow map, 1 cm texels) whose coverage is
    blurred for a soft penumbra; room and board pixels behind a caster in
    light space lose the key light's contribution and keep the ambient, so a
@@ -26,6 +28,7 @@ Coordinates follow docs/design.md: world z up, floor z = 0, metres; cameras Open
 from __future__ import annotations
 
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -101,6 +104,30 @@ def _radial_limit(camera: Camera, r_image: float) -> float:
     return float(min(1.5 * r_image, r_mono))
 
 
+def lens_radius_limit(camera: Camera) -> float:
+    """The lens model's valid normalized radius for ``camera`` (from its image border's
+    rays): points beyond it may fold back into the image and are not projected
+    (``project_for_raster``'s ``r_limit``)."""
+    w, h = camera.size
+    border = np.concatenate(
+        [
+            np.stack([np.arange(w), np.zeros(w)], 1),
+            np.stack([np.arange(w), np.full(w, h - 1)], 1),
+            np.stack([np.zeros(h), np.arange(h)], 1),
+            np.stack([np.full(h, w - 1), np.arange(h)], 1),
+        ]
+    ).astype(np.float64)
+    if np.any(camera.dist != 0):
+        und = cv2.undistortPoints(
+            border.reshape(-1, 1, 2), camera.K, camera.dist, R=np.eye(3), P=np.eye(3),
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
+        ).reshape(-1, 2)  # fmt: skip
+    else:
+        kinv = np.linalg.inv(camera.K)
+        und = border @ kinv[:2, :2].T + kinv[:2, 2]
+    return _radial_limit(camera, float(np.sqrt((und**2).sum(-1)).max()))
+
+
 def project_for_raster(
     camera: Camera, points: np.ndarray, supersample: int = 1, r_limit: float | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -164,34 +191,71 @@ def _sample(
     return out.reshape(-1)[:n]
 
 
-def _downsample_person(
-    r: Raster, rad: np.ndarray, s: int, w: int, h: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Average a supersampled person raster into (H*W,) coverage, (H*W, 3)
-    coverage-weighted radiance and (H*W,) nearest depth, touching only its bounding box."""
+def _downsample_bodies(
+    pixels: np.ndarray,
+    depth: np.ndarray,
+    rad: np.ndarray,
+    subject: np.ndarray,
+    s: int,
+    w: int,
+    h: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Average the supersampled raster of the bodies into output pixels, touching
+    only its bounding box.
+
+    Parameters
+    ----------
+    pixels : (N,) int
+        Covered sub-pixels (flat indices into the ``(H*s, W*s)`` grid).
+    depth : (H*s, W*s) float32
+        Nearest body depth per sub-pixel (inf: none).
+    rad : (N, 3) float32
+        Radiance of each covered sub-pixel.
+    subject : (N,) bool
+        The sub-pixel shows the subject (not a bystander).
+    s, w, h : int
+        Supersampling factor and output image size.
+
+    Returns
+    -------
+    cov : (H*W,) float32
+        Coverage by any body.
+    subject_cov : (H*W,) float32
+        Coverage by the subject.
+    out : (H*W, 3) float32
+        Coverage-weighted radiance.
+    near : (H*W,) float32
+        Nearest depth (inf where no body).
+    """
     cov = np.zeros(h * w, np.float32)
+    subject_cov = np.zeros(h * w, np.float32)
     out = np.zeros((h * w, 3), np.float32)
-    depth = np.full(h * w, np.inf, np.float32)
-    if r.pixels.size == 0:
-        return cov, out, depth
+    near = np.full(h * w, np.inf, np.float32)
+    if pixels.size == 0:
+        return cov, subject_cov, out, near
+    if s == 1:
+        cov[pixels] = 1.0
+        subject_cov[pixels[subject]] = 1.0
+        out[pixels] = rad
+        return cov, subject_cov, out, depth.reshape(-1)
     ws = w * s
-    py, px = r.pixels // ws, r.pixels % ws
+    py, px = pixels // ws, pixels % ws
     by0, by1 = int(py.min()) // s, int(py.max()) // s + 1
     bx0, bx1 = int(px.min()) // s, int(px.max()) // s + 1
     bh, bw = by1 - by0, bx1 - bx0
     local = (py - by0 * s) * (bw * s) + (px - bx0 * s)
     c = np.zeros(bh * s * bw * s, np.float32)
     c[local] = 1.0
+    cs = np.zeros(bh * s * bw * s, np.float32)
+    cs[local[subject]] = 1.0
     v = np.zeros((bh * s * bw * s, 3), np.float32)
     v[local] = rad
-    sub_depth = r.depth[by0 * s : by1 * s, bx0 * s : bx1 * s]
-    c = c.reshape(bh, s, bw, s).mean(axis=(1, 3))
-    v = v.reshape(bh, s, bw, s, 3).mean(axis=(1, 3))
-    d = sub_depth.reshape(bh, s, bw, s).min(axis=(1, 3))
-    cov.reshape(h, w)[by0:by1, bx0:bx1] = c
-    out.reshape(h, w, 3)[by0:by1, bx0:bx1] = v
-    depth.reshape(h, w)[by0:by1, bx0:bx1] = d
-    return cov, out, depth
+    sub_depth = depth[by0 * s : by1 * s, bx0 * s : bx1 * s]
+    cov.reshape(h, w)[by0:by1, bx0:bx1] = c.reshape(bh, s, bw, s).mean(axis=(1, 3))
+    subject_cov.reshape(h, w)[by0:by1, bx0:bx1] = cs.reshape(bh, s, bw, s).mean(axis=(1, 3))
+    out.reshape(h, w, 3)[by0:by1, bx0:bx1] = v.reshape(bh, s, bw, s, 3).mean(axis=(1, 3))
+    near.reshape(h, w)[by0:by1, bx0:bx1] = sub_depth.reshape(bh, s, bw, s).min(axis=(1, 3))
+    return cov, subject_cov, out, near
 
 
 # =============================================================================
@@ -254,6 +318,23 @@ class Frame(NamedTuple):
     image: np.ndarray
     person_mask: np.ndarray
     shadow_mask: np.ndarray
+
+
+class Body(NamedTuple):
+    """Another person in the room (a bystander): rendered, shaded and shadowed like
+    the subject, z-buffered against it, but never part of the person mask.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float
+        Posed vertices of the studio's mesh, world metres.
+    appearance : Appearance or None
+        Clothing colours (the studio's own when None); the per-vertex modulation
+        (fabric variation, hair) is the studio's.
+    """
+
+    vertices: np.ndarray
+    appearance: Appearance | None = None
 
 
 class BoardFrame(NamedTuple):
@@ -395,6 +476,7 @@ class Studio:
         rng: np.random.Generator | int | None = None,
         *,
         effects: bool = True,
+        others: Sequence[Body] = (),
     ) -> Frame:
         """Render the person (or the empty room if ``vertices`` is None).
 
@@ -408,12 +490,16 @@ class Studio:
         effects : bool
             False: no blur, flicker or noise (the clean frame used to check masks);
             per-camera gain, white balance and vignetting stay.
+        others : sequence of Body
+            Bystanders: rendered through the same raster, shading and shadow map as
+            the person and z-buffered against it; the person mask stays the
+            person's visible pixels, the shadow mask excludes every body.
 
         Returns
         -------
         Frame
         """
-        img, person, shadow, _ = self._render(camera, vertices, None, rng, effects)
+        img, person, shadow, _ = self._render(camera, vertices, None, rng, effects, others)
         return Frame(img, person, shadow)
 
     def render_background(
@@ -469,24 +555,7 @@ class Studio:
             return self._cache[key].r_limit
         hit = self._r_limits.get(key)
         if hit is None:
-            w, h = camera.size
-            border = np.concatenate(
-                [
-                    np.stack([np.arange(w), np.zeros(w)], 1),
-                    np.stack([np.arange(w), np.full(w, h - 1)], 1),
-                    np.stack([np.zeros(h), np.arange(h)], 1),
-                    np.stack([np.full(h, w - 1), np.arange(h)], 1),
-                ]
-            ).astype(np.float64)
-            if np.any(camera.dist != 0):
-                und = cv2.undistortPoints(
-                    border.reshape(-1, 1, 2), camera.K, camera.dist, R=np.eye(3), P=np.eye(3),
-                    criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
-                ).reshape(-1, 2)  # fmt: skip
-            else:
-                kinv = np.linalg.inv(camera.K)
-                und = border @ kinv[:2, :2].T + kinv[:2, 2]
-            hit = _radial_limit(camera, float(np.sqrt((und**2).sum(-1)).max()))
+            hit = lens_radius_limit(camera)
             self._r_limits[key] = hit
         return hit
 
@@ -606,6 +675,7 @@ class Studio:
         board: _Board | None,
         rng: np.random.Generator | int | None,
         effects: bool,
+        others: Sequence[Body] = (),
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         if not isinstance(camera, Camera):
             raise ValueError(
@@ -622,27 +692,17 @@ class Studio:
         light = self.light
         col = np.asarray(light.color, dtype=np.float32)
 
-        # --- person raster and shading ------------------------------------------------
-        person_cov = None  # (H*W,) float32 coverage
-        person_rad = None  # (H*W, 3) float32 radiance x coverage
-        person_depth = None  # (H*W,) float32 depth (inf where none; nearest sub-sample)
-        if vertices is not None:
-            v = np.asarray(vertices, dtype=np.float64)
-            if v.shape != (self.n_vertices, 3):
-                raise ValueError(
-                    f"render: vertices must have shape ({self.n_vertices}, 3), got {v.shape}"
-                )
-            xy, z, valid = project_for_raster(camera, v, s, cache.r_limit)
-            r = rasterize(xy, z, self.faces, (w * s, h * s), cull="back", valid=valid)
-            rad = self._shade_person(v, r)
-            if s == 1:
-                person_cov = np.zeros(npx, np.float32)
-                person_cov[r.pixels] = 1.0
-                person_rad = np.zeros((npx, 3), np.float32)
-                person_rad[r.pixels] = rad
-                person_depth = r.depth.reshape(-1)
-            else:
-                person_cov, person_rad, person_depth = _downsample_person(r, rad, s, w, h)
+        # --- bodies (the person, then bystanders): one z-buffer, shading -------------------
+        bodies = self._bodies(vertices, others)
+        person_cov = None  # (H*W,) float32 coverage by the person alone
+        body_cov = None  # (H*W,) float32 coverage by any body
+        person_rad = None  # (H*W, 3) float32 radiance x coverage of the bodies
+        person_depth = None  # (H*W,) float32 nearest body depth (inf where none)
+        if bodies:
+            pixels, depth, rad, subject = self._raster_bodies(camera, cache, bodies, vertices)
+            body_cov, person_cov, person_rad, person_depth = _downsample_bodies(
+                pixels, depth, rad, subject, s, w, h
+            )
 
         # --- board: analytic ray-plane intersection --------------------------------------
         board_px = None
@@ -658,16 +718,13 @@ class Studio:
         shade_bg = np.zeros(npx, np.float32)
         shade_board = None
         if self.shadows:
-            casters = []
-            if vertices is not None:
-                casters.append((np.asarray(vertices, dtype=np.float64), self.faces, "back"))
+            casters = [(v, self.faces, "back") for v, _ in bodies]
             if board is not None:
                 corners = board.pose.to_world(board.texture.corners())
                 casters.append((corners, np.array([[0, 1, 2], [0, 2, 3]]), "none"))
             if casters:
                 origin, tau, depths = self._shadow_maps(casters)
-                zall = depths[0] if len(depths) == 1 else np.minimum(depths[0], depths[1])
-                all_map = self._finish_shadow_map(origin, tau, zall)
+                all_map = self._finish_shadow_map(origin, tau, np.minimum.reduce(depths))
                 q = cache.bg_light
                 hh, ww = all_map.coverage.shape
                 sel = np.flatnonzero(
@@ -678,8 +735,10 @@ class Studio:
                 )
                 if sel.size:
                     shade_bg[sel] = self._shadow_lookup(all_map, q[:, sel])
-                if vertices is not None and board_px is not None and board_px.size:
-                    person_map = self._finish_shadow_map(origin, tau, depths[0])
+                if bodies and board_px is not None and board_px.size:
+                    person_map = self._finish_shadow_map(
+                        origin, tau, np.minimum.reduce(depths[: len(bodies)])
+                    )
                     shade_board = self._shadow_lookup(person_map, board_light)
 
         # --- composite (linear radiance) -----------------------------------------------------
@@ -693,16 +752,19 @@ class Studio:
             shadow_amount[board_px] = sb
             board_mask[board_px] = True
         person_mask = np.zeros(npx, bool)
-        if person_cov is not None:
+        body_mask = np.zeros(npx, bool)
+        if body_cov is not None:
             if board_px is not None and board_px.size:
-                # Where the board is in front of the person, the board wins the whole pixel.
+                # Where the board is in front of a body, the board wins the whole pixel.
                 front = np.zeros(npx, bool)
                 front[board_px] = True
+                body_cov = np.where(front, 0.0, body_cov).astype(np.float32)
                 person_cov = np.where(front, 0.0, person_cov).astype(np.float32)
                 person_rad = np.where(front[:, None], 0.0, person_rad).astype(np.float32)
-            rad = rad * (1.0 - person_cov)[:, None] + person_rad * col
+            rad = rad * (1.0 - body_cov)[:, None] + person_rad * col
             person_mask = person_cov >= 0.5
-        shadow_mask = (shadow_amount > 0.5) & ~person_mask
+            body_mask = body_cov >= 0.5
+        shadow_mask = (shadow_amount > 0.5) & ~person_mask & ~body_mask
 
         # --- camera ----------------------------------------------------------------------
         img = rad.reshape(h, w, 3) * cache.camera_gain
@@ -721,8 +783,81 @@ class Studio:
             board_mask.reshape(h, w),
         )
 
-    def _shade_person(self, v: np.ndarray, r: Raster) -> np.ndarray:
-        """Radiance (without the light's colour) of the person's covered pixels (N, 3)."""
+    def _bodies(
+        self, vertices: np.ndarray | None, others: Sequence[Body]
+    ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The bodies to draw as (vertices (V, 3) float64, face albedo (T, 3) float32),
+        the person first; every vertex array checked against the mesh."""
+        bodies = []
+        entries = ([] if vertices is None else [(vertices, None)]) + [
+            (b.vertices, b.appearance) for b in others
+        ]
+        for i, (verts, appearance) in enumerate(entries):
+            v = np.asarray(verts, dtype=np.float64)
+            if v.shape != (self.n_vertices, 3):
+                what = "vertices" if i == 0 and vertices is not None else "others[].vertices"
+                raise ValueError(
+                    f"render: {what} must have shape ({self.n_vertices}, 3), got {v.shape}"
+                )
+            albedo = (
+                self.face_albedo
+                if appearance is None
+                else appearance.face_albedo(self.face_parts).astype(np.float32)
+            )
+            bodies.append((v, albedo))
+        return bodies
+
+    def _raster_bodies(
+        self,
+        camera: Camera,
+        cache: _CameraCache,
+        bodies: list[tuple[np.ndarray, np.ndarray]],
+        vertices: np.ndarray | None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Rasterize and shade every body on the supersampled grid and keep the nearest.
+
+        Returns
+        -------
+        pixels : (N,) int64
+            Covered sub-pixels (flat indices into the ``(H*s, W*s)`` grid).
+        depth : (H*s, W*s) float32
+            Nearest body depth (inf where none).
+        rad : (N, 3) float32
+            Radiance (without the light's colour) of the nearest body per sub-pixel.
+        subject : (N,) bool
+            The nearest body is the person (the first body when ``vertices`` is given).
+        """
+        w, h = camera.size
+        s = self.supersample
+        depth = None
+        owner = None
+        rad_full = None
+        for k, (v, albedo) in enumerate(bodies):
+            xy, z, valid = project_for_raster(camera, v, s, cache.r_limit)
+            r = rasterize(xy, z, self.faces, (w * s, h * s), cull="back", valid=valid)
+            rad = self._shade_person(v, r, albedo)
+            if depth is None:
+                depth = r.depth.copy()
+                owner = np.full(depth.size, -1, np.int32)
+                owner[r.pixels] = 0
+                rad_full = np.zeros((depth.size, 3), np.float32)
+                rad_full[r.pixels] = rad
+                continue
+            flat = depth.reshape(-1)
+            nearer = r.depth.reshape(-1)[r.pixels] < flat[r.pixels]
+            win = r.pixels[nearer]
+            flat[win] = r.depth.reshape(-1)[win]
+            owner[win] = k
+            rad_full[win] = rad[nearer]
+        pixels = np.flatnonzero(owner >= 0)
+        subject = owner[pixels] == 0 if vertices is not None else np.zeros(pixels.size, bool)
+        return pixels, depth, rad_full[pixels], subject
+
+    def _shade_person(
+        self, v: np.ndarray, r: Raster, face_albedo: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Radiance (without the light's colour) of a body's covered pixels (N, 3);
+        ``face_albedo`` (T, 3): its clothing (default the studio's appearance)."""
         f = self.faces
         fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
         vn = self._face_to_vertex @ fn
@@ -735,7 +870,7 @@ class Studio:
         mod = self.vertex_modulation
         m = mod[fv[:, 0]] * b[:, 0:1] + mod[fv[:, 1]] * b[:, 1:2] + mod[fv[:, 2]] * b[:, 2:3]
         amb, direct = self.light.irradiance(n)
-        alb = self.face_albedo[tri] * m
+        alb = (self.face_albedo if face_albedo is None else face_albedo)[tri] * m
         return (alb * (amb + direct)[:, None]).astype(np.float32)
 
     def _board_pixels(

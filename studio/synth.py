@@ -1,9 +1,14 @@
 """``bodymetry synth``: render a complete ground-truth session, as a lab would record it.
 
 A session folder (``docs/session-format.md``) holds, per camera, the recording
-(H.264), an empty-scene background clip and a ChArUco calibration clip; the true
+(H.264), an empty-scene background clip (unless ``background_clip`` is off, as in
+most real recordings) and a ChArUco calibration clip; the true
 ``calibration.yaml``; and ``ground_truth/`` with the subject's biometrics, the
 per-frame state and joints, and the true silhouettes of the kept frames.
+Optionally, bystanders (:mod:`bodymetry.studio.bystanders`) stand still in the
+room during the recording, each seen by one or two cameras; they are absent from
+the background and calibration clips (recorded before they came in) and from the
+ground-truth silhouettes, and ``ground_truth/studio.json`` describes them.
 
 Cameras render in parallel worker processes (one camera per task); every random
 draw comes from the configuration's seed, so the same configuration gives the
@@ -47,9 +52,14 @@ from bodymetry.estimation.body_model.motion.library import MOTIONS, ground_motio
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.motion.seeds import seed_for
 from bodymetry.fileio import save_npz, write_bytes_atomic, write_json_atomic
-from bodymetry.studio.render import Effects, Studio
+from bodymetry.studio.bystanders import (
+    MAX_BYSTANDERS,
+    BystanderPlacement,
+    place_bystanders,
+)
+from bodymetry.studio.render import Body, Effects, Studio
 from bodymetry.studio.rig import studio_rig
-from bodymetry.studio.scene import BoardPose, BoardTexture, Light
+from bodymetry.studio.scene import Appearance, BoardPose, BoardTexture, Light
 
 log = logging.getLogger(__name__)
 
@@ -147,6 +157,14 @@ class SynthConfig:
         Lengths of the empty-scene and ChArUco clips.
     crf : int
         H.264 quality (lower = better, bigger).
+    background_clip : bool
+        Write the empty-scene clips (``background/``); off, the session names none,
+        like most real recordings.
+    bystanders : int
+        People standing still in the room during the recording
+        (0..``MAX_BYSTANDERS``), drawn and placed from ``seed``.
+    bystander_placement : BystanderPlacement
+        Where bystanders may stand.
     """
 
     frames: int = 200
@@ -162,6 +180,9 @@ class SynthConfig:
     background_frames: int = 30
     calibration_frames: int = 300
     crf: int = 20
+    background_clip: bool = True
+    bystanders: int = 0
+    bystander_placement: BystanderPlacement = field(default_factory=BystanderPlacement)
 
     def __post_init__(self) -> None:
         if self.frames < 1:
@@ -179,8 +200,10 @@ class SynthConfig:
             raise InputError(
                 f"--motion {self.motion!r}: expected one of {', '.join(sorted(MOTIONS))}"
             )
-        if self.background_frames < 1 or self.calibration_frames < 30:
+        if (self.background_clip and self.background_frames < 1) or self.calibration_frames < 30:
             raise InputError("background clips need >= 1 frame and calibration clips >= 30 frames")
+        if not 0 <= self.bystanders <= MAX_BYSTANDERS:
+            raise InputError(f"--bystanders: expected 0..{MAX_BYSTANDERS}, got {self.bystanders}")
 
 
 #: Where the close sweep puts the board centre in each camera's image, in units of the
@@ -333,10 +356,12 @@ class _CameraJob:
     theta: np.ndarray
     nu: np.ndarray
     board_poses: np.ndarray
+    bystanders: tuple[Body, ...] = ()
 
 
 def _render_camera(job: _CameraJob, progress) -> dict:
-    """Render one camera's recording, background and calibration clips and masks."""
+    """Render one camera's recording (with the bystanders), background and calibration
+    clips and masks."""
     cfg, cam = job.config, job.camera
     model = BodyModel.load(n_shape=len(job.nu))
     studio = Studio.from_model(
@@ -357,19 +382,22 @@ def _render_camera(job: _CameraJob, progress) -> dict:
                 BodyState(job.tau[start:stop], job.theta[start:stop], job.nu[None])
             ).vertices
             for k, frame in enumerate(range(start, stop)):
-                image, person, shadow = studio.render_frame(cam, verts[k], rng)
+                image, person, shadow = studio.render_frame(
+                    cam, verts[k], rng, others=job.bystanders
+                )
                 writer.write(image)
                 if frame in kept:
                     write_bytes_atomic(sil_dir / f"{frame:06d}.png", _png(person))
                     if person.any():
                         shadow_fraction.append(float(shadow.sum() / person.sum()))
                 progress.put(1)
-    with H264Writer(
-        job.out / "background" / f"{cam.name}.mp4", cfg.fps, cfg.size, cfg.crf
-    ) as writer:
-        for _ in range(cfg.background_frames):
-            writer.write(studio.render_background(cam, rng))
-            progress.put(1)
+    if cfg.background_clip:
+        with H264Writer(
+            job.out / "background" / f"{cam.name}.mp4", cfg.fps, cfg.size, cfg.crf
+        ) as writer:
+            for _ in range(cfg.background_frames):
+                writer.write(studio.render_background(cam, rng))
+                progress.put(1)
     board = STUDIO_BOARD.create_board()
     texture = BoardTexture.from_charuco(board)
     with H264Writer(
@@ -438,7 +466,20 @@ def synthesize(
 
     # Ground truth that does not need rendering.
     bio = measure(model, nu[None])[0].to_dict()
-    joints = model.pose(BodyState(motion.tau, motion.theta, nu[None])).joints
+    posed = model.pose(BodyState(motion.tau, motion.theta, nu[None]))
+    joints = posed.joints
+    bystanders = place_bystanders(
+        model,
+        cameras,
+        posed.vertices[:, ::7],
+        config.bystanders,
+        config.seed,
+        exclude_heldout=tuple(
+            [subject_info["heldout_index"]] if "heldout_index" in subject_info else []
+        ),
+        placement=config.bystander_placement,
+    )
+    del posed
     save_npz(
         out / "ground_truth" / GROUND_TRUTH_STATES,
         {
@@ -465,9 +506,22 @@ def synthesize(
         },
     )
 
-    total = config.cameras * (config.frames + config.background_frames + config.calibration_frames)
+    background_frames = config.background_frames if config.background_clip else 0
+    total = config.cameras * (config.frames + background_frames + config.calibration_frames)
+    # The studio dresses the subject in the default Appearance; bystanders wear their own.
+    others = tuple(Body(b.vertices(model), b.appearance(Appearance())) for b in bystanders)
     jobs = [
-        _CameraJob(i, cam, config, out, motion.tau, motion.theta, nu, board_poses)
+        _CameraJob(
+            i,
+            cam,
+            config,
+            out,
+            motion.tau,
+            motion.theta,
+            nu,
+            board_poses,
+            others,
+        )
         for i, cam in enumerate(cameras)
     ]
     n_workers = max(1, min(workers or mp.cpu_count() or 1, len(jobs)))
@@ -493,7 +547,9 @@ def synthesize(
         frame_step=config.frame_step,
         cameras=tuple(
             SessionCamera(
-                cam.name, f"videos/{cam.name}.mp4", background=f"background/{cam.name}.mp4"
+                cam.name,
+                f"videos/{cam.name}.mp4",
+                background=f"background/{cam.name}.mp4" if config.background_clip else None,
             )
             for cam in cameras
         ),
@@ -510,6 +566,7 @@ def synthesize(
         {
             "config": {**asdict(config), "subject": asdict(config.subject)},
             "motion_seed": motion_seed,
+            "bystanders": [b.to_json() for b in bystanders],
             "render_seconds": round(time.perf_counter() - t0, 2),
             "shadow_to_person_area_mean": shadow,
         },
@@ -522,8 +579,20 @@ def describe(session: Session) -> str:
     """A one-paragraph summary of a rendered session (for the CLI)."""
     gt = json.loads((session.folder / "ground_truth" / GROUND_TRUTH_SUBJECT).read_text())
     studio = json.loads((session.folder / "ground_truth" / "studio.json").read_text())
+    extras = []
+    bystanders = studio.get("bystanders", [])
+    if bystanders:
+        seen = "; ".join(
+            f"at ({b['position_m'][0]:.1f}, {b['position_m'][1]:.1f}) m seen by "
+            + ", ".join(b["seen_by"])
+            for b in bystanders
+        )
+        extras.append(f"{len(bystanders)} bystander(s) ({seen})")
+    if all(cam.background is None for cam in session.cameras):
+        extras.append("no background clip")
     return (
         f"{session.folder}: {len(session.cameras)} cameras, {studio['config']['frames']} frames at "
         f"{session.fps:g} fps, subject {gt['height_mm']:.0f} mm / {gt['weight_kg']:.1f} kg, "
-        f"rendered in {studio['render_seconds']:.0f} s"
+        + "".join(f"{e}, " for e in extras)
+        + f"rendered in {studio['render_seconds']:.0f} s"
     )

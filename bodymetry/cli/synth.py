@@ -57,6 +57,18 @@ def _parse_size(text: str) -> tuple[int, int]:
     "--background-frames", default=30, show_default=True, type=int, help="Empty-scene clip length."
 )
 @click.option(
+    "--no-background-clip",
+    is_flag=True,
+    help="Write no empty-scene clips (background/), like most real recordings.",
+)
+@click.option(
+    "--bystanders",
+    default=0,
+    show_default=True,
+    type=int,
+    help="People standing still in the room, each seen by one or two cameras.",
+)
+@click.option(
     "--crf", default=20, show_default=True, type=int, help="H.264 quality (lower: better, bigger)."
 )
 @click.option("--workers", default=None, type=int, help="Worker processes (default: all cores).")
@@ -76,6 +88,8 @@ def synth(
     no_shadows: bool,
     calibration_frames: int,
     background_frames: int,
+    no_background_clip: bool,
+    bystanders: int,
     crf: int,
     workers: int | None,
     overwrite: bool,
@@ -95,6 +109,8 @@ def synth(
         background_frames=background_frames,
         calibration_frames=calibration_frames,
         crf=crf,
+        background_clip=not no_background_clip,
+        bystanders=bystanders,
     )
     with labelled_progress() as progress:
 

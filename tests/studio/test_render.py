@@ -9,8 +9,8 @@ import pytest
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.raster import rasterize, signed_area2
-from bodymetry.studio.render import Studio, pixel_rays
-from bodymetry.studio.scene import BoardPose, BoardTexture, Light
+from bodymetry.studio.render import Body, Studio, pixel_rays
+from bodymetry.studio.scene import Appearance, BoardPose, BoardTexture, Light
 
 SIZE = (320, 240)
 MILD_DIST = np.array([-0.09, 0.03, 0.0005, -0.0004, 0.0])
@@ -285,3 +285,39 @@ def test_person_raster_is_the_frame_mask(studio, body, cameras):
     cam = cameras[1]
     frame = studio.render_frame(cam, v, effects=False)
     np.testing.assert_array_equal(studio.person_raster(cam, v).mask, frame.person_mask)
+
+
+def test_other_bodies_are_z_buffered_shaded_and_cast_shadows(studio, body, cameras):
+    """A bystander in front hides the person, one behind is hidden by it; both are
+    lit and cast shadows like the person, and never enter the person mask."""
+    _, v = body
+    cam = cameras[0]
+    toward = cam.center[:2] / np.linalg.norm(cam.center[:2])
+    side = np.array([-toward[1], toward[0]])
+    alone = studio.render_frame(cam, v, effects=False)
+    empty = studio.render_background(cam, effects=False)
+    # In front: 1.2 m towards the camera, half a body to the side -> partly occludes.
+    front = v + np.r_[1.2 * toward + 0.25 * side, 0.0]
+    hidden = studio.render_frame(cam, v, effects=False, others=[Body(front)])
+    front_raster = studio.person_raster(cam, front).mask
+    assert np.any(front_raster & alone.person_mask)
+    np.testing.assert_array_equal(hidden.person_mask, alone.person_mask & ~front_raster)
+    # Behind: 1.5 m further away and to the side -> the person mask is unchanged, and
+    # the bystander shows (in other clothes) where the person does not cover it.
+    shirt = Appearance(part_colors=np.full((15, 3), 0.2))
+    back = v + np.r_[-1.5 * toward + 0.6 * side, 0.0]
+    frame = studio.render_frame(cam, v, effects=False, others=[Body(back, shirt)])
+    np.testing.assert_array_equal(frame.person_mask, alone.person_mask)
+    visible = studio.person_raster(cam, back).mask & ~alone.person_mask
+    assert visible.sum() > 500
+    changed = np.abs(frame.image.astype(int) - alone.image).max(-1) > 4
+    assert changed[visible].mean() > 0.95
+    # Its cast shadow darkens the room beyond what the person's does.
+    assert frame.shadow_mask.sum() > alone.shadow_mask.sum() + 200
+    assert not np.any(frame.shadow_mask & visible)
+    assert (
+        frame.image[frame.shadow_mask & ~alone.shadow_mask]
+        < empty[frame.shadow_mask & ~alone.shadow_mask]
+    ).all(axis=-1).mean() > 0.9
+    with pytest.raises(ValueError, match="others"):
+        studio.render_frame(cam, v, effects=False, others=[Body(v[:10])])
