@@ -115,6 +115,8 @@ class FitJob:
     models_path : Path
         The rig's cached discriminative models.
     fit : FitConfig
+    landmarks : (33, 3) float or None
+        The subject's body landmarks in the world frame, from capture.
     """
 
     frame: int
@@ -123,12 +125,13 @@ class FitJob:
     cameras: list[Camera]
     models_path: Path
     fit: FitConfig
+    landmarks: np.ndarray | None = None
 
 
 def run_fit_job(job: FitJob) -> FrameFit:
     """Fit one frame (in a worker: the rig's models are loaded once per process)."""
     models = _discriminative(job.models_path)
-    return fit_frame(job.frame, job.masks, job.flags, job.cameras, models, job.fit)
+    return fit_frame(job.frame, job.masks, job.flags, job.cameras, models, job.fit, job.landmarks)
 
 
 def fit_job(
@@ -136,7 +139,13 @@ def fit_job(
 ) -> FitJob:
     """The job of one segmented frame."""
     return FitJob(
-        sil.frame, list(sil.masks), [list(f) for f in sil.flags], cameras, models_path, fit
+        sil.frame,
+        list(sil.masks),
+        [list(f) for f in sil.flags],
+        cameras,
+        models_path,
+        fit,
+        sil.landmarks,
     )
 
 

@@ -27,6 +27,7 @@ import contextlib
 import importlib.util
 import logging
 import os
+import sys
 from dataclasses import dataclass
 
 import cv2
@@ -37,7 +38,9 @@ from bodymetry.errors import InputError
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "LANDMARKS",
     "SEGMENTER_REQUIREMENT",
+    "Person",
     "PersonConfig",
     "PersonSegmenter",
     "segmenter_available",
@@ -57,6 +60,34 @@ def segmenter_available() -> bool:
     return importlib.util.find_spec("mediapipe") is not None
 
 
+#: BlazePose's 33 landmarks, in its order ("left" is the subject's left).
+LANDMARKS: tuple[str, ...] = (
+    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye",
+    "right_eye_outer", "left_ear", "right_ear", "mouth_left", "mouth_right",
+    "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist",
+    "right_wrist", "left_pinky", "right_pinky", "left_index", "right_index", "left_thumb",
+    "right_thumb", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle",
+    "right_ankle", "left_heel", "right_heel", "left_foot_index", "right_foot_index",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Person:
+    """What the segmenter found in one image.
+
+    Attributes
+    ----------
+    probability : (H, W) float32
+        Probability that each pixel shows the person.
+    landmarks : (33, 3) float
+        Per :data:`LANDMARKS`: pixel x, pixel y, and the model's visibility
+        score in [0, 1] (NaN when the landmark model gave none).
+    """
+
+    probability: np.ndarray
+    landmarks: np.ndarray
+
+
 @dataclass(frozen=True)
 class PersonConfig:
     """Parameters of the learned person segmentation.
@@ -67,6 +98,14 @@ class PersonConfig:
         A pixel is person where the segmentation probability exceeds it.
     min_detection_confidence : float
         Below this the detector reports no person (the view is flagged ``empty``).
+    edge_radius : int
+        Radius of the guided filter that aligns the probability's soft outline
+        with the image's edges, pixels at 640x480 (scaled with the image
+        diagonal; 0: off). On the studio demo it raised the mean IoU against
+        the true silhouettes from 0.957 to 0.965 (radius 4, ``edge_eps`` 0.01).
+    edge_eps : float
+        The guided filter's regularization (larger: smoother, closer to the
+        model's own outline).
     crop_margin : float
         Margin around a region of interest, as a fraction of its larger side (the
         detector needs some context around the person: at 0.15 it missed people
@@ -74,6 +113,8 @@ class PersonConfig:
     """
 
     threshold: float = 0.5
+    edge_radius: int = 4
+    edge_eps: float = 0.01
     min_detection_confidence: float = 0.5
     crop_margin: float = 0.5
 
@@ -84,6 +125,11 @@ class PersonConfig:
             raise InputError(
                 "person.min_detection_confidence: expected 0 < c < 1, got "
                 f"{self.min_detection_confidence}"
+            )
+        if self.edge_radius < 0 or self.edge_eps <= 0:
+            raise InputError(
+                "person.edge_radius must be >= 0 and person.edge_eps > 0, got "
+                f"{self.edge_radius}, {self.edge_eps}"
             )
         if self.crop_margin < 0:
             raise InputError(f"person.crop_margin: expected >= 0, got {self.crop_margin}")
@@ -110,6 +156,7 @@ class PersonSegmenter:
             )
         self.config = config or PersonConfig()
         self._pose = None
+        self._warm = False
 
     def _model(self):
         if self._pose is None:
@@ -126,10 +173,10 @@ class PersonSegmenter:
             )
         return self._pose
 
-    def probability(
+    def detect(
         self, image: np.ndarray, roi: tuple[int, int, int, int] | None = None
-    ) -> np.ndarray | None:
-        """The probability that each pixel shows the (most prominent) person.
+    ) -> Person | None:
+        """The (most prominent) person of an image: segmentation and landmarks.
 
         Parameters
         ----------
@@ -137,11 +184,11 @@ class PersonSegmenter:
             BGR, as decoded.
         roi : (x0, y0, x1, y1), optional
             Look for the person in this box only (grown by ``crop_margin``);
-            the result is zero outside it.
+            the probability is zero outside it.
 
         Returns
         -------
-        (H, W) float32 or None
+        Person or None
             None when no person is detected.
         """
         image = np.asarray(image)
@@ -154,14 +201,52 @@ class PersonSegmenter:
             if x1 - x0 < 8 or y1 - y0 < 8:
                 return None
         rgb = cv2.cvtColor(np.ascontiguousarray(image[y0:y1, x0:x1]), cv2.COLOR_BGR2RGB)
-        result = self._model().process(rgb)
+        if self._warm:
+            result = self._model().process(rgb)
+        else:
+            # MediaPipe's native code logs its start-up chatter ("Created TensorFlow
+            # Lite XNNPACK delegate", absl warnings) straight to file descriptor 2
+            # while it builds the graph and runs it first; nothing a user can act on.
+            with _native_stderr_silenced():
+                result = self._model().process(rgb)
+            self._warm = True
         if result.segmentation_mask is None:
             return None
-        if roi is None:
-            return result.segmentation_mask.astype(np.float32, copy=False)
-        out = np.zeros((h, w), np.float32)
-        out[y0:y1, x0:x1] = result.segmentation_mask
+        prob = np.zeros((h, w), np.float32)
+        prob[y0:y1, x0:x1] = self._aligned(image[y0:y1, x0:x1], result.segmentation_mask)
+        landmarks = np.full((len(LANDMARKS), 3), np.nan)
+        if result.pose_landmarks is not None:
+            lm = result.pose_landmarks.landmark
+            landmarks[:] = [(x0 + p.x * (x1 - x0), y0 + p.y * (y1 - y0), p.visibility) for p in lm]
+        return Person(prob, landmarks)
+
+    def _aligned(self, image: np.ndarray, prob: np.ndarray) -> np.ndarray:
+        """``prob`` (H, W) with its outline aligned to the edges of ``image`` (H, W, 3)
+        (guided filter on the person's bounding box)."""
+        prob = np.asarray(prob, np.float32)
+        radius = round(self.config.edge_radius * np.hypot(*prob.shape) / 800.0)
+        ys, xs = np.nonzero(prob > 0.05)
+        if radius < 1 or ys.size == 0:
+            return prob
+        pad = 3 * radius
+        y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, prob.shape[0])
+        x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, prob.shape[1])
+        guide = image[y0:y1, x0:x1].astype(np.float32) / 255.0
+        out = prob.copy()
+        out[y0:y1, x0:x1] = np.clip(
+            cv2.ximgproc.guidedFilter(guide, prob[y0:y1, x0:x1], radius, self.config.edge_eps),
+            0.0,
+            1.0,
+        )
         return out
+
+    def probability(
+        self, image: np.ndarray, roi: tuple[int, int, int, int] | None = None
+    ) -> np.ndarray | None:
+        """(H, W) float32: the probability that each pixel shows the person, or None
+        (:meth:`detect`)."""
+        person = self.detect(image, roi)
+        return None if person is None else person.probability
 
     def mask(
         self, image: np.ndarray, roi: tuple[int, int, int, int] | None = None
@@ -181,6 +266,20 @@ class PersonSegmenter:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+@contextlib.contextmanager
+def _native_stderr_silenced():
+    """Point file descriptor 2 at /dev/null for the block (native libraries' output)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def _grown(

@@ -72,6 +72,7 @@ from bodymetry.calibration.camera import Camera
 from bodymetry.capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
 from bodymetry.capture.consistency import HullConfig, VisualHull
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
+from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
     PersonConfig,
@@ -124,12 +125,15 @@ class CaptureConfig:
         calibrated cameras are given.
     person : PersonConfig
     hull : HullConfig
+    landmarks : LandmarkConfig
+        Triangulation of the segmenter's body landmarks.
     """
 
     method: str = "auto"
     consistency: bool = True
     person: PersonConfig = field(default_factory=PersonConfig)
     hull: HullConfig = field(default_factory=HullConfig)
+    landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
 
     def __post_init__(self) -> None:
         if self.method not in CAPTURE_METHODS:
@@ -236,6 +240,10 @@ class SilhouetteFrame:
         The decoded images (None when unreadable), for overlays.
     shadows : tuple of (H, W) bool, length C
         Pixels suppressed as cast shadow (before clean-up).
+    landmarks : (33, 3) float or None
+        The subject's body landmarks in the world frame, metres
+        (:mod:`bodymetry.capture.landmarks`; NaN rows where too few views saw
+        one); None without the segmenter or the cameras.
     """
 
     frame: int
@@ -244,6 +252,7 @@ class SilhouetteFrame:
     flags: tuple[tuple[str, ...], ...]
     images: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
     shadows: tuple[np.ndarray, ...] = field(default=(), repr=False)
+    landmarks: np.ndarray | None = field(default=None, repr=False)
 
     def stack(self) -> np.ndarray:
         """(C, H, W) bool masks, for rigs whose cameras all have one image size.
@@ -585,9 +594,19 @@ def _prefetch(items: Iterator, depth: int = 2) -> Iterator:
         thread.join()
 
 
+@dataclass
+class _View:
+    """One camera's silhouette of one frame, while the frame is segmented."""
+
+    mask: np.ndarray
+    flags: tuple[str, ...]
+    shadow: np.ndarray
+    landmarks: np.ndarray | None = None
+
+
 class _Views:
     """Segments the views of one frame: the per-camera silhouette, then the
-    multi-view check (module docstring, "Segmentation")."""
+    multi-view check and the landmarks in 3D (module docstring, "Segmentation")."""
 
     def __init__(
         self,
@@ -601,6 +620,8 @@ class _Views:
         self.models = list(models)
         self.sizes = list(sizes)
         self.cleanup = cleanup
+        self.config = config
+        self.cameras = None if cameras is None else list(cameras)
         self.subtractors = [None if m is None else Subtractor(m, subtraction) for m in models]
         self.segmenter = PersonSegmenter(config.person) if config.uses_segmenter else None
         self.hull = None
@@ -612,46 +633,54 @@ class _Views:
 
     def _one(
         self, c: int, image: np.ndarray | None, roi: tuple[int, int, int, int] | None = None
-    ) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+    ) -> _View:
         w, h = self.sizes[c]
+        none = np.zeros((h, w), bool)
         if image is None:
-            return np.zeros((h, w), bool), ("unreadable",), np.zeros((h, w), bool)
-        person = None if self.segmenter is None else self.segmenter.mask(image, roi)
+            return _View(none, ("unreadable",), none)
+        person = None if self.segmenter is None else self.segmenter.detect(image, roi)
+        found = None if person is None else person.probability > self.config.person.threshold
+        landmarks = None if person is None else person.landmarks
         model = self.models[c]
         if model is None:  # no background: the segmenter's person is the silhouette
-            if person is None:
-                return np.zeros((h, w), bool), ("empty",), np.zeros((h, w), bool)
-            mask, flags = clean_mask(person, self.cleanup)
-            return mask, flags, np.zeros((h, w), bool)
+            if found is None:
+                return _View(none, ("empty",), none)
+            mask, flags = clean_mask(found, self.cleanup)
+            return _View(mask, flags, none, landmarks)
         raw, shadow = self.subtractors[c].labels(image)
-        mask, flags = clean_mask(raw, self.cleanup, image, model.median, shadow, person)
-        return mask, flags, shadow
+        mask, flags = clean_mask(raw, self.cleanup, image, model.median, shadow, found)
+        return _View(mask, flags, shadow, landmarks)
 
     def __call__(
         self, images: Sequence[np.ndarray | None]
-    ) -> tuple[list[np.ndarray], list[tuple[str, ...]], list[np.ndarray]]:
-        masks, flags, shadows = (
-            list(x) for x in zip(*map(self._one, range(len(images)), images), strict=True)
-        )
-        if self.hull is None:
-            return masks, flags, shadows
-        check = self.hull.check(masks)
-        if self.segmenter is not None and any(check.inconsistent):
-            # Ask again where the other views put the subject (the segmenter
-            # returns the most prominent person, maybe a bystander).
-            retry = [
-                c for c, bad in enumerate(check.inconsistent)
-                if bad and check.rois[c] is not None and images[c] is not None
-            ]  # fmt: skip
-            for c in retry:
-                masks[c], flags[c], shadows[c] = self._one(c, images[c], check.rois[c])
-            if retry:
-                check = self.hull.check(masks)
-        for c, bad in enumerate(check.inconsistent):
-            masks[c] = check.masks[c]
-            if bad:
-                flags[c] = (*flags[c], "inconsistent")
-        return masks, flags, shadows
+    ) -> tuple[list[_View], np.ndarray | None]:
+        """Per camera the view, and the (33, 3) world landmarks (None without a segmenter
+        or cameras)."""
+        views = [self._one(c, image) for c, image in enumerate(images)]
+        if self.hull is not None:
+            check = self.hull.check([v.mask for v in views])
+            if self.segmenter is not None and any(check.inconsistent):
+                # Ask again where the other views put the subject (the segmenter
+                # returns the most prominent person, maybe a bystander).
+                retry = [
+                    c for c, bad in enumerate(check.inconsistent)
+                    if bad and check.rois[c] is not None and images[c] is not None
+                ]  # fmt: skip
+                for c in retry:
+                    views[c] = self._one(c, images[c], check.rois[c])
+                if retry:
+                    check = self.hull.check([v.mask for v in views])
+            for view, mask, bad in zip(views, check.masks, check.inconsistent, strict=True):
+                view.mask = mask
+                if bad:
+                    view.flags = (*view.flags, "inconsistent")
+                    view.landmarks = None
+        landmarks = None
+        if self.cameras is not None and sum(v.landmarks is not None for v in views) >= 2:
+            landmarks = triangulate_landmarks(
+                self.cameras, [v.landmarks for v in views], self.config.landmarks
+            )
+        return views, landmarks
 
     def close(self) -> None:
         if self.segmenter is not None:
@@ -709,14 +738,15 @@ def segment_session(
     views = _Views(models, [v.size for v in report.videos], config, subtraction, cleanup, cameras)
     try:
         for fs in _prefetch(read_frame_sets(session, report, frames=frames, method=read_method)):
-            masks, flags, shadows = views(fs.images)
+            per_view, landmarks = views(fs.images)
             out = SilhouetteFrame(
                 frame=fs.frame,
                 cameras=fs.cameras,
-                masks=tuple(masks),
-                flags=tuple(flags),
+                masks=tuple(v.mask for v in per_view),
+                flags=tuple(v.flags for v in per_view),
                 images=fs.images if keep_images else (),
-                shadows=tuple(shadows),
+                shadows=tuple(v.shadow for v in per_view),
+                landmarks=landmarks,
             )
             if on_frame is not None:
                 on_frame(out)

@@ -19,7 +19,7 @@ import numpy as np
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
-from bodymetry.estimation.body_model.model import NU, TAU, BodyModel, BodyState
+from bodymetry.estimation.body_model.model import NU, TAU, THETA, BodyModel, BodyState
 from bodymetry.estimation.generative import (
     AnnealingConfig,
     AnnealingResult,
@@ -28,6 +28,7 @@ from bodymetry.estimation.generative import (
     chamfer_costs,
     prepare_observation,
 )
+from bodymetry.estimation.landmark_pose import pose_from_landmarks
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.records import (
     AnnealingTrace,
@@ -87,6 +88,11 @@ class FitConfig:
         kg/m³ for weight.
     initial_particles : int
         Draws from the discriminative mixtures that start the search.
+    landmark_share : float
+        Fraction of the initial particles drawn around the pose fitted to the
+        subject's 3D landmarks (:mod:`bodymetry.estimation.landmark_pose`),
+        when capture found them; that pose is also a start of the refinement.
+        0 searches from the discriminative mixtures alone (the paper).
     min_iou : float
         Quality gate: a frame whose fitted body overlaps the observed
         silhouettes less than this (mean IoU over its views) is marked
@@ -101,6 +107,7 @@ class FitConfig:
     seed: int = 0
     density: float = DEFAULT_DENSITY
     initial_particles: int = 400
+    landmark_share: float = 0.5
     min_iou: float = 0.9
     annealing: AnnealingConfig = field(default_factory=AnnealingConfig)
     refinement: RefineConfig = field(default_factory=RefineConfig)
@@ -112,6 +119,8 @@ class FitConfig:
             raise ValueError(f"initial_particles: expected >= 1, got {self.initial_particles}")
         if not 0 <= self.min_iou <= 1:
             raise ValueError(f"min_iou: expected in [0, 1], got {self.min_iou}")
+        if not 0 <= self.landmark_share < 1:
+            raise ValueError(f"landmark_share: expected in [0, 1), got {self.landmark_share}")
 
     @classmethod
     def preset(cls, quality: str, **kwargs) -> FitConfig:
@@ -184,6 +193,38 @@ def _clip_pose(body: BodyModel, vectors: np.ndarray) -> np.ndarray:
     return clipped.vector().reshape(np.shape(vectors))
 
 
+#: Spread of the particles drawn around the landmark pose: τ (m), θ (rad).
+_LANDMARK_SPREAD = (0.03, 0.08)
+
+
+def _with_landmark_particles(
+    body: BodyModel,
+    landmarks: np.ndarray,
+    disc: BodyState,
+    particles: np.ndarray,
+    share: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Replace ``share`` of the initial particles by draws around the landmark pose.
+
+    The pose is solved for the discriminative shape; each draw keeps the shape of
+    the particle it replaces (the shape search stays the mixtures'). Returns the
+    particles and the landmark pose's state vector (None, and the particles
+    unchanged, when the landmarks do not give a pose).
+    """
+    pose = pose_from_landmarks(body, landmarks, disc.nu[0])
+    if pose is None:
+        return particles, None
+    n = len(particles)
+    k = round(share * n)
+    keep = rng.permutation(n)
+    drawn = particles[keep[:k]].copy()
+    drawn[:, TAU] = pose.tau + rng.normal(0.0, _LANDMARK_SPREAD[0], (k, 3))
+    drawn[:, THETA] = body.limits.clip(pose.theta + rng.normal(0.0, _LANDMARK_SPREAD[1], (k, 37)))
+    start = np.concatenate([pose.tau, pose.theta, disc.nu[0]])
+    return np.vstack([particles[keep[k:]], drawn]), start
+
+
 @dataclass(frozen=True)
 class FrameFit:
     """One frame's fit: its record and the arrays it leaves for review.
@@ -209,6 +250,7 @@ def fit_frame(
     cameras: list[Camera],
     models: DiscriminativeModels,
     config: FitConfig,
+    landmarks: np.ndarray | None = None,
 ) -> FrameFit:
     """Fit one frame (never raises for bad data: the record says what went wrong).
 
@@ -226,6 +268,9 @@ def fit_frame(
     models : DiscriminativeModels
         Trained for these cameras.
     config : FitConfig
+    landmarks : (33, 3) float, optional
+        The subject's body landmarks in the world frame (NaN rows: not seen),
+        from capture; they add pose proposals (``config.landmark_share``).
     """
     t0 = time.perf_counter()
     body = shared_body_model()
@@ -240,7 +285,8 @@ def fit_frame(
     )
     flag_map = {n: tuple(f) for n, f in zip(names, flags, strict=True)}
     observed_arrays = FrameArrays(
-        observed={n: np.asarray(m, bool) for n, m in zip(names, masks, strict=True)}
+        observed={n: np.asarray(m, bool) for n, m in zip(names, masks, strict=True)},
+        landmarks=landmarks,
     )
 
     def failed(status: str) -> FrameFit:
@@ -270,19 +316,17 @@ def fit_frame(
         ]
         disc_state = BodyState.from_vector(points[int(np.argmin(costs))][None])
         t_disc = time.perf_counter() - t0
-        fit = generative_fit(
-            body,
-            cameras,
-            observed,
-            particles,
-            config,
-            rng,
-            {
-                f"discriminative {cameras[c].name}": p
-                for c, p in zip(np.flatnonzero(valid), points, strict=True)
-            },
-            obs,
-        )
+        starts = {
+            f"discriminative {cameras[c].name}": p
+            for c, p in zip(np.flatnonzero(valid), points, strict=True)
+        }
+        if landmarks is not None and config.landmark_share > 0:
+            particles, start = _with_landmark_particles(
+                body, landmarks, disc_state, particles, config.landmark_share, rng
+            )
+            if start is not None:
+                starts["landmarks"] = start
+        fit = generative_fit(body, cameras, observed, particles, config, rng, starts, obs)
         t_gen = time.perf_counter() - t0 - t_disc
     except (ValueError, np.linalg.LinAlgError) as exc:
         return failed(f"fit failed: {exc}")

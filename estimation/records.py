@@ -462,12 +462,16 @@ class FrameArrays:
     particles : (N, 40 + n_shape) float or None
         The last annealing layer ``[τ, θ, ν]``.
     weights : (N,) float or None
+    landmarks : (33, 3) float or None
+        The subject's body landmarks in the world frame, metres (NaN rows: not
+        triangulated), when capture found them.
     """
 
     observed: dict[str, np.ndarray] = field(default_factory=dict)
     model: dict[str, np.ndarray] = field(default_factory=dict)
     particles: np.ndarray | None = None
     weights: np.ndarray | None = None
+    landmarks: np.ndarray | None = None
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {}
@@ -477,6 +481,8 @@ class FrameArrays:
         if self.particles is not None and self.weights is not None:
             out["particles"] = np.asarray(self.particles, np.float32)
             out["weights"] = np.asarray(self.weights, np.float32)
+        if self.landmarks is not None:
+            out["landmarks"] = np.asarray(self.landmarks, np.float32)
         return out
 
     @classmethod
@@ -493,11 +499,13 @@ class FrameArrays:
         }
         particles = arrays.get("particles")
         weights = arrays.get("weights")
+        landmarks = arrays.get("landmarks")
         return cls(
             observed,
             model,
             None if particles is None else np.asarray(particles, float),
             None if weights is None else np.asarray(weights, float),
+            None if landmarks is None or landmarks.shape != (33, 3) else landmarks.astype(float),
         )
 
 
