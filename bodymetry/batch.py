@@ -223,7 +223,7 @@ def _frame_task(
         read_method="seek",
         keep_images=False,
     )
-    fit = run_fit_job(fit_job(sil, prepared.cameras, models.path, config.fit))
+    fit = run_fit_job(fit_job(sil, prepared.cameras, prepared.resolution, models.path, config.fit))
     return write_frame(prepared.layout, fit)
 
 

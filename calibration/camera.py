@@ -405,9 +405,7 @@ class CameraGroup:
             One factor for every camera, or one per camera (camera order);
             see :meth:`Camera.scaled`.
         """
-        per_camera = (
-            [factors] * len(self) if np.ndim(factors) == 0 else list(factors)
-        )
+        per_camera = [factors] * len(self) if np.ndim(factors) == 0 else list(factors)
         if len(per_camera) != len(self):
             raise ValueError(
                 f"CameraGroup.scaled: expected one factor or {len(self)}, got {len(per_camera)}"
