@@ -33,6 +33,7 @@ from bodymetry.capture.silhouette import segment_session
 from bodymetry.cli import DEMO_SESSION
 from bodymetry.config import ProcessConfig
 from bodymetry.estimation.fit import shared_body_model
+from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.process import fit_job, rig_models, run_fit_job
 
 #: Source path fragments -> category (first match wins).
@@ -97,14 +98,15 @@ def run() -> dict:
     n_frames = int(os.environ.get("BODYMETRY_PROFILE_FRAMES", "3"))
     config = ProcessConfig()
     session = load_session(DEMO_SESSION)
-    cameras = list(session.calibration())
+    resolution = WorkingResolution.choose(session.calibration(), config.working_person_px)
+    cameras = resolution.apply(session.calibration())
     models = rig_models(cameras, config)
     shared_body_model()  # loaded outside the profile
     kept = list(segment_session(session, keep_images=False))
     # Spread the frames over the recording (standing, walking, arms raised).
     step = max(1, len(kept) // n_frames)
     frames = kept[::step][:n_frames]
-    jobs = [fit_job(sil, cameras, models.path, config.fit) for sil in frames]
+    jobs = [fit_job(sil, cameras, resolution, models.path, config.fit) for sil in frames]
     profiler = cProfile.Profile()
     t0 = time.perf_counter()
     profiler.enable()

@@ -220,14 +220,14 @@ def _frame_task(
     (sil,) = segment_session(
         prepared.session,
         config=config.capture,
-        cameras=prepared.cameras,
+        cameras=prepared.calibrated,
         report=plan.report,
         models=bg,
         frames=[frame],
         read_method="seek",
         keep_images=False,
     )
-    fit = run_fit_job(fit_job(sil, prepared.cameras, models.path, config.fit))
+    fit = run_fit_job(fit_job(sil, prepared.cameras, prepared.resolution, models.path, config.fit))
     return write_frame(prepared.layout, fit)
 
 

@@ -19,6 +19,7 @@ from typing import Any
 from bodymetry.capture.silhouette import CaptureConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import PRESETS, FitConfig
+from bodymetry.estimation.resolution import DEFAULT_WORKING_PERSON_PX
 from bodymetry.estimation.training import TrainConfig, default_cache_dir
 from bodymetry.settings import apply_overrides, from_jsonable, to_jsonable
 
@@ -47,6 +48,12 @@ class ProcessConfig:
         Fit every ``frame_step``-th frame instead of the session's own
         ``frame_step`` (for clips too short for the default of 25); None keeps
         the session's.
+    working_person_px : float or None
+        Each camera's working resolution (:mod:`bodymetry.estimation.resolution`):
+        a camera in which a standing 1.8 m person at the world origin would be
+        at least twice this tall (pixels) is trained and fitted at ``1/k`` of
+        its resolution, ``k = floor(person_px / working_person_px)``. None
+        (``--set working_person_px=null``) keeps every camera at full resolution.
     workers : int or None
         Worker processes (None: one per core).
     cache_dir : Path or None
@@ -62,6 +69,7 @@ class ProcessConfig:
     fit: FitConfig = field(default_factory=FitConfig)
     training: TrainConfig = field(default_factory=TrainConfig)
     frame_step: int | None = None
+    working_person_px: float | None = DEFAULT_WORKING_PERSON_PX
     workers: int | None = None
     cache_dir: Path | None = None
     review: bool = True
@@ -72,6 +80,11 @@ class ProcessConfig:
             raise InputError(f"quality: expected one of {', '.join(PRESETS)}, got {self.quality!r}")
         if self.frame_step is not None and self.frame_step < 1:
             raise InputError(f"frame_step: expected >= 1, got {self.frame_step}")
+        if self.working_person_px is not None and not self.working_person_px > 0:
+            raise InputError(
+                f"working_person_px: expected a height in pixels > 0 or null, "
+                f"got {self.working_person_px}"
+            )
         if self.workers is not None and self.workers < 1:
             raise InputError(f"workers: expected >= 1, got {self.workers}")
         if self.pdf and not self.review:

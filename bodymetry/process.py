@@ -9,6 +9,12 @@ arrays and mesh before its record (``frames/FFFFFF.json``, which marks it
 done), so a killed run resumes from the frames it finished. The layout and
 schema of the run folder are :mod:`bodymetry.estimation.records`
 (docs/outputs.md).
+
+Training and the fit work at each camera's working resolution
+(:mod:`bodymetry.estimation.resolution`, chosen from the calibration by
+:func:`prepare_run`): the models are trained with the working cameras, and
+the observed silhouettes, segmented at the cameras' resolution, are
+downscaled to it (:func:`fit_job`) before the fit and the record.
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ from bodymetry.estimation.records import (
     SessionInfo,
     summarize,
 )
+from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.training import DiscriminativeModels, cached_models_path, load_or_train
 from bodymetry.fileio import save_npz, write_json_atomic
 from bodymetry.preflight import check_session
@@ -108,10 +115,11 @@ class FitJob:
     Attributes
     ----------
     frame : int
-    masks : list of (H_c, W_c) bool
-        Observed silhouettes, camera order.
+    masks : list of (h_c, w_c) bool
+        Observed silhouettes at the working resolution, camera order.
     flags : list of list of str
     cameras : list of Camera
+        The working cameras.
     models_path : Path
         The rig's cached discriminative models.
     fit : FitConfig
@@ -135,17 +143,30 @@ def run_fit_job(job: FitJob) -> FrameFit:
 
 
 def fit_job(
-    sil: SilhouetteFrame, cameras: list[Camera], models_path: Path, fit: FitConfig
+    sil: SilhouetteFrame,
+    cameras: list[Camera],
+    resolution: WorkingResolution,
+    models_path: Path,
+    fit: FitConfig,
 ) -> FitJob:
-    """The job of one segmented frame."""
+    """The job of one segmented frame: its silhouettes brought to the working resolution.
+
+    Parameters
+    ----------
+    sil : SilhouetteFrame
+        Masks (H_c, W_c) at the cameras' own resolution (capture).
+    cameras : list of Camera
+        The working cameras (:attr:`PreparedRun.cameras`), camera order.
+    resolution : WorkingResolution
+        Their factors (:attr:`PreparedRun.resolution`); each mask is
+        area-averaged and thresholded at 0.5
+        (:func:`bodymetry.estimation.resolution.downscale_mask`).
+    models_path : Path
+    fit : FitConfig
+    """
+    masks = resolution.downscale([c.name for c in cameras], sil.masks)
     return FitJob(
-        sil.frame,
-        list(sil.masks),
-        [list(f) for f in sil.flags],
-        cameras,
-        models_path,
-        fit,
-        sil.landmarks,
+        sil.frame, masks, [list(f) for f in sil.flags], cameras, models_path, fit, sil.landmarks
     )
 
 
@@ -222,7 +243,14 @@ class PreparedRun:
     session : Session
     layout : RunLayout
     cameras : list of Camera
+        The working cameras (session order): the calibration's cameras at
+        their working resolution, what training and the fit use.
     calibration_source : str
+    resolution : WorkingResolution
+        Each camera's working resolution (recorded in ``results.json``).
+    calibrated : list of Camera
+        The calibration's cameras at the videos' resolution: what capture
+        uses (its silhouettes and landmarks are at that resolution).
     warnings : tuple of str
         The up-front check's warnings.
     """
@@ -231,6 +259,8 @@ class PreparedRun:
     layout: RunLayout
     cameras: list[Camera]
     calibration_source: str
+    resolution: WorkingResolution
+    calibrated: list[Camera]
     warnings: tuple[str, ...] = ()
 
 
@@ -242,7 +272,8 @@ def prepare_run(
     *,
     restart: bool = False,
 ) -> PreparedRun:
-    """Check the session, create or resume the run folder and resolve the cameras.
+    """Check the session, create or resume the run folder, resolve the cameras and
+    choose their working resolution (``config.working_person_px``).
 
     Every problem with the inputs and the output folder is listed before any
     long work, and before the run folder is created (a bad session leaves
@@ -270,11 +301,14 @@ def prepare_run(
     prepare_run_folder(layout.folder, session, config, restart=restart)
     layout.frames_dir.mkdir(parents=True, exist_ok=True)
     resolved = resolve_cameras(session, layout.folder, progress)
+    resolution = WorkingResolution.choose(resolved.cameras, config.working_person_px)
     return PreparedRun(
         session,
         layout,
-        resolved.cameras,
+        resolution.apply(resolved.cameras),
         resolved.source,
+        resolution,
+        list(resolved.cameras),
         tuple(str(w) for w in report.warnings),
     )
 
@@ -305,7 +339,11 @@ def rig_models(
     progress: Progress | None = None,
     workers: int | None = None,
 ) -> RigModels:
-    """Load the rig's models from the cache, training them first if needed."""
+    """Load the rig's models from the cache, training them first if needed.
+
+    ``cameras`` are the working cameras (:attr:`PreparedRun.cameras`): the
+    training set is rendered at their sizes, and the cache key is theirs.
+    """
     t0 = time.perf_counter()
     models, reused = load_or_train(
         cameras,
@@ -357,6 +395,7 @@ def finish_run(
         ground_truth=_ground_truth(session),
         camera_frames=camera_frames,
         warnings=(*prepared.warnings, *warnings),
+        working_resolution=prepared.resolution,
     )
     write_json_atomic(prepared.layout.results, results.to_json())
     if config.review:
@@ -406,11 +445,13 @@ def process_session(
     pending = []
     n_kept = 0
     for sil in segment_session(
-        prepared.session, config=config.capture, cameras=prepared.cameras, keep_images=False
+        prepared.session, config=config.capture, cameras=prepared.calibrated, keep_images=False
     ):
         n_kept += 1
         if sil.frame not in done:
-            pending.append(fit_job(sil, prepared.cameras, models.path, config.fit))
+            pending.append(
+                fit_job(sil, prepared.cameras, prepared.resolution, models.path, config.fit)
+            )
     t_sil = time.perf_counter() - t1
     if progress:
         progress("frames", len(done), n_kept)

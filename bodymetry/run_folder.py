@@ -113,7 +113,9 @@ def session_fingerprint(session: Session) -> str:
 def config_fingerprint(config: ProcessConfig) -> str:
     """A hash of the settings that change the results (not workers, cache or review)."""
     data = config.to_json()
-    relevant = {k: data[k] for k in ("quality", "fit", "training", "frame_step")}
+    relevant = {
+        k: data[k] for k in ("quality", "fit", "training", "frame_step", "working_person_px")
+    }
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
 
 

@@ -75,6 +75,43 @@ class Camera:
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "size", (int(self.size[0]), int(self.size[1])))
 
+    def scaled(self, factor: float) -> Camera:
+        """The same camera imaging at ``factor`` times the resolution.
+
+        The intrinsics follow the pixel-centre convention: a pixel centre ``x``
+        of this image lies at ``x' = (x + 0.5) * factor - 0.5`` in the scaled
+        one, so ``f' = f * factor`` and ``c' = (c + 0.5) * factor - 0.5``;
+        skew scales with the focal lengths; the distortion (which acts on
+        normalized coordinates) and the pose are unchanged. The image size is
+        rounded (at least 1 pixel): a world point projects to exactly the
+        scaled pixel, whatever the rounding of the size.
+
+        Parameters
+        ----------
+        factor : float
+            Resolution scale, > 0 (0.5: half the width and height).
+
+        Returns
+        -------
+        Camera
+            Same name, extrinsics and distortion; ``size`` about ``factor`` times.
+
+        Raises
+        ------
+        ValueError
+            If ``factor`` is not a positive finite number.
+        """
+        if not (isinstance(factor, (int, float, np.integer, np.floating)) and 0 < factor < np.inf):
+            raise ValueError(
+                f"camera {self.name!r}: scale factor must be a positive number, got {factor!r}"
+            )
+        K = self.K.copy()
+        K[:2] *= factor
+        K[:2, 2] += 0.5 * factor - 0.5
+        w, h = self.size
+        size = (max(1, round(w * factor)), max(1, round(h * factor)))
+        return Camera(self.name, size, K, self.dist, self.R, self.t)
+
     @property
     def center(self) -> np.ndarray:
         """Camera centre in world coordinates (3,)."""
@@ -358,6 +395,24 @@ class CameraGroup:
         if missing:
             raise KeyError(f"no cameras named {missing}; cameras are {list(self.names)}")
         return CameraGroup([self._cameras[self._index[n]] for n in names])
+
+    def scaled(self, factors: float | Sequence[float]) -> CameraGroup:
+        """The group with every camera at ``factors`` times its resolution.
+
+        Parameters
+        ----------
+        factors : float or sequence of C float
+            One factor for every camera, or one per camera (camera order);
+            see :meth:`Camera.scaled`.
+        """
+        per_camera = [factors] * len(self) if np.ndim(factors) == 0 else list(factors)
+        if len(per_camera) != len(self):
+            raise ValueError(
+                f"CameraGroup.scaled: expected one factor or {len(self)}, got {len(per_camera)}"
+            )
+        return CameraGroup(
+            [cam.scaled(f) for cam, f in zip(self._cameras, per_camera, strict=True)]
+        )
 
     def __repr__(self) -> str:
         return f"CameraGroup({list(self.names)})"

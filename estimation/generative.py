@@ -118,23 +118,6 @@ class Observation:
     boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), int))
 
 
-def scaled_camera(camera: Camera, scale: float) -> Camera:
-    """The same camera with its image resampled by ``scale``."""
-    K = camera.K.copy()
-    K[:2] *= scale
-    # Pixel centres: x' = (x + 0.5) * s - 0.5.
-    K[:2, 2] += 0.5 * scale - 0.5
-    w, h = camera.size
-    return Camera(
-        camera.name,
-        (max(1, round(w * scale)), max(1, round(h * scale))),
-        K,
-        camera.dist,
-        camera.R,
-        camera.t,
-    )
-
-
 def prepare_observation(
     cameras: Sequence[Camera], masks: Sequence[np.ndarray] | np.ndarray, scale: float
 ) -> Observation:
@@ -155,7 +138,7 @@ def prepare_observation(
         If the masks do not match the cameras in number or size.
     """
     masks = per_camera_masks(cameras, masks)
-    small_cams = [scaled_camera(c, scale) for c in cameras]
+    small_cams = [c.scaled(scale) for c in cameras]
     small, dist, area, valid, boxes = [], [], [], [], []
     for cam, mask in zip(small_cams, masks, strict=True):
         w, h = cam.size

@@ -21,8 +21,10 @@ from typing import Any
 
 import numpy as np
 
+from bodymetry.calibration.camera import Camera
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyState
+from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.fileio import load_npz, read_text_limited
 
 __all__ = [
@@ -611,6 +613,10 @@ class RunResults:
         with none contributed nothing: covered, black, or no person in view).
     warnings : tuple of str
         What the user should know about the run (also logged).
+    working_resolution : WorkingResolution or None
+        The resolution each camera was trained and fitted at (the recorded
+        silhouettes are at it); None for runs recorded before working
+        resolutions, which worked at the cameras' own resolution.
     """
 
     session: SessionInfo
@@ -622,10 +628,25 @@ class RunResults:
     ground_truth: dict[str, Any] | None = None
     camera_frames: dict[str, int] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
+    working_resolution: WorkingResolution | None = None
 
     @property
     def ok_frames(self) -> list[FrameRecord]:
         return [r for r in self.frames if r.ok]
+
+    def working_cameras(self, cameras: Sequence[Camera]) -> list[Camera]:
+        """The cameras the run was trained and fitted with, from its calibrated ones.
+
+        The one place a reader of a run turns the run's ``calibration.yaml``
+        into the cameras of its recorded silhouettes.
+
+        Raises
+        ------
+        InputError
+            When the calibration does not match the recorded working resolution.
+        """
+        resolution = self.working_resolution or WorkingResolution.full(cameras)
+        return resolution.apply(cameras)
 
     @property
     def fitted_frames(self) -> list[FrameRecord]:
@@ -646,6 +667,8 @@ class RunResults:
             "camera_frames": self.camera_frames,
             "warnings": list(self.warnings),
         }
+        if self.working_resolution is not None:
+            out["working_resolution"] = self.working_resolution.to_json()
         if self.ground_truth is not None:
             out["ground_truth"] = self.ground_truth
         return out
@@ -690,6 +713,13 @@ class RunResults:
             camera_frames={k: int(v) for k, v in data.get("camera_frames", {}).items()},
             warnings=tuple(str(w) for w in data.get("warnings", [])),
             ground_truth=data.get("ground_truth"),
+            working_resolution=(
+                WorkingResolution.from_json(
+                    data["working_resolution"], f"{where}: working_resolution"
+                )
+                if data.get("working_resolution") is not None
+                else None
+            ),
         )
 
     @classmethod

@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import NU, POSE_DIM, THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import YAW
-from bodymetry.estimation.generative import scaled_camera, state_bounds
+from bodymetry.estimation.generative import state_bounds
 from bodymetry.estimation.projection import fill_silhouette, per_camera_masks
 
 
@@ -253,14 +253,14 @@ def prepare_contours(
         If the masks do not match the cameras in number or size.
     """
     masks = per_camera_masks(cameras, masks)
-    small = [scaled_camera(c, scale) for c in cameras]
+    small = [c.scaled(scale) for c in cameras]
     points, normals, trees = [], [], []
     for mask in masks:
         p = boundary_points(mask)
         if len(p) > max_points:
             p = p[np.linspace(0, len(p) - 1, max_points).round().astype(int)]
         normals.append(outline_normals(mask, p))
-        # Pixel centres map as x' = (x + 0.5) s - 0.5 (see scaled_camera).
+        # Pixel centres map as x' = (x + 0.5) s - 0.5 (see Camera.scaled).
         points.append((p + 0.5) * scale - 0.5)
         trees.append(cKDTree(points[-1]) if len(p) >= 10 else None)
     centers = np.stack([c.center for c in cameras])
@@ -391,7 +391,7 @@ class _ContourCost:
         self.map = full_from_lod(model) if full else None
         self._last: tuple[bytes, np.ndarray] | None = None
         originals = obs.originals or obs.cameras
-        self.visibility = [scaled_camera(c, config.visibility_scale) for c in originals]
+        self.visibility = [c.scaled(config.visibility_scale) for c in originals]
 
     def vertices(self, Y: np.ndarray, lod: bool | None = None) -> np.ndarray:
         """(B, V, 3) vertices of states (B, 49): the residual mesh, or the given one."""

@@ -35,6 +35,7 @@ import jinja2
 import numpy as np
 
 from bodymetry import __version__
+from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.fit import shared_body_model
@@ -97,6 +98,14 @@ def select_overlay_frames(run: RunData, n: int = OVERLAY_FRAMES) -> list[int]:
     if worst.frame not in frames:
         frames.append(worst.frame)
     return sorted(frames)
+
+
+def _size_text(camera: Camera, working: Camera) -> str:
+    """``"1080×1920"``, or ``"1080×1920 (working 360×640)"`` when the run worked below it."""
+    text = f"{camera.size[0]}×{camera.size[1]}"
+    if working.size != camera.size:
+        text += f" (working {working.size[0]}×{working.size[1]})"
+    return text
 
 
 def overlay_row(run: RunData, view: FrameView) -> OverlayRow | None:
@@ -285,12 +294,14 @@ def calibration_summary(run: RunData) -> dict[str, Any]:
     elif quality:
         out["rms_px"] = quality.get("overall", {}).get("rms_px")
         per_camera = {k: v for k, v in quality.items() if k != "overall" and isinstance(v, dict)}
-    for cam in run.cameras:
+    # The calibration's own cameras (its pixels), with the working size beside
+    # the image size when the run worked below it.
+    for cam, work in zip(run.calibrated_cameras, run.cameras, strict=True):
         fig = per_camera.get(cam.name, {})
         out["cameras"].append(
             {
                 "name": cam.name,
-                "size": f"{cam.size[0]}×{cam.size[1]}",
+                "size": _size_text(cam, work),
                 "fx": cam.K[0, 0],
                 "fy": cam.K[1, 1],
                 "cx": cam.K[0, 2],
@@ -405,7 +416,13 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
             "frame_step": session.frame_step,
             # Every distinct camera size, in camera order (rigs may mix camera models).
             "image_size": (
-                ", ".join(dict.fromkeys(f"{c.size[0]}×{c.size[1]}" for c in run.cameras)) or "?"
+                ", ".join(
+                    dict.fromkeys(
+                        _size_text(c, w)
+                        for c, w in zip(run.calibrated_cameras, run.cameras, strict=True)
+                    )
+                )
+                or "?"
             ),
         },
         "frames": {

@@ -7,6 +7,13 @@ model silhouettes, the last annealing layer). The review reads these; it
 does not segment or project again. Only the camera images come from the
 session's videos (decoded, not processed); when the session folder has moved
 away, the review has no images, with a warning.
+
+Everything the review shows is at each camera's working resolution
+(:mod:`bodymetry.estimation.resolution`, recorded in ``results.json``): the
+recorded silhouettes are, :attr:`RunData.cameras` are the working cameras
+(:meth:`RunResults.working_cameras` of the run's ``calibration.yaml``) and the
+camera images are area-downscaled to it when read (:func:`frame_views`), so
+overlays, recordings and report line up with what the fit saw.
 """
 
 from __future__ import annotations
@@ -17,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import Camera
@@ -48,7 +56,10 @@ class RunData:
     results : RunResults
         ``results.json``.
     cameras : list of Camera
-        The cameras the run was fitted with (empty when the run has none recorded).
+        The cameras the run was fitted with, at their working resolution
+        (empty when the run has none recorded).
+    calibrated_cameras : list of Camera
+        The same cameras at their own resolution (the run's ``calibration.yaml``).
     calibration_source : str
         Where the run's cameras came from (a file path), or why there are none.
     calibration_report : dict or None
@@ -64,6 +75,7 @@ class RunData:
     folder: Path
     results: RunResults
     cameras: list[Camera] = field(default_factory=list)
+    calibrated_cameras: list[Camera] = field(default_factory=list)
     calibration_source: str = ""
     calibration_report: dict[str, Any] | None = None
     calibration_quality: dict[str, Any] | None = None
@@ -153,6 +165,7 @@ def load_run(folder: str | Path) -> RunData:
             session_path,
         )
     cameras: list[Camera] = []
+    calibrated: list[Camera] = []
     quality = None
     source = "no calibration recorded in the run"
     if layout.calibration.is_file():
@@ -160,9 +173,11 @@ def load_run(folder: str | Path) -> RunData:
             calib = read_calibration(layout.calibration)
             names = results.session.cameras
             group = calib.cameras.subset(names) if names else calib.cameras
-            cameras, quality = list(group), calib.quality
+            calibrated, quality = list(group), calib.quality
+            cameras = results.working_cameras(calibrated)
             source = results.calibration_source or str(layout.calibration)
         except InputError as exc:
+            cameras, calibrated = [], []
             log.warning("%s; the review has no cameras", exc)
     else:
         log.warning("%s: no calibration.yaml; the review has no camera views", layout.folder)
@@ -170,6 +185,7 @@ def load_run(folder: str | Path) -> RunData:
         folder=layout.folder,
         results=results,
         cameras=cameras,
+        calibrated_cameras=calibrated,
         calibration_source=source,
         calibration_report=_optional_json(layout.calibration_report),
         calibration_quality=quality,
@@ -198,11 +214,12 @@ class FrameView:
     ----------
     record : FrameRecord
         The frame's record.
-    images : list of ((H, W, 3) uint8 BGR or None), length C
-        Camera images (empty list when the session's videos are not available).
-    observed : list of ((H, W) bool or None), length C
+    images : list of ((h, w, 3) uint8 BGR or None), length C
+        Camera images at the working resolution (empty list when the
+        session's videos are not available).
+    observed : list of ((h, w) bool or None), length C
         Observed silhouettes as the fit saw them (empty list when not recorded).
-    model : list of ((H, W) bool or None), length C, or None
+    model : list of ((h, w) bool or None), length C, or None
         The fitted model's silhouette in every camera (None for a failed frame).
     vertices : (V, 3) float32 or None
         The fitted body at full resolution, metres, world frame.
@@ -324,4 +341,20 @@ def _images(run: RunData, frames: Sequence[int]) -> Iterator[list[np.ndarray | N
         except (InputError, OSError, ValueError) as exc:
             log.warning("%s: reading images failed (%s)", run.session_folder, exc)
             frame_set, sets = None, iter(())
-        yield list(frame_set.images) if frame_set is not None else []
+        if frame_set is None:
+            yield []
+        elif run.cameras:
+            yield [
+                _working_image(image, cam)
+                for image, cam in zip(frame_set.images, run.cameras, strict=True)
+            ]
+        else:  # no recorded cameras: the images as decoded
+            yield list(frame_set.images)
+
+
+def _working_image(image: np.ndarray | None, camera: Camera) -> np.ndarray | None:
+    """A camera image (H, W, 3) area-downscaled to ``camera.size`` (the working camera);
+    unchanged when it already has that size."""
+    if image is None or image.shape[1::-1] == tuple(camera.size):
+        return image
+    return cv2.resize(image, camera.size, interpolation=cv2.INTER_AREA)

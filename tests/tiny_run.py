@@ -8,8 +8,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
+from bodymetry.calibration.camera import Camera
 from bodymetry.capture.session import Session
 from bodymetry.estimation.training import TrainConfig
+from bodymetry.studio.rig import look_at
 from bodymetry.studio.synth import SynthConfig, synthesize
 
 TINY_TRAIN = TrainConfig(
@@ -53,3 +57,26 @@ def tiny_train_overrides() -> list[str]:
         f"training.{name}={list(value) if isinstance(value, tuple) else value}"
         for name, value in TINY_TRAIN.__dict__.items()
     ]
+
+
+def portrait_rig(person_px: float = 960.0, distance: float = 3.5) -> list[Camera]:
+    """Four portrait cameras like the Pose2Sim demo's: 1080x1920 and 1088x1920 alternating.
+
+    Each stands ``distance`` metres from the world origin (azimuths 45°, 135°, ...,
+    1.2 m high) looking at (0, 0, 0.9), with a mild lens and the focal length
+    that makes a standing 1.8 m person at the origin ``person_px`` tall.
+    """
+    cameras = []
+    for k in range(4):
+        azimuth = np.deg2rad(45.0 + 90.0 * k)
+        center = np.array([distance * np.cos(azimuth), distance * np.sin(azimuth), 1.2])
+        R, t = look_at(center, np.array([0.0, 0.0, 0.9]))
+        w, h = (1080, 1920) if k % 2 == 0 else (1088, 1920)
+        K = np.array([[1000.0, 0.0, w / 2 - 0.5], [0.0, 1000.0, h / 2 - 0.5], [0.0, 0.0, 1.0]])
+        dist = [-0.05, 0.01, 0.0, 0.0, 0.0]
+        probe = Camera(f"cam_{k:02d}", (w, h), K, dist, R, t)
+        ends = probe.project(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.8]]))
+        f = 1000.0 * person_px / np.linalg.norm(ends[1] - ends[0])
+        K[:2, :2] *= f / 1000.0
+        cameras.append(Camera(probe.name, (w, h), K, dist, R, t))
+    return cameras

@@ -12,6 +12,7 @@ from bodymetry.cameras import load_rig
 from bodymetry.cli.common import DEMO_SESSION, console, friendly_errors
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.resolution import DEFAULT_WORKING_PERSON_PX, WorkingResolution
 from bodymetry.estimation.training import load_or_train
 from bodymetry.estimation.uncalibrated import compare_photos, estimate_photo, read_mask
 
@@ -62,7 +63,9 @@ def estimate_image(
             raise InputError(
                 f"{mask}: mask is {masks[0].shape[::-1]} px but {image} is {photo.shape[1::-1]}"
             )
-    cameras = load_rig(rig or DEMO_SESSION)
+    calibrated = load_rig(rig or DEMO_SESSION)
+    # The models `process` and `train` cache for this rig (its working cameras).
+    cameras = WorkingResolution.choose(calibrated, DEFAULT_WORKING_PERSON_PX).apply(calibrated)
     with console.status("loading (or training, the first time: minutes) the discriminative models"):
         models, _ = load_or_train(cameras)
     body = BodyModel.load()

@@ -10,6 +10,7 @@ from rich.table import Table
 
 from bodymetry.cameras import load_rig
 from bodymetry.cli.common import cache_option, console, friendly_errors, labelled_progress
+from bodymetry.estimation.resolution import DEFAULT_WORKING_PERSON_PX, WorkingResolution
 from bodymetry.estimation.training import (
     HEADLINE_METRICS,
     TrainConfig,
@@ -31,6 +32,14 @@ __all__ = ["train"]
 )
 @click.option("--seed", default=0, show_default=True, type=int, help="Seeds the training draws.")
 @click.option("--workers", default=None, type=int, help="Worker processes (default: all cores).")
+@click.option(
+    "--working-person-px",
+    default=DEFAULT_WORKING_PERSON_PX,
+    show_default=True,
+    type=click.FloatRange(min=0),
+    help="Train each camera at its working resolution, as `process` with the same "
+    "working_person_px does (docs/discriminative.md); 0: full resolution.",
+)
 @cache_option
 @click.option("--retrain", is_flag=True, help="Train even if a cached model fits the rig.")
 @click.option(
@@ -43,12 +52,15 @@ def train(
     n_test: int,
     seed: int,
     workers: int | None,
+    working_person_px: float,
     cache_dir: Path | None,
     retrain: bool,
     as_json: bool,
 ) -> None:
     """Train the discriminative models for the rig of SOURCE (a session or calibration.yaml)."""
-    cameras = load_rig(source)
+    calibrated = load_rig(source)
+    resolution = WorkingResolution.choose(calibrated, working_person_px or None)
+    cameras = resolution.apply(calibrated)
     config = TrainConfig(n_train=n_train, n_test=n_test, seed=seed)
     cache = cache_dir or default_cache_dir()
     if retrain:
@@ -59,6 +71,7 @@ def train(
     metrics = {k: v for k, v in models.metrics.items() if k not in ("selection",)}
     metrics["reused_cache"] = reused
     metrics["cache_key"] = models.key
+    metrics["working_resolution"] = resolution.to_json()
     if as_json:
         click.echo(json.dumps(metrics))
         return

@@ -10,6 +10,8 @@ from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import PRESETS, FitConfig
 from bodymetry.estimation.refinement import RefineConfig
+from bodymetry.estimation.resolution import DEFAULT_WORKING_PERSON_PX
+from bodymetry.run_folder import config_fingerprint
 from bodymetry.settings import apply_overrides, parse_override
 
 
@@ -100,3 +102,18 @@ def test_overrides_leave_the_original_untouched():
     base = FitConfig()
     changed = apply_overrides(base, ["refinement.iterations=3"])
     assert base.refinement == RefineConfig() and changed.refinement.iterations == 3
+
+
+def test_working_person_px_is_a_setting_and_part_of_the_fingerprint():
+    base = ProcessConfig()
+    assert base.working_person_px == DEFAULT_WORKING_PERSON_PX
+    assert base.with_overrides(["working_person_px=480"]).working_person_px == 480.0
+    assert base.with_overrides(["working_person_px=null"]).working_person_px is None
+    assert base.to_json()["working_person_px"] == DEFAULT_WORKING_PERSON_PX
+    assert ProcessConfig.from_json(base.to_json()) == base
+    with pytest.raises(InputError, match="working_person_px: expected a height in pixels > 0"):
+        base.with_overrides(["working_person_px=0"])
+    # Another target changes the results: a run of it does not resume this one.
+    other = base.with_overrides(["working_person_px=200"])
+    assert config_fingerprint(other) != config_fingerprint(base)
+    assert config_fingerprint(base.with_overrides(["workers=1"])) == config_fingerprint(base)

@@ -202,3 +202,51 @@ def test_five_coefficient_lens_projects_bit_for_bit_like_the_general_model() -> 
     eight = Camera("a", (640, 480), K, [*DISTORTIONS[5], 0.0, 0.0, 1e-300], R, five.t)
     pts = rng.uniform(-1.0, 1.0, (500, 3))
     np.testing.assert_array_equal(five.project(pts), eight.project(pts))
+
+
+@pytest.mark.parametrize("factor", [0.5, 1 / 3, 0.25, 1.25])
+def test_scaled_camera_projects_to_the_scaled_pixel(factor: float) -> None:
+    """A world point lands on the same spot of the image: x' = (x + 0.5) s - 0.5."""
+    for cam in make_rig(3, seed=2):
+        cam = Camera(cam.name, (1088, 1920), cam.K, DISTORTIONS[5], cam.R, cam.t)
+        small = cam.scaled(factor)
+        pts = _volume_points(50, seed=3)
+        np.testing.assert_allclose(
+            small.project(pts), (cam.project(pts) + 0.5) * factor - 0.5, atol=1e-9
+        )
+        assert small.size == (round(1088 * factor), round(1920 * factor))
+        np.testing.assert_array_equal(small.dist, cam.dist)
+        np.testing.assert_array_equal(small.R, cam.R)
+        np.testing.assert_array_equal(small.t, cam.t)
+        assert small.name == cam.name
+
+
+def test_scaled_camera_round_trip_and_identity() -> None:
+    cam = make_rig(1)[0]
+    assert cam.scaled(1.0).size == cam.size
+    np.testing.assert_array_equal(cam.scaled(1.0).K, cam.K)
+    back = cam.scaled(1 / 3).scaled(3.0)
+    np.testing.assert_allclose(back.K, cam.K, atol=1e-9)
+    pts = _volume_points(20, seed=1)
+    np.testing.assert_allclose(back.project(pts), cam.project(pts), atol=1e-9)
+    # A working image keeps the pixels of the last partial block: 1088 / 3 -> 363.
+    portrait = Camera("p", (1088, 1920), K)
+    assert portrait.scaled(1 / 3).size == (363, 640)
+    assert Camera("q", (1080, 1920), K).scaled(1 / 3).size == (360, 640)
+
+
+@pytest.mark.parametrize("factor", [0.0, -1.0, float("nan"), float("inf"), "2"])
+def test_scaled_camera_rejects_bad_factors(factor) -> None:
+    with pytest.raises(ValueError, match="scale factor must be a positive number"):
+        make_rig(1)[0].scaled(factor)
+
+
+def test_group_scaled_per_camera_and_one_factor() -> None:
+    group = make_rig(3)
+    half = group.scaled(0.5)
+    assert half.names == group.names
+    assert [c.size for c in half] == [(320, 240)] * 3
+    mixed = group.scaled([1.0, 0.5, 0.25])
+    assert [c.size for c in mixed] == [(640, 480), (320, 240), (160, 120)]
+    with pytest.raises(ValueError, match="expected one factor or 3, got 2"):
+        group.scaled([1.0, 0.5])

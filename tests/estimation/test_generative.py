@@ -13,7 +13,6 @@ from bodymetry.estimation.generative import (
     anneal,
     chamfer_costs,
     prepare_observation,
-    scaled_camera,
 )
 from bodymetry.estimation.projection import fill_silhouette, project_silhouettes
 from bodymetry.studio.rig import studio_rig
@@ -30,14 +29,6 @@ def setup():
     verts = model.pose(truth, lod=True).vertices[0]
     masks = project_silhouettes(verts, model.faces(lod=True), cameras)
     return model, cameras, truth, verts, masks
-
-
-def test_scaled_camera_keeps_the_image_geometry():
-    cam = studio_rig(1, (640, 480), seed=0)[0]
-    half = scaled_camera(cam, 0.5)
-    pts = np.random.default_rng(0).uniform(-1, 1, (20, 3)) + [0, 0, 1]
-    np.testing.assert_allclose((half.project(pts) + 0.5) * 2 - 0.5, cam.project(pts), atol=1e-9)
-    assert half.size == (320, 240)
 
 
 def test_chamfer_cost_is_zero_for_the_true_body_and_grows_with_error(setup):

@@ -23,7 +23,6 @@ from bodymetry.estimation.generative import (
     anneal,
     chamfer_costs,
     prepare_observation,
-    scaled_camera,
 )
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.raster import coverage, coverage_views
@@ -40,7 +39,7 @@ from bodymetry.studio.rig import studio_rig
 def mixed_rig(size: tuple[int, int] = (160, 120), seed: int = 4, n: int = 3) -> list:
     """``n`` (2 or 3) studio cameras of different image sizes (see the module docstring)."""
     cams = studio_rig(n, size, seed=seed)
-    cams[1] = scaled_camera(cams[1], 1.25)
+    cams[1] = cams[1].scaled(1.25)
     if n > 2:
         w, h = cams[2].size
         cams[2] = dataclasses.replace(cams[2], size=(w, h + 8))
