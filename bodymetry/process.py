@@ -30,20 +30,33 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.io import save_calibration
 from bodymetry.cameras import resolve_cameras
+from bodymetry.capture.landmarks import (
+    LandmarkConfig,
+    principal_point_offsets,
+    triangulate_landmarks,
+)
 from bodymetry.capture.session import Session, load_session
 from bodymetry.capture.silhouette import SilhouetteFrame, segment_session
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
-from bodymetry.estimation.fit import MIN_PIXELS, FitConfig, FrameFit, fit_frame, shared_body_model
+from bodymetry.estimation.fit import (
+    MIN_PIXELS,
+    FitConfig,
+    FrameFit,
+    fit_frame,
+    session_gate,
+    shared_body_model,
+)
 from bodymetry.estimation.records import (
     FrameRecord,
     RunLayout,
@@ -65,6 +78,7 @@ __all__ = [
     "FitJob",
     "PreparedRun",
     "RigModels",
+    "check_calibration",
     "finish_run",
     "fit_job",
     "prepare_run",
@@ -252,7 +266,10 @@ class PreparedRun:
         The calibration's cameras at the videos' resolution: what capture
         uses (its silhouettes and landmarks are at that resolution).
     warnings : tuple of str
-        The up-front check's warnings.
+        The up-front check's warnings (and the calibration check's).
+    landmark_config : LandmarkConfig or None
+        Set when :func:`check_calibration` shifted cameras: the subject's
+        landmarks are then triangulated again through them.
     """
 
     session: Session
@@ -262,6 +279,18 @@ class PreparedRun:
     resolution: WorkingResolution
     calibrated: list[Camera]
     warnings: tuple[str, ...] = ()
+    landmark_config: LandmarkConfig | None = None
+
+    def landmarks(
+        self, views: Sequence[np.ndarray | None], recorded: np.ndarray | None
+    ) -> np.ndarray | None:
+        """A frame's 3D landmarks through the final cameras: ``recorded`` (capture's)
+        unless the calibration check shifted cameras, then triangulated again."""
+        if self.landmark_config is None or not views:
+            return recorded
+        if sum(v is not None for v in views) < 2:
+            return None
+        return triangulate_landmarks(self.calibrated, views, self.landmark_config)
 
 
 def prepare_run(
@@ -310,6 +339,46 @@ def prepare_run(
         resolution,
         list(resolved.cameras),
         tuple(str(w) for w in report.warnings),
+    )
+
+
+def check_calibration(
+    prepared: PreparedRun, view_landmarks: Sequence[Sequence], config: ProcessConfig
+) -> PreparedRun:
+    """Check the cameras against the subject's landmarks in all kept frames; shift the
+    principal point of a camera that is systematically off
+    (:func:`bodymetry.capture.landmarks.principal_point_offsets`).
+
+    A shifted camera is written to the run's ``calibration.yaml`` (the session's
+    file is never modified) and named in a warning (``results.json``). Without
+    landmarks (no segmenter) or with ``capture.landmarks.refine_calibration``
+    off, the run keeps the calibration as given.
+    """
+    cfg = config.capture.landmarks
+    frames = [v for v in view_landmarks if v]
+    if not cfg.refine_calibration or not frames:
+        return prepared
+    cameras, offsets = principal_point_offsets(prepared.calibrated, frames, cfg)
+    for offset in offsets:
+        log.info("%s", offset.describe())
+    applied = [o for o in offsets if o.applied]
+    if not applied:
+        return prepared
+    warnings = tuple(
+        f"{o.describe()}: the calibration does not fit this video, so its principal point "
+        "was shifted by that offset for this run (RUN/calibration.yaml; "
+        "--set capture.landmarks.refine_calibration=false keeps the calibration as given)"
+        for o in applied
+    )
+    for text in warnings:
+        log.warning("%s", text)
+    save_calibration(prepared.layout.calibration, CameraGroup(cameras))
+    return replace(
+        prepared,
+        calibrated=cameras,
+        cameras=prepared.resolution.apply(cameras),
+        warnings=(*prepared.warnings, *warnings),
+        landmark_config=cfg,
     )
 
 
@@ -369,7 +438,16 @@ def finish_run(
     A failure of the review is logged, never raised: the results are safe on disk.
     """
     session = prepared.session
-    ordered = tuple(records[f] for f in sorted(records))
+    gate, gated = session_gate([records[f] for f in sorted(records)], config.fit)
+    ordered = tuple(gated)
+    if gate.threshold < gate.min_iou:
+        log.info(
+            "%s: quality gate %.2f (the session's good frames score %.2f; min_iou %.2f)",
+            session.folder,
+            gate.threshold,
+            gate.reference,
+            gate.min_iou,
+        )
     camera_frames = {
         name: sum(r.person_pixels.get(name, 0) >= MIN_PIXELS for r in ordered)
         for name in session.camera_names
@@ -396,6 +474,7 @@ def finish_run(
         camera_frames=camera_frames,
         warnings=(*prepared.warnings, *warnings),
         working_resolution=prepared.resolution,
+        quality_gate=gate.to_json(),
     )
     write_json_atomic(prepared.layout.results, results.to_json())
     if config.review:
@@ -437,26 +516,39 @@ def process_session(
     config = config or ProcessConfig()
     t0 = time.perf_counter()
     prepared = prepare_run(session_path, out, config, progress, restart=restart)
-    models = rig_models(prepared.cameras, config, progress)
-    t_train = time.perf_counter() - t0
     layout = prepared.layout
     done = read_done_frames(layout)
-    t1 = time.perf_counter()
-    pending = []
+    pending: list[tuple[FitJob, tuple]] = []
+    view_landmarks = []
     n_kept = 0
     for sil in segment_session(
         prepared.session, config=config.capture, cameras=prepared.calibrated, keep_images=False
     ):
         n_kept += 1
+        view_landmarks.append(sil.view_landmarks)
         if sil.frame not in done:
-            pending.append(
-                fit_job(sil, prepared.cameras, prepared.resolution, models.path, config.fit)
-            )
-    t_sil = time.perf_counter() - t1
+            # Held at the working resolution (a long session's full-size masks are large);
+            # the cameras and models are set once the calibration check and training are done.
+            job = fit_job(sil, prepared.cameras, prepared.resolution, Path(), config.fit)
+            pending.append((job, sil.view_landmarks))
+    t_sil = time.perf_counter() - t0
+    prepared = check_calibration(prepared, view_landmarks, config)
+    t1 = time.perf_counter()
+    models = rig_models(prepared.cameras, config, progress)
+    t_train = time.perf_counter() - t1
+    jobs = [
+        replace(
+            job,
+            cameras=prepared.cameras,
+            models_path=models.path,
+            landmarks=prepared.landmarks(views, job.landmarks),
+        )
+        for job, views in pending
+    ]
     if progress:
         progress("frames", len(done), n_kept)
     t2 = time.perf_counter()
-    if pending:
+    if jobs:
         # fork: workers inherit the loaded modules (the spawn start method re-imports).
         ctx = mp.get_context("fork")
         with ProcessPoolExecutor(
@@ -465,7 +557,7 @@ def process_session(
             initializer=_die_with_parent,
             initargs=(os.getpid(),),
         ) as pool:
-            futures = [pool.submit(run_fit_job, job) for job in pending]
+            futures = [pool.submit(run_fit_job, job) for job in jobs]
             for fut in as_completed(futures):
                 fit = fut.result()
                 # As written (rounded): a fresh run and a resumed one summarize the same.

@@ -244,6 +244,10 @@ class SilhouetteFrame:
         The subject's body landmarks in the world frame, metres
         (:mod:`bodymetry.capture.landmarks`; NaN rows where too few views saw
         one); None without the segmenter or the cameras.
+    view_landmarks : tuple of ((33, 3) float or None), length C
+        Per camera the segmenter's landmarks (pixel x, pixel y, visibility);
+        None where the view found nobody or was inconsistent (empty tuple
+        without the segmenter).
     """
 
     frame: int
@@ -253,6 +257,7 @@ class SilhouetteFrame:
     images: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
     shadows: tuple[np.ndarray, ...] = field(default=(), repr=False)
     landmarks: np.ndarray | None = field(default=None, repr=False)
+    view_landmarks: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
 
     def stack(self) -> np.ndarray:
         """(C, H, W) bool masks, for rigs whose cameras all have one image size.
@@ -747,6 +752,9 @@ def segment_session(
                 images=fs.images if keep_images else (),
                 shadows=tuple(v.shadow for v in per_view),
                 landmarks=landmarks,
+                view_landmarks=tuple(v.landmarks for v in per_view)
+                if views.segmenter is not None
+                else (),
             )
             if on_frame is not None:
                 on_frame(out)

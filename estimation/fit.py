@@ -11,9 +11,11 @@ workers, run folders) is the application's (``bodymetry.process``).
 from __future__ import annotations
 
 import functools
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -99,7 +101,13 @@ class FitConfig:
         ``"poor fit: ..."`` and left out of the summary; its numbers stay in
         its record. On the demo the fits that found the person's pose score
         0.90-0.96, those stuck in a wrong pose or limb configuration 0.82-0.87
-        (their height errors are 11-53 mm, weight errors up to 25 kg).
+        (their height errors are 11-53 mm, weight errors up to 25 kg). The
+        session may lower it (:func:`session_gate`).
+    gate_margin, gate_floor : float
+        The session gate (:func:`session_gate`): when even the session's good
+        frames cannot reach ``min_iou`` (a real person in clothes is not the
+        body model), a frame passes within ``gate_margin`` of the session's
+        75th-percentile IoU, never below ``gate_floor``.
     annealing : AnnealingConfig
     refinement : RefineConfig
     """
@@ -109,6 +117,8 @@ class FitConfig:
     initial_particles: int = 400
     landmark_share: float = 0.5
     min_iou: float = 0.9
+    gate_margin: float = 0.03
+    gate_floor: float = 0.8
     annealing: AnnealingConfig = field(default_factory=AnnealingConfig)
     refinement: RefineConfig = field(default_factory=RefineConfig)
 
@@ -119,6 +129,11 @@ class FitConfig:
             raise ValueError(f"initial_particles: expected >= 1, got {self.initial_particles}")
         if not 0 <= self.min_iou <= 1:
             raise ValueError(f"min_iou: expected in [0, 1], got {self.min_iou}")
+        if not 0 <= self.gate_floor <= self.min_iou or not 0 <= self.gate_margin < 1:
+            raise ValueError(
+                "gate_floor, gate_margin: expected 0 <= gate_floor <= min_iou and "
+                f"0 <= gate_margin < 1, got {self.gate_floor}, {self.gate_margin}"
+            )
         if not 0 <= self.landmark_share < 1:
             raise ValueError(f"landmark_share: expected in [0, 1), got {self.landmark_share}")
 
@@ -342,11 +357,7 @@ def fit_frame(
             union = np.logical_or(model_masks[c], masks[c]).sum()
             iou[cam.name] = float(np.logical_and(model_masks[c], masks[c]).sum() / max(union, 1))
     mean_iou = float(np.mean(list(iou.values())))
-    status = (
-        "ok"
-        if mean_iou >= config.min_iou
-        else f"poor fit: mean silhouette IoU {mean_iou:.2f} < {config.min_iou:.2f}"
-    )
+    status = _gate_status(mean_iou, config.min_iou)
     record = FrameRecord(
         frame=int(frame),
         status=status,
@@ -381,6 +392,74 @@ def fit_frame(
         weights=result.weights,
     )
     return FrameFit(record, arrays, state)
+
+
+@dataclass(frozen=True)
+class SessionGate:
+    """The quality gate a session's frames were held to (:func:`session_gate`).
+
+    Attributes
+    ----------
+    threshold : float
+        The mean IoU a frame needed.
+    min_iou : float
+        The configured gate.
+    reference : float or None
+        The 75th percentile of the fitted frames' mean IoU (None: no fitted frame).
+    """
+
+    threshold: float
+    min_iou: float
+    reference: float | None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "threshold": round(self.threshold, 4),
+            "min_iou": self.min_iou,
+            "reference": None if self.reference is None else round(self.reference, 4),
+        }
+
+
+def session_gate(
+    records: Sequence[FrameRecord], config: FitConfig
+) -> tuple[SessionGate, list[FrameRecord]]:
+    """Hold a session's fitted frames to one gate, relative to its own good frames.
+
+    ``min_iou`` was set on studio sessions, whose silhouettes are the body
+    model's own: a correct fit scores 0.90-0.96 there. A real person in
+    clothes, seen through a learned segmenter, is not the model: on the
+    Pose2Sim demo every frame's fit is in the right pose (checked on the
+    overlays) and scores 0.82-0.85. So the gate is
+    ``min(min_iou, max(gate_floor, p75 - gate_margin))`` with p75 the 75th
+    percentile of the fitted frames' mean IoU: unchanged where the good frames
+    reach ``min_iou`` (the studio sessions), and otherwise a frame passes
+    when it is within ``gate_margin`` of the session's good frames. A frame
+    stuck in a wrong pose scores well below them in either case.
+
+    Returns
+    -------
+    SessionGate
+    list of FrameRecord
+        The records with their status set by that gate (fitted frames only;
+        the others keep theirs).
+    """
+    fitted = [r.mean_iou for r in records if r.fitted and math.isfinite(r.mean_iou)]
+    if not fitted:
+        return SessionGate(config.min_iou, config.min_iou, None), list(records)
+    reference = float(np.percentile(fitted, 75))
+    threshold = min(config.min_iou, max(config.gate_floor, reference - config.gate_margin))
+    out = []
+    for r in records:
+        if r.fitted and math.isfinite(r.mean_iou):
+            r = replace(r, status=_gate_status(r.mean_iou, threshold))
+        out.append(r)
+    return SessionGate(threshold, config.min_iou, reference), out
+
+
+def _gate_status(mean_iou: float, threshold: float) -> str:
+    if mean_iou >= threshold:
+        return "ok"
+    return f"poor fit: mean silhouette IoU {mean_iou:.2f} < {threshold:.2f}"
 
 
 @dataclass(frozen=True)

@@ -617,6 +617,10 @@ class RunResults:
         The resolution each camera was trained and fitted at (the recorded
         silhouettes are at it); None for runs recorded before working
         resolutions, which worked at the cameras' own resolution.
+    quality_gate : dict or None
+        The gate the frames' statuses were set by
+        (:func:`bodymetry.estimation.fit.session_gate`): ``threshold``,
+        ``min_iou``, ``reference``.
     """
 
     session: SessionInfo
@@ -629,6 +633,7 @@ class RunResults:
     camera_frames: dict[str, int] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
     working_resolution: WorkingResolution | None = None
+    quality_gate: dict[str, Any] | None = None
 
     @property
     def ok_frames(self) -> list[FrameRecord]:
@@ -669,6 +674,8 @@ class RunResults:
         }
         if self.working_resolution is not None:
             out["working_resolution"] = self.working_resolution.to_json()
+        if self.quality_gate is not None:
+            out["quality_gate"] = self.quality_gate
         if self.ground_truth is not None:
             out["ground_truth"] = self.ground_truth
         return out
@@ -713,6 +720,11 @@ class RunResults:
             camera_frames={k: int(v) for k, v in data.get("camera_frames", {}).items()},
             warnings=tuple(str(w) for w in data.get("warnings", [])),
             ground_truth=data.get("ground_truth"),
+            quality_gate=(
+                dict(data["quality_gate"])
+                if isinstance(data.get("quality_gate"), Mapping)
+                else None
+            ),
             working_resolution=(
                 WorkingResolution.from_json(
                     data["working_resolution"], f"{where}: working_resolution"
