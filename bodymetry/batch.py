@@ -56,6 +56,7 @@ from bodymetry.fileio import read_text_limited, write_json_atomic
 from bodymetry.process import (
     PreparedRun,
     RigModels,
+    check_calibration,
     finish_run,
     fit_job,
     prepare_run,
@@ -173,7 +174,18 @@ class SessionPlan:
 def _prepare_task(
     session_path: Path, out: Path, config: ProcessConfig, restart: bool
 ) -> PreparedRun:
-    return prepare_run(session_path, out, config, restart=restart)
+    prepared = prepare_run(session_path, out, config, restart=restart)
+    if not (config.capture.landmarks.refine_calibration and config.capture.uses_segmenter):
+        return prepared
+    # The calibration check needs every kept frame's landmarks before any frame is
+    # fitted (as in `process`); the frame tasks segment their frame again.
+    views = [
+        sil.view_landmarks
+        for sil in segment_session(
+            prepared.session, config=config.capture, cameras=prepared.calibrated, keep_images=False
+        )
+    ]
+    return check_calibration(prepared, views, config)
 
 
 def _train_task(prepared: PreparedRun, config: ProcessConfig) -> RigModels:
