@@ -129,9 +129,9 @@ class FitConfig:
             raise ValueError(f"initial_particles: expected >= 1, got {self.initial_particles}")
         if not 0 <= self.min_iou <= 1:
             raise ValueError(f"min_iou: expected in [0, 1], got {self.min_iou}")
-        if not 0 <= self.gate_floor <= self.min_iou or not 0 <= self.gate_margin < 1:
+        if not 0 <= self.gate_floor <= 1 or not 0 <= self.gate_margin < 1:
             raise ValueError(
-                "gate_floor, gate_margin: expected 0 <= gate_floor <= min_iou and "
+                "gate_floor, gate_margin: expected 0 <= gate_floor <= 1 and "
                 f"0 <= gate_margin < 1, got {self.gate_floor}, {self.gate_margin}"
             )
         if not 0 <= self.landmark_share < 1:

@@ -51,4 +51,11 @@ def test_unfitted_frames_keep_their_status():
     assert gate.reference is None and gate.threshold == 0.9
     assert out == [failed]
     with pytest.raises(ValueError, match="gate_floor"):
-        FitConfig(min_iou=0.7, gate_floor=0.8)
+        FitConfig(gate_floor=1.2)
+
+
+def test_a_gate_below_the_floor_is_kept():
+    # min_iou under gate_floor: the configured gate stands (it is the lower one).
+    gate, out = session_gate(_records([0.6, 0.55, 0.7]), FitConfig(min_iou=0.5))
+    assert gate.threshold == pytest.approx(0.5)
+    assert all(r.ok for r in out)

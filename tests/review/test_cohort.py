@@ -39,16 +39,17 @@ def _write_study(folder, sessions, **extra):
 
 
 def _pass_quality_gate(path, n_ok):
-    """Mark the first ``n_ok`` fitted frames of a run ``ok`` and summarize them again.
-
-    The tiny run's fits miss the quality gate (no measurements in its summary); a
-    cohort of such runs would compare nothing, so each copy gets its own used frames.
-    """
+    """Mark the first ``n_ok`` fitted frames of a run ``ok``, the other fitted ones
+    ``poor fit``, and summarize them again: each copy gets its own used frames
+    (whatever the tiny run's own quality gate decided)."""
     results = RunResults.read(path)
     fitted = [r.frame for r in results.fitted_frames][:n_ok]
     assert len(fitted) == n_ok, "the tiny run has fewer fitted frames than the test needs"
     frames = tuple(
-        dataclasses.replace(r, status="ok") if r.frame in fitted else r for r in results.frames
+        dataclasses.replace(r, status="ok" if r.frame in fitted else "poor fit: test")
+        if r.fitted
+        else r
+        for r in results.frames
     )
     results = dataclasses.replace(
         results, frames=frames, summary=summarize(frames), warnings=("a warning",)
