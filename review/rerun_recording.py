@@ -19,6 +19,9 @@ the start of the recording):
 ``/world/body/particles``
     the root positions τ of the last annealing layer's particles (the cloud's
     spread), coloured by weight.
+``/world/landmarks``
+    the subject's body landmarks that capture triangulated from the person
+    segmenter's detections (what the landmark pose proposals aimed at), per frame.
 ``/metrics/biometrics/<name>/{discriminative,generative,actual}``
     every measurement per stage, and the ground truth when known.
 ``/metrics/likelihood/layer_NN``
@@ -275,6 +278,12 @@ class RerunWriter:
             rec.log(
                 "/world/body/keypoints",
                 rr.Points3D(view.keypoints, radii=0.02, colors=[(250, 200, 0)]),
+            )
+        if view.landmarks is not None:
+            seen = np.all(np.isfinite(view.landmarks), axis=1)
+            rec.log(
+                "/world/landmarks",
+                rr.Points3D(view.landmarks[seen], radii=0.015, colors=[(0, 200, 255)]),
             )
         if view.particles is not None and view.weights is not None:
             w = view.weights / max(float(view.weights.max()), 1e-12)

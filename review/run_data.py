@@ -228,6 +228,9 @@ class FrameView:
     particles : (N, 40 + n_shape) float or None
         The last annealing layer's particles ``[τ, θ, ν]``.
     weights : (N,) float or None
+    landmarks : (33, 3) float or None
+        The subject's body landmarks capture triangulated (world frame; NaN rows
+        not seen), when the person segmenter ran.
     """
 
     record: FrameRecord
@@ -238,6 +241,7 @@ class FrameView:
     keypoints: np.ndarray | None = None
     particles: np.ndarray | None = None
     weights: np.ndarray | None = None
+    landmarks: np.ndarray | None = None
 
     @property
     def frame(self) -> int:
@@ -319,6 +323,7 @@ def frame_views(
             keypoints=keypoints,
             particles=arrays.particles if vertices is not None else None,
             weights=arrays.weights if vertices is not None else None,
+            landmarks=arrays.landmarks,
         )
 
 

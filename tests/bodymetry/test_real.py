@@ -6,7 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
+import rerun.chunk as rc
 from click.testing import CliRunner
 from tiny_run import tiny_train_overrides
 
@@ -56,6 +58,10 @@ def test_import_then_process_measures_every_frame(real_run):
 def test_recorded_silhouettes_are_one_person_per_view(real_run):
     base, _ = real_run
     arrays = FrameArrays.load(base / "run" / "frames" / "000000.npz")
+    # The subject's landmarks: shoulders, hips, knees, ankles seen in three views or more.
+    for lm in (11, 12, 23, 24, 25, 26, 27, 28):
+        assert np.isfinite(arrays.landmarks[lm]).all(), lm
+    assert 0.6 < arrays.landmarks[11, 2] - arrays.landmarks[27, 2] < 1.6  # shoulder above ankle
     for name in ("cam01", "cam02", "cam03", "cam04"):
         observed = arrays.observed[name]
         assert 0.03 < observed.mean() < 0.12, (name, observed.mean())
@@ -68,7 +74,8 @@ def test_review_outputs_show_the_real_session(real_run):
     html = (run / "report.html").read_text()
     assert html.count("<img") >= 4  # overlays of the observed and model silhouettes
     assert "cam04" in html
-    assert (run / "recording.rrd").stat().st_size > 10_000
+    paths = set(rc.RrdReader(run / "recording.rrd").store().schema().entity_paths())
+    assert {"/world/landmarks", "/world/body/mesh", "/world/rig/cam03/model"} <= paths
     csv = (run / "measurements.csv").read_text().splitlines()
     assert len(csv) == 1 + 4
     results = RunResults.read(run / "results.json")
