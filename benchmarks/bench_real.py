@@ -15,7 +15,7 @@ calibration, no empty-scene clip, two bystanders at the back of the room.
 3. reports frames passing the quality gate, the mean fit IoU and the
    per-frame height spread against the issue's targets, and writes the overlay
    of 3 frames x 4 cameras (observed outline and model silhouette) to
-   ``docs/images/real-pose2sim-overlay.png``.
+   ``docs/images/real-pose2sim-overlay.jpg``.
 
 ``python -m benchmarks.bench_real fixture`` rebuilds the small real test fixture
 ``tests/data/pose2sim/`` (videos binned 4x, 4 frames per camera).
@@ -46,7 +46,7 @@ WHEEL = "pose2sim==0.10.49"
 DEMO = "Pose2Sim/Demo_SinglePerson"
 ROOT = Path(__file__).resolve().parent.parent
 FIXTURE = ROOT / "tests" / "data" / "pose2sim"
-OVERLAY = ROOT / "docs" / "images" / "real-pose2sim-overlay.png"
+OVERLAY = ROOT / "docs" / "images" / "real-pose2sim-overlay.jpg"
 #: Frames of the fixture (of the demo's 100).
 FIXTURE_FRAMES = (0, 30, 60, 90)
 FIXTURE_BINNING = 4
@@ -194,7 +194,7 @@ def run() -> dict:
             and (result["height_std_mm"] or 1e9) <= TARGETS["height_std_mm"]
         )
         OVERLAY.parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(OVERLAY), overlay_sheet(run_dir))
+        cv2.imwrite(str(OVERLAY), overlay_sheet(run_dir), [cv2.IMWRITE_JPEG_QUALITY, 85])
         result["overlay"] = str(OVERLAY.relative_to(ROOT))
         keep = os.environ.get("BODYMETRY_BENCH_REAL_KEEP")
         if keep:
