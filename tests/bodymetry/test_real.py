@@ -12,6 +12,7 @@ import rerun.chunk as rc
 from click.testing import CliRunner
 from tiny_run import tiny_train_overrides
 
+from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.person import SEGMENTER_REQUIREMENT, segmenter_available
 from bodymetry.cli import main
 from bodymetry.estimation.records import FrameArrays, RunResults
@@ -53,6 +54,22 @@ def test_import_then_process_measures_every_frame(real_run):
         assert not any("inconsistent" in f or "empty" in f for f in record.flags.values())
         # Tiny models, 4 frames: a loose bound, the real figures are in the benchmark.
         assert record.mean_iou > 0.6, (record.frame, record.mean_iou)
+
+
+def test_the_camera_that_is_off_is_found_and_shifted_for_the_run(real_run):
+    # Known answer: the Qualisys calibration of cam03 projects the subject's
+    # landmarks about 25 px (full size) away from where its video shows them: 6 px
+    # in the fixture's 4x binned images. The run says so and fits with the shifted
+    # camera; the session's calibration file is left as it was.
+    base, _ = real_run
+    results = RunResults.read(base / "run" / "results.json")
+    warned = [w for w in results.warnings if "cam03" in w and "principal point" in w]
+    assert len(warned) == 1, results.warnings
+    given = {c.name: c for c in load_calibration(base / "session" / "calibration.yaml")}
+    used = {c.name: c for c in load_calibration(base / "run" / "calibration.yaml")}
+    shift = used["cam03"].K[:2, 2] - given["cam03"].K[:2, 2]
+    assert 3.5 < shift[0] < 5.5 and 3.0 < shift[1] < 5.0, shift
+    np.testing.assert_array_equal(used["cam04"].K, given["cam04"].K)
 
 
 def test_recorded_silhouettes_are_one_person_per_view(real_run):
