@@ -271,8 +271,12 @@ class PersonSegmenter:
 @contextlib.contextmanager
 def _native_stderr_silenced():
     """Point file descriptor 2 at /dev/null for the block (native libraries' output)."""
-    sys.stderr.flush()
-    saved = os.dup(2)
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no usable stderr: nothing to silence
+        yield
+        return
     try:
         with open(os.devnull, "wb") as null:
             os.dup2(null.fileno(), 2)
