@@ -431,6 +431,8 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
             "fitted": len(run.fitted_frames),
             "failed": len(frames) - len(ok),
         },
+        "gate": results.quality_gate
+        or {"threshold": fit.get("min_iou"), "min_iou": fit.get("min_iou")},
         "failed": [r for r in frames if not r.ok],
         "config": {
             "quality": config.get("quality"),

@@ -65,6 +65,10 @@ def test_report_is_self_contained_with_every_section(review_run):
     assert len(images) == 3 + n_overlays * n_cams
     truth = review_run.results.ground_truth
     assert f"{truth['height_mm']:,.1f}".replace(",", " ") in html
+    # What the numbers assume and what a frame needed to count.
+    assert "assume tight clothing" in html
+    gate = review_run.results.quality_gate["threshold"]
+    assert f"mean IoU of at least {gate:.2f}" in html
 
 
 def test_measurements_csv_has_one_row_per_kept_frame(review_run):
