@@ -178,7 +178,9 @@ def _print_summary(results: RunResults) -> None:
     frames = results.frames
     failed = [f for f in frames if not f.ok]
     name = results.session.name
-    table = Table(title=f"{name}: {len(frames) - len(failed)} of {len(frames)} frames fitted")
+    n_ok = len(frames) - len(failed)
+    share = f" ({100 * n_ok / len(frames):.0f} %)" if frames else ""
+    table = Table(title=f"{name}: {n_ok} of {len(frames)} kept frames measured{share}")
     table.add_column("measurement")
     truth = results.ground_truth
     if truth:
