@@ -21,15 +21,24 @@ which makes the per-triangle deformation gradient unique.
 normal equations, from ``$BODYMETRY_SCAPE_SOLVER`` (``cholespy`` or ``splu``);
 by default cholespy's sparse Cholesky when it is installed, else SciPy's SuperLU.
 Both give the same vertices to rounding (about 1e-12 m).
+
+:data:`EDGES_BACKEND` selects how :meth:`ScapeMesh.edges` evaluates Eq. (1),
+from ``$BODYMETRY_SCAPE_EDGES`` (``numba`` or ``numpy``): a fused compiled
+kernel (:mod:`~bodymetry.estimation.body_model.scape_kernels`, one pass per
+state and triangle) or the numpy reference (a few dense products over blocks of
+triangles); by default numba when it is installed. Both give the same edges to
+rounding (about 1e-15 relative).
 """
 
 from __future__ import annotations
 
 import importlib.util
 import itertools
+import logging
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 import scipy.sparse as sp
@@ -37,7 +46,10 @@ import scipy.sparse.linalg as spla
 
 from bodymetry.estimation.body_model.rotations import matrix_to_axis_angle
 
+log = logging.getLogger(__name__)
+
 _SOLVERS = ("cholespy", "splu")
+_EDGE_BACKENDS = ("numba", "numpy")
 
 
 def _default_solver(env: str | None) -> str:
@@ -53,6 +65,51 @@ def _default_solver(env: str | None) -> str:
 #: Read when a :class:`ScapeMesh` is built (the factorization is computed once
 #: then), so tests and benchmarks may set it; the one place the choice is made.
 SOLVER: str = _default_solver(os.environ.get("BODYMETRY_SCAPE_SOLVER"))
+
+
+def _default_edges_backend(env: str | None) -> str:
+    """``$BODYMETRY_SCAPE_EDGES`` or, unset, numba when installed (without importing it)."""
+    if env:
+        if env not in _EDGE_BACKENDS:
+            raise ValueError(f"BODYMETRY_SCAPE_EDGES must be 'numba' or 'numpy', got {env!r}")
+        return env
+    return "numba" if importlib.util.find_spec("numba") is not None else "numpy"
+
+
+#: How :meth:`ScapeMesh.edges` evaluates Eq. (1): ``"numba"`` (the fused kernel)
+#: or ``"numpy"`` (the reference). Read at every call, so tests and benchmarks
+#: may set it.
+EDGES_BACKEND: str = _default_edges_backend(os.environ.get("BODYMETRY_SCAPE_EDGES"))
+
+_kernel_module: ModuleType | None = None
+
+
+def _edge_kernels() -> ModuleType | None:
+    """The compiled kernel module when :data:`EDGES_BACKEND` is ``"numba"``, else None.
+
+    Imported on first use, so that importing the body model does not import
+    numba. When numba was chosen by default but fails to import (a broken
+    install), the numpy path is used with a log message; an explicit
+    ``BODYMETRY_SCAPE_EDGES=numba`` raises instead.
+    """
+    global EDGES_BACKEND, _kernel_module
+    if EDGES_BACKEND == "numpy":
+        return None
+    if EDGES_BACKEND != "numba":
+        raise ValueError(f"scape.EDGES_BACKEND must be 'numba' or 'numpy', got {EDGES_BACKEND!r}")
+    if _kernel_module is None:
+        try:
+            from bodymetry.estimation.body_model import scape_kernels
+        except ImportError as exc:
+            if os.environ.get("BODYMETRY_SCAPE_EDGES") == "numba":
+                msg = f"BODYMETRY_SCAPE_EDGES=numba but numba fails to import: {exc}"
+                raise ImportError(msg) from exc
+            log.warning("numba fails to import (%s): using the numpy SCAPE edges", exc)
+            EDGES_BACKEND = "numpy"
+            return None
+        _kernel_module = scape_kernels
+    return _kernel_module
+
 
 #: Features per triangle for Q: two joints' rotation vectors. No constant term:
 #: Q must be the identity in the rest pose, where the body is the template.
@@ -173,14 +230,23 @@ class ScapeMesh:
         self._shape_basis = np.ascontiguousarray(basis.transpose(0, 2, 1).reshape(n_shape, -1))
         # Pose: (Q - I) Δx is linear in the features, so fold Δx into the coefficients:
         # P[t, f] = C_f[t] @ Δx_t, (T, 6, 3, 2).
+        # Laid out (feature, (xyz, edge), T) for the compiled kernel; the numpy
+        # path takes each (part, joint pair) block as one (6, 6 * n) matrix.
         C = arrays.pose_coef[order].reshape(T, 3, 3, N_POSE_FEATURES)
-        P = np.einsum("tijf,tje->tfie", C, edges)
+        self._pose_coef = np.ascontiguousarray(
+            np.einsum("tijf,tje->fiet", C, edges).reshape(N_POSE_FEATURES, 6, T)
+        )
         self._part_blocks = _blocks(self.parts)
         self._pose_blocks = []
         for start, stop in _blocks(key[order]):
             j1, j2 = pairs[start]
-            block = P[start:stop].transpose(1, 2, 3, 0).reshape(N_POSE_FEATURES, -1)
-            self._pose_blocks.append((start, stop, int(j1), int(j2), np.ascontiguousarray(block)))
+            block = self._pose_coef[:, :, start:stop].reshape(N_POSE_FEATURES, -1)
+            self._pose_blocks.append((start, stop, int(j1), int(j2), block))
+        #: (N, 5) ``(start, stop, part, j1, j2)`` of the blocks, for the kernel.
+        self._kernel_blocks = np.array(
+            [(a, b, self.parts[a], j1, j2) for a, b, j1, j2, _ in self._pose_blocks],
+            dtype=np.int64,
+        ).reshape(-1, 5)
         self._build_solver(SOLVER if solver is None else solver)
 
     def _build_solver(self, solver: str) -> None:
@@ -260,6 +326,9 @@ class ScapeMesh:
         -------
         (B, 3, 2, T) float
         """
+        kernels = _edge_kernels()
+        if kernels is not None:
+            return self._edges_numba(kernels, part_rotations, local_rotations, nu)
         if nu is None:
             sizes = [len(r) for r in (part_rotations, local_rotations) if r is not None]
             B = sizes[0] if sizes else 1
@@ -287,6 +356,54 @@ class ScapeMesh:
         for part, (start, stop) in zip(np.unique(self.parts), self._part_blocks, strict=True):
             block = y[..., start:stop].reshape(B, 3, -1)
             out[..., start:stop] = (part_rotations[:, part] @ block).reshape(B, 3, 2, -1)
+        return out
+
+    def _edges_numba(
+        self,
+        kernels: ModuleType,
+        part_rotations: np.ndarray | None,
+        local_rotations: np.ndarray | None,
+        nu: np.ndarray | None,
+    ) -> np.ndarray:
+        """:meth:`edges` by the fused kernel (same arguments and result).
+
+        The missing factors become their identities (zero rotation vectors,
+        S = I with no components, identity part rotations), which the kernel
+        applies exactly: adding zeros and multiplying by ones and zeros does not
+        round.
+        """
+        T = len(self.faces)
+        if nu is None:
+            sizes = [len(r) for r in (part_rotations, local_rotations) if r is not None]
+            B = sizes[0] if sizes else 1
+            nu = np.zeros((B, 0))
+            mean = np.ascontiguousarray(np.broadcast_to(np.eye(3).reshape(9, 1), (9, T)))
+            basis = np.zeros((0, 9, T))
+        else:
+            nu = np.atleast_2d(np.asarray(nu, dtype=float))
+            if nu.shape[-1] != self.n_shape:
+                raise ValueError(f"nu: expected shape (B, {self.n_shape}), got {nu.shape}")
+            B = len(nu)
+            mean = self._shape_mean.reshape(9, T)
+            basis = self._shape_basis.reshape(self.n_shape, 9, T)
+        if local_rotations is None:
+            rotvec = np.zeros((B, int(self._kernel_blocks[:, 3:].max()) + 1, 3))
+        else:
+            rotvec = matrix_to_axis_angle(local_rotations)
+        if part_rotations is None:
+            part_rotations = np.broadcast_to(np.eye(3), (B, int(self.parts.max()) + 1, 3, 3))
+        out = np.empty((B, 3, 2, T))
+        kernels.edges_kernel(
+            self.template_edges.reshape(6, T),
+            self._pose_coef,
+            mean,
+            basis,
+            self._kernel_blocks,
+            _kernel_arg(rotvec),
+            _kernel_arg(nu),
+            _kernel_arg(part_rotations),
+            out.reshape(B, 6, T),
+        )
         return out
 
     def solve(self, edges: np.ndarray) -> np.ndarray:
@@ -362,6 +479,12 @@ def _factorize(K: sp.csr_matrix, solver: str) -> Callable[[np.ndarray], np.ndarr
         )
         return lu.solve
     raise ValueError(f"solver: expected one of {_SOLVERS}, got {solver!r}")
+
+
+def _kernel_arg(a: np.ndarray) -> np.ndarray:
+    """``a`` as a C-contiguous, writable float64 array: numba compiles (and caches)
+    one version per layout and per read-only flag, so every call passes the same kind."""
+    return np.require(a, dtype=np.float64, requirements=["C", "W"])
 
 
 def _blocks(sorted_keys: np.ndarray) -> list[tuple[int, int]]:

@@ -1,0 +1,133 @@
+"""Compiled (numba) kernel of :meth:`bodymetry.estimation.body_model.scape.ScapeMesh.edges`.
+
+Imported lazily by ``scape`` (only when its ``EDGES_BACKEND`` is ``"numba"``),
+so importing the body model does not import numba (about 0.35 s).
+
+One pass computes Eq. (1), ``Δy_t = R_{p_t} S_t(ν) Q_t(θ) Δx_t``, for every
+(state, triangle) without the intermediate ``(B, 3, 3, T)`` and ``(B, 3, 2, T)``
+arrays of the numpy reference: the posed template edge ``Q_t Δx_t = Δx_t +
+Σ_f f_f P_ft`` (``f`` the six rotation-vector components of the triangle's two
+joints), the shape deformation ``S_t = μ_t + Σ_k ν_k U_kt``, their product and
+the part rotation. Triangles are processed in chunks of one (part, joint pair)
+block, so the rotation and the pose features are constants of the inner loops,
+which run over contiguous triangles through 1-D slices (LLVM vectorizes those;
+2-D indexing in the loops did not vectorize, 2.5x slower); a chunk's
+coefficients stay in cache across the states. No ``fastmath``: no fused
+multiply-adds; only the order of some sums differs from the numpy reference
+(its matrix products), so the edges agree to rounding (measured: 4e-16 of the
+largest edge).
+
+The numba cache folder is the rasterizer kernels' (:mod:`bodymetry.estimation.
+raster_kernels` sets it before importing numba).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bodymetry.estimation.raster_kernels import numba
+
+#: Triangles per chunk: the chunk's coefficients (up to ~1.2 kB per triangle with
+#: 20 shape components) stay in the L2 cache while all states are computed.
+CHUNK = 128
+
+
+@numba.njit(cache=True, nogil=True)
+def edges_kernel(
+    template, pose_coef, shape_mean, shape_basis, blocks, rotvec, nu, part_rot, out
+):  # pragma: no cover
+    """Eq. (1) for a batch of states, in the mesh's internal triangle order.
+
+    Parameters
+    ----------
+    template : (6, T) float
+        Template edges ``Δx_t``, rows ``(xyz, edge)``.
+    pose_coef : (6, 6, T) float
+        ``P[f, (xyz, edge), t]``: the pose deformation's coefficients with the
+        template edges folded in, ``(Q_t - I) Δx_t = Σ_f feature_f P[f, :, t]``.
+    shape_mean : (9, T) float
+        μ_t, rows ``(i, j)`` of ``S_t``.
+    shape_basis : (K, 9, T) float
+        U_kt (K may be 0).
+    blocks : (N, 5) int
+        ``(start, stop, part, j1, j2)`` of each run of triangles sharing a part
+        and a joint pair.
+    rotvec : (B, J, 3) float
+        Rotation vector of each joint relative to its parent (zeros: Q = I).
+    nu : (B, K) float
+        Shape coefficients.
+    part_rot : (B, P, 3, 3) float
+        Global rotation of each part.
+    out : (B, 6, T) float
+        Written: ``Δy_t``, rows ``(xyz, edge)``.
+    """
+    B = out.shape[0]
+    K = shape_basis.shape[0]
+    x = np.empty((6, CHUNK))
+    s = np.empty((9, CHUNK))
+    for blk in range(blocks.shape[0]):
+        start, stop, part = blocks[blk, 0], blocks[blk, 1], blocks[blk, 2]
+        j1, j2 = blocks[blk, 3], blocks[blk, 4]
+        for c0 in range(start, stop, CHUNK):
+            n = min(CHUNK, stop - c0)
+            c1 = c0 + n
+            for b in range(B):
+                # Q_t Δx_t: the six features times their coefficients, then the template.
+                for r in range(6):
+                    x[r, :n] = 0.0
+                for f in range(6):
+                    feat = rotvec[b, j1, f] if f < 3 else rotvec[b, j2, f - 3]
+                    for r in range(6):
+                        xr = x[r, :n]
+                        pc = pose_coef[f, r, c0:c1]
+                        for k in range(n):
+                            xr[k] += feat * pc[k]
+                for r in range(6):
+                    xr = x[r, :n]
+                    tr = template[r, c0:c1]
+                    for k in range(n):
+                        xr[k] += tr[k]
+                # S_t(ν) = Σ_k ν_k U_kt, then μ_t.
+                for r in range(9):
+                    s[r, :n] = 0.0
+                for q in range(K):
+                    w = nu[b, q]
+                    for r in range(9):
+                        sr = s[r, :n]
+                        ub = shape_basis[q, r, c0:c1]
+                        for k in range(n):
+                            sr[k] += w * ub[k]
+                for r in range(9):
+                    sr = s[r, :n]
+                    mr = shape_mean[r, c0:c1]
+                    for k in range(n):
+                        sr[k] += mr[k]
+                # R_p S_t (Q_t Δx_t), per edge e.
+                R = part_rot[b, part]
+                r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
+                r10, r11, r12 = R[1, 0], R[1, 1], R[1, 2]
+                r20, r21, r22 = R[2, 0], R[2, 1], R[2, 2]
+                s0, s1, s2, s3, s4, s5, s6, s7, s8 = (
+                    s[0],
+                    s[1],
+                    s[2],
+                    s[3],
+                    s[4],
+                    s[5],
+                    s[6],
+                    s[7],
+                    s[8],
+                )
+                for e in range(2):
+                    xa, xb, xc = x[e], x[2 + e], x[4 + e]
+                    o0 = out[b, e, c0:c1]
+                    o1 = out[b, 2 + e, c0:c1]
+                    o2 = out[b, 4 + e, c0:c1]
+                    for k in range(n):
+                        x0, x1, x2 = xa[k], xb[k], xc[k]
+                        y0 = s0[k] * x0 + s1[k] * x1 + s2[k] * x2
+                        y1 = s3[k] * x0 + s4[k] * x1 + s5[k] * x2
+                        y2 = s6[k] * x0 + s7[k] * x1 + s8[k] * x2
+                        o0[k] = r00 * y0 + r01 * y1 + r02 * y2
+                        o1[k] = r10 * y0 + r11 * y1 + r12 * y2
+                        o2[k] = r20 * y0 + r21 * y1 + r22 * y2
