@@ -23,7 +23,6 @@ compares them bit for bit):
 
 from __future__ import annotations
 
-import importlib.util
 import logging
 import os
 from collections.abc import Sequence
@@ -31,6 +30,8 @@ from dataclasses import dataclass
 from types import ModuleType
 
 import numpy as np
+
+from bodymetry.estimation.backends import default_backend, load_kernels
 
 log = logging.getLogger(__name__)
 
@@ -42,11 +43,7 @@ _BACKENDS = ("numba", "numpy")
 
 def _default_backend(env: str | None) -> str:
     """``$BODYMETRY_RASTER`` or, unset, numba when installed (without importing it)."""
-    if env:
-        if env not in _BACKENDS:
-            raise ValueError(f"BODYMETRY_RASTER must be 'numba' or 'numpy', got {env!r}")
-        return env
-    return "numba" if importlib.util.find_spec("numba") is not None else "numpy"
+    return default_backend("BODYMETRY_RASTER", env, _BACKENDS, "numba")
 
 
 #: The implementation behind :func:`rasterize`, :func:`coverage` and
@@ -71,16 +68,11 @@ def _kernels() -> ModuleType | None:
     if BACKEND != "numba":
         raise ValueError(f"raster.BACKEND must be 'numba' or 'numpy', got {BACKEND!r}")
     if _kernel_module is None:
-        try:
-            from bodymetry.estimation import raster_kernels
-        except ImportError as exc:
-            if os.environ.get("BODYMETRY_RASTER") == "numba":
-                msg = f"BODYMETRY_RASTER=numba but numba fails to import: {exc}"
-                raise ImportError(msg) from exc
-            log.warning("numba fails to import (%s): using the numpy rasterizer", exc)
+        _kernel_module = load_kernels(
+            "bodymetry.estimation.raster_kernels", "BODYMETRY_RASTER", "rasterizer"
+        )
+        if _kernel_module is None:
             BACKEND = "numpy"
-            return None
-        _kernel_module = raster_kernels
     return _kernel_module
 
 

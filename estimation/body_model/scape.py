@@ -32,7 +32,6 @@ rounding (about 1e-15 relative).
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 import logging
 import os
@@ -44,6 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from bodymetry.estimation.backends import default_backend, load_kernels
 from bodymetry.estimation.body_model.rotations import matrix_to_axis_angle
 
 log = logging.getLogger(__name__)
@@ -54,11 +54,7 @@ _EDGE_BACKENDS = ("numba", "numpy")
 
 def _default_solver(env: str | None) -> str:
     """``$BODYMETRY_SCAPE_SOLVER`` or, unset, cholespy when installed (without importing it)."""
-    if env:
-        if env not in _SOLVERS:
-            raise ValueError(f"BODYMETRY_SCAPE_SOLVER must be 'cholespy' or 'splu', got {env!r}")
-        return env
-    return "cholespy" if importlib.util.find_spec("cholespy") is not None else "splu"
+    return default_backend("BODYMETRY_SCAPE_SOLVER", env, _SOLVERS, "cholespy")
 
 
 #: The factorization behind :meth:`ScapeMesh.solve`: ``"cholespy"`` or ``"splu"``.
@@ -69,11 +65,7 @@ SOLVER: str = _default_solver(os.environ.get("BODYMETRY_SCAPE_SOLVER"))
 
 def _default_edges_backend(env: str | None) -> str:
     """``$BODYMETRY_SCAPE_EDGES`` or, unset, numba when installed (without importing it)."""
-    if env:
-        if env not in _EDGE_BACKENDS:
-            raise ValueError(f"BODYMETRY_SCAPE_EDGES must be 'numba' or 'numpy', got {env!r}")
-        return env
-    return "numba" if importlib.util.find_spec("numba") is not None else "numpy"
+    return default_backend("BODYMETRY_SCAPE_EDGES", env, _EDGE_BACKENDS, "numba")
 
 
 #: How :meth:`ScapeMesh.edges` evaluates Eq. (1): ``"numba"`` (the fused kernel)
@@ -98,16 +90,11 @@ def _edge_kernels() -> ModuleType | None:
     if EDGES_BACKEND != "numba":
         raise ValueError(f"scape.EDGES_BACKEND must be 'numba' or 'numpy', got {EDGES_BACKEND!r}")
     if _kernel_module is None:
-        try:
-            from bodymetry.estimation.body_model import scape_kernels
-        except ImportError as exc:
-            if os.environ.get("BODYMETRY_SCAPE_EDGES") == "numba":
-                msg = f"BODYMETRY_SCAPE_EDGES=numba but numba fails to import: {exc}"
-                raise ImportError(msg) from exc
-            log.warning("numba fails to import (%s): using the numpy SCAPE edges", exc)
+        _kernel_module = load_kernels(
+            "bodymetry.estimation.body_model.scape_kernels", "BODYMETRY_SCAPE_EDGES", "SCAPE edges"
+        )
+        if _kernel_module is None:
             EDGES_BACKEND = "numpy"
-            return None
-        _kernel_module = scape_kernels
     return _kernel_module
 
 

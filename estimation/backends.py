@@ -1,0 +1,56 @@
+"""Choosing between a compiled path and its numpy reference, in one place.
+
+The rasterizer (``BODYMETRY_RASTER``), the SCAPE edges (``BODYMETRY_SCAPE_EDGES``)
+and the SCAPE solve (``BODYMETRY_SCAPE_SOLVER``) each have a fast path from an
+optional package and a reference path. An environment variable picks one; unset,
+the fast path is used when its package is installed (checked without importing
+it, so that importing bodymetry stays cheap).
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import logging
+import os
+from types import ModuleType
+
+log = logging.getLogger(__name__)
+
+__all__ = ["default_backend", "load_kernels"]
+
+
+def default_backend(env_var: str, value: str | None, choices: tuple[str, str], package: str) -> str:
+    """The backend named by ``value`` (an environment variable's content), or, when
+    it is empty, ``choices[0]`` if ``package`` is installed, else ``choices[1]``.
+
+    Raises
+    ------
+    ValueError
+        When ``value`` names no backend (the message names ``env_var``).
+    """
+    if value:
+        if value not in choices:
+            raise ValueError(
+                f"{env_var} must be {' or '.join(repr(c) for c in choices)}, got {value!r}"
+            )
+        return value
+    return choices[0] if importlib.util.find_spec(package) is not None else choices[1]
+
+
+def load_kernels(module: str, env_var: str, what: str) -> ModuleType | None:
+    """Import the compiled kernels ``module``; None (and a warning) when numba fails
+    to import and the user did not ask for it, so the caller uses its numpy path.
+
+    Raises
+    ------
+    ImportError
+        When ``env_var`` asks for numba explicitly and it fails to import.
+    """
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        if os.environ.get(env_var) == "numba":
+            raise ImportError(f"{env_var}=numba but numba fails to import: {exc}") from exc
+        log.warning("numba fails to import (%s): using the numpy %s", exc, what)
+        return None
