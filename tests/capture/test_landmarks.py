@@ -103,6 +103,6 @@ def test_an_exact_rig_is_left_alone(rig):
 
 def test_small_offsets_and_thin_evidence_are_not_applied(rig):
     small = principal_point_offsets(rig, _frames(rig, shift=(1.5, 0.0)))[1]
-    assert not any(o.applied for o in small)  # 1.5 px < 0.5 % of 480 px
+    assert not any(o.applied for o in small)  # 1.5 px < 1 % of 480 px
     thin = principal_point_offsets(rig, _frames(rig, n_frames=2, shift=(8.0, 0.0)))[1]
     assert not thin[1].applied and thin[1].observations == 66  # < 100 observations
