@@ -49,6 +49,7 @@ from bodymetry.capture.ingest import (
     size_mismatch,
     video_sync_problems,
 )
+from bodymetry.capture.person import SEGMENTER_REQUIREMENT, segmenter_available
 
 # load_session stops at the first problem. To list every missing file, the
 # session's structure is read without looking at files (_session_from_data) and
@@ -230,6 +231,15 @@ def check_session(
             session.background_path,
             "record the empty scene with the same camera and settings",
         )
+        no_clip = [c.name for c in session.cameras if session.background_path(c.name) is None]
+        if no_clip and not segmenter_available():
+            findings.warn(
+                session.folder / SESSION_FILE,
+                f"no background clip for camera(s) {', '.join(no_clip)} and the person "
+                "segmenter is not installed: their silhouettes come from the median of the "
+                "session's frames, which loses a person who stands still (install it: "
+                f"pip install --no-deps {SEGMENTER_REQUIREMENT})",
+            )
         refused = findings.refused
         if refused is not None and not findings.mentions(str(refused)):
             # Whatever load_session refused is listed, even if no check here covers it.

@@ -21,6 +21,7 @@ from tiny_run import tiny_session
 from yaml_edits import Edit, delete_at, set_at
 
 from bodymetry.capture.background import read_clip
+from bodymetry.capture.person import segmenter_available
 from bodymetry.capture.video import H264Writer
 from bodymetry.cli import main
 from bodymetry.errors import InputError
@@ -332,3 +333,21 @@ def test_check_command(session: Path, tmp_path: Path) -> None:
     data = json.loads(result.stdout)
     assert data["ok"] is False and len(data["problems"]) == 2
     assert {Path(p["path"]).name for p in data["problems"]} == {"cam_00.mp4", "calibration.yaml"}
+
+
+def test_no_background_clip_without_the_segmenter_is_a_warning(
+    session: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def drop_clips(data: dict[str, Any]) -> None:
+        for cam in data["cameras"]:
+            cam.pop("background", None)
+
+    _edit_yaml(session / "session.yaml", drop_clips)
+    monkeypatch.setenv("BODYMETRY_PERSON_SEGMENTER", "0")
+    report = check_session(session)
+    assert report.ok
+    (warning,) = [w for w in report.warnings if "background clip" in w.message]
+    assert "cam_00, cam_01" in warning.message and "pip install --no-deps" in warning.message
+    monkeypatch.setenv("BODYMETRY_PERSON_SEGMENTER", "1")
+    if segmenter_available():  # with the segmenter, no clip is needed
+        assert not any("background clip" in w.message for w in check_session(session).warnings)
