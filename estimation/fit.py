@@ -429,7 +429,7 @@ def session_gate(
     model's own: a correct fit scores 0.90-0.96 there. A real person in
     clothes, seen through a learned segmenter, is not the model: on the
     Pose2Sim demo every frame's fit is in the right pose (checked on the
-    overlays) and scores 0.82-0.85. So the gate is
+    overlays) and scores 0.86-0.89. So the gate is
     ``min(min_iou, max(gate_floor, p75 - gate_margin))`` with p75 the 75th
     percentile of the fitted frames' mean IoU: unchanged where the good frames
     reach ``min_iou`` (the studio sessions), and otherwise a frame passes
