@@ -17,7 +17,7 @@ from types import ModuleType
 
 log = logging.getLogger(__name__)
 
-__all__ = ["default_backend", "load_kernels"]
+__all__ = ["compiled_kernels", "default_backend", "load_kernels"]
 
 
 def default_backend(env_var: str, value: str | None, choices: tuple[str, str], package: str) -> str:
@@ -36,6 +36,33 @@ def default_backend(env_var: str, value: str | None, choices: tuple[str, str], p
             )
         return value
     return choices[0] if importlib.util.find_spec(package) is not None else choices[1]
+
+
+_loaded: dict[str, ModuleType | None] = {}
+
+
+def compiled_kernels(
+    backend: str, setting: str, module: str, env_var: str, what: str
+) -> ModuleType | None:
+    """The kernels ``module`` when ``backend`` is ``"numba"``, None for ``"numpy"``.
+
+    Imported once (:func:`load_kernels`); None also when numba fails to import
+    and the user did not ask for it, and the caller then sets its backend to
+    ``"numpy"``.
+
+    Raises
+    ------
+    ValueError
+        For any other ``backend`` (the message names ``setting``, the module
+        attribute that holds it).
+    """
+    if backend == "numpy":
+        return None
+    if backend != "numba":
+        raise ValueError(f"{setting} must be 'numba' or 'numpy', got {backend!r}")
+    if module not in _loaded:
+        _loaded[module] = load_kernels(module, env_var, what)
+    return _loaded[module]
 
 
 def load_kernels(module: str, env_var: str, what: str) -> ModuleType | None:

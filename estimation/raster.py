@@ -31,7 +31,7 @@ from types import ModuleType
 
 import numpy as np
 
-from bodymetry.estimation.backends import default_backend, load_kernels
+from bodymetry.estimation.backends import compiled_kernels, default_backend
 
 log = logging.getLogger(__name__)
 
@@ -51,8 +51,6 @@ def _default_backend(env: str | None) -> str:
 #: tests and benchmarks may set it; the one place the choice is made.
 BACKEND: str = _default_backend(os.environ.get("BODYMETRY_RASTER"))
 
-_kernel_module: ModuleType | None = None
-
 
 def _kernels() -> ModuleType | None:
     """The compiled kernels when :data:`BACKEND` is ``"numba"``, else None.
@@ -62,18 +60,14 @@ def _kernels() -> ModuleType | None:
     install), the numpy path is used with a log message; an explicit
     ``BODYMETRY_RASTER=numba`` raises instead.
     """
-    global BACKEND, _kernel_module
-    if BACKEND == "numpy":
-        return None
-    if BACKEND != "numba":
-        raise ValueError(f"raster.BACKEND must be 'numba' or 'numpy', got {BACKEND!r}")
-    if _kernel_module is None:
-        _kernel_module = load_kernels(
-            "bodymetry.estimation.raster_kernels", "BODYMETRY_RASTER", "rasterizer"
-        )
-        if _kernel_module is None:
-            BACKEND = "numpy"
-    return _kernel_module
+    global BACKEND
+    kernels = compiled_kernels(
+        BACKEND, "raster.BACKEND", "bodymetry.estimation.raster_kernels", "BODYMETRY_RASTER",
+        "rasterizer",
+    )  # fmt: skip
+    if kernels is None:
+        BACKEND = "numpy"
+    return kernels
 
 
 _CULL_CODES = {"none": 0, "back": 1, "front": 2}

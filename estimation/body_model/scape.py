@@ -43,7 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from bodymetry.estimation.backends import default_backend, load_kernels
+from bodymetry.estimation.backends import compiled_kernels, default_backend
 from bodymetry.estimation.body_model.rotations import matrix_to_axis_angle
 
 log = logging.getLogger(__name__)
@@ -73,8 +73,6 @@ def _default_edges_backend(env: str | None) -> str:
 #: may set it.
 EDGES_BACKEND: str = _default_edges_backend(os.environ.get("BODYMETRY_SCAPE_EDGES"))
 
-_kernel_module: ModuleType | None = None
-
 
 def _edge_kernels() -> ModuleType | None:
     """The compiled kernel module when :data:`EDGES_BACKEND` is ``"numba"``, else None.
@@ -84,18 +82,14 @@ def _edge_kernels() -> ModuleType | None:
     install), the numpy path is used with a log message; an explicit
     ``BODYMETRY_SCAPE_EDGES=numba`` raises instead.
     """
-    global EDGES_BACKEND, _kernel_module
-    if EDGES_BACKEND == "numpy":
-        return None
-    if EDGES_BACKEND != "numba":
-        raise ValueError(f"scape.EDGES_BACKEND must be 'numba' or 'numpy', got {EDGES_BACKEND!r}")
-    if _kernel_module is None:
-        _kernel_module = load_kernels(
-            "bodymetry.estimation.body_model.scape_kernels", "BODYMETRY_SCAPE_EDGES", "SCAPE edges"
-        )
-        if _kernel_module is None:
-            EDGES_BACKEND = "numpy"
-    return _kernel_module
+    global EDGES_BACKEND
+    kernels = compiled_kernels(
+        EDGES_BACKEND, "scape.EDGES_BACKEND", "bodymetry.estimation.body_model.scape_kernels",
+        "BODYMETRY_SCAPE_EDGES", "SCAPE edges",
+    )  # fmt: skip
+    if kernels is None:
+        EDGES_BACKEND = "numpy"
+    return kernels
 
 
 #: Features per triangle for Q: two joints' rotation vectors. No constant term:
