@@ -28,6 +28,21 @@ TINY_TRAIN = TrainConfig(
 )
 
 
+#: Image size of the smallest studio sessions (the synth tests).
+SYNTH_SIZE = (160, 120)
+#: ``SynthConfig`` fields of the synth tests' 6-frame session (2 cameras).
+SYNTH_TINY = dict(
+    frames=6,
+    frame_step=2,
+    cameras=2,
+    size=SYNTH_SIZE,
+    seed=3,
+    motion="random",
+    background_frames=2,
+    calibration_frames=30,
+)
+
+
 def tiny_session(folder: Path, seed: int, frames: int = 5, rig_seed: int | None = None) -> Session:
     """Render the tiny A-pose studio session into ``folder`` (every 2nd frame kept).
 

@@ -7,6 +7,7 @@ import json
 import cv2
 import numpy as np
 import pytest
+from tiny_run import SYNTH_SIZE, SYNTH_TINY
 
 from bodymetry.capture.session import load_session
 from bodymetry.errors import InputError
@@ -23,18 +24,9 @@ from bodymetry.studio.render import Body, Studio
 from bodymetry.studio.rig import studio_rig
 from bodymetry.studio.synth import SynthConfig, describe, synthesize
 
-SIZE = (160, 120)
-TINY = dict(
-    frames=6,
-    frame_step=2,
-    cameras=4,
-    size=SIZE,
-    seed=3,
-    motion="random",
-    background_frames=2,
-    calibration_frames=30,
-    background_clip=False,
-)
+SIZE = SYNTH_SIZE
+#: The synth tests' session with four cameras and no background clip.
+TINY = {**SYNTH_TINY, "cameras": 4, "background_clip": False}
 #: A bystander's pixels differ from the scene without it by more than this (DN).
 DIFF_DN = 40
 

@@ -7,6 +7,7 @@ import json
 import cv2
 import numpy as np
 import pytest
+from tiny_run import SYNTH_SIZE, SYNTH_TINY
 
 from bodymetry.capture.session import load_session
 from bodymetry.errors import InputError
@@ -22,17 +23,8 @@ from bodymetry.studio.synth import (
 
 #: Joints reprojected with calibration.yaml must fall within this many pixels of the silhouette.
 JOINT_TO_MASK_PX = 2
-SIZE = (160, 120)
-TINY = dict(
-    frames=6,
-    frame_step=2,
-    cameras=2,
-    size=SIZE,
-    seed=3,
-    motion="random",
-    background_frames=2,
-    calibration_frames=30,
-)
+SIZE = SYNTH_SIZE
+TINY = SYNTH_TINY
 
 
 @pytest.fixture(scope="module")
