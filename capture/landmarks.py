@@ -191,7 +191,6 @@ def _joint_offsets(
     n_cam = len(cameras)
     total = np.zeros((n_cam, 2))
     counts = np.zeros(n_cam, int)
-    centroid = np.zeros(3)
     current = list(cameras)
     for _ in range(iterations):
         residuals: list[list[np.ndarray]] = [[] for _ in range(n_cam)]
@@ -212,11 +211,9 @@ def _joint_offsets(
                 counts[c], step[c] = len(r), np.median(r, axis=0)
         total += step
         current = [shifted_camera(cam, *total[c]) for c, cam in enumerate(cameras)]
-        all_points = np.vstack(points)
-        centroid = np.nanmean(all_points, axis=0)
         if np.abs(step).max() < 0.05:
             break
-    return total, counts, centroid
+    return total, counts, np.nanmean(np.vstack(points), axis=0)
 
 
 def _sparsest(cameras: Sequence[Camera], offsets: np.ndarray, centre: np.ndarray) -> np.ndarray:
