@@ -87,6 +87,10 @@ class Person:
     probability: np.ndarray
     landmarks: np.ndarray
 
+    def mask(self, threshold: float) -> np.ndarray:
+        """(H, W) bool: the pixels whose probability exceeds ``threshold``."""
+        return self.probability > threshold
+
 
 @dataclass(frozen=True)
 class PersonConfig:
@@ -252,8 +256,8 @@ class PersonSegmenter:
         self, image: np.ndarray, roi: tuple[int, int, int, int] | None = None
     ) -> np.ndarray | None:
         """(H, W) bool person mask (``probability > threshold``), or None."""
-        prob = self.probability(image, roi)
-        return None if prob is None else prob > self.config.threshold
+        person = self.detect(image, roi)
+        return None if person is None else person.mask(self.config.threshold)
 
     def close(self) -> None:
         if self._pose is not None:

@@ -644,7 +644,7 @@ class _Views:
         if image is None:
             return _View(none, ("unreadable",), none)
         person = None if self.segmenter is None else self.segmenter.detect(image, roi)
-        found = None if person is None else person.probability > self.config.person.threshold
+        found = None if person is None else person.mask(self.config.person.threshold)
         landmarks = None if person is None else person.landmarks
         model = self.models[c]
         if model is None:  # no background: the segmenter's person is the silhouette
