@@ -37,7 +37,7 @@ from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HullCheck", "HullConfig", "VisualHull"]
+__all__ = ["HullCheck", "HullConfig", "VisualHull", "visual_hull"]
 
 
 @dataclass(frozen=True)
@@ -119,6 +119,29 @@ def _in_view(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray
     pix = np.zeros((len(points), 2), np.int32)
     pix[ok] = np.floor(real[ok]).astype(np.int32)
     return pix, ok
+
+
+def _rig_key(cameras: Sequence[Camera]) -> tuple:
+    """A hashable fingerprint of a rig (every parameter that moves a pixel)."""
+    return tuple(
+        (c.name, c.size, c.K.tobytes(), c.dist.tobytes(), c.R.tobytes(), c.t.tobytes())
+        for c in cameras
+    )
+
+
+_hulls: dict[tuple, VisualHull] = {}
+
+
+def visual_hull(cameras: Sequence[Camera], config: HullConfig | None = None) -> VisualHull:
+    """The :class:`VisualHull` of a rig, built once per process, rig and config (a
+    batch segments frame by frame, every task asking for the same rig's hull)."""
+    config = config or HullConfig()
+    key = (_rig_key(cameras), config)
+    if key not in _hulls:
+        if len(_hulls) >= 4:  # a process sees few rigs; keep the memory bounded
+            _hulls.pop(next(iter(_hulls)))
+        _hulls[key] = VisualHull(cameras, config)
+    return _hulls[key]
 
 
 class VisualHull:

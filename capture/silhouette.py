@@ -70,7 +70,7 @@ import numpy as np
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
-from bodymetry.capture.consistency import HullConfig, VisualHull
+from bodymetry.capture.consistency import HullConfig, visual_hull
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.person import (
@@ -632,7 +632,7 @@ class _Views:
         self.hull = None
         if cameras is not None and config.consistency and len(cameras) >= config.hull.min_views:
             try:
-                self.hull = VisualHull(cameras, config.hull)
+                self.hull = visual_hull(cameras, config.hull)
             except InputError as exc:
                 log.warning("%s; silhouettes are not checked across views", exc)
 

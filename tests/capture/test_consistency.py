@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from bodymetry.capture.consistency import HullConfig, VisualHull
+from bodymetry.capture.consistency import HullConfig, VisualHull, visual_hull
 from bodymetry.errors import InputError
 from bodymetry.studio.rig import studio_rig
 
@@ -131,3 +131,12 @@ def test_config_and_rig_validation(rig):
     ]
     with pytest.raises(InputError, match="no part of the room"):
         VisualHull(apart)
+
+
+def test_a_rigs_hull_is_built_once_per_process(rig):
+    copy = [type(c)(c.name, c.size, c.K.copy(), c.dist.copy(), c.R.copy(), c.t.copy()) for c in rig]
+    first = visual_hull(rig)
+    assert visual_hull(copy) is first  # the same rig, other objects
+    assert visual_hull(rig, HullConfig(max_voxels=100_000)) is not first
+    moved = [*copy[:3], type(copy[3])(copy[3].name, copy[3].size, copy[3].K, t=copy[3].t + 0.01)]
+    assert visual_hull(moved) is not first
