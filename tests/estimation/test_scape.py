@@ -70,6 +70,18 @@ def _arrays(
     return scape.ScapeArrays(v, f, parts, shape_mean, shape_basis, pose_joints, pose_coef)
 
 
+def _deforming_arrays(rng, n_components: int):
+    """The sphere's arrays with a random S (mean near I, ``n_components`` basis
+    vectors) and a random Q: every factor of Eq. (1) at work."""
+    T = len(_sphere()[1])
+    return _arrays(
+        rng,
+        shape_mean=np.tile(np.eye(3).reshape(9), (T, 1)) + 0.1 * rng.normal(size=(T, 9)),
+        shape_basis=0.1 * rng.normal(size=(n_components, T, 9)),
+        pose_coef=0.1 * rng.normal(size=(T, 9, scape.N_POSE_FEATURES)),
+    )
+
+
 def _file_order(mesh: scape.ScapeMesh, arrays: scape.ScapeArrays) -> np.ndarray:
     """Index into the file's triangles of each of ``mesh``'s internally ordered triangles."""
     where = {tuple(face): t for t, face in enumerate(arrays.faces.tolist())}
@@ -286,12 +298,7 @@ def test_edges_follow_equation_1(rng, monkeypatch, backend):
     monkeypatch.setattr(scape, "EDGES_BACKEND", backend)
     v, f = _sphere()
     T = len(f)
-    arrays = _arrays(
-        rng,
-        shape_mean=np.tile(np.eye(3).reshape(9), (T, 1)) + 0.1 * rng.normal(size=(T, 9)),
-        shape_basis=0.1 * rng.normal(size=(2, T, 9)),
-        pose_coef=0.1 * rng.normal(size=(T, 9, scape.N_POSE_FEATURES)),
-    )
+    arrays = _deforming_arrays(rng, n_components=2)
     mesh = scape.ScapeMesh(arrays, 2)
     B = 3
     part_rot = _random_rotations(rng, (B, 2))
@@ -364,12 +371,7 @@ def test_edges_backend_choice(rng, monkeypatch):
 def test_numba_edges_are_the_numpy_edges(rng, monkeypatch, B, factors):
     """Every combination of the optional factors (part rotations, Q, S), both paths."""
     T = len(_sphere()[1])
-    arrays = _arrays(
-        rng,
-        shape_mean=np.tile(np.eye(3).reshape(9), (T, 1)) + 0.1 * rng.normal(size=(T, 9)),
-        shape_basis=0.1 * rng.normal(size=(3, T, 9)),
-        pose_coef=0.1 * rng.normal(size=(T, 9, scape.N_POSE_FEATURES)),
-    )
+    arrays = _deforming_arrays(rng, n_components=3)
     mesh = scape.ScapeMesh(arrays, 2)
     with_rot, with_local, with_nu = factors
     args = (
