@@ -16,6 +16,7 @@ nothing is segmented twice.
 
 from __future__ import annotations
 
+import bisect
 import functools
 import logging
 import math
@@ -235,7 +236,8 @@ def rescue_poor_frames(
     Each fitted frame below the session gate (:func:`session_gate`) is fitted
     again with the generative fits of its ``neighbours`` nearest accepted
     frames as pose proposals (half the initial particles are drawn around them,
-    and each is a refinement start; see :func:`fit_frame`). The second fit
+    and each is a refinement start; see :func:`fit_frame`); a rescued frame
+    that passes the gate proposes for the frames after it. The second fit
     replaces the first when its mean silhouette IoU is higher; either way the
     attempt is recorded in ``frames/rescue.json``, so a resumed run does not repeat it.
 
@@ -293,6 +295,8 @@ def rescue_poor_frames(
         kept = fit.record.fitted and fit.record.mean_iou > old.mean_iou
         if kept:
             out[frame] = write_frame(layout, fit)
+            if out[frame].mean_iou >= gate.threshold:  # it can propose for the next ones
+                bisect.insort(accepted, frame)
         outcome = RescueOutcome(frame, tuple(near), old.mean_iou, fit.record.mean_iou, kept)
         log.info(
             "%s: frame %d: IoU %.3f -> %.3f from frames %s (%s)",
