@@ -34,7 +34,8 @@ from bodymetry.cli import DEMO_SESSION
 from bodymetry.config import ProcessConfig
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.resolution import WorkingResolution
-from bodymetry.process import fit_job, rig_models, run_fit_job
+from bodymetry.frame_jobs import fit_job, run_fit_job
+from bodymetry.process import rig_models
 
 #: Source path fragments -> category (first match wins).
 CATEGORIES = (

@@ -53,17 +53,20 @@ from bodymetry.estimation.records import (
 )
 from bodymetry.estimation.training import rig_key
 from bodymetry.fileio import read_text_limited, write_json_atomic
+from bodymetry.frame_jobs import (
+    fit_job,
+    read_done_frames,
+    rescue_poor_frames,
+    run_fit_job,
+    write_frame,
+)
 from bodymetry.process import (
     PreparedRun,
     RigModels,
     check_calibration,
     finish_run,
-    fit_job,
     prepare_run,
-    read_done_frames,
     rig_models,
-    run_fit_job,
-    write_frame,
 )
 from bodymetry.review.cohort import write_cohort
 
@@ -251,6 +254,15 @@ def _finish_task(
     *records: FrameRecord,
 ) -> RunResults:
     done = {**plan.done, **{r.frame: r for r in records}}
+    # The few frames the gate leaves out are fitted again here, one after another.
+    done = rescue_poor_frames(
+        prepared.layout,
+        done,
+        prepared.cameras,
+        models.path,
+        config.fit,
+        config.fit.rescue_neighbours,
+    )
     # Frames ran on many workers at once: the session's wall time is not its own,
     # so the timing says what the work cost (CPU seconds of this call's frames).
     timing = {

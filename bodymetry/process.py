@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import functools
 import json
 import logging
 import multiprocessing as mp
@@ -46,17 +45,9 @@ from bodymetry.capture.landmarks import (
     triangulate_landmarks,
 )
 from bodymetry.capture.session import Session, load_session
-from bodymetry.capture.silhouette import SilhouetteFrame, segment_session
+from bodymetry.capture.silhouette import segment_session
 from bodymetry.config import ProcessConfig
-from bodymetry.errors import InputError
-from bodymetry.estimation.fit import (
-    MIN_PIXELS,
-    FitConfig,
-    FrameFit,
-    fit_frame,
-    session_gate,
-    shared_body_model,
-)
+from bodymetry.estimation.fit import MIN_PIXELS, session_gate
 from bodymetry.estimation.records import (
     FrameRecord,
     RunLayout,
@@ -65,37 +56,33 @@ from bodymetry.estimation.records import (
     summarize,
 )
 from bodymetry.estimation.resolution import WorkingResolution
-from bodymetry.estimation.training import DiscriminativeModels, cached_models_path, load_or_train
-from bodymetry.fileio import save_npz, write_json_atomic
+from bodymetry.estimation.training import cached_models_path, load_or_train
+from bodymetry.fileio import write_json_atomic
+from bodymetry.frame_jobs import (
+    FitJob,
+    fit_job,
+    read_done_frames,
+    rescue_poor_frames,
+    run_fit_job,
+    write_frame,
+)
 from bodymetry.preflight import check_session
 from bodymetry.review.build import build_review
-from bodymetry.review.meshes import write_mesh
 from bodymetry.run_folder import prepare_run_folder
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "FitJob",
     "PreparedRun",
     "RigModels",
     "check_calibration",
     "finish_run",
-    "fit_job",
     "prepare_run",
     "process_session",
-    "read_done_frames",
     "rig_models",
-    "run_fit_job",
-    "write_frame",
 ]
 
 Progress = Callable[[str, int, int], None]
-
-
-@functools.lru_cache(maxsize=2)
-def _discriminative(path: Path) -> DiscriminativeModels:
-    # Loaded once per worker process (a worker fits many frames).
-    return DiscriminativeModels.load(path)
 
 
 def _die_with_parent(parent: int) -> None:
@@ -120,115 +107,6 @@ def _die_with_parent(parent: int) -> None:
         os._exit(1)
 
     threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
-
-
-@dataclass(frozen=True)
-class FitJob:
-    """One kept frame to fit: what a worker needs (no session access).
-
-    Attributes
-    ----------
-    frame : int
-    masks : list of (h_c, w_c) bool
-        Observed silhouettes at the working resolution, camera order.
-    flags : list of list of str
-    cameras : list of Camera
-        The working cameras.
-    models_path : Path
-        The rig's cached discriminative models.
-    fit : FitConfig
-    landmarks : (33, 3) float or None
-        The subject's body landmarks in the world frame, from capture.
-    """
-
-    frame: int
-    masks: list[np.ndarray]
-    flags: list[list[str]]
-    cameras: list[Camera]
-    models_path: Path
-    fit: FitConfig
-    landmarks: np.ndarray | None = None
-
-
-def run_fit_job(job: FitJob) -> FrameFit:
-    """Fit one frame (in a worker: the rig's models are loaded once per process)."""
-    models = _discriminative(job.models_path)
-    return fit_frame(job.frame, job.masks, job.flags, job.cameras, models, job.fit, job.landmarks)
-
-
-def fit_job(
-    sil: SilhouetteFrame,
-    cameras: list[Camera],
-    resolution: WorkingResolution,
-    models_path: Path,
-    fit: FitConfig,
-) -> FitJob:
-    """The job of one segmented frame: its silhouettes brought to the working resolution.
-
-    Parameters
-    ----------
-    sil : SilhouetteFrame
-        Masks (H_c, W_c) at the cameras' own resolution (capture).
-    cameras : list of Camera
-        The working cameras (:attr:`PreparedRun.cameras`), camera order.
-    resolution : WorkingResolution
-        Their factors (:attr:`PreparedRun.resolution`); each mask is
-        area-averaged and thresholded at 0.5
-        (:func:`bodymetry.estimation.resolution.downscale_mask`).
-    models_path : Path
-    fit : FitConfig
-    """
-    masks = resolution.downscale([c.name for c in cameras], sil.masks)
-    return FitJob(
-        sil.frame, masks, [list(f) for f in sil.flags], cameras, models_path, fit, sil.landmarks
-    )
-
-
-def write_frame(layout: RunLayout, fit: FrameFit) -> FrameRecord:
-    """Write a fitted frame: arrays and mesh first, then the record that marks it done.
-
-    Returns the record as written (rounded as in the file), so that a fresh run
-    and a resumed one summarize exactly the same numbers.
-    """
-    frame = fit.record.frame
-    save_npz(layout.frame_arrays(frame), fit.arrays.to_arrays())
-    if fit.state is not None:
-        body = shared_body_model()
-        vertices = body.pose(fit.state).vertices[0]
-        write_mesh(layout.frame_mesh(frame), vertices, body.faces(), body.full.arrays.parts)
-    record = fit.record.to_json()
-    write_json_atomic(layout.frame_record(frame), record)
-    return FrameRecord.from_json(record)
-
-
-def read_done_frames(layout: RunLayout) -> dict[int, FrameRecord]:
-    """The frames a previous run of this folder finished: record, arrays and mesh whole.
-
-    A frame whose record is unreadable (a truncated file) or whose arrays or mesh
-    are missing is fitted again, with a warning.
-    """
-    done = {}
-    for frame in layout.recorded_frames():
-        path = layout.frame_record(frame)
-        try:
-            record = FrameRecord.read(path)
-        except InputError as exc:
-            log.warning("%s; fitting the frame again", exc)
-            path.unlink()
-            continue
-        missing = [
-            p.name
-            for p in (layout.frame_arrays(frame), layout.frame_mesh(frame))
-            if not p.is_file() and (p.suffix == ".npz" or record.fitted)
-        ]
-        if missing:
-            log.warning(
-                "%s: frame %d lacks %s; fitting it again", layout.folder, frame, ", ".join(missing)
-            )
-            path.unlink()
-            continue
-        done[frame] = record
-    return done
 
 
 def camera_warnings(camera_frames: dict[str, int], n_kept: int) -> list[str]:
@@ -564,6 +442,15 @@ def process_session(
                 done[fit.record.frame] = write_frame(layout, fit)
                 if progress:
                     progress("frames", len(done), n_kept)
+    done = rescue_poor_frames(
+        layout,
+        done,
+        prepared.cameras,
+        models.path,
+        config.fit,
+        config.fit.rescue_neighbours,
+        progress,
+    )
     timing = {
         "training": t_train,
         "silhouettes": t_sil,

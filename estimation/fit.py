@@ -103,6 +103,10 @@ class FitConfig:
         0.90-0.96, those stuck in a wrong pose or limb configuration 0.82-0.87
         (their height errors are 11-53 mm, weight errors up to 25 kg). The
         session may lower it (:func:`session_gate`).
+    rescue_neighbours : int
+        Frames the session gate leaves out are fitted again with this many
+        nearest accepted frames' fits as pose proposals
+        (:func:`bodymetry.frame_jobs.rescue_poor_frames`); 0 turns it off.
     gate_margin, gate_floor : float
         The session gate (:func:`session_gate`): when even the session's good
         frames cannot reach ``min_iou`` (a real person in clothes is not the
@@ -119,6 +123,7 @@ class FitConfig:
     min_iou: float = 0.9
     gate_margin: float = 0.03
     gate_floor: float = 0.8
+    rescue_neighbours: int = 2
     annealing: AnnealingConfig = field(default_factory=AnnealingConfig)
     refinement: RefineConfig = field(default_factory=RefineConfig)
 
@@ -134,6 +139,8 @@ class FitConfig:
                 "gate_floor, gate_margin: expected 0 <= gate_floor <= 1 and "
                 f"0 <= gate_margin < 1, got {self.gate_floor}, {self.gate_margin}"
             )
+        if self.rescue_neighbours < 0:
+            raise ValueError(f"rescue_neighbours: expected >= 0, got {self.rescue_neighbours}")
         if not 0 <= self.landmark_share < 1:
             raise ValueError(f"landmark_share: expected in [0, 1), got {self.landmark_share}")
 
@@ -211,6 +218,44 @@ def _clip_pose(body: BodyModel, vectors: np.ndarray) -> np.ndarray:
 #: Spread of the particles drawn around the landmark pose: τ (m), θ (rad).
 _LANDMARK_SPREAD = (0.03, 0.08)
 
+#: Share of the initial particles drawn around the caller's pose proposals.
+PROPOSAL_SHARE = 0.5
+
+
+def _draws_around(
+    body: BodyModel,
+    centres: np.ndarray,
+    particles: np.ndarray,
+    share: float,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Replace ``share`` of the particles by draws of τ and θ around given poses.
+
+    Each draw keeps the shape of the particle it replaces (the shape search stays
+    the mixtures'); the draws are shared evenly among the centres.
+
+    Parameters
+    ----------
+    centres : (K, 40 + n_shape) float
+        The poses to draw around (their ν is not used).
+    particles : (N, 40 + n_shape) float
+
+    Returns
+    -------
+    (N, 40 + n_shape) float
+        The kept particles, then the draws.
+    """
+    n = len(particles)
+    k = round(share * n)
+    keep = rng.permutation(n)
+    drawn = particles[keep[:k]].copy()
+    centre = np.atleast_2d(centres)[np.arange(k) % len(np.atleast_2d(centres))]
+    drawn[:, TAU] = centre[:, TAU] + rng.normal(0.0, _LANDMARK_SPREAD[0], (k, 3))
+    drawn[:, THETA] = body.limits.clip(
+        centre[:, THETA] + rng.normal(0.0, _LANDMARK_SPREAD[1], (k, 37))
+    )
+    return np.vstack([particles[keep[k:]], drawn])
+
 
 def _with_landmark_particles(
     body: BodyModel,
@@ -222,22 +267,15 @@ def _with_landmark_particles(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Replace ``share`` of the initial particles by draws around the landmark pose.
 
-    The pose is solved for the discriminative shape; each draw keeps the shape of
-    the particle it replaces (the shape search stays the mixtures'). Returns the
-    particles and the landmark pose's state vector (None, and the particles
-    unchanged, when the landmarks do not give a pose).
+    The pose is solved for the discriminative shape. Returns the particles and
+    the landmark pose's state vector (None, and the particles unchanged, when
+    the landmarks do not give a pose).
     """
     pose = pose_from_landmarks(body, landmarks, disc.nu[0])
     if pose is None:
         return particles, None
-    n = len(particles)
-    k = round(share * n)
-    keep = rng.permutation(n)
-    drawn = particles[keep[:k]].copy()
-    drawn[:, TAU] = pose.tau + rng.normal(0.0, _LANDMARK_SPREAD[0], (k, 3))
-    drawn[:, THETA] = body.limits.clip(pose.theta + rng.normal(0.0, _LANDMARK_SPREAD[1], (k, 37)))
     start = np.concatenate([pose.tau, pose.theta, disc.nu[0]])
-    return np.vstack([particles[keep[k:]], drawn]), start
+    return _draws_around(body, start[None], particles, share, rng), start
 
 
 @dataclass(frozen=True)
@@ -266,6 +304,7 @@ def fit_frame(
     models: DiscriminativeModels,
     config: FitConfig,
     landmarks: np.ndarray | None = None,
+    proposals: dict[str, np.ndarray] | None = None,
 ) -> FrameFit:
     """Fit one frame (never raises for bad data: the record says what went wrong).
 
@@ -286,6 +325,11 @@ def fit_frame(
     landmarks : (33, 3) float, optional
         The subject's body landmarks in the world frame (NaN rows: not seen),
         from capture; they add pose proposals (``config.landmark_share``).
+    proposals : name -> (40 + n_shape,) float, optional
+        More poses to search around, e.g. the fits of neighbouring frames
+        (:func:`bodymetry.frame_jobs.rescue_poor_frames`): half of the
+        mixtures' particles are drawn around them, and each is a start of the
+        refinement under its name.
     """
     t0 = time.perf_counter()
     body = shared_body_model()
@@ -335,6 +379,11 @@ def fit_frame(
             f"discriminative {cameras[c].name}": p
             for c, p in zip(np.flatnonzero(valid), points, strict=True)
         }
+        if proposals:
+            particles = _draws_around(
+                body, np.array(list(proposals.values())), particles, PROPOSAL_SHARE, rng
+            )
+            starts.update(proposals)
         if landmarks is not None and config.landmark_share > 0:
             particles, start = _with_landmark_particles(
                 body, landmarks, disc_state, particles, config.landmark_share, rng

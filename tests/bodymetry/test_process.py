@@ -12,22 +12,25 @@ import trimesh
 from tiny_run import TINY_TRAIN, tiny_session
 
 import bodymetry.cameras as cameras_module
+import bodymetry.frame_jobs as frame_jobs
 import bodymetry.process as process_module
 from bodymetry.capture.session import load_session
 from bodymetry.capture.silhouette import segment_session
 from bodymetry.capture.video import H264Writer
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
-from bodymetry.estimation.fit import FitConfig, fit_frame
+from bodymetry.estimation.fit import FitConfig, FrameFit, fit_frame
 from bodymetry.estimation.records import (
     CORE_MEASUREMENTS,
     STAGES,
     FrameArrays,
     FrameRecord,
+    RunLayout,
     RunResults,
     summarize,
 )
 from bodymetry.estimation.training import DiscriminativeModels
+from bodymetry.frame_jobs import RESCUE_FILE, rescue_poor_frames
 from bodymetry.review.evaluation import evaluate_run
 
 
@@ -255,3 +258,80 @@ def test_frame_step_override_is_used_and_recorded(run, tmp_path):
     assert results.session.frame_step == 4 and results.config["frame_step"] == 4
     with pytest.raises(InputError, match="other settings"):  # a resume must use the same step
         process_module.process_session(session.folder, tmp_path / "run", _config(base))
+
+
+def _poor_copy(run, tmp_path, frame: int):
+    """A copy of the run folder whose ``frame`` reads as a poor fit (IoU 0.3 everywhere)."""
+    _, out, _, _ = run
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy)
+    layout = RunLayout(copy)
+    record = FrameRecord.read(layout.frame_record(frame))
+    poor = dataclasses.replace(
+        record,
+        status="poor fit: mean silhouette IoU 0.30 < 0.50",
+        silhouette_iou={k: 0.3 for k in record.silhouette_iou},
+    )
+    layout.frame_record(frame).write_text(json.dumps(poor.to_json()))
+    return layout, {f: FrameRecord.read(layout.frame_record(f)) for f in layout.recorded_frames()}
+
+
+def test_rescue_fits_a_poor_frame_again_from_its_neighbours(run, tmp_path, monkeypatch):
+    session, _, _, base = run
+    layout, records = _poor_copy(run, tmp_path, 2)
+    config = _config(base).fit
+    cams = list(session.calibration())
+    model_path = next((base / "cache" / "discriminative").glob("*.npz"))
+    seen = {}
+    real_fit = frame_jobs.fit_frame
+
+    def spy(frame, *args):
+        seen[frame] = args[-1]  # the proposals
+        return real_fit(frame, *args)
+
+    monkeypatch.setattr(frame_jobs, "fit_frame", spy)
+    out = rescue_poor_frames(layout, records, cams, model_path, config)
+    assert list(seen) == [2]  # only the poor frame, from both neighbours
+    assert set(seen[2]) == {"frame 0", "frame 4"}
+    assert out[2].mean_iou > 0.5 and out[2].status == "ok"
+    assert FrameRecord.read(layout.frame_record(2)).to_json() == out[2].to_json()  # written
+    assert all(out[f] is records[f] for f in (0, 4))
+    tried = json.loads((layout.frames_dir / RESCUE_FILE).read_text())
+    assert tried["2"]["kept"] and tried["2"]["neighbours"] == [0, 4]
+    assert tried["2"]["iou_before"] == pytest.approx(0.3)
+
+    # Tried once: a resumed run does not try it again.
+    monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: pytest.fail("fitted twice"))
+    poor_again = {**out, 2: records[2]}
+    assert rescue_poor_frames(layout, poor_again, cams, model_path, config) is poor_again
+
+
+def test_rescue_keeps_the_first_fit_when_the_second_is_no_better(run, tmp_path, monkeypatch):
+    session, _, _, base = run
+    layout, records = _poor_copy(run, tmp_path, 4)
+    worse = dataclasses.replace(
+        records[4], silhouette_iou={k: 0.1 for k in records[4].silhouette_iou}
+    )
+    monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: FrameFit(worse, FrameArrays()))
+    model_path = next((base / "cache" / "discriminative").glob("*.npz"))
+    cams = list(session.calibration())
+    out = rescue_poor_frames(layout, records, cams, model_path, _config(base).fit)
+    assert all(out[f] is records[f] for f in records)
+    assert FrameRecord.read(layout.frame_record(4)).to_json() == records[4].to_json()
+    tried = json.loads((layout.frames_dir / RESCUE_FILE).read_text())
+    assert tried == {
+        "4": {"neighbours": [2, 0], "iou_before": 0.3, "iou_after": 0.1, "kept": False}
+    }
+
+
+def test_rescue_off_and_nothing_to_rescue(run, tmp_path, monkeypatch):
+    session, out, results, base = run
+    monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: pytest.fail("nothing to rescue"))
+    cams = list(session.calibration())
+    model_path = next((base / "cache" / "discriminative").glob("*.npz"))
+    records = {r.frame: r for r in results.frames}
+    config = _config(base).fit
+    assert rescue_poor_frames(RunLayout(out), records, cams, model_path, config) is records
+    layout, poor = _poor_copy(run, tmp_path, 2)
+    assert rescue_poor_frames(layout, poor, cams, model_path, config, neighbours=0) is poor
+    assert not (layout.frames_dir / RESCUE_FILE).exists()

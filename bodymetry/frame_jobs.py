@@ -1,0 +1,314 @@
+"""One kept frame's fit as a job: what a worker needs, and the files it leaves.
+
+A :class:`FitJob` carries one frame's silhouettes at the working resolution
+and everything the fit needs without access to the session, so that
+``process`` (a process pool) and ``batch`` (Dask tasks) run the same work.
+:func:`write_frame` writes a fitted frame atomically (arrays and mesh first,
+then the record that marks it done) and :func:`read_done_frames` reads back
+the frames an interrupted run finished.
+
+:func:`rescue_poor_frames` is the second look at the frames the quality gate
+left out: each is fitted again with its nearest accepted neighbours' fits as
+pose proposals (a person moves little between kept frames), and the better
+fit is kept. The observed silhouettes come from the frame's own arrays, so
+nothing is segmented twice.
+"""
+
+from __future__ import annotations
+
+import bisect
+import functools
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bodymetry.calibration.camera import Camera
+from bodymetry.capture.silhouette import SilhouetteFrame
+from bodymetry.errors import InputError
+from bodymetry.estimation.fit import FitConfig, FrameFit, fit_frame, session_gate, shared_body_model
+from bodymetry.estimation.records import FrameArrays, FrameRecord, RunLayout, read_json_object
+from bodymetry.estimation.resolution import WorkingResolution
+from bodymetry.estimation.training import DiscriminativeModels
+from bodymetry.fileio import save_npz, write_json_atomic
+from bodymetry.review.meshes import write_mesh
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "RESCUE_FILE",
+    "FitJob",
+    "fit_job",
+    "read_done_frames",
+    "rescue_poor_frames",
+    "run_fit_job",
+    "write_frame",
+]
+
+#: The record of the frames a rescue has tried (so a resumed run does not try
+#: them again), in the run's ``frames/`` folder (a restart removes it with the
+#: frames).
+RESCUE_FILE = "rescue.json"
+
+Progress = Callable[[str, int, int], None]
+
+
+@functools.lru_cache(maxsize=2)
+def _discriminative(path: Path) -> DiscriminativeModels:
+    # Loaded once per worker process (a worker fits many frames).
+    return DiscriminativeModels.load(path)
+
+
+@dataclass(frozen=True)
+class FitJob:
+    """One kept frame to fit: what a worker needs (no session access).
+
+    Attributes
+    ----------
+    frame : int
+    masks : list of (h_c, w_c) bool
+        Observed silhouettes at the working resolution, camera order.
+    flags : list of list of str
+    cameras : list of Camera
+        The working cameras.
+    models_path : Path
+        The rig's cached discriminative models.
+    fit : FitConfig
+    landmarks : (33, 3) float or None
+        The subject's body landmarks in the world frame, from capture.
+    """
+
+    frame: int
+    masks: list[np.ndarray]
+    flags: list[list[str]]
+    cameras: list[Camera]
+    models_path: Path
+    fit: FitConfig
+    landmarks: np.ndarray | None = None
+
+
+def run_fit_job(job: FitJob) -> FrameFit:
+    """Fit one frame (in a worker: the rig's models are loaded once per process)."""
+    models = _discriminative(job.models_path)
+    return fit_frame(job.frame, job.masks, job.flags, job.cameras, models, job.fit, job.landmarks)
+
+
+def fit_job(
+    sil: SilhouetteFrame,
+    cameras: list[Camera],
+    resolution: WorkingResolution,
+    models_path: Path,
+    fit: FitConfig,
+) -> FitJob:
+    """The job of one segmented frame: its silhouettes brought to the working resolution.
+
+    Parameters
+    ----------
+    sil : SilhouetteFrame
+        Masks (H_c, W_c) at the cameras' own resolution (capture).
+    cameras : list of Camera
+        The working cameras (:attr:`PreparedRun.cameras`), camera order.
+    resolution : WorkingResolution
+        Their factors (:attr:`PreparedRun.resolution`); each mask is
+        area-averaged and thresholded at 0.5
+        (:func:`bodymetry.estimation.resolution.downscale_mask`).
+    models_path : Path
+    fit : FitConfig
+    """
+    masks = resolution.downscale([c.name for c in cameras], sil.masks)
+    return FitJob(
+        sil.frame, masks, [list(f) for f in sil.flags], cameras, models_path, fit, sil.landmarks
+    )
+
+
+def write_frame(layout: RunLayout, fit: FrameFit) -> FrameRecord:
+    """Write a fitted frame: arrays and mesh first, then the record that marks it done.
+
+    Returns the record as written (rounded as in the file), so that a fresh run
+    and a resumed one summarize exactly the same numbers.
+    """
+    frame = fit.record.frame
+    save_npz(layout.frame_arrays(frame), fit.arrays.to_arrays())
+    if fit.state is not None:
+        body = shared_body_model()
+        vertices = body.pose(fit.state).vertices[0]
+        write_mesh(layout.frame_mesh(frame), vertices, body.faces(), body.full.arrays.parts)
+    record = fit.record.to_json()
+    write_json_atomic(layout.frame_record(frame), record)
+    return FrameRecord.from_json(record)
+
+
+def read_done_frames(layout: RunLayout) -> dict[int, FrameRecord]:
+    """The frames a previous run of this folder finished: record, arrays and mesh whole.
+
+    A frame whose record is unreadable (a truncated file) or whose arrays or mesh
+    are missing is fitted again, with a warning.
+    """
+    done = {}
+    for frame in layout.recorded_frames():
+        path = layout.frame_record(frame)
+        try:
+            record = FrameRecord.read(path)
+        except InputError as exc:
+            log.warning("%s; fitting the frame again", exc)
+            path.unlink()
+            continue
+        missing = [
+            p.name
+            for p in (layout.frame_arrays(frame), layout.frame_mesh(frame))
+            if not p.is_file() and (p.suffix == ".npz" or record.fitted)
+        ]
+        if missing:
+            log.warning(
+                "%s: frame %d lacks %s; fitting it again", layout.folder, frame, ", ".join(missing)
+            )
+            path.unlink()
+            continue
+        done[frame] = record
+    return done
+
+
+def _neighbours(frame: int, accepted: list[int], n: int) -> list[int]:
+    """The ``n`` accepted frames nearest to ``frame``: the nearest before and after first."""
+    before = [f for f in accepted if f < frame][::-1]
+    after = [f for f in accepted if f > frame]
+    order = [f for pair in zip(before, after, strict=False) for f in pair]
+    longer = before if len(before) > len(after) else after
+    order += longer[min(len(before), len(after)) :]
+    return order[:n]
+
+
+@dataclass(frozen=True)
+class RescueOutcome:
+    """What the rescue did to one frame (``rescue.json``).
+
+    Attributes
+    ----------
+    frame : int
+    neighbours : tuple of int
+        The accepted frames whose fits were the proposals.
+    iou_before, iou_after : float
+        Mean silhouette IoU of the first fit and of the second.
+    kept : bool
+        Whether the second fit replaced the first (it fits better).
+    """
+
+    frame: int
+    neighbours: tuple[int, ...]
+    iou_before: float
+    iou_after: float
+    kept: bool
+
+    def to_json(self) -> dict:
+        return {
+            "neighbours": list(self.neighbours),
+            "iou_before": round(self.iou_before, 4) if math.isfinite(self.iou_before) else None,
+            "iou_after": round(self.iou_after, 4) if math.isfinite(self.iou_after) else None,
+            "kept": self.kept,
+        }
+
+
+def _read_rescue(layout: RunLayout) -> dict[str, dict]:
+    path = layout.frames_dir / RESCUE_FILE
+    if not path.is_file():
+        return {}
+    try:
+        return dict(read_json_object(path))
+    except InputError as exc:  # a torn file: the frames are tried again, nothing is lost
+        log.warning("%s; the rescue tries its frames again", exc)
+        return {}
+
+
+def rescue_poor_frames(
+    layout: RunLayout,
+    records: dict[int, FrameRecord],
+    cameras: list[Camera],
+    models_path: Path,
+    config: FitConfig,
+    neighbours: int = 2,
+    progress: Progress | None = None,
+) -> dict[int, FrameRecord]:
+    """Fit the frames the session's quality gate leaves out again, from their neighbours.
+
+    Each fitted frame below the session gate (:func:`session_gate`) is fitted
+    again with the generative fits of its ``neighbours`` nearest accepted
+    frames as pose proposals (half the initial particles are drawn around them,
+    and each is a refinement start; see :func:`fit_frame`); a rescued frame
+    that passes the gate proposes for the frames after it. The second fit
+    replaces the first when its mean silhouette IoU is higher; either way the
+    attempt is recorded in ``frames/rescue.json``, so a resumed run does not repeat it.
+
+    Parameters
+    ----------
+    layout : RunLayout
+        The run folder; the frames' observed silhouettes are read from their
+        arrays (``frames/FFFFFF.npz``), at the working resolution.
+    records : dict of int to FrameRecord
+        Every kept frame's record (:func:`read_done_frames` after the first pass).
+    cameras : list of Camera
+        The working cameras the frames were fitted with.
+    models_path : Path
+        The rig's discriminative models.
+    config : FitConfig
+    neighbours : int
+        Proposals per frame.
+    progress : callable, optional
+        ``progress("rescue", done, total)``.
+
+    Returns
+    -------
+    dict of int to FrameRecord
+        ``records`` with the rescued frames' new records.
+    """
+    gate, gated = session_gate([records[f] for f in sorted(records)], config)
+    accepted = [r.frame for r in gated if r.ok]
+    tried = _read_rescue(layout)
+    poor = [r.frame for r in gated if r.fitted and not r.ok and str(r.frame) not in tried]
+    if not poor or not accepted or neighbours < 1:
+        return records
+    log.info(
+        "%s: %d frame(s) below the quality gate %.2f; fitting them again from their neighbours",
+        layout.folder,
+        len(poor),
+        gate.threshold,
+    )
+    out = dict(records)
+    models = _discriminative(models_path)
+    if progress:
+        progress("rescue", 0, len(poor))
+    for i, frame in enumerate(poor):
+        old = records[frame]
+        near = _neighbours(frame, accepted, neighbours)
+        proposals = {f"frame {n}": records[n].estimate().vector() for n in near}
+        arrays = FrameArrays.load(layout.frame_arrays(frame))
+        try:
+            masks = [arrays.observed[c.name] for c in cameras]
+        except KeyError as exc:
+            raise InputError(
+                f"{layout.frame_arrays(frame)}: no observed silhouette of camera {exc}"
+            ) from exc
+        flags = [list(old.flags.get(c.name, ())) for c in cameras]
+        fit = fit_frame(frame, masks, flags, cameras, models, config, arrays.landmarks, proposals)
+        kept = fit.record.fitted and fit.record.mean_iou > old.mean_iou
+        if kept:
+            out[frame] = write_frame(layout, fit)
+            if out[frame].mean_iou >= gate.threshold:  # it can propose for the next ones
+                bisect.insort(accepted, frame)
+        outcome = RescueOutcome(frame, tuple(near), old.mean_iou, fit.record.mean_iou, kept)
+        log.info(
+            "%s: frame %d: IoU %.3f -> %.3f from frames %s (%s)",
+            layout.folder,
+            frame,
+            outcome.iou_before,
+            outcome.iou_after,
+            ", ".join(map(str, near)),
+            "kept" if kept else "first fit kept",
+        )
+        tried[str(frame)] = outcome.to_json()
+        write_json_atomic(layout.frames_dir / RESCUE_FILE, tried)
+        if progress:
+            progress("rescue", i + 1, len(poor))
+    return out
