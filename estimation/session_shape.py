@@ -234,10 +234,14 @@ def _frame_weights(costs: np.ndarray, scale: float) -> np.ndarray:
     return np.minimum(1.0, scale * med / np.maximum(costs, 1e-300))
 
 
-def _blocks(
-    frames: Sequence[_Frame], step: np.ndarray
-) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]]:
-    """Per frame the Gauss-Newton blocks ``(A, B, C, g_pose, g_shape, Σr²)`` at its state."""
+#: One frame's Gauss-Newton blocks: ``A = J_pᵀJ_p`` (40, 40), ``B = J_pᵀJ_ν`` (40, n),
+#: ``C = J_νᵀJ_ν`` (n, n), ``g_pose = J_pᵀr`` (40,), ``g_shape = J_νᵀr`` (n,), ``Σr²``
+#: and the number of residuals.
+_Blocks = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, int]
+
+
+def _blocks(frames: Sequence[_Frame], step: np.ndarray) -> list[_Blocks]:
+    """Per frame the Gauss-Newton blocks (:data:`_Blocks`) at its state."""
     out = []
     for fr in frames:
         r, J = fr.cost_fn.linearize(fr.y, fr.pairs, step)
@@ -432,7 +436,7 @@ def fit_session_shape(
 
 
 def _covariance(
-    blocks: Sequence[tuple], weights: np.ndarray, prior: float, n_shape: int
+    blocks: Sequence[_Blocks], weights: np.ndarray, prior: float, n_shape: int
 ) -> tuple[np.ndarray, str]:
     """Covariance (n_shape, n_shape) of ν with the poses marginalized, and which one.
 
