@@ -15,7 +15,8 @@ Topics (one message per kept frame unless said otherwise; cameras ``cam_NN``):
 ``/body``                        ``foxglove.SceneUpdate``  the fitted body (triangle lists
                                  per colour) and its skeleton, in ``world`` (fitted frames);
                                  entity ``session``: the session stage's body
-                                 (translucent green), on the frames it used
+                                 (level of detail, translucent green), on the
+                                 frames it used
 ``/particles``                   ``foxglove.PointCloud``  particle root positions τ and
                                  weights (fitted frames with particles)
 ``/measurements``                JSON  the frame's record from ``results.json``
@@ -144,7 +145,8 @@ class McapWriter:
         parts = np.asarray(body.full.arrays.parts)
         rgb = PART_COLORS[parts]
         # One triangle list per colour: solid colours need no per-vertex colour data.
-        self._all_indices = faces.reshape(-1).astype(int).tolist()  # the session body, one colour
+        # The session body: its level of detail, one colour.
+        self._session_indices = body.faces(lod=True).reshape(-1).astype(int).tolist()
         self._groups = []
         for colour in np.unique(rgb, axis=0):
             tri = faces[np.all(rgb == colour, axis=1)]
@@ -245,7 +247,7 @@ class McapWriter:
                         m.TriangleListPrimitive(
                             points=[m.Point3(x=p[0], y=p[1], z=p[2]) for p in session.tolist()],
                             color=m.Color(r=0.16, g=0.63, b=0.35, a=0.45),
-                            indices=self._all_indices,
+                            indices=self._session_indices,
                         )
                     ],
                 )

@@ -16,7 +16,7 @@ the start of the recording):
     the fitted body: triangles and colours once (static), vertex positions per frame.
 ``/world/session/mesh``
     the session stage's body (the session's one shape in the frame's refined
-    pose), translucent green, per frame that has it.
+    pose; its level of detail), translucent green, per frame that has it.
 ``/world/body/skeleton``, ``/world/body/keypoints``
     bones and keypoints per frame.
 ``/world/body/particles``
@@ -236,7 +236,8 @@ class RerunWriter:
             rec.log(
                 "/world/session/mesh",
                 rr.Mesh3D.from_fields(
-                    triangle_indices=body.faces().astype(np.uint32), albedo_factor=SESSION_RGBA
+                    triangle_indices=body.faces(lod=True).astype(np.uint32),
+                    albedo_factor=SESSION_RGBA,
                 ),
                 static=True,
             )

@@ -231,9 +231,11 @@ class FrameView:
     landmarks : (33, 3) float or None
         The subject's body landmarks capture triangulated (world frame; NaN rows
         not seen), when the person segmenter ran.
-    session_vertices : (V, 3) float32 or None
+    session_vertices : (V_lod, 3) float32 or None
         The session stage's body in this frame (the session's one shape in the
-        frame's refined pose), full resolution; None without one.
+        frame's refined pose), its level of detail (``body.faces(lod=True)``:
+        it is drawn beside the full-resolution fitted body and would double the
+        recordings); None without one.
     """
 
     record: FrameRecord
@@ -283,7 +285,7 @@ def skeleton_segments(keypoints: np.ndarray) -> np.ndarray:
 
 
 def pose_frame(
-    body: BodyModel, record: FrameRecord, stage: str = "generative"
+    body: BodyModel, record: FrameRecord, stage: str = "generative", lod: bool = False
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """A stage's body of a frame record: full-resolution vertices and keypoints.
 
@@ -295,7 +297,7 @@ def pose_frame(
     estimate = record.estimate(stage)
     if estimate is None:
         return None, None
-    posed = body.pose(estimate.state)
+    posed = body.pose(estimate.state, lod=lod)
     return posed.vertices[0].astype(np.float32), posed.keypoints[0]
 
 
@@ -330,7 +332,7 @@ def frame_views(
             particles=arrays.particles if vertices is not None else None,
             weights=arrays.weights if vertices is not None else None,
             landmarks=arrays.landmarks,
-            session_vertices=pose_frame(body, record, "session")[0],
+            session_vertices=pose_frame(body, record, "session", lod=True)[0],
         )
 
 
