@@ -20,6 +20,7 @@ from bodymetry.capture.silhouette import CaptureConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import PRESETS, FitConfig
 from bodymetry.estimation.resolution import DEFAULT_WORKING_PERSON_PX
+from bodymetry.estimation.session_shape import SessionShapeConfig
 from bodymetry.estimation.training import TrainConfig, default_cache_dir
 from bodymetry.settings import apply_overrides, from_jsonable, to_jsonable
 
@@ -44,6 +45,12 @@ class ProcessConfig:
         Per-frame fit: seed, density, quality gate, annealing, refinement.
     training : TrainConfig
         Discriminative training for a new rig (paper §6: 3000 + 597 examples).
+    session_shape : SessionShapeConfig
+        The session stage after the per-frame fits: one shape for the session
+        (``--set session_shape.enabled=false`` skips it). It changes no
+        frame's fit, so it is not part of the run folder's settings
+        fingerprint: a finished run resumed with another setting redoes only
+        the summary.
     frame_step : int or None
         Fit every ``frame_step``-th frame instead of the session's own
         ``frame_step`` (for clips too short for the default of 25); None keeps
@@ -68,6 +75,7 @@ class ProcessConfig:
     capture: CaptureConfig = field(default_factory=CaptureConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     training: TrainConfig = field(default_factory=TrainConfig)
+    session_shape: SessionShapeConfig = field(default_factory=SessionShapeConfig)
     frame_step: int | None = None
     working_person_px: float | None = DEFAULT_WORKING_PERSON_PX
     workers: int | None = None

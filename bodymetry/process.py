@@ -47,15 +47,19 @@ from bodymetry.capture.landmarks import (
 from bodymetry.capture.session import Session, load_session
 from bodymetry.capture.silhouette import segment_session
 from bodymetry.config import ProcessConfig
-from bodymetry.estimation.fit import MIN_PIXELS, session_gate
+from bodymetry.errors import InputError
+from bodymetry.estimation.fit import MIN_PIXELS, session_gate, shared_body_model
 from bodymetry.estimation.records import (
+    FrameArrays,
     FrameRecord,
     RunLayout,
     RunResults,
     SessionInfo,
+    SessionShape,
     summarize,
 )
 from bodymetry.estimation.resolution import WorkingResolution
+from bodymetry.estimation.session_shape import fit_session_shape, session_frame
 from bodymetry.estimation.training import cached_models_path, load_or_train
 from bodymetry.fileio import write_json_atomic
 from bodymetry.frame_jobs import (
@@ -80,6 +84,7 @@ __all__ = [
     "prepare_run",
     "process_session",
     "rig_models",
+    "session_stage",
 ]
 
 Progress = Callable[[str, int, int], None]
@@ -303,6 +308,64 @@ def rig_models(
     return RigModels(models.key, path, reused, time.perf_counter() - t0)
 
 
+def session_stage(
+    prepared: PreparedRun,
+    config: ProcessConfig,
+    records: Sequence[FrameRecord],
+    progress: Progress | None = None,
+) -> tuple[SessionShape | None, list[FrameRecord]]:
+    """One shape for the session (:mod:`bodymetry.estimation.session_shape`).
+
+    Reads the accepted frames' silhouettes back from the run folder (the
+    ``frames/FFFFFF.npz`` written with their records), so it runs the same
+    after a resumed run and as ``batch``'s reduce task. The frame records on
+    disk are left as they are: the ``session`` estimates live in
+    ``results.json``.
+
+    Returns
+    -------
+    SessionShape or None
+        None when ``config.session_shape.enabled`` is off.
+    list of FrameRecord
+        ``records`` with each accepted frame's ``session`` estimate added when
+        the stage was accepted (unchanged otherwise).
+    """
+    if not config.session_shape.enabled:
+        return None, list(records)
+    ok = [r for r in records if r.ok]
+    log.info("%s: session shape from %d accepted frames", prepared.session.folder, len(ok))
+    try:
+        frames = [
+            session_frame(
+                r, FrameArrays.load(prepared.layout.frame_arrays(r.frame)), prepared.cameras
+            )
+            for r in ok
+        ]
+        fit = fit_session_shape(
+            shared_body_model(),
+            prepared.cameras,
+            frames,
+            config.fit.refinement,
+            config.session_shape,
+            config.fit.density,
+            progress,
+        )
+    except (InputError, ValueError, np.linalg.LinAlgError) as exc:
+        log.warning("%s: the session shape failed: %s", prepared.session.folder, exc)
+        return SessionShape(status=f"failed: {exc}", frames=tuple(r.frame for r in ok)), list(
+            records
+        )
+    if not fit.summary.ok:
+        log.warning("%s: session shape %s", prepared.session.folder, fit.summary.status)
+    out = [
+        replace(r, estimates={**r.estimates, "session": fit.estimates[r.frame]})
+        if r.frame in fit.estimates
+        else r
+        for r in records
+    ]
+    return fit.summary, out
+
+
 def finish_run(
     prepared: PreparedRun,
     config: ProcessConfig,
@@ -311,12 +374,17 @@ def finish_run(
     timing: dict[str, float],
     progress: Progress | None = None,
 ) -> RunResults:
-    """Summarize the recorded frames, write ``results.json``, then the review outputs.
+    """Summarize the recorded frames, fit the session's one shape
+    (:func:`session_stage`), write ``results.json``, then the review outputs.
 
     A failure of the review is logged, never raised: the results are safe on disk.
     """
     session = prepared.session
     gate, gated = session_gate([records[f] for f in sorted(records)], config.fit)
+    t0 = time.perf_counter()
+    shape, gated = session_stage(prepared, config, gated, progress)
+    if shape is not None:
+        timing = {**timing, "session_shape": time.perf_counter() - t0}
     ordered = tuple(gated)
     if gate.threshold < gate.min_iou:
         log.info(
@@ -345,7 +413,7 @@ def finish_run(
         ),
         config={**config.to_json(), "models": models.key, "models_reused": models.reused},
         frames=ordered,
-        summary=summarize(ordered),
+        summary=summarize(ordered, shape),
         timing_seconds={k: round(v, 1) for k, v in timing.items()},
         calibration_source=prepared.calibration_source,
         ground_truth=_ground_truth(session),
@@ -353,6 +421,7 @@ def finish_run(
         warnings=(*prepared.warnings, *warnings),
         working_resolution=prepared.resolution,
         quality_gate=gate.to_json(),
+        session_shape=shape,
     )
     write_json_atomic(prepared.layout.results, results.to_json())
     if config.review:

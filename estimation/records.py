@@ -29,6 +29,7 @@ from bodymetry.fileio import load_npz, read_text_limited
 
 __all__ = [
     "CORE_MEASUREMENTS",
+    "FRAME_STAGES",
     "MEASUREMENTS_CSV",
     "RECORDING_MCAP",
     "RECORDING_RRD",
@@ -44,6 +45,7 @@ __all__ = [
     "RunLayout",
     "RunResults",
     "SessionInfo",
+    "SessionShape",
     "StageEstimate",
     "Stat",
     "StudyResults",
@@ -52,8 +54,12 @@ __all__ = [
     "summarize",
 ]
 
-#: The fitting stages, in pipeline order, as keyed in the records.
-STAGES: tuple[str, ...] = ("discriminative", "generative")
+#: The fitting stages, in pipeline order, as keyed in the records: two per frame,
+#: then the session's one shape (:mod:`bodymetry.estimation.session_shape`), which
+#: only frames with status ``ok`` of a run whose session stage was accepted carry.
+STAGES: tuple[str, ...] = ("discriminative", "generative", "session")
+#: The stages every fitted frame has.
+FRAME_STAGES: tuple[str, ...] = STAGES[:2]
 #: The three measurements of the paper's Figure 3.
 CORE_MEASUREMENTS: tuple[str, ...] = ("height_mm", "arm_span_mm", "weight_kg")
 #: Version of ``results.json`` written by this code (1: before the typed schema).
@@ -219,10 +225,14 @@ class StageEstimate:
         Batch of one: τ (1, 3) m, θ (1, 37) rad, ν (1, n_shape).
     biometrics : dict of str to float
         Measurements of the canonical body (``MEASUREMENTS`` keys: mm, kg, l).
+    silhouette_iou : dict of str to float
+        IoU of this estimate's silhouette with the observed one per view, when
+        it differs from the frame's (the session stage's; empty otherwise).
     """
 
     state: BodyState
     biometrics: dict[str, float]
+    silhouette_iou: dict[str, float] = field(default_factory=dict)
 
     def vector(self) -> np.ndarray:
         """``[τ, θ, ν]`` (40 + n_shape,) float."""
@@ -232,18 +242,35 @@ class StageEstimate:
     def finite(self) -> bool:
         return bool(np.all(np.isfinite(self.vector())))
 
+    @property
+    def mean_iou(self) -> float:
+        values = [v for v in self.silhouette_iou.values() if math.isfinite(v)]
+        return float(np.mean(values)) if values else float("nan")
+
     def to_json(self) -> dict[str, Any]:
-        return {
+        out = {
             **{k: _finite_or_none(v, 3) for k, v in self.biometrics.items()},
             "state": _state_to_json(self.state),
         }
+        if self.silhouette_iou:
+            out["silhouette_iou"] = {
+                k: _finite_or_none(v, 4) for k, v in self.silhouette_iou.items()
+            }
+        return out
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any], where: str = "estimate") -> StageEstimate:
         if not isinstance(data, Mapping) or "state" not in data:
             raise InputError(f"{where}: expected measurements and a 'state'")
-        bio = {k: float("nan") if v is None else float(v) for k, v in data.items() if k != "state"}
-        return cls(_state_from_json(data["state"], f"{where}.state"), bio)
+        extra = ("state", "silhouette_iou")
+        bio = {
+            k: float("nan") if v is None else float(v) for k, v in data.items() if k not in extra
+        }
+        iou = {
+            k: float("nan") if v is None else float(v)
+            for k, v in (data.get("silhouette_iou") or {}).items()
+        }
+        return cls(_state_from_json(data["state"], f"{where}.state"), bio, iou)
 
 
 @dataclass(frozen=True)
@@ -513,7 +540,11 @@ class FrameArrays:
 
 @dataclass(frozen=True)
 class Stat:
-    """Mean, sample standard deviation and count of a measurement over frames."""
+    """Mean, sample standard deviation and count of a measurement over frames.
+
+    For the ``session`` stage (one value for the session) ``mean`` is that
+    value, ``std`` its standard error and ``n`` the frames it was fitted to.
+    """
 
     mean: float | None
     std: float | None
@@ -539,14 +570,141 @@ class Stat:
         )
 
 
-def summarize(records: Sequence[FrameRecord]) -> dict[str, dict[str, Stat]]:
-    """Mean, std and n per stage and measurement over the frames with status ``ok``."""
+def summarize(
+    records: Sequence[FrameRecord], session_shape: SessionShape | None = None
+) -> dict[str, dict[str, Stat]]:
+    """Per stage and measurement: mean, std and n over the frames with status ``ok``.
+
+    The ``session`` stage is there when ``session_shape`` was accepted: its one
+    value with its standard error (see :class:`Stat`).
+    """
     ok = [r for r in records if r.ok]
     out: dict[str, dict[str, Stat]] = {}
-    for stage in STAGES:
+    for stage in FRAME_STAGES:
         keys = list(ok[0].estimates[stage].biometrics) if ok else list(CORE_MEASUREMENTS)
         out[stage] = {k: Stat.of([r.estimates[stage].biometrics[k] for r in ok]) for k in keys}
+    if session_shape is not None and session_shape.ok:
+        n = len(session_shape.frames)
+        out["session"] = {
+            k: Stat(
+                _finite_or_none(v, 6),
+                _finite_or_none(session_shape.standard_errors.get(k, math.nan), 6),
+                n,
+            )
+            for k, v in session_shape.biometrics.items()
+        }
     return out
+
+
+@dataclass(frozen=True)
+class SessionShape:
+    """The session stage's outcome (``results.json`` ``session_shape``).
+
+    Attributes
+    ----------
+    status : str
+        ``"ok"`` (accepted: the frames carry a ``session`` estimate),
+        ``"rejected: ..."`` (computed, but it worsened the frames' silhouette
+        fit beyond the tolerance; the numbers are kept here only),
+        ``"skipped: ..."`` or ``"failed: ..."``.
+    method : str
+        How it was estimated and what the standard errors are.
+    frames : tuple of int
+        The frames it was fitted to (status ``ok``).
+    nu, nu_se : tuple of float
+        The one shape (n_shape,) and its standard errors.
+    start_nu : tuple of float
+        Where it started (the per-frame fits' median ν).
+    biometrics, standard_errors : dict of str to float
+        Measurements of the shape and their standard errors.
+    frame_weights : dict of int to float
+        Each frame's robust weight (1: full; lower: its contours disagreed).
+    mean_iou, reference_iou : float
+        The frames' mean silhouette IoU with the shared shape, and with their
+        own per-frame fits.
+    initial_cost, cost : float
+        The session's contour cost before and after.
+    iterations : int
+        Accepted joint steps.
+    covariance : str
+        Which covariance the standard errors come from.
+    seconds : float
+    """
+
+    status: str
+    method: str = ""
+    frames: tuple[int, ...] = ()
+    nu: tuple[float, ...] = ()
+    nu_se: tuple[float, ...] = ()
+    start_nu: tuple[float, ...] = ()
+    biometrics: dict[str, float] = field(default_factory=dict)
+    standard_errors: dict[str, float] = field(default_factory=dict)
+    frame_weights: dict[int, float] = field(default_factory=dict)
+    mean_iou: float = math.nan
+    reference_iou: float = math.nan
+    initial_cost: float = math.nan
+    cost: float = math.nan
+    iterations: int = 0
+    covariance: str = ""
+    seconds: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return self.status == OK
+
+    def to_json(self) -> dict[str, Any]:
+        def floats(values: Sequence[float], digits: int) -> list[float | None]:
+            return [_finite_or_none(v, digits) for v in values]
+
+        return {
+            "status": self.status,
+            "method": self.method,
+            "covariance": self.covariance,
+            "frames": [int(f) for f in self.frames],
+            "nu": floats(self.nu, 6),
+            "nu_se": floats(self.nu_se, 6),
+            "start_nu": floats(self.start_nu, 6),
+            "biometrics": {k: _finite_or_none(v, 3) for k, v in self.biometrics.items()},
+            "standard_errors": {k: _finite_or_none(v, 4) for k, v in self.standard_errors.items()},
+            "frame_weights": {str(k): _finite_or_none(v, 4) for k, v in self.frame_weights.items()},
+            "mean_iou": _finite_or_none(self.mean_iou, 4),
+            "reference_iou": _finite_or_none(self.reference_iou, 4),
+            "initial_cost": _finite_or_none(self.initial_cost, 4),
+            "cost": _finite_or_none(self.cost, 4),
+            "iterations": int(self.iterations),
+            "seconds": round(float(self.seconds), 2),
+        }
+
+    @classmethod
+    def from_json(cls, data: Any, where: str = "session_shape") -> SessionShape:
+        """Read the block; InputError naming ``where`` when it is not one."""
+        if not isinstance(data, Mapping) or "status" not in data:
+            raise InputError(f"{where}: expected an object with a 'status'")
+
+        def num(v: Any) -> float:
+            return math.nan if v is None else float(v)
+
+        try:
+            return cls(
+                status=str(data["status"]),
+                method=str(data.get("method", "")),
+                frames=tuple(int(f) for f in data.get("frames", ())),
+                nu=tuple(num(v) for v in data.get("nu", ())),
+                nu_se=tuple(num(v) for v in data.get("nu_se", ())),
+                start_nu=tuple(num(v) for v in data.get("start_nu", ())),
+                biometrics={k: num(v) for k, v in data.get("biometrics", {}).items()},
+                standard_errors={k: num(v) for k, v in data.get("standard_errors", {}).items()},
+                frame_weights={int(k): num(v) for k, v in data.get("frame_weights", {}).items()},
+                mean_iou=num(data.get("mean_iou")),
+                reference_iou=num(data.get("reference_iou")),
+                initial_cost=num(data.get("initial_cost")),
+                cost=num(data.get("cost")),
+                iterations=int(data.get("iterations", 0)),
+                covariance=str(data.get("covariance", "")),
+                seconds=float(data.get("seconds", 0.0)),
+            )
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise InputError(f"{where}: malformed session shape ({exc})") from exc
 
 
 @dataclass(frozen=True)
@@ -621,6 +779,9 @@ class RunResults:
         The gate the frames' statuses were set by
         (:func:`bodymetry.estimation.fit.session_gate`): ``threshold``,
         ``min_iou``, ``reference``.
+    session_shape : SessionShape or None
+        The session stage (one shape for the session); None when it was
+        disabled or for runs recorded before it.
     """
 
     session: SessionInfo
@@ -634,6 +795,7 @@ class RunResults:
     warnings: tuple[str, ...] = ()
     working_resolution: WorkingResolution | None = None
     quality_gate: dict[str, Any] | None = None
+    session_shape: SessionShape | None = None
 
     @property
     def ok_frames(self) -> list[FrameRecord]:
@@ -676,6 +838,8 @@ class RunResults:
             out["working_resolution"] = self.working_resolution.to_json()
         if self.quality_gate is not None:
             out["quality_gate"] = self.quality_gate
+        if self.session_shape is not None:
+            out["session_shape"] = self.session_shape.to_json()
         if self.ground_truth is not None:
             out["ground_truth"] = self.ground_truth
         return out
@@ -723,6 +887,11 @@ class RunResults:
             quality_gate=(
                 dict(data["quality_gate"])
                 if isinstance(data.get("quality_gate"), Mapping)
+                else None
+            ),
+            session_shape=(
+                SessionShape.from_json(data["session_shape"], f"{where}: session_shape")
+                if data.get("session_shape") is not None
                 else None
             ),
             working_resolution=(

@@ -476,6 +476,35 @@ class _ContourCost:
             robust.append(np.sqrt(np.where(length <= h, 1.0, h / np.maximum(length, 1e-12))))
         return np.concatenate(res, axis=-1), np.concatenate(robust)
 
+    def linearize(
+        self, y: np.ndarray, pairs: list[_Pairs], step: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Robustly weighted residuals and their forward-difference Jacobian at ``y``.
+
+        Parameters
+        ----------
+        y : (n,) float
+            The state ``[τ, θ, ν]``.
+        pairs : list of _Pairs
+            The correspondences found for ``y`` (:meth:`evaluate`).
+        step : (n,) float
+            Finite-difference step per state dimension.
+
+        Returns
+        -------
+        r : (R,) float
+            Residuals times their Huber IRLS weights (``(r ** 2).sum()`` is the
+            data cost of ``y``).
+        J : (R, n) float
+            Their derivatives (the weights held fixed), for Gauss-Newton.
+        """
+        # Only the vertices of the contour edges enter the residuals.
+        used = np.unique(np.concatenate([p.edges.ravel() for p in pairs]))
+        Vp = self.perturbed(y, step, used)
+        r, w = self.residuals(Vp, pairs)
+        J = ((r[1:] - r[0]) / step[:, None]).T * w[:, None]
+        return r[0] * w, J
+
     def _posed(self, y: np.ndarray) -> np.ndarray:
         """Residual-mesh vertices (V, 3) of one state; the last one is remembered (the
         iteration evaluates a state, then differentiates at it)."""
@@ -493,6 +522,11 @@ class _ContourCost:
         r, w = self.residuals(V, pairs)
         nu = y[NU]
         return float(((r * w) ** 2).sum() + self.config.shape_prior * nu @ nu), pairs
+
+
+#: The alignment cost of one frame, shared with the session stage
+#: (:mod:`bodymetry.estimation.session_shape`).
+ContourCost = _ContourCost
 
 
 def _edges(model: BodyModel, lod: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -546,6 +580,15 @@ def full_from_lod(model: BodyModel, k: int = 4) -> sparse.csr_matrix:
     return out
 
 
+def difference_steps(config: RefineConfig, n_shape: int) -> np.ndarray:
+    """Finite-difference steps (40 + n_shape,) for ``[τ, θ, ν]`` (``config.steps``)."""
+    return np.r_[
+        np.full(3, config.steps[0]),
+        np.full(37, config.steps[1]),
+        np.full(n_shape, config.steps[2]),
+    ]
+
+
 def refine(
     model: BodyModel,
     obs: ContourObservation,
@@ -578,11 +621,7 @@ def refine(
     yaw = THETA.start + YAW
     y[yaw] = (y[yaw] + np.pi) % (2 * np.pi) - np.pi
     y = np.clip(y, lo, hi)
-    step = np.r_[
-        np.full(3, config.steps[0]),
-        np.full(37, config.steps[1]),
-        np.full(model.n_shape, config.steps[2]),
-    ]
+    step = difference_steps(config, model.n_shape)
     cost_fn = _ContourCost(model, obs, config)
     f, pairs = cost_fn.evaluate(y)
     f0, accepted, lam = f, 0, 1e-2
@@ -591,12 +630,7 @@ def refine(
     prior = np.zeros((model.n_shape, n))
     prior[:, NU] = np.eye(model.n_shape) * np.sqrt(config.shape_prior)
     for _ in range(config.iterations):
-        # Only the vertices of the contour edges enter the residuals.
-        used = np.unique(np.concatenate([p.edges.ravel() for p in pairs]))
-        Vp = cost_fn.perturbed(y, step, used)
-        r, w = cost_fn.residuals(Vp, pairs)
-        J = ((r[1:] - r[0]) / step[:, None]).T * w[:, None]
-        r0 = r[0] * w
+        r0, J = cost_fn.linearize(y, pairs, step)
         JJ = J.T @ J + prior.T @ prior
         g = J.T @ r0 + prior.T @ (prior @ y)
         improved = False

@@ -123,6 +123,8 @@ def evaluate_run(
     def bio(record, stage: str, key: str) -> float:
         return record.estimates[stage].biometrics[key]
 
+    # The session stage: one value and its standard error (in "std"), when the run has it.
+    session = data.results.summary.get("session", {})
     table = {}
     for key in CORE_MEASUREMENTS:
         table[key] = {
@@ -131,6 +133,8 @@ def evaluate_run(
             "disc_generative": _stats([bio(r, "generative", key) for r in ok]),
             "gt_generative": _stats([gt_gen[r.frame][0][key] for r in ok]),
         }
+        if key in session and session[key].mean is not None:
+            table[key]["session"] = session[key].to_json()
     gt_mpjpe = float(
         1000
         * np.mean(
@@ -151,6 +155,7 @@ def evaluate_run(
         "mpjpe_mm": {
             "discriminative": mpjpe("discriminative"),
             "disc_generative": mpjpe("generative"),
+            **({"session": mpjpe("session")} if session else {}),
             "gt_generative": gt_mpjpe,
         },
         "silhouette_iou_mean": float(np.mean([r.mean_iou for r in ok])),

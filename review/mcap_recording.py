@@ -13,7 +13,10 @@ Topics (one message per kept frame unless said otherwise; cameras ``cam_NN``):
 ``/cameras/cam_NN/calibration``  ``foxglove.CameraCalibration``  K, distortion, projection
 ``/tf``                          ``foxglove.FrameTransforms``  ``world`` -> ``cam_NN``
 ``/body``                        ``foxglove.SceneUpdate``  the fitted body (triangle lists
-                                 per colour) and its skeleton, in ``world`` (fitted frames)
+                                 per colour) and its skeleton, in ``world`` (fitted frames);
+                                 entity ``session``: the session stage's body
+                                 (level of detail, translucent green), on the
+                                 frames it used
 ``/particles``                   ``foxglove.PointCloud``  particle root positions τ and
                                  weights (fitted frames with particles)
 ``/measurements``                JSON  the frame's record from ``results.json``
@@ -51,6 +54,7 @@ MEASUREMENTS_SCHEMA = {
         "status": {"type": "string"},
         "discriminative": {"type": "object"},
         "generative": {"type": "object"},
+        "session": {"type": "object"},
         "silhouette_iou": {"type": "object"},
         "annealing": {"type": "object"},
     },
@@ -141,6 +145,8 @@ class McapWriter:
         parts = np.asarray(body.full.arrays.parts)
         rgb = PART_COLORS[parts]
         # One triangle list per colour: solid colours need no per-vertex colour data.
+        # The session body: its level of detail, one colour.
+        self._session_indices = body.faces(lod=True).reshape(-1).astype(int).tolist()
         self._groups = []
         for colour in np.unique(rgb, axis=0):
             tri = faces[np.all(rgb == colour, axis=1)]
@@ -230,6 +236,22 @@ class McapWriter:
         entities = [
             m.SceneEntity(timestamp=stamp, frame_id="world", id="body", triangles=triangles)
         ]
+        if view.session_vertices is not None:
+            session = np.asarray(view.session_vertices, float)
+            entities.append(
+                m.SceneEntity(
+                    timestamp=stamp,
+                    frame_id="world",
+                    id="session",
+                    triangles=[
+                        m.TriangleListPrimitive(
+                            points=[m.Point3(x=p[0], y=p[1], z=p[2]) for p in session.tolist()],
+                            color=m.Color(r=0.16, g=0.63, b=0.35, a=0.45),
+                            indices=self._session_indices,
+                        )
+                    ],
+                )
+            )
         if view.keypoints is not None:
             segs = skeleton_segments(view.keypoints).reshape(-1, 3).tolist()
             entities.append(

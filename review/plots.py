@@ -26,10 +26,16 @@ from bodymetry.review.meshes import PART_COLORS
 from bodymetry.review.run_data import RunData
 
 #: Colours per stage (matplotlib), as in the Rerun recording.
-STAGE_COLORS = {"discriminative": "#4682e6", "generative": "#dc5028", "actual": "#222222"}
+STAGE_COLORS = {
+    "discriminative": "#4682e6",
+    "generative": "#dc5028",
+    "session": "#2a9d55",
+    "actual": "#222222",
+}
 STAGE_LABELS = {
     "discriminative": "discriminative",
     "generative": "disc. + generative",
+    "session": "session (one shape ± s.e.)",
     "actual": "actual",
 }
 #: Human-readable names of the measurements.
@@ -92,6 +98,13 @@ def measurement_plots(run: RunData, keys: Sequence[str] | None = None) -> Any:
     for ax, key in zip(axes.flat, keys, strict=False):
         for stage in STAGES:
             values = np.array([_value(r, stage, key) for r in ok], float)
+            if not np.isfinite(values).any():
+                continue  # e.g. a run without the session stage
+            se = _session_error(run, key) if stage == "session" else None
+            if se is not None:
+                ax.fill_between(
+                    frames, values - se, values + se, color=STAGE_COLORS[stage], alpha=0.2, lw=0
+                )
             ax.plot(
                 frames,
                 values,
@@ -119,6 +132,12 @@ def measurement_plots(run: RunData, keys: Sequence[str] | None = None) -> Any:
             fig.legend(handles, labels, loc="lower center", ncols=3, fontsize=8)
             fig.subplots_adjust(bottom=0.7 / height)
     return fig
+
+
+def _session_error(run: RunData, key: str) -> float | None:
+    """The standard error of the session's value of a measurement (None without one)."""
+    s = run.results.summary.get("session", {}).get(key)
+    return None if s is None or s.std is None else s.std
 
 
 def _value(record: FrameRecord, stage: str, key: str) -> float:

@@ -167,11 +167,29 @@ def _stat(summary: dict[str, dict[str, Stat]], stage: str, key: str) -> tuple[fl
     return s.mean, s.std or 0.0
 
 
+def figure3_columns(run: RunData) -> list[dict[str, str]]:
+    """The stage columns of the Figure 3 table: ``key`` (of :func:`figure3_rows`),
+    ``title`` and ``spread`` (what the ± is): Discriminative, Disc. + Generative,
+    then the session's one shape when the run has it, then GT + Generative after
+    ``bodymetry evaluate``."""
+    cols = [
+        {"key": "discriminative", "title": "Discriminative", "spread": "Std"},
+        {"key": "disc_generative", "title": "Disc. + Generative", "spread": "Std"},
+    ]
+    if "session" in run.results.summary:
+        cols.append({"key": "session", "title": "Session (one shape)", "spread": "S.e."})
+    if run.evaluation is not None:
+        cols.append({"key": "gt_generative", "title": "GT + Generative", "spread": "Std"})
+    return cols
+
+
 def figure3_rows(run: RunData) -> list[dict[str, Any]]:
-    """The paper's Figure 3 rows: Actual, Discriminative, Disc. + Generative, GT + Generative.
+    """The paper's Figure 3 rows: Actual, Discriminative, Disc. + Generative, Session,
+    GT + Generative.
 
     Each row: ``key``, ``label``, ``actual`` (float or None) and
-    ``discriminative``, ``disc_generative``, ``gt_generative`` as (mean, std) or None.
+    ``discriminative``, ``disc_generative``, ``gt_generative`` as (mean, std) and
+    ``session`` as (value, standard error), or None.
     """
     summary = run.results.summary
     truth = run.ground_truth or {}
@@ -186,6 +204,7 @@ def figure3_rows(run: RunData) -> list[dict[str, Any]]:
                 "actual": truth.get(key),
                 "discriminative": _stat(summary, "discriminative", key),
                 "disc_generative": _stat(summary, "generative", key),
+                "session": _stat(summary, "session", key),
                 "gt_generative": (float(gt_gen["mean"]), float(gt_gen["std"])) if gt_gen else None,
             }
         )
@@ -193,7 +212,8 @@ def figure3_rows(run: RunData) -> list[dict[str, Any]]:
 
 
 def measurement_rows(run: RunData) -> list[dict[str, Any]]:
-    """Every measurement: actual, mean ± std per stage, n, and the error of the final mean."""
+    """Every measurement: actual, mean ± std per frame stage, the session's value ±
+    standard error, n, and the errors of the generative mean and the session value."""
     summary = run.results.summary
     truth = run.ground_truth or {}
     rows = []
@@ -206,6 +226,10 @@ def measurement_rows(run: RunData) -> list[dict[str, Any]]:
         error = None
         if actual is not None and gen is not None and actual:
             error = 100.0 * (gen[0] - actual) / actual
+        session = _stat(summary, "session", key)
+        session_error = None
+        if actual is not None and session is not None and actual:
+            session_error = 100.0 * (session[0] - actual) / actual
         rows.append(
             {
                 "key": key,
@@ -215,6 +239,8 @@ def measurement_rows(run: RunData) -> list[dict[str, Any]]:
                 "generative": gen,
                 "n": summary.get("generative", {}).get(key, Stat(None, None, 0)).n,
                 "error_pct": error,
+                "session": session,
+                "session_error_pct": session_error,
             }
         )
     return rows
@@ -226,7 +252,7 @@ def csv_columns(run: RunData) -> list[str]:
     cols = ["frame", "time_s", "status", "flags"]
     cols += [f"{stage}_{key}" for stage in STAGES for key in keys]
     cols += [f"iou_{name}" for name in run.camera_names]
-    cols += ["iou_mean", "final_log_likelihood", "seconds_total"]
+    cols += ["iou_mean", "session_iou_mean", "final_log_likelihood", "seconds_total"]
     return cols
 
 
@@ -254,8 +280,10 @@ def write_measurements_csv(run: RunData, path: str | Path) -> Path:
             row += [_fmt_csv(values.get(k)) for k in keys]
         row += [_fmt_csv(r.silhouette_iou.get(name)) for name in run.camera_names]
         lls = r.annealing.layer_log_likelihood if r.annealing is not None else ()
+        session = r.estimates.get("session")
         row += [
             _fmt_csv(r.mean_iou),
+            _fmt_csv(session.mean_iou if session is not None else None),
             _fmt_csv(lls[-1] if lls else None),
             _fmt_csv(r.seconds.get("total")),
         ]
@@ -329,11 +357,15 @@ def _jpeg_uri(rgb: np.ndarray, quality: int = 85) -> str:
 
 
 def body_renders(run: RunData, body: BodyModel) -> dict[str, dict[str, np.ndarray]]:
-    """Front and side renders of the fitted canonical body (mean ν over fitted frames),
-    and of the true body when the ground truth has its shape."""
+    """Front and side renders of the fitted canonical body (the session's one shape
+    when the run has it, else the mean ν over fitted frames), and of the true body
+    when the ground truth has its shape."""
     ok = run.ok_frames or run.fitted_frames
     renders: dict[str, dict[str, np.ndarray]] = {}
-    if ok:
+    shape = run.results.session_shape
+    if shape is not None and shape.ok and len(shape.nu) == body.n_shape:
+        renders["fitted (session shape)"] = plots.body_views(body, np.asarray(shape.nu, float))
+    elif ok:
         nu = np.mean([r.estimates["generative"].state.nu[0] for r in ok], axis=0)
         if len(nu) == body.n_shape:
             renders["fitted (mean shape)"] = plots.body_views(body, nu)
@@ -375,6 +407,7 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
                     "unit": MEASUREMENTS[key],
                     "mean": gen[0],
                     "std": gen[1],
+                    "session": _stat(summary, "session", key),
                     "actual": (truth or {}).get(key),
                 }
             )
@@ -447,6 +480,8 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
         "truth_source": (truth or {}).get("source"),
         "headline": headline,
         "figure3": figure3_rows(run),
+        "figure3_columns": figure3_columns(run),
+        "session_shape": results.session_shape,
         "has_evaluation": run.evaluation is not None,
         "measurements": measurement_rows(run),
         "core_labels": [plots.label(k) for k in CORE_MEASUREMENTS],
@@ -618,16 +653,13 @@ def _summary_page(ctx: dict[str, Any]) -> Any:
     ax.set_title(
         "Basic biometric measurements (paper, Figure 3): mean / std over frames", fontsize=10
     )
-    header = ["Biometric", "Actual", "Disc. mean", "std", "Disc.+Gen. mean", "std"]
-    if ctx["has_evaluation"]:
-        header += ["GT+Gen. mean", "std"]
+    header = ["Biometric", "Actual"]
+    for col in ctx["figure3_columns"]:
+        header += [col["title"], col["spread"].lower()]
     cells = []
     for row in ctx["figure3"]:
         line = [row["label"], _num(row["actual"])]
-        cols = ["discriminative", "disc_generative"] + (
-            ["gt_generative"] if ctx["has_evaluation"] else []
-        )
-        for col in cols:
+        for col in (c["key"] for c in ctx["figure3_columns"]):
             value = row[col]
             line += [_num(value[0]), _num(value[1])] if value else ["–", "–"]
         cells.append(line)
@@ -639,14 +671,21 @@ def _summary_page(ctx: dict[str, Any]) -> Any:
     ax2 = fig.add_axes((0.04, 0.04, 0.92, 0.42))
     ax2.set_axis_off()
     ax2.set_title("All measurements (mean ± std over fitted frames)", fontsize=10)
+    has_session = ctx["session_shape"] is not None and ctx["session_shape"].ok
     rows = [
         [
             r["label"],
             _num(r["actual"]),
             _pm(r["discriminative"]),
             _pm(r["generative"]),
+            *([_pm(r["session"])] if has_session else []),
             str(r["n"]),
             "–" if r["error_pct"] is None else f"{r['error_pct']:+.1f} %",
+            *(
+                ["–" if r["session_error_pct"] is None else f"{r['session_error_pct']:+.1f} %"]
+                if has_session
+                else []
+            ),
         ]
         for r in ctx["measurements"]
     ]
@@ -658,8 +697,10 @@ def _summary_page(ctx: dict[str, Any]) -> Any:
                 "Actual",
                 "Discriminative",
                 "Disc. + generative",
+                *(["Session ± s.e."] if has_session else []),
                 "n",
                 "Error",
+                *(["Session error"] if has_session else []),
             ],
             loc="upper center",
             cellLoc="right",

@@ -14,6 +14,9 @@ the start of the recording):
     of the paper's Figure 4).
 ``/world/body/mesh``
     the fitted body: triangles and colours once (static), vertex positions per frame.
+``/world/session/mesh``
+    the session stage's body (the session's one shape in the frame's refined
+    pose; its level of detail), translucent green, per frame that has it.
 ``/world/body/skeleton``, ``/world/body/keypoints``
     bones and keypoints per frame.
 ``/world/body/particles``
@@ -22,8 +25,9 @@ the start of the recording):
 ``/world/landmarks``
     the subject's body landmarks that capture triangulated from the person
     segmenter's detections (what the landmark pose proposals aimed at), per frame.
-``/metrics/biometrics/<name>/{discriminative,generative,actual}``
-    every measurement per stage, and the ground truth when known.
+``/metrics/biometrics/<name>/{discriminative,generative,session,actual}``
+    every measurement per stage (the session's one value on every frame it
+    used), and the ground truth when known.
 ``/metrics/likelihood/layer_NN``
     log-likelihood of the estimate after each annealing layer.
 ``/metrics/silhouette_iou/cam_NN``, ``/metrics/particle_std/tau_{x,y,z}_mm``
@@ -60,8 +64,11 @@ MODEL_RGB = (170, 20, 30)
 STAGE_RGB = {
     "discriminative": (70, 130, 230),
     "generative": (220, 80, 40),
+    "session": (40, 160, 90),
     "actual": (90, 200, 90),
 }
+#: The session body's colour (RGBA: translucent over the generative body).
+SESSION_RGBA = (40, 160, 90, 110)
 #: Biometrics shown in their own plot below the views (the others are in tabs).
 MAIN_PLOTS = ("height_mm", "arm_span_mm", "weight_kg")
 #: JPEG quality of the camera images.
@@ -225,6 +232,15 @@ class RerunWriter:
             ),
             static=True,
         )
+        if self.run.results.session_shape is not None and self.run.results.session_shape.ok:
+            rec.log(
+                "/world/session/mesh",
+                rr.Mesh3D.from_fields(
+                    triangle_indices=body.faces(lod=True).astype(np.uint32),
+                    albedo_factor=SESSION_RGBA,
+                ),
+                static=True,
+            )
         for key in self.biometrics:
             for stage in (*STAGES, "actual"):
                 rec.log(
@@ -268,6 +284,10 @@ class RerunWriter:
                 )
         if view.vertices is not None:
             rec.log("/world/body/mesh", rr.Mesh3D.from_fields(vertex_positions=view.vertices))
+        if view.session_vertices is not None:
+            rec.log(
+                "/world/session/mesh", rr.Mesh3D.from_fields(vertex_positions=view.session_vertices)
+            )
         if view.keypoints is not None:
             rec.log(
                 "/world/body/skeleton",
@@ -334,4 +354,21 @@ def _summary_text(run: RunData) -> str:
     lines.append(
         f"{ok} of {len(run.frames)} kept frames fitted; cameras: {run.calibration_source}."
     )
+    shape = run.results.session_shape
+    if shape is not None:
+        lines += ["", "## Session shape", ""]
+        if shape.ok:
+            lines.append(
+                f"One shape from {len(shape.frames)} frames (mean silhouette IoU "
+                f"{shape.mean_iou:.3f}; per-frame fits {shape.reference_iou:.3f}):"
+            )
+            lines.append("")
+            for key in ("height_mm", "arm_span_mm", "weight_kg"):
+                if key in shape.biometrics:
+                    lines.append(
+                        f"- {key}: {shape.biometrics[key]:.1f} ± "
+                        f"{shape.standard_errors.get(key, float('nan')):.1f} (s.e.)"
+                    )
+        else:
+            lines.append(shape.status)
     return "\n".join(lines)

@@ -231,6 +231,11 @@ class FrameView:
     landmarks : (33, 3) float or None
         The subject's body landmarks capture triangulated (world frame; NaN rows
         not seen), when the person segmenter ran.
+    session_vertices : (V_lod, 3) float32 or None
+        The session stage's body in this frame (the session's one shape in the
+        frame's refined pose), its level of detail (``body.faces(lod=True)``:
+        it is drawn beside the full-resolution fitted body and would double the
+        recordings); None without one.
     """
 
     record: FrameRecord
@@ -242,6 +247,7 @@ class FrameView:
     particles: np.ndarray | None = None
     weights: np.ndarray | None = None
     landmarks: np.ndarray | None = None
+    session_vertices: np.ndarray | None = None
 
     @property
     def frame(self) -> int:
@@ -278,18 +284,20 @@ def skeleton_segments(keypoints: np.ndarray) -> np.ndarray:
     return np.asarray(segments, float)
 
 
-def pose_frame(body: BodyModel, record: FrameRecord) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """The fitted body of a frame record: full-resolution vertices and keypoints.
+def pose_frame(
+    body: BodyModel, record: FrameRecord, stage: str = "generative", lod: bool = False
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A stage's body of a frame record: full-resolution vertices and keypoints.
 
     Returns
     -------
     vertices : (V, 3) float32 or None
     keypoints : (K, 3) float or None
     """
-    estimate = record.estimate()
+    estimate = record.estimate(stage)
     if estimate is None:
         return None, None
-    posed = body.pose(estimate.state)
+    posed = body.pose(estimate.state, lod=lod)
     return posed.vertices[0].astype(np.float32), posed.keypoints[0]
 
 
@@ -324,6 +332,7 @@ def frame_views(
             particles=arrays.particles if vertices is not None else None,
             weights=arrays.weights if vertices is not None else None,
             landmarks=arrays.landmarks,
+            session_vertices=pose_frame(body, record, "session", lod=True)[0],
         )
 
 

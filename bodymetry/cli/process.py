@@ -186,7 +186,9 @@ def _print_summary(results: RunResults) -> None:
     if truth:
         table.add_column("actual", justify="right")
     for stage in STAGES:
-        table.add_column(f"{stage} mean ± std", justify="right")
+        # The session stage is one value with its standard error, not a mean over frames.
+        spread = "± s.e." if stage == "session" else "mean ± std"
+        table.add_column(f"{stage} {spread}", justify="right")
     for key in (*CORE_MEASUREMENTS, "chest_mm", "waist_mm", "hip_mm"):
         row = [key]
         if truth:
@@ -196,5 +198,8 @@ def _print_summary(results: RunResults) -> None:
             row.append("-" if s is None or s.mean is None else f"{s.mean:.1f} ± {s.std:.1f}")
         table.add_row(*row)
     console.print(table)
+    shape = results.session_shape
+    if shape is not None and not shape.ok:
+        console.print(f"session shape: {rich.markup.escape(shape.status)}")
     for f in failed:
         console.print(f"frame {f.frame}: {f.status}")

@@ -129,19 +129,29 @@ def evaluate(run: Path, workers: int | None, as_json: bool) -> None:
     table = Table(title=f"{ev['session']} ({ev['frames']} frames): Figure 3")
     table.add_column("biometric")
     table.add_column("actual", justify="right")
-    for col in ("discriminative", "disc. + generative", "GT + generative"):
-        table.add_column(f"{col} mean", justify="right")
-        table.add_column("std", justify="right")
+    has_session = all("session" in row for row in ev["table"].values())
+    cols = [
+        ("discriminative", "discriminative", "std"),
+        ("disc_generative", "disc. + generative", "std"),
+    ]
+    if has_session:
+        # One value for the session, ± its standard error.
+        cols.append(("session", "session", "s.e."))
+    cols.append(("gt_generative", "GT + generative", "std"))
+    for _, title, spread in cols:
+        table.add_column(f"{title} mean", justify="right")
+        table.add_column(spread, justify="right")
     for key, row in ev["table"].items():
         cells = [key, f"{row['actual']:.1f}"]
-        for col in ("discriminative", "disc_generative", "gt_generative"):
+        for col, _, _ in cols:
             cells += [f"{row[col]['mean']:.1f}", f"{row[col]['std']:.1f}"]
         table.add_row(*cells)
     console.print(table)
     m = ev["mpjpe_mm"]
+    session_mpjpe = f"session {m['session']:.0f} mm, " if "session" in m else ""
     console.print(
         f"MPJPE: discriminative {m['discriminative']:.0f} mm, "
-        f"disc. + generative {m['disc_generative']:.0f} mm, "
+        f"disc. + generative {m['disc_generative']:.0f} mm, {session_mpjpe}"
         f"GT + generative {m['gt_generative']:.0f} mm; "
         f"silhouette IoU of the fit {ev['silhouette_iou_mean']:.3f}"
     )

@@ -117,3 +117,13 @@ def test_working_person_px_is_a_setting_and_part_of_the_fingerprint():
     other = base.with_overrides(["working_person_px=200"])
     assert config_fingerprint(other) != config_fingerprint(base)
     assert config_fingerprint(base.with_overrides(["workers=1"])) == config_fingerprint(base)
+
+
+def test_process_config_switches_the_stage_off():
+    on = ProcessConfig()
+    off = on.with_overrides(["session_shape.enabled=false"])
+    assert on.session_shape.enabled and not off.session_shape.enabled
+    # It changes no frame's fit: a run resumes with either setting.
+    assert config_fingerprint(on) == config_fingerprint(off)
+    with pytest.raises(InputError):
+        on.with_overrides(["session_shape.frame_scale=0.1"])

@@ -114,6 +114,12 @@ def test_resume_does_not_refit(run, monkeypatch):
     again = _process(session, out, base)
     assert again.summary == results.summary
     assert again.config["models_reused"]
+    # The session stage is redone from the recorded frames, to the same shape;
+    # the frame records on disk stay the per-frame fits'.
+    assert results.session_shape.ok and again.session_shape.nu == results.session_shape.nu
+    for f in results.frames:
+        on_disk = json.loads((out / "frames" / f"{f.frame:06d}.json").read_text())
+        assert "session" not in on_disk and "generative" in on_disk
 
 
 def test_frame_without_silhouette_is_marked_and_excluded(run):
@@ -216,6 +222,8 @@ def test_evaluate_writes_the_figure_3_table(run):
             results.summary["generative"][key].mean
         )
         assert row["gt_generative"]["n"] == 3
+        assert row["session"]["mean"] == results.summary["session"][key].mean
+    assert np.isfinite(ev["mpjpe_mm"]["session"])
     # Started from the true pose, the fit's joints are closer to the truth than the
     # discriminative guess.
     assert ev["mpjpe_mm"]["gt_generative"] < ev["mpjpe_mm"]["discriminative"]

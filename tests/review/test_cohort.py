@@ -52,7 +52,10 @@ def _pass_quality_gate(path, n_ok):
         for r in results.frames
     )
     results = dataclasses.replace(
-        results, frames=frames, summary=summarize(frames), warnings=("a warning",)
+        results,
+        frames=frames,
+        summary=summarize(frames, results.session_shape),
+        warnings=("a warning",),
     )
     write_json_atomic(path, results.to_json())
 

@@ -83,6 +83,25 @@ def test_measurement_messages_carry_the_frame_records(review_run, messages):
             record.annealing.layer_log_likelihood
         )
     assert seen == set(records)
+    # The session stage travels with the frames it used.
+    shape = review_run.results.session_shape
+    assert shape is not None and shape.ok
+    assert all("session" in records[f].estimates for f in shape.frames)
+
+
+def test_the_session_body_is_in_the_scene(review_run, messages):
+    """The ``/body`` scene has a ``session`` entity on the frames the session stage used
+    (protobuf keeps the entity id as its UTF-8 bytes)."""
+    _, msgs = messages
+    used = set(review_run.results.session_shape.frames)
+    times = {
+        round(f.frame / review_run.results.session.fps * 1e9): f.frame
+        for f in review_run.results.frames
+    }
+    with_session = {
+        times[m.log_time] for topic, _, m in msgs if topic == "/body" and b"session" in m.data
+    }
+    assert used and with_session == used
 
 
 def test_images_are_jpeg(messages):

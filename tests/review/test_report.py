@@ -265,3 +265,36 @@ def test_front_direction_of_a_body_without_feet():
 def test_body_figure_needs_a_render():
     with pytest.raises(ValueError, match="no render"):
         plots.body_figure({})
+
+
+def test_the_session_stage_is_beside_the_per_frame_stages(review_run):
+    """The session's one shape: its value ± standard error in the Figure 3 table and
+    the measurements, a column per measurement in the CSV."""
+    shape = review_run.results.session_shape
+    assert shape is not None and shape.ok, shape
+    html = (review_run.folder / "report.html").read_text()
+    assert "Session (one shape)" in html and "S.e." in html
+    height = review_run.results.summary["session"]["height_mm"]
+    assert f"{height.mean:,.1f}".replace(",", " ") in html
+    assert f"{height.std:.1f}" in html
+    with open(review_run.folder / "measurements.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    used = {str(f) for f in shape.frames}
+    for row in rows:
+        value = row["session_height_mm"]
+        if row["frame"] in used:
+            assert float(value) == pytest.approx(shape.biometrics["height_mm"], abs=1e-2)
+            assert 0 < float(row["session_iou_mean"]) <= 1
+        else:
+            assert value == ""
+
+
+def test_a_run_without_the_session_stage_has_no_session_column(review_run, bare_run):
+    data = json.loads((bare_run / "results.json").read_text())
+    data.pop("session_shape")
+    data["summary"].pop("session")
+    for frame in data["frames"]:
+        frame.pop("session", None)
+    (bare_run / "results.json").write_text(json.dumps(data))
+    html = build_report(bare_run).html.read_text()
+    assert "Session (one shape)" not in html and "Disc. + Generative" in html

@@ -37,6 +37,8 @@ def test_entity_paths_follow_the_design_layout(review_run, store):
         "/world/body/particles",
         "/metrics/biometrics/height_mm/discriminative",
         "/metrics/biometrics/height_mm/generative",
+        "/metrics/biometrics/height_mm/session",
+        "/world/session/mesh",
         "/metrics/biometrics/height_mm/actual",
         "/metrics/biometrics/weight_kg/generative",
         "/metrics/likelihood/layer_00",

@@ -1,0 +1,498 @@
+"""One body shape per session: a joint refinement over the accepted frames (beyond the paper).
+
+Every frame's fit (:mod:`bodymetry.estimation.fit`) estimates its own state
+``Y = (τ, θ, ν)``, but the subject's shape ν is one for the whole session. This
+stage refines ONE ν together with every accepted frame's pose ``(τ_f, θ_f)``
+against every accepted frame's silhouettes in all views, by damped
+Gauss-Newton (Levenberg-Marquardt) on the stacked contour residuals of
+:mod:`bodymetry.estimation.refinement` (the same cost, correspondences and
+Huber weights as each frame's own refinement):
+
+* each frame's Jacobian ``[J_pose_f | J_ν_f]`` is one forward-difference
+  linearization of its cost (:meth:`ContourCost.linearize`);
+* the normal equations are block-arrow shaped (the poses are independent given
+  ν), so the poses are eliminated frame by frame (Schur complement) and a
+  49-dimensional solve per frame plus one ``n_shape`` solve gives the joint
+  step of every pose and the shared shape;
+* a Gaussian prior ν ~ N(0, I) enters once for the session (not once per frame);
+* robustness: besides the per-residual Huber weights, a frame whose contour
+  cost exceeds ``frame_scale`` times the session's median gets its weight
+  lowered to ``frame_scale * median / cost`` (a Huber weight on the frame's
+  cost), so one badly segmented frame cannot pull the shared shape.
+
+The start is the per-frame generative fits with their shapes replaced by the
+coordinate-wise median of their ν. The result is accepted only when it keeps
+the frames' silhouette overlap: the mean IoU over the frames (the level of
+detail, as the quality gate measures it) may drop by at most
+``max_iou_drop`` from the per-frame fits' (a shared shape has fewer degrees
+of freedom than a shape per frame; a larger drop means it does not explain the
+frames); otherwise the status says why and the stage's estimate is withheld.
+
+Uncertainty (docs/session-shape.md): the covariance of ν is the cluster-robust
+(sandwich) Gauss-Newton covariance with the frames as clusters,
+``H⁻¹ (n/(n-1) Σ_f (g_f - ḡ)(g_f - ḡ)ᵀ) H⁻¹``, where ``H`` is the pose-marginal
+Gauss-Newton matrix and ``g_f`` each frame's pose-marginal gradient at the
+solution: the linearized bootstrap over frames. The contour residuals of one
+frame are strongly correlated (neighbouring points, one segmentation), so the
+classical ``σ² H⁻¹`` would treat thousands of residuals as independent and
+understate the error; frame-to-frame disagreement is what the sandwich
+measures. Each biometric's standard error follows by propagating that
+covariance through a central-difference Jacobian of the biometrics with
+respect to ν. With fewer than 3 frames the classical covariance is used.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from bodymetry.calibration.camera import Camera
+from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
+from bodymetry.estimation.body_model.model import NU, POSE_DIM, BodyModel, BodyState
+from bodymetry.estimation.generative import state_bounds
+from bodymetry.estimation.projection import project_silhouettes
+from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape, StageEstimate
+from bodymetry.estimation.refinement import (
+    ContourCost,
+    RefineConfig,
+    difference_steps,
+    prepare_contours,
+)
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "METHOD",
+    "SessionFrame",
+    "SessionShapeConfig",
+    "SessionShapeFit",
+    "biometric_errors",
+    "fit_session_shape",
+    "session_frame",
+    "silhouette_iou",
+]
+
+#: How the stage estimates and what its standard errors are (recorded in results.json).
+METHOD = (
+    "joint Levenberg-Marquardt of one shape and every frame's pose on the stacked "
+    "contour residuals; standard errors: cluster-robust (frames) Gauss-Newton covariance"
+)
+
+#: Most damping increases (× 4 each) tried for one joint step.
+_RETRIES = 5
+
+#: Step of the forward differences of the biometrics with respect to ν.
+_BIO_STEP = 0.05
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class SessionShapeConfig:
+    """Settings of the session stage.
+
+    Attributes
+    ----------
+    enabled : bool
+        Run the stage (``--set session_shape.enabled=false`` skips it).
+    iterations : int
+        Most joint Levenberg-Marquardt steps.
+    frame_scale : float
+        Frames whose contour cost exceeds this multiple of the session's
+        median are down-weighted (``frame_scale * median / cost``).
+    max_iou_drop : float
+        The result is accepted when the frames' mean silhouette IoU is at most
+        this much below the per-frame fits' mean IoU on the same frames.
+    min_frames : int
+        Fewer accepted frames than this: the stage is skipped.
+    tolerance : float
+        Stop when a step lowers the session cost by less than this fraction.
+    """
+
+    enabled: bool = True
+    iterations: int = 3
+    frame_scale: float = 2.0
+    max_iou_drop: float = 0.01
+    min_frames: int = 2
+    tolerance: float = 1e-3
+
+    def __post_init__(self) -> None:
+        if self.iterations < 0:
+            raise ValueError(f"iterations: expected >= 0, got {self.iterations}")
+        if not self.frame_scale >= 1:
+            raise ValueError(f"frame_scale: expected >= 1, got {self.frame_scale}")
+        if not 0 <= self.max_iou_drop <= 1:
+            raise ValueError(f"max_iou_drop: expected in [0, 1], got {self.max_iou_drop}")
+        if self.min_frames < 1:
+            raise ValueError(f"min_frames: expected >= 1, got {self.min_frames}")
+        if not self.tolerance > 0:
+            raise ValueError(f"tolerance: expected > 0, got {self.tolerance}")
+
+
+@dataclass(frozen=True)
+class SessionFrame:
+    """One accepted frame, as the session stage sees it.
+
+    Attributes
+    ----------
+    frame : int
+    start : (40 + n_shape,) float
+        Its generative ``[τ, θ, ν]``.
+    masks : list of (H_c, W_c) bool
+        Observed silhouettes at the working cameras' sizes; the views the
+        frame's fit left out are all-False.
+    iou : float
+        The generative fit's mean silhouette IoU (its record's).
+    """
+
+    frame: int
+    start: np.ndarray
+    masks: list[np.ndarray]
+    iou: float
+
+
+def session_frame(
+    record: FrameRecord, arrays: FrameArrays, cameras: Sequence[Camera]
+) -> SessionFrame:
+    """A fitted frame's :class:`SessionFrame` from its record and arrays.
+
+    The views its fit used are those its record has an IoU for (the others had
+    too few person pixels or were unreadable).
+
+    Raises
+    ------
+    ValueError
+        When the record has no generative estimate or the arrays lack a camera.
+    """
+    est = record.estimate("generative")
+    if est is None:
+        raise ValueError(f"frame {record.frame}: no generative estimate")
+    masks = []
+    for cam in cameras:
+        if cam.name not in arrays.observed:
+            raise ValueError(f"frame {record.frame}: no observed silhouette of {cam.name!r}")
+        m = np.asarray(arrays.observed[cam.name], bool)
+        masks.append(m if cam.name in record.silhouette_iou else np.zeros_like(m))
+    return SessionFrame(record.frame, est.vector(), masks, record.mean_iou)
+
+
+def silhouette_iou(
+    body: BodyModel, state: BodyState, cameras: Sequence[Camera], masks: Sequence[np.ndarray]
+) -> dict[str, float]:
+    """IoU of a state's level-of-detail silhouette with the observed one, per used view.
+
+    As the quality gate measures it (:func:`bodymetry.estimation.fit.fit_frame`);
+    all-False views are left out.
+    """
+    model = project_silhouettes(
+        body.pose(state, lod=True).vertices[0], body.faces(lod=True), cameras
+    )
+    out = {}
+    for c, cam in enumerate(cameras):
+        if masks[c].any():
+            union = np.logical_or(model[c], masks[c]).sum()
+            out[cam.name] = float(np.logical_and(model[c], masks[c]).sum() / max(union, 1))
+    return out
+
+
+@dataclass(frozen=True)
+class SessionShapeFit:
+    """The session stage's outcome.
+
+    Attributes
+    ----------
+    summary : SessionShape
+        The results.json block (status, ν, biometrics and standard errors).
+    estimates : dict of int to StageEstimate
+        Per frame: the shared ν with the frame's refined pose, the biometrics
+        and the silhouette IoU (empty unless the result was accepted).
+    """
+
+    summary: SessionShape
+    estimates: dict[int, StageEstimate] = field(default_factory=dict)
+
+
+@dataclass
+class _Frame:
+    """Mutable working state of one frame during the joint iteration."""
+
+    cost_fn: ContourCost
+    y: np.ndarray
+    f: float
+    pairs: list
+
+
+def _frame_weights(costs: np.ndarray, scale: float) -> np.ndarray:
+    """Huber weights on the frames' costs (1 up to ``scale`` × median)."""
+    med = float(np.median(costs))
+    if not med > 0:
+        return np.ones_like(costs)
+    return np.minimum(1.0, scale * med / np.maximum(costs, 1e-300))
+
+
+#: One frame's Gauss-Newton blocks: ``A = J_pᵀJ_p`` (40, 40), ``B = J_pᵀJ_ν`` (40, n),
+#: ``C = J_νᵀJ_ν`` (n, n), ``g_pose = J_pᵀr`` (40,), ``g_shape = J_νᵀr`` (n,), ``Σr²``
+#: and the number of residuals.
+_Blocks = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, int]
+
+
+def _blocks(frames: Sequence[_Frame], step: np.ndarray) -> list[_Blocks]:
+    """Per frame the Gauss-Newton blocks (:data:`_Blocks`) at its state."""
+    out = []
+    for fr in frames:
+        r, J = fr.cost_fn.linearize(fr.y, fr.pairs, step)
+        Jp, Jn = J[:, :POSE_DIM], J[:, POSE_DIM:]
+        out.append((Jp.T @ Jp, Jp.T @ Jn, Jn.T @ Jn, Jp.T @ r, Jn.T @ r, float(r @ r), len(r)))
+    return out
+
+
+def _damped_inverse(A: np.ndarray, lam: float) -> np.ndarray:
+    """``(A + λ diag A + ε)⁻¹`` of a frame's pose block (ε keeps unseen joints solvable)."""
+    damped = A + np.diag(lam * np.diag(A) + 1e-9 + 1e-9 * np.trace(A) / len(A))
+    return np.linalg.inv(damped)
+
+
+def fit_session_shape(
+    body: BodyModel,
+    cameras: Sequence[Camera],
+    frames: Sequence[SessionFrame],
+    refinement: RefineConfig | None = None,
+    config: SessionShapeConfig | None = None,
+    density: float = DEFAULT_DENSITY,
+    progress: Progress | None = None,
+) -> SessionShapeFit:
+    """Refine one shape and every frame's pose jointly (see the module docstring).
+
+    Parameters
+    ----------
+    body : BodyModel
+    cameras : sequence of Camera
+        The working cameras the frames were fitted with.
+    frames : sequence of SessionFrame
+        The session's accepted frames.
+    refinement : RefineConfig, optional
+        The contour cost's settings (the run's per-frame refinement).
+    config : SessionShapeConfig, optional
+    density : float
+        kg/m³ for weight.
+    progress : callable, optional
+        ``progress("session shape", step, steps)``.
+
+    Returns
+    -------
+    SessionShapeFit
+        Never raises for bad data: the summary's status says what went wrong.
+    """
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    refinement = refinement or RefineConfig()
+    config = config or SessionShapeConfig()
+    used = tuple(int(f.frame) for f in frames)
+
+    def give_up(status: str, **kw) -> SessionShapeFit:
+        log.info("session shape: %s", status)
+        return SessionShapeFit(
+            SessionShape(
+                status=status,
+                method=METHOD,
+                frames=used,
+                seconds=time.perf_counter() - t0,
+                **kw,
+            )
+        )
+
+    if len(frames) < config.min_frames:
+        return give_up(f"skipped: {len(frames)} accepted frames, need {config.min_frames}")
+    n_shape = body.n_shape
+    starts = np.stack([np.asarray(f.start, float) for f in frames])
+    if starts.shape[1] != POSE_DIM + n_shape:
+        raise ValueError(
+            f"start states: expected {POSE_DIM + n_shape} values, got {starts.shape[1]}"
+        )
+    nu = np.median(starts[:, NU], axis=0)
+    start_nu = nu.copy()
+    lo, hi = state_bounds(body)
+    # Data term only per frame: the shape prior enters once for the session.
+    data_config = replace(refinement, shape_prior=0.0)
+    work = []
+    for fr, y in zip(frames, starts, strict=True):
+        obs = prepare_contours(cameras, fr.masks, refinement.image_scale, refinement.max_points)
+        cost_fn = ContourCost(body, obs, data_config)
+        y = np.clip(np.r_[y[:POSE_DIM], nu], lo, hi)
+        f, pairs = cost_fn.evaluate(y)
+        work.append(_Frame(cost_fn, y, f, pairs))
+    costs = np.array([w.f for w in work])
+    if not np.all(np.isfinite(costs)):
+        bad = [fr.frame for fr, c in zip(frames, costs, strict=True) if not np.isfinite(c)]
+        return give_up(f"failed: no contour in frames {bad}")
+    prior = refinement.shape_prior
+    step = difference_steps(refinement, n_shape)
+    weights = _frame_weights(costs, config.frame_scale)
+
+    def total(fs: np.ndarray, shape: np.ndarray) -> float:
+        return float(weights @ fs + prior * shape @ shape)
+
+    f_total = f0 = total(costs, nu)
+    lam, accepted = 1e-2, 0
+    blocks = None
+    for it in range(config.iterations):
+        if progress:
+            progress("session shape", it, config.iterations)
+        blocks = _blocks(work, step)
+        improved = False
+        # Each retry costs one evaluation of every frame: a step that fails at
+        # λ × 4⁴ means the descent has converged (or stalled) for this session.
+        for _ in range(_RETRIES):
+            C_sum = sum(w * b[2] for w, b in zip(weights, blocks, strict=True))
+            g_sum = sum(w * b[4] for w, b in zip(weights, blocks, strict=True))
+            S = C_sum + prior * np.eye(n_shape)
+            S = S + lam * np.diag(np.diag(S) + 1e-9)
+            g = g_sum + prior * nu
+            inverses = []
+            for w, (A, B, _, gp, _, _, _) in zip(weights, blocks, strict=True):
+                Ainv = _damped_inverse(w * A, lam)
+                inverses.append(Ainv)
+                S = S - (w * B).T @ Ainv @ (w * B)
+                g = g - (w * B).T @ Ainv @ (w * gp)
+            dnu = -np.linalg.solve(S, g)
+            candidates = []
+            for w, Ainv, (_, B, _, gp, _, _, _), fr in zip(
+                weights, inverses, blocks, work, strict=True
+            ):
+                dp = -Ainv @ (w * gp + (w * B) @ dnu)
+                candidates.append(np.clip(np.r_[fr.y[:POSE_DIM] + dp, nu + dnu], lo, hi))
+            nu_new = candidates[0][NU]
+            evaluated = [fr.cost_fn.evaluate(y) for fr, y in zip(work, candidates, strict=True)]
+            fs = np.array([e[0] for e in evaluated])
+            f_new = total(fs, nu_new) if np.all(np.isfinite(fs)) else np.inf
+            if f_new < f_total:
+                improved = f_total - f_new > config.tolerance * f_total
+                for fr, y, (f, pairs) in zip(work, candidates, evaluated, strict=True):
+                    fr.y, fr.f, fr.pairs = y, f, pairs
+                nu, f_total = nu_new, f_new
+                lam = max(lam / 3.0, 1e-6)
+                accepted += 1
+                break
+            lam *= 4.0
+        if not improved:
+            break
+        log.debug("session shape: step %d, cost %.4g (λ %.2g)", it + 1, f_total, lam)
+        # Re-weight the frames at the new state (the next step compares costs under these).
+        weights = _frame_weights(np.array([w.f for w in work]), config.frame_scale)
+        f_total = total(np.array([w.f for w in work]), nu)
+    if progress:
+        progress("session shape", config.iterations, config.iterations)
+    if blocks is None:  # no iteration ran
+        blocks = _blocks(work, step)
+    # The last linearization (one step behind the state when the last step was
+    # accepted: close enough for a standard error, and it saves one per frame).
+    cov, how = _covariance(blocks, weights, prior, n_shape)
+    nu_se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    bios, bio_se = biometric_errors(body, nu, cov, density)
+    states = {
+        fr.frame: BodyState.from_vector(w.y[None]) for fr, w in zip(frames, work, strict=True)
+    }
+    ious = {fr.frame: silhouette_iou(body, states[fr.frame], cameras, fr.masks) for fr in frames}
+    mean_iou = float(np.mean([np.mean(list(v.values())) for v in ious.values()]))
+    reference = float(np.nanmean([fr.iou for fr in frames]))
+    kw = dict(
+        nu=tuple(nu.tolist()),
+        nu_se=tuple(nu_se.tolist()),
+        start_nu=tuple(start_nu.tolist()),
+        biometrics=bios,
+        standard_errors=bio_se,
+        frame_weights={fr.frame: float(w) for fr, w in zip(frames, weights, strict=True)},
+        mean_iou=mean_iou,
+        reference_iou=reference,
+        initial_cost=f0,
+        cost=f_total,
+        iterations=accepted,
+        covariance=how,
+    )
+    if mean_iou < reference - config.max_iou_drop:
+        return give_up(
+            f"rejected: the shared shape lowers the frames' mean silhouette IoU from "
+            f"{reference:.3f} to {mean_iou:.3f} (more than {config.max_iou_drop})",
+            **kw,
+        )
+    summary = SessionShape(
+        status="ok", method=METHOD, frames=used, seconds=time.perf_counter() - t0, **kw
+    )
+    estimates = {f: StageEstimate(states[f], dict(bios), silhouette_iou=ious[f]) for f in states}
+    log.info(
+        "session shape: %d frames, %d steps, mean IoU %.4f (per-frame fits %.4f), %.1f s "
+        "(%.1f s CPU)",
+        len(frames),
+        accepted,
+        mean_iou,
+        reference,
+        summary.seconds,
+        time.process_time() - cpu0,
+    )
+    return SessionShapeFit(summary, estimates)
+
+
+def _covariance(
+    blocks: Sequence[_Blocks], weights: np.ndarray, prior: float, n_shape: int
+) -> tuple[np.ndarray, str]:
+    """Covariance (n_shape, n_shape) of ν with the poses marginalized, and which one.
+
+    The pose-marginal Gauss-Newton matrix is ``H = Σ_f w_f S_f + prior I`` with
+    ``S_f = C_f - B_fᵀ A_f⁻¹ B_f``; each frame's pose-marginal gradient is
+    ``g_f = w_f (g_ν,f - B_fᵀ A_f⁻¹ g_pose,f)``.
+    """
+    H = prior * np.eye(n_shape)
+    grads = []
+    sq, count = 0.0, 0
+    for w, (A, B, C, gp, gn, rr, R) in zip(weights, blocks, strict=True):
+        Ainv = _damped_inverse(A, 0.0)
+        H = H + w * (C - B.T @ Ainv @ B)
+        grads.append(w * (gn - B.T @ Ainv @ gp))
+        sq += w * rr
+        count += R
+    Hinv = np.linalg.pinv(H)
+    n = len(grads)
+    if n >= 3:
+        G = np.array(grads)
+        G = G - G.mean(axis=0)
+        meat = n / (n - 1) * G.T @ G
+        return Hinv @ meat @ Hinv, "cluster-robust (frames)"
+    dof = max(count - (POSE_DIM * n + n_shape), 1)
+    return sq / dof * Hinv, "Gauss-Newton (residual variance)"
+
+
+def biometric_errors(
+    body: BodyModel, nu: np.ndarray, cov: np.ndarray, density: float = DEFAULT_DENSITY
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Biometrics of ν and their standard errors under a covariance of ν (delta method).
+
+    Parameters
+    ----------
+    body : BodyModel
+    nu : (n_shape,) float
+    cov : (n_shape, n_shape) float
+    density : float
+
+    Returns
+    -------
+    biometrics, standard_errors : dict of str to float
+        ``sqrt(diag(J cov Jᵀ))`` with ``J`` the forward-difference Jacobian of
+        the biometrics with respect to ν (steps of ``_BIO_STEP``: the shape
+        space is in standard deviations; one batch of ``1 + n_shape`` bodies).
+    """
+    nu = np.asarray(nu, float)
+    n = len(nu)
+    h = _BIO_STEP
+    batch = np.vstack([nu, nu + h * np.eye(n)])
+    measured = [b.to_dict() for b in measure(body, batch, density=density)]
+    keys = list(measured[0])
+    values = np.array([[m[k] for k in keys] for m in measured])  # (1 + n, M)
+    J = (values[1:] - values[0]).T / h  # (M, n)
+    var = np.einsum("mi,ij,mj->m", J, cov, J)
+    se = np.sqrt(np.clip(var, 0.0, None))
+    return dict(zip(keys, values[0].tolist(), strict=True)), dict(
+        zip(keys, se.tolist(), strict=True)
+    )
