@@ -257,7 +257,8 @@ def dress(
         offset += hang_offsets(rest + offset, trunk, joints, layer)
         for _ in range(3):
             offset = np.where(cloth[:, None], smooth @ offset, 0.0)
-        offset *= w[:, None]
+        gap = np.linalg.norm(offset, axis=1)
+        offset *= (np.minimum(gap, layer.max_gap) / np.maximum(gap, 1e-12) * w)[:, None]
     else:
         offset = np.zeros_like(rest)
     if hair:
