@@ -51,16 +51,16 @@ SESSIONS = (
     (14, "mixed", {"background_clip": False, "bystanders": 2}),
 )
 #: Sessions of independent-geometry subjects on the demo's rig (issue 15): (seed, motion,
-#: --subject text). Seeds 41-46 were never used by a studio session before; each draws
-#: another body of the bank (indices 13, 19, 16, 39, 9, 6); every motion but walk_turn
-#: and squat raises the arms overhead at some point.
+#: --subject text). These seeds were never used by a studio session before; each draws
+#: another body of the bank (indices 16, 19, 43, 6, 9, 3). Kept frames (of 16) with a
+#: wrist above the neck: 6, 6, 3 (tight); 6, 0 (walk_turn), 9 (loose).
 INDEPENDENT_SESSIONS = (
-    (41, "arm_raises", "independent:41"),
-    (42, "mixed", "independent:42"),
-    (43, "reach", "independent:43"),
-    (44, "arm_raises", "independent:44,clothing=loose,hair=1"),
+    (43, "arm_raises", "independent:43"),
+    (42, "reach", "independent:42"),
+    (49, "mixed", "independent:49"),
+    (46, "arm_raises", "independent:46,clothing=loose,hair=1"),
     (45, "walk_turn", "independent:45,clothing=loose,hair=1"),
-    (46, "mixed", "independent:46,clothing=loose,hair=1"),
+    (56, "mixed", "independent:56,clothing=loose,hair=1"),
 )
 DEMO_RIG_SEED = 5
 FRAMES = 400  # 16 kept frames each
