@@ -78,8 +78,8 @@ class ClothingLayer:
     smoothing_steps: int = 200
     fold_amplitude: float = 0.003
     hem: float = 0.02
-    sleeve: float = 0.55
-    leg: float = 0.5
+    sleeve: float = 0.8
+    leg: float = 0.85
     hang_from: float = 0.12
     drape: float = 0.15
     hang_sector: float = 0.14

@@ -30,9 +30,10 @@ from bodymetry.estimation.body_model.bake.independent import INDEPENDENT_FORMAT
 from bodymetry.estimation.body_model.biometrics import Biometrics, measure_canonical
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
-from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, forward_kinematics
+from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS, forward_kinematics
 from bodymetry.fileio import load_npz
 from bodymetry.studio.clothing import CLOTHING, dress
+from bodymetry.studio.scene import Appearance
 
 #: The committed bank of independent bodies.
 INDEPENDENT_BODIES_PATH = Path(__file__).with_name("data") / "independent_bodies.npz"
@@ -341,6 +342,15 @@ class IndependentSubject:
             np.asarray(self.model.poses["tpose"], dtype=float).copy(),
             np.asarray(self.model.poses["apose"], dtype=float).copy(),
         )
+
+    def appearance(self) -> Appearance:
+        """Clothing colours: the studio's, with bare shins below loose shorts."""
+        colors = np.array(Appearance().part_colors, dtype=float)
+        if self.spec.clothing == "loose":
+            skin = colors[PARTS.index("head")]
+            for side in "lr":
+                colors[PARTS.index(f"shin_{side}")] = skin
+        return Appearance(part_colors=colors)
 
     def describe(self) -> dict:
         """What ``ground_truth/subject.json`` records about the subject (besides biometrics)."""

@@ -398,6 +398,7 @@ def _render_camera(job: _CameraJob, progress) -> dict:
         subject = None
     studio = Studio.from_model(
         model,
+        appearance=subject.appearance() if subject is not None else None,
         shadows=cfg.shadows,
         effects=Effects(seed=cfg.seed),
         # Key light from between two cameras, so every camera sees the cast shadow.
