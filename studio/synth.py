@@ -9,6 +9,10 @@ Optionally, bystanders (:mod:`bodymetry.studio.bystanders`) stand still in the
 room during the recording, each seen by one or two cameras; they are absent from
 the background and calibration clips (recorded before they came in) and from the
 ground-truth silhouettes, and ``ground_truth/studio.json`` describes them.
+The subject is a body of our model (a shape ν) or, with
+``--subject independent:...``, a body the model was not built from
+(:mod:`bodymetry.studio.independent`, skinned, optionally clothed), whose
+ground truth has no ν.
 
 Cameras render in parallel worker processes (one camera per task); every random
 draw comes from the configuration's seed, so the same configuration gives the
