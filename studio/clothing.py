@@ -13,8 +13,9 @@ nude body. The displacement is not a uniform offset:
    taper (1.5 mm per cm of drop): so it falls from the chest over the hollow
    under it and bridges the waist between chest and hips, and falls from the
    shoulder blades over the small of the back;
-3. smooth fold noise (a few millimetres), a light smoothing and a short taper
-   at the hems (sleeves at mid upper arm, shorts at mid thigh, the collar).
+3. smooth fold noise (a few millimetres), a light smoothing, a 6 cm cap on
+   the gap and a short taper at the hems (sleeves to 80 % of the upper arm,
+   shorts to 85 % of the thigh, the collar).
 
 The smoothing follows the mesh graph, not 3D space, and the hang uses trunk
 vertices only, so arms and legs are never joined to the trunk.
