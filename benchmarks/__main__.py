@@ -29,6 +29,10 @@ REPORTS = {"imports": "benchmarks.imports", "profile": "benchmarks.bench_profile
 
 
 def main(argv: list[str]) -> int:
+    # ``--flag`` options go to every named benchmark's run() as flag=True
+    # (e.g. ``pipeline --independent``).
+    flags = {a[2:].replace("-", "_"): True for a in argv if a.startswith("--")}
+    argv = [a for a in argv if not a.startswith("--")]
     names = argv or list(BENCHMARKS)
     unknown = [n for n in names if n not in BENCHMARKS and n not in REPORTS]
     if unknown:
@@ -41,7 +45,7 @@ def main(argv: list[str]) -> int:
     out_dir.mkdir(exist_ok=True)
     for name in names:
         module = importlib.import_module(REPORTS.get(name, f"benchmarks.bench_{name}"))
-        result = module.run()
+        result = module.run(**flags)
         result["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count()}
         text = json.dumps(result, indent=2)
         print(f"== {name}\n{text}")

@@ -13,6 +13,11 @@ Targets: disc. + generative |mean error| <= 15 mm height, <= 20 mm arm span, <= 
 weight; per-frame std <= 25 mm, 25 mm, 3 kg; generative better than discriminative for
 every biometric; mean IoU >= 0.90; <= 10 s per kept frame per core.
 
+``python -m benchmarks pipeline --independent`` (or ``BODYMETRY_BENCH_INDEPENDENT=1``)
+renders :data:`INDEPENDENT_SESSIONS` instead: six subjects whose geometry the model was
+not built from (``--subject independent:...``, docs/studio.md), three in tight clothing
+and three in the loose clothing layer with hair; the demo still runs first.
+
 ``BODYMETRY_BENCH_SESSIONS=a:b:c`` uses sessions rendered beforehand instead of
 rendering the three studio sessions (the demo always runs). The discriminative
 models are trained into a fresh cache, so the demo's run is a cold start
@@ -45,6 +50,18 @@ SESSIONS = (
     (13, "reach", {}),
     (14, "mixed", {"background_clip": False, "bystanders": 2}),
 )
+#: Sessions of independent-geometry subjects on the demo's rig (issue 15): (seed, motion,
+#: --subject text). These seeds were never used by a studio session before; each draws
+#: another body of the bank (indices 16, 19, 43, 6, 9, 3). Kept frames (of 16) with a
+#: wrist above the neck: 6, 6, 3 (tight); 6, 0 (walk_turn), 9 (loose).
+INDEPENDENT_SESSIONS = (
+    (43, "arm_raises", "independent:43"),
+    (42, "reach", "independent:42"),
+    (49, "mixed", "independent:49"),
+    (46, "arm_raises", "independent:46,clothing=loose,hair=1"),
+    (45, "walk_turn", "independent:45,clothing=loose,hair=1"),
+    (56, "mixed", "independent:56,clothing=loose,hair=1"),
+)
 DEMO_RIG_SEED = 5
 FRAMES = 400  # 16 kept frames each
 
@@ -55,13 +72,20 @@ TARGETS = {
 }
 
 
-def _render(folder: Path, seed: int, motion: str, options: dict) -> Path:
+def _outfit(subject: str) -> str:
+    """``loose`` or ``tight``: what an independent session's subject wears (folder names)."""
+    return "loose" if "clothing=loose" in subject else "tight"
+
+
+def _render(
+    folder: Path, seed: int, motion: str, options: dict, subject: str | None = None
+) -> Path:
     config = SynthConfig(
         frames=FRAMES,
         seed=seed,
         rig_seed=DEMO_RIG_SEED,
         motion=motion,
-        subject=SubjectSpec(seed=seed),
+        subject=SubjectSpec.parse(subject, seed),
         calibration_frames=30,  # the true calibration.yaml is written; no clip is solved
         **options,
     )
@@ -119,12 +143,18 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
     }
 
 
-def run() -> dict:
+def run(independent: bool = False) -> dict:
     reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
+    independent = independent or bool(os.environ.get("BODYMETRY_BENCH_INDEPENDENT"))
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         if reuse:
             folders = [Path(p) for p in reuse.split(":") if p]
+        elif independent:
+            folders = [
+                _render(tmp / f"seed{seed}_{motion}_{_outfit(subject)}", seed, motion, {}, subject)
+                for seed, motion, subject in INDEPENDENT_SESSIONS
+            ]
         else:
             folders = [
                 _render(tmp / f"seed{seed}_{motion}", seed, motion, options)
@@ -133,11 +163,12 @@ def run() -> dict:
         cache = None if os.environ.get("BODYMETRY_BENCH_WARM") else tmp / "cache"
         out = [evaluate_session(Path(DEMO_SESSION), tmp / "run_demo", cache)]
         out += [evaluate_session(f, tmp / f"run_{f.name}", cache) for f in folders]
+    listed = INDEPENDENT_SESSIONS if independent and not reuse else SESSIONS
     return {
         "setup": (
             f"demo + {len(out) - 1} studio sessions ({FRAMES} frames, every 25th kept; "
-            f"seeds/motions {[s[:2] for s in SESSIONS]}, the last without a background clip "
-            "and with 2 bystanders; the demo's rig), default preset, all cores"
+            f"{[s[::2] if independent else s[:2] for s in listed]}; the demo's rig), "
+            "default preset, all cores"
         ),
         "sessions": out,
         "all_pass": all(

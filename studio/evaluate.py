@@ -6,7 +6,9 @@
   person. The studio does not store shadow masks, so they are recomputed: the
   session's state (``ground_truth/states.npz``) is posed and rendered again
   through the true cameras with the studio's key light, without noise (the
-  shadow geometry does not depend on the noise).
+  shadow geometry does not depend on the noise). An independent subject
+  (``ground_truth/subject.json`` names it; its states have no ν) is rebuilt from
+  the committed bank and skinned, clothed as it was rendered.
 
 :func:`segment_and_score` runs the capture stage on a session (any session;
 the scoring only where it has ground truth), writes the masks and
@@ -29,7 +31,7 @@ import numpy as np
 
 from bodymetry.capture.background import SubtractionConfig
 from bodymetry.capture.ingest import check_sync
-from bodymetry.capture.session import GROUND_TRUTH_STATES, Session
+from bodymetry.capture.session import GROUND_TRUTH_STATES, GROUND_TRUTH_SUBJECT, Session
 from bodymetry.capture.silhouette import (
     SilhouetteFrame,
     background_models,
@@ -39,6 +41,7 @@ from bodymetry.capture.silhouette import (
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.fileio import load_npz, write_json_atomic
+from bodymetry.studio.independent import IndependentSpec, IndependentSubject
 from bodymetry.studio.render import Studio
 from bodymetry.studio.scene import Light
 
@@ -74,6 +77,7 @@ class GroundTruth:
         self._studio = None
         self._states = None
         self._model = None
+        self._independent: IndependentSubject | None = None
         self._cameras = None
         self._shadow_cache: dict[tuple[str, int], np.ndarray | None] = {}
 
@@ -104,7 +108,12 @@ class GroundTruth:
         studio_json = gt / "studio.json"
         if studio_json.is_file():
             shadows = bool(json.loads(studio_json.read_text())["config"].get("shadows", True))
-        self._model = BodyModel.load(n_shape=len(self._states["nu"]))
+        self._independent = None
+        if "nu" in self._states:
+            self._model = BodyModel.load(n_shape=len(self._states["nu"]))
+        else:
+            self._model = BodyModel.load()
+            self._independent = IndependentSubject(independent_spec(gt), model=self._model)
         # The light of studio/synth.py (_render_camera).
         self._studio = Studio.from_model(
             self._model,
@@ -130,10 +139,32 @@ class GroundTruth:
         if rows.size == 0:
             return None
         r = int(rows[0])
-        state = BodyState(s["tau"][r], s["theta"][r], s["nu"][None])
-        vertices = self._model.pose(state).vertices[0]
+        if self._independent is not None:
+            vertices = self._independent.pose(s["tau"][r][None], s["theta"][r][None])[0][0]
+        else:
+            state = BodyState(s["tau"][r], s["theta"][r], s["nu"][None])
+            vertices = self._model.pose(state).vertices[0]
         out = self._studio.render_frame(self._cameras[camera], vertices, effects=False)
         return out.shadow_mask & ~out.person_mask
+
+
+def independent_spec(ground_truth: Path) -> IndependentSpec:
+    """The independent subject named by a session's ``ground_truth/subject.json``.
+
+    Raises
+    ------
+    InputError
+        When the subject is not an independent one (its states should hold ν).
+    """
+    path = ground_truth / GROUND_TRUTH_SUBJECT
+    subject = json.loads(path.read_text()) if path.is_file() else {}
+    text = str(subject.get("subject", ""))
+    if subject.get("source") != "independent" or not text.startswith("independent:"):
+        raise InputError(
+            f"{ground_truth}: the states have no shape ν and {GROUND_TRUTH_SUBJECT} names no "
+            "independent subject"
+        )
+    return IndependentSpec.parse(text.partition(":")[2])
 
 
 def load_ground_truth(session: Session) -> GroundTruth | None:

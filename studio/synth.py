@@ -9,6 +9,10 @@ Optionally, bystanders (:mod:`bodymetry.studio.bystanders`) stand still in the
 room during the recording, each seen by one or two cameras; they are absent from
 the background and calibration clips (recorded before they came in) and from the
 ground-truth silhouettes, and ``ground_truth/studio.json`` describes them.
+The subject is a body of our model (a shape ν) or, with
+``--subject independent:...``, a body the model was not built from
+(:mod:`bodymetry.studio.independent`, skinned, optionally clothed), whose
+ground truth has no ν.
 
 Cameras render in parallel worker processes (one camera per task); every random
 draw comes from the configuration's seed, so the same configuration gives the
@@ -48,7 +52,12 @@ from bodymetry.capture.video import H264Writer
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
-from bodymetry.estimation.body_model.motion.library import MOTIONS, ground_motion, make_motion
+from bodymetry.estimation.body_model.motion.library import (
+    MOTIONS,
+    Motion,
+    ground_motion,
+    make_motion,
+)
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.motion.seeds import seed_for
 from bodymetry.fileio import save_npz, write_bytes_atomic, write_json_atomic
@@ -57,6 +66,7 @@ from bodymetry.studio.bystanders import (
     BystanderPlacement,
     place_bystanders,
 )
+from bodymetry.studio.independent import IndependentSpec, IndependentSubject
 from bodymetry.studio.render import Body, Effects, Studio
 from bodymetry.studio.rig import studio_rig
 from bodymetry.studio.scene import Appearance, BoardPose, BoardTexture, Light
@@ -80,18 +90,25 @@ class SubjectSpec:
         Use body ``heldout_index`` of the calibrated prior's held-out bodies.
     seed : int
         Picks a held-out body when neither ``nu`` nor ``heldout_index`` is given.
+    independent : IndependentSpec or None
+        A subject whose geometry the body model was not built from
+        (:mod:`bodymetry.studio.independent`); it has no ν.
     """
 
     nu: tuple[float, ...] | None = None
     heldout_index: int | None = None
     seed: int = 0
+    independent: IndependentSpec | None = None
 
     @classmethod
     def parse(cls, text: str | None, default_seed: int) -> SubjectSpec:
-        """``None`` | ``"seed:N"`` | ``"heldout:N"`` | ``"nu:v1,v2,..."``."""
+        """``None`` | ``"seed:N"`` | ``"heldout:N"`` | ``"nu:v1,v2,..."`` |
+        ``"independent:SEED[,body=K][,clothing=tight|loose][,hair=0|1]"``."""
         if text is None:
             return cls(seed=default_seed)
         kind, _, value = text.partition(":")
+        if kind == "independent":
+            return cls(independent=IndependentSpec.parse(value))
         try:
             if kind == "seed":
                 return cls(seed=int(value))
@@ -104,10 +121,17 @@ class SubjectSpec:
                 return cls(nu=nu)
         except ValueError as exc:
             raise InputError(f"--subject {text!r}: could not read the value ({exc})") from exc
-        raise InputError(f"--subject {text!r}: expected seed:N, heldout:N or nu:v1,v2,...")
+        raise InputError(
+            f"--subject {text!r}: expected seed:N, heldout:N, nu:v1,v2,... or "
+            "independent:SEED[,clothing=loose][,hair=1]"
+        )
 
     def resolve(self, model) -> tuple[np.ndarray, dict]:
         """The shape (n_shape,) and a description for ``subject.json``."""
+        if self.independent is not None:
+            raise InputError(
+                f"--subject {self.independent.to_text()}: an independent subject has no shape ν"
+            )
         heldout = model.prior_shapes("heldout")
         if self.nu is not None:
             if len(self.nu) > model.n_shape:
@@ -354,18 +378,31 @@ class _CameraJob:
     out: Path
     tau: np.ndarray
     theta: np.ndarray
-    nu: np.ndarray
+    nu: np.ndarray | None
     board_poses: np.ndarray
     bystanders: tuple[Body, ...] = ()
+    independent: IndependentSpec | None = None
+
+    def pose(self, model: BodyModel, subject: IndependentSubject | None, frames: slice):
+        """Rendered vertices (B, V, 3) of the subject at ``frames``."""
+        if subject is not None:
+            return subject.pose(self.tau[frames], self.theta[frames])[0]
+        return model.pose(BodyState(self.tau[frames], self.theta[frames], self.nu[None])).vertices
 
 
 def _render_camera(job: _CameraJob, progress) -> dict:
     """Render one camera's recording (with the bystanders), background and calibration
     clips and masks."""
     cfg, cam = job.config, job.camera
-    model = BodyModel.load(n_shape=len(job.nu))
+    if job.independent is not None:
+        model = BodyModel.load()
+        subject = IndependentSubject(job.independent, model=model)
+    else:
+        model = BodyModel.load(n_shape=len(job.nu))
+        subject = None
     studio = Studio.from_model(
         model,
+        appearance=subject.appearance() if subject is not None else None,
         shadows=cfg.shadows,
         effects=Effects(seed=cfg.seed),
         # Key light from between two cameras, so every camera sees the cast shadow.
@@ -378,9 +415,7 @@ def _render_camera(job: _CameraJob, progress) -> dict:
     with H264Writer(job.out / "videos" / f"{cam.name}.mp4", cfg.fps, cfg.size, cfg.crf) as writer:
         for start in range(0, cfg.frames, 16):
             stop = min(cfg.frames, start + 16)
-            verts = model.pose(
-                BodyState(job.tau[start:stop], job.theta[start:stop], job.nu[None])
-            ).vertices
+            verts = job.pose(model, subject, slice(start, stop))
             for k, frame in enumerate(range(start, stop)):
                 image, person, shadow = studio.render_frame(
                     cam, verts[k], rng, others=job.bystanders
@@ -446,13 +481,24 @@ def synthesize(
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     model = BodyModel.load()
-    nu, subject_info = config.subject.resolve(model)
-    rest = RestPoseInfo.from_model(model, nu)
+    independent = None
+    if config.subject.independent is not None:
+        independent = IndependentSubject(config.subject.independent, model=model)
+        nu, subject_info = None, independent.describe()
+        rest = independent.rest_pose_info()
+    else:
+        nu, subject_info = config.subject.resolve(model)
+        rest = RestPoseInfo.from_model(model, nu)
     motion_seed = seed_for("test", config.seed)
     motion = make_motion(
         config.motion, config.frames, config.fps, motion_seed, limits=model.limits, rest=rest
     )
-    motion = ground_motion(model, motion, nu, lod=False)
+    if independent is None:
+        motion = ground_motion(model, motion, nu, lod=False)
+    else:
+        tau = motion.tau.copy()
+        tau[:, 2] -= independent.lowest_point(motion.tau, motion.theta)
+        motion = Motion(motion.theta, tau, motion.fps, motion.name)
     rig_seed = config.seed if config.rig_seed is None else config.rig_seed
     cameras = studio_rig(config.cameras, config.size, seed=rig_seed)
     group = CameraGroup(cameras)
@@ -465,13 +511,25 @@ def synthesize(
     )
 
     # Ground truth that does not need rendering.
-    bio = measure(model, nu[None])[0].to_dict()
-    posed = model.pose(BodyState(motion.tau, motion.theta, nu[None]))
-    joints = posed.joints
+    if independent is None:
+        bio = measure(model, nu[None])[0].to_dict()
+        posed = model.pose(BodyState(motion.tau, motion.theta, nu[None]))
+        joints, sparse_vertices = posed.joints, posed.vertices[:, ::7]
+        del posed
+    else:
+        # The nude body: true joints of the skinning (what MPJPE is scored against).
+        bio = independent.biometrics().to_dict()
+        batches = [
+            independent.pose(motion.tau[s : s + 32], motion.theta[s : s + 32])
+            for s in range(0, config.frames, 32)
+        ]
+        joints = np.concatenate([j for _, j in batches])
+        sparse_vertices = np.concatenate([v[:, ::7] for v, _ in batches])
+        del batches
     bystanders = place_bystanders(
         model,
         cameras,
-        posed.vertices[:, ::7],
+        sparse_vertices,
         config.bystanders,
         config.seed,
         exclude_heldout=tuple(
@@ -479,21 +537,24 @@ def synthesize(
         ),
         placement=config.bystander_placement,
     )
-    del posed
-    save_npz(
-        out / "ground_truth" / GROUND_TRUTH_STATES,
-        {
-            "frame": np.arange(config.frames),
-            "tau": motion.tau,
-            "theta": motion.theta,
-            "nu": nu,
-            "joints": joints,
-            "board_poses": board_poses,
-        },
-    )
+    del sparse_vertices
+    states = {
+        "frame": np.arange(config.frames),
+        "tau": motion.tau,
+        "theta": motion.theta,
+        "joints": joints,
+        "board_poses": board_poses,
+    }
+    if nu is not None:  # an independent subject has no ν
+        states["nu"] = nu
+    save_npz(out / "ground_truth" / GROUND_TRUTH_STATES, states)
     write_json_atomic(
         out / "ground_truth" / GROUND_TRUTH_SUBJECT,
-        {**{k: round(v, 3) for k, v in bio.items()}, "nu": nu.tolist(), **subject_info},
+        {
+            **{k: round(v, 3) for k, v in bio.items()},
+            **({"nu": nu.tolist()} if nu is not None else {}),
+            **subject_info,
+        },
     )
     save_calibration(
         out / "calibration.yaml",
@@ -521,6 +582,7 @@ def synthesize(
             nu,
             board_poses,
             others,
+            config.subject.independent,
         )
         for i, cam in enumerate(cameras)
     ]

@@ -24,7 +24,10 @@ def _parse_size(text: str) -> tuple[int, int]:
 @click.command()
 @click.argument("out", type=click.Path(file_okay=False, path_type=Path))
 @click.option(
-    "--subject", default=None, help="seed:N | heldout:N | nu:v1,v2,... (default: from --seed)."
+    "--subject",
+    default=None,
+    help="seed:N | heldout:N | nu:v1,v2,... | independent:SEED[,body=K][,clothing=tight|loose]"
+    "[,hair=0|1] (a body our model was not built from, docs/studio.md; default: from --seed).",
 )
 @click.option("--motion", default="mixed", show_default=True, help="Motion library name.")
 @click.option("--frames", default=200, show_default=True, type=int, help="Frames to record.")

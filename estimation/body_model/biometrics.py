@@ -114,14 +114,6 @@ def measure(model: BodyModel, nu: np.ndarray, density: float = DEFAULT_DENSITY) 
     if not density > 0:
         raise ValueError(f"density: expected a positive value in kg/m^3, got {density}")
     nu = np.atleast_2d(np.asarray(nu, dtype=float))
-    verts = model.canonical_vertices(nu)
-    kp = model.rest_keypoints(nu)
-    faces = model.faces()
-    parts = model.full.arrays.parts
-    torso = parts == PARTS.index("torso")
-    trunk = torso | (parts == PARTS.index("pelvis"))
-    hips = np.isin(parts, [PARTS.index(p) for p in ("pelvis", "thigh_l", "thigh_r")])
-
     # Arm span in a T-pose; the root's height does not matter for a distance.
     tpose = BodyState(np.zeros(3), model.poses["tpose"][None], nu)
     tposed = model.pose(tpose).keypoints
@@ -129,10 +121,61 @@ def measure(model: BodyModel, nu: np.ndarray, density: float = DEFAULT_DENSITY) 
     span = np.linalg.norm(
         tposed[:, names.index("knuckle_l")] - tposed[:, names.index("knuckle_r")], axis=-1
     )
-    volume = geometry.mesh_volume(verts, faces)
+    return measure_canonical(
+        model, model.canonical_vertices(nu), model.rest_keypoints(nu), span, density
+    )
+
+
+def measure_canonical(
+    model: BodyModel,
+    vertices: np.ndarray,
+    keypoints: np.ndarray,
+    arm_span: np.ndarray,
+    density: float = DEFAULT_DENSITY,
+) -> list[Biometrics]:
+    """Measure canonical bodies given as full meshes (the definitions of :func:`measure`).
+
+    Any body in correspondence with the model's full mesh can be measured, e.g.
+    the studio's independent bodies, which are not of the model's shape space.
+
+    Parameters
+    ----------
+    model : BodyModel
+        Gives the triangles, their parts and the landmark vertices.
+    vertices : (B, V, 3) float
+        Rest-pose bodies, lowest point on z = 0, metres.
+    keypoints : (B, K, 3) float
+        Their joint centres (order of ``model.keypoint_names``; only the joints are used).
+    arm_span : (B,) float
+        Knuckle-to-knuckle distance in the T-pose, metres (the pose is the caller's).
+    density : float
+        kg/m^3; must be positive.
+
+    Returns
+    -------
+    list of Biometrics, one per body.
+    """
+    if not density > 0:
+        raise ValueError(f"density: expected a positive value in kg/m^3, got {density}")
+    verts = np.asarray(vertices, dtype=float)
+    kp = np.asarray(keypoints, dtype=float)
+    if verts.ndim == 2:
+        verts, kp = verts[None], kp[None]
+    span = np.atleast_1d(np.asarray(arm_span, dtype=float))
+    if verts.shape[1:] != (model.full.n_vertices, 3) or len(kp) != len(verts):
+        raise ValueError(
+            f"vertices: expected (B, {model.full.n_vertices}, 3) with B keypoint sets, "
+            f"got {verts.shape} and {kp.shape}"
+        )
+    faces = model.faces()
+    parts = model.full.arrays.parts
+    torso = parts == PARTS.index("torso")
+    trunk = torso | (parts == PARTS.index("pelvis"))
+    hips = np.isin(parts, [PARTS.index(p) for p in ("pelvis", "thigh_l", "thigh_r")])
+    volume = np.atleast_1d(geometry.mesh_volume(verts, faces))
     lm = model.landmarks
     out = []
-    for b in range(len(nu)):
+    for b in range(len(verts)):
         v, k = verts[b], kp[b]
         z = {j: k[JOINTS.index(j), 2] for j in ("hip_l", "spine", "shoulder_l")}
         crotch = v[lm["crotch"], 2]

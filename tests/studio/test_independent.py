@@ -1,0 +1,140 @@
+"""Independent studio subjects: the committed bank, the skinning, clothing and hair."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from bodymetry.errors import InputError
+from bodymetry.estimation.body_model import geometry
+from bodymetry.estimation.body_model.bake.independent import shape_space_residual
+from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.body_model.skeleton import JOINT_SLICES, JOINTS, N_POSE
+from bodymetry.studio.clothing import garment_weight
+from bodymetry.studio.independent import (
+    INDEPENDENT_BODIES_PATH,
+    IndependentSpec,
+    IndependentSubject,
+    committed_bank,
+)
+from bodymetry.studio.render import Studio
+from bodymetry.studio.rig import studio_rig
+from bodymetry.studio.synth import SubjectSpec
+
+#: The bank's float16 offsets round bodies to about 0.06 mm; a body of our 9-component
+#: shape space would be rebuilt to that. Every bank body must lie further out than this.
+NOT_IN_SPAN_MM = 0.3
+
+
+@pytest.fixture(scope="module")
+def model():
+    return BodyModel.load()
+
+
+@pytest.fixture(scope="module")
+def loose(model):
+    return IndependentSubject(IndependentSpec(4, clothing="loose", hair=True), model=model)
+
+
+def test_bank_loads_without_pickle_and_is_compact(model):
+    assert INDEPENDENT_BODIES_PATH.stat().st_size < 4_000_000
+    with np.load(INDEPENDENT_BODIES_PATH, allow_pickle=False) as data:
+        assert all(data[k].dtype != object for k in data.files)
+        provenance = json.loads(str(data["provenance"]))
+    assert provenance["wheel_sha256"] and "CC0" in provenance["licences"]["makehuman_assets"]
+    bank = committed_bank()
+    assert len(bank) == 48 and bank.vertices.shape[1:] == (model.full.n_vertices, 3)
+    np.testing.assert_array_equal(bank.faces, model.faces())
+    np.testing.assert_allclose(bank.weights.sum(axis=1), 1.0, atol=1e-6)
+    # Canonical frame: lowest vertex on the floor, root joint above the origin.
+    np.testing.assert_allclose(bank.vertices[..., 2].min(axis=1), 0.0, atol=1e-3)
+    np.testing.assert_allclose(bank.keypoints[:, 0, :2], 0.0, atol=1e-3)
+
+
+def test_skinning_at_rest_reproduces_the_rest_body(model):
+    subject = IndependentSubject(IndependentSpec(0, body=7), model=model)
+    tau = np.array([[0.4, -0.3, 1.2]])
+    verts, joints, keypoints = subject.skin(tau, np.zeros((1, N_POSE)))
+    shift = tau[0] - subject.rest_joints[0]
+    np.testing.assert_allclose(verts[0], subject.rest + shift, atol=1e-9)
+    np.testing.assert_allclose(joints[0], subject.rest_joints + shift, atol=1e-9)
+    np.testing.assert_allclose(keypoints[0], subject.keypoints + shift, atol=1e-9)
+
+
+def test_measurements_do_not_change_under_rigid_motion(model):
+    subject = IndependentSubject(IndependentSpec(0, body=11), model=model)
+    bio = subject.biometrics()
+    faces = model.faces()
+    for yaw, tau in ((0.7, (1.0, 2.0, 0.95)), (-2.5, (-0.3, 0.1, 1.4))):
+        theta = np.zeros((1, N_POSE))
+        theta[0, JOINT_SLICES[0].start + 2] = yaw
+        verts = subject.skin(np.array([tau]), theta)[0][0]
+        height = verts[:, 2].max() - verts[:, 2].min()
+        # (the rest body lies on the floor to the float16 round-off of the bank)
+        assert 1000.0 * height == pytest.approx(bio.height_mm, abs=1e-3)
+        assert 1000.0 * geometry.mesh_volume(verts, faces) == pytest.approx(bio.volume_l, rel=1e-7)
+        tpose = subject.bank.tpose[subject.index][None].copy()
+        tpose[0, JOINT_SLICES[0].start + 2] = yaw
+        kp = subject.skin(np.array([tau]), tpose)[2][0]
+        names = subject.bank.keypoint_names
+        span = np.linalg.norm(kp[names.index("knuckle_l")] - kp[names.index("knuckle_r")])
+        assert 1000.0 * span == pytest.approx(bio.arm_span_mm, abs=1e-6)
+    # The T-pose arm span is about 0.9 x height (docs/biometrics.md).
+    assert 0.85 < bio.arm_span_mm / bio.height_mm < 0.97
+
+
+def test_bank_bodies_are_outside_our_shape_space(model):
+    bank = committed_bank()
+    residual_mm = 1000.0 * shape_space_residual(model, bank.vertices[:12])
+    assert residual_mm.min() > NOT_IN_SPAN_MM, residual_mm
+    # A body of the shape space itself is rebuilt to round-off.
+    own = model.canonical_vertices(model.prior_shapes("heldout")[:2])
+    assert 1000.0 * shape_space_residual(model, own).max() < 0.05
+
+
+def test_loose_clothing_contains_the_body_and_hides_its_outline(model, loose):
+    theta = np.zeros((1, N_POSE))
+    theta[0, JOINT_SLICES[JOINTS.index("shoulder_l")].start + 1] = -2.0  # left arm overhead
+    theta[0, JOINT_SLICES[JOINTS.index("hip_r")].start] = -0.6
+    tau = np.array([[0.0, 0.0, 0.95]])
+    nude = loose.skin(tau, theta)[0][0]
+    clothed = loose.pose(tau, theta)[0][0]
+    studio = Studio.from_model(model)
+    for camera in studio_rig(2, (320, 240), seed=5):
+        a = studio.person_raster(camera, nude).mask
+        b = studio.person_raster(camera, clothed).mask
+        assert np.count_nonzero(a & ~b) <= 0.002 * np.count_nonzero(a)
+        assert np.count_nonzero(b) > 1.04 * np.count_nonzero(a)
+    # The cloth stands 1-3 cm off the covered skin for most of it, more over the waist.
+    covered = garment_weight(loose.rest, model.vertex_parts, loose.rest_joints) == 1.0
+    gap_mm = 1000.0 * np.linalg.norm(loose.surface - loose.rest, axis=1)[covered]
+    assert 10.0 < np.median(gap_mm) < 30.0 and gap_mm.max() <= 60.0
+    bare = np.isin(model.vertex_parts, [model.parts.index(p) for p in ("hand_l", "foot_r")])
+    np.testing.assert_array_equal(loose.surface[bare], loose.rest[bare])
+
+
+def test_hair_raises_the_head_but_not_the_measured_height(model, loose):
+    assert loose.surface[:, 2].max() > loose.rest[:, 2].max() + 0.015
+    assert loose.biometrics().height_mm == pytest.approx(1000.0 * loose.rest[:, 2].max())
+
+
+def test_subject_texts_parse_with_clear_errors():
+    spec = SubjectSpec.parse("independent:12,clothing=loose,hair=1", 0).independent
+    assert spec == IndependentSpec(12, clothing="loose", hair=True)
+    assert IndependentSpec.parse(spec.to_text().partition(":")[2]) == spec
+    assert SubjectSpec.parse("independent:3,body=40", 0).independent.index(48) == 40
+    for text, match in (
+        ("independent:x", "SEED"),
+        ("independent:1,clothing=baggy", "clothing"),
+        ("independent:1,hair=yes", "hair"),
+        ("independent:1,colour=red", "unknown option"),
+        ("independent:1,body=two", "body"),
+    ):
+        with pytest.raises(InputError, match=match):
+            SubjectSpec.parse(text, 0)
+    with pytest.raises(InputError, match="body=99"):
+        IndependentSpec(1, body=99).index(48)
+    with pytest.raises(InputError, match="no shape"):
+        SubjectSpec.parse("independent:1", 0).resolve(BodyModel.load())
