@@ -1,0 +1,335 @@
+"""Compiled (numba) kernels of the silhouette likelihood (:mod:`estimation.generative`).
+
+Imported lazily, only when the rasterizer's backend is ``"numba"`` (see
+:mod:`estimation.raster`); importing ``raster_kernels`` first points numba's
+on-disk cache where that module says.
+
+Two kernels replace, for a whole batch of bodies, the numpy path's per-body
+and per-view Python loop (project, rasterize, distance transform, masked sums):
+
+- :func:`project_kernel`: every body's vertices through every camera, with the
+  cameras' full OpenCV lens model (the expressions of
+  ``Camera.distort_normalized``, term for term);
+- :func:`chamfer_kernel`: each body's bidirectional chamfer cost in each view.
+  It covers the front faces exactly as ``raster_kernels.coverage_kernel`` does
+  (same tiles, same rounding), sums the observed distance map over the covered
+  pixels while covering, and computes the model's distance transform on the
+  same crop as the numpy path with OpenCV's own 3x3 chamfer algorithm
+  (``cv2.distanceTransform(..., DIST_L2, 3)``: weights 0.955 and 1.3693, two
+  passes), so the distances are OpenCV's to one float32 rounding.
+
+The sums are accumulated in float64 where numpy sums float32 pairwise, so the
+costs agree with the numpy path to about 1e-6 relative, not bit for bit
+(tests/estimation/test_likelihood_kernels.py states the tolerances).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# numba as raster_kernels imports it: after pointing its on-disk cache where that
+# module says (importing numba first would fix the cache directory too early).
+from bodymetry.estimation.raster_kernels import _setup, numba
+
+
+@numba.njit(cache=True, nogil=True)
+def project_kernel(verts, R, t, K, dist, tilt, mode, out):  # pragma: no cover
+    """Project B bodies into C cameras.
+
+    Parameters
+    ----------
+    verts : (B, V, 3) float64
+        World coordinates.
+    R : (C, 3, 3), t : (C, 3), K : (C, 3, 3) float64
+        Each camera's ``camera_from_world`` rotation, translation and intrinsics.
+    dist : (C, 14) float64
+        Distortion coefficients, zero-padded (OpenCV order).
+    tilt : (C, 3, 3) float64
+        Tilted-sensor matrix (used when ``mode`` is 2).
+    mode : (C,) int64
+        0: five-coefficient lens (``k1, k2, p1, p2, k3``); 1: rational, thin
+        prism; 2: as 1 with a tilted sensor.
+    out : (B, C, V, 2) float64
+        Pixels; NaN for points behind the camera (z <= 1e-9).
+    """
+    B, V, _ = verts.shape
+    C = R.shape[0]
+    nan = np.nan
+    for c in range(C):
+        k1, k2, p1, p2, k3 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3], dist[c, 4]
+        k4, k5, k6 = dist[c, 5], dist[c, 6], dist[c, 7]
+        s1, s2, s3, s4 = dist[c, 8], dist[c, 9], dist[c, 10], dist[c, 11]
+        m = mode[c]
+        for b in range(B):
+            for v in range(V):
+                px, py, pz = verts[b, v, 0], verts[b, v, 1], verts[b, v, 2]
+                X = px * R[c, 0, 0] + py * R[c, 0, 1] + pz * R[c, 0, 2] + t[c, 0]
+                Y = px * R[c, 1, 0] + py * R[c, 1, 1] + pz * R[c, 1, 2] + t[c, 1]
+                Z = px * R[c, 2, 0] + py * R[c, 2, 1] + pz * R[c, 2, 2] + t[c, 2]
+                if not Z > 1e-9:
+                    out[b, c, v, 0] = nan
+                    out[b, c, v, 1] = nan
+                    continue
+                x = X / Z
+                y = Y / Z
+                r2 = x * x + y * y
+                if m == 0:
+                    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+                    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+                    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+                else:
+                    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (
+                        1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+                    )
+                    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + r2 * (s1 + r2 * s2)
+                    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + r2 * (s3 + r2 * s4)
+                    if m == 2:
+                        M = tilt[c]
+                        w = M[2, 0] * xd + M[2, 1] * yd + M[2, 2]
+                        xt = (M[0, 0] * xd + M[0, 1] * yd + M[0, 2]) / w
+                        yt = (M[1, 0] * xd + M[1, 1] * yd + M[1, 2]) / w
+                        xd, yd = xt, yt
+                out[b, c, v, 0] = xd * K[c, 0, 0] + yd * K[c, 0, 1] + K[c, 0, 2]
+                out[b, c, v, 1] = xd * K[c, 1, 0] + yd * K[c, 1, 1] + K[c, 1, 2]
+
+
+@numba.njit(cache=True, nogil=True)
+def project_midpoints_kernel(verts, ends, R, t, K, dist, tilt, mode, out):  # pragma: no cover
+    """Project the midpoints of mesh edges of S bodies through one camera.
+
+    Parameters
+    ----------
+    verts : (S, V, 3) float64
+    ends : (n, 2) int64
+        The edges' vertex pairs.
+    R, t, K, dist, tilt, mode
+        One camera's, as :func:`project_kernel` takes them (leading axis of 1).
+    out : (S, n, 2) float64
+        Pixels of ``0.5 * (verts[:, ends[:, 0]] + verts[:, ends[:, 1]])``.
+    """
+    S = verts.shape[0]
+    n = ends.shape[0]
+    mid = np.empty((1, n, 3))
+    px = np.empty((1, 1, n, 2))
+    for s in range(S):
+        for k in range(n):
+            i, j = ends[k, 0], ends[k, 1]
+            for a in range(3):
+                mid[0, k, a] = 0.5 * (verts[s, i, a] + verts[s, j, a])
+        project_kernel(mid, R, t, K, dist, tilt, mode, px)
+        for k in range(n):
+            out[s, k, 0] = px[0, 0, k, 0]
+            out[s, k, 1] = px[0, 0, k, 1]
+
+
+@numba.njit(cache=True, nogil=True)
+def chamfer_distance_3x3(src, tmp, out):  # pragma: no cover
+    """OpenCV's ``distanceTransform(src, DIST_L2, 3)``: two passes of the 3x3
+    chamfer mask (0.955 along rows and columns, 1.3693 diagonally), in float32.
+
+    OpenCV's own C code works in 16.16 fixed point; the build on PyPI calls
+    Intel IPP, which adds float32 steps. This follows the latter: the values
+    match ``cv2.distanceTransform`` to one float32 rounding (about 1e-7
+    relative), tested.
+
+    Parameters
+    ----------
+    src : (h, w) bool
+        Non-zero pixels get their distance to the nearest zero pixel.
+    tmp : (>= h + 2, >= w + 2) float32
+        Scratch (distances with a one-pixel border).
+    out : (h, w) float32
+        The distances.
+    """
+    h, w = src.shape
+    a = np.float32(0.955)
+    d = np.float32(1.3693)
+    far = np.float32(1e30)
+    for j in range(w + 2):
+        tmp[0, j] = far
+        tmp[h + 1, j] = far
+    for i in range(h):
+        r = i + 1
+        tmp[r, 0] = far
+        tmp[r, w + 1] = far
+        for j in range(w):
+            if not src[i, j]:
+                tmp[r, j + 1] = 0
+            else:
+                t0 = tmp[r - 1, j] + d
+                t = tmp[r - 1, j + 1] + a
+                if t0 > t:
+                    t0 = t
+                t = tmp[r - 1, j + 2] + d
+                if t0 > t:
+                    t0 = t
+                t = tmp[r, j] + a
+                if t0 > t:
+                    t0 = t
+                tmp[r, j + 1] = t0
+    for i in range(h - 1, -1, -1):
+        r = i + 1
+        for j in range(w - 1, -1, -1):
+            t0 = tmp[r, j + 1]
+            if t0 > a:
+                t = tmp[r + 1, j + 2] + d
+                if t0 > t:
+                    t0 = t
+                t = tmp[r + 1, j + 1] + a
+                if t0 > t:
+                    t0 = t
+                t = tmp[r + 1, j] + d
+                if t0 > t:
+                    t0 = t
+                t = tmp[r, j + 2] + a
+                if t0 > t:
+                    t0 = t
+                tmp[r, j + 1] = t0
+            out[i, j] = t0
+
+
+@numba.njit(cache=True, nogil=True)
+def chamfer_kernel(
+    xs, ys, faces, sizes, h_canvas, observed, dist, boxes, area, scale, eps, out
+):  # pragma: no cover
+    """Bidirectional chamfer cost of B bodies in C views (``generative._view_cost``).
+
+    Parameters
+    ----------
+    xs, ys : (B, C, V) float64
+        Projected vertices per body and view (NaN: behind the camera).
+    faces : (T, 3) int64
+        A closed mesh; only front faces are drawn.
+    sizes : (C, 2) int64
+        ``(width, height)`` of each view.
+    h_canvas : int
+        The largest height: view ``k`` is covered as tile ``k`` of a tall
+        canvas (``y + k * h_canvas``), the rounding of ``raster.coverage_views``.
+    observed : (C, H, W) bool
+        Observed silhouettes (each view's own size in the top-left corner).
+    dist : (C, H, W) float32
+        Distance (full-resolution pixels) to the observed silhouette.
+    boxes : (C, 4) int64
+        Bounding box ``x0, y0, x1, y1`` of each observed silhouette.
+    area : (C,) float64
+        Observed area (full-resolution pixels).
+    scale : float
+        Comparison scale.
+    eps : float
+        The rasterizer's inside tolerance.
+    out : (B, C) float64
+        The costs; inf where the body covers no pixel of a view.
+
+    Returns
+    -------
+    int
+        0, or -1 when a face index is outside ``0 .. V - 1``.
+    """
+    B, C, V = xs.shape
+    T = faces.shape[0]
+    H, W = observed.shape[1], observed.shape[2]
+    for t in range(T):
+        for k in range(3):
+            if faces[t, k] < 0 or faces[t, k] >= V:
+                return -1
+    model = np.zeros((H, W), np.bool_)
+    src = np.empty((H, W), np.bool_)
+    tmp = np.empty((H + 2, W + 2), np.float32)
+    dmap = np.empty((H, W), np.float32)
+    for b in range(B):
+        for c in range(C):
+            w_img = sizes[c, 0]
+            h_img = sizes[c, 1]
+            row_lo = c * h_canvas
+            row_hi = row_lo + h_img - 1
+            off = float(row_lo)
+            for r in range(h_img):
+                for q in range(w_img):
+                    model[r, q] = False
+            extra = 0.0
+            covered = 0
+            for tri in range(T):
+                i0, i1, i2 = faces[tri, 0], faces[tri, 1], faces[tri, 2]
+                x0, x1, x2 = xs[b, c, i0], xs[b, c, i1], xs[b, c, i2]
+                y0, y1, y2 = ys[b, c, i0] + off, ys[b, c, i1] + off, ys[b, c, i2] + off
+                # Back faces first (half the mesh): the winding test alone, before
+                # the rest of the setup (NaN fails it, as numpy's comparison).
+                area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+                if not area2 < -1e-12:
+                    continue
+                if not (
+                    np.isfinite(x0)
+                    and np.isfinite(x1)
+                    and np.isfinite(x2)
+                    and np.isfinite(y0)
+                    and np.isfinite(y1)
+                    and np.isfinite(y2)
+                ):
+                    continue
+                ok, box = _setup(x0, y0, x1, y1, x2, y2, 1, w_img, row_lo, row_hi)
+                if not ok:
+                    continue
+                bx0, bx1, by0, by1, a0, b0, c0, a1, b1, c1 = box
+                for py in range(by0, by1 + 1):
+                    fy = float(py)
+                    r = py - row_lo
+                    for px in range(bx0, bx1 + 1):
+                        if model[r, px]:
+                            continue
+                        fx = float(px)
+                        l0 = a0 * fx + b0 * fy + c0
+                        l1 = a1 * fx + b1 * fy + c1
+                        l2 = 1.0 - l0 - l1
+                        if l0 >= -eps and l1 >= -eps and l2 >= -eps:
+                            model[r, px] = True
+                            covered += 1
+                            extra += dist[c, r, px]
+            # Observed pixels outside the model: their distance to the model.
+            ox0, oy0, ox1, oy1 = boxes[c, 0], boxes[c, 1], boxes[c, 2], boxes[c, 3]
+            missing = False
+            for r in range(oy0, oy1):
+                for q in range(ox0, ox1):
+                    if observed[c, r, q] and not model[r, q]:
+                        missing = True
+                        break
+                if missing:
+                    break
+            cost = extra
+            if missing:
+                if covered == 0:
+                    out[b, c] = np.inf
+                    continue
+                # The crop of the numpy path: both boxes, from the vertices' extent.
+                lox = np.inf
+                loy = np.inf
+                hix = -np.inf
+                hiy = -np.inf
+                for v in range(V):
+                    xv, yv = xs[b, c, v], ys[b, c, v]
+                    if xv == xv:
+                        lox = min(lox, xv)
+                        hix = max(hix, xv)
+                    if yv == yv:
+                        loy = min(loy, yv)
+                        hiy = max(hiy, yv)
+                if lox == np.inf:
+                    lox, hix = 0.0, 0.0
+                if loy == np.inf:
+                    loy, hiy = 0.0, 0.0
+                cx0 = int(max(0.0, min(float(ox0), np.floor(lox))))
+                cy0 = int(max(0.0, min(float(oy0), np.floor(loy))))
+                cx1 = int(min(float(w_img), max(float(ox1), np.ceil(hix) + 1)))
+                cy1 = int(min(float(h_img), max(float(oy1), np.ceil(hiy) + 1)))
+                ch, cw = cy1 - cy0, cx1 - cx0
+                for r in range(ch):
+                    for q in range(cw):
+                        src[r, q] = not model[cy0 + r, cx0 + q]
+                chamfer_distance_3x3(src[:ch, :cw], tmp, dmap[:ch, :cw])
+                far = 0.0
+                for r in range(ch):
+                    for q in range(cw):
+                        if observed[c, cy0 + r, cx0 + q]:
+                            far += dmap[r, q]
+                cost += far / scale
+            out[b, c] = cost / scale**2 / area[c]
+    return 0
