@@ -340,13 +340,41 @@ def occluding_contour(
         mask = silhouette
         p = camera.project(vertices[ends.reshape(-1)]).reshape(-1, 2, 2)
         mid = 0.5 * (p[:, 0] + p[:, 1])
-    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 3)
     w, h = camera.size
     ij = np.round(np.nan_to_num(mid, nan=-1.0)).astype(int)
     ok = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
     keep = np.zeros(len(generator), bool)
-    keep[ok] = inside[ij[ok, 1], ij[ok, 0]] <= 1.0
+    keep[ok] = near_outside(mask, ij[ok])
     return generator[keep]
+
+
+def near_outside(mask: np.ndarray, ij: np.ndarray) -> np.ndarray:
+    """Whether pixels lie within one pixel of a mask's outside.
+
+    The same answer as ``cv2.distanceTransform(mask, DIST_L2, 3)[y, x] <= 1``
+    (the 3x3 mask's steps are 0.955 across an edge and 1.3693 across a corner,
+    and the image border is not outside), from the pixel and its four
+    neighbours instead of a transform of the whole image.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    ij : (K, 2) int
+        ``(x, y)`` pixels inside the image.
+
+    Returns
+    -------
+    (K,) bool
+    """
+    m = np.asarray(mask, dtype=bool)
+    h, w = m.shape
+    x, y = ij[:, 0], ij[:, 1]
+    out = ~m[y, x]
+    for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        xx, yy = x + dx, y + dy
+        inside = (xx >= 0) & (xx < w) & (yy >= 0) & (yy < h)
+        out |= inside & ~m[np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)]
+    return out
 
 
 def face_frames(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -19,6 +19,7 @@ from bodymetry.estimation.refinement import (
     boundary_points,
     full_from_lod,
     mesh_edges,
+    near_outside,
     occluding_contour,
     outline_normals,
     prepare_contours,
@@ -226,3 +227,17 @@ def test_contour_sampling_bias_on_the_demo_frames():
     new, old = np.mean(change["new"]), np.mean(change["old"])
     assert abs(new) < 0.8, change
     assert old > new + 0.5, change
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_near_outside_is_the_distance_transform_within_one_pixel(seed):
+    """Random blobs touching the image border: every pixel's answer is OpenCV's
+    ``distanceTransform(DIST_L2, 3) <= 1``."""
+    rng = np.random.default_rng(seed)
+    mask = cv2.GaussianBlur(rng.random((40, 50)).astype(np.float32), (0, 0), 2.0) > 0.5
+    mask[:, :3] = True  # touches the left border
+    want = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 3) <= 1.0
+    ys, xs = np.mgrid[:40, :50]
+    got = near_outside(mask, np.c_[xs.ravel(), ys.ravel()]).reshape(40, 50)
+    assert np.array_equal(got, want)
+    assert got.any() and not got.all()
