@@ -333,3 +333,82 @@ def chamfer_kernel(
                 cost += far / scale
             out[b, c] = cost / scale**2 / area[c]
     return 0
+
+
+@numba.njit(cache=True, nogil=True)
+def contour_kernel(
+    normal, centroid, center, edges, edge_faces, verts, mask, R, t, K, dist, tilt, mode, out
+):  # pragma: no cover
+    """The visible occluding contour of a mesh in one view (``refinement.occluding_contour``).
+
+    An edge is a contour generator when one of its faces turns towards the
+    camera and the other away; it is kept when the midpoint of its projected
+    ends, rounded to a pixel (half to even, as ``np.round``), lies in the image
+    within one pixel of the mask's outside (the pixel or one of its four
+    neighbours is outside; the image border is not outside).
+
+    Parameters
+    ----------
+    normal, centroid : (T, 3) float64
+        ``refinement.face_frames`` of the mesh.
+    center : (3,) float64
+        Camera centre.
+    edges, edge_faces : (E, 2) int64
+        ``refinement.mesh_edges`` of the mesh.
+    verts : (V, 3) float64
+    mask : (H, W) bool
+        The silhouette deciding visibility, at the camera's size.
+    R, t, K, dist, tilt, mode
+        One camera, as :func:`project_kernel` takes them.
+    out : (E,) int64
+        Receives the kept edges' indices, in increasing order.
+
+    Returns
+    -------
+    int
+        How many were kept (the first entries of ``out``).
+    """
+    T = normal.shape[0]
+    h, w = mask.shape
+    facing = np.empty(T, np.bool_)
+    cx, cy, cz = center[0], center[1], center[2]
+    for f in range(T):
+        d = (
+            normal[f, 0] * (centroid[f, 0] - cx)
+            + normal[f, 1] * (centroid[f, 1] - cy)
+            + normal[f, 2] * (centroid[f, 2] - cz)
+        )
+        facing[f] = d < 0
+    ends = np.empty((1, 2, 3))
+    px = np.empty((1, 1, 2, 2))
+    count = 0
+    for e in range(edges.shape[0]):
+        if facing[edge_faces[e, 0]] == facing[edge_faces[e, 1]]:
+            continue
+        for k in range(2):
+            for a in range(3):
+                ends[0, k, a] = verts[edges[e, k], a]
+        project_kernel(ends, R, t, K, dist, tilt, mode, px)
+        mx = 0.5 * (px[0, 0, 0, 0] + px[0, 0, 1, 0])
+        my = 0.5 * (px[0, 0, 0, 1] + px[0, 0, 1, 1])
+        if not (mx == mx and my == my):
+            continue  # behind the camera: NaN, never in the image
+        fx = np.rint(mx)
+        fy = np.rint(my)
+        if not (fx >= 0 and fx < w and fy >= 0 and fy < h):
+            continue
+        x = int(fx)
+        y = int(fy)
+        near = not mask[y, x]
+        if not near and x + 1 < w:
+            near = not mask[y, x + 1]
+        if not near and x > 0:
+            near = not mask[y, x - 1]
+        if not near and y + 1 < h:
+            near = not mask[y + 1, x]
+        if not near and y > 0:
+            near = not mask[y - 1, x]
+        if near:
+            out[count] = e
+            count += 1
+    return count

@@ -328,6 +328,20 @@ def occluding_contour(
         the outside).
     """
     normal, centroid = face_frames(vertices, faces) if frames is None else frames
+    kernels = compiled_likelihood()
+    if kernels is not None:
+        if silhouette is None:
+            silhouette = fill_silhouette(camera.project(vertices), faces, camera.size)
+        out = np.empty(len(edges), np.int64)
+        f64 = [np.require(a, np.float64, ["C", "W"]) for a in (normal, centroid, vertices)]
+        i64 = [np.require(a, np.int64, ["C", "W"]) for a in (edges, edge_faces)]
+        if i64[0].size and (i64[0].min() < 0 or i64[0].max() >= len(vertices)):
+            raise IndexError(f"edge indices out of range for {len(vertices)} vertices")
+        n = kernels.contour_kernel(
+            f64[0], f64[1], np.asarray(center, np.float64), *i64, f64[2],
+            np.require(silhouette, np.bool_, ["C", "W"]), *camera_arrays([camera]), out,
+        )  # fmt: skip
+        return out[:n]
     facing = np.einsum("ij,ij->i", normal, centroid - center) < 0
     generator = np.nonzero(facing[edge_faces[:, 0]] != facing[edge_faces[:, 1]])[0]
     ends = edges[generator]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -11,11 +12,13 @@ import pytest
 import trimesh
 
 from bodymetry.capture.session import load_session
+from bodymetry.estimation import generative
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import NU, THETA, BodyModel, BodyState
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.refinement import (
     RefineConfig,
+    _ContourCost,
     boundary_points,
     full_from_lod,
     mesh_edges,
@@ -241,3 +244,25 @@ def test_near_outside_is_the_distance_transform_within_one_pixel(seed):
     got = near_outside(mask, np.c_[xs.ravel(), ys.ravel()]).reshape(40, 50)
     assert np.array_equal(got, want)
     assert got.any() and not got.all()
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
+def test_compiled_correspondences_are_the_numpy_ones(scene, monkeypatch):
+    """The contour kernel (facing test, generator edges, visibility) and the midpoint
+    projection give the numpy path's contour edges exactly and its pixels to 1e-9,
+    with the full mesh's contour seen on the level of detail's raster."""
+    model, cameras, truth, masks = scene
+    obs = prepare_contours(cameras, masks, 0.5)
+    cost = _ContourCost(model, obs, RefineConfig())
+    y = truth.vector()[0].copy()
+    y[THETA] += np.random.default_rng(5).normal(0, 0.05, 37)
+    V, lod = cost.vertices(y)[0], cost.vertices(y, lod=True)[0]
+    got = {}
+    for backend in ("numpy", "numba"):
+        monkeypatch.setattr(generative, "BACKEND", backend)
+        pairs = cost.pairs(V, lod)
+        got[backend] = (pairs, cost.residuals(V[None], pairs)[0])
+    assert len(got["numba"][0]) == len(got["numpy"][0]) == 2 * len(cameras)
+    for a, b in zip(got["numba"][0], got["numpy"][0], strict=True):
+        assert np.array_equal(a.edges, b.edges) and np.array_equal(a.targets, b.targets)
+    np.testing.assert_allclose(got["numba"][1], got["numpy"][1], rtol=0, atol=1e-9)
