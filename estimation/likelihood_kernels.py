@@ -32,6 +32,39 @@ import numpy as np
 from bodymetry.estimation.raster_kernels import _setup, numba
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _project_one(px, py, pz, R, t, K, dist, tilt, mode, c):  # pragma: no cover
+    """Pixel ``(u, v)`` of one world point in camera ``c`` (NaN behind the camera):
+    ``Camera.project``'s expressions, term for term."""
+    X = px * R[c, 0, 0] + py * R[c, 0, 1] + pz * R[c, 0, 2] + t[c, 0]
+    Y = px * R[c, 1, 0] + py * R[c, 1, 1] + pz * R[c, 1, 2] + t[c, 1]
+    Z = px * R[c, 2, 0] + py * R[c, 2, 1] + pz * R[c, 2, 2] + t[c, 2]
+    if not Z > 1e-9:
+        return np.nan, np.nan
+    x = X / Z
+    y = Y / Z
+    k1, k2, p1, p2, k3 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3], dist[c, 4]
+    r2 = x * x + y * y
+    if mode[c] == 0:
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    else:
+        k4, k5, k6 = dist[c, 5], dist[c, 6], dist[c, 7]
+        s1, s2, s3, s4 = dist[c, 8], dist[c, 9], dist[c, 10], dist[c, 11]
+        radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + r2 * (s1 + r2 * s2)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + r2 * (s3 + r2 * s4)
+        if mode[c] == 2:
+            w = tilt[c, 2, 0] * xd + tilt[c, 2, 1] * yd + tilt[c, 2, 2]
+            xt = (tilt[c, 0, 0] * xd + tilt[c, 0, 1] * yd + tilt[c, 0, 2]) / w
+            yt = (tilt[c, 1, 0] * xd + tilt[c, 1, 1] * yd + tilt[c, 1, 2]) / w
+            xd, yd = xt, yt
+    return xd * K[c, 0, 0] + yd * K[c, 0, 1] + K[c, 0, 2], xd * K[c, 1, 0] + yd * K[c, 1, 1] + K[
+        c, 1, 2
+    ]
+
+
 @numba.njit(cache=True, nogil=True)
 def project_kernel(verts, R, t, K, dist, tilt, mode, out):  # pragma: no cover
     """Project B bodies into C cameras.
@@ -53,44 +86,14 @@ def project_kernel(verts, R, t, K, dist, tilt, mode, out):  # pragma: no cover
         Pixels; NaN for points behind the camera (z <= 1e-9).
     """
     B, V, _ = verts.shape
-    C = R.shape[0]
-    nan = np.nan
-    for c in range(C):
-        k1, k2, p1, p2, k3 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3], dist[c, 4]
-        k4, k5, k6 = dist[c, 5], dist[c, 6], dist[c, 7]
-        s1, s2, s3, s4 = dist[c, 8], dist[c, 9], dist[c, 10], dist[c, 11]
-        m = mode[c]
+    for c in range(R.shape[0]):
         for b in range(B):
             for v in range(V):
-                px, py, pz = verts[b, v, 0], verts[b, v, 1], verts[b, v, 2]
-                X = px * R[c, 0, 0] + py * R[c, 0, 1] + pz * R[c, 0, 2] + t[c, 0]
-                Y = px * R[c, 1, 0] + py * R[c, 1, 1] + pz * R[c, 1, 2] + t[c, 1]
-                Z = px * R[c, 2, 0] + py * R[c, 2, 1] + pz * R[c, 2, 2] + t[c, 2]
-                if not Z > 1e-9:
-                    out[b, c, v, 0] = nan
-                    out[b, c, v, 1] = nan
-                    continue
-                x = X / Z
-                y = Y / Z
-                r2 = x * x + y * y
-                if m == 0:
-                    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-                    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-                    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-                else:
-                    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (
-                        1 + r2 * (k4 + r2 * (k5 + r2 * k6))
-                    )
-                    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + r2 * (s1 + r2 * s2)
-                    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + r2 * (s3 + r2 * s4)
-                    if m == 2:
-                        M = tilt[c]
-                        w = M[2, 0] * xd + M[2, 1] * yd + M[2, 2]
-                        xt = (M[0, 0] * xd + M[0, 1] * yd + M[0, 2]) / w
-                        yt = (M[1, 0] * xd + M[1, 1] * yd + M[1, 2]) / w
-                        xd, yd = xt, yt
-                out[b, c, v, 0] = xd * K[c, 0, 0] + yd * K[c, 0, 1] + K[c, 0, 2]
-                out[b, c, v, 1] = xd * K[c, 1, 0] + yd * K[c, 1, 1] + K[c, 1, 2]
+                u, w = _project_one(
+                    verts[b, v, 0], verts[b, v, 1], verts[b, v, 2], R, t, K, dist, tilt, mode, c
+                )
+                out[b, c, v, 0] = u
+                out[b, c, v, 1] = w
 
 
 @numba.njit(cache=True, nogil=True)
@@ -107,19 +110,17 @@ def project_midpoints_kernel(verts, ends, R, t, K, dist, tilt, mode, out):  # pr
     out : (S, n, 2) float64
         Pixels of ``0.5 * (verts[:, ends[:, 0]] + verts[:, ends[:, 1]])``.
     """
-    S = verts.shape[0]
-    n = ends.shape[0]
-    mid = np.empty((1, n, 3))
-    px = np.empty((1, 1, n, 2))
-    for s in range(S):
-        for k in range(n):
+    for s in range(verts.shape[0]):
+        for k in range(ends.shape[0]):
             i, j = ends[k, 0], ends[k, 1]
-            for a in range(3):
-                mid[0, k, a] = 0.5 * (verts[s, i, a] + verts[s, j, a])
-        project_kernel(mid, R, t, K, dist, tilt, mode, px)
-        for k in range(n):
-            out[s, k, 0] = px[0, 0, k, 0]
-            out[s, k, 1] = px[0, 0, k, 1]
+            u, w = _project_one(
+                0.5 * (verts[s, i, 0] + verts[s, j, 0]),
+                0.5 * (verts[s, i, 1] + verts[s, j, 1]),
+                0.5 * (verts[s, i, 2] + verts[s, j, 2]),
+                R, t, K, dist, tilt, mode, 0,
+            )  # fmt: skip
+            out[s, k, 0] = u
+            out[s, k, 1] = w
 
 
 @numba.njit(cache=True, nogil=True)
@@ -379,18 +380,15 @@ def contour_kernel(
             + normal[f, 2] * (centroid[f, 2] - cz)
         )
         facing[f] = d < 0
-    ends = np.empty((1, 2, 3))
-    px = np.empty((1, 1, 2, 2))
     count = 0
     for e in range(edges.shape[0]):
         if facing[edge_faces[e, 0]] == facing[edge_faces[e, 1]]:
             continue
-        for k in range(2):
-            for a in range(3):
-                ends[0, k, a] = verts[edges[e, k], a]
-        project_kernel(ends, R, t, K, dist, tilt, mode, px)
-        mx = 0.5 * (px[0, 0, 0, 0] + px[0, 0, 1, 0])
-        my = 0.5 * (px[0, 0, 0, 1] + px[0, 0, 1, 1])
+        i, j = edges[e, 0], edges[e, 1]
+        u0, v0 = _project_one(verts[i, 0], verts[i, 1], verts[i, 2], R, t, K, dist, tilt, mode, 0)
+        u1, v1 = _project_one(verts[j, 0], verts[j, 1], verts[j, 2], R, t, K, dist, tilt, mode, 0)
+        mx = 0.5 * (u0 + u1)
+        my = 0.5 * (v0 + v1)
         if not (mx == mx and my == my):
             continue  # behind the camera: NaN, never in the image
         fx = np.rint(mx)

@@ -28,7 +28,7 @@ Everything is deterministic (no random choices).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -455,13 +455,38 @@ class _ContourCost:
             return lod
         base = self._posed(y)
         rows = np.arange(len(base)) if rows is None else rows
+        out = np.empty((len(lod), *base.shape))
+        out[:, rows] = self._moved_rows(lod, base, rows)
+        return out
+
+    def _moved_rows(self, lod: np.ndarray, base: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """(1 + n, len(rows), 3): the full mesh's ``rows`` at ``y`` and moved by each
+        level-of-detail displacement ``lod[1:] - lod[0]`` (see :meth:`perturbed`)."""
         d = lod[1:] - lod[0]  # (n, V_lod, 3)
         n, v_lod, _ = d.shape
         moved = self.map[rows] @ d.transpose(1, 0, 2).reshape(v_lod, n * 3)
-        out = np.empty((n + 1, *base.shape))
-        out[0] = base
-        out[1:, rows] = base[rows] + moved.reshape(len(rows), n, 3).transpose(1, 0, 2)
+        out = np.empty((n + 1, len(rows), 3))
+        out[0] = base[rows]
+        out[1:] = base[rows] + moved.reshape(len(rows), n, 3).transpose(1, 0, 2)
         return out
+
+    def perturbed_residuals(
+        self, y: np.ndarray, step: np.ndarray, pairs: list[_Pairs]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``residuals(perturbed(y, step, used), pairs)``, the same numbers, with
+        ``used`` the vertices of the pairs' edges.
+
+        With the full mesh only those vertices are built (a few thousand of 13k,
+        not a (1 + n, V, 3) array of mostly unset rows) and the pairs' edges are
+        renumbered into them.
+        """
+        if not self.full:
+            return self.residuals(self.perturbed(y, step), pairs)
+        used = np.unique(np.concatenate([p.edges.ravel() for p in pairs]))
+        lod = self.vertices(np.vstack([y, y + np.diag(step)]), lod=True)
+        compact = self._moved_rows(lod, self._posed(y), used)
+        local = [replace(p, edges=np.searchsorted(used, p.edges)) for p in pairs]
+        return self.residuals(compact, local)
 
     def pairs(self, V: np.ndarray, lod: np.ndarray | None = None) -> list[_Pairs]:
         """Nearest-point correspondences in both directions, every usable view.
@@ -528,7 +553,12 @@ class _ContourCost:
         res, robust = [], []
         h = self.config.huber_px
         for p in pairs:
-            d = ((self._project(p.camera, V, p.edges) - p.targets) * p.normals).sum(axis=-1)
+            q = self._project(p.camera, V, p.edges)
+            # Two products and one sum, as ``((q - targets) * normals).sum(-1)`` adds
+            # them, without a reduction over a length-2 axis (slow in numpy).
+            d = (q[..., 0] - p.targets[:, 0]) * p.normals[:, 0] + (
+                q[..., 1] - p.targets[:, 1]
+            ) * p.normals[:, 1]
             res.append(d * np.sqrt(p.weight))
             length = np.abs(d.reshape(-1, d.shape[-1])[0])
             robust.append(np.sqrt(np.where(length <= h, 1.0, h / np.maximum(length, 1e-12))))
@@ -650,9 +680,7 @@ def refine(
     prior[:, NU] = np.eye(model.n_shape) * np.sqrt(config.shape_prior)
     for _ in range(config.iterations):
         # Only the vertices of the contour edges enter the residuals.
-        used = np.unique(np.concatenate([p.edges.ravel() for p in pairs]))
-        Vp = cost_fn.perturbed(y, step, used)
-        r, w = cost_fn.residuals(Vp, pairs)
+        r, w = cost_fn.perturbed_residuals(y, step, pairs)
         J = ((r[1:] - r[0]) / step[:, None]).T * w[:, None]
         r0 = r[0] * w
         JJ = J.T @ J + prior.T @ prior

@@ -266,3 +266,19 @@ def test_compiled_correspondences_are_the_numpy_ones(scene, monkeypatch):
     for a, b in zip(got["numba"][0], got["numpy"][0], strict=True):
         assert np.array_equal(a.edges, b.edges) and np.array_equal(a.targets, b.targets)
     np.testing.assert_allclose(got["numba"][1], got["numpy"][1], rtol=0, atol=1e-9)
+
+
+def test_perturbed_residuals_build_only_the_used_vertices(scene):
+    """The Jacobian's residuals from the contour edges' vertices alone are the ones of
+    the whole perturbed mesh, bit for bit."""
+    model, cameras, truth, masks = scene
+    config = RefineConfig()
+    cost = _ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
+    y = truth.vector()[0]
+    _, pairs = cost.evaluate(y)
+    step = np.full(len(y), 1e-3)
+    used = np.unique(np.concatenate([p.edges.ravel() for p in pairs]))
+    assert len(used) < 0.5 * model.full.n_vertices
+    want = cost.residuals(cost.perturbed(y, step, used), pairs)
+    got = cost.perturbed_residuals(y, step, pairs)
+    assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
