@@ -4,13 +4,19 @@ Fits kept frames of the demo recording (default preset) under ``cProfile`` and
 splits the time by what the code does, from each function's own time (not
 counting what it calls), so the next bottleneck is visible:
 
-- ``rasterize``: the triangle rasterizer (``estimation/raster.py``);
+- ``rasterize``: the triangle rasterizer (``estimation/raster.py``, its
+  kernels) and model silhouettes (``estimation/projection.py``);
 - ``pose``: posing the body model (SCAPE solve, skinning, ``estimation/body_model``);
-- ``chamfer``: the rest of the likelihood (``estimation/generative.py``: distance
-  transforms, sums) and the annealing's bookkeeping;
-- ``refinement``: the contour refinement (``estimation/refinement.py``);
+- ``chamfer``: the likelihood (``estimation/generative.py``) and the annealing's
+  bookkeeping. With the compiled likelihood this includes the coverage of the
+  model silhouettes and the model's distance transforms: one fused kernel
+  (``likelihood_kernels.chamfer_kernel``) does both, so the likelihood's
+  rasterization is counted here, not under ``rasterize``;
+- ``projection``: vertices through the cameras' lens model (``Camera.project``
+  and the compiled projection kernels);
+- ``refinement``: the contour refinement (``estimation/refinement.py``, its
+  compiled contour kernel);
 - ``discriminative``: features and mixtures of experts;
-- ``project``: projecting vertices through the cameras' lens model;
 - ``fit (other)``: the per-frame fit's own glue (``estimation/fit.py``);
 - ``other``: numpy and OpenCV calls made by none of the above's own code, Python.
 
@@ -32,27 +38,42 @@ from bodymetry.capture.session import load_session
 from bodymetry.capture.silhouette import segment_session
 from bodymetry.cli import DEMO_SESSION
 from bodymetry.config import ProcessConfig
+from bodymetry.estimation import generative, raster
+from bodymetry.estimation.body_model import scape
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.process import fit_job, rig_models, run_fit_job
 
+#: Compiled kernels named by function (their module serves several categories).
+KERNELS = {
+    "chamfer_kernel": "chamfer",
+    "chamfer_distance_3x3": "chamfer",
+    "project_kernel": "projection",
+    "project_midpoints_kernel": "projection",
+    "contour_kernel": "refinement",
+}
+
 #: Source path fragments -> category (first match wins).
 CATEGORIES = (
     ("estimation/raster.py", "rasterize"),
+    ("estimation/raster_kernels.py", "rasterize"),
     ("estimation/body_model/", "pose"),
     ("estimation/projection.py", "rasterize"),
     ("estimation/refinement.py", "refinement"),
     ("estimation/generative.py", "chamfer"),
+    ("estimation/likelihood_kernels.py", "chamfer"),
     ("estimation/features.py", "discriminative"),
     ("estimation/moe.py", "discriminative"),
     ("estimation/training.py", "discriminative"),
-    ("calibration/camera.py", "project"),
+    ("calibration/camera.py", "projection"),
     ("estimation/fit.py", "fit (other)"),
 )
 
 
-def _category(filename: str) -> str | None:
+def _category(filename: str, function: str = "") -> str | None:
     path = filename.replace(os.sep, "/")
+    if "estimation/likelihood_kernels.py" in path and function in KERNELS:
+        return KERNELS[function]
     for fragment, name in CATEGORIES:
         if fragment in path:
             return name
@@ -71,7 +92,7 @@ def split(stats: pstats.Stats) -> dict[str, float]:
         """Fractions of ``func``'s time per category."""
         if func in memo:
             return memo[func]
-        own = _category(func[0])
+        own = _category(func[0], func[2])
         if own is not None:
             return {own: 1.0}
         callers = raw.get(func, (0, 0, 0, 0, {}))[4]
@@ -124,6 +145,12 @@ def run() -> dict:
         "split_seconds_per_frame": per_frame,
         "split_fraction": {
             k: round(v / max(sum(per_frame.values()), 1e-9), 3) for k, v in per_frame.items()
+        },
+        "backends": {
+            "raster": raster.BACKEND,
+            "likelihood": generative.BACKEND,
+            "scape_edges": scape.EDGES_BACKEND,
+            "scape_solver": scape.SOLVER,
         },
         "note": "cProfile slows every Python call; compare the fractions, not the seconds",
         "models": str(Path(models.path).name),

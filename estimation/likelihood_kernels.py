@@ -358,7 +358,7 @@ def chamfer_kernel(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def contour_kernel(
-    normal, centroid, center, edges, edge_faces, verts, mask, R, t, K, dist, tilt, mode, out
+    verts, faces, center, edges, edge_faces, mask, R, t, K, dist, tilt, mode, out
 ):  # pragma: no cover
     """The visible occluding contour of a mesh in one view (``refinement.occluding_contour``).
 
@@ -370,13 +370,15 @@ def contour_kernel(
 
     Parameters
     ----------
-    normal, centroid : (T, 3) float64
-        ``refinement.face_frames`` of the mesh.
+    verts : (V, 3) float64
+    faces : (T, 3) int64
+        A face faces the camera when its normal ``(v1 - v0) x (v2 - v0)`` points
+        towards the camera from its centroid ``(v0 + v1 + v2) / 3``
+        (``refinement.face_frames``, the same expressions).
     center : (3,) float64
         Camera centre.
     edges, edge_faces : (E, 2) int64
         ``refinement.mesh_edges`` of the mesh.
-    verts : (V, 3) float64
     mask : (H, W) bool
         The silhouette deciding visibility, at the camera's size.
     R, t, K, dist, tilt, mode
@@ -389,17 +391,25 @@ def contour_kernel(
     int
         How many were kept (the first entries of ``out``).
     """
-    T = normal.shape[0]
+    T = faces.shape[0]
     h, w = mask.shape
     facing = np.empty(T, np.bool_)
     cx, cy, cz = center[0], center[1], center[2]
     for f in range(T):
-        d = (
-            normal[f, 0] * (centroid[f, 0] - cx)
-            + normal[f, 1] * (centroid[f, 1] - cy)
-            + normal[f, 2] * (centroid[f, 2] - cz)
-        )
-        facing[f] = d < 0
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        ax = verts[i1, 0] - verts[i0, 0]
+        ay = verts[i1, 1] - verts[i0, 1]
+        az = verts[i1, 2] - verts[i0, 2]
+        bx = verts[i2, 0] - verts[i0, 0]
+        by = verts[i2, 1] - verts[i0, 1]
+        bz = verts[i2, 2] - verts[i0, 2]
+        nx = ay * bz - az * by
+        ny = az * bx - ax * bz
+        nz = ax * by - ay * bx
+        mx = (verts[i0, 0] + verts[i1, 0] + verts[i2, 0]) / 3.0
+        my = (verts[i0, 1] + verts[i1, 1] + verts[i2, 1]) / 3.0
+        mz = (verts[i0, 2] + verts[i1, 2] + verts[i2, 2]) / 3.0
+        facing[f] = nx * (mx - cx) + ny * (my - cy) + nz * (mz - cz) < 0
     cam = _camera(R, t, K, dist, tilt, 0)
     m = mode[0]
     count = 0

@@ -327,21 +327,28 @@ def occluding_contour(
         midpoint lies on the boundary of the silhouette (within one pixel of
         the outside).
     """
-    normal, centroid = face_frames(vertices, faces) if frames is None else frames
     kernels = compiled_likelihood()
     if kernels is not None:
+        # One compiled pass (it takes the face frames from the vertices itself).
         if silhouette is None:
             silhouette = fill_silhouette(camera.project(vertices), faces, camera.size)
         out = np.empty(len(edges), np.int64)
-        f64 = [np.require(a, np.float64, ["C", "W"]) for a in (normal, centroid, vertices)]
-        i64 = [np.require(a, np.int64, ["C", "W"]) for a in (edges, edge_faces)]
-        if i64[0].size and (i64[0].min() < 0 or i64[0].max() >= len(vertices)):
-            raise IndexError(f"edge indices out of range for {len(vertices)} vertices")
+        i64 = [np.require(a, np.int64, ["C", "W"]) for a in (faces, edges, edge_faces)]
+        for name, a, n in zip(
+            ("faces", "edges", "edge_faces"),
+            i64,
+            (len(vertices), len(vertices), len(faces)),
+            strict=True,
+        ):
+            if a.size and (a.min() < 0 or a.max() >= n):
+                raise IndexError(f"occluding_contour: {name} out of range for {n} entries")
         n = kernels.contour_kernel(
-            f64[0], f64[1], np.asarray(center, np.float64), *i64, f64[2],
+            np.require(vertices, np.float64, ["C", "W"]), i64[0],
+            np.asarray(center, np.float64), i64[1], i64[2],
             np.require(silhouette, np.bool_, ["C", "W"]), *camera_arrays([camera]), out,
         )  # fmt: skip
         return out[:n]
+    normal, centroid = face_frames(vertices, faces) if frames is None else frames
     facing = np.einsum("ij,ij->i", normal, centroid - center) < 0
     generator = np.nonzero(facing[edge_faces[:, 0]] != facing[edge_faces[:, 1]])[0]
     ends = edges[generator]
@@ -498,7 +505,8 @@ class _ContourCost:
         the visibility of a full mesh's contour edges.
         """
         out = []
-        frames = face_frames(V, self.faces)
+        # The compiled contour pass takes the frames from the vertices itself.
+        frames = face_frames(V, self.faces) if compiled_likelihood() is None else None
         for c in range(len(self.obs.cameras)):
             tree = self.obs.trees[c]
             if tree is None:
