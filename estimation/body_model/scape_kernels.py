@@ -151,3 +151,40 @@ def edges_kernel(
                         o0[k] = r00 * y0 + r01 * y1 + r02 * y2
                         o1[k] = r10 * y0 + r11 * y1 + r12 * y2
                         o2[k] = r20 * y0 + r21 * y1 + r22 * y2
+
+
+@numba.njit(cache=True, nogil=True)
+def normal_rhs_kernel(faces, edges, out):  # pragma: no cover
+    """``Aᵀ E``, the vertex solve's right-hand sides, transposed: ``out[(b, x), v - 1]``.
+
+    ``A`` maps vertices to the edges ``v1 - v0`` (rows ``t``) and ``v2 - v0``
+    (rows ``T + t``) of each triangle, vertex 0 pinned. Each vertex gathers
+    ``+E`` where it is a triangle's ``v1`` or ``v2`` and ``-E`` where it is its
+    ``v0``, in the order of the rows of ``A`` (edge 1 of every triangle, then
+    edge 2), which is the order scipy's CSR product of ``ScapeMesh._At`` adds
+    them: the same numbers, written one contiguous row per state and
+    coordinate instead of through a transposed copy of the edges.
+
+    Parameters
+    ----------
+    faces : (T, 3) int64
+        In the mesh's internal order.
+    edges : (B, 3, 2, T) float64
+    out : (3B, V - 1) float64
+        Written.
+    """
+    B = edges.shape[0]
+    T = faces.shape[0]
+    for b in range(B):
+        for x in range(3):
+            row = out[3 * b + x]
+            row[:] = 0.0
+            for e in range(2):
+                ee = edges[b, x, e]
+                for t in range(T):
+                    v0 = faces[t, 0]
+                    v = faces[t, e + 1]
+                    if v > 0:
+                        row[v - 1] += ee[t]
+                    if v0 > 0:
+                        row[v0 - 1] -= ee[t]

@@ -408,3 +408,16 @@ def test_numba_edges_of_repeated_shapes_and_poses_are_each_states_own(rng, monke
     for b in range(6):
         alone = mesh.edges(part_rot[b : b + 1], local[b : b + 1], nu[b : b + 1])
         assert np.array_equal(batch[b], alone[0])
+
+
+@pytest.mark.skipif("numba" not in EDGE_BACKENDS, reason="numba is not installed")
+def test_numba_right_hand_sides_are_scipys(rng, monkeypatch):
+    """The solve's Aᵀ E by the compiled scatter is scipy's sparse product, bit for bit,
+    so both backends give the same vertices."""
+    mesh = scape.ScapeMesh(_deforming_arrays(rng, n_components=2), 2)
+    edges = rng.normal(size=(4, 3, 2, len(mesh.faces)))
+    got = {}
+    for backend in ("numpy", "numba"):
+        monkeypatch.setattr(scape, "EDGES_BACKEND", backend)
+        got[backend] = mesh.solve(edges)
+    assert np.array_equal(got["numba"], got["numpy"])
