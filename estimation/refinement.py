@@ -412,6 +412,11 @@ class _Pairs:
     the observed outline's normal there (point-to-line): the model's contour
     is sampled at mesh edges a few pixels apart, and point-to-point distances
     would reward sampling density rather than alignment.
+
+    ``source``, optional: this pair's edges are the previous pair's edges at
+    these indices (the observed-to-model direction picks model edges of the
+    model-to-observed one); :meth:`_ContourCost.residuals` then takes their
+    projections from that pair's instead of projecting them again.
     """
 
     camera: int
@@ -419,6 +424,7 @@ class _Pairs:
     targets: np.ndarray
     normals: np.ndarray
     weight: float
+    source: np.ndarray | None = None
 
 
 class _ContourCost:
@@ -533,7 +539,7 @@ class _ContourCost:
             _, j = tree.query(p)
             out.append(_Pairs(c, e, pts[j], nrm[j], 1.0 / len(e)))
             _, k = cKDTree(p).query(pts)
-            out.append(_Pairs(c, e[k], pts, nrm, 1.0 / len(k)))
+            out.append(_Pairs(c, e[k], pts, nrm, 1.0 / len(k), source=k))
         return out
 
     def _project(self, c: int, V: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -560,8 +566,20 @@ class _ContourCost:
         """Weighted residuals (..., R) and their Huber IRLS weights (R,) (from the first state)."""
         res, robust = [], []
         h = self.config.huber_px
+        previous: tuple[_Pairs, np.ndarray] | None = None
         for p in pairs:
-            q = self._project(p.camera, V, p.edges)
+            if (
+                p.source is not None
+                and previous is not None
+                and previous[0].camera == p.camera
+                and len(p.source) == len(p.edges)
+                and (len(p.source) == 0 or p.source.max() < len(previous[0].edges))
+                and np.array_equal(previous[0].edges[p.source], p.edges)
+            ):
+                q = previous[1][..., p.source, :]  # the same midpoints, projected once
+            else:
+                q = self._project(p.camera, V, p.edges)
+            previous = (p, q)
             # Two products and one sum, as ``((q - targets) * normals).sum(-1)`` adds
             # them, without a reduction over a length-2 axis (slow in numpy).
             d = (q[..., 0] - p.targets[:, 0]) * p.normals[:, 0] + (

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -282,3 +283,8 @@ def test_perturbed_residuals_build_only_the_used_vertices(scene):
     want = cost.residuals(cost.perturbed(y, step, used), pairs)
     got = cost.perturbed_residuals(y, step, pairs)
     assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    # The observed-to-model pairs reuse the other direction's projections: the same
+    # numbers as projecting their own edges.
+    assert sum(p.source is not None for p in pairs) == len(cameras)
+    alone = cost.residuals(cost.perturbed(y, step, used), [replace(p, source=None) for p in pairs])
+    assert np.array_equal(alone[0], want[0]) and np.array_equal(alone[1], want[1])
