@@ -144,3 +144,18 @@ def test_annealing_config_validates_its_fields():
         AnnealingConfig(n_particles=0)
     with pytest.raises(ValueError, match="target_ess"):
         AnnealingConfig(target_ess=1.5)
+
+
+def test_likelihood_batches_do_not_change_the_vertices(setup):
+    """The compiled path poses up to 256 states per call, the numpy path 64: the level
+    of detail's vertices are the same bits either way (Eq. 1 per state; the solve's
+    columns are independent)."""
+    model, _, truth, _, _ = setup
+    rng = np.random.default_rng(2)
+    Y = np.repeat(truth.vector(), 150, axis=0)
+    Y[:, THETA] += rng.normal(0.0, 0.1, (150, 37))
+    Y[:, 40:] += rng.normal(0.0, 0.5, (150, model.n_shape))
+    states = BodyState.from_vector(Y)
+    whole = model.pose(states, lod=True).vertices
+    parts = [model.pose(states[s : s + 64], lod=True).vertices for s in range(0, 150, 64)]
+    assert np.array_equal(whole, np.concatenate(parts))
