@@ -146,7 +146,8 @@ class Observation:
     _packed: dict | None = field(default=None, repr=False, compare=False)
 
     def packed(self) -> dict:
-        """The usable views' arrays as the compiled kernels take them (built once).
+        """The usable views' arrays as the compiled kernels take them (built on first
+        use and kept: an observation is not changed after it is prepared).
 
         Returns
         -------

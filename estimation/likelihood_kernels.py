@@ -1,22 +1,23 @@
-"""Compiled (numba) kernels of the silhouette likelihood (:mod:`estimation.generative`).
+"""Compiled (numba) kernels of the silhouette likelihood (:mod:`estimation.generative`)
+and of the contour refinement's inner loops (:mod:`estimation.refinement`).
 
-Imported lazily, only when the rasterizer's backend is ``"numba"`` (see
-:mod:`estimation.raster`); importing ``raster_kernels`` first points numba's
-on-disk cache where that module says.
+Imported lazily, only when ``generative.BACKEND`` is ``"numba"``
+(``$BODYMETRY_LIKELIHOOD``); numba comes through ``raster_kernels``, which
+points numba's on-disk cache first.
 
-Two kernels replace, for a whole batch of bodies, the numpy path's per-body
-and per-view Python loop (project, rasterize, distance transform, masked sums):
-
-- :func:`project_kernel`: every body's vertices through every camera, with the
-  cameras' full OpenCV lens model (the expressions of
-  ``Camera.distort_normalized``, term for term);
-- :func:`chamfer_kernel`: each body's bidirectional chamfer cost in each view.
-  It covers the front faces exactly as ``raster_kernels.coverage_kernel`` does
-  (same tiles, same rounding), sums the observed distance map over the covered
-  pixels while covering, and computes the model's distance transform on the
-  same crop as the numpy path with OpenCV's own 3x3 chamfer algorithm
-  (``cv2.distanceTransform(..., DIST_L2, 3)``: weights 0.955 and 1.3693, two
-  passes), so the distances are OpenCV's to one float32 rounding.
+- :func:`project_kernel`: every body's vertices through every camera in one
+  call, with the cameras' full OpenCV lens model (``Camera.project``'s
+  expressions, term for term; pixels equal to about 1e-12);
+- :func:`chamfer_kernel`: each body's bidirectional chamfer cost in each view,
+  replacing the numpy path's per-body, per-view loop (rasterize, mask
+  arithmetic, distance transform, masked sums). It covers the front faces
+  exactly as ``raster_kernels.coverage_kernel`` does (same tiles, same
+  rounding), sums the observed distance map over the covered pixels while
+  covering, and takes the model's distance transform on the numpy path's crop
+  with OpenCV's 3x3 chamfer algorithm (:func:`chamfer_distance_3x3`), summing
+  the observed pixels' distances in its backward pass;
+- :func:`project_midpoints_kernel`, :func:`contour_kernel`: the refinement's
+  edge-midpoint projections and occluding contour.
 
 The sums are accumulated in float64 where numpy sums float32 pairwise, so the
 costs agree with the numpy path to about 1e-6 relative, not bit for bit
