@@ -1,10 +1,11 @@
 """Choosing between a compiled path and its numpy reference, in one place.
 
-The rasterizer (``BODYMETRY_RASTER``), the SCAPE edges (``BODYMETRY_SCAPE_EDGES``)
-and the SCAPE solve (``BODYMETRY_SCAPE_SOLVER``) each have a fast path from an
-optional package and a reference path. An environment variable picks one; unset,
-the fast path is used when its package is installed (checked without importing
-it, so that importing bodymetry stays cheap).
+The rasterizer (``BODYMETRY_RASTER``), the silhouette likelihood and the contour
+refinement's kernels (``BODYMETRY_LIKELIHOOD``), the SCAPE edges
+(``BODYMETRY_SCAPE_EDGES``) and the SCAPE solve (``BODYMETRY_SCAPE_SOLVER``) each
+have a fast path from an optional package and a reference path. An environment
+variable picks one; unset, the fast path is used when its package is installed
+(checked without importing it, so that importing bodymetry stays cheap).
 """
 
 from __future__ import annotations

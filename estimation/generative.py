@@ -26,17 +26,44 @@ is less noisy than the single best particle (which overfits silhouette noise).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from types import ModuleType
 
 import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import Camera
+from bodymetry.estimation.backends import compiled_kernels, default_backend
 from bodymetry.estimation.body_model.model import THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import N_POSE, YAW
-from bodymetry.estimation.projection import per_camera_masks
-from bodymetry.estimation.raster import coverage_views
+from bodymetry.estimation.projection import camera_arrays, per_camera_masks
+from bodymetry.estimation.raster import _INSIDE_EPS, coverage_views
+
+_BACKENDS = ("numba", "numpy")
+
+#: The implementation of :func:`chamfer_costs`: ``"numba"`` (fused kernels of
+#: ``likelihood_kernels.py``: projection, coverage, distance transform and sums
+#: for a whole batch in two calls) or ``"numpy"`` (the reference: camera by
+#: camera, body by body). From ``$BODYMETRY_LIKELIHOOD``; by default numba when
+#: installed. Read at every call, so tests and benchmarks may set it.
+BACKEND: str = default_backend(
+    "BODYMETRY_LIKELIHOOD", os.environ.get("BODYMETRY_LIKELIHOOD"), _BACKENDS, "numba"
+)
+
+
+def compiled_likelihood() -> ModuleType | None:
+    """The compiled likelihood kernels (also used by the contour refinement), or None
+    for the numpy path (see ``raster._kernels``)."""
+    global BACKEND
+    kernels = compiled_kernels(
+        BACKEND, "generative.BACKEND", "bodymetry.estimation.likelihood_kernels",
+        "BODYMETRY_LIKELIHOOD", "likelihood",
+    )  # fmt: skip
+    if kernels is None:
+        BACKEND = "numpy"
+    return kernels
 
 
 @dataclass(frozen=True)
@@ -116,6 +143,40 @@ class Observation:
     scale: float = 1.0
     valid: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), int))
+    _packed: dict | None = field(default=None, repr=False, compare=False)
+
+    def packed(self) -> dict:
+        """The usable views' arrays as the compiled kernels take them (built on first
+        use and kept: an observation is not changed after it is prepared).
+
+        Returns
+        -------
+        dict
+            ``views`` (C',) int, ``cameras`` (:func:`camera_arrays` of those
+            views), ``sizes`` (C', 2) int64, ``observed`` (C', H, W) bool and
+            ``dist`` (C', H, W) float32 padded to the largest view, ``boxes``
+            (C', 4) int64, ``area`` (C',) float64.
+        """
+        if self._packed is None:
+            views = np.flatnonzero(self.valid)
+            sizes = np.array([self.cameras[c].size for c in views], np.int64).reshape(-1, 2)
+            w, h = (int(v) for v in sizes.max(axis=0)) if len(views) else (1, 1)
+            observed = np.zeros((len(views), h, w), bool)
+            dist = np.zeros((len(views), h, w), np.float32)
+            for k, c in enumerate(views):
+                mh, mw = self.masks[c].shape
+                observed[k, :mh, :mw] = self.masks[c]
+                dist[k, :mh, :mw] = self.dist_outside[c]
+            self._packed = {
+                "views": views,
+                "cameras": camera_arrays([self.cameras[c] for c in views]),
+                "sizes": sizes,
+                "observed": observed,
+                "dist": dist,
+                "boxes": np.ascontiguousarray(self.boxes[views], dtype=np.int64).reshape(-1, 4),
+                "area": np.ascontiguousarray(self.area[views], dtype=np.float64),
+            }
+        return self._packed
 
 
 def prepare_observation(
@@ -188,6 +249,10 @@ def chamfer_costs(obs: Observation, vertices: np.ndarray, faces: np.ndarray) -> 
     views = np.flatnonzero(obs.valid)
     if len(views) == 0:
         return costs[0] if single else costs
+    kernels = compiled_likelihood()
+    if kernels is not None:
+        costs[:, views] = _chamfer_numba(kernels, obs, verts, faces)
+        return costs[0] if single else costs
     # Views of different sizes share one pass on a padded canvas (exact, see
     # coverage_views); one size is the plain stacked pass.
     sizes = [obs.cameras[c].size for c in views]
@@ -198,6 +263,35 @@ def chamfer_costs(obs: Observation, vertices: np.ndarray, faces: np.ndarray) -> 
         for k, c in enumerate(views):
             costs[b, c] = _view_cost(obs, c, models[k], pixels[b, k])
     return costs[0] if single else costs
+
+
+def _chamfer_numba(
+    kernels: ModuleType, obs: Observation, verts: np.ndarray, faces: np.ndarray
+) -> np.ndarray:
+    """(B, C') costs of the usable views by the fused kernels (one call each)."""
+    pack = obs.packed()
+    R, t, K, dist, tilt, mode = pack["cameras"]
+    B, V, _ = verts.shape
+    pixels = np.empty((B, len(R), V, 2))
+    kernels.project_kernel(np.ascontiguousarray(verts), R, t, K, dist, tilt, mode, pixels)
+    out = np.empty((B, len(R)))
+    status = kernels.chamfer_kernel(
+        np.ascontiguousarray(pixels[..., 0]),
+        np.ascontiguousarray(pixels[..., 1]),
+        np.require(faces, np.int64, ["C", "W"]),
+        pack["sizes"],
+        int(pack["sizes"][:, 1].max()),
+        pack["observed"],
+        pack["dist"],
+        pack["boxes"],
+        pack["area"],
+        float(obs.scale),
+        _INSIDE_EPS,
+        out,
+    )
+    if status != 0:
+        raise IndexError(f"chamfer_costs: face indices out of range for {V} vertices")
+    return out
 
 
 def _view_cost(obs: Observation, c: int, model: np.ndarray, pixels: np.ndarray) -> float:
@@ -262,8 +356,13 @@ def _log_likelihoods(model: BodyModel, obs: Observation, Y: np.ndarray, sigma: f
     states = BodyState.from_vector(Y)
     faces = model.faces(lod=True)
     out = np.empty(len(Y))
-    for s in range(0, len(Y), 64):
-        verts = model.pose(states[s : s + 64], lod=True).vertices
+    # Batches bound the memory of the numpy path's candidate arrays; the compiled
+    # path needs little, and fewer, larger batches save the pose's per-call work
+    # (forward kinematics): a layer of 80 in one call. The vertices do not depend
+    # on the batching (tested).
+    chunk = 64 if compiled_likelihood() is None else 256
+    for s in range(0, len(Y), chunk):
+        verts = model.pose(states[s : s + chunk], lod=True).vertices
         out[s : s + len(verts)] = -chamfer_costs(obs, verts, faces).sum(axis=1) / sigma**2
     return out
 

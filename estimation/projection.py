@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import Camera, _tilt_matrix
 from bodymetry.estimation.raster import coverage
 
 
@@ -117,3 +117,37 @@ def per_camera_masks(
             )
         out.append(m)
     return out
+
+
+def camera_arrays(cameras: Sequence[Camera]) -> tuple[np.ndarray, ...]:
+    """The cameras' parameters as the compiled projection kernel takes them.
+
+    Parameters
+    ----------
+    cameras : sequence of C Camera
+
+    Returns
+    -------
+    R : (C, 3, 3), t : (C, 3), K : (C, 3, 3) float64
+    dist : (C, 14) float64
+        Distortion coefficients, zero-padded.
+    tilt : (C, 3, 3) float64
+        Tilted-sensor matrices (identity where untilted).
+    mode : (C,) int64
+        0: the five-coefficient lens (``Camera.distort_normalized``'s short
+        path, same expressions); 1: rational and thin prism terms; 2: also a
+        tilted sensor.
+    """
+    C = len(cameras)
+    R, t, K = np.zeros((C, 3, 3)), np.zeros((C, 3)), np.zeros((C, 3, 3))
+    dist, tilt = np.zeros((C, 14)), np.tile(np.eye(3), (C, 1, 1))
+    mode = np.zeros(C, np.int64)
+    for c, cam in enumerate(cameras):
+        R[c], t[c], K[c] = cam.R, cam.t, cam.K
+        dist[c, : cam.dist.size] = cam.dist
+        if dist[c, 5:].any():
+            mode[c] = 1
+        if dist[c, 12] != 0 or dist[c, 13] != 0:
+            tilt[c] = _tilt_matrix(dist[c, 12], dist[c, 13])
+            mode[c] = 2
+    return R, t, K, dist, tilt, mode

@@ -28,7 +28,7 @@ Everything is deterministic (no random choices).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -39,8 +39,8 @@ from scipy.spatial import cKDTree
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import NU, POSE_DIM, THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import YAW
-from bodymetry.estimation.generative import state_bounds
-from bodymetry.estimation.projection import fill_silhouette, per_camera_masks
+from bodymetry.estimation.generative import compiled_likelihood, state_bounds
+from bodymetry.estimation.projection import camera_arrays, fill_silhouette, per_camera_masks
 
 
 @dataclass(frozen=True)
@@ -327,6 +327,27 @@ def occluding_contour(
         midpoint lies on the boundary of the silhouette (within one pixel of
         the outside).
     """
+    kernels = compiled_likelihood()
+    if kernels is not None:
+        # One compiled pass (it takes the face frames from the vertices itself).
+        if silhouette is None:
+            silhouette = fill_silhouette(camera.project(vertices), faces, camera.size)
+        out = np.empty(len(edges), np.int64)
+        i64 = [np.require(a, np.int64, ["C", "W"]) for a in (faces, edges, edge_faces)]
+        for name, a, n in zip(
+            ("faces", "edges", "edge_faces"),
+            i64,
+            (len(vertices), len(vertices), len(faces)),
+            strict=True,
+        ):
+            if a.size and (a.min() < 0 or a.max() >= n):
+                raise IndexError(f"occluding_contour: {name} out of range for {n} entries")
+        n = kernels.contour_kernel(
+            np.require(vertices, np.float64, ["C", "W"]), i64[0],
+            np.asarray(center, np.float64), i64[1], i64[2],
+            np.require(silhouette, np.bool_, ["C", "W"]), *camera_arrays([camera]), out,
+        )  # fmt: skip
+        return out[:n]
     normal, centroid = face_frames(vertices, faces) if frames is None else frames
     facing = np.einsum("ij,ij->i", normal, centroid - center) < 0
     generator = np.nonzero(facing[edge_faces[:, 0]] != facing[edge_faces[:, 1]])[0]
@@ -340,13 +361,41 @@ def occluding_contour(
         mask = silhouette
         p = camera.project(vertices[ends.reshape(-1)]).reshape(-1, 2, 2)
         mid = 0.5 * (p[:, 0] + p[:, 1])
-    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 3)
     w, h = camera.size
     ij = np.round(np.nan_to_num(mid, nan=-1.0)).astype(int)
     ok = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
     keep = np.zeros(len(generator), bool)
-    keep[ok] = inside[ij[ok, 1], ij[ok, 0]] <= 1.0
+    keep[ok] = near_outside(mask, ij[ok])
     return generator[keep]
+
+
+def near_outside(mask: np.ndarray, ij: np.ndarray) -> np.ndarray:
+    """Whether pixels lie within one pixel of a mask's outside.
+
+    The same answer as ``cv2.distanceTransform(mask, DIST_L2, 3)[y, x] <= 1``
+    (the 3x3 mask's steps are 0.955 across an edge and 1.3693 across a corner,
+    and the image border is not outside), from the pixel and its four
+    neighbours instead of a transform of the whole image.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    ij : (K, 2) int
+        ``(x, y)`` pixels inside the image.
+
+    Returns
+    -------
+    (K,) bool
+    """
+    m = np.asarray(mask, dtype=bool)
+    h, w = m.shape
+    x, y = ij[:, 0], ij[:, 1]
+    out = ~m[y, x]
+    for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        xx, yy = x + dx, y + dy
+        inside = (xx >= 0) & (xx < w) & (yy >= 0) & (yy < h)
+        out |= inside & ~m[np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)]
+    return out
 
 
 def face_frames(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -363,6 +412,11 @@ class _Pairs:
     the observed outline's normal there (point-to-line): the model's contour
     is sampled at mesh edges a few pixels apart, and point-to-point distances
     would reward sampling density rather than alignment.
+
+    ``source``, optional: this pair's edges are the previous pair's edges at
+    these indices (the observed-to-model direction picks model edges of the
+    model-to-observed one); :meth:`_ContourCost.residuals` then takes their
+    projections from that pair's instead of projecting them again.
     """
 
     camera: int
@@ -370,6 +424,7 @@ class _Pairs:
     targets: np.ndarray
     normals: np.ndarray
     weight: float
+    source: np.ndarray | None = None
 
 
 class _ContourCost:
@@ -392,6 +447,7 @@ class _ContourCost:
         self._last: tuple[bytes, np.ndarray] | None = None
         originals = obs.originals or obs.cameras
         self.visibility = [c.scaled(config.visibility_scale) for c in originals]
+        self._cam_arrays = [camera_arrays([cam]) for cam in obs.cameras]
 
     def vertices(self, Y: np.ndarray, lod: bool | None = None) -> np.ndarray:
         """(B, V, 3) vertices of states (B, 49): the residual mesh, or the given one."""
@@ -412,13 +468,38 @@ class _ContourCost:
             return lod
         base = self._posed(y)
         rows = np.arange(len(base)) if rows is None else rows
+        out = np.empty((len(lod), *base.shape))
+        out[:, rows] = self._moved_rows(lod, base, rows)
+        return out
+
+    def _moved_rows(self, lod: np.ndarray, base: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """(1 + n, len(rows), 3): the full mesh's ``rows`` at ``y`` and moved by each
+        level-of-detail displacement ``lod[1:] - lod[0]`` (see :meth:`perturbed`)."""
         d = lod[1:] - lod[0]  # (n, V_lod, 3)
         n, v_lod, _ = d.shape
         moved = self.map[rows] @ d.transpose(1, 0, 2).reshape(v_lod, n * 3)
-        out = np.empty((n + 1, *base.shape))
-        out[0] = base
-        out[1:, rows] = base[rows] + moved.reshape(len(rows), n, 3).transpose(1, 0, 2)
+        out = np.empty((n + 1, len(rows), 3))
+        out[0] = base[rows]
+        out[1:] = base[rows] + moved.reshape(len(rows), n, 3).transpose(1, 0, 2)
         return out
+
+    def perturbed_residuals(
+        self, y: np.ndarray, step: np.ndarray, pairs: list[_Pairs]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``residuals(perturbed(y, step, used), pairs)``, the same numbers, with
+        ``used`` the vertices of the pairs' edges.
+
+        With the full mesh only those vertices are built (a few thousand of 13k,
+        not a (1 + n, V, 3) array of mostly unset rows) and the pairs' edges are
+        renumbered into them.
+        """
+        if not self.full:
+            return self.residuals(self.perturbed(y, step), pairs)
+        used = np.unique(np.concatenate([p.edges.ravel() for p in pairs]))
+        lod = self.vertices(np.vstack([y, y + np.diag(step)]), lod=True)
+        compact = self._moved_rows(lod, self._posed(y), used)
+        local = [replace(p, edges=np.searchsorted(used, p.edges)) for p in pairs]
+        return self.residuals(compact, local)
 
     def pairs(self, V: np.ndarray, lod: np.ndarray | None = None) -> list[_Pairs]:
         """Nearest-point correspondences in both directions, every usable view.
@@ -430,7 +511,8 @@ class _ContourCost:
         the visibility of a full mesh's contour edges.
         """
         out = []
-        frames = face_frames(V, self.faces)
+        # The compiled contour pass takes the frames from the vertices itself.
+        frames = face_frames(V, self.faces) if compiled_likelihood() is None else None
         for c in range(len(self.obs.cameras)):
             tree = self.obs.trees[c]
             if tree is None:
@@ -457,20 +539,52 @@ class _ContourCost:
             _, j = tree.query(p)
             out.append(_Pairs(c, e, pts[j], nrm[j], 1.0 / len(e)))
             _, k = cKDTree(p).query(pts)
-            out.append(_Pairs(c, e[k], pts, nrm, 1.0 / len(k)))
+            out.append(_Pairs(c, e[k], pts, nrm, 1.0 / len(k), source=k))
         return out
 
     def _project(self, c: int, V: np.ndarray, e: np.ndarray) -> np.ndarray:
-        """Projected edge midpoints; V may carry leading batch axes."""
-        mid = 0.5 * (V[..., e[:, 0], :] + V[..., e[:, 1], :])
-        return self.obs.cameras[c].project(mid)
+        """Projected edge midpoints; V may carry leading batch axes.
+
+        The compiled kernel (the likelihood's backend) gathers, averages and
+        projects in one pass over the edges instead of building the midpoints
+        of every state; same expressions, pixels equal to about 1e-12.
+        """
+        kernels = compiled_likelihood()
+        if kernels is None:
+            mid = 0.5 * (V[..., e[:, 0], :] + V[..., e[:, 1], :])
+            return self.obs.cameras[c].project(mid)
+        lead = V.shape[:-2]
+        flat = np.require(V.reshape(-1, *V.shape[-2:]), np.float64, ["C", "W"])
+        out = np.empty((len(flat), len(e), 2))
+        ends = np.require(e, np.int64, ["C", "W"])
+        if len(e) and (ends.min() < 0 or ends.max() >= flat.shape[1]):
+            raise IndexError(f"edge indices out of range for {flat.shape[1]} vertices")
+        kernels.project_midpoints_kernel(flat, ends, *self._cam_arrays[c], out)
+        return out.reshape(*lead, len(e), 2)
 
     def residuals(self, V: np.ndarray, pairs: list[_Pairs]) -> tuple[np.ndarray, np.ndarray]:
         """Weighted residuals (..., R) and their Huber IRLS weights (R,) (from the first state)."""
         res, robust = [], []
         h = self.config.huber_px
+        previous: tuple[_Pairs, np.ndarray] | None = None
         for p in pairs:
-            d = ((self._project(p.camera, V, p.edges) - p.targets) * p.normals).sum(axis=-1)
+            if (
+                p.source is not None
+                and previous is not None
+                and previous[0].camera == p.camera
+                and len(p.source) == len(p.edges)
+                and (len(p.source) == 0 or p.source.max() < len(previous[0].edges))
+                and np.array_equal(previous[0].edges[p.source], p.edges)
+            ):
+                q = previous[1][..., p.source, :]  # the same midpoints, projected once
+            else:
+                q = self._project(p.camera, V, p.edges)
+            previous = (p, q)
+            # Two products and one sum, as ``((q - targets) * normals).sum(-1)`` adds
+            # them, without a reduction over a length-2 axis (slow in numpy).
+            d = (q[..., 0] - p.targets[:, 0]) * p.normals[:, 0] + (
+                q[..., 1] - p.targets[:, 1]
+            ) * p.normals[:, 1]
             res.append(d * np.sqrt(p.weight))
             length = np.abs(d.reshape(-1, d.shape[-1])[0])
             robust.append(np.sqrt(np.where(length <= h, 1.0, h / np.maximum(length, 1e-12))))
@@ -499,9 +613,7 @@ class _ContourCost:
             Their derivatives (the weights held fixed), for Gauss-Newton.
         """
         # Only the vertices of the contour edges enter the residuals.
-        used = np.unique(np.concatenate([p.edges.ravel() for p in pairs]))
-        Vp = self.perturbed(y, step, used)
-        r, w = self.residuals(Vp, pairs)
+        r, w = self.perturbed_residuals(y, step, pairs)
         J = ((r[1:] - r[0]) / step[:, None]).T * w[:, None]
         return r[0] * w, J
 

@@ -12,7 +12,10 @@ the part rotation. Triangles are processed in chunks of one (part, joint pair)
 block, so the rotation and the pose features are constants of the inner loops,
 which run over contiguous triangles through 1-D slices (LLVM vectorizes those;
 2-D indexing in the loops did not vectorize, 2.5x slower); a chunk's
-coefficients stay in cache across the states. No ``fastmath``: no fused
+coefficients stay in cache across the states. A state whose features or ν
+equal the previous state's reuses that state's ``Q_t Δx_t`` or ``S_t`` (the
+same numbers; the contour refinement's batch of finite-difference steps changes
+one coordinate per state, so most of its states reuse both). No ``fastmath``: no fused
 multiply-adds; only the order of some sums differs from the numpy reference
 (its matrix products), so the edges agree to rounding (measured: 4e-16 of the
 largest edge).
@@ -72,36 +75,53 @@ def edges_kernel(
             n = min(CHUNK, stop - c0)
             c1 = c0 + n
             for b in range(B):
-                # Q_t Δx_t: the six features times their coefficients, then the template.
-                for r in range(6):
-                    x[r, :n] = 0.0
-                for f in range(6):
-                    feat = rotvec[b, j1, f] if f < 3 else rotvec[b, j2, f - 3]
+                # The buffers hold the previous state's Q_t Δx_t and S_t for this
+                # chunk: a state with the same features or the same ν (a batch of
+                # finite-difference steps moves one coordinate) reuses them, the
+                # same numbers without the arithmetic.
+                same_pose = b > 0
+                same_shape = b > 0
+                if b > 0:
+                    for f in range(3):
+                        if rotvec[b, j1, f] != rotvec[b - 1, j1, f]:
+                            same_pose = False
+                        if rotvec[b, j2, f] != rotvec[b - 1, j2, f]:
+                            same_pose = False
+                    for q in range(K):
+                        if nu[b, q] != nu[b - 1, q]:
+                            same_shape = False
+                if not same_pose:
+                    # Q_t Δx_t: the six features times their coefficients, then the template.
+                    for r in range(6):
+                        x[r, :n] = 0.0
+                    for f in range(6):
+                        feat = rotvec[b, j1, f] if f < 3 else rotvec[b, j2, f - 3]
+                        for r in range(6):
+                            xr = x[r, :n]
+                            pc = pose_coef[f, r, c0:c1]
+                            for k in range(n):
+                                xr[k] += feat * pc[k]
                     for r in range(6):
                         xr = x[r, :n]
-                        pc = pose_coef[f, r, c0:c1]
+                        tr = template[r, c0:c1]
                         for k in range(n):
-                            xr[k] += feat * pc[k]
-                for r in range(6):
-                    xr = x[r, :n]
-                    tr = template[r, c0:c1]
-                    for k in range(n):
-                        xr[k] += tr[k]
-                # S_t(ν) = Σ_k ν_k U_kt, then μ_t.
-                for r in range(9):
-                    s[r, :n] = 0.0
-                for q in range(K):
-                    w = nu[b, q]
+                            xr[k] += tr[k]
+                if not same_shape:
+                    # S_t(ν) = Σ_k ν_k U_kt, then μ_t.
+                    for r in range(9):
+                        s[r, :n] = 0.0
+                    for q in range(K):
+                        w = nu[b, q]
+                        for r in range(9):
+                            sr = s[r, :n]
+                            ub = shape_basis[q, r, c0:c1]
+                            for k in range(n):
+                                sr[k] += w * ub[k]
                     for r in range(9):
                         sr = s[r, :n]
-                        ub = shape_basis[q, r, c0:c1]
+                        mr = shape_mean[r, c0:c1]
                         for k in range(n):
-                            sr[k] += w * ub[k]
-                for r in range(9):
-                    sr = s[r, :n]
-                    mr = shape_mean[r, c0:c1]
-                    for k in range(n):
-                        sr[k] += mr[k]
+                            sr[k] += mr[k]
                 # R_p S_t (Q_t Δx_t), per edge e.
                 R = part_rot[b, part]
                 r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
@@ -131,3 +151,40 @@ def edges_kernel(
                         o0[k] = r00 * y0 + r01 * y1 + r02 * y2
                         o1[k] = r10 * y0 + r11 * y1 + r12 * y2
                         o2[k] = r20 * y0 + r21 * y1 + r22 * y2
+
+
+@numba.njit(cache=True, nogil=True)
+def normal_rhs_kernel(faces, edges, out):  # pragma: no cover
+    """``Aᵀ E``, the vertex solve's right-hand sides, transposed: ``out[(b, x), v - 1]``.
+
+    ``A`` maps vertices to the edges ``v1 - v0`` (rows ``t``) and ``v2 - v0``
+    (rows ``T + t``) of each triangle, vertex 0 pinned. Each vertex gathers
+    ``+E`` where it is a triangle's ``v1`` or ``v2`` and ``-E`` where it is its
+    ``v0``, in the order of the rows of ``A`` (edge 1 of every triangle, then
+    edge 2), which is the order scipy's CSR product of ``ScapeMesh._At`` adds
+    them: the same numbers, written one contiguous row per state and
+    coordinate instead of through a transposed copy of the edges.
+
+    Parameters
+    ----------
+    faces : (T, 3) int64
+        In the mesh's internal order.
+    edges : (B, 3, 2, T) float64
+    out : (3B, V - 1) float64
+        Written.
+    """
+    B = edges.shape[0]
+    T = faces.shape[0]
+    for b in range(B):
+        for x in range(3):
+            row = out[3 * b + x]
+            row[:] = 0.0
+            for e in range(2):
+                ee = edges[b, x, e]
+                for t in range(T):
+                    v0 = faces[t, 0]
+                    v = faces[t, e + 1]
+                    if v > 0:
+                        row[v - 1] += ee[t]
+                    if v0 > 0:
+                        row[v0 - 1] -= ee[t]

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import importlib.util
+
 import cv2
 import numpy as np
 import pytest
 
+from bodymetry.estimation import generative
+from bodymetry.estimation.body_model import scape
 from bodymetry.estimation.body_model.model import THETA, BodyModel, BodyState
 from bodymetry.estimation.generative import (
     AnnealingConfig,
@@ -16,6 +20,8 @@ from bodymetry.estimation.generative import (
 )
 from bodymetry.estimation.projection import fill_silhouette, project_silhouettes
 from bodymetry.studio.rig import studio_rig
+
+LIKELIHOOD_BACKENDS = ["numpy"] + (["numba"] if importlib.util.find_spec("numba") else [])
 
 #: Chamfer cost (pixels) of a body against its own silhouette: only resampling.
 SELF_COST = 0.05
@@ -55,9 +61,17 @@ def _reference_costs(obs, verts, faces) -> np.ndarray:
     return out
 
 
-def test_batched_cropped_chamfer_equals_the_whole_image_cost(setup):
+#: The compiled likelihood sums distances in float64, the reference (numpy's float32
+#: pairwise sums) rounds each sum to about 1e-7 relative.
+RTOL_BACKEND = {"numpy": 1e-12, "numba": 1e-6}
+
+
+@pytest.mark.parametrize("backend", LIKELIHOOD_BACKENDS)
+def test_batched_cropped_chamfer_equals_the_whole_image_cost(setup, backend, monkeypatch):
     """A batch of bodies, some far off or partly outside the images: the batched cost
-    (distance transforms on crops) is the whole-image cost exactly."""
+    (distance transforms on crops) is the whole-image cost, exactly for the numpy
+    path and to float32 rounding of the sums for the compiled one."""
+    monkeypatch.setattr(generative, "BACKEND", backend)
     model, cameras, truth, _, masks = setup
     obs = prepare_observation(cameras, masks, 0.5)
     faces = model.faces(lod=True)
@@ -70,7 +84,9 @@ def test_batched_cropped_chamfer_equals_the_whole_image_cost(setup):
     batched = chamfer_costs(obs, verts, faces)
     assert batched.shape == (6, 3)
     for b in range(6):
-        np.testing.assert_allclose(batched[b], _reference_costs(obs, verts[b], faces), rtol=1e-12)
+        np.testing.assert_allclose(
+            batched[b], _reference_costs(obs, verts[b], faces), rtol=RTOL_BACKEND[backend]
+        )
 
 
 def test_views_without_silhouette_are_left_out(setup):
@@ -129,3 +145,21 @@ def test_annealing_config_validates_its_fields():
         AnnealingConfig(n_particles=0)
     with pytest.raises(ValueError, match="target_ess"):
         AnnealingConfig(target_ess=1.5)
+
+
+@pytest.mark.skipif("numba" not in LIKELIHOOD_BACKENDS, reason="numba is not installed")
+def test_likelihood_batches_do_not_change_the_vertices(setup, monkeypatch):
+    """The compiled path poses up to 256 states per call, the numpy path 64: with the
+    compiled Eq. (1) the level of detail's vertices are the same bits either way
+    (each state's edges on their own; the solve's columns are independent). (The
+    numpy Eq. (1)'s matrix products may round differently by batch size.)"""
+    monkeypatch.setattr(scape, "EDGES_BACKEND", "numba")
+    model, _, truth, _, _ = setup
+    rng = np.random.default_rng(2)
+    Y = np.repeat(truth.vector(), 150, axis=0)
+    Y[:, THETA] += rng.normal(0.0, 0.1, (150, 37))
+    Y[:, 40:] += rng.normal(0.0, 0.5, (150, model.n_shape))
+    states = BodyState.from_vector(Y)
+    whole = model.pose(states, lod=True).vertices
+    parts = [model.pose(states[s : s + 64], lod=True).vertices for s in range(0, 150, 64)]
+    assert np.array_equal(whole, np.concatenate(parts))

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -11,14 +13,17 @@ import pytest
 import trimesh
 
 from bodymetry.capture.session import load_session
+from bodymetry.estimation import generative
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import NU, THETA, BodyModel, BodyState
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.refinement import (
     RefineConfig,
+    _ContourCost,
     boundary_points,
     full_from_lod,
     mesh_edges,
+    near_outside,
     occluding_contour,
     outline_normals,
     prepare_contours,
@@ -226,3 +231,60 @@ def test_contour_sampling_bias_on_the_demo_frames():
     new, old = np.mean(change["new"]), np.mean(change["old"])
     assert abs(new) < 0.8, change
     assert old > new + 0.5, change
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_near_outside_is_the_distance_transform_within_one_pixel(seed):
+    """Random blobs touching the image border: every pixel's answer is OpenCV's
+    ``distanceTransform(DIST_L2, 3) <= 1``."""
+    rng = np.random.default_rng(seed)
+    mask = cv2.GaussianBlur(rng.random((40, 50)).astype(np.float32), (0, 0), 2.0) > 0.5
+    mask[:, :3] = True  # touches the left border
+    want = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 3) <= 1.0
+    ys, xs = np.mgrid[:40, :50]
+    got = near_outside(mask, np.c_[xs.ravel(), ys.ravel()]).reshape(40, 50)
+    assert np.array_equal(got, want)
+    assert got.any() and not got.all()
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
+def test_compiled_correspondences_are_the_numpy_ones(scene, monkeypatch):
+    """The contour kernel (facing test, generator edges, visibility) and the midpoint
+    projection give the numpy path's contour edges exactly and its pixels to 1e-9,
+    with the full mesh's contour seen on the level of detail's raster."""
+    model, cameras, truth, masks = scene
+    obs = prepare_contours(cameras, masks, 0.5)
+    cost = _ContourCost(model, obs, RefineConfig())
+    y = truth.vector()[0].copy()
+    y[THETA] += np.random.default_rng(5).normal(0, 0.05, 37)
+    V, lod = cost.vertices(y)[0], cost.vertices(y, lod=True)[0]
+    got = {}
+    for backend in ("numpy", "numba"):
+        monkeypatch.setattr(generative, "BACKEND", backend)
+        pairs = cost.pairs(V, lod)
+        got[backend] = (pairs, cost.residuals(V[None], pairs)[0])
+    assert len(got["numba"][0]) == len(got["numpy"][0]) == 2 * len(cameras)
+    for a, b in zip(got["numba"][0], got["numpy"][0], strict=True):
+        assert np.array_equal(a.edges, b.edges) and np.array_equal(a.targets, b.targets)
+    np.testing.assert_allclose(got["numba"][1], got["numpy"][1], rtol=0, atol=1e-9)
+
+
+def test_perturbed_residuals_build_only_the_used_vertices(scene):
+    """The Jacobian's residuals from the contour edges' vertices alone are the ones of
+    the whole perturbed mesh, bit for bit."""
+    model, cameras, truth, masks = scene
+    config = RefineConfig()
+    cost = _ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
+    y = truth.vector()[0]
+    _, pairs = cost.evaluate(y)
+    step = np.full(len(y), 1e-3)
+    used = np.unique(np.concatenate([p.edges.ravel() for p in pairs]))
+    assert len(used) < 0.5 * model.full.n_vertices
+    want = cost.residuals(cost.perturbed(y, step, used), pairs)
+    got = cost.perturbed_residuals(y, step, pairs)
+    assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    # The observed-to-model pairs reuse the other direction's projections: the same
+    # numbers as projecting their own edges.
+    assert sum(p.source is not None for p in pairs) == len(cameras)
+    alone = cost.residuals(cost.perturbed(y, step, used), [replace(p, source=None) for p in pairs])
+    assert np.array_equal(alone[0], want[0]) and np.array_equal(alone[1], want[1])

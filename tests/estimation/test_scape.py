@@ -387,3 +387,37 @@ def test_numba_edges_are_the_numpy_edges(rng, monkeypatch, B, factors):
     assert got["numba"].shape == got["numpy"].shape == (B_out, 3, 2, T)
     scale = np.abs(got["numpy"]).max()
     np.testing.assert_allclose(got["numba"], got["numpy"], rtol=0, atol=RTOL_EDGE_BACKENDS * scale)
+
+
+@pytest.mark.skipif("numba" not in EDGE_BACKENDS, reason="numba is not installed")
+def test_numba_edges_of_repeated_shapes_and_poses_are_each_states_own(rng, monkeypatch):
+    """A batch of finite-difference steps (each state moves one pose or shape value from
+    the first; the kernel reuses the previous state's Q Δx or S) gives, bit for bit,
+    the edges each state gets alone."""
+    monkeypatch.setattr(scape, "EDGES_BACKEND", "numba")
+    mesh = scape.ScapeMesh(_deforming_arrays(rng, n_components=3), 2)
+    part_rot = np.repeat(_random_rotations(rng, (1, 2)), 6, axis=0)
+    local = np.repeat(_random_rotations(rng, (1, N_JOINTS)), 6, axis=0)
+    nu = np.repeat(rng.normal(size=(1, 2)), 6, axis=0)
+    local[2, 1] = _random_rotations(rng, ())  # one joint bent
+    local[3, 1] = local[2, 1]  # same pose as the previous state, other shape below
+    nu[3, 0] += 1e-2
+    nu[4, 1] -= 0.0  # -0.0 is the same number
+    part_rot[5, 0] = _random_rotations(rng, ())
+    batch = mesh.edges(part_rot, local, nu)
+    for b in range(6):
+        alone = mesh.edges(part_rot[b : b + 1], local[b : b + 1], nu[b : b + 1])
+        assert np.array_equal(batch[b], alone[0])
+
+
+@pytest.mark.skipif("numba" not in EDGE_BACKENDS, reason="numba is not installed")
+def test_numba_right_hand_sides_are_scipys(rng, monkeypatch):
+    """The solve's Aᵀ E by the compiled scatter is scipy's sparse product, bit for bit,
+    so both backends give the same vertices."""
+    mesh = scape.ScapeMesh(_deforming_arrays(rng, n_components=2), 2)
+    edges = rng.normal(size=(4, 3, 2, len(mesh.faces)))
+    got = {}
+    for backend in ("numpy", "numba"):
+        monkeypatch.setattr(scape, "EDGES_BACKEND", backend)
+        got[backend] = mesh.solve(edges)
+    assert np.array_equal(got["numba"], got["numpy"])
