@@ -456,21 +456,36 @@ def select_moe(
     experts: tuple[int, ...] = (1, 2, 4, 8),
     ridges: tuple[float, ...] = (1.0, 10.0, 100.0, 1000.0),
     seed: int = 0,
+    stop_when_worse: bool = False,
     **fit_kwargs,
 ) -> Selection:
-    """Choose M and λ by the held-out conditional log-likelihood (paper §4)."""
+    """Choose M and λ by the held-out conditional log-likelihood (paper §4).
+
+    Candidates are fitted in increasing M, every λ for each M. With
+    ``stop_when_worse`` the search ends at the first M whose best held-out
+    log-likelihood (over λ) is below the previous M's: larger mixtures, which
+    cost in proportion to M, are fitted only while adding experts still helps.
+    That gives the full grid's choice whenever the held-out likelihood rises
+    to a single peak in M (``table`` lists the candidates fitted).
+    """
     table = []
     best = None
-    for M in experts:
+    previous = -np.inf
+    for M in sorted(experts):
+        if len(X) < 2 * M:
+            continue
+        best_here = -np.inf
         for lam in ridges:
-            if len(X) < 2 * M:
-                continue
             fit = fit_moe(X, Y, M, lam, np.random.default_rng(seed), **fit_kwargs)
             ll = float(np.mean(fit.model.log_likelihood(X_val, Y_val)))
             rmse = float(np.sqrt(np.mean((fit.model.predict(X_val) - Y_val) ** 2)))
             table.append({"n_experts": M, "ridge": lam, "val_loglik": ll, "val_rmse": rmse})
+            best_here = max(best_here, ll)
             if best is None or ll > best[0]:
                 best = (ll, M, lam, fit.model)
+        if stop_when_worse and best_here < previous:
+            break
+        previous = best_here
     if best is None:
         raise ValueError("select_moe: no candidate could be fitted")
     return Selection(best[3], best[1], best[2], table)

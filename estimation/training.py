@@ -23,7 +23,7 @@ import multiprocessing as mp
 import os
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -32,11 +32,16 @@ import numpy as np
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.errors import InputError
 from bodymetry.estimation import features as feat
-from bodymetry.estimation.body_model.model import DEFAULT_MODEL_PATH, BodyModel, BodyState
+from bodymetry.estimation.body_model.model import (
+    DEFAULT_MODEL_PATH,
+    DEFAULT_SHAPE_DOFS,
+    BodyModel,
+    BodyState,
+)
 from bodymetry.estimation.body_model.motion.contact import place_root
 from bodymetry.estimation.body_model.motion.prior import sample_pose_prior
 from bodymetry.estimation.body_model.motion.seeds import seed_for
-from bodymetry.estimation.body_model.skeleton import YAW
+from bodymetry.estimation.body_model.skeleton import JOINTS, YAW, forward_kinematics
 from bodymetry.estimation.moe import MixtureOfExperts, fit_moe, select_moe
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.fileio import load_npz, save_npz
@@ -95,6 +100,10 @@ class TrainConfig:
         Share of the training set held out for choosing M and λ.
     max_iter : int
         EM iterations per fit.
+    stop_when_worse : bool
+        End the search over M (in increasing order) at the first M whose best
+        held-out likelihood is below the previous M's
+        (:func:`bodymetry.estimation.moe.select_moe`).
     """
 
     n_train: int = 3000
@@ -108,6 +117,7 @@ class TrainConfig:
     ridges: tuple[float, ...] = (1.0, 10.0, 100.0)
     val_fraction: float = 0.2
     max_iter: int = 30
+    stop_when_worse: bool = True
 
     def __post_init__(self) -> None:
         if self.n_train < 50 or self.n_test < 1:
@@ -181,10 +191,21 @@ def sample_states(model: BodyModel, n: int, purpose: str, seed: int, volume: flo
     return BodyState(tau, theta, nu)
 
 
+@functools.lru_cache(maxsize=2)
+def _body_model(n_shape: int) -> BodyModel:
+    """The shipped body model, loaded once per process.
+
+    Loading and factorizing it takes about a second; the render workers are
+    forked after :func:`train` has loaded it, so they inherit it instead of
+    loading it again for every chunk of examples.
+    """
+    return BodyModel.load(n_shape=n_shape)
+
+
 def _render_features(args) -> tuple:
     """Worker: silhouettes of a chunk of states -> RDF and SC descriptors or codes."""
     states, cameras, codebook_arrays, seed, sc_config = args
-    model = BodyModel.load(n_shape=states.nu.shape[1])
+    model = _body_model(states.nu.shape[1])
     codebook = None if codebook_arrays is None else feat.Codebook.from_arrays(codebook_arrays)
     rng = np.random.default_rng(seed)
     C, B = len(cameras), len(states)
@@ -329,7 +350,7 @@ def train(
     cameras = list(cameras)
     workers = workers or os.cpu_count() or 1
     t0 = time.perf_counter()
-    model = BodyModel.load()
+    model = _body_model(DEFAULT_SHAPE_DOFS)
     train_states = sample_states(model, config.n_train, "train", config.seed, config.volume)
     test_states = sample_states(model, config.n_test, "test", config.seed, config.volume)
 
@@ -378,59 +399,156 @@ def train(
     )[:3]
     t_render = time.perf_counter() - t0
 
-    outputs_tr = _outputs(train_states)
-    rng = np.random.default_rng(config.seed)
-    chosen: dict[str, dict] = {}
-    models: dict[str, dict[str, MixtureOfExperts]] = {}
-    for c, cam in enumerate(cameras):
-        idx = np.flatnonzero(ok_tr[c])
-        if len(idx) < 50:
-            raise InputError(
-                f"camera {cam.name}: the body is visible in only {len(idx)} training examples"
-            )
-        perm = rng.permutation(idx)
-        n_val = int(len(perm) * config.val_fraction)
-        val, fit_idx = perm[:n_val], perm[n_val:]
-        models[cam.name] = {}
-        for name in MODEL_NAMES:
-            X = _inputs(name, rdf_tr[c], sc_tr[c])
-            Y = outputs_tr[name]
-            if name not in chosen:
-                # Cross-validate M and λ on the first camera; reuse for the others.
-                sel = select_moe(
-                    X[fit_idx],
-                    Y[fit_idx],
-                    X[val],
-                    Y[val],
-                    config.experts,
-                    config.ridges,
-                    seed=config.seed,
-                    max_iter=config.max_iter,
-                )
-                chosen[name] = {"n_experts": sel.n_experts, "ridge": sel.ridge, "table": sel.table}
-            fit = fit_moe(
-                X[idx],
-                Y[idx],
-                chosen[name]["n_experts"],
-                chosen[name]["ridge"],
-                np.random.default_rng(config.seed),
-                max_iter=config.max_iter,
-            )
-            models[cam.name][name] = fit.model
-            if progress:
-                progress(
-                    "fitting", c * len(MODEL_NAMES) + MODEL_NAMES.index(name) + 1, len(cameras) * 4
-                )
+    t_fit = time.perf_counter()
+    chosen, models = _fit_models(
+        cameras, rdf_tr, sc_tr, ok_tr, _outputs(train_states), config, workers, progress
+    )
+    t_fit = time.perf_counter() - t_fit
     trained = DiscriminativeModels(tuple(c.name for c in cameras), codebook, models)
     metrics = evaluate(trained, model, test_states, rdf_te, sc_te, ok_te)
     metrics["chosen"] = {k: {"M": v["n_experts"], "lambda": v["ridge"]} for k, v in chosen.items()}
     metrics["selection"] = {k: v["table"] for k, v in chosen.items()}
     metrics["render_seconds"] = round(t_render, 1)
+    metrics["fit_seconds"] = round(t_fit, 1)
     metrics["train_seconds"] = round(time.perf_counter() - t0, 1)
     metrics["n_train"], metrics["n_test"] = config.n_train, config.n_test
     return DiscriminativeModels(
         trained.camera_names, codebook, models, metrics, rig_key(cameras, config)
     )
+
+
+def _select_job(args: tuple) -> dict:
+    """Worker: cross-validated M and λ of one model on the first camera's split."""
+    X, Y, X_val, Y_val, config = args
+    sel = select_moe(
+        X,
+        Y,
+        X_val,
+        Y_val,
+        config.experts,
+        config.ridges,
+        seed=config.seed,
+        stop_when_worse=config.stop_when_worse,
+        max_iter=config.max_iter,
+    )
+    return {"n_experts": sel.n_experts, "ridge": sel.ridge, "table": sel.table}
+
+
+def _fit_job(args: tuple) -> MixtureOfExperts:
+    """Worker: one camera's model on all its training examples with the chosen M and λ."""
+    X, Y, n_experts, ridge, config = args
+    rng = np.random.default_rng(config.seed)
+    return fit_moe(X, Y, n_experts, ridge, rng, max_iter=config.max_iter).model
+
+
+def _fit_models(
+    cameras: list[Camera],
+    rdf: np.ndarray,
+    codes: np.ndarray,
+    valid: np.ndarray,
+    outputs: dict[str, np.ndarray],
+    config: TrainConfig,
+    workers: int,
+    progress: Callable[[str, int, int], None] | None,
+) -> tuple[dict[str, dict], dict[str, dict[str, MixtureOfExperts]]]:
+    """Choose M and λ per model on the first camera, then fit every camera's models.
+
+    The fits are independent jobs (a model's four camera fits wait for its
+    selection only), run on ``workers`` processes, heaviest first (the
+    shape-context inputs have 300 dimensions, the RDF ones 102). Every fit is
+    seeded by ``config.seed``, so the models do not depend on the scheduling.
+
+    Returns
+    -------
+    chosen : dict
+        Per model name: ``n_experts``, ``ridge`` and the selection ``table``.
+    models : dict
+        ``models[camera][name]``.
+    """
+    rng = np.random.default_rng(config.seed)
+    splits = []
+    for c, cam in enumerate(cameras):
+        idx = np.flatnonzero(valid[c])
+        if len(idx) < 50:
+            raise InputError(
+                f"camera {cam.name}: the body is visible in only {len(idx)} training examples"
+            )
+        perm = rng.permutation(idx)  # drawn for every camera: the same draws as ever
+        n_val = int(len(perm) * config.val_fraction)
+        splits.append((idx, perm[:n_val], perm[n_val:]))
+
+    def data(name: str, c: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return _inputs(name, rdf[c], codes[c])[rows], outputs[name][rows]
+
+    _, val, fit_idx = splits[0]
+    order = sorted(MODEL_NAMES, key=lambda n: -_inputs(n, rdf[0], codes[0]).shape[1])
+    select_args = {name: (*data(name, 0, fit_idx), *data(name, 0, val), config) for name in order}
+    chosen: dict[str, dict] = {}
+    fitted: dict[tuple[str, int], MixtureOfExperts] = {}
+
+    def fit_args(name: str, c: int) -> tuple:
+        X, Y = data(name, c, splits[c][0])
+        return X, Y, chosen[name]["n_experts"], chosen[name]["ridge"], config
+
+    def report() -> None:
+        if progress:
+            progress("fitting", len(fitted), len(cameras) * len(MODEL_NAMES))
+
+    if workers <= 1:
+        for name in order:
+            chosen[name] = _select_job(select_args[name])
+            for c in range(len(cameras)):
+                fitted[name, c] = _fit_job(fit_args(name, c))
+                report()
+    else:
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
+            pending = {pool.submit(_select_job, select_args[n]): (n, None) for n in order}
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in done:
+                    name, c = pending.pop(future)
+                    if c is None:
+                        chosen[name] = future.result()
+                        for k in range(len(cameras)):
+                            pending[pool.submit(_fit_job, fit_args(name, k))] = (name, k)
+                    else:
+                        fitted[name, c] = future.result()
+                        report()
+    chosen = {name: chosen[name] for name in MODEL_NAMES}
+    models = {
+        cam.name: {name: fitted[name, c] for name in MODEL_NAMES} for c, cam in enumerate(cameras)
+    }
+    return chosen, models
+
+
+#: Bodies per block in the test-set evaluation: the full meshes (13,380 vertices) of a
+#: block stay in cache (the whole test set at once is memory-bound, 5x slower).
+_CHUNK = 32
+
+
+def _vertex_errors(model: BodyModel, nu: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Mean vertex distance (B,) of the canonical bodies of ``nu`` (B, n) from ``truth``."""
+    out = np.empty(len(nu))
+    for s in range(0, len(nu), _CHUNK):
+        d = model.canonical_vertices(nu[s : s + _CHUNK]) - truth[s : s + _CHUNK]
+        out[s : s + _CHUNK] = np.sqrt(np.einsum("bvi,bvi->bv", d, d)).mean(axis=1)
+    return out
+
+
+def _joints(model: BodyModel, states: BodyState) -> np.ndarray:
+    """World joint positions (B, 15, 3) of ``model.pose(states).joints``, without the mesh.
+
+    Forward kinematics needs only the rest joints' offsets from their parents,
+    which the canonical rest keypoints give (the mesh solve, which ``pose``
+    also does, took most of the test-set evaluation's time).
+    """
+    rest = np.concatenate(
+        [
+            model.rest_keypoints(states.nu[s : s + _CHUNK])[:, : len(JOINTS)]
+            for s in range(0, len(states), _CHUNK)
+        ]
+    )
+    return forward_kinematics(states.theta, states.tau, rest, model.hinge_axes)[1]
 
 
 def evaluate(
@@ -451,9 +569,11 @@ def evaluate(
     * ``mpjpe_mm``: mean per-joint position error of the posed skeleton.
     """
     n_examples = {}
-    truth_canon = model.canonical_vertices(states.nu)
-    mean_canon = model.canonical_vertices(np.zeros((1, model.n_shape)))
-    err_mean = np.linalg.norm(truth_canon - mean_canon, axis=-1).mean(axis=1)
+    truth_canon = np.concatenate(
+        [model.canonical_vertices(states.nu[s : s + _CHUNK]) for s in range(0, len(states), _CHUNK)]
+    )
+    err_mean = _vertex_errors(model, np.zeros((len(states), model.n_shape)), truth_canon)
+    true_joints = _joints(model, states)
     per_cam = {}
     for c, cam in enumerate(trained.camera_names):
         idx = np.flatnonzero(valid[c])
@@ -461,8 +581,7 @@ def evaluate(
         out = {}
         for name in ("nu_rdf", "nu_sc"):
             X = _inputs(name, rdf[c, idx], codes[c, idx])
-            pred = model.canonical_vertices(m[name].predict(X))
-            err = np.linalg.norm(pred - truth_canon[idx], axis=-1).mean(axis=1)
+            err = _vertex_errors(model, m[name].predict(X), truth_canon[idx])
             out[f"shape_{name.split('_')[1]}_improvement_over_mean"] = float(
                 1 - err.mean() / err_mean[idx].mean()
             )
@@ -476,9 +595,8 @@ def evaluate(
             1000 * np.linalg.norm(tau - states.tau[idx], axis=1).mean()
         )
         nu = m["nu_rdf"].predict(rdf[c, idx])
-        pred_j = model.pose(BodyState(tau, theta, nu), lod=True).joints
-        true_j = model.pose(states[idx], lod=True).joints
-        out["mpjpe_mm"] = float(1000 * np.linalg.norm(pred_j - true_j, axis=-1).mean())
+        pred_j = _joints(model, BodyState(tau, theta, nu))
+        out["mpjpe_mm"] = float(1000 * np.linalg.norm(pred_j - true_joints[idx], axis=-1).mean())
         per_cam[cam] = out
         n_examples[cam] = len(idx)
     keys = next(iter(per_cam.values())).keys()

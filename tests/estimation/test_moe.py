@@ -54,6 +54,24 @@ def test_selection_prefers_several_experts_for_piecewise_data():
     assert all(np.isfinite(row["val_loglik"]) for row in sel.table)
 
 
+def test_early_stop_in_m_keeps_the_full_grids_choice():
+    """Held-out likelihood peaks at M = 2 on two linear pieces: the search stops at M = 4."""
+    rng = np.random.default_rng(3)
+    X, Y = piecewise(800, rng)
+    Xv, Yv = piecewise(300, rng)
+    grid = {"experts": (1, 2, 4, 8), "ridges": (0.1, 100.0)}
+    full = select_moe(X, Y, Xv, Yv, **grid)
+    early = select_moe(X, Y, Xv, Yv, **grid, stop_when_worse=True)
+    assert (early.n_experts, early.ridge) == (full.n_experts, full.ridge)
+    assert early.table == full.table[: len(early.table)]
+    assert len(early.table) < len(full.table)
+    by_m = {}
+    for row in full.table:
+        by_m[row["n_experts"]] = max(by_m.get(row["n_experts"], -np.inf), row["val_loglik"])
+    last = early.table[-1]["n_experts"]
+    assert by_m[last] < by_m[max(m for m in by_m if m < last)]
+
+
 def test_degenerate_data_stays_finite():
     rng = np.random.default_rng(4)
     # More experts than distinct outputs, constant input columns, duplicated rows.

@@ -19,6 +19,7 @@ from bodymetry.estimation.training import (
     sample_states,
     targets_to_theta,
     theta_to_targets,
+    train,
 )
 from bodymetry.estimation.uncalibrated import compare_photos, estimate_photo, read_mask
 from bodymetry.studio.rig import studio_rig
@@ -102,6 +103,19 @@ def test_cache_is_reused_and_round_trips(trained, cameras, tmp_path):
     models.save(tmp_path / "m.npz")
     back = DiscriminativeModels.load(tmp_path / "m.npz")
     assert back.key == models.key and back.metrics["n_train"] == 60
+
+
+def test_two_workers_train_the_same_models(trained, cameras):
+    """The fits run as parallel jobs; each is seeded, so scheduling changes nothing."""
+    models, _, _ = trained
+    parallel = train(cameras, TINY, workers=2)
+    assert parallel.metrics["chosen"] == models.metrics["chosen"]
+    for cam in models.camera_names:
+        for name in MODEL_NAMES:
+            a, b = models.models[cam][name], parallel.models[cam][name]
+            np.testing.assert_array_equal(a.betas, b.betas)
+            np.testing.assert_array_equal(a.covs, b.covs)
+    np.testing.assert_array_equal(models.codebook.centers, parallel.codebook.centers)
 
 
 # --- uncalibrated mode (estimation/uncalibrated.py) on the tiny models -------------------
