@@ -175,6 +175,17 @@ def sample_states(model: BodyModel, n: int, purpose: str, seed: int, volume: flo
     Poses: ``bodymetry.estimation.body_model.motion.prior.sample_pose_prior`` with
     disjoint seeds.
     """
+    return _sample_bodies(model, n, purpose, seed, volume)[0]
+
+
+def _sample_bodies(
+    model: BodyModel, n: int, purpose: str, seed: int, volume: float
+) -> tuple[BodyState, np.ndarray]:
+    """:func:`sample_states` and the states' level-of-detail meshes (n, V, 3).
+
+    Placing the feet on the floor poses every body; the meshes are kept, so
+    rendering does not pose them a second time.
+    """
     rng = np.random.default_rng(seed_for(purpose, seed))
     bank = model.prior_shapes("train" if purpose == "train" else "heldout")
     nu = bank[rng.integers(len(bank), size=n)]
@@ -184,11 +195,30 @@ def sample_states(model: BodyModel, n: int, purpose: str, seed: int, volume: flo
     tau = place_root(theta)
     tau[:, :2] += rng.uniform(-volume, volume, (n, 2))
     # Exact floor contact on the LOD mesh.
+    verts = []
     for s in range(0, n, 64):
         e = min(n, s + 64)
         body = model.pose(BodyState(tau[s:e], theta[s:e], nu[s:e]), lod=True)
-        tau[s:e, 2] -= body.vertices[..., 2].min(axis=1)
-    return BodyState(tau, theta, nu)
+        lowest = body.vertices[..., 2].min(axis=1)
+        tau[s:e, 2] -= lowest
+        body.vertices[..., 2] -= lowest[:, None]  # the body posed at the lowered root
+        verts.append(body.vertices)
+    return BodyState(tau, theta, nu), np.concatenate(verts)
+
+
+@functools.lru_cache(maxsize=2)
+def _training_bodies(
+    n_shape: int, n: int, purpose: str, seed: int, volume: float
+) -> tuple[BodyState, np.ndarray]:
+    """:func:`_sample_bodies` of the shipped model, once per process.
+
+    The bodies do not depend on the rig (a few seconds to pose 3,597 of them),
+    so a process that trains several rigs (``bodymetry batch``) draws them once.
+    The meshes are read-only.
+    """
+    states, verts = _sample_bodies(_body_model(n_shape), n, purpose, seed, volume)
+    verts.setflags(write=False)
+    return states, verts
 
 
 @functools.lru_cache(maxsize=2)
@@ -204,7 +234,7 @@ def _body_model(n_shape: int) -> BodyModel:
 
 def _render_features(args) -> tuple:
     """Worker: silhouettes of a chunk of states -> RDF and SC descriptors or codes."""
-    states, cameras, codebook_arrays, seed, sc_config = args
+    states, meshes, cameras, codebook_arrays, seed, sc_config = args
     model = _body_model(states.nu.shape[1])
     codebook = None if codebook_arrays is None else feat.Codebook.from_arrays(codebook_arrays)
     rng = np.random.default_rng(seed)
@@ -214,25 +244,22 @@ def _render_features(args) -> tuple:
     valid = np.zeros((C, B), bool)
     descriptors = [] if sc_config is not None else None
     faces = model.faces(lod=True)
-    for s in range(0, B, 64):
-        e = min(B, s + 64)
-        verts = model.pose(states[s:e], lod=True).vertices
-        for i in range(e - s):
-            masks = project_silhouettes(verts[i], faces, cameras)
-            for c in range(C):
-                if masks[c].sum() < 50:
-                    continue  # body (nearly) out of view: no training pair
-                valid[c, s + i] = True
-                rdfs[c, s + i] = feat.rdf(masks[c])
-                if codebook is not None:
-                    codes[c, s + i] = feat.sc_features(masks[c], codebook, rng)
-                if descriptors is not None:
-                    descriptors.append(feat.sc_descriptors(masks[c], rng, sc_config))
+    for b in range(B):
+        masks = project_silhouettes(meshes[b], faces, cameras)
+        for c in range(C):
+            if masks[c].sum() < 50:
+                continue  # body (nearly) out of view: no training pair
+            valid[c, b] = True
+            rdfs[c, b] = feat.rdf(masks[c])
+            if codebook is not None:
+                codes[c, b] = feat.sc_features(masks[c], codebook, rng)
+            if descriptors is not None:
+                descriptors.append(feat.sc_descriptors(masks[c], rng, sc_config))
     return rdfs, codes, valid, descriptors
 
 
 def _parallel_features(
-    states: BodyState,
+    bodies: tuple[BodyState, np.ndarray],
     cameras: list[Camera],
     codebook,
     seed: int,
@@ -240,10 +267,13 @@ def _parallel_features(
     progress: Callable[[int], None] | None,
     sc_config: feat.ShapeContextConfig | None = None,
 ):
+    """Features of the bodies (states and their LOD meshes) in every camera, in chunks."""
+    states, meshes = bodies
     chunk = 128
     jobs = [
         (
             states[s : s + chunk],
+            meshes[s : s + chunk],
             cameras,
             None if codebook is None else codebook.to_arrays(),
             seed + s,
@@ -351,8 +381,13 @@ def train(
     workers = workers or os.cpu_count() or 1
     t0 = time.perf_counter()
     model = _body_model(DEFAULT_SHAPE_DOFS)
-    train_states = sample_states(model, config.n_train, "train", config.seed, config.volume)
-    test_states = sample_states(model, config.n_test, "test", config.seed, config.volume)
+    train_states, train_meshes = _training_bodies(
+        model.n_shape, config.n_train, "train", config.seed, config.volume
+    )
+    test_states, test_meshes = _training_bodies(
+        model.n_shape, config.n_test, "test", config.seed, config.volume
+    )
+    t_bodies = time.perf_counter() - t0
 
     def step(label: str, total: int):
         done = [0]
@@ -368,9 +403,18 @@ def train(
     # examples are then encoded from their descriptors, not rendered again.
     sc_config = feat.ShapeContextConfig(n_points=config.sc_points)
     n_cb = min(config.codebook_examples, config.n_train)
+    t_cb = time.perf_counter()
     rdf_cb, _, ok_cb, descriptors = _parallel_features(
-        train_states[:n_cb], cameras, None, config.seed, workers, step("codebook", n_cb), sc_config
+        (train_states[:n_cb], train_meshes[:n_cb]),
+        cameras,
+        None,
+        config.seed,
+        workers,
+        step("codebook", n_cb),
+        sc_config,
     )
+    t_cb = time.perf_counter() - t_cb
+    t_codebook = time.perf_counter()
     codebook = feat.fit_codebook(
         np.concatenate(descriptors, axis=1),
         config.codebook_size,
@@ -383,8 +427,10 @@ def train(
         for c in range(len(cameras)):
             if ok_cb[c, b]:
                 sc_cb[c, b] = codebook.encode(next(it))
+    t_codebook = time.perf_counter() - t_codebook
+    t_rest = time.perf_counter()
     rdf_rest, sc_rest, ok_rest = _parallel_features(
-        train_states[n_cb:],
+        (train_states[n_cb:], train_meshes[n_cb:]),
         cameras,
         codebook,
         config.seed + 1,
@@ -395,21 +441,50 @@ def train(
     sc_tr = np.concatenate([sc_cb, sc_rest], axis=1)
     ok_tr = np.concatenate([ok_cb, ok_rest], axis=1)
     rdf_te, sc_te, ok_te = _parallel_features(
-        test_states, cameras, codebook, config.seed + 2, workers, step("test set", config.n_test)
+        (test_states, test_meshes),
+        cameras,
+        codebook,
+        config.seed + 2,
+        workers,
+        step("test set", config.n_test),
     )[:3]
     t_render = time.perf_counter() - t0
+    t_silhouettes = t_cb + time.perf_counter() - t_rest
+    n_examples = config.n_train + config.n_test
+    log.info(
+        "training set: %d bodies x %d cameras rendered with features in %.1f s "
+        "(%.0f examples/s, %d workers); bodies %.1f s, codebook %.1f s",
+        n_examples,
+        len(cameras),
+        t_silhouettes,
+        n_examples / t_silhouettes,
+        workers,
+        t_bodies,
+        t_codebook,
+    )
 
     t_fit = time.perf_counter()
     chosen, models = _fit_models(
         cameras, rdf_tr, sc_tr, ok_tr, _outputs(train_states), config, workers, progress
     )
     t_fit = time.perf_counter() - t_fit
+    log.info("mixtures of experts: %d fitted in %.1f s", len(cameras) * len(MODEL_NAMES), t_fit)
+    t_eval = time.perf_counter()
     trained = DiscriminativeModels(tuple(c.name for c in cameras), codebook, models)
     metrics = evaluate(trained, model, test_states, rdf_te, sc_te, ok_te)
     metrics["chosen"] = {k: {"M": v["n_experts"], "lambda": v["ridge"]} for k, v in chosen.items()}
     metrics["selection"] = {k: v["table"] for k, v in chosen.items()}
     metrics["render_seconds"] = round(t_render, 1)
     metrics["fit_seconds"] = round(t_fit, 1)
+    metrics["timing"] = {
+        "bodies_seconds": round(t_bodies, 1),
+        "silhouettes_features_seconds": round(t_silhouettes, 1),
+        "render_examples_per_second": round(n_examples / t_silhouettes, 1),
+        "codebook_seconds": round(t_codebook, 1),
+        "fit_seconds": round(t_fit, 1),
+        "evaluate_seconds": round(time.perf_counter() - t_eval, 1),
+        "workers": workers,
+    }
     metrics["train_seconds"] = round(time.perf_counter() - t0, 1)
     metrics["n_train"], metrics["n_test"] = config.n_train, config.n_test
     return DiscriminativeModels(
