@@ -179,12 +179,19 @@ def sample_states(model: BodyModel, n: int, purpose: str, seed: int, volume: flo
 
 
 def _sample_bodies(
-    model: BodyModel, n: int, purpose: str, seed: int, volume: float
+    model: BodyModel,
+    n: int,
+    purpose: str,
+    seed: int,
+    volume: float,
+    pose: Callable[[list[BodyState]], list[np.ndarray]] | None = None,
 ) -> tuple[BodyState, np.ndarray]:
     """:func:`sample_states` and the states' level-of-detail meshes (n, V, 3).
 
     Placing the feet on the floor poses every body; the meshes are kept, so
-    rendering does not pose them a second time.
+    rendering does not pose them a second time. ``pose`` maps blocks of 64
+    states to their LOD vertices (default: ``model.pose`` here, one block after
+    another; :func:`_training_bodies` passes a process pool).
     """
     rng = np.random.default_rng(seed_for(purpose, seed))
     bank = model.prior_shapes("train" if purpose == "train" else "heldout")
@@ -194,29 +201,46 @@ def _sample_bodies(
     theta = sample_pose_prior(rng, n, model.limits)
     tau = place_root(theta)
     tau[:, :2] += rng.uniform(-volume, volume, (n, 2))
-    # Exact floor contact on the LOD mesh.
-    verts = []
-    for s in range(0, n, 64):
-        e = min(n, s + 64)
-        body = model.pose(BodyState(tau[s:e], theta[s:e], nu[s:e]), lod=True)
-        lowest = body.vertices[..., 2].min(axis=1)
-        tau[s:e, 2] -= lowest
-        body.vertices[..., 2] -= lowest[:, None]  # the body posed at the lowered root
-        verts.append(body.vertices)
-    return BodyState(tau, theta, nu), np.concatenate(verts)
+    rows = [slice(s, s + 64) for s in range(0, n, 64)]
+    blocks = [BodyState(tau[r], theta[r], nu[r]) for r in rows]
+    if pose is None:
+        meshes = [model.pose(block, lod=True).vertices for block in blocks]
+    else:
+        meshes = pose(blocks)
+    verts = np.concatenate(meshes)
+    # Exact floor contact on the LOD mesh: lower each root, and its posed body with it.
+    lowest = verts[..., 2].min(axis=1)
+    tau[:, 2] -= lowest
+    verts[..., 2] -= lowest[:, None]
+    return BodyState(tau, theta, nu), verts
+
+
+def _pose_job(args: tuple[int, BodyState]) -> np.ndarray:
+    """Worker: LOD vertices of a block of states (the shipped model, inherited by fork)."""
+    n_shape, states = args
+    return _body_model(n_shape).pose(states, lod=True).vertices
 
 
 @functools.lru_cache(maxsize=2)
 def _training_bodies(
-    n_shape: int, n: int, purpose: str, seed: int, volume: float
+    n_shape: int, n: int, purpose: str, seed: int, volume: float, workers: int = 1
 ) -> tuple[BodyState, np.ndarray]:
     """:func:`_sample_bodies` of the shipped model, once per process.
 
-    The bodies do not depend on the rig (a few seconds to pose 3,597 of them),
-    so a process that trains several rigs (``bodymetry batch``) draws them once.
-    The meshes are read-only.
+    The bodies do not depend on the rig (posing 3,597 of them takes several
+    seconds of a core), so a process that trains several rigs (``bodymetry
+    batch``) draws them once; ``workers`` processes pose them. The meshes are
+    read-only.
     """
-    states, verts = _sample_bodies(_body_model(n_shape), n, purpose, seed, volume)
+    model = _body_model(n_shape)
+    pose = None
+    if workers > 1:
+
+        def pose(blocks: list[BodyState]) -> list[np.ndarray]:
+            with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
+                return list(pool.map(_pose_job, [(n_shape, b) for b in blocks]))
+
+    states, verts = _sample_bodies(model, n, purpose, seed, volume, pose)
     verts.setflags(write=False)
     return states, verts
 
@@ -382,10 +406,10 @@ def train(
     t0 = time.perf_counter()
     model = _body_model(DEFAULT_SHAPE_DOFS)
     train_states, train_meshes = _training_bodies(
-        model.n_shape, config.n_train, "train", config.seed, config.volume
+        model.n_shape, config.n_train, "train", config.seed, config.volume, workers
     )
     test_states, test_meshes = _training_bodies(
-        model.n_shape, config.n_test, "test", config.seed, config.volume
+        model.n_shape, config.n_test, "test", config.seed, config.volume, workers
     )
     t_bodies = time.perf_counter() - t0
 

@@ -14,6 +14,7 @@ from bodymetry.estimation.training import (
     MODEL_NAMES,
     DiscriminativeModels,
     TrainConfig,
+    _training_bodies,
     load_or_train,
     rig_key,
     sample_states,
@@ -103,6 +104,22 @@ def test_cache_is_reused_and_round_trips(trained, cameras, tmp_path):
     models.save(tmp_path / "m.npz")
     back = DiscriminativeModels.load(tmp_path / "m.npz")
     assert back.key == models.key and back.metrics["n_train"] == 60
+
+
+#: A body posed at the lowered root vs the posed body lowered, metres (round-off).
+MESH_TOL = 1e-12
+
+
+def test_training_bodies_are_posed_once_and_the_same_on_two_workers():
+    model = BodyModel.load()
+    states, meshes = _training_bodies(model.n_shape, 70, "train", 0, 1.0, 1)
+    _, meshes2 = _training_bodies(model.n_shape, 70, "train", 0, 1.0, 2)
+    np.testing.assert_array_equal(meshes, meshes2)
+    np.testing.assert_array_equal(states.tau, sample_states(model, 70, "train", 0, 1.0).tau)
+    posed = model.pose(states, lod=True).vertices
+    np.testing.assert_allclose(meshes, posed, rtol=0, atol=MESH_TOL)
+    assert np.abs(meshes[..., 2].min(axis=1)).max() < FLOOR_TOL
+    assert not meshes.flags.writeable
 
 
 def test_two_workers_train_the_same_models(trained, cameras):
