@@ -54,6 +54,7 @@ __all__ = [
     "sc_features",
     "shape_context_descriptors",
     "silhouette_contour",
+    "silhouette_features",
 ]
 
 RngLike = np.random.Generator | int | np.integer
@@ -308,7 +309,13 @@ def rdf(mask: ArrayLike, n: int = 100) -> NDArray[np.float64]:
         If ``mask`` is not a 2-D numeric array, is empty, or ``n < 1``.
     """
     n = _positive_int(n, "n")
-    roi, x0, y0, contour = _largest_blob(mask)
+    return _rdf_of_blob(*_largest_blob(mask), n)
+
+
+def _rdf_of_blob(
+    roi: NDArray[np.uint8], x0: int, y0: int, contour: NDArray[np.float64], n: int
+) -> NDArray[np.float64]:
+    """:func:`rdf` of a blob from :func:`_largest_blob`, (n + 2,)."""
     mom = cv2.moments(roi, binaryImage=True)
     center = np.array([mom["m10"] / mom["m00"] + x0, mom["m01"] / mom["m00"] + y0])
     polygon = _simplify(contour)
@@ -626,6 +633,34 @@ def shape_context_descriptors(
         r_in_fraction=r_in_fraction,
         height=height,
     )[0]
+
+
+def silhouette_features(
+    mask: ArrayLike, rng: RngLike, config: ShapeContextConfig, n: int = 100
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`rdf` and :func:`sc_descriptors` of one silhouette, its contour traced once.
+
+    The same values as the two calls (``rng`` drawn from as by
+    :func:`sc_descriptors`); training computes both for every rendered view.
+
+    Returns
+    -------
+    x_rdf : (n + 2,) float64
+    descriptors : (S, config.n_points, config.n_bins) float64
+    """
+    if not isinstance(config, ShapeContextConfig):
+        raise ValueError(f"config: expected a ShapeContextConfig, got {type(config).__name__}")
+    blob = _largest_blob(mask)
+    contour = blob[3]
+    descriptors = _histograms(
+        _sample_points(contour, config.n_points, _as_rng(rng)),
+        _contour_height(contour),
+        config.kappas,
+        config.n_theta,
+        config.n_r,
+        config.r_in_fraction,
+    )
+    return _rdf_of_blob(*blob, _positive_int(n, "n")), descriptors
 
 
 def sc_descriptors(

@@ -266,7 +266,8 @@ def _render_features(args) -> tuple:
     rdfs = np.zeros((C, B, RDF_DIM))
     codes = None if codebook is None else np.zeros((C, B, codebook.dim))
     valid = np.zeros((C, B), bool)
-    descriptors = [] if sc_config is not None else None
+    descriptors = [] if codebook is None else None
+    config = sc_config if codebook is None else codebook.config
     faces = model.faces(lod=True)
     for b in range(B):
         masks = project_silhouettes(meshes[b], faces, cameras)
@@ -274,11 +275,11 @@ def _render_features(args) -> tuple:
             if masks[c].sum() < 50:
                 continue  # body (nearly) out of view: no training pair
             valid[c, b] = True
-            rdfs[c, b] = feat.rdf(masks[c])
+            rdfs[c, b], sc = feat.silhouette_features(masks[c], rng, config)
             if codebook is not None:
-                codes[c, b] = feat.sc_features(masks[c], codebook, rng)
-            if descriptors is not None:
-                descriptors.append(feat.sc_descriptors(masks[c], rng, sc_config))
+                codes[c, b] = codebook.encode(sc)
+            else:
+                descriptors.append(sc)
     return rdfs, codes, valid, descriptors
 
 

@@ -24,6 +24,7 @@ from bodymetry.estimation.features import (
     sc_features,
     shape_context_descriptors,
     silhouette_contour,
+    silhouette_features,
 )
 
 # --------------------------------------------------------------------------
@@ -327,3 +328,17 @@ def test_codebook_round_trips_through_npz(codebook, tmp_path):
     np.testing.assert_array_equal(sc_features(m, back, 2), sc_features(m, codebook, 2))
     with pytest.raises(ValueError, match="missing"):
         Codebook.from_arrays({"centers": codebook.centers})
+
+
+def test_silhouette_features_equal_rdf_and_sc_descriptors():
+    """One contour trace for both features gives the two functions' values bit for bit."""
+    mask = np.zeros((120, 90), bool)
+    mask[20:100, 30:60] = True
+    mask[40:50, 10:80] = True  # arms
+    mask[5:8, 5:8] = True  # a speck: the largest blob is the body
+    config = ShapeContextConfig(n_points=50)
+    x_rdf, descriptors = silhouette_features(mask, np.random.default_rng(4), config)
+    np.testing.assert_array_equal(x_rdf, rdf(mask))
+    np.testing.assert_array_equal(
+        descriptors, sc_descriptors(mask, np.random.default_rng(4), config)
+    )
