@@ -272,7 +272,7 @@ def _render_features(args) -> tuple:
     for b in range(B):
         masks = project_silhouettes(meshes[b], faces, cameras)
         for c in range(C):
-            if masks[c].sum() < 50:
+            if np.count_nonzero(masks[c]) < 50:
                 continue  # body (nearly) out of view: no training pair
             valid[c, b] = True
             rdfs[c, b], sc = feat.silhouette_features(masks[c], rng, config)
