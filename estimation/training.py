@@ -304,10 +304,10 @@ def _parallel_features(
             seed + s,
             sc_config,
         )
-        for s in range(0, len(states), chunk)
+        for s in range(0, max(len(states), 1), chunk)  # no bodies: one empty job
     ]
     results = []
-    if workers <= 1:
+    if workers <= 1 or len(jobs) == 1:
         for job in jobs:
             results.append(_render_features(job))
             if progress:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -133,6 +135,14 @@ def test_two_workers_train_the_same_models(trained, cameras):
             np.testing.assert_array_equal(a.betas, b.betas)
             np.testing.assert_array_equal(a.covs, b.covs)
     np.testing.assert_array_equal(models.codebook.centers, parallel.codebook.centers)
+
+
+def test_codebook_examples_may_be_the_whole_training_set(cameras):
+    """No body left after the codebook's: the rest of the training set is empty, not an error."""
+    config = dataclasses.replace(TINY, n_train=50, codebook_examples=50)
+    models = train(cameras, config, workers=2)
+    assert models.metrics["n_train"] == 50
+    assert np.isfinite(models.metrics["shape_rdf_improvement_over_mean"])
 
 
 # --- uncalibrated mode (estimation/uncalibrated.py) on the tiny models -------------------
