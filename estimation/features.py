@@ -54,6 +54,7 @@ __all__ = [
     "sc_features",
     "shape_context_descriptors",
     "silhouette_contour",
+    "silhouette_features",
 ]
 
 RngLike = np.random.Generator | int | np.integer
@@ -308,7 +309,13 @@ def rdf(mask: ArrayLike, n: int = 100) -> NDArray[np.float64]:
         If ``mask`` is not a 2-D numeric array, is empty, or ``n < 1``.
     """
     n = _positive_int(n, "n")
-    roi, x0, y0, contour = _largest_blob(mask)
+    return _rdf_of_blob(*_largest_blob(mask), n)
+
+
+def _rdf_of_blob(
+    roi: NDArray[np.uint8], x0: int, y0: int, contour: NDArray[np.float64], n: int
+) -> NDArray[np.float64]:
+    """:func:`rdf` of a blob from :func:`_largest_blob`, (n + 2,)."""
     mom = cv2.moments(roi, binaryImage=True)
     center = np.array([mom["m10"] / mom["m00"] + x0, mom["m01"] / mom["m00"] + y0])
     polygon = _simplify(contour)
@@ -628,6 +635,34 @@ def shape_context_descriptors(
     )[0]
 
 
+def silhouette_features(
+    mask: ArrayLike, rng: RngLike, config: ShapeContextConfig, n: int = 100
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`rdf` and :func:`sc_descriptors` of one silhouette, its contour traced once.
+
+    The same values as the two calls (``rng`` drawn from as by
+    :func:`sc_descriptors`); training computes both for every rendered view.
+
+    Returns
+    -------
+    x_rdf : (n + 2,) float64
+    descriptors : (S, config.n_points, config.n_bins) float64
+    """
+    if not isinstance(config, ShapeContextConfig):
+        raise ValueError(f"config: expected a ShapeContextConfig, got {type(config).__name__}")
+    blob = _largest_blob(mask)
+    contour = blob[3]
+    descriptors = _histograms(
+        _sample_points(contour, config.n_points, _as_rng(rng)),
+        _contour_height(contour),
+        config.kappas,
+        config.n_theta,
+        config.n_r,
+        config.r_in_fraction,
+    )
+    return _rdf_of_blob(*blob, _positive_int(n, "n")), descriptors
+
+
 def sc_descriptors(
     mask: ArrayLike, rng: RngLike, config: ShapeContextConfig | None = None
 ) -> NDArray[np.float64]:
@@ -665,9 +700,18 @@ def sc_descriptors(
 # --------------------------------------------------------------------------
 
 
-def _sq_dists(x: NDArray[np.float64], c: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Squared Euclidean distances ``(N, K)`` between rows of x and c."""
-    d2 = (x * x).sum(1)[:, None] - 2.0 * (x @ c.T) + (c * c).sum(1)[None, :]
+def _sq_dists(
+    x: NDArray[np.float64], c: NDArray[np.float64], x_sq: NDArray[np.float64] | None = None
+) -> NDArray[np.float64]:
+    """Squared Euclidean distances ``(N, K)`` between rows of x and c.
+
+    ``x_sq``, the squared norms of x's rows, may be passed when x is reused:
+    k-means++ seeding measures 100,000 descriptors against one new centre at a
+    time, and recomputing them dominated that (the result is the same bits).
+    """
+    if x_sq is None:
+        x_sq = (x * x).sum(1)
+    d2 = x_sq[:, None] - 2.0 * (x @ c.T) + (c * c).sum(1)[None, :]
     return np.maximum(d2, 0.0)
 
 
@@ -679,7 +723,8 @@ def _kmeans(
     # k-means++ seeding
     centers = np.empty((k, x.shape[1]))
     centers[0] = x[rng.integers(n)]
-    closest = _sq_dists(x, centers[:1])[:, 0]
+    x_sq = (x * x).sum(1)
+    closest = _sq_dists(x, centers[:1], x_sq)[:, 0]
     for j in range(1, k):
         total = closest.sum()
         if total <= 0.0:  # fewer distinct points than k: duplicate centres
@@ -687,10 +732,10 @@ def _kmeans(
         else:
             i = int(np.searchsorted(np.cumsum(closest), rng.random() * total, side="right"))
             centers[j] = x[min(i, n - 1)]
-        closest = np.minimum(closest, _sq_dists(x, centers[j : j + 1])[:, 0])
+        closest = np.minimum(closest, _sq_dists(x, centers[j : j + 1], x_sq)[:, 0])
     prev = np.inf
     for _ in range(max_iter):
-        d2 = _sq_dists(x, centers)
+        d2 = _sq_dists(x, centers, x_sq)
         label = d2.argmin(1)
         inertia = float(d2[np.arange(n), label].sum())
         counts = np.bincount(label, minlength=k)
@@ -706,6 +751,25 @@ def _kmeans(
             break
         prev = inertia
     return centers
+
+
+def _nearest(d2: NDArray[np.float64], nn: int) -> NDArray[np.intp]:
+    """Columns of the ``nn`` smallest entries of each row of ``d2`` (N, K), nearest first.
+
+    For the few votes of soft voting, ``nn`` passes of ``argmin`` are 3-4x
+    faster than ``argpartition`` on a silhouette's (200, 100) distances (the
+    same centres; ties, which distinct centres practically never give, go to
+    the lower index); more votes use ``argpartition``.
+    """
+    if nn > 4:
+        return np.argpartition(d2, nn - 1, axis=1)[:, :nn]
+    work = d2.copy()
+    rows = np.arange(d2.shape[0])
+    idx = np.empty((d2.shape[0], nn), np.intp)
+    for j in range(nn):
+        idx[:, j] = work.argmin(axis=1)
+        work[rows, idx[:, j]] = np.inf
+    return idx
 
 
 def _add_rows(sums: NDArray[np.float64], label: NDArray[np.int64], x: NDArray[np.float64]) -> None:
@@ -832,7 +896,7 @@ class Codebook:
         for i in range(s):
             d2 = _sq_dists(d[i], self.centers[i])  # (N, K)
             if nn < k:
-                idx = np.argpartition(d2, nn - 1, axis=1)[:, :nn]
+                idx = _nearest(d2, nn)
                 near = np.take_along_axis(d2, idx, axis=1)
             else:
                 idx = np.broadcast_to(np.arange(k), d2.shape)

@@ -26,7 +26,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 from scipy.cluster.vq import kmeans2
-from scipy.linalg import solve_triangular
+from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg.blas import dsyrk
 from scipy.special import logsumexp
 
 #: Covariance floors (priors), relative to the standardized data (unit variance).
@@ -156,26 +157,30 @@ class MixtureOfExperts:
 
 def _gauss_logpdf(X: np.ndarray, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
     """log N(x_n; μ_k, Σ_k) for all n, k -> (N, M)."""
-    L = np.linalg.cholesky(covs)  # (M, G, G)
-    diff = X[:, None, :] - means[None]  # (N, M, G)
-    sol = np.stack([_solve_lower(L[k], diff[:, k].T).T for k in range(len(means))], axis=1)
-    logdet = 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
-    d = X.shape[1]
-    return -0.5 * ((sol**2).sum(axis=2) + logdet + d * np.log(2 * np.pi))
+    return _logpdf_chol(X[:, None, :] - means[None], np.linalg.cholesky(covs))
 
 
 def _gauss_logpdf_each(Y: np.ndarray, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
     """log N(y_n; m_nk, Λ_k) -> (N, M) for per-example means (N, M, P)."""
-    L = np.linalg.cholesky(covs)
-    diff = Y[:, None, :] - means
-    sol = np.stack([_solve_lower(L[k], diff[:, k].T).T for k in range(covs.shape[0])], axis=1)
+    return _logpdf_chol(Y[:, None, :] - means, np.linalg.cholesky(covs))
+
+
+def _logpdf_chol(diff: np.ndarray, L: np.ndarray) -> np.ndarray:
+    """log N(diff_nk; 0, L_k L_k^T) -> (N, M) for diff (N, M, G) and Cholesky factors (M, G, G).
+
+    All components at once: L_k^-1 (small, G <= a few dozen) by one batched
+    inverse, then one batched product instead of a triangular solve per component.
+    """
+    L_inv = _tril_inv(L)
+    sol = np.matmul(diff.transpose(1, 0, 2), L_inv.transpose(0, 2, 1))  # (M, N, G)
     logdet = 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
-    return -0.5 * ((sol**2).sum(axis=2) + logdet + Y.shape[1] * np.log(2 * np.pi))
+    d = diff.shape[2]
+    return -0.5 * ((sol**2).sum(axis=2).T + logdet + d * np.log(2 * np.pi))
 
 
-def _solve_lower(L: np.ndarray, B: np.ndarray) -> np.ndarray:
-
-    return solve_triangular(L, B, lower=True, check_finite=False)
+def _tril_inv(L: np.ndarray) -> np.ndarray:
+    """Inverses of lower-triangular factors (M, G, G), kept exactly lower-triangular."""
+    return np.tril(np.linalg.inv(L))
 
 
 @dataclass(frozen=True)
@@ -236,7 +241,6 @@ def fit_moe(
     if ridge < 0:
         raise ValueError(f"ridge: expected >= 0, got {ridge}")
     N, D = X.shape
-    P = Y.shape[1]
     M = int(n_experts)
     if N < 2 * M:
         raise ValueError(f"too few examples ({N}) for {M} experts")
@@ -271,40 +275,25 @@ def fit_moe(
     Z = 0.98 * Z + 0.02 / M  # keep every component alive at the start
 
     A = np.hstack([Xs, np.ones((N, 1))])  # design with offset
-    penalty = np.diag(np.r_[np.full(D, ridge), 0.0])
-    gate_floor = GATE_FLOOR * np.eye(G)
-    expert_floor = EXPERT_FLOOR * y_scale**2 * np.eye(P)
+    floors = (GATE_FLOOR, EXPERT_FLOOR * y_scale**2)
     history = []
     state = None
     for _ in range(max_iter):
-        # M-step.
-        Nk = Z.sum(axis=0)
-        log_w = np.log((Nk + 1.0) / (N + M))  # Dirichlet(2) prior keeps π_k > 0
-        means_g = (Z.T @ Xg) / np.maximum(Nk, 1e-12)[:, None]
-        covs_g = np.empty((M, G, G))
-        W = np.empty((M, D + 1, P))
-        covs_e = np.empty((M, P, P))
-        for k in range(M):
-            d = Xg - means_g[k]
-            covs_g[k] = ((Z[:, k, None] * d).T @ d + gate_floor) / (Nk[k] + 1.0)
-            Az = A * Z[:, k, None]
-            W[k] = np.linalg.solve(Az.T @ A + penalty, Az.T @ Y)  # Eq. (3)
-            r = Y - A @ W[k]
-            beta = W[k][:D]
-            covs_e[k] = ((Z[:, k, None] * r).T @ r + ridge * beta.T @ beta + expert_floor) / (
-                Nk[k] + D + 1.0
-            )
-        state = (log_w, means_g, covs_g, W, covs_e)
+        state = _m_step(Xg, Y, A, Z, ridge, floors)
         # E-step (Eq. 4) and the penalized objective of this M-step's parameters.
-        log_joint = _log_joint(Xg, Y, A, state)
-        obj = logsumexp(log_joint, axis=1).sum() + _log_prior(
-            state, ridge, gate_floor, expert_floor, D, M
-        )
+        log_joint = _log_joint(Xg, Y, state)
+        obj = logsumexp(log_joint, axis=1).sum() + _log_prior(state, ridge, floors, D)
         history.append(obj / N)
         Z = np.exp(log_joint - logsumexp(log_joint, axis=1, keepdims=True))
         if len(history) > 1 and history[-1] - history[-2] < tol:
             break
-    log_w, means_g, covs_g, W, covs_e = state
+    log_w, means_g, covs_g, W, covs_e = (
+        state.log_w,
+        state.means_g,
+        state.covs_g,
+        state.W,
+        state.covs_e,
+    )
     model = MixtureOfExperts(
         x_mean=x_mean,
         x_scale=x_scale,
@@ -320,26 +309,122 @@ def fit_moe(
     return FitResult(model, np.asarray(history))
 
 
-def _log_joint(Xg: np.ndarray, Y: np.ndarray, A: np.ndarray, state) -> np.ndarray:
-    log_w, means_g, covs_g, W, covs_e = state
-    means_y = np.einsum("nd,mdp->nmp", A, W)
-    return log_w + _gauss_logpdf(Xg, means_g, covs_g) + _gauss_logpdf_each(Y, means_y, covs_e)
+#: Ownerships below this fraction of an expert's largest are left out of its
+#: weighted least squares: such a row weighs less than 1e-12 of an owned one in
+#: the Gram matrix, below the round-off of the normal equations, and an expert
+#: of a sharp mixture owns a fraction of the rows, so its Gram costs that fraction.
+OWNERSHIP_SKIP = 1e-12
 
 
-def _log_prior(state, ridge: float, gate_floor, expert_floor, D: int, M: int) -> float:
-    """Log of the priors that make the M-step a MAP step (up to constants)."""
-    log_w, _, covs_g, W, covs_e = state
-    total = log_w.sum()  # Dirichlet(2)
+@dataclass(frozen=True)
+class _Params:
+    """One M-step's parameters with the Cholesky factors the E-step and prior share.
+
+    Shapes: log_w (M,), means_g (M, G), covs_g / chol_g (M, G, G), W (M, D+1, P),
+    covs_e / chol_e (M, P, P), means_y (N, M, P) = each expert's prediction per example.
+    """
+
+    log_w: np.ndarray
+    means_g: np.ndarray
+    covs_g: np.ndarray
+    chol_g: np.ndarray
+    W: np.ndarray
+    covs_e: np.ndarray
+    chol_e: np.ndarray
+    means_y: np.ndarray
+
+
+def _m_step(
+    Xg: np.ndarray,
+    Y: np.ndarray,
+    A: np.ndarray,
+    Z: np.ndarray,
+    ridge: float,
+    floors: tuple[float, float],
+) -> _Params:
+    """MAP M-step for ownerships Z (N, M): gates, weighted ridge experts (Eq. 3), noise."""
+    N, M = Z.shape
+    D1, P, G = A.shape[1], Y.shape[1], Xg.shape[1]
+    gate_floor, expert_floor = floors
+    Nk = Z.sum(axis=0)
+    log_w = np.log((Nk + 1.0) / (N + M))  # Dirichlet(2) prior keeps π_k > 0
+    means_g = (Z.T @ Xg) / np.maximum(Nk, 1e-12)[:, None]
+    d = (Xg[:, None, :] - means_g).transpose(1, 0, 2)  # (M, N, G)
+    covs_g = np.matmul(d.transpose(0, 2, 1) * Z.T[:, None, :], d)
+    covs_g = (covs_g + gate_floor * np.eye(G)) / (Nk + 1.0)[:, None, None]
+    # Eq. (3) per expert: the weighted Gram matrix dominates the cost (N (D+1)^2 per
+    # expert); a symmetric rank-k update on the rows the expert owns does half of
+    # it, and one Cholesky factor solves the normal equations.
+    W = np.empty((M, D1, P))
     for k in range(M):
-        inv_g = np.linalg.inv(covs_g[k])
-        total += -0.5 * np.trace(gate_floor @ inv_g) - 0.5 * np.linalg.slogdet(covs_g[k])[1]
-        inv_e = np.linalg.inv(covs_e[k])
-        beta = W[k][:D]
-        total += (
-            -0.5 * ridge * np.trace(inv_e @ beta.T @ beta)
-            - 0.5 * D * np.linalg.slogdet(covs_e[k])[1]
-        )
-        total += -0.5 * np.trace(expert_floor @ inv_e) - 0.5 * np.linalg.slogdet(covs_e[k])[1]
+        rows = np.flatnonzero(Z[:, k] > OWNERSHIP_SKIP * Z[:, k].max())
+        sz = np.sqrt(Z[rows, k])[:, None]
+        B = A[rows] * sz
+        W[k] = _ridge_solve(_syrk(B), B.T @ (Y[rows] * sz), ridge)
+    means_y = (A @ W.transpose(1, 0, 2).reshape(D1, M * P)).reshape(N, M, P)
+    r = (Y[:, None, :] - means_y).transpose(1, 0, 2)  # (M, N, P)
+    covs_e = np.matmul(r.transpose(0, 2, 1) * Z.T[:, None, :], r)
+    beta = W[:, : D1 - 1]
+    covs_e += ridge * np.matmul(beta.transpose(0, 2, 1), beta) + expert_floor * np.eye(P)
+    covs_e /= (Nk + D1)[:, None, None]
+    return _Params(
+        log_w,
+        means_g,
+        covs_g,
+        np.linalg.cholesky(covs_g),
+        W,
+        covs_e,
+        np.linalg.cholesky(covs_e),
+        means_y,
+    )
+
+
+def _ridge_solve(gram: np.ndarray, rhs: np.ndarray, ridge: float) -> np.ndarray:
+    """(gram + λ I without the offset) W = rhs, for gram's upper triangle (D+1, D+1)."""
+    idx = np.arange(len(gram) - 1)
+    gram[idx, idx] += ridge
+    try:
+        factor = cho_factor(gram, lower=False, check_finite=False)
+    except np.linalg.LinAlgError:
+        # Semi-definite (λ = 0 with constant or collinear inputs, or an expert that
+        # owns nothing): the general solver, as the first version always used.
+        upper = np.triu(gram)
+        return np.linalg.solve(upper + np.triu(upper, 1).T, rhs)
+    return cho_solve(factor, rhs, check_finite=False)
+
+
+def _syrk(B: np.ndarray) -> np.ndarray:
+    """B^T B (upper triangle only; the lower is left zero) by BLAS syrk, (D, D)."""
+    if len(B) == 0:
+        return np.zeros((B.shape[1], B.shape[1]))
+    # B.T of a C-ordered B is Fortran-ordered: syrk reads it without a copy.
+    return dsyrk(1.0, B.T, trans=0, lower=0)
+
+
+def _log_joint(Xg: np.ndarray, Y: np.ndarray, state: _Params) -> np.ndarray:
+    """log π_k N(x_g; μ_k, Σ_k) N(y; β_k x + α_k, Λ_k) -> (N, M)."""
+    return (
+        state.log_w
+        + _logpdf_chol(Xg[:, None, :] - state.means_g[None], state.chol_g)
+        + _logpdf_chol(Y[:, None, :] - state.means_y, state.chol_e)
+    )
+
+
+def _log_prior(state: _Params, ridge: float, floors: tuple[float, float], D: int) -> float:
+    """Log of the priors that make the M-step a MAP step (up to constants).
+
+    With Σ = L L^T: tr(c Σ^-1) = c ||L^-1||², tr(Λ^-1 β^T β) = ||β L^-T||², log|Σ| = 2 Σ log diag L.
+    """
+    gate_floor, expert_floor = floors
+    inv_g = _tril_inv(state.chol_g)
+    inv_e = _tril_inv(state.chol_e)
+    logdet_g = 2.0 * np.log(np.diagonal(state.chol_g, axis1=1, axis2=2)).sum()
+    logdet_e = 2.0 * np.log(np.diagonal(state.chol_e, axis1=1, axis2=2)).sum()
+    beta_white = np.matmul(state.W[:, :D], inv_e.transpose(0, 2, 1))
+    total = state.log_w.sum()  # Dirichlet(2)
+    total += -0.5 * gate_floor * np.sum(inv_g**2) - 0.5 * logdet_g
+    total += -0.5 * ridge * np.sum(beta_white**2) - 0.5 * D * logdet_e
+    total += -0.5 * expert_floor * np.sum(inv_e**2) - 0.5 * logdet_e
     return float(total)
 
 
@@ -371,21 +456,36 @@ def select_moe(
     experts: tuple[int, ...] = (1, 2, 4, 8),
     ridges: tuple[float, ...] = (1.0, 10.0, 100.0, 1000.0),
     seed: int = 0,
+    stop_when_worse: bool = False,
     **fit_kwargs,
 ) -> Selection:
-    """Choose M and λ by the held-out conditional log-likelihood (paper §4)."""
+    """Choose M and λ by the held-out conditional log-likelihood (paper §4).
+
+    Candidates are fitted in increasing M, every λ for each M. With
+    ``stop_when_worse`` the search ends at the first M whose best held-out
+    log-likelihood (over λ) is below the previous M's: larger mixtures, which
+    cost in proportion to M, are fitted only while adding experts still helps.
+    That gives the full grid's choice whenever the held-out likelihood rises
+    to a single peak in M (``table`` lists the candidates fitted).
+    """
     table = []
     best = None
-    for M in experts:
+    previous = -np.inf
+    for M in sorted(experts):
+        if len(X) < 2 * M:
+            continue
+        best_here = -np.inf
         for lam in ridges:
-            if len(X) < 2 * M:
-                continue
             fit = fit_moe(X, Y, M, lam, np.random.default_rng(seed), **fit_kwargs)
             ll = float(np.mean(fit.model.log_likelihood(X_val, Y_val)))
             rmse = float(np.sqrt(np.mean((fit.model.predict(X_val) - Y_val) ** 2)))
             table.append({"n_experts": M, "ridge": lam, "val_loglik": ll, "val_rmse": rmse})
+            best_here = max(best_here, ll)
             if best is None or ll > best[0]:
                 best = (ll, M, lam, fit.model)
+        if stop_when_worse and best_here < previous:
+            break
+        previous = best_here
     if best is None:
         raise ValueError("select_moe: no candidate could be fitted")
     return Selection(best[3], best[1], best[2], table)

@@ -15,6 +15,7 @@ import pytest
 from bodymetry.estimation.features import (
     Codebook,
     ShapeContextConfig,
+    _nearest,
     fit_codebook,
     multiscale_shape_contexts,
     rdf,
@@ -24,6 +25,7 @@ from bodymetry.estimation.features import (
     sc_features,
     shape_context_descriptors,
     silhouette_contour,
+    silhouette_features,
 )
 
 # --------------------------------------------------------------------------
@@ -327,3 +329,28 @@ def test_codebook_round_trips_through_npz(codebook, tmp_path):
     np.testing.assert_array_equal(sc_features(m, back, 2), sc_features(m, codebook, 2))
     with pytest.raises(ValueError, match="missing"):
         Codebook.from_arrays({"centers": codebook.centers})
+
+
+def test_silhouette_features_equal_rdf_and_sc_descriptors():
+    """One contour trace for both features gives the two functions' values bit for bit."""
+    mask = np.zeros((120, 90), bool)
+    mask[20:100, 30:60] = True
+    mask[40:50, 10:80] = True  # arms
+    mask[5:8, 5:8] = True  # a speck: the largest blob is the body
+    config = ShapeContextConfig(n_points=50)
+    x_rdf, descriptors = silhouette_features(mask, np.random.default_rng(4), config)
+    np.testing.assert_array_equal(x_rdf, rdf(mask))
+    np.testing.assert_array_equal(
+        descriptors, sc_descriptors(mask, np.random.default_rng(4), config)
+    )
+
+
+def test_nearest_centres_match_argpartition():
+    """The soft vote's nearest centres: the same set as argpartition, nearest first."""
+    d2 = np.random.default_rng(8).random((200, 100))
+    for nn in (1, 3, 4, 6):
+        idx = _nearest(d2, nn)
+        expected = np.sort(np.argpartition(d2, nn - 1, axis=1)[:, :nn], axis=1)
+        np.testing.assert_array_equal(np.sort(idx, axis=1), expected)
+        if nn <= 4:  # the argmin passes give them in order
+            assert np.all(np.diff(np.take_along_axis(d2, idx, axis=1), axis=1) > 0)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from moe_reference import reference_fit_moe
 
 from bodymetry.estimation.moe import MixtureOfExperts, fit_moe, select_moe
 
@@ -51,6 +52,24 @@ def test_selection_prefers_several_experts_for_piecewise_data():
     assert sel.n_experts >= 2
     assert len(sel.table) == 6
     assert all(np.isfinite(row["val_loglik"]) for row in sel.table)
+
+
+def test_early_stop_in_m_keeps_the_full_grids_choice():
+    """Held-out likelihood peaks at M = 2 on two linear pieces: the search stops at M = 4."""
+    rng = np.random.default_rng(3)
+    X, Y = piecewise(800, rng)
+    Xv, Yv = piecewise(300, rng)
+    grid = {"experts": (1, 2, 4, 8), "ridges": (0.1, 100.0)}
+    full = select_moe(X, Y, Xv, Yv, **grid)
+    early = select_moe(X, Y, Xv, Yv, **grid, stop_when_worse=True)
+    assert (early.n_experts, early.ridge) == (full.n_experts, full.ridge)
+    assert early.table == full.table[: len(early.table)]
+    assert len(early.table) < len(full.table)
+    by_m = {}
+    for row in full.table:
+        by_m[row["n_experts"]] = max(by_m.get(row["n_experts"], -np.inf), row["val_loglik"])
+    last = early.table[-1]["n_experts"]
+    assert by_m[last] < by_m[max(m for m in by_m if m < last)]
 
 
 def test_degenerate_data_stays_finite():
@@ -105,3 +124,31 @@ def test_predict_checks_input_width():
     m = fit_moe(X, Y, 1, 1.0, np.random.default_rng(0)).model
     with pytest.raises(ValueError, match="expected shape"):
         m.predict(np.zeros((3, 2)))
+
+
+#: The batched EM against the loop it replaced: the same objective trace and parameters
+#: up to round-off (per-example log-likelihood, standardized parameters).
+REFERENCE_TOL = 1e-9
+
+
+@pytest.mark.parametrize(
+    "n, d, p, m, lam", [(300, 4, 2, 3, 1.0), (400, 30, 5, 4, 10.0), (200, 12, 3, 1, 0.0)]
+)
+def test_batched_em_reproduces_the_reference_loop(n, d, p, m, lam):
+    rng = np.random.default_rng(11)
+    X = rng.normal(size=(n, d))
+    Y = np.tanh(2 * X[:, :p]) + (X[:, :1] > 0) + 0.1 * rng.normal(size=(n, p))
+    ref, ref_history = reference_fit_moe(X, Y, m, lam, np.random.default_rng(1), max_iter=25)
+    fit = fit_moe(X, Y, m, lam, np.random.default_rng(1), max_iter=25)
+    assert len(fit.history) == len(ref_history)
+    np.testing.assert_allclose(fit.history, ref_history, rtol=0, atol=REFERENCE_TOL)
+    for name, value in ref.items():
+        np.testing.assert_allclose(getattr(fit.model, name), value, rtol=0, atol=REFERENCE_TOL)
+
+
+def test_fit_is_deterministic_for_a_seed():
+    X, Y = piecewise(400, np.random.default_rng(12))
+    a = fit_moe(X, Y, 3, 1.0, np.random.default_rng(5)).model
+    b = fit_moe(X, Y, 3, 1.0, np.random.default_rng(5)).model
+    np.testing.assert_array_equal(a.betas, b.betas)
+    np.testing.assert_array_equal(a.covs, b.covs)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -14,11 +16,13 @@ from bodymetry.estimation.training import (
     MODEL_NAMES,
     DiscriminativeModels,
     TrainConfig,
+    _training_bodies,
     load_or_train,
     rig_key,
     sample_states,
     targets_to_theta,
     theta_to_targets,
+    train,
 )
 from bodymetry.estimation.uncalibrated import compare_photos, estimate_photo, read_mask
 from bodymetry.studio.rig import studio_rig
@@ -102,6 +106,43 @@ def test_cache_is_reused_and_round_trips(trained, cameras, tmp_path):
     models.save(tmp_path / "m.npz")
     back = DiscriminativeModels.load(tmp_path / "m.npz")
     assert back.key == models.key and back.metrics["n_train"] == 60
+
+
+#: A body posed at the lowered root vs the posed body lowered, metres (round-off).
+MESH_TOL = 1e-12
+
+
+def test_training_bodies_are_posed_once_and_the_same_on_two_workers():
+    model = BodyModel.load()
+    states, meshes = _training_bodies(model.n_shape, 70, "train", 0, 1.0, 1)
+    _, meshes2 = _training_bodies(model.n_shape, 70, "train", 0, 1.0, 2)
+    np.testing.assert_array_equal(meshes, meshes2)
+    np.testing.assert_array_equal(states.tau, sample_states(model, 70, "train", 0, 1.0).tau)
+    posed = model.pose(states, lod=True).vertices
+    np.testing.assert_allclose(meshes, posed, rtol=0, atol=MESH_TOL)
+    assert np.abs(meshes[..., 2].min(axis=1)).max() < FLOOR_TOL
+    assert not meshes.flags.writeable
+
+
+def test_two_workers_train_the_same_models(trained, cameras):
+    """The fits run as parallel jobs; each is seeded, so scheduling changes nothing."""
+    models, _, _ = trained
+    parallel = train(cameras, TINY, workers=2)
+    assert parallel.metrics["chosen"] == models.metrics["chosen"]
+    for cam in models.camera_names:
+        for name in MODEL_NAMES:
+            a, b = models.models[cam][name], parallel.models[cam][name]
+            np.testing.assert_array_equal(a.betas, b.betas)
+            np.testing.assert_array_equal(a.covs, b.covs)
+    np.testing.assert_array_equal(models.codebook.centers, parallel.codebook.centers)
+
+
+def test_codebook_examples_may_be_the_whole_training_set(cameras):
+    """No body left after the codebook's: the rest of the training set is empty, not an error."""
+    config = dataclasses.replace(TINY, n_train=50, codebook_examples=50)
+    models = train(cameras, config, workers=2)
+    assert models.metrics["n_train"] == 50
+    assert np.isfinite(models.metrics["shape_rdf_improvement_over_mean"])
 
 
 # --- uncalibrated mode (estimation/uncalibrated.py) on the tiny models -------------------
