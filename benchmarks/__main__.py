@@ -1,6 +1,7 @@
 """Run every benchmark, or the ones named: ``python -m benchmarks [body_model ...]``.
 
-Results are printed and written as JSON to ``benchmarks/results/<name>.json``.
+Results are printed and written as JSON to ``benchmarks/results/<name>.json``
+(``<name>_<flag>.json`` for a run with ``--flag``).
 """
 
 from __future__ import annotations
@@ -49,7 +50,10 @@ def main(argv: list[str]) -> int:
         result["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count()}
         text = json.dumps(result, indent=2)
         print(f"== {name}\n{text}")
-        (out_dir / f"{name}.json").write_text(text + "\n")
+        # A flagged run is another benchmark's result: pipeline --independent ->
+        # pipeline_independent.json beside pipeline.json.
+        suffix = "".join(f"_{f}" for f in sorted(flags))
+        (out_dir / f"{name}{suffix}.json").write_text(text + "\n")
     return 0
 
 
