@@ -195,11 +195,15 @@ def run(independent: bool = False) -> dict:
         skip_demo = bool(os.environ.get("BODYMETRY_BENCH_SKIP_DEMO"))
         out = [] if skip_demo else [evaluate_session(Path(DEMO_SESSION), tmp / "run_demo", cache)]
         out += [evaluate_session(f, tmp / f"run_{f.name}", cache) for f in folders]
-    listed = INDEPENDENT_SESSIONS if independent and not reuse else SESSIONS
+    listed = INDEPENDENT_SESSIONS if independent else SESSIONS
+    described = (
+        [f.name for f in folders] if reuse else [s[::2] if independent else s[:2] for s in listed]
+    )
     return {
         "setup": (
-            f"demo + {len(out) - 1} studio sessions ({FRAMES} frames, every 25th kept; "
-            f"{[s[::2] if independent else s[:2] for s in listed]}; the demo's rig), "
+            f"{'' if skip_demo else 'demo + '}{len(folders)} studio sessions "
+            f"({FRAMES} frames, every 25th kept; "
+            f"{described}; the demo's rig), "
             "default preset, all cores"
         ),
         "sessions": out,
