@@ -145,28 +145,37 @@ def project_midpoints_kernel(verts, ends, R, t, K, dist, tilt, mode, out):  # pr
 
 
 @numba.njit(cache=True, nogil=True)
-def chamfer_distance_3x3(src, tmp, out):  # pragma: no cover
-    """OpenCV's ``distanceTransform(src, DIST_L2, 3)``: two passes of the 3x3
-    chamfer mask (0.955 along rows and columns, 1.3693 diagonally), in float32.
+def _chamfer_passes(zero, y0, x0, h, w, tmp, weight, out):  # pragma: no cover
+    """OpenCV's two-pass 3x3 chamfer transform of a crop, and a sum over it.
 
-    OpenCV's own C code works in 16.16 fixed point; the build on PyPI calls
-    Intel IPP, which adds float32 steps. This follows the latter: the values
-    match ``cv2.distanceTransform`` to one float32 rounding (about 1e-7
-    relative), tested.
+    The distance of each pixel of ``zero[y0:y0 + h, x0:x0 + w]`` to the nearest
+    True pixel (0.955 along rows and columns, 1.3693 diagonally, float32 steps
+    as in :func:`chamfer_distance_3x3`). Each distance is written to ``out``
+    when ``out`` is not empty, and summed (float64) over the pixels where
+    ``weight`` is True as it becomes final in the backward pass.
 
     Parameters
     ----------
-    src : (h, w) bool
-        Non-zero pixels get their distance to the nearest zero pixel.
+    zero : (H, W) bool
+        The pixels at distance 0.
+    y0, x0, h, w : int
+        The crop.
     tmp : (>= h + 2, >= w + 2) float32
         Scratch (distances with a one-pixel border).
-    out : (h, w) float32
-        The distances.
+    weight : (H, W) bool
+        The pixels whose distances are summed (same frame as ``zero``).
+    out : (h, w) or (0, 0) float32
+        The distances, or nothing.
+
+    Returns
+    -------
+    float
+        The sum over the ``weight`` pixels.
     """
-    h, w = src.shape
     a = np.float32(0.955)
     d = np.float32(1.3693)
     far = np.float32(1e30)
+    write = out.shape[0] > 0
     for j in range(w + 2):
         tmp[0, j] = far
         tmp[h + 1, j] = far
@@ -175,62 +184,7 @@ def chamfer_distance_3x3(src, tmp, out):  # pragma: no cover
         tmp[r, 0] = far
         tmp[r, w + 1] = far
         for j in range(w):
-            if not src[i, j]:
-                tmp[r, j + 1] = 0
-            else:
-                t0 = tmp[r - 1, j] + d
-                t = tmp[r - 1, j + 1] + a
-                if t0 > t:
-                    t0 = t
-                t = tmp[r - 1, j + 2] + d
-                if t0 > t:
-                    t0 = t
-                t = tmp[r, j] + a
-                if t0 > t:
-                    t0 = t
-                tmp[r, j + 1] = t0
-    for i in range(h - 1, -1, -1):
-        r = i + 1
-        for j in range(w - 1, -1, -1):
-            t0 = tmp[r, j + 1]
-            if t0 > a:
-                t = tmp[r + 1, j + 2] + d
-                if t0 > t:
-                    t0 = t
-                t = tmp[r + 1, j + 1] + a
-                if t0 > t:
-                    t0 = t
-                t = tmp[r + 1, j] + d
-                if t0 > t:
-                    t0 = t
-                t = tmp[r, j + 2] + a
-                if t0 > t:
-                    t0 = t
-                tmp[r, j + 1] = t0
-            out[i, j] = t0
-
-
-@numba.njit(cache=True, nogil=True)
-def _observed_distance_sum(model, observed, y0, x0, h, w, tmp):  # pragma: no cover
-    """Sum over the observed pixels of a crop of their distance to the model.
-
-    :func:`chamfer_distance_3x3` of ``~model[y0:y0 + h, x0:x0 + w]``, the same
-    float32 steps, with the sum taken in the backward pass as each distance
-    becomes final (no distance image, no separate passes to fill the source
-    and to sum). The sum is in float64.
-    """
-    a = np.float32(0.955)
-    d = np.float32(1.3693)
-    far = np.float32(1e30)
-    for j in range(w + 2):
-        tmp[0, j] = far
-        tmp[h + 1, j] = far
-    for i in range(h):
-        r = i + 1
-        tmp[r, 0] = far
-        tmp[r, w + 1] = far
-        for j in range(w):
-            if model[y0 + i, x0 + j]:
+            if zero[y0 + i, x0 + j]:
                 tmp[r, j + 1] = 0
             else:
                 t0 = tmp[r - 1, j] + d
@@ -263,9 +217,45 @@ def _observed_distance_sum(model, observed, y0, x0, h, w, tmp):  # pragma: no co
                 if t0 > t:
                     t0 = t
                 tmp[r, j + 1] = t0
-            if observed[y0 + i, x0 + j]:
+            if write:
+                out[i, j] = t0
+            if weight[y0 + i, x0 + j]:
                 total += t0
     return total
+
+
+@numba.njit(cache=True, nogil=True)
+def chamfer_distance_3x3(src, tmp, out):  # pragma: no cover
+    """OpenCV's ``distanceTransform(src, DIST_L2, 3)``: two passes of the 3x3
+    chamfer mask (0.955 along rows and columns, 1.3693 diagonally), in float32.
+
+    OpenCV's own C code works in 16.16 fixed point; the build on PyPI calls
+    Intel IPP, which adds float32 steps. This follows the latter: the values
+    match ``cv2.distanceTransform`` to one float32 rounding (about 1e-7
+    relative), tested.
+
+    Parameters
+    ----------
+    src : (h, w) bool
+        Non-zero pixels get their distance to the nearest zero pixel.
+    tmp : (>= h + 2, >= w + 2) float32
+        Scratch (distances with a one-pixel border).
+    out : (h, w) float32
+        The distances.
+    """
+    h, w = src.shape
+    _chamfer_passes(~src, 0, 0, h, w, tmp, np.zeros((h, w), np.bool_), out)
+
+
+@numba.njit(cache=True, nogil=True)
+def _observed_distance_sum(model, observed, y0, x0, h, w, tmp):  # pragma: no cover
+    """Sum over the observed pixels of a crop of their distance to the model.
+
+    :func:`chamfer_distance_3x3` of ``~model[y0:y0 + h, x0:x0 + w]``, the sum
+    taken in the backward pass as each distance becomes final (no distance
+    image, no separate passes to fill the source and to sum).
+    """
+    return _chamfer_passes(model, y0, x0, h, w, tmp, observed, np.empty((0, 0), np.float32))
 
 
 @numba.njit(cache=True, nogil=True)

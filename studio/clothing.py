@@ -33,7 +33,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from bodymetry.estimation.body_model import geometry
 from bodymetry.estimation.body_model.skeleton import JOINTS, PARTS
@@ -86,17 +85,6 @@ class ClothingLayer:
     hang_sector: float = 0.14
     hair_thickness: float = 0.025
     seed: int = 11
-
-
-def _smoother(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
-    """(V, V) row-normalised vertex adjacency (mean of the neighbours)."""
-    f = np.asarray(faces)
-    rows = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
-    cols = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
-    adj = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n_vertices, n_vertices))
-    adj.data[:] = 1.0
-    deg = np.asarray(adj.sum(axis=1)).reshape(-1)
-    return (sp.diags(1.0 / np.maximum(deg, 1.0)) @ adj).tocsr()
 
 
 def _along(points: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:
@@ -234,7 +222,7 @@ def dress(
     rest = np.asarray(rest, dtype=float)
     normals = geometry.vertex_normals(rest, faces)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True) + 1e-12
-    smooth = _smoother(faces, len(rest))
+    smooth = geometry.neighbour_mean(faces, len(rest))
     d = np.zeros(len(rest))
     if clothing == "loose":
         w = garment_weight(rest, vertex_parts, joints, layer)

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-import scipy.sparse as sp
 
+from bodymetry.estimation.body_model.geometry import neighbour_mean
 from bodymetry.estimation.body_model.parts import PART_COLORS
 
 # --- light --------------------------------------------------------------------
@@ -431,13 +431,7 @@ class Appearance:
             Albedo of the head part (to turn into hair colour by modulation).
         """
         rng = np.random.default_rng(self.seed)
-        f = np.asarray(faces)
-        rows = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
-        cols = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
-        adj = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n_vertices, n_vertices))
-        adj.data[:] = 1.0
-        deg = np.asarray(adj.sum(axis=1)).reshape(-1)
-        smooth = sp.diags(1.0 / np.maximum(deg, 1)) @ adj
+        smooth = neighbour_mean(faces, n_vertices)
         fine = rng.standard_normal(n_vertices)
         coarse = rng.standard_normal(n_vertices)
         for _ in range(2):

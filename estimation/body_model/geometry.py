@@ -46,6 +46,7 @@ __all__ = [
     "loop_area",
     "loop_perimeter",
     "mesh_volume",
+    "neighbour_mean",
     "plane_section",
     "section_loops",
     "surface_area",
@@ -699,3 +700,24 @@ def girth(
     if segments.shape[0] == 0:
         return 0.0
     return convex_perimeter(segments.reshape(-1, 2))
+
+
+def neighbour_mean(faces: ArrayLike, n_vertices: int) -> sparse.csr_matrix:
+    """The (V, V) operator that replaces each vertex's value by its neighbours' mean.
+
+    Row-normalised vertex adjacency of a triangle mesh (an isolated vertex's
+    row is zero); ``M @ values`` smooths per-vertex values, ``(V,)`` or ``(V, k)``.
+
+    Parameters
+    ----------
+    faces : (F, 3) int
+    n_vertices : int
+    """
+    n = _check_n_vertices(n_vertices)
+    f = _check_faces(faces, n)
+    rows = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
+    cols = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
+    adj = sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+    adj.data[:] = 1.0  # an edge shared by two faces counts once
+    deg = np.asarray(adj.sum(axis=1)).reshape(-1)
+    return (sparse.diags(1.0 / np.maximum(deg, 1.0)) @ adj).tocsr()

@@ -456,3 +456,15 @@ def test_bad_shapes_raise_clear_value_errors():
         g.is_closed(f, -1)
     with pytest.raises(ValueError, match="n_vertices must be an int"):
         g.is_closed(f, 8.0)
+
+
+def test_neighbour_mean_known_answer_and_constants():
+    """On a tetrahedron each vertex's neighbours are the other three; constants are kept."""
+    faces = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+    m = g.neighbour_mean(faces, 5).toarray()  # vertex 4 is unused
+    expected = (np.ones((4, 4)) - np.eye(4)) / 3.0
+    np.testing.assert_allclose(m[:4, :4], expected, atol=1e-15)
+    assert not m[4].any() and not m[:, 4].any()
+    np.testing.assert_allclose(m[:4] @ np.ones(5), 1.0, atol=1e-15)
+    with pytest.raises(ValueError, match="n_vertices"):
+        g.neighbour_mean(faces, -1)
