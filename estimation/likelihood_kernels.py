@@ -30,7 +30,7 @@ import numpy as np
 
 # numba as raster_kernels imports it: after pointing its on-disk cache where that
 # module says (importing numba first would fix the cache directory too early).
-from bodymetry.estimation.raster_kernels import _setup, numba
+from bodymetry.estimation.raster_kernels import _finite_triangle, _setup, numba
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -325,14 +325,7 @@ def chamfer_kernel(
                 area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
                 if not area2 < -1e-12:
                     continue
-                if not (
-                    np.isfinite(x0)
-                    and np.isfinite(x1)
-                    and np.isfinite(x2)
-                    and np.isfinite(y0)
-                    and np.isfinite(y1)
-                    and np.isfinite(y2)
-                ):
+                if not _finite_triangle(x0, y0, x1, y1, x2, y2):
                     continue
                 ok, box = _setup(x0, y0, x1, y1, x2, y2, 1, w_img, row_lo, row_hi)
                 if not ok:

@@ -80,6 +80,20 @@ if _cache is not None and "numba.core.config" in sys.modules:
 _CULL_NONE, _CULL_BACK, _CULL_FRONT = 0, 1, 2
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _finite_triangle(x0, y0, x1, y1, x2, y2):  # pragma: no cover
+    """Whether a projected triangle's corners are all finite (a vertex behind a
+    camera or outside the lens model's range projects to NaN)."""
+    return (
+        np.isfinite(x0)
+        and np.isfinite(x1)
+        and np.isfinite(x2)
+        and np.isfinite(y0)
+        and np.isfinite(y1)
+        and np.isfinite(y2)
+    )
+
+
 @numba.njit(cache=True, nogil=True)
 def _setup(x0, y0, x1, y1, x2, y2, cull, w_img, row_lo, row_hi):  # pragma: no cover
     """Cull test, clipped pixel box and barycentric coefficients of one triangle.
@@ -181,14 +195,7 @@ def coverage_kernel(xs, ys, valid, faces, sizes, h_canvas, cull, eps, out):  # p
                 continue
             x0, x1, x2 = xs[c, i0], xs[c, i1], xs[c, i2]
             y0, y1, y2 = ys[c, i0] + off, ys[c, i1] + off, ys[c, i2] + off
-            if not (
-                np.isfinite(x0)
-                and np.isfinite(x1)
-                and np.isfinite(x2)
-                and np.isfinite(y0)
-                and np.isfinite(y1)
-                and np.isfinite(y2)
-            ):
+            if not _finite_triangle(x0, y0, x1, y1, x2, y2):
                 continue
             ok, box = _setup(x0, y0, x1, y1, x2, y2, cull, w_img, row_lo, row_hi)
             if not ok:
