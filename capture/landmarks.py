@@ -105,6 +105,13 @@ def triangulate_landmarks(
         consistent views.
     """
     cfg = config or LandmarkConfig()
+    return _triangulate(cameras, _detections(cameras, landmarks, cfg), cfg)
+
+
+def _detections(
+    cameras: Sequence[Camera], landmarks: Sequence[np.ndarray | None], cfg: LandmarkConfig
+) -> np.ndarray:
+    """(C, 33, 2) pixels of the landmarks seen well enough per view; NaN otherwise."""
     if len(landmarks) != len(cameras):
         raise InputError(f"expected landmarks for {len(cameras)} cameras, got {len(landmarks)}")
     n = len(LANDMARKS)
@@ -119,6 +126,19 @@ def triangulate_landmarks(
             )
         seen = lm[:, 2] >= cfg.min_visibility
         pixels[c, seen] = lm[seen, :2]
+    return pixels
+
+
+def _triangulate(cameras: Sequence[Camera], pixels: np.ndarray, cfg: LandmarkConfig) -> np.ndarray:
+    """(N, 3) world points of detections (C, N, 2), each triangulated on its own.
+
+    A point whose worst view reprojects further than ``cfg.max_error`` of the
+    image height loses that view while it keeps two; NaN rows where fewer than
+    two consistent views remain. Points are independent, so the landmarks of
+    many frames can be stacked along N.
+    """
+    pixels = pixels.copy()
+    n = pixels.shape[1]
     group = CameraGroup(cameras)
     limit = cfg.max_error * np.array([c.size[1] for c in cameras], float)[:, None]  # (C, 1)
     points = np.full((n, 3), np.nan)
@@ -192,28 +212,23 @@ def _joint_offsets(
     total = np.zeros((n_cam, 2))
     counts = np.zeros(n_cam, int)
     current = list(cameras)
+    # Every frame's landmarks in one stack: the triangulation of each point is
+    # its own, and one call for all frames is far cheaper than one per frame.
+    pixels = np.concatenate([_detections(cameras, views, cfg) for views in frames], axis=1)
     for _ in range(iterations):
-        residuals: list[list[np.ndarray]] = [[] for _ in range(n_cam)]
-        points = []
-        for views in frames:
-            X = triangulate_landmarks(current, views, cfg)
-            points.append(X)
-            for c, lm in enumerate(views):
-                if lm is None:
-                    continue
-                ok = (np.asarray(lm)[:, 2] >= cfg.min_visibility) & np.all(np.isfinite(X), axis=1)
-                if ok.any():
-                    residuals[c].append(lm[ok, :2] - current[c].project(X[ok]))
+        X = _triangulate(current, pixels, cfg)  # (F * 33, 3)
+        found = np.all(np.isfinite(X), axis=1)
         step = np.zeros((n_cam, 2))
         for c in range(n_cam):
-            if residuals[c]:
-                r = np.vstack(residuals[c])
+            ok = found & np.isfinite(pixels[c, :, 0])
+            if ok.any():
+                r = pixels[c, ok] - current[c].project(X[ok])
                 counts[c], step[c] = len(r), np.median(r, axis=0)
         total += step
         current = [shifted_camera(cam, *total[c]) for c, cam in enumerate(cameras)]
         if np.abs(step).max() < 0.05:
             break
-    return total, counts, np.nanmean(np.vstack(points), axis=0)
+    return total, counts, np.nanmean(X, axis=0)
 
 
 def _sparsest(cameras: Sequence[Camera], offsets: np.ndarray, centre: np.ndarray) -> np.ndarray:
