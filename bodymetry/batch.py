@@ -60,6 +60,7 @@ from bodymetry.frame_jobs import (
     run_fit_job,
     write_frame,
 )
+from bodymetry.log import Progress
 from bodymetry.process import (
     PreparedRun,
     RigModels,
@@ -81,7 +82,6 @@ __all__ = [
     "run_names",
 ]
 
-Progress = Callable[[str, int, int], None]
 #: A list of sessions given as a file is read whole; it is small.
 SESSION_LIST_MAX_BYTES = 1 << 20
 STUDY_FILE = "study.json"

@@ -12,7 +12,6 @@ the run itself: :func:`run_cameras`.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +26,7 @@ from bodymetry.capture.session import Session, load_session
 from bodymetry.errors import InputError
 from bodymetry.estimation.records import RunLayout
 from bodymetry.fileio import write_bytes_atomic
+from bodymetry.log import Progress
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,7 @@ class ResolvedCameras:
 def resolve_cameras(
     session: Session,
     run_dir: Path,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: Progress | None = None,
 ) -> ResolvedCameras:
     """The session's cameras, recorded into ``run_dir/calibration.yaml``.
 

@@ -20,7 +20,6 @@ import bisect
 import functools
 import logging
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,6 +33,7 @@ from bodymetry.estimation.records import FrameArrays, FrameRecord, RunLayout, re
 from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.training import DiscriminativeModels
 from bodymetry.fileio import save_npz, write_json_atomic
+from bodymetry.log import Progress
 from bodymetry.review.meshes import write_mesh
 
 log = logging.getLogger(__name__)
@@ -52,8 +52,6 @@ __all__ = [
 #: them again), in the run's ``frames/`` folder (a restart removes it with the
 #: frames).
 RESCUE_FILE = "rescue.json"
-
-Progress = Callable[[str, int, int], None]
 
 
 @functools.lru_cache(maxsize=2)

@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import logging
 import sys
+from collections.abc import Callable
 from typing import Any
 
 from rich.console import Console
 from rich.logging import RichHandler
 
-__all__ = ["PROGRESS_LOGGER", "console", "setup_logging"]
+__all__ = ["PROGRESS_LOGGER", "Progress", "console", "setup_logging"]
+
+#: A long step's progress callback: ``progress(label, done, total)``.
+Progress = Callable[[str, int, int], None]
 
 #: Shared stderr console: progress bars and log lines go here, results to stdout.
 console = Console(stderr=True)

@@ -29,7 +29,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -70,6 +70,7 @@ from bodymetry.frame_jobs import (
     run_fit_job,
     write_frame,
 )
+from bodymetry.log import Progress
 from bodymetry.preflight import check_session
 from bodymetry.review.build import build_review
 from bodymetry.run_folder import prepare_run_folder
@@ -86,8 +87,6 @@ __all__ = [
     "rig_models",
     "session_stage",
 ]
-
-Progress = Callable[[str, int, int], None]
 
 
 def _die_with_parent(parent: int) -> None:

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -62,6 +62,7 @@ from bodymetry.estimation.refinement import (
     difference_steps,
     prepare_contours,
 )
+from bodymetry.log import Progress
 
 log = logging.getLogger(__name__)
 
@@ -87,8 +88,6 @@ _RETRIES = 5
 
 #: Step of the forward differences of the biometrics with respect to ν.
 _BIO_STEP = 0.05
-
-Progress = Callable[[str, int, int], None]
 
 
 @dataclass(frozen=True)

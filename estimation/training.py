@@ -45,6 +45,7 @@ from bodymetry.estimation.body_model.skeleton import JOINTS, YAW, forward_kinema
 from bodymetry.estimation.moe import MixtureOfExperts, fit_moe, select_moe
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.fileio import load_npz, save_npz
+from bodymetry.log import Progress
 
 log = logging.getLogger(__name__)
 
@@ -398,7 +399,7 @@ def train(
     cameras: list[Camera] | CameraGroup,
     config: TrainConfig | None = None,
     workers: int | None = None,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: Progress | None = None,
 ) -> DiscriminativeModels:
     """Render the training and test sets, fit and evaluate the mixtures."""
     config = config or TrainConfig()
@@ -549,7 +550,7 @@ def _fit_models(
     outputs: dict[str, np.ndarray],
     config: TrainConfig,
     workers: int,
-    progress: Callable[[str, int, int], None] | None,
+    progress: Progress | None,
 ) -> tuple[dict[str, dict], dict[str, dict[str, MixtureOfExperts]]]:
     """Choose M and λ per model on the first camera, then fit every camera's models.
 
@@ -712,7 +713,7 @@ def load_or_train(
     config: TrainConfig | None = None,
     cache_dir: Path | None = None,
     workers: int | None = None,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: Progress | None = None,
 ) -> tuple[DiscriminativeModels, bool]:
     """Cached models for this rig, training them first if needed.
 

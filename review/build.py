@@ -27,6 +27,7 @@ from typing import Any
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.records import RECORDING_MCAP, RECORDING_RRD
 from bodymetry.fileio import atomic_path
+from bodymetry.log import Progress
 from bodymetry.review.mcap_recording import McapWriter
 from bodymetry.review.report import OverlayRow, build_report, overlay_row, select_overlay_frames
 from bodymetry.review.rerun_recording import RerunWriter
@@ -85,7 +86,7 @@ def build_review(
     recordings: bool = True,
     report: bool = True,
     pdf: bool = False,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: Progress | None = None,
 ) -> ReviewSummary:
     """Write a run's review outputs into its folder.
 

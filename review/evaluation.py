@@ -11,7 +11,6 @@ succeeded; MPJPE of each stage against the true joints.
 from __future__ import annotations
 
 import multiprocessing as mp
-from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.fit import FitConfig, generative_fit, shared_body_model
 from bodymetry.estimation.records import CORE_MEASUREMENTS, RunLayout, Stat
 from bodymetry.fileio import load_npz, write_json_atomic
+from bodymetry.log import Progress
 from bodymetry.review.run_data import RunData, load_frame_arrays, load_run
 from bodymetry.settings import from_jsonable
 
@@ -65,7 +65,7 @@ def _fit_config(run: RunData) -> FitConfig:
 def evaluate_run(
     run: str | Path,
     workers: int | None = None,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: Progress | None = None,
 ) -> dict:
     """Compute the Figure 3 numbers for a run and write ``run/evaluation.json``.
 

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,6 +40,7 @@ from bodymetry.capture.silhouette import (
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.fileio import load_npz, write_json_atomic
+from bodymetry.log import Progress
 from bodymetry.studio.independent import IndependentSpec, IndependentSubject
 from bodymetry.studio.render import Studio
 from bodymetry.studio.scene import Light
@@ -304,7 +304,7 @@ def segment_and_score(
     overlays: bool = True,
     strict: bool = False,
     shadows: bool = True,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: Progress | None = None,
 ) -> SilhouetteRun:
     """Segment every kept frame of ``session`` into ``out`` and score it where it has ground truth.
 
