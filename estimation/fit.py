@@ -249,7 +249,8 @@ def _draws_around(
     k = round(share * n)
     keep = rng.permutation(n)
     drawn = particles[keep[:k]].copy()
-    centre = np.atleast_2d(centres)[np.arange(k) % len(np.atleast_2d(centres))]
+    centres = np.atleast_2d(centres)
+    centre = centres[np.arange(k) % len(centres)]
     drawn[:, TAU] = centre[:, TAU] + rng.normal(0.0, _LANDMARK_SPREAD[0], (k, 3))
     drawn[:, THETA] = body.limits.clip(
         centre[:, THETA] + rng.normal(0.0, _LANDMARK_SPREAD[1], (k, 37))

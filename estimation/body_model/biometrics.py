@@ -110,9 +110,12 @@ def measure(model: BodyModel, nu: np.ndarray, density: float = DEFAULT_DENSITY) 
     Returns
     -------
     list of Biometrics, one per shape.
+
+    Raises
+    ------
+    ValueError
+        For a density that is not positive (:func:`measure_canonical` checks it).
     """
-    if not density > 0:
-        raise ValueError(f"density: expected a positive value in kg/m^3, got {density}")
     nu = np.atleast_2d(np.asarray(nu, dtype=float))
     # Arm span in a T-pose; the root's height does not matter for a distance.
     tpose = BodyState(np.zeros(3), model.poses["tpose"][None], nu)
