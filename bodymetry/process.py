@@ -49,6 +49,7 @@ from bodymetry.capture.silhouette import segment_session
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import MIN_PIXELS, session_gate, shared_body_model
+from bodymetry.estimation.outline_check import check_outline
 from bodymetry.estimation.records import (
     FrameArrays,
     FrameRecord,
@@ -356,13 +357,20 @@ def session_stage(
         )
     if not fit.summary.ok:
         log.warning("%s: session shape %s", prepared.session.folder, fit.summary.status)
+    # The outline check at the states the summary reports: the shared shape
+    # when accepted, else each frame's own fit.
+    checked = [
+        (f.masks, fit.estimates[f.frame].vector() if f.frame in fit.estimates else f.start)
+        for f in frames
+    ]
+    outline = check_outline(shared_body_model(), prepared.cameras, checked, config.fit.refinement)
     out = [
         replace(r, estimates={**r.estimates, "session": fit.estimates[r.frame]})
         if r.frame in fit.estimates
         else r
         for r in records
     ]
-    return fit.summary, out
+    return replace(fit.summary, outline=outline), out
 
 
 def finish_run(
@@ -400,6 +408,8 @@ def finish_run(
     warnings = camera_warnings(camera_frames, len(ordered))
     if not any(r.ok for r in ordered):
         warnings.append(f"no frame of the {len(ordered)} kept frames was measured")
+    if shape is not None and shape.outline is not None:
+        warnings.extend(shape.outline.warnings)
     for text in warnings:
         log.warning("%s: %s", session.folder, text)
     results = RunResults(

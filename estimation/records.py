@@ -41,6 +41,7 @@ __all__ = [
     "AnnealingTrace",
     "FrameArrays",
     "FrameRecord",
+    "OutlineCheck",
     "RefinementTrace",
     "RunLayout",
     "RunResults",
@@ -597,6 +598,83 @@ def summarize(
 
 
 @dataclass(frozen=True)
+class OutlineCheck:
+    """Where the observed outline lies relative to the fitted body (``session_shape.outline``).
+
+    See :mod:`bodymetry.estimation.outline_check`.
+
+    Attributes
+    ----------
+    status : str
+        ``"ok"`` (the warnings are its verdict), ``"undecided: ..."`` (the
+        working pixels are too coarse for a verdict; the figures are kept) or
+        ``"no contour"``.
+    frames : int
+        Frames the offsets were measured on.
+    mm_per_px : float
+        A working pixel at the body, millimetres (median over the contour).
+    offsets_mm : dict of str to float
+        Per body region (trunk, upper limbs, lower limbs, head, crown): the
+        median over frames of the outline's offset outside the fitted body,
+        millimetres (negative: inside).
+    trunk_excess_mm, trunk_excess_se_mm : float
+        Trunk minus lower limbs (the loose-clothing signature) and its
+        standard error over frames.
+    crown_excess_mm, crown_excess_se_mm : float
+        Crown minus lower limbs (the hair signature) and its standard error.
+    warnings : tuple of str
+        What the offsets suggest (loose clothing, hair), in words.
+    """
+
+    status: str = OK
+    frames: int = 0
+    mm_per_px: float = math.nan
+    offsets_mm: dict[str, float] = field(default_factory=dict)
+    trunk_excess_mm: float = math.nan
+    trunk_excess_se_mm: float = math.nan
+    crown_excess_mm: float = math.nan
+    crown_excess_se_mm: float = math.nan
+    warnings: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "status": self.status,
+            "frames": int(self.frames),
+            "mm_per_px": _finite_or_none(self.mm_per_px, 2),
+            "offsets_mm": {k: _finite_or_none(v, 2) for k, v in self.offsets_mm.items()},
+            "trunk_excess_mm": _finite_or_none(self.trunk_excess_mm, 2),
+            "trunk_excess_se_mm": _finite_or_none(self.trunk_excess_se_mm, 2),
+            "crown_excess_mm": _finite_or_none(self.crown_excess_mm, 2),
+            "crown_excess_se_mm": _finite_or_none(self.crown_excess_se_mm, 2),
+            "warnings": list(self.warnings),
+        }
+
+    @classmethod
+    def from_json(cls, data: Any, where: str = "outline") -> OutlineCheck:
+        """Read the block; InputError naming ``where`` when it is not one."""
+        if not isinstance(data, Mapping):
+            raise InputError(f"{where}: expected an object")
+
+        def num(v: Any) -> float:
+            return math.nan if v is None else float(v)
+
+        try:
+            return cls(
+                status=str(data.get("status", OK)),
+                frames=int(data.get("frames", 0)),
+                mm_per_px=num(data.get("mm_per_px")),
+                offsets_mm={str(k): num(v) for k, v in data.get("offsets_mm", {}).items()},
+                trunk_excess_mm=num(data.get("trunk_excess_mm")),
+                trunk_excess_se_mm=num(data.get("trunk_excess_se_mm")),
+                crown_excess_mm=num(data.get("crown_excess_mm")),
+                crown_excess_se_mm=num(data.get("crown_excess_se_mm")),
+                warnings=tuple(str(w) for w in data.get("warnings", ())),
+            )
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise InputError(f"{where}: malformed outline check ({exc})") from exc
+
+
+@dataclass(frozen=True)
 class SessionShape:
     """The session stage's outcome (``results.json`` ``session_shape``).
 
@@ -629,6 +707,9 @@ class SessionShape:
     covariance : str
         Which covariance the standard errors come from.
     seconds : float
+    outline : OutlineCheck or None
+        The loose-clothing and hair check on the session's frames (at the
+        shared shape when accepted, else at the per-frame fits).
     """
 
     status: str
@@ -647,6 +728,7 @@ class SessionShape:
     iterations: int = 0
     covariance: str = ""
     seconds: float = 0.0
+    outline: OutlineCheck | None = None
 
     @property
     def ok(self) -> bool:
@@ -673,6 +755,7 @@ class SessionShape:
             "cost": _finite_or_none(self.cost, 4),
             "iterations": int(self.iterations),
             "seconds": round(float(self.seconds), 2),
+            "outline": None if self.outline is None else self.outline.to_json(),
         }
 
     @classmethod
@@ -702,6 +785,9 @@ class SessionShape:
                 iterations=int(data.get("iterations", 0)),
                 covariance=str(data.get("covariance", "")),
                 seconds=float(data.get("seconds", 0.0)),
+                outline=None
+                if data.get("outline") is None
+                else OutlineCheck.from_json(data["outline"], f"{where}.outline"),
             )
         except (TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{where}: malformed session shape ({exc})") from exc

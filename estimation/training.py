@@ -33,6 +33,8 @@ from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.errors import InputError
 from bodymetry.estimation import features as feat
 from bodymetry.estimation.body_model.model import (
+    ANCHOR_CLEARANCE,
+    ANCHOR_WEIGHT,
     DEFAULT_MODEL_PATH,
     DEFAULT_SHAPE_DOFS,
     BodyModel,
@@ -142,6 +144,9 @@ def rig_key(
     h = hashlib.sha256()
     h.update(f"v{TRAINING_VERSION}".encode())
     h.update(json.dumps(asdict(config), sort_keys=True).encode())
+    # How bodies are posed from the file (the skeleton anchors) shapes every
+    # training silhouette as much as the file itself.
+    h.update(f"anchors {ANCHOR_WEIGHT!r} {ANCHOR_CLEARANCE!r}".encode())
     # The body model file (12 MB) is hashed once per process, not per call (batch
     # computes the key of every session).
     stat = Path(model_path).stat()

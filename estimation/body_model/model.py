@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model import geometry
@@ -36,6 +37,12 @@ DEFAULT_MODEL_PATH = Path(__file__).with_name("data") / "body_model.npz"
 #: Bumped when the file layout changes incompatibly.
 MODEL_FORMAT = 1
 DEFAULT_SHAPE_DOFS = 9
+#: Skeleton anchors of the posed solve (see :meth:`BodyModel.pose`): every vertex at
+#: least ANCHOR_CLEARANCE metres (rest body) from any other part is pulled towards
+#: where its part's rigid motion about the skeleton carries it, with this weight
+#: against one edge equation. 0.3 and 2-8 cm gave the same fit to skinned bodies.
+ANCHOR_WEIGHT = 0.3
+ANCHOR_CLEARANCE = 0.03
 
 
 #: Where τ, θ and ν sit in a state vector ``[τ, θ, ν]`` (:meth:`BodyState.vector`).
@@ -275,24 +282,76 @@ class BodyModel:
         return np.stack([self.keypoint_regressor @ b for b in self._canonical_basis])
 
     @cached_property
+    def _rest_basis(self) -> dict[bool, np.ndarray]:
+        """Per resolution, (1 + n, V, 3): the unposed mesh, linear in ν, in the full
+        mesh's canonical (pinned) frame, the frame of the rest keypoints."""
+        # Align the LOD frame to the full one through the barycentric map.
+        solved = self._unposed_basis(self.lod)
+        mapped = np.stack([self.lod_map @ b for b in self._canonical_basis])
+        lod = solved + (mapped - solved).mean(axis=1, keepdims=True)
+        return {False: self._canonical_basis, True: lod}
+
+    @cached_property
     def _anchor_basis(self) -> dict[bool, np.ndarray]:
         """Per resolution, (1 + n, 3): pelvis-vertex centroid minus root joint, unposed.
 
         Posed meshes are placed so their pelvis centroid sits where the rigid
         pelvis carries it; the offset is linear in ν like everything unposed.
         """
-        out = {}
         root = self._keypoint_basis[:, 0]
+        return {
+            lod: self._rest_basis[lod][:, self._pelvis_vertices[lod]].mean(axis=1) - root
+            for lod in (False, True)
+        }
+
+    def skeleton_anchors(self, lod: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """The vertices the posed solve anchors to the skeleton, and their parts.
+
+        A vertex is anchored when all its triangles belong to one part and it
+        lies at least :data:`ANCHOR_CLEARANCE` from every vertex of another part
+        (rest template): the part's inside, away from the joints, where the
+        body moves rigidly with its bone.
+
+        Returns
+        -------
+        vertices : (Na,) int
+        parts : (Na,) int
+        """
+        return self._skeleton_anchors[lod]
+
+    @cached_property
+    def _skeleton_anchors(self) -> dict[bool, tuple[np.ndarray, np.ndarray]]:
+        out = {}
         for lod in (False, True):
-            if lod:
-                solved = self._unposed_basis(self.lod)
-                # Align the LOD frame to the full one through the barycentric map.
-                mapped = np.stack([self.lod_map @ b for b in self._canonical_basis])
-                solved = solved + (mapped - solved).mean(axis=1, keepdims=True)
-            else:
-                solved = self._canonical_basis
-            out[lod] = solved[:, self._pelvis_vertices[lod]].mean(axis=1) - root
+            mesh = self._mesh(lod)
+            faces, parts, rest = mesh.arrays.faces, mesh.arrays.parts, mesh.arrays.template
+            V = len(rest)
+            incidence = sp.csr_matrix(
+                (np.ones(faces.size), (faces.reshape(-1), np.repeat(parts, 3))),
+                shape=(V, len(PARTS)),
+            )
+            single = np.asarray((incidence > 0).sum(axis=1)).ravel() == 1
+            part = np.asarray(incidence.argmax(axis=1)).ravel()
+            keep = np.zeros(V, bool)
+            for p in range(len(PARTS)):
+                mine = np.flatnonzero(single & (part == p))
+                others = np.flatnonzero(~single | (part != p))
+                if len(mine) and len(others):
+                    gap = cKDTree(rest[others]).query(rest[mine])[0]
+                    keep[mine[gap >= ANCHOR_CLEARANCE]] = True
+            # Sorted by part, so each part's anchors are one slice in pose().
+            idx = np.flatnonzero(keep)
+            idx = idx[np.argsort(part[idx], kind="stable")]
+            out[lod] = (idx, part[idx])
+            mesh.set_anchors(idx, ANCHOR_WEIGHT)
         return out
+
+    @cached_property
+    def _rest_anchor_basis(self) -> dict[bool, np.ndarray]:
+        """Per resolution, (1 + n, Na, 3): the anchors' unposed positions."""
+        return {
+            lod: self._rest_basis[lod][:, self._skeleton_anchors[lod][0]] for lod in (False, True)
+        }
 
     @cached_property
     def _pelvis_vertices(self) -> dict[bool, np.ndarray]:
@@ -310,7 +369,13 @@ class BodyModel:
         return nu
 
     def _linear(self, basis: np.ndarray, nu: np.ndarray) -> np.ndarray:
-        return basis[0] + np.einsum("bn,n...->b...", nu, basis[1:])
+        # One multiply-add pass per component, in order: every state's values are
+        # the same bits in any batch (a BLAS product rounds by batch size), and
+        # 5x faster than einsum's loop on the anchors (80 states, 1.2k vertices).
+        out = np.broadcast_to(basis[0], (len(nu), *basis.shape[1:])).copy()
+        for i in range(nu.shape[1]):
+            out += nu[:, i].reshape(-1, *([1] * (basis.ndim - 1))) * basis[1 + i]
+        return out
 
     def rest_keypoints(self, nu: np.ndarray) -> np.ndarray:
         """Keypoints (B, K, 3) of the unposed body, in the canonical frame of
@@ -377,8 +442,33 @@ class BodyModel:
         nu, *_ = np.linalg.lstsq(A, b.T, rcond=None)
         return nu.T
 
+    def _anchor_targets(
+        self,
+        lod: bool,
+        nu: np.ndarray,
+        rest_joints: np.ndarray,
+        rot: np.ndarray,
+        joints: np.ndarray,
+    ) -> np.ndarray:
+        """(B, Na, 3): where each part's rigid motion about its joint carries its anchors."""
+        _, parts = self._skeleton_anchors[lod]
+        rest = self._linear(self._rest_anchor_basis[lod], nu)  # (B, Na, 3)
+        out = np.empty_like(rest)
+        bounds = np.searchsorted(parts, np.arange(len(PARTS) + 1))
+        for p in range(len(PARTS)):
+            sel = slice(bounds[p], bounds[p + 1])
+            rel = rest[:, sel] - rest_joints[:, p, None]
+            out[:, sel] = joints[:, p, None] + rel @ np.swapaxes(rot[:, p], 1, 2)
+        return out
+
     # --- pose ------------------------------------------------------------------
-    def pose(self, state: BodyState, lod: bool = False, pose_deformation: bool = True) -> PosedBody:
+    def pose(
+        self,
+        state: BodyState,
+        lod: bool = False,
+        pose_deformation: bool = True,
+        skeleton_anchors: bool = True,
+    ) -> PosedBody:
         """Meshes, joints and keypoints of posed, shaped bodies (Eq. 1 + solve).
 
         Parameters
@@ -389,6 +479,9 @@ class BodyModel:
             Build the ~3,000-triangle level of detail instead of the full mesh.
         pose_deformation : bool
             Apply the learned Q (False: rigid parts only, for comparison).
+        skeleton_anchors : bool
+            Anchor each part's inside to its bone (False: SCAPE's plain
+            least squares, for comparison).
         """
         nu = self._check_nu(state.nu)
         rest_kp = self._linear(self._keypoint_basis, nu)  # canonical (pinned) frame
@@ -396,7 +489,16 @@ class BodyModel:
         rot, joints = forward_kinematics(state.theta, state.tau, rest_joints, self.hinge_axes)
         local = local_rotations(state.theta, self.hinge_axes) if pose_deformation else None
         mesh = self._mesh(lod)
-        verts = mesh.solve(mesh.edges(rot, local, nu))
+        # SCAPE's least squares alone lets errors of the learned deformations add up
+        # along the body: with both arms overhead the head sank 4 cm against the
+        # skinned body the deformations were learned from. Anchoring each part's
+        # inside to its bone (rigid about the skeleton's joints) keeps the parts
+        # where the skeleton puts them and leaves the deformations to the seams
+        # (docs/body-model.md, "Skeleton anchors").
+        targets = None
+        if skeleton_anchors:
+            targets = self._anchor_targets(lod, nu, rest_joints, rot, joints)
+        verts = mesh.solve(mesh.edges(rot, local, nu), targets)
         anchor = self._linear(self._anchor_basis[lod], nu)  # (B, 3)
         want = state.tau + np.einsum("bij,bj->bi", rot[:, 0], anchor)
         have = verts[:, self._pelvis_vertices[lod]].mean(axis=1)

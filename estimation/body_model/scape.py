@@ -230,20 +230,47 @@ class ScapeMesh:
         ).reshape(-1, 5)
         self._build_solver(SOLVER if solver is None else solver)
 
-    def _build_solver(self, solver: str) -> None:
+    def _edge_matrix(self) -> sp.csr_matrix:
+        """(2T, V) ``A``: row ``e * T + t`` maps the vertices to edge e of triangle t
+        (matching the (xyz, edge, T) layout of :meth:`edges`)."""
         T, V = len(self.faces), self.n_vertices
         f = self.faces
-        # Row e * T + t holds edge e of triangle t (matching the (xyz, edge, T) layout).
         rows = np.concatenate([np.arange(T), np.arange(T), T + np.arange(T), T + np.arange(T)])
         cols = np.concatenate([f[:, 1], f[:, 0], f[:, 2], f[:, 0]])
         vals = np.concatenate([np.ones(T), -np.ones(T), np.ones(T), -np.ones(T)])
-        A = sp.csr_matrix((vals, (rows, cols)), shape=(2 * T, V))
+        return sp.csr_matrix((vals, (rows, cols)), shape=(2 * T, V))
+
+    def _build_solver(self, solver: str) -> None:
         # Vertex 0 is pinned at the origin: the edges fix the mesh up to a translation.
-        A = A[:, 1:].tocsc()
+        A = self._edge_matrix()[:, 1:].tocsc()
         self._At = A.T.tocsr()
-        self._faces64 = np.ascontiguousarray(f, dtype=np.int64)
+        self._faces64 = np.ascontiguousarray(self.faces, dtype=np.int64)
         self._factor = _factorize((self._At @ A).tocsr(), solver)
         self.solver = solver
+        self._anchors: tuple[np.ndarray, float, Callable[[np.ndarray], np.ndarray]] | None = None
+
+    def set_anchors(self, vertices: np.ndarray, weight: float) -> None:
+        """Soft anchors for :meth:`solve` with ``targets``: factorize once.
+
+        The anchored solve minimizes ``‖A x - E‖² + weight² Σ_a ‖x_a - target_a‖²``
+        over all vertices (no pinned vertex: the anchors place the mesh).
+
+        Parameters
+        ----------
+        vertices : (Na,) int
+            Anchored vertices (file order, as :attr:`arrays`).
+        weight : float
+            Weight of an anchor against one edge equation (> 0).
+        """
+        idx = np.asarray(vertices, dtype=np.int64)
+        if not weight > 0 or idx.ndim != 1 or len(idx) == 0:
+            raise ValueError(f"anchors: expected vertices and a weight > 0, got {weight}")
+        if idx.min() < 0 or idx.max() >= self.n_vertices:
+            raise ValueError(f"anchors: vertex indices must lie in 0..{self.n_vertices - 1}")
+        A = self._edge_matrix()
+        V = self.n_vertices
+        W = sp.csr_matrix((np.full(len(idx), weight**2), (idx, idx)), shape=(V, V))
+        self._anchors = (idx, float(weight**2), _factorize((A.T @ A + W).tocsr(), self.solver))
 
     # --- Eq. (1) -------------------------------------------------------------
     def shape_deformations(self, nu: np.ndarray) -> np.ndarray:
@@ -388,19 +415,24 @@ class ScapeMesh:
         )
         return out
 
-    def solve(self, edges: np.ndarray) -> np.ndarray:
+    def solve(self, edges: np.ndarray, targets: np.ndarray | None = None) -> np.ndarray:
         """Vertices whose triangle edges best fit ``edges`` (least squares).
 
         Parameters
         ----------
         edges : (B, 3, 2, T) float
             As returned by :meth:`edges`.
+        targets : (B, Na, 3) float, optional
+            Where the anchors of :meth:`set_anchors` should be: the anchored
+            solve, in the targets' frame.
 
         Returns
         -------
         (B, V, 3) float
-            Vertex 0 at the origin (callers place the mesh).
+            Without targets, vertex 0 at the origin (callers place the mesh).
         """
+        if targets is not None:
+            return self._solve_anchored(edges, targets)
         B = edges.shape[0]
         kernels = _edge_kernels()
         if kernels is not None:
@@ -417,6 +449,30 @@ class ScapeMesh:
         out = np.zeros((B, self.n_vertices, 3))
         out[:, 1:] = X.reshape(-1, B, 3).transpose(1, 0, 2)
         return out
+
+    def _solve_anchored(self, edges: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        if self._anchors is None:
+            raise ValueError("solve with targets: call set_anchors first")
+        idx, w2, factor = self._anchors
+        B = edges.shape[0]
+        targets = np.asarray(targets, dtype=float)
+        if targets.shape != (B, len(idx), 3):
+            raise ValueError(f"targets: expected shape {(B, len(idx), 3)}, got {targets.shape}")
+        kernels = _edge_kernels()
+        rhs = np.empty((self.n_vertices, 3 * B))
+        if kernels is not None:
+            rhs_t = np.empty((3 * B, self.n_vertices - 1))
+            kernels.normal_rhs_kernel(self._faces64, _kernel_arg(edges), rhs_t)
+            rhs[1:] = rhs_t.T
+        else:
+            E = np.ascontiguousarray(edges).reshape(B * 3, -1).T  # (2T, 3B)
+            rhs[1:] = self._At @ E
+        # Every edge adds +E to one end and -E to the other, so the rows of AᵀE sum
+        # to zero: vertex 0's row (left out of the pinned system) is minus the rest.
+        rhs[0] = -rhs[1:].sum(axis=0)
+        rhs[idx] += w2 * targets.transpose(1, 0, 2).reshape(len(idx), 3 * B)
+        X = factor(rhs)  # (V, 3B)
+        return np.ascontiguousarray(X.reshape(-1, B, 3).transpose(1, 0, 2))
 
 
 def _factorize(K: sp.csr_matrix, solver: str) -> Callable[[np.ndarray], np.ndarray]:

@@ -13,6 +13,7 @@ from bodymetry.errors import InputError
 from bodymetry.estimation.body_model import geometry, scape
 from bodymetry.estimation.body_model.bake.lod import closest_points
 from bodymetry.estimation.body_model.model import (
+    ANCHOR_CLEARANCE,
     DEFAULT_MODEL_PATH,
     DEFAULT_SHAPE_DOFS,
     BodyModel,
@@ -28,6 +29,7 @@ from bodymetry.estimation.body_model.skeleton import (
     PARTS,
     dof_names,
     forward_kinematics,
+    local_rotations,
 )
 
 # --------------------------------------------------------------------------------------
@@ -585,3 +587,98 @@ def test_numba_edges_pose_the_numpy_vertices(model, rng, monkeypatch, lod, B, ca
         monkeypatch.setattr(scape, "EDGES_BACKEND", backend)
         got[backend] = model.pose(state, lod=lod, pose_deformation=deform).vertices
     np.testing.assert_allclose(got["numba"], got["numpy"], rtol=0, atol=ATOL_EDGE_BACKENDS)
+
+
+# --- skeleton anchors of the posed solve ---------------------------------------------------------
+
+#: With both arms raised overhead (nothing else moving), the head may move this much
+#: relative to the pelvis (metres). Without the anchors the least-squares solve let
+#: the shoulders' deformations sink it 4 cm.
+HEAD_STILL = 0.01
+
+
+@pytest.mark.parametrize("lod", [False, True])
+def test_anchors_are_inside_their_part_away_from_the_others(model, lod):
+    idx, parts = model.skeleton_anchors(lod)
+    mesh = model.lod if lod else model.full
+    rest = mesh.arrays.template
+    assert len(np.unique(idx)) == len(idx) and np.all(np.diff(parts) >= 0)
+    assert set(parts.tolist()) == set(range(len(PARTS)))  # every part has some
+    faces, face_parts = mesh.arrays.faces, mesh.arrays.parts
+    for p in range(len(PARTS)):
+        mine = idx[parts == p]
+        other = np.unique(faces[face_parts != p])
+        # Only triangles of their own part touch them, and no other part is near.
+        assert not np.isin(mine, other).any()
+        gap = cKDTree(rest[other]).query(rest[mine])[0]
+        assert gap.min() >= ANCHOR_CLEARANCE - 1e-12
+
+
+def test_raising_both_arms_leaves_the_head_where_it_was(model):
+    theta = np.zeros(N_POSE)
+    for side, sign in (("l", -1.0), ("r", -1.0)):
+        theta[JOINT_SLICES[JOINTS.index(f"shoulder_{side}")].start] = sign * 2.4
+    theta = model.limits.clip(theta)
+    nu = np.zeros(model.n_shape)
+    states = BodyState(np.zeros((2, 3)), np.stack([np.zeros(N_POSE), theta]), np.stack([nu, nu]))
+    for lod in (False, True):
+        v = model.pose(states, lod=lod).vertices
+        parts = model.vertex_parts if not lod else _lod_vertex_parts(model)
+        head, pelvis = parts == PARTS.index("head"), parts == PARTS.index("pelvis")
+        rel = v[:, head].mean(axis=1) - v[:, pelvis].mean(axis=1)
+        assert np.linalg.norm(rel[1] - rel[0]) < HEAD_STILL, rel[1] - rel[0]
+        # and the hands went up, above the head
+        hands = np.isin(parts, [PARTS.index("hand_l"), PARTS.index("hand_r")])
+        assert v[1, hands, 2].mean() > v[1, head, 2].max()
+
+
+def _lod_vertex_parts(model: BodyModel) -> np.ndarray:
+    faces, parts = model.lod.arrays.faces, model.lod.arrays.parts
+    out = np.zeros(model.lod.n_vertices, np.int64)
+    out[faces.reshape(-1)] = np.repeat(parts, 3)
+    return out
+
+
+@pytest.mark.parametrize("lod", [False, True])
+def test_anchored_solve_of_consistent_targets_is_the_plain_solve(model, rng, lod):
+    """Where the edges and the anchors agree (targets taken from the plain solve),
+    the anchored least squares has that mesh as its exact optimum."""
+    mesh = model.lod if lod else model.full
+    model.skeleton_anchors(lod)  # sets the mesh's anchors
+    state = _random_states(model, rng, 3)
+    rest_kp = model.rest_keypoints(state.nu)  # any frame: the solve is translation-free
+    rest = rest_kp[:, : len(JOINTS)]
+    rot, _ = forward_kinematics(state.theta, state.tau, rest, model.hinge_axes)
+    edges = mesh.edges(rot, local_rotations(state.theta, model.hinge_axes), state.nu)
+    plain = mesh.solve(edges) + rng.normal(0.0, 1.0, (3, 1, 3))  # placed anywhere
+    idx, _ = model.skeleton_anchors(lod)
+    anchored = mesh.solve(edges, plain[:, idx])
+    np.testing.assert_allclose(anchored, plain, atol=ATOL_SOLVERS)
+
+
+def test_anchored_solve_checks_its_inputs(model):
+    mesh = scape.ScapeMesh(model.lod.arrays, model.n_shape)
+    edges = mesh.edges(None, None, None)
+    with pytest.raises(ValueError, match="set_anchors first"):
+        mesh.solve(edges, np.zeros((1, 3, 3)))
+    with pytest.raises(ValueError, match="weight > 0"):
+        mesh.set_anchors(np.array([1, 2]), 0.0)
+    with pytest.raises(ValueError, match="vertex indices"):
+        mesh.set_anchors(np.array([1, mesh.n_vertices]), 0.3)
+    mesh.set_anchors(np.array([1, 2, 3]), 0.3)
+    with pytest.raises(ValueError, match="targets: expected shape"):
+        mesh.solve(edges, np.zeros((1, 2, 3)))
+
+
+@pytest.mark.parametrize("lod", [False, True])
+def test_anchored_solve_numba_equals_numpy(model, rng, monkeypatch, lod):
+    mesh = model.lod if lod else model.full
+    idx, _ = model.skeleton_anchors(lod)
+    state = _random_states(model, rng, 2)
+    rest = np.zeros((2, len(JOINTS), 3))
+    rot, _ = forward_kinematics(state.theta, state.tau, rest, model.hinge_axes)
+    edges = mesh.edges(rot, local_rotations(state.theta, model.hinge_axes), state.nu)
+    targets = rng.normal(0.0, 0.5, (2, len(idx), 3))
+    got = mesh.solve(edges, targets)
+    monkeypatch.setattr(scape, "_edge_kernels", lambda: None)
+    np.testing.assert_allclose(mesh.solve(edges, targets), got, atol=ATOL_SOLVERS)

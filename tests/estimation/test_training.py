@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from bodymetry.errors import InputError
+from bodymetry.estimation import training
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.training import (
@@ -67,6 +68,13 @@ def test_rig_key_tracks_cameras_and_settings(cameras):
     assert base == rig_key(list(cameras), TINY)
     assert base != rig_key(studio_rig(2, (160, 120), seed=2), TINY)
     assert base != rig_key(cameras, TrainConfig(n_train=61, n_test=12))
+
+
+def test_rig_key_tracks_how_bodies_are_posed(cameras, monkeypatch):
+    """The same model file posed another way renders other training silhouettes."""
+    base = rig_key(cameras, TINY)
+    monkeypatch.setattr(training, "ANCHOR_WEIGHT", training.ANCHOR_WEIGHT * 2)
+    assert rig_key(cameras, TINY) != base
 
 
 def test_sampled_states_stand_on_the_floor_and_split_shapes():

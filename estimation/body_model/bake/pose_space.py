@@ -54,11 +54,18 @@ def lbs(
 
 
 def sample_training_poses(
-    rng: np.random.Generator, n: int, limits: JointLimits, max_bend: float = 1.0
+    rng: np.random.Generator,
+    n: int,
+    limits: JointLimits,
+    max_bend: float = 1.0,
+    full_range: tuple[str, ...] = (),
 ) -> np.ndarray:
     """Random joint angles within the limits, each DOF within ``±max_bend``.
 
     The root rotation is zero: Q depends only on relative joint rotations.
+    The joints named in ``full_range`` (e.g. the shoulders) are drawn over
+    their whole limits instead; their draws come after the others', so the
+    other joints' angles do not depend on ``full_range``.
 
     Returns
     -------
@@ -68,6 +75,9 @@ def sample_training_poses(
     hi = np.minimum(limits.upper, max_bend)
     theta = rng.uniform(lo, hi, size=(n, N_POSE))
     theta[:, JOINT_SLICES[0]] = 0.0
+    for name in full_range:
+        s = JOINT_SLICES[JOINTS.index(name)]
+        theta[:, s] = rng.uniform(limits.lower[s], limits.upper[s], size=(n, s.stop - s.start))
     return theta
 
 

@@ -1,0 +1,270 @@
+"""Does the observed outline lie outside the fitted body? A check for loose clothing and hair.
+
+The measurements assume the silhouette is the body's own outline (tight
+clothing). Loose clothes break that silently: the fit explains the larger
+silhouettes with a larger body at an IoU as good as a tight subject's (a
+loose shirt and shorts added 13-16 kg in the studio, docs/session-shape.md).
+No single number of the fit separates the two (the IoU, the size of ν, the
+overall excess of silhouette over model all overlap); the *pattern* of the
+misfit does:
+
+* a shirt and shorts (or a dress, a jacket) cover the trunk and leave the
+  forearms and shins bare. One body cannot be wide at the trunk and slim at
+  the forearms beyond what the shape space allows, so the fit settles in
+  between: the observed outline lies **outside** the fitted body at the trunk
+  and **inside** it at the bare limbs. With tight clothing the offset is about
+  the same everywhere;
+* hair or headwear puts the outline outside the fitted head, most at the
+  crown, which is what the height is measured to.
+
+For every frame and view, at the given states, each model contour edge is
+paired with the nearest observed outline point (the contour cost's
+model-to-observed correspondences, :mod:`bodymetry.estimation.refinement`), and
+its offset along the observed outline's outward normal is converted from
+pixels to millimetres at the edge's depth: positive where the observed outline
+lies outside the body. Offsets are pooled per body region and frame (median),
+and the session's figure is the median over frames, with the frames' spread
+as its standard error.
+
+Studio sessions (docs/session-shape.md): trunk minus forearms-and-shins
+-1.0..+1.5 mm for tight subjects and the demo, +3.5..+7.6 mm with the loose
+shirt and shorts; the real Pose2Sim capture +0.2..+0.5 mm.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from bodymetry.calibration.camera import Camera
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.skeleton import PARTS
+from bodymetry.estimation.records import OutlineCheck
+from bodymetry.estimation.refinement import ContourCost, RefineConfig, prepare_contours
+
+#: Body regions the offsets are pooled over, by part name.
+REGIONS: dict[str, tuple[str, ...]] = {
+    "trunk": ("torso", "pelvis"),
+    "upper limbs": ("upper_arm_l", "upper_arm_r", "thigh_l", "thigh_r"),
+    "lower limbs": ("lower_arm_l", "lower_arm_r", "shin_l", "shin_r"),
+    "head": ("head",),
+    "crown": (),  # the head within CROWN_DEPTH of its top (see crown_vertices)
+}
+
+#: Depth below the top of the standing body's head that counts as its crown, metres.
+CROWN_DEPTH = 0.06
+
+
+@dataclass(frozen=True)
+class OutlineConfig:
+    """Thresholds of the outline check.
+
+    Attributes
+    ----------
+    loose_mm : float
+        Warn of loose clothing when the trunk's offset exceeds the lower
+        limbs' by more than this (studio: tight at most 1.5 mm, loose at least
+        3.5 mm).
+    crown_mm : float
+        Warn of hair or headwear when the crown's offset exceeds the lower
+        limbs' by more than this (studio: bare head at most 2 mm, hair at
+        least 8.8 mm; the real Pose2Sim capture 5.8 mm).
+    min_points : int
+        Fewest contour points a region needs in a frame to count there.
+    max_mm_per_px : float
+        Coarsest working pixel (millimetres at the body) the check decides
+        at: the signatures are a few millimetres, a third to a whole pixel of
+        the demo's 10 mm working pixels; at 25 mm (a 240x180 camera) they are
+        lost in the outline's quantization.
+    """
+
+    loose_mm: float = 2.5
+    crown_mm: float = 7.0
+    min_points: int = 10
+    max_mm_per_px: float = 15.0
+
+    def __post_init__(self) -> None:
+        if not (self.loose_mm > 0 and self.crown_mm > 0):
+            raise ValueError(
+                f"loose_mm, crown_mm: expected > 0, got {self.loose_mm}, {self.crown_mm}"
+            )
+        if self.min_points < 1:
+            raise ValueError(f"min_points: expected >= 1, got {self.min_points}")
+        if not self.max_mm_per_px > 0:
+            raise ValueError(f"max_mm_per_px: expected > 0, got {self.max_mm_per_px}")
+
+
+def crown_vertices(body: BodyModel, lod: bool) -> np.ndarray:
+    """(V,) bool: head vertices within :data:`CROWN_DEPTH` of the rest body's top.
+
+    Taken on the mean shape standing (θ = 0); the set then moves with the head.
+    """
+    parts = vertex_parts(body, lod)
+    rest = body.pose(BodyState.rest(body.n_shape), lod=lod).vertices[0]
+    head = parts == PARTS.index("head")
+    return head & (rest[:, 2] >= rest[head, 2].max() - CROWN_DEPTH)
+
+
+def vertex_parts(body: BodyModel, lod: bool) -> np.ndarray:
+    """(V,) int: each vertex's body part (that of an incident triangle)."""
+    faces = body.faces(lod=lod)
+    out = np.zeros(int(faces.max()) + 1, np.int64)
+    out[faces.reshape(-1)] = np.repeat(body.lod.arrays.parts if lod else body.full.arrays.parts, 3)
+    return out
+
+
+def frame_offsets(
+    body: BodyModel,
+    cameras: Sequence[Camera],
+    masks: Sequence[np.ndarray],
+    state: np.ndarray,
+    refinement: RefineConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signed outline offsets of one frame's model contour, every usable view.
+
+    Parameters
+    ----------
+    cameras : sequence of C Camera
+        The working cameras.
+    masks : sequence of C (H_c, W_c) bool
+        Observed silhouettes (all-False: view left out).
+    state : (40 + n_shape,) float
+        ``[τ, θ, ν]`` of the frame.
+    refinement : RefineConfig
+        The contour cost's settings (mesh, scale, points).
+
+    Returns
+    -------
+    vertices : (N,) int
+        The first vertex of each contour edge (indices into the cost's mesh).
+    offsets_mm : (N,) float
+        Observed outline minus model contour along the outline's outward
+        normal, millimetres at the edge's depth (+: the outline lies outside).
+    mm_per_px : (N,) float
+        The size of a working pixel at each edge's depth, millimetres.
+    """
+    obs = prepare_contours(cameras, masks, refinement.image_scale, refinement.max_points)
+    cost = ContourCost(body, obs, refinement)
+    y = np.asarray(state, float)
+    _, pairs = cost.evaluate(y)
+    V = cost.vertices(y)[0]
+    verts, offsets, sizes = [], [], []
+    for p in pairs:
+        if p.source is not None:  # the observed-to-model direction repeats edges
+            continue
+        cam = obs.cameras[p.camera]
+        mid = 0.5 * (V[p.edges[:, 0]] + V[p.edges[:, 1]])
+        px = np.einsum("ij,ij->i", p.targets - cam.project(mid), p.normals)
+        depth = (mid @ cam.R.T + cam.t)[:, 2]
+        verts.append(p.edges[:, 0])
+        sizes.append(depth / cam.K[0, 0] * 1000.0)
+        offsets.append(px * sizes[-1])
+    if not verts:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    return np.concatenate(verts), np.concatenate(offsets), np.concatenate(sizes)
+
+
+def check_outline(
+    body: BodyModel,
+    cameras: Sequence[Camera],
+    frames: Sequence[tuple[Sequence[np.ndarray], np.ndarray]],
+    refinement: RefineConfig | None = None,
+    config: OutlineConfig | None = None,
+) -> OutlineCheck:
+    """The session's outline offsets per region, and its warnings.
+
+    Parameters
+    ----------
+    body : BodyModel
+    cameras : sequence of Camera
+        The working cameras.
+    frames : sequence of (masks, state)
+        Each accepted frame's observed silhouettes and fitted state (see
+        :func:`frame_offsets`).
+    refinement : RefineConfig, optional
+    config : OutlineConfig, optional
+
+    Returns
+    -------
+    OutlineCheck
+    """
+    refinement = refinement or RefineConfig()
+    config = config or OutlineConfig()
+    lod = not refinement.full_mesh
+    parts = vertex_parts(body, lod)
+    crown = crown_vertices(body, lod)
+    members = {
+        name: crown if name == "crown" else np.isin(parts, [PARTS.index(p) for p in names])
+        for name, names in REGIONS.items()
+    }
+    per_frame: dict[str, list[float]] = {name: [] for name in REGIONS}
+    # Per frame, each region's offset relative to the bare forearms and shins:
+    # a uniformly larger silhouette (a blurred or dilated segmentation) moves
+    # every region alike and is not clothing.
+    excess: dict[str, list[float]] = {"trunk": [], "crown": []}
+    pixel = []
+    for masks, state in frames:
+        verts, mm, size = frame_offsets(body, cameras, masks, state, refinement)
+        pixel.append(size)
+        med = {}
+        for name, member in members.items():
+            sel = member[verts]
+            med[name] = float(np.median(mm[sel])) if sel.sum() >= config.min_points else np.nan
+            if np.isfinite(med[name]):
+                per_frame[name].append(med[name])
+        for name, values in excess.items():
+            if np.isfinite(med[name]) and np.isfinite(med["lower limbs"]):
+                values.append(med[name] - med["lower limbs"])
+    trunk, trunk_se = _median(excess["trunk"]), _standard_error(excess["trunk"])
+    crown, crown_se = _median(excess["crown"]), _standard_error(excess["crown"])
+    mm_per_px = float(np.median(np.concatenate(pixel))) if any(len(p) for p in pixel) else np.nan
+    coarse = not mm_per_px <= config.max_mm_per_px
+    warnings = []
+    if coarse:
+        pass  # the figures are kept, but they decide nothing at this resolution
+    elif np.isfinite(trunk) and trunk > config.loose_mm:
+        warnings.append(
+            f"loose clothing likely: the silhouettes lie {trunk:.1f} ± {trunk_se:.1f} mm "
+            "further outside the fitted body at the trunk than at the forearms and shins "
+            f"(tight clothing: under {config.loose_mm:g} mm); the weight, circumferences "
+            "and widths are probably overstated"
+        )
+    if not coarse and np.isfinite(crown) and crown > config.crown_mm:
+        warnings.append(
+            f"hair or headwear likely: the silhouettes lie {crown:.1f} ± {crown_se:.1f} mm "
+            "further outside the fitted body at the crown than at the forearms and shins "
+            f"(bare head: under {config.crown_mm:g} mm); the height is probably overstated"
+        )
+    if not np.isfinite(mm_per_px):
+        status = "no contour"
+    elif coarse:
+        status = (
+            f"undecided: working pixels of {mm_per_px:.0f} mm at the body are coarser "
+            f"than the {config.max_mm_per_px:g} mm the check needs"
+        )
+    else:
+        status = "ok"
+    return OutlineCheck(
+        status=status,
+        frames=len(frames),
+        mm_per_px=mm_per_px,
+        offsets_mm={k: _median(v) for k, v in per_frame.items()},
+        trunk_excess_mm=trunk,
+        trunk_excess_se_mm=trunk_se,
+        crown_excess_mm=crown,
+        crown_excess_se_mm=crown_se,
+        warnings=tuple(warnings),
+    )
+
+
+def _median(values: Sequence[float]) -> float:
+    return float(np.median(values)) if len(values) else float("nan")
+
+
+def _standard_error(values: Sequence[float]) -> float:
+    """Standard error of the median over frames (1.2533 σ/√n, normal efficiency)."""
+    if len(values) < 2:
+        return float("nan")
+    return float(1.2533 * np.std(values, ddof=1) / np.sqrt(len(values)))

@@ -1,0 +1,193 @@
+"""The outline check: offsets of the observed outline from the fitted body, per region."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from bodymetry.errors import InputError
+from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.skeleton import PARTS
+from bodymetry.estimation.outline_check import (
+    OutlineConfig,
+    check_outline,
+    crown_vertices,
+    vertex_parts,
+)
+from bodymetry.estimation.projection import project_silhouettes
+from bodymetry.estimation.records import OutlineCheck, SessionShape
+from bodymetry.estimation.refinement import RefineConfig
+from bodymetry.studio.rig import studio_rig
+
+NU = np.array([0.5, -0.3, 0.2, 0.0, 0.3, 0.0, -0.2, 0.0, 0.1])
+#: The tolerance on a region's offset (mm) when the silhouettes are the body's
+#: own: rasterization puts the outline within half a pixel, here about 3 mm.
+EXACT_MM = 1.5
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """A known body in 3 headings seen by 4 studio cameras (640x480)."""
+    model = BodyModel.load()
+    cameras = studio_rig(4, (640, 480), seed=4)
+    states = []
+    for heading in (-2.0, 0.3, 2.2):
+        theta = model.poses["apose"].copy()
+        theta[2] = heading
+        states.append(np.r_[0.05, -0.05, 0.93, theta, NU])
+    return model, cameras, states
+
+
+def _masks(model, cameras, state, faces=None):
+    body = model.pose(BodyState.from_vector(state[None])).vertices[0]
+    return list(project_silhouettes(body, model.faces() if faces is None else faces, cameras))
+
+
+def _grown(masks, px):
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * px + 1, 2 * px + 1))
+    return [cv2.dilate(m.astype(np.uint8), kernel).astype(bool) for m in masks]
+
+
+def _region_faces(model, names):
+    parts = model.full.arrays.parts
+    return model.faces()[np.isin(parts, [PARTS.index(n) for n in names])]
+
+
+def _mm_per_px(cameras, state) -> float:
+    """Millimetres per pixel at the body's depth, averaged over the views."""
+    return float(np.mean([np.linalg.norm(c.center - state[:3]) / c.K[0, 0] for c in cameras]) * 1e3)
+
+
+def test_own_silhouettes_give_no_offset_and_no_warning(scene):
+    model, cameras, states = scene
+    frames = [(_masks(model, cameras, s), s) for s in states]
+    check = check_outline(model, cameras, frames)
+    assert check.frames == 3 and check.status == "ok"
+    assert check.mm_per_px == pytest.approx(2 * _mm_per_px(cameras, states[0]), rel=0.15)
+    for region in ("trunk", "upper limbs", "lower limbs", "head"):
+        assert abs(check.offsets_mm[region]) < EXACT_MM, (region, check.offsets_mm)
+    assert abs(check.trunk_excess_mm) < EXACT_MM
+    assert check.warnings == ()
+
+
+def test_uniformly_larger_silhouettes_are_not_loose_clothing(scene):
+    """Grown by 2 px everywhere: every region moves out alike, the trunk excess stays ~0."""
+    model, cameras, states = scene
+    frames = [(_grown(_masks(model, cameras, s), 2), s) for s in states]
+    check = check_outline(model, cameras, frames)
+    px = _mm_per_px(cameras, states[0])
+    for region in ("trunk", "upper limbs", "lower limbs"):
+        assert check.offsets_mm[region] == pytest.approx(2 * px, abs=0.6 * px), region
+    assert abs(check.trunk_excess_mm) < 0.5 * px
+    assert not any("loose" in w for w in check.warnings)
+
+
+def test_a_wider_trunk_warns_of_loose_clothing(scene):
+    """A shirt: the trunk's outline grown by 3 px, the limbs as they are."""
+    model, cameras, states = scene
+    trunk = _region_faces(model, ("torso", "pelvis"))
+    frames = []
+    for s in states:
+        own = _masks(model, cameras, s)
+        shirt = _grown(_masks(model, cameras, s, trunk), 3)
+        frames.append(([a | b for a, b in zip(own, shirt, strict=True)], s))
+    check = check_outline(model, cameras, frames)
+    px = _mm_per_px(cameras, states[0])
+    assert check.trunk_excess_mm > 1.5 * px
+    assert abs(check.offsets_mm["lower limbs"]) < EXACT_MM
+    assert any(w.startswith("loose clothing likely") for w in check.warnings)
+    # A threshold above the excess silences it.
+    quiet = check_outline(
+        model, cameras, frames, config=OutlineConfig(loose_mm=check.trunk_excess_mm + 1)
+    )
+    assert not any("loose" in w for w in quiet.warnings)
+
+
+def test_hair_at_the_crown_warns(scene):
+    model, cameras, states = scene
+    crown = crown_vertices(model, lod=False)
+    faces = model.faces()[crown[model.faces()].all(axis=1)]
+    frames = []
+    for s in states:
+        own = _masks(model, cameras, s)
+        hair = _grown(_masks(model, cameras, s, faces), 3)
+        frames.append(([a | b for a, b in zip(own, hair, strict=True)], s))
+    check = check_outline(model, cameras, frames)
+    assert check.offsets_mm["crown"] > 1.5 * _mm_per_px(cameras, states[0])
+    assert any(w.startswith("hair or headwear likely") for w in check.warnings)
+    assert not any("loose" in w for w in check.warnings)
+
+
+def test_coarse_pixels_decide_nothing(scene):
+    """At 160x120 a working pixel is ~50 mm: the same wider trunk gives no verdict."""
+    model, _, states = scene
+    cameras = studio_rig(4, (160, 120), seed=4)
+    trunk = _region_faces(model, ("torso", "pelvis"))
+    frames = []
+    for s in states:
+        own = _masks(model, cameras, s)
+        shirt = _grown(_masks(model, cameras, s, trunk), 1)
+        frames.append(([a | b for a, b in zip(own, shirt, strict=True)], s))
+    check = check_outline(model, cameras, frames)
+    assert check.mm_per_px > OutlineConfig().max_mm_per_px
+    assert check.status.startswith("undecided") and check.warnings == ()
+    assert np.isfinite(check.trunk_excess_mm)  # the figures are kept
+
+
+def test_regions_are_parts_of_the_mesh():
+    model = BodyModel.load()
+    for lod in (False, True):
+        parts = vertex_parts(model, lod)
+        assert len(parts) == model.pose(BodyState.rest(model.n_shape), lod=lod).vertices.shape[1]
+        crown = crown_vertices(model, lod)
+        assert crown.any() and np.all(parts[crown] == PARTS.index("head"))
+    # the crown is the top of the head, a small share of it
+    parts = vertex_parts(model, False)
+    assert crown_vertices(model, False).sum() < 0.5 * (parts == PARTS.index("head")).sum()
+
+
+def test_lod_refinement_gives_the_same_verdict(scene):
+    model, cameras, states = scene
+    frames = [(_masks(model, cameras, s), s) for s in states]
+    check = check_outline(model, cameras, frames, RefineConfig(full_mesh=False))
+    assert abs(check.trunk_excess_mm) < 2 * EXACT_MM and check.warnings == ()
+
+
+def test_no_frames_gives_nan_and_no_warning():
+    model = BodyModel.load()
+    check = check_outline(model, studio_rig(4, (64, 48), seed=4), [])
+    assert check.frames == 0 and np.isnan(check.trunk_excess_mm) and check.warnings == ()
+    assert check.status == "no contour"
+
+
+def test_config_is_validated():
+    with pytest.raises(ValueError, match="loose_mm"):
+        OutlineConfig(loose_mm=0)
+    with pytest.raises(ValueError, match="min_points"):
+        OutlineConfig(min_points=0)
+    with pytest.raises(ValueError, match="max_mm_per_px"):
+        OutlineConfig(max_mm_per_px=0)
+
+
+def test_json_round_trip_inside_the_session_block():
+    check = OutlineCheck(
+        status="ok",
+        mm_per_px=9.8,
+        frames=4,
+        offsets_mm={"trunk": 2.5, "lower limbs": -1.0, "crown": float("nan")},
+        trunk_excess_mm=3.5,
+        trunk_excess_se_mm=0.4,
+        warnings=("loose clothing likely: ...",),
+    )
+    shape = SessionShape(status="ok", outline=check)
+    back = SessionShape.from_json(shape.to_json())
+    assert back.outline.offsets_mm["trunk"] == 2.5 and np.isnan(back.outline.offsets_mm["crown"])
+    assert back.outline == OutlineCheck.from_json(check.to_json())
+    assert back.outline.warnings == check.warnings and back.outline.trunk_excess_mm == 3.5
+    assert back.outline.mm_per_px == 9.8 and back.outline.status == "ok"
+    assert SessionShape.from_json(SessionShape(status="ok").to_json()).outline is None
+    with pytest.raises(InputError, match=r"session_shape\.outline"):
+        SessionShape.from_json({"status": "ok", "outline": [1, 2]})
+    with pytest.raises(InputError, match="malformed outline"):
+        OutlineCheck.from_json({"frames": "many"})
