@@ -889,7 +889,7 @@ def _kmeans(
             i = int(np.searchsorted(np.cumsum(closest), rng.random() * total, side="right"))
             centers[j] = x[min(i, n - 1)]
         closest = np.minimum(closest, _sq_dists(x, centers[j : j + 1], x_sq)[:, 0])
-    prev = np.inf
+    prev = np.inf  # no inertia before the first iteration: never "converged" there
     for _ in range(max_iter):
         d2 = _sq_dists(x, centers, x_sq)
         label = d2.argmin(1)
@@ -903,7 +903,9 @@ def _kmeans(
         if empty.size:  # re-seed empty clusters at the worst-fit points
             far = np.argsort(-d2[np.arange(n), label], kind="stable")[: empty.size]
             centers[empty] = x[far]
-        if empty.size == 0 and prev - inertia <= tol * max(prev, 1e-300):
+        # (On the first iteration inf - inertia <= tol * inf held, and Lloyd
+        # stopped after one step: the codebook was the seeds' cluster means.)
+        if empty.size == 0 and np.isfinite(prev) and prev - inertia <= tol * max(prev, 1e-300):
             break
         prev = inertia
     return centers

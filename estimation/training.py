@@ -50,7 +50,8 @@ from bodymetry.log import Progress
 log = logging.getLogger(__name__)
 
 #: Bumped when training changes so that cached models are rebuilt.
-TRAINING_VERSION = 2
+#: 3: the codebook's k-means runs Lloyd to convergence (it stopped after one step).
+TRAINING_VERSION = 3
 MODEL_NAMES = ("nu_rdf", "theta_sc", "tau_rdf", "nu_sc")
 #: The test-set figures ``bodymetry train`` prints (keys of ``DiscriminativeModels.metrics``).
 HEADLINE_METRICS = (
@@ -93,6 +94,16 @@ class TrainConfig:
         K of the shape-context codebook (paper: 100).
     codebook_examples : int
         Training examples whose descriptors build the codebook.
+    codebook_samples : int
+        Descriptors per scale (a random subset of the codebook examples') that
+        k-means clusters. Measured on the demo rig's 320,000 descriptors: 30,000
+        samples and 30 Lloyd iterations quantize held-out descriptors 11 % better
+        (mean squared distance to the nearest centre) than the single iteration
+        on 100,000 that k-means used to stop at, in 1.3x its time (1.4 s a
+        scale); 50,000 samples gain 0.7 % more in 2.2x that time.
+    codebook_iterations : int
+        Lloyd iterations at most (the relative inertia decrease is still above
+        1e-4 at 30, but each iteration costs as much as the seeding).
     sc_points : int
         Contour points sampled per silhouette for shape contexts.
     experts, ridges : tuples
@@ -113,6 +124,8 @@ class TrainConfig:
     volume: float = 1.0
     codebook_size: int = 100
     codebook_examples: int = 400
+    codebook_samples: int = 30_000
+    codebook_iterations: int = 30
     sc_points: int = 200
     experts: tuple[int, ...] = (1, 2, 4, 8)
     ridges: tuple[float, ...] = (1.0, 10.0, 100.0)
@@ -446,6 +459,8 @@ def train(
         config.codebook_size,
         np.random.default_rng(config.seed),
         config=sc_config,
+        max_samples=config.codebook_samples,
+        max_iter=config.codebook_iterations,
     )
     sc_cb = np.zeros((len(cameras), n_cb, codebook.dim))
     it = iter(descriptors)
