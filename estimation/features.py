@@ -890,10 +890,17 @@ def _kmeans(
             centers[j] = x[min(i, n - 1)]
         closest = np.minimum(closest, _sq_dists(x, centers[j : j + 1], x_sq)[:, 0])
     prev = np.inf  # no inertia before the first iteration: never "converged" there
+    rows = np.arange(n)
     for _ in range(max_iter):
-        d2 = _sq_dists(x, centers, x_sq)
-        label = d2.argmin(1)
-        inertia = float(d2[np.arange(n), label].sum())
+        # ||x||^2 is the same for every centre: the nearest centre is the argmin of
+        # ||c||^2 - 2 x.c, one (N, K) array updated in place (the full expansion
+        # made three such temporaries, which cost more than the product)
+        g = x @ centers.T
+        g *= -2.0
+        g += (centers * centers).sum(1)
+        label = g.argmin(1)
+        fit = np.maximum(g[rows, label] + x_sq, 0.0)  # squared distance to its centre
+        inertia = float(fit.sum())
         counts = np.bincount(label, minlength=k)
         sums = np.zeros_like(centers)
         _add_rows(sums, label, x)
@@ -901,7 +908,7 @@ def _kmeans(
         centers[nonempty] = sums[nonempty] / counts[nonempty, None]
         empty = np.flatnonzero(~nonempty)
         if empty.size:  # re-seed empty clusters at the worst-fit points
-            far = np.argsort(-d2[np.arange(n), label], kind="stable")[: empty.size]
+            far = np.argsort(-fit, kind="stable")[: empty.size]
             centers[empty] = x[far]
         # (On the first iteration inf - inertia <= tol * inf held, and Lloyd
         # stopped after one step: the codebook was the seeds' cluster means.)
@@ -1171,7 +1178,7 @@ def fit_codebook(
         At most this many descriptors (a random subset) per scale are used.
     max_iter : int, default 100
         Lloyd iterations at most; stops earlier when the relative decrease of
-        the inertia is below ``tol``.
+        the inertia is below ``tol`` (tested from the second iteration on).
 
     Returns
     -------

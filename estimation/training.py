@@ -99,8 +99,8 @@ class TrainConfig:
         k-means clusters. Measured on the demo rig's 320,000 descriptors: 30,000
         samples and 30 Lloyd iterations quantize held-out descriptors 11 % better
         (mean squared distance to the nearest centre) than the single iteration
-        on 100,000 that k-means used to stop at, in 1.3x its time (1.4 s a
-        scale); 50,000 samples gain 0.7 % more in 2.2x that time.
+        on 100,000 that k-means used to stop at, in about the same time (1.0 s
+        against 1.1 s a scale); 50,000 samples gain 0.7 % more in 2x the time.
     codebook_iterations : int
         Lloyd iterations at most (the relative inertia decrease is still above
         1e-4 at 30, but each iteration costs as much as the seeding).
