@@ -66,9 +66,10 @@ RngLike = np.random.Generator | int | np.integer
 
 _BACKENDS = ("numba", "numpy")
 
-#: The implementation of the shape-context histograms and the codebook encoding:
-#: ``"numba"`` (``feature_kernels.py``: the same histograms, encodings equal to
-#: about 1e-15) or ``"numpy"`` (the reference). From ``$BODYMETRY_FEATURES``; by
+#: The implementation of the shape-context histograms, the codebook encoding and
+#: the RDF's ray casting: ``"numba"`` (``feature_kernels.py``: the same
+#: histograms, encodings equal to about 1e-15, extents to about 1e-12 px) or
+#: ``"numpy"`` (the reference). From ``$BODYMETRY_FEATURES``; by
 #: default numba when installed. Read at every call, so tests and benchmarks may
 #: set it.
 BACKEND: str = default_backend(
@@ -347,10 +348,13 @@ def _rdf_of_blob(
     """:func:`rdf` of a blob from :func:`_largest_blob`, (n + 2,)."""
     mom = cv2.moments(roi, binaryImage=True)
     center = np.array([mom["m10"] / mom["m00"] + x0, mom["m01"] / mom["m00"] + y0])
-    polygon = _simplify(contour)
     out = np.empty(n + 2)
     out[:2] = center
-    out[2:] = _ray_extents(polygon, center, n)
+    kernels = _kernels()
+    if kernels is None:
+        out[2:] = _ray_extents(_simplify(contour), center, n)
+    else:
+        kernels.ray_extents_kernel(contour, float(center[0]), float(center[1]), n, out[2:])
     return out
 
 
