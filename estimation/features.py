@@ -563,27 +563,27 @@ def _reference_bins(
     ``j``, and the radial bins ``(S, A)`` (``n_r``: beyond ``r_out``).
     """
     i, j = pairs[:, 0], pairs[:, 1]
-    dx, dy = x[j] - x[i], y[j] - y[i]
-
-    def orientation(dy: NDArray[np.float64], dx: NDArray[np.float64]) -> NDArray[np.int64]:
-        t = np.arctan2(dy, dx)
-        t *= n_theta / (2.0 * np.pi)
-        t += 0.5 + n_theta
-        return np.floor(t).astype(np.int64) % n_theta
-
-    log_d2 = dx * dx
-    log_d2 += dy * dy
+    a = len(pairs)
+    # Both directions in one call (elementwise, the same values): j from i, then i
+    # from j as x[i] - x[j], like the reference (+0.0 where equal, not -0.0:
+    # arctan2 tells them apart on the horizontal).
+    dx = np.concatenate([x[j] - x[i], x[i] - x[j]])
+    dy = np.concatenate([y[j] - y[i], y[i] - y[j]])
+    t = np.arctan2(dy, dx)
+    t *= n_theta / (2.0 * np.pi)
+    t += 0.5 + n_theta
+    theta = np.floor(t).astype(np.int64) % n_theta
+    log_d2 = dx[:a] * dx[:a]
+    log_d2 += dy[:a] * dy[:a]
     with np.errstate(divide="ignore"):
         np.log(log_d2, out=log_d2)
     gain = n_r / (2.0 * np.log(1.0 / r_in_fraction))
-    radial = np.empty((len(kappas), len(pairs)), np.int64)
-    for s, kappa in enumerate(kappas):
-        q = log_d2 - 2.0 * np.log(r_in_fraction * kappa * height)
-        q *= gain
-        radial[s] = np.clip(np.floor(q), 0, n_r)
-    # i from j: x[i] - x[j] as the reference computes it (+0.0 where equal, not
-    # -0.0: arctan2 tells them apart on the horizontal)
-    return orientation(dy, dx), orientation(y[i] - y[j], x[i] - x[j]), radial
+    # 2 log r_in per scale by scalar calls, as the reference computes it
+    log_r_in2 = np.array([2.0 * np.log(r_in_fraction * kappa * height) for kappa in kappas])
+    q = log_d2[None, :] - log_r_in2[:, None]
+    q *= gain
+    radial = np.clip(np.floor(q), 0, n_r).astype(np.int64)
+    return theta[:a], theta[a:], radial
 
 
 @functools.lru_cache(maxsize=8)
