@@ -32,13 +32,18 @@ See ``docs/features.md`` for the definitions, the design choices and timings.
 
 from __future__ import annotations
 
+import functools
 import numbers
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from types import ModuleType
 
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from bodymetry.estimation.backends import compiled_kernels, default_backend
 
 __all__ = [
     "Codebook",
@@ -58,6 +63,31 @@ __all__ = [
 ]
 
 RngLike = np.random.Generator | int | np.integer
+
+_BACKENDS = ("numba", "numpy")
+
+#: The implementation of the shape-context histograms, the codebook encoding and
+#: the RDF's ray casting: ``"numba"`` (``feature_kernels.py``: the same
+#: histograms, encodings equal to about 1e-15, extents to about 1e-12 px) or
+#: ``"numpy"`` (the reference). From ``$BODYMETRY_FEATURES``; by
+#: default numba when installed. Read at every call, so tests and benchmarks may
+#: set it.
+BACKEND: str = default_backend(
+    "BODYMETRY_FEATURES", os.environ.get("BODYMETRY_FEATURES"), _BACKENDS, "numba"
+)
+
+
+def _kernels() -> ModuleType | None:
+    """The compiled feature kernels, or None for the numpy path (see ``raster._kernels``)."""
+    global BACKEND
+    kernels = compiled_kernels(
+        BACKEND, "features.BACKEND", "bodymetry.estimation.feature_kernels",
+        "BODYMETRY_FEATURES", "shape-context features",
+    )  # fmt: skip
+    if kernels is None:
+        BACKEND = "numpy"
+    return kernels
+
 
 # Default ratio r_in / r_out of the log-polar grid. The paper uses r_in = 3 px
 # with r_out = h / 4 for silhouettes roughly 400 px tall (r_out ~ 100 px), i.e.
@@ -318,10 +348,13 @@ def _rdf_of_blob(
     """:func:`rdf` of a blob from :func:`_largest_blob`, (n + 2,)."""
     mom = cv2.moments(roi, binaryImage=True)
     center = np.array([mom["m10"] / mom["m00"] + x0, mom["m01"] / mom["m00"] + y0])
-    polygon = _simplify(contour)
     out = np.empty(n + 2)
     out[:2] = center
-    out[2:] = _ray_extents(polygon, center, n)
+    kernels = _kernels()
+    if kernels is None:
+        out[2:] = _ray_extents(_simplify(contour), center, n)
+    else:
+        kernels.ray_extents_kernel(contour, float(center[0]), float(center[1]), n, out[2:])
     return out
 
 
@@ -473,7 +506,134 @@ def _histograms(
     n_r: int,
     r_in_fraction: float,
 ) -> NDArray[np.float64]:
-    """Log-polar histograms ``(S, N, n_theta * n_r)`` of ``points`` ``(N, 2)``."""
+    """Log-polar histograms ``(S, N, n_theta * n_r)`` of ``points`` ``(N, 2)``.
+
+    By :data:`BACKEND`: the compiled kernel (``feature_kernels.histograms_kernel``)
+    or the numpy reference (:func:`_histograms_numpy`); the same histograms.
+    """
+    kernels = _kernels()
+    if kernels is None:
+        return _histograms_numpy(points, height, kappas, n_theta, n_r, r_in_fraction)
+    n = points.shape[0]
+    x = np.ascontiguousarray(points[:, 0])
+    y = np.ascontiguousarray(points[:, 1])
+    upper, lower = _orientation_edges(n_theta)
+    counts = np.zeros((len(kappas), n, n_theta * n_r), np.int64)
+    pairs = np.empty((n * (n - 1) // 2, 2), np.int64)
+    n_pairs = kernels.histogram_counts_kernel(
+        x,
+        y,
+        _radial_edges(height, kappas, n_r, r_in_fraction),
+        upper,
+        lower,
+        lower.shape[0] == upper.shape[0],
+        _EDGE_TOL,
+        counts,
+        pairs,
+    )
+    pairs = pairs[:n_pairs]
+    t_ij, t_ji, radial = _reference_bins(x, y, pairs, height, kappas, n_theta, n_r, r_in_fraction)
+    out = np.empty((len(kappas), n, n_theta * n_r))
+    kernels.histogram_add_kernel(counts, pairs, t_ij, t_ji, radial, n_theta, out)
+    return out
+
+
+#: Relative distance from a bin edge under which the compiled histograms leave a
+#: pair to the reference's expressions. Their rounding decides pairs within about
+#: 1e-15 of an edge (numpy's arctan2 and log differ from libm's in the last bit,
+#: and adding ``0.5 + n_theta`` rounds the bin coordinate to about 2e-15), and
+#: such pairs are common: contour points on one diagonal pixel run lie at
+#: exactly 45 degrees, an orientation edge, up to rounding.
+_EDGE_TOL = 1e-10
+
+
+def _reference_bins(
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
+    pairs: NDArray[np.int64],
+    height: float,
+    kappas: tuple[float, ...],
+    n_theta: int,
+    n_r: int,
+    r_in_fraction: float,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Bins of point pairs ``(A, 2)`` by :func:`_histograms_numpy`'s expressions, bit for bit.
+
+    Returns the orientation bins ``(A,)`` of ``j`` from ``i`` and of ``i`` from
+    ``j``, and the radial bins ``(S, A)`` (``n_r``: beyond ``r_out``).
+    """
+    i, j = pairs[:, 0], pairs[:, 1]
+    a = len(pairs)
+    # Both directions in one call (elementwise, the same values): j from i, then i
+    # from j as x[i] - x[j], like the reference (+0.0 where equal, not -0.0:
+    # arctan2 tells them apart on the horizontal).
+    dx = np.concatenate([x[j] - x[i], x[i] - x[j]])
+    dy = np.concatenate([y[j] - y[i], y[i] - y[j]])
+    t = np.arctan2(dy, dx)
+    t *= n_theta / (2.0 * np.pi)
+    t += 0.5 + n_theta
+    theta = np.floor(t).astype(np.int64) % n_theta
+    log_d2 = dx[:a] * dx[:a]
+    log_d2 += dy[:a] * dy[:a]
+    with np.errstate(divide="ignore"):
+        np.log(log_d2, out=log_d2)
+    gain = n_r / (2.0 * np.log(1.0 / r_in_fraction))
+    # 2 log r_in per scale by scalar calls, as the reference computes it
+    log_r_in2 = np.array([2.0 * np.log(r_in_fraction * kappa * height) for kappa in kappas])
+    q = log_d2[None, :] - log_r_in2[:, None]
+    q *= gain
+    radial = np.clip(np.floor(q), 0, n_r).astype(np.int64)
+    return theta[:a], theta[a:], radial
+
+
+@functools.lru_cache(maxsize=8)
+def _orientation_edges(n_theta: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Unit directions of the orientation bin edges, for the compiled histograms.
+
+    Edge ``m`` is at the angle ``(m + 1/2) 2 pi / n_theta`` (bins centred on the
+    image axes). Returns those with angles in ``[0, pi)`` (U, 2) and in
+    ``[pi, 2 pi)`` (n_theta - U, 2), each in increasing angle. For an even
+    ``n_theta`` the second are the exact negations of the first, so a pair of
+    points and its reverse fall into exactly opposite bins.
+    """
+    angles = (np.arange(n_theta) + 0.5) * (2.0 * np.pi / n_theta)
+    edges = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    if n_theta % 2 == 0:
+        upper = edges[: n_theta // 2]
+        lower = -upper
+    else:
+        upper, lower = edges[angles < np.pi], edges[angles >= np.pi]
+    upper, lower = np.ascontiguousarray(upper), np.ascontiguousarray(lower)
+    upper.setflags(write=False)
+    lower.setflags(write=False)
+    return upper, lower
+
+
+def _radial_edges(
+    height: float, kappas: tuple[float, ...], n_r: int, r_in_fraction: float
+) -> NDArray[np.float64]:
+    """Squared outer radii ``(S, n_r)`` of the radial bins, for the compiled histograms.
+
+    The reference's bin is ``floor((log d^2 - 2 log r_in) * gain)`` with
+    ``gain = n_r / (2 log(1 / r_in_fraction))``: it reaches ``k`` at
+    ``d^2 = exp(2 log r_in + k / gain)``, computed here from the same ``log r_in``
+    and ``gain``; the last edge is ``r_out^2``.
+    """
+    gain = n_r / (2.0 * np.log(1.0 / r_in_fraction))
+    log_r_in2 = 2.0 * np.log(r_in_fraction * np.asarray(kappas, dtype=np.float64) * height)
+    return np.exp(log_r_in2[:, None] + np.arange(1, n_r + 1) / gain)
+
+
+def _histograms_numpy(
+    points: NDArray[np.float64],
+    height: float,
+    kappas: tuple[float, ...],
+    n_theta: int,
+    n_r: int,
+    r_in_fraction: float,
+) -> NDArray[np.float64]:
+    """The numpy reference of :func:`_histograms`: every ordered pair's bins by
+    ``floor`` of an ``arctan2`` and of a ``log``."""
     n = points.shape[0]
     x = np.ascontiguousarray(points[:, 0])
     y = np.ascontiguousarray(points[:, 1])
@@ -733,11 +893,18 @@ def _kmeans(
             i = int(np.searchsorted(np.cumsum(closest), rng.random() * total, side="right"))
             centers[j] = x[min(i, n - 1)]
         closest = np.minimum(closest, _sq_dists(x, centers[j : j + 1], x_sq)[:, 0])
-    prev = np.inf
+    prev = np.inf  # no inertia before the first iteration: never "converged" there
+    rows = np.arange(n)
     for _ in range(max_iter):
-        d2 = _sq_dists(x, centers, x_sq)
-        label = d2.argmin(1)
-        inertia = float(d2[np.arange(n), label].sum())
+        # ||x||^2 is the same for every centre: the nearest centre is the argmin of
+        # ||c||^2 - 2 x.c, one (N, K) array updated in place (the full expansion
+        # made three such temporaries, which cost more than the product)
+        g = x @ centers.T
+        g *= -2.0
+        g += (centers * centers).sum(1)
+        label = g.argmin(1)
+        fit = np.maximum(g[rows, label] + x_sq, 0.0)  # squared distance to its centre
+        inertia = float(fit.sum())
         counts = np.bincount(label, minlength=k)
         sums = np.zeros_like(centers)
         _add_rows(sums, label, x)
@@ -745,9 +912,11 @@ def _kmeans(
         centers[nonempty] = sums[nonempty] / counts[nonempty, None]
         empty = np.flatnonzero(~nonempty)
         if empty.size:  # re-seed empty clusters at the worst-fit points
-            far = np.argsort(-d2[np.arange(n), label], kind="stable")[: empty.size]
+            far = np.argsort(-fit, kind="stable")[: empty.size]
             centers[empty] = x[far]
-        if empty.size == 0 and prev - inertia <= tol * max(prev, 1e-300):
+        # (On the first iteration inf - inertia <= tol * inf held, and Lloyd
+        # stopped after one step: the codebook was the seeds' cluster means.)
+        if empty.size == 0 and np.isfinite(prev) and prev - inertia <= tol * max(prev, 1e-300):
             break
         prev = inertia
     return centers
@@ -891,6 +1060,28 @@ class Codebook:
                 f"descriptors: expected shape ({s}, N, {dim}) for this codebook, got "
                 f"{d.shape if np.ndim(descriptors) == 3 else np.shape(descriptors)}"
             )
+        kernels = _kernels()
+        if kernels is None:
+            return self._encode_numpy(d)
+        out = np.empty((s, k))
+        centers_t, centers_sq = self._transposed
+        kernels.encode_kernel(
+            np.ascontiguousarray(d), centers_t, centers_sq, self.sigma, self.n_nearest, out
+        )
+        return (out / np.sqrt(s)).ravel()
+
+    @functools.cached_property
+    def _transposed(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The centres as the compiled encoding reads them: (S, D, K) and their
+        squared norms (S, K)."""
+        return (
+            np.ascontiguousarray(self.centers.transpose(0, 2, 1)),
+            (self.centers * self.centers).sum(axis=2),
+        )
+
+    def _encode_numpy(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The numpy reference of :meth:`encode` on checked (S, N, D) descriptors."""
+        s, k, _ = self.centers.shape
         nn = self.n_nearest
         out = np.empty((s, k))
         for i in range(s):
@@ -991,7 +1182,7 @@ def fit_codebook(
         At most this many descriptors (a random subset) per scale are used.
     max_iter : int, default 100
         Lloyd iterations at most; stops earlier when the relative decrease of
-        the inertia is below ``tol``.
+        the inertia is below ``tol`` (tested from the second iteration on).
 
     Returns
     -------

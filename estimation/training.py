@@ -52,7 +52,8 @@ from bodymetry.log import Progress
 log = logging.getLogger(__name__)
 
 #: Bumped when training changes so that cached models are rebuilt.
-TRAINING_VERSION = 2
+#: 3: the codebook's k-means runs Lloyd to convergence (it stopped after one step).
+TRAINING_VERSION = 3
 MODEL_NAMES = ("nu_rdf", "theta_sc", "tau_rdf", "nu_sc")
 #: The test-set figures ``bodymetry train`` prints (keys of ``DiscriminativeModels.metrics``).
 HEADLINE_METRICS = (
@@ -95,6 +96,16 @@ class TrainConfig:
         K of the shape-context codebook (paper: 100).
     codebook_examples : int
         Training examples whose descriptors build the codebook.
+    codebook_samples : int
+        Descriptors per scale (a random subset of the codebook examples') that
+        k-means clusters. Measured on the demo rig's 320,000 descriptors: 30,000
+        samples and 30 Lloyd iterations quantize held-out descriptors 11 % better
+        (mean squared distance to the nearest centre) than the single iteration
+        on 100,000 that k-means used to stop at, in about the same time (1.0 s
+        against 1.1 s a scale); 50,000 samples gain 0.7 % more in 2x the time.
+    codebook_iterations : int
+        Lloyd iterations at most (the relative inertia decrease is still above
+        1e-4 at 30, but each iteration costs as much as the seeding).
     sc_points : int
         Contour points sampled per silhouette for shape contexts.
     experts, ridges : tuples
@@ -115,6 +126,8 @@ class TrainConfig:
     volume: float = 1.0
     codebook_size: int = 100
     codebook_examples: int = 400
+    codebook_samples: int = 30_000
+    codebook_iterations: int = 30
     sc_points: int = 200
     experts: tuple[int, ...] = (1, 2, 4, 8)
     ridges: tuple[float, ...] = (1.0, 10.0, 100.0)
@@ -451,6 +464,8 @@ def train(
         config.codebook_size,
         np.random.default_rng(config.seed),
         config=sc_config,
+        max_samples=config.codebook_samples,
+        max_iter=config.codebook_iterations,
     )
     sc_cb = np.zeros((len(cameras), n_cb, codebook.dim))
     it = iter(descriptors)

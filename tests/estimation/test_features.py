@@ -15,6 +15,7 @@ import pytest
 from bodymetry.estimation.features import (
     Codebook,
     ShapeContextConfig,
+    _kmeans,
     _nearest,
     fit_codebook,
     multiscale_shape_contexts,
@@ -354,3 +355,23 @@ def test_nearest_centres_match_argpartition():
         np.testing.assert_array_equal(np.sort(idx, axis=1), expected)
         if nn <= 4:  # the argmin passes give them in order
             assert np.all(np.diff(np.take_along_axis(d2, idx, axis=1), axis=1) > 0)
+
+
+def test_kmeans_runs_lloyd_to_a_fixed_point():
+    """Lloyd's iterations continue past the first: converged centres are the means
+    of the points nearest to them (the first iteration's test used to read
+    ``inf - inertia <= tol * inf`` as converged and stop after one step)."""
+    x = np.random.default_rng(3).random((600, 2))  # no clusters: Lloyd needs many steps
+    one = _kmeans(x, 8, np.random.default_rng(1), max_iter=1, tol=0.0)
+    centers = _kmeans(x, 8, np.random.default_rng(1), max_iter=200, tol=0.0)
+
+    def inertia(c):
+        return ((x[:, None] - c[None]) ** 2).sum(-1).min(1).sum()
+
+    label = ((x[:, None] - centers[None]) ** 2).sum(-1).argmin(1)
+    means = np.stack([x[label == j].mean(0) for j in range(8)])
+    np.testing.assert_allclose(centers, means, rtol=0, atol=ATOL_EXACT)
+    assert inertia(centers) < 0.95 * inertia(one)
+    # the default tolerance stops near there, not after the first step
+    near = _kmeans(x, 8, np.random.default_rng(1), max_iter=200, tol=1e-6)
+    assert inertia(near) < 1.001 * inertia(centers)
