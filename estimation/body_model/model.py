@@ -27,8 +27,7 @@ from bodymetry.estimation.body_model.skeleton import (
     N_POSE,
     PARTS,
     JointLimits,
-    forward_kinematics,
-    local_rotations,
+    posed_skeleton,
 )
 from bodymetry.fileio import load_npz
 
@@ -486,8 +485,8 @@ class BodyModel:
         nu = self._check_nu(state.nu)
         rest_kp = self._linear(self._keypoint_basis, nu)  # canonical (pinned) frame
         rest_joints = rest_kp[:, : len(JOINTS)]
-        rot, joints = forward_kinematics(state.theta, state.tau, rest_joints, self.hinge_axes)
-        local = local_rotations(state.theta, self.hinge_axes) if pose_deformation else None
+        local, rot, joints = posed_skeleton(state.theta, state.tau, rest_joints, self.hinge_axes)
+        local = local if pose_deformation else None
         mesh = self._mesh(lod)
         # SCAPE's least squares alone lets errors of the learned deformations add up
         # along the body: with both arms overhead the head sank 4 cm against the

@@ -413,7 +413,8 @@ def test_numba_edges_of_repeated_shapes_and_poses_are_each_states_own(rng, monke
 @pytest.mark.skipif("numba" not in EDGE_BACKENDS, reason="numba is not installed")
 def test_numba_right_hand_sides_are_scipys(rng, monkeypatch):
     """The solve's Aᵀ E by the compiled scatter is scipy's sparse product, bit for bit,
-    so both backends give the same vertices."""
+    and the compiled copy of the solution into vertex arrays is numpy's, so both
+    backends give the same vertices."""
     mesh = scape.ScapeMesh(_deforming_arrays(rng, n_components=2), 2)
     edges = rng.normal(size=(4, 3, 2, len(mesh.faces)))
     got = {}
