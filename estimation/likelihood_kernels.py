@@ -479,3 +479,92 @@ def contour_kernel(
             out[count] = e
             count += 1
     return count
+
+
+@numba.njit(cache=True, nogil=True)
+def nearest_pairs_kernel(model, observed, model_to_observed, observed_to_model):  # pragma: no cover
+    """Nearest neighbours in both directions between two small 2-D point sets.
+
+    The contour refinement's correspondences (``refinement._ContourCost.pairs``):
+    a few hundred model contour points against at most a few hundred observed
+    boundary points. One pass over all pairs finds both directions, 2-4x faster
+    than building a k-d tree and querying it twice (measured: 0.13 vs 0.46 ms
+    for 250 x 400 points, 0.8 vs 1.5 ms for 1,100 x 400). The squared
+    distance is ``dx * dx + dy * dy``, the k-d tree's sum; of equally near
+    points the first is taken.
+
+    Parameters
+    ----------
+    model : (n, 2) float64
+    observed : (m, 2) float64
+    model_to_observed : (n,) int64
+        Written: index of the observed point nearest each model point.
+    observed_to_model : (m,) int64
+        Written: index of the model point nearest each observed point.
+    """
+    m = observed.shape[0]
+    best_obs = np.full(m, np.inf)
+    for j in range(m):
+        observed_to_model[j] = 0
+    for i in range(model.shape[0]):
+        mx, my = model[i, 0], model[i, 1]
+        best = np.inf
+        arg = 0
+        for j in range(m):
+            dx = mx - observed[j, 0]
+            dy = my - observed[j, 1]
+            d = dx * dx + dy * dy
+            if d < best:
+                best = d
+                arg = j
+            if d < best_obs[j]:
+                best_obs[j] = d
+                observed_to_model[j] = i
+        model_to_observed[i] = arg
+
+
+@numba.njit(cache=True, nogil=True)
+def moved_rows_kernel(indptr, indices, data, rows, lod, base, out):  # pragma: no cover
+    """Full-mesh vertices moved by level-of-detail displacements (``refinement``'s
+    ``_ContourCost._moved_rows``).
+
+    ``out[0] = base[rows]`` and ``out[s] = base[rows] + M[rows] @ (lod[s] - lod[0])``
+    for ``s >= 1``, with ``M`` the sparse map from the level of detail to the
+    full mesh. scipy's CSR product sums each row's terms in their stored order
+    from zero, as here; numpy's and scipy's route goes through transposed copies
+    with a 3-wide innermost axis (slow strided copies), this is one pass.
+
+    Parameters
+    ----------
+    indptr, indices : int32 or int64, data : float64
+        ``M`` in CSR form, (V_full, V_lod).
+    rows : (R,) int64
+        The full-mesh vertices wanted.
+    lod : (1 + n, V_lod, 3) float64
+        The level of detail at the state and at each perturbed state.
+    base : (V_full, 3) float64
+        The full mesh at the state.
+    out : (1 + n, R, 3) float64
+        Written.
+    """
+    S = lod.shape[0]
+    for r in range(rows.shape[0]):
+        v = rows[r]
+        b0, b1, b2 = base[v, 0], base[v, 1], base[v, 2]
+        out[0, r, 0] = b0
+        out[0, r, 1] = b1
+        out[0, r, 2] = b2
+        lo, hi = indptr[v], indptr[v + 1]
+        for s in range(1, S):
+            m0 = 0.0
+            m1 = 0.0
+            m2 = 0.0
+            for jj in range(lo, hi):
+                j = indices[jj]
+                a = data[jj]
+                m0 += a * (lod[s, j, 0] - lod[0, j, 0])
+                m1 += a * (lod[s, j, 1] - lod[0, j, 1])
+                m2 += a * (lod[s, j, 2] - lod[0, j, 2])
+            out[s, r, 0] = b0 + m0
+            out[s, r, 1] = b1 + m1
+            out[s, r, 2] = b2 + m2

@@ -183,3 +183,19 @@ def test_chamfer_of_a_batch_is_each_bodys_own_cost():
     for b in range(3):
         assert np.array_equal(batch[b], costs(xs[b : b + 1], ys[b : b + 1])[0])
     assert np.all(np.isfinite(batch)) and batch[0, 0] > 0
+
+
+def test_nearest_pairs_are_the_kd_trees():
+    """Both directions of nearest neighbours by one pass over all pairs: the k-d tree's
+    indices (continuous model points against observed points on a quarter-pixel grid,
+    as the refinement has them: no exact ties)."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(11)
+    for n, m in ((1, 1), (37, 400), (1100, 400)):
+        observed = np.round(rng.uniform(0, 300, (m, 2)) * 4) / 4
+        model = rng.uniform(0, 300, (n, 2))
+        j, k = np.empty(n, np.int64), np.empty(m, np.int64)
+        lk.nearest_pairs_kernel(model, observed, j, k)
+        assert np.array_equal(j, cKDTree(observed).query(model)[1])
+        assert np.array_equal(k, cKDTree(model).query(observed)[1])
