@@ -568,3 +568,38 @@ def moved_rows_kernel(indptr, indices, data, rows, lod, base, out):  # pragma: n
             out[s, r, 0] = b0 + m0
             out[s, r, 1] = b1 + m1
             out[s, r, 2] = b2 + m2
+
+
+@numba.njit(cache=True, nogil=True)
+def line_residuals_kernel(q, index, targets, normals, scale, out, col0, first):  # pragma: no cover
+    """Point-to-line residuals of projected contour points (``refinement``'s
+    ``_ContourCost.residuals``), written into their columns of the residual array.
+
+    ``d = (q[s, index[i], 0] - targets[i, 0]) * normals[i, 0]
+    + (q[s, index[i], 1] - targets[i, 1]) * normals[i, 1]``, numpy's expression
+    term for term, without its temporaries over strided views.
+
+    Parameters
+    ----------
+    q : (S, n_q, 2) float64
+        Projected points of S states.
+    index : (n,) int64
+        The point of ``q`` each residual uses.
+    targets, normals : (n, 2) float64
+    scale : float
+        Each residual's weight (the square root of the pair's weight).
+    out : (S, R) float64
+        Written: ``out[s, col0 + i] = d * scale``.
+    col0 : int
+    first : (n,) float64
+        Written: ``d`` of the first state (for the robust weights).
+    """
+    for s in range(q.shape[0]):
+        for i in range(index.shape[0]):
+            k = index[i]
+            dx = q[s, k, 0] - targets[i, 0]
+            dy = q[s, k, 1] - targets[i, 1]
+            d = dx * normals[i, 0] + dy * normals[i, 1]
+            out[s, col0 + i] = d * scale
+            if s == 0:
+                first[i] = d

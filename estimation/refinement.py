@@ -676,18 +676,14 @@ class _ContourCost:
 
     def residuals(self, V: np.ndarray, pairs: list[_Pairs]) -> tuple[np.ndarray, np.ndarray]:
         """Weighted residuals (..., R) and their Huber IRLS weights (R,) (from the first state)."""
+        kernels = compiled_likelihood()
+        if kernels is not None:
+            return self._residuals_numba(kernels, V, pairs)
         res, robust = [], []
         h = self.config.huber_px
         previous: tuple[_Pairs, np.ndarray] | None = None
         for p in pairs:
-            if (
-                p.source is not None
-                and previous is not None
-                and previous[0].camera == p.camera
-                and len(p.source) == len(p.edges)
-                and (len(p.source) == 0 or p.source.max() < len(previous[0].edges))
-                and np.array_equal(previous[0].edges[p.source], p.edges)
-            ):
+            if previous is not None and self._reuses(previous, p):
                 q = previous[1][..., p.source, :]  # the same midpoints, projected once
             else:
                 q = self._project(p.camera, V, p.edges)
@@ -701,6 +697,50 @@ class _ContourCost:
             length = np.abs(d.reshape(-1, d.shape[-1])[0])
             robust.append(np.sqrt(np.where(length <= h, 1.0, h / np.maximum(length, 1e-12))))
         return np.concatenate(res, axis=-1), np.concatenate(robust)
+
+    @staticmethod
+    def _reuses(previous: tuple[_Pairs, np.ndarray], p: _Pairs) -> bool:
+        """Whether ``p``'s edges are the previous pair's at ``p.source`` (same view), so
+        their projections can be taken from that pair's."""
+        return (
+            p.source is not None
+            and previous[0].camera == p.camera
+            and len(p.source) == len(p.edges)
+            and (len(p.source) == 0 or p.source.max() < len(previous[0].edges))
+            and np.array_equal(previous[0].edges[p.source], p.edges)
+        )
+
+    def _residuals_numba(
+        self, kernels: ModuleType, V: np.ndarray, pairs: list[_Pairs]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`residuals` with the point-to-line residuals by a kernel written into
+        one preallocated array (``likelihood_kernels.line_residuals_kernel``, numpy's
+        expressions: the same numbers)."""
+        lead = V.shape[:-2]
+        S = int(np.prod(lead, dtype=np.int64))
+        R = sum(len(p.edges) for p in pairs)
+        out = np.empty((S, R))
+        first = np.empty(R)
+        col = 0
+        previous: tuple[_Pairs, np.ndarray] | None = None
+        for p in pairs:
+            if previous is not None and self._reuses(previous, p):
+                q, index = previous[1], np.require(p.source, np.int64, ["C", "W"])
+            else:
+                q = self._project(p.camera, V, p.edges).reshape(S, len(p.edges), 2)
+                index = np.arange(len(p.edges), dtype=np.int64)
+            previous = (p, q)
+            n = len(p.edges)
+            kernels.line_residuals_kernel(
+                q, index, np.require(p.targets, np.float64, ["C", "W"]),
+                np.require(p.normals, np.float64, ["C", "W"]), float(np.sqrt(p.weight)),
+                out, col, first[col : col + n],
+            )  # fmt: skip
+            col += n
+        h = self.config.huber_px
+        length = np.abs(first)
+        robust = np.sqrt(np.where(length <= h, 1.0, h / np.maximum(length, 1e-12)))
+        return out.reshape(*lead, R), robust
 
     def linearize(
         self, y: np.ndarray, pairs: list[_Pairs], step: np.ndarray

@@ -331,3 +331,28 @@ def test_prepared_contour_topology_is_checked(scene):
         _contour_ids(kernels, verts[:-1], topology, cam, camera_arrays([cam]), cam.center, None)
     with pytest.raises(IndexError, match="faces"):
         _contour_topology(faces, edges, edge_faces, len(verts) - 1)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
+def test_compiled_residuals_of_a_batch_are_the_numpy_ones(scene, monkeypatch):
+    """Residuals of a batch of states (the Jacobian's) by the residual kernel: the numpy
+    path's shape and values (to the projections' 1e-9), each state's own residuals
+    bit for bit, and the same robust weights."""
+    model, cameras, truth, masks = scene
+    config = RefineConfig()
+    cost = _ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
+    y = truth.vector()[0]
+    _, pairs = cost.evaluate(y)
+    V = cost.perturbed(y, np.full(len(y), 1e-3))[:5]
+    got = {}
+    for backend in ("numpy", "numba"):
+        monkeypatch.setattr(generative, "BACKEND", backend)
+        got[backend] = cost.residuals(V, pairs)
+    R = sum(len(p.edges) for p in pairs)
+    assert got["numba"][0].shape == got["numpy"][0].shape == (5, R)
+    np.testing.assert_allclose(got["numba"][0], got["numpy"][0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got["numba"][1], got["numpy"][1], rtol=0, atol=1e-9)
+    for s in range(5):
+        alone = cost.residuals(V[s], pairs)
+        assert alone[0].shape == (R,)
+        assert np.array_equal(alone[0], got["numba"][0][s])
