@@ -216,27 +216,31 @@ def normal_rhs_kernel(faces, edges, out):  # pragma: no cover
 
 @numba.njit(cache=True, nogil=True)
 def vertices_kernel(solution, out):  # pragma: no cover
-    """The solve's columns ``(state, xyz)`` as vertex arrays, vertex 0 at the origin.
+    """The solve's columns ``(state, xyz)`` as vertex arrays.
 
-    numpy's ``out[:, 1:] = X.reshape(V - 1, B, 3).transpose(1, 0, 2)`` copies
-    through a view whose innermost axis has 3 entries, a slow strided copy
+    numpy's ``X.reshape(-1, B, 3).transpose(1, 0, 2)`` copied into ``(B, V, 3)``
+    goes through a view whose innermost axis has 3 entries, a slow strided copy
     (2 ms for 50 states of the level of detail); this is the same copy in one
     pass over the rows of ``X``.
 
     Parameters
     ----------
-    solution : (V - 1, 3B) float64
-        The vertex solve's result, columns ``(state, xyz)``.
+    solution : (V - 1, 3B) or (V, 3B) float64
+        The vertex solve's result, columns ``(state, xyz)``: without vertex 0
+        (the pinned solve; vertex 0 is then at the origin) or with every vertex
+        (the anchored solve).
     out : (B, V, 3) float64
         Written.
     """
     B = out.shape[0]
     V = out.shape[1]
+    first = V - solution.shape[0]  # 1: vertex 0 pinned at the origin, 0: all solved
     for b in range(B):
-        for x in range(3):
-            out[b, 0, x] = 0.0
-    for v in range(V - 1):
+        for v in range(first):
+            for x in range(3):
+                out[b, v, x] = 0.0
+    for v in range(solution.shape[0]):
         row = solution[v]
         for b in range(B):
             for x in range(3):
-                out[b, v + 1, x] = row[3 * b + x]
+                out[b, v + first, x] = row[3 * b + x]
