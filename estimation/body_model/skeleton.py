@@ -219,9 +219,10 @@ def forward_kinematics(
     return rot, joints
 
 
-def _kernels() -> ModuleType | None:
+def skeleton_kernels() -> ModuleType | None:
     """The compiled kernel module when :data:`BACKEND` is ``"numba"``, else None
-    (numba chosen by default but failing to import: the numpy path, logged)."""
+    (numba chosen by default but failing to import: the numpy path, logged).
+    Also used by ``model.BodyModel`` for its shape-linear sums and anchors."""
     global BACKEND
     kernels = compiled_kernels(
         BACKEND, "skeleton.BACKEND", "bodymetry.estimation.body_model.skeleton_kernels",
@@ -261,7 +262,7 @@ def posed_skeleton(
     theta = np.atleast_2d(np.asarray(theta, dtype=float))
     if theta.shape[-1] != N_POSE:
         raise ValueError(f"theta: expected shape (B, {N_POSE}), got {theta.shape}")
-    kernels = _kernels()
+    kernels = skeleton_kernels()
     if kernels is None:
         rot, joints = forward_kinematics(theta, tau, rest_joints, hinge_axes)
         return local_rotations(theta, hinge_axes), rot, joints

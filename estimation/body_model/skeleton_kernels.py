@@ -102,3 +102,71 @@ def posed_skeleton_kernel(
                 for q in range(3):
                     G[r, q] = P[r, 0] * L[0, q] + P[r, 1] * L[1, q] + P[r, 2] * L[2, q]
                 joints[b, j, r] = joints[b, p, r] + (P[r, 0] * o0 + P[r, 1] * o1 + P[r, 2] * o2)
+
+
+@numba.njit(cache=True, nogil=True)
+def linear_kernel(basis, nu, out):  # pragma: no cover
+    """``basis[0] + Σ_i ν_i basis[1 + i]`` for a batch (``BodyModel._linear``).
+
+    numpy's path adds one component per pass over the whole batch, in order;
+    this is the same sums per element, in the same order (the same bits), in
+    one pass without the temporaries.
+
+    Parameters
+    ----------
+    basis : (1 + n, M) float64
+    nu : (B, n) float64
+    out : (B, M) float64
+        Written.
+    """
+    n = nu.shape[1]
+    for b in range(nu.shape[0]):
+        row = out[b]
+        for m in range(basis.shape[1]):
+            row[m] = basis[0, m]
+        for i in range(n):
+            w = nu[b, i]
+            comp = basis[1 + i]
+            for m in range(basis.shape[1]):
+                row[m] = row[m] + w * comp[m]
+
+
+@numba.njit(cache=True, nogil=True)
+def anchor_targets_kernel(basis, nu, parts, rest_joints, rot, joints, out):  # pragma: no cover
+    """Where each part's rigid motion carries its skeleton anchors
+    (``BodyModel._anchor_targets``).
+
+    The anchors' rest positions ``basis[0] + Σ_i ν_i basis[1 + i]`` (summed as
+    :func:`linear_kernel` sums them), then ``joints[p] + R_p (rest - rest_joints[p])``
+    for each anchor's part ``p``, the 3x3 product summed in order (numpy's
+    ``rel @ R.T`` may fuse multiply-adds: equal to rounding).
+
+    Parameters
+    ----------
+    basis : (1 + n, Na, 3) float64
+    nu : (B, n) float64
+    parts : (Na,) int64
+    rest_joints : (B, J, 3) float64
+    rot : (B, J, 3, 3) float64
+    joints : (B, J, 3) float64
+    out : (B, Na, 3) float64
+        Written.
+    """
+    n = nu.shape[1]
+    for b in range(nu.shape[0]):
+        for a in range(basis.shape[1]):
+            p = parts[a]
+            r0 = basis[0, a, 0]
+            r1 = basis[0, a, 1]
+            r2 = basis[0, a, 2]
+            for i in range(n):
+                w = nu[b, i]
+                r0 = r0 + w * basis[1 + i, a, 0]
+                r1 = r1 + w * basis[1 + i, a, 1]
+                r2 = r2 + w * basis[1 + i, a, 2]
+            q0 = r0 - rest_joints[b, p, 0]
+            q1 = r1 - rest_joints[b, p, 1]
+            q2 = r2 - rest_joints[b, p, 2]
+            R = rot[b, p]
+            for x in range(3):
+                out[b, a, x] = joints[b, p, x] + (q0 * R[x, 0] + q1 * R[x, 1] + q2 * R[x, 2])

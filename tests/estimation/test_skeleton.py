@@ -303,3 +303,19 @@ def test_limits_contains_tolerance():
     assert not lim.contains(theta)
     assert lim.contains(theta, tol=1e-5)
     assert not lim.contains(lim.lower - 1e-6)
+
+
+@pytest.mark.skipif(not HAS_NUMBA, reason="numba is not installed")
+def test_linear_kernel_is_the_numpy_sum_bit_for_bit(rng):
+    """``basis[0] + Σ ν_i basis[1 + i]`` summed per element in component order, as the
+    body model's numpy path sums it: the same bits."""
+    from bodymetry.estimation.body_model import skeleton_kernels as kernels
+
+    basis = rng.normal(size=(10, 37, 3))
+    nu = rng.normal(size=(6, 9))
+    want = np.broadcast_to(basis[0], (6, 37, 3)).copy()
+    for i in range(9):
+        want += nu[:, i, None, None] * basis[1 + i]
+    got = np.empty((6, 37 * 3))
+    kernels.linear_kernel(basis.reshape(10, -1), nu, got)
+    assert np.array_equal(got.reshape(6, 37, 3), want)
