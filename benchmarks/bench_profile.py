@@ -56,6 +56,9 @@ KERNELS = {
     "project_kernel": "projection",
     "project_midpoints_kernel": "projection",
     "contour_kernel": "refinement",
+    "nearest_pairs_kernel": "refinement",
+    "moved_rows_kernel": "refinement",
+    "line_residuals_kernel": "refinement",
 }
 
 #: Source path fragments -> category (first match wins).

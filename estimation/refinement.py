@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from types import ModuleType
 
 import cv2
 import numpy as np
@@ -330,24 +331,10 @@ def occluding_contour(
     kernels = compiled_likelihood()
     if kernels is not None:
         # One compiled pass (it takes the face frames from the vertices itself).
-        if silhouette is None:
-            silhouette = fill_silhouette(camera.project(vertices), faces, camera.size)
-        out = np.empty(len(edges), np.int64)
-        i64 = [np.require(a, np.int64, ["C", "W"]) for a in (faces, edges, edge_faces)]
-        for name, a, n in zip(
-            ("faces", "edges", "edge_faces"),
-            i64,
-            (len(vertices), len(vertices), len(faces)),
-            strict=True,
-        ):
-            if a.size and (a.min() < 0 or a.max() >= n):
-                raise IndexError(f"occluding_contour: {name} out of range for {n} entries")
-        n = kernels.contour_kernel(
-            np.require(vertices, np.float64, ["C", "W"]), i64[0],
-            np.asarray(center, np.float64), i64[1], i64[2],
-            np.require(silhouette, np.bool_, ["C", "W"]), *camera_arrays([camera]), out,
-        )  # fmt: skip
-        return out[:n]
+        topology = _contour_topology(faces, edges, edge_faces, len(vertices))
+        return _contour_ids(
+            kernels, vertices, topology, camera, camera_arrays([camera]), center, silhouette
+        )
     normal, centroid = face_frames(vertices, faces) if frames is None else frames
     facing = np.einsum("ij,ij->i", normal, centroid - center) < 0
     generator = np.nonzero(facing[edge_faces[:, 0]] != facing[edge_faces[:, 1]])[0]
@@ -367,6 +354,70 @@ def occluding_contour(
     keep = np.zeros(len(generator), bool)
     keep[ok] = near_outside(mask, ij[ok])
     return generator[keep]
+
+
+@dataclass(frozen=True)
+class _Topology:
+    """A mesh's ``faces, edges, edge_faces`` as the contour kernel takes them
+    (C-ordered int64), checked once to index ``n_vertices`` vertices and the faces."""
+
+    faces: np.ndarray
+    edges: np.ndarray
+    edge_faces: np.ndarray
+    n_vertices: int
+
+
+def _contour_topology(
+    faces: np.ndarray, edges: np.ndarray, edge_faces: np.ndarray, n_vertices: int
+) -> _Topology:
+    """Check and convert a mesh's topology for :func:`_contour_ids`.
+
+    Raises
+    ------
+    IndexError
+        For an index out of range (the kernel does not check).
+    """
+    i64 = [np.require(a, np.int64, ["C", "W"]) for a in (faces, edges, edge_faces)]
+    for name, a, n in zip(
+        ("faces", "edges", "edge_faces"), i64, (n_vertices, n_vertices, len(faces)), strict=True
+    ):
+        if a.size and (a.min() < 0 or a.max() >= n):
+            raise IndexError(f"occluding_contour: {name} out of range for {n} entries")
+    return _Topology(i64[0], i64[1], i64[2], int(n_vertices))
+
+
+def _contour_ids(
+    kernels: ModuleType,
+    vertices: np.ndarray,
+    topology: _Topology,
+    camera: Camera,
+    arrays: tuple[np.ndarray, ...],
+    center: np.ndarray,
+    silhouette: np.ndarray | None,
+) -> np.ndarray:
+    """:func:`occluding_contour` by the compiled kernel, from a checked
+    :func:`_contour_topology` and the camera's :func:`camera_arrays` (a caller
+    finding the contour of one mesh many times prepares both once).
+
+    Raises
+    ------
+    IndexError
+        When ``vertices`` are not the ``topology.n_vertices`` it was checked for.
+    """
+    if len(vertices) != topology.n_vertices:
+        raise IndexError(
+            f"occluding_contour: {len(vertices)} vertices, the topology indexes "
+            f"{topology.n_vertices}"
+        )
+    if silhouette is None:
+        silhouette = fill_silhouette(camera.project(vertices), topology.faces, camera.size)
+    out = np.empty(len(topology.edges), np.int64)
+    n = kernels.contour_kernel(
+        np.require(vertices, np.float64, ["C", "W"]), topology.faces,
+        np.asarray(center, np.float64), topology.edges, topology.edge_faces,
+        np.require(silhouette, np.bool_, ["C", "W"]), *arrays, out,
+    )  # fmt: skip
+    return out[:n]
 
 
 def near_outside(mask: np.ndarray, ij: np.ndarray) -> np.ndarray:
@@ -396,6 +447,32 @@ def near_outside(mask: np.ndarray, ij: np.ndarray) -> np.ndarray:
         inside = (xx >= 0) & (xx < w) & (yy >= 0) & (yy < h)
         out |= inside & ~m[np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)]
     return out
+
+
+def _nearest(
+    tree: cKDTree, model: np.ndarray, observed: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest observed point of each model point (n,) and nearest model point of each
+    observed point (m,); ``tree`` holds ``observed``.
+
+    With the compiled backend one pass over all pairs
+    (``likelihood_kernels.nearest_pairs_kernel``), else the k-d trees; the same
+    indices but for exact ties in distance (either point is then a nearest one).
+    """
+    kernels = compiled_likelihood()
+    if kernels is None:
+        _, j = tree.query(model)
+        _, k = cKDTree(model).query(observed)
+        return j, k
+    j = np.empty(len(model), np.int64)
+    k = np.empty(len(observed), np.int64)
+    kernels.nearest_pairs_kernel(
+        np.require(model, np.float64, ["C", "W"]),
+        np.require(observed, np.float64, ["C", "W"]),
+        j,
+        k,
+    )
+    return j, k
 
 
 def face_frames(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -448,6 +525,17 @@ class _ContourCost:
         originals = obs.originals or obs.cameras
         self.visibility = [c.scaled(config.visibility_scale) for c in originals]
         self._cam_arrays = [camera_arrays([cam]) for cam in obs.cameras]
+        self._vis_arrays = [camera_arrays([cam]) for cam in self.visibility]
+        # The residual mesh's topology, checked once for the contour kernel.
+        self._topology = (
+            _contour_topology(self.faces, self.edges, self.edge_faces, self._n_vertices())
+            if compiled_likelihood() is not None
+            else None
+        )
+
+    def _n_vertices(self) -> int:
+        """Vertices of the residual mesh."""
+        return (self.model.full if self.full else self.model.lod).n_vertices
 
     def vertices(self, Y: np.ndarray, lod: bool | None = None) -> np.ndarray:
         """(B, V, 3) vertices of states (B, 49): the residual mesh, or the given one."""
@@ -475,6 +563,24 @@ class _ContourCost:
     def _moved_rows(self, lod: np.ndarray, base: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """(1 + n, len(rows), 3): the full mesh's ``rows`` at ``y`` and moved by each
         level-of-detail displacement ``lod[1:] - lod[0]`` (see :meth:`perturbed`)."""
+        kernels = compiled_likelihood()
+        if kernels is not None:
+            # One pass, the same sums (likelihood_kernels.moved_rows_kernel).
+            rows64 = np.require(rows, np.int64, ["C", "W"])
+            if rows64.size and (rows64.min() < 0 or rows64.max() >= self.map.shape[0]):
+                raise IndexError(f"rows out of range for {self.map.shape[0]} vertices")
+            if lod.shape[1] != self.map.shape[1] or base.shape[0] != self.map.shape[0]:
+                raise ValueError(
+                    f"_moved_rows: lod has {lod.shape[1]} vertices, base {base.shape[0]}; "
+                    f"the map is {self.map.shape}"
+                )
+            out = np.empty((len(lod), len(rows64), 3))
+            kernels.moved_rows_kernel(
+                self.map.indptr, self.map.indices, self.map.data, rows64,
+                np.require(lod, np.float64, ["C", "W"]), np.require(base, np.float64, ["C", "W"]),
+                out,
+            )  # fmt: skip
+            return out
         d = lod[1:] - lod[0]  # (n, V_lod, 3)
         n, v_lod, _ = d.shape
         moved = self.map[rows] @ d.transpose(1, 0, 2).reshape(v_lod, n * 3)
@@ -521,24 +627,30 @@ class _ContourCost:
             visible = (
                 None if lod is None else fill_silhouette(vis.project(lod), self.lod_faces, vis.size)
             )
-            ids = occluding_contour(
-                V,
-                self.faces,
-                self.edges,
-                self.edge_faces,
-                vis,
-                self.obs.centers[c],
-                visible,
-                frames,
-            )
+            kernels = compiled_likelihood()
+            if kernels is not None and self._topology is not None:
+                ids = _contour_ids(
+                    kernels, V, self._topology, vis, self._vis_arrays[c], self.obs.centers[c],
+                    visible,
+                )  # fmt: skip
+            else:
+                ids = occluding_contour(
+                    V,
+                    self.faces,
+                    self.edges,
+                    self.edge_faces,
+                    vis,
+                    self.obs.centers[c],
+                    visible,
+                    frames,
+                )
             if len(ids) == 0:
                 continue
             e = self.edges[ids]
             p = self._project(c, V, e)
             pts, nrm = self.obs.points[c], self.obs.normals[c]
-            _, j = tree.query(p)
+            j, k = _nearest(tree, p, pts)
             out.append(_Pairs(c, e, pts[j], nrm[j], 1.0 / len(e)))
-            _, k = cKDTree(p).query(pts)
             out.append(_Pairs(c, e[k], pts, nrm, 1.0 / len(k), source=k))
         return out
 
@@ -564,18 +676,14 @@ class _ContourCost:
 
     def residuals(self, V: np.ndarray, pairs: list[_Pairs]) -> tuple[np.ndarray, np.ndarray]:
         """Weighted residuals (..., R) and their Huber IRLS weights (R,) (from the first state)."""
+        kernels = compiled_likelihood()
+        if kernels is not None:
+            return self._residuals_numba(kernels, V, pairs)
         res, robust = [], []
         h = self.config.huber_px
         previous: tuple[_Pairs, np.ndarray] | None = None
         for p in pairs:
-            if (
-                p.source is not None
-                and previous is not None
-                and previous[0].camera == p.camera
-                and len(p.source) == len(p.edges)
-                and (len(p.source) == 0 or p.source.max() < len(previous[0].edges))
-                and np.array_equal(previous[0].edges[p.source], p.edges)
-            ):
+            if previous is not None and self._reuses(previous, p):
                 q = previous[1][..., p.source, :]  # the same midpoints, projected once
             else:
                 q = self._project(p.camera, V, p.edges)
@@ -589,6 +697,50 @@ class _ContourCost:
             length = np.abs(d.reshape(-1, d.shape[-1])[0])
             robust.append(np.sqrt(np.where(length <= h, 1.0, h / np.maximum(length, 1e-12))))
         return np.concatenate(res, axis=-1), np.concatenate(robust)
+
+    @staticmethod
+    def _reuses(previous: tuple[_Pairs, np.ndarray], p: _Pairs) -> bool:
+        """Whether ``p``'s edges are the previous pair's at ``p.source`` (same view), so
+        their projections can be taken from that pair's."""
+        return (
+            p.source is not None
+            and previous[0].camera == p.camera
+            and len(p.source) == len(p.edges)
+            and (len(p.source) == 0 or p.source.max() < len(previous[0].edges))
+            and np.array_equal(previous[0].edges[p.source], p.edges)
+        )
+
+    def _residuals_numba(
+        self, kernels: ModuleType, V: np.ndarray, pairs: list[_Pairs]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`residuals` with the point-to-line residuals by a kernel written into
+        one preallocated array (``likelihood_kernels.line_residuals_kernel``, numpy's
+        expressions: the same numbers)."""
+        lead = V.shape[:-2]
+        S = int(np.prod(lead, dtype=np.int64))
+        R = sum(len(p.edges) for p in pairs)
+        out = np.empty((S, R))
+        first = np.empty(R)
+        col = 0
+        previous: tuple[_Pairs, np.ndarray] | None = None
+        for p in pairs:
+            if previous is not None and self._reuses(previous, p):
+                q, index = previous[1], np.require(p.source, np.int64, ["C", "W"])
+            else:
+                q = self._project(p.camera, V, p.edges).reshape(S, len(p.edges), 2)
+                index = np.arange(len(p.edges), dtype=np.int64)
+            previous = (p, q)
+            n = len(p.edges)
+            kernels.line_residuals_kernel(
+                q, index, np.require(p.targets, np.float64, ["C", "W"]),
+                np.require(p.normals, np.float64, ["C", "W"]), float(np.sqrt(p.weight)),
+                out, col, first[col : col + n],
+            )  # fmt: skip
+            col += n
+        h = self.config.huber_px
+        length = np.abs(first)
+        robust = np.sqrt(np.where(length <= h, 1.0, h / np.maximum(length, 1e-12)))
+        return out.reshape(*lead, R), robust
 
     def linearize(
         self, y: np.ndarray, pairs: list[_Pairs], step: np.ndarray

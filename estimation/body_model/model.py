@@ -27,8 +27,8 @@ from bodymetry.estimation.body_model.skeleton import (
     N_POSE,
     PARTS,
     JointLimits,
-    forward_kinematics,
-    local_rotations,
+    posed_skeleton,
+    skeleton_kernels,
 )
 from bodymetry.fileio import load_npz
 
@@ -372,6 +372,16 @@ class BodyModel:
         # One multiply-add pass per component, in order: every state's values are
         # the same bits in any batch (a BLAS product rounds by batch size), and
         # 5x faster than einsum's loop on the anchors (80 states, 1.2k vertices).
+        kernels = skeleton_kernels()
+        if kernels is not None and nu.ndim == 2 and nu.shape[1] == len(basis) - 1:
+            # The same sums in one pass (skeleton_kernels.linear_kernel): same bits.
+            out = np.empty((len(nu), *basis.shape[1:]))
+            kernels.linear_kernel(
+                np.ascontiguousarray(basis, dtype=np.float64).reshape(len(basis), -1),
+                np.ascontiguousarray(nu, dtype=np.float64),
+                out.reshape(len(nu), -1),
+            )
+            return out
         out = np.broadcast_to(basis[0], (len(nu), *basis.shape[1:])).copy()
         for i in range(nu.shape[1]):
             out += nu[:, i].reshape(-1, *([1] * (basis.ndim - 1))) * basis[1 + i]
@@ -452,6 +462,23 @@ class BodyModel:
     ) -> np.ndarray:
         """(B, Na, 3): where each part's rigid motion about its joint carries its anchors."""
         _, parts = self._skeleton_anchors[lod]
+        kernels = skeleton_kernels()
+        if kernels is not None:
+            # One pass (skeleton_kernels.anchor_targets_kernel): the same rest
+            # positions, the rotation summed in order (equal to rounding).
+            basis = self._rest_anchor_basis[lod]
+            B = len(nu)
+            out = np.empty((B, basis.shape[1], 3))
+            kernels.anchor_targets_kernel(
+                np.ascontiguousarray(basis, dtype=np.float64),
+                np.ascontiguousarray(nu, dtype=np.float64),
+                np.ascontiguousarray(parts, dtype=np.int64),
+                np.ascontiguousarray(np.broadcast_to(rest_joints, (B, len(PARTS), 3))),
+                np.ascontiguousarray(np.broadcast_to(rot, (B, len(PARTS), 3, 3))),
+                np.ascontiguousarray(np.broadcast_to(joints, (B, len(PARTS), 3))),
+                out,
+            )
+            return out
         rest = self._linear(self._rest_anchor_basis[lod], nu)  # (B, Na, 3)
         out = np.empty_like(rest)
         bounds = np.searchsorted(parts, np.arange(len(PARTS) + 1))
@@ -486,8 +513,8 @@ class BodyModel:
         nu = self._check_nu(state.nu)
         rest_kp = self._linear(self._keypoint_basis, nu)  # canonical (pinned) frame
         rest_joints = rest_kp[:, : len(JOINTS)]
-        rot, joints = forward_kinematics(state.theta, state.tau, rest_joints, self.hinge_axes)
-        local = local_rotations(state.theta, self.hinge_axes) if pose_deformation else None
+        local, rot, joints = posed_skeleton(state.theta, state.tau, rest_joints, self.hinge_axes)
+        local = local if pose_deformation else None
         mesh = self._mesh(lod)
         # SCAPE's least squares alone lets errors of the learned deformations add up
         # along the body: with both arms overhead the head sank 4 cm against the

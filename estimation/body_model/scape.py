@@ -446,6 +446,10 @@ class ScapeMesh:
             rhs = np.asarray(self._At @ E)
         # Columns (state, xyz): the 3 coordinates of all states share one factorization.
         X = self._factor(rhs)  # (V-1, 3B)
+        if kernels is not None:
+            out = np.empty((B, self.n_vertices, 3))
+            kernels.vertices_kernel(_kernel_arg(X), out)
+            return out
         out = np.zeros((B, self.n_vertices, 3))
         out[:, 1:] = X.reshape(-1, B, 3).transpose(1, 0, 2)
         return out
@@ -472,6 +476,10 @@ class ScapeMesh:
         rhs[0] = -rhs[1:].sum(axis=0)
         rhs[idx] += w2 * targets.transpose(1, 0, 2).reshape(len(idx), 3 * B)
         X = factor(rhs)  # (V, 3B)
+        if kernels is not None:
+            out = np.empty((B, self.n_vertices, 3))
+            kernels.vertices_kernel(_kernel_arg(X), out)  # the same copy, one pass
+            return out
         return np.ascontiguousarray(X.reshape(-1, B, 3).transpose(1, 0, 2))
 
 

@@ -15,7 +15,10 @@ which run over contiguous triangles through 1-D slices (LLVM vectorizes those;
 coefficients stay in cache across the states. A state whose features or ν
 equal the previous state's reuses that state's ``Q_t Δx_t`` or ``S_t`` (the
 same numbers; the contour refinement's batch of finite-difference steps changes
-one coordinate per state, so most of its states reuse both). No ``fastmath``: no fused
+one coordinate per state, so most of its states reuse both). The sums over the
+pose features and the shape components are written a few terms per expression,
+in the same order as one pass per term (the same numbers; the loops are
+bound by loads and stores of the buffers, 20-35 % faster). No ``fastmath``: no fused
 multiply-adds; only the order of some sums differs from the numpy reference
 (its matrix products), so the edges agree to rounding (measured: 4e-16 of the
 largest edge).
@@ -92,31 +95,52 @@ def edges_kernel(
                             same_shape = False
                 if not same_pose:
                     # Q_t Δx_t: the six features times their coefficients, then the template.
-                    for r in range(6):
-                        x[r, :n] = 0.0
-                    for f in range(6):
-                        feat = rotvec[b, j1, f] if f < 3 else rotvec[b, j2, f - 3]
-                        for r in range(6):
-                            xr = x[r, :n]
-                            pc = pose_coef[f, r, c0:c1]
-                            for k in range(n):
-                                xr[k] += feat * pc[k]
+                    # The six terms in one expression, in the order of separate passes
+                    # over the features (the same sums), one load and store of x.
+                    f0, f1, f2 = rotvec[b, j1, 0], rotvec[b, j1, 1], rotvec[b, j1, 2]
+                    f3, f4, f5 = rotvec[b, j2, 0], rotvec[b, j2, 1], rotvec[b, j2, 2]
                     for r in range(6):
                         xr = x[r, :n]
+                        p0 = pose_coef[0, r, c0:c1]
+                        p1 = pose_coef[1, r, c0:c1]
+                        p2 = pose_coef[2, r, c0:c1]
+                        p3 = pose_coef[3, r, c0:c1]
+                        p4 = pose_coef[4, r, c0:c1]
+                        p5 = pose_coef[5, r, c0:c1]
                         tr = template[r, c0:c1]
                         for k in range(n):
-                            xr[k] += tr[k]
+                            xr[k] = (
+                                (
+                                    ((((0.0 + f0 * p0[k]) + f1 * p1[k]) + f2 * p2[k]) + f3 * p3[k])
+                                    + f4 * p4[k]
+                                )
+                                + f5 * p5[k]
+                            ) + tr[k]
                 if not same_shape:
                     # S_t(ν) = Σ_k ν_k U_kt, then μ_t.
                     for r in range(9):
                         s[r, :n] = 0.0
-                    for q in range(K):
+                    # Three components per pass over S, the sums still in component
+                    # order: a third of the loads and stores of S (load-bound).
+                    q = 0
+                    while q + 3 <= K:
+                        w0, w1, w2 = nu[b, q], nu[b, q + 1], nu[b, q + 2]
+                        for r in range(9):
+                            sr = s[r, :n]
+                            u0 = shape_basis[q, r, c0:c1]
+                            u1 = shape_basis[q + 1, r, c0:c1]
+                            u2 = shape_basis[q + 2, r, c0:c1]
+                            for k in range(n):
+                                sr[k] = ((sr[k] + w0 * u0[k]) + w1 * u1[k]) + w2 * u2[k]
+                        q += 3
+                    while q < K:
                         w = nu[b, q]
                         for r in range(9):
                             sr = s[r, :n]
                             ub = shape_basis[q, r, c0:c1]
                             for k in range(n):
                                 sr[k] += w * ub[k]
+                        q += 1
                     for r in range(9):
                         sr = s[r, :n]
                         mr = shape_mean[r, c0:c1]
@@ -188,3 +212,35 @@ def normal_rhs_kernel(faces, edges, out):  # pragma: no cover
                         row[v - 1] += ee[t]
                     if v0 > 0:
                         row[v0 - 1] -= ee[t]
+
+
+@numba.njit(cache=True, nogil=True)
+def vertices_kernel(solution, out):  # pragma: no cover
+    """The solve's columns ``(state, xyz)`` as vertex arrays.
+
+    numpy's ``X.reshape(-1, B, 3).transpose(1, 0, 2)`` copied into ``(B, V, 3)``
+    goes through a view whose innermost axis has 3 entries, a slow strided copy
+    (2 ms for 50 states of the level of detail); this is the same copy in one
+    pass over the rows of ``X``.
+
+    Parameters
+    ----------
+    solution : (V - 1, 3B) or (V, 3B) float64
+        The vertex solve's result, columns ``(state, xyz)``: without vertex 0
+        (the pinned solve; vertex 0 is then at the origin) or with every vertex
+        (the anchored solve).
+    out : (B, V, 3) float64
+        Written.
+    """
+    B = out.shape[0]
+    V = out.shape[1]
+    first = V - solution.shape[0]  # 1: vertex 0 pinned at the origin, 0: all solved
+    for b in range(B):
+        for v in range(first):
+            for x in range(3):
+                out[b, v, x] = 0.0
+    for v in range(solution.shape[0]):
+        row = solution[v]
+        for b in range(B):
+            for x in range(3):
+                out[b, v + first, x] = row[3 * b + x]

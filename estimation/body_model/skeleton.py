@@ -19,10 +19,13 @@ A-pose with the elbows bent about 47°).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 
+from bodymetry.estimation.backends import compiled_kernels, default_backend
 from bodymetry.estimation.body_model.rotations import axis_rotation, euler_to_matrix
 
 PARTS: tuple[str, ...] = (
@@ -73,6 +76,21 @@ JOINT_SLICES: tuple[slice, ...] = tuple(
 #: Index in θ of the global heading (rotation of the root about the vertical z axis).
 YAW: int = JOINT_SLICES[0].start + 2
 HINGES: tuple[int, ...] = tuple(i for i, d in enumerate(JOINT_DOFS) if d == 1)
+
+_BACKENDS = ("numba", "numpy")
+
+#: How :func:`posed_skeleton` (the body model's pose) runs: ``"numba"`` (one
+#: compiled pass, :mod:`~bodymetry.estimation.body_model.skeleton_kernels`) or
+#: ``"numpy"`` (:func:`local_rotations` and :func:`forward_kinematics`, the
+#: reference). From ``$BODYMETRY_SKELETON``; unset, numba when it is installed.
+#: Read at every call, so tests and benchmarks may set it.
+BACKEND: str = default_backend(
+    "BODYMETRY_SKELETON", os.environ.get("BODYMETRY_SKELETON"), _BACKENDS, "numba"
+)
+#: The tree as arrays for the kernel: degrees of freedom, first θ entry, parent.
+_DOFS = np.array(JOINT_DOFS, dtype=np.int64)
+_STARTS = np.array([s.start for s in JOINT_SLICES], dtype=np.int64)
+_PARENTS = np.array(PART_PARENT, dtype=np.int64)
 
 
 def dof_names() -> tuple[str, ...]:
@@ -199,3 +217,75 @@ def forward_kinematics(
             offset = rest[:, k] - rest[:, parent]
             joints[:, k] = joints[:, parent] + np.einsum("bij,bj->bi", rot[:, parent], offset)
     return rot, joints
+
+
+def skeleton_kernels() -> ModuleType | None:
+    """The compiled kernel module when :data:`BACKEND` is ``"numba"``, else None
+    (numba chosen by default but failing to import: the numpy path, logged).
+    Also used by ``model.BodyModel`` for its shape-linear sums and anchors."""
+    global BACKEND
+    kernels = compiled_kernels(
+        BACKEND, "skeleton.BACKEND", "bodymetry.estimation.body_model.skeleton_kernels",
+        "BODYMETRY_SKELETON", "forward kinematics",
+    )  # fmt: skip
+    if kernels is None:
+        BACKEND = "numpy"
+    return kernels
+
+
+def posed_skeleton(
+    theta: np.ndarray, tau: np.ndarray, rest_joints: np.ndarray, hinge_axes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Local rotations and forward kinematics of a batch in one call (what a pose needs).
+
+    :func:`local_rotations` and :func:`forward_kinematics` together, which
+    would build the local rotations twice; with :data:`BACKEND` ``"numba"`` one
+    compiled pass (the same expressions; equal to the numpy path to rounding,
+    a few 1e-16).
+
+    Parameters
+    ----------
+    theta : (B, 37) float
+    tau : (B, 3) float
+    rest_joints : (B, 15, 3) or (15, 3) float
+    hinge_axes : (15, 3) float
+
+    Returns
+    -------
+    local : (B, 15, 3, 3) float
+        Rotation of each part relative to its parent.
+    rotations : (B, 15, 3, 3) float
+        Global rotation of each part.
+    joints : (B, 15, 3) float
+        World joint positions.
+    """
+    theta = np.atleast_2d(np.asarray(theta, dtype=float))
+    if theta.shape[-1] != N_POSE:
+        raise ValueError(f"theta: expected shape (B, {N_POSE}), got {theta.shape}")
+    kernels = skeleton_kernels()
+    if kernels is None:
+        rot, joints = forward_kinematics(theta, tau, rest_joints, hinge_axes)
+        return local_rotations(theta, hinge_axes), rot, joints
+    B = theta.shape[0]
+    axes = np.asarray(hinge_axes, dtype=float)
+    if axes.shape != (N_PARTS, 3):
+        raise ValueError(f"hinge_axes: expected shape ({N_PARTS}, 3), got {axes.shape}")
+    rest = np.asarray(rest_joints, dtype=float)
+    if rest.shape[-2:] != (N_PARTS, 3) or rest.ndim not in (2, 3):
+        raise ValueError(f"rest_joints: expected shape (B, {N_PARTS}, 3), got {rest.shape}")
+    local = np.empty((B, N_PARTS, 3, 3))
+    rot = np.empty((B, N_PARTS, 3, 3))
+    joints = np.empty((B, N_PARTS, 3))
+    kernels.posed_skeleton_kernel(
+        np.ascontiguousarray(theta),
+        np.ascontiguousarray(axes),
+        _DOFS,
+        _STARTS,
+        _PARENTS,
+        np.ascontiguousarray(np.broadcast_to(rest, (B, N_PARTS, 3))),
+        np.ascontiguousarray(np.broadcast_to(np.asarray(tau, dtype=float), (B, 3))),
+        local,
+        rot,
+        joints,
+    )
+    return local, rot, joints

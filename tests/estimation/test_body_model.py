@@ -682,3 +682,21 @@ def test_anchored_solve_numba_equals_numpy(model, rng, monkeypatch, lod):
     got = mesh.solve(edges, targets)
     monkeypatch.setattr(scape, "_edge_kernels", lambda: None)
     np.testing.assert_allclose(mesh.solve(edges, targets), got, atol=ATOL_SOLVERS)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
+@pytest.mark.parametrize("lod", [False, True])
+def test_compiled_skeleton_poses_the_numpy_vertices(model, rng, monkeypatch, lod):
+    """``skeleton.BACKEND`` numba (forward kinematics, shape sums, anchor targets in
+    kernels) against numpy: the same bodies to rounding (measured ~3e-15 m)."""
+    from bodymetry.estimation.body_model import skeleton
+
+    theta = rng.uniform(-0.4, 0.4, (5, 37))
+    state = BodyState(rng.normal(0, 0.3, (5, 3)), theta, rng.normal(0, 1, (5, model.n_shape)))
+    got = {}
+    for backend in ("numpy", "numba"):
+        monkeypatch.setattr(skeleton, "BACKEND", backend)
+        got[backend] = model.pose(state, lod=lod)
+    np.testing.assert_allclose(got["numba"].vertices, got["numpy"].vertices, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got["numba"].joints, got["numpy"].joints, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got["numba"].keypoints, got["numpy"].keypoints, rtol=0, atol=1e-12)

@@ -138,3 +138,64 @@ def test_chamfer_kernel_rejects_bad_faces():
     observed[2:5, 2:5] = True
     xy, faces = _quad(1.5, 1.5, 5.5, 5.5)
     _kernel_cost(xy, faces + 10, observed, status=-1)
+
+
+def test_chamfer_of_a_batch_is_each_bodys_own_cost():
+    """The kernel reuses one model image for every body and view, clearing only the
+    box the previous one drew: a batch of bodies in views of different sizes costs
+    exactly what each body costs alone."""
+    rng = np.random.default_rng(7)
+    sizes = np.array([[50, 60], [40, 30]], np.int64)  # (width, height)
+    H, W = 60, 50
+    observed = np.zeros((2, H, W), bool)
+    observed[0, 10:40, 10:30] = True
+    observed[1, 5:20, 8:25] = True
+    dist = np.zeros((2, H, W), np.float32)
+    boxes = np.zeros((2, 4), np.int64)
+    for c, (w, h) in enumerate(sizes):
+        obs_c = observed[c, :h, :w]
+        dist[c, :h, :w] = cv2.distanceTransform((~obs_c).astype(np.uint8), cv2.DIST_L2, 3)
+        x, y, bw, bh = cv2.boundingRect(obs_c.astype(np.uint8))
+        boxes[c] = (x, y, x + bw, y + bh)
+    area = observed.sum(axis=(1, 2)).astype(float)
+    # Three bodies: quads of random corners, the first large (it draws over most of
+    # the views), so a stale pixel of it would change the later costs.
+    bodies = [(2.5, 3.5, 45.5, 55.5)] + [
+        tuple(np.sort(rng.uniform(0, 40, 2))) + tuple(np.sort(rng.uniform(0, 28, 2)))
+        for _ in range(2)
+    ]
+    xs, ys = np.empty((3, 2, 4)), np.empty((3, 2, 4))
+    faces = None
+    for b, (x0, y0, x1, y1) in enumerate(bodies):
+        xy, faces = _quad(x0, y0, x1, y1)
+        xs[b], ys[b] = xy[:, 0], xy[:, 1]
+
+    def costs(xs, ys):
+        out = np.empty((len(xs), 2))
+        status = lk.chamfer_kernel(
+            xs, ys, faces.astype(np.int64), sizes, H, observed, dist, boxes, area, 1.0,
+            _INSIDE_EPS, out,
+        )  # fmt: skip
+        assert status == 0
+        return out
+
+    batch = costs(xs, ys)
+    for b in range(3):
+        assert np.array_equal(batch[b], costs(xs[b : b + 1], ys[b : b + 1])[0])
+    assert np.all(np.isfinite(batch)) and batch[0, 0] > 0
+
+
+def test_nearest_pairs_are_the_kd_trees():
+    """Both directions of nearest neighbours by one pass over all pairs: the k-d tree's
+    indices (continuous model points against observed points on a quarter-pixel grid,
+    as the refinement has them: no exact ties)."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(11)
+    for n, m in ((1, 1), (37, 400), (1100, 400)):
+        observed = np.round(rng.uniform(0, 300, (m, 2)) * 4) / 4
+        model = rng.uniform(0, 300, (n, 2))
+        j, k = np.empty(n, np.int64), np.empty(m, np.int64)
+        lk.nearest_pairs_kernel(model, observed, j, k)
+        assert np.array_equal(j, cKDTree(observed).query(model)[1])
+        assert np.array_equal(k, cKDTree(model).query(observed)[1])

@@ -288,3 +288,71 @@ def test_perturbed_residuals_build_only_the_used_vertices(scene):
     assert sum(p.source is not None for p in pairs) == len(cameras)
     alone = cost.residuals(cost.perturbed(y, step, used), [replace(p, source=None) for p in pairs])
     assert np.array_equal(alone[0], want[0]) and np.array_equal(alone[1], want[1])
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
+def test_compiled_moved_rows_are_the_sparse_products(scene, monkeypatch):
+    """The full mesh moved by level-of-detail displacements, by the kernel and by
+    scipy's sparse product: the same sums in the same order, bit for bit."""
+    model, cameras, truth, masks = scene
+    config = RefineConfig()
+    cost = _ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
+    y = truth.vector()[0]
+    step = np.full(len(y), 1e-3)
+    lod = cost.vertices(np.vstack([y, y + np.diag(step)]), lod=True)
+    base = cost.vertices(y)[0]
+    rows = np.unique(np.random.default_rng(2).integers(0, len(base), 2000))
+    got = {}
+    for backend in ("numpy", "numba"):
+        monkeypatch.setattr(generative, "BACKEND", backend)
+        got[backend] = cost._moved_rows(lod, base, rows)
+    assert got["numba"].shape == (len(y) + 1, len(rows), 3)
+    assert np.array_equal(got["numba"], got["numpy"])
+    with pytest.raises(IndexError, match="rows"):
+        cost._moved_rows(lod, base, np.array([len(base)]))
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
+def test_prepared_contour_topology_is_checked(scene):
+    """The refinement checks its mesh's topology once; a mesh of another size is refused."""
+    from bodymetry.estimation.projection import camera_arrays
+    from bodymetry.estimation.refinement import _contour_ids, _contour_topology
+
+    model, cameras, truth, _ = scene
+    faces = model.faces(lod=True)
+    edges, edge_faces = mesh_edges(faces)
+    verts = model.pose(truth, lod=True).vertices[0]
+    topology = _contour_topology(faces, edges, edge_faces, len(verts))
+    cam = cameras[0]
+    kernels = generative.compiled_likelihood()
+    ids = _contour_ids(kernels, verts, topology, cam, camera_arrays([cam]), cam.center, None)
+    assert np.array_equal(ids, occluding_contour(verts, faces, edges, edge_faces, cam, cam.center))
+    with pytest.raises(IndexError, match="topology"):
+        _contour_ids(kernels, verts[:-1], topology, cam, camera_arrays([cam]), cam.center, None)
+    with pytest.raises(IndexError, match="faces"):
+        _contour_topology(faces, edges, edge_faces, len(verts) - 1)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
+def test_compiled_residuals_of_a_batch_are_the_numpy_ones(scene, monkeypatch):
+    """Residuals of a batch of states (the Jacobian's) by the residual kernel: the numpy
+    path's shape and values (to the projections' 1e-9), each state's own residuals
+    bit for bit, and the same robust weights."""
+    model, cameras, truth, masks = scene
+    config = RefineConfig()
+    cost = _ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
+    y = truth.vector()[0]
+    _, pairs = cost.evaluate(y)
+    V = cost.perturbed(y, np.full(len(y), 1e-3))[:5]
+    got = {}
+    for backend in ("numpy", "numba"):
+        monkeypatch.setattr(generative, "BACKEND", backend)
+        got[backend] = cost.residuals(V, pairs)
+    R = sum(len(p.edges) for p in pairs)
+    assert got["numba"][0].shape == got["numpy"][0].shape == (5, R)
+    np.testing.assert_allclose(got["numba"][0], got["numpy"][0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got["numba"][1], got["numpy"][1], rtol=0, atol=1e-9)
+    for s in range(5):
+        alone = cost.residuals(V[s], pairs)
+        assert alone[0].shape == (R,)
+        assert np.array_equal(alone[0], got["numba"][0][s])

@@ -413,11 +413,29 @@ def test_numba_edges_of_repeated_shapes_and_poses_are_each_states_own(rng, monke
 @pytest.mark.skipif("numba" not in EDGE_BACKENDS, reason="numba is not installed")
 def test_numba_right_hand_sides_are_scipys(rng, monkeypatch):
     """The solve's Aᵀ E by the compiled scatter is scipy's sparse product, bit for bit,
-    so both backends give the same vertices."""
+    and the compiled copy of the solution into vertex arrays is numpy's, so both
+    backends give the same vertices."""
     mesh = scape.ScapeMesh(_deforming_arrays(rng, n_components=2), 2)
     edges = rng.normal(size=(4, 3, 2, len(mesh.faces)))
     got = {}
     for backend in ("numpy", "numba"):
         monkeypatch.setattr(scape, "EDGES_BACKEND", backend)
         got[backend] = mesh.solve(edges)
+    assert np.array_equal(got["numba"], got["numpy"])
+
+
+@pytest.mark.skipif("numba" not in EDGE_BACKENDS, reason="numba is not installed")
+def test_numba_anchored_solve_is_numpys(rng, monkeypatch):
+    """The anchored solve (every vertex solved) by both backends: the same vertices,
+    bit for bit (the compiled copy of the solution is numpy's)."""
+    mesh = scape.ScapeMesh(_deforming_arrays(rng, n_components=2), 2)
+    anchors = np.arange(0, mesh.n_vertices, 7)
+    mesh.set_anchors(anchors, 0.3)
+    edges = rng.normal(size=(4, 3, 2, len(mesh.faces)))
+    targets = rng.normal(size=(4, len(anchors), 3))
+    got = {}
+    for backend in ("numpy", "numba"):
+        monkeypatch.setattr(scape, "EDGES_BACKEND", backend)
+        got[backend] = mesh.solve(edges, targets)
+    assert got["numba"].shape == (4, mesh.n_vertices, 3)
     assert np.array_equal(got["numba"], got["numpy"])

@@ -6,6 +6,8 @@ covered in test_body_model.py.
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,11 @@ from bodymetry.estimation.body_model.rotations import axis_rotation, euler_to_ma
 # Tolerances, all in one place (absolute; metres for positions, entries for matrices).
 # --------------------------------------------------------------------------------------
 ATOL = 1e-12
+#: The compiled posed_skeleton against the numpy reference: the same expressions, the
+#: 3x3 products summed in order where numpy's may fuse multiply-adds (measured ~2e-16
+#: on unit rotations and metre-sized joints).
+ATOL_KERNEL = 1e-14
+HAS_NUMBA = importlib.util.find_spec("numba") is not None
 SEED = 20240613
 B = 64
 
@@ -195,6 +202,56 @@ def test_a_joint_moves_only_its_subtree(rng):
     assert [sk.JOINTS[k] for k in np.flatnonzero(moved)] == ["ankle_l"]
 
 
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+@pytest.mark.parametrize("batched_rest", [False, True])
+def test_posed_skeleton_is_local_rotations_and_forward_kinematics(
+    rng, monkeypatch, backend, batched_rest
+):
+    """Both backends give the reference functions' rotations and joints (the numpy
+    one bit for bit, the compiled one to rounding)."""
+    if backend == "numba" and not HAS_NUMBA:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(sk, "BACKEND", backend)
+    hinge = _hinge_axes(rng)
+    theta = _random_theta(rng, B)
+    rest = np.stack([_rest_joints(rng) for _ in range(B)]) if batched_rest else _rest_joints(rng)
+    tau = rng.normal(size=(B, 3))
+    local, R, joints = sk.posed_skeleton(theta, tau, rest, hinge)
+    R_ref, joints_ref = sk.forward_kinematics(theta, tau, rest, hinge)
+    local_ref = sk.local_rotations(theta, hinge)
+    atol = 0.0 if backend == "numpy" else ATOL_KERNEL
+    assert local.shape == R.shape == (B, 15, 3, 3) and joints.shape == (B, 15, 3)
+    np.testing.assert_allclose(local, local_ref, rtol=0, atol=atol)
+    np.testing.assert_allclose(R, R_ref, rtol=0, atol=atol)
+    np.testing.assert_allclose(joints, joints_ref, rtol=0, atol=atol)
+
+
+@pytest.mark.skipif(not HAS_NUMBA, reason="numba is not installed")
+def test_posed_skeleton_broadcasts_tau_and_checks_shapes(rng, monkeypatch):
+    monkeypatch.setattr(sk, "BACKEND", "numba")
+    hinge, rest = _hinge_axes(rng), _rest_joints(rng)
+    theta = _random_theta(rng, 3)
+    tau = rng.normal(size=3)
+    _, R, joints = sk.posed_skeleton(theta, tau, rest, hinge)
+    R_ref, joints_ref = sk.forward_kinematics(theta, tau, rest, hinge)
+    np.testing.assert_allclose(joints, joints_ref, rtol=0, atol=ATOL_KERNEL)
+    np.testing.assert_allclose(R, R_ref, rtol=0, atol=ATOL_KERNEL)
+    with pytest.raises(ValueError, match="theta"):
+        sk.posed_skeleton(np.zeros((2, 36)), tau, rest, hinge)
+    with pytest.raises(ValueError, match="hinge_axes"):
+        sk.posed_skeleton(theta, tau, rest, hinge[:14])
+    with pytest.raises(ValueError, match="rest_joints"):
+        sk.posed_skeleton(theta, tau, rest[:, :2], hinge)
+
+
+def test_skeleton_backend_choice(rng, monkeypatch):
+    with pytest.raises(ValueError, match="BODYMETRY_SKELETON"):
+        sk.default_backend("BODYMETRY_SKELETON", "cuda", sk._BACKENDS, "numba")
+    monkeypatch.setattr(sk, "BACKEND", "cuda")
+    with pytest.raises(ValueError, match=r"skeleton\.BACKEND"):
+        sk.posed_skeleton(np.zeros((1, 37)), np.zeros(3), _rest_joints(rng), _hinge_axes(rng))
+
+
 # --- limits -----------------------------------------------------------------------------------
 
 
@@ -246,3 +303,19 @@ def test_limits_contains_tolerance():
     assert not lim.contains(theta)
     assert lim.contains(theta, tol=1e-5)
     assert not lim.contains(lim.lower - 1e-6)
+
+
+@pytest.mark.skipif(not HAS_NUMBA, reason="numba is not installed")
+def test_linear_kernel_is_the_numpy_sum_bit_for_bit(rng):
+    """``basis[0] + Σ ν_i basis[1 + i]`` summed per element in component order, as the
+    body model's numpy path sums it: the same bits."""
+    from bodymetry.estimation.body_model import skeleton_kernels as kernels
+
+    basis = rng.normal(size=(10, 37, 3))
+    nu = rng.normal(size=(6, 9))
+    want = np.broadcast_to(basis[0], (6, 37, 3)).copy()
+    for i in range(9):
+        want += nu[:, i, None, None] * basis[1 + i]
+    got = np.empty((6, 37 * 3))
+    kernels.linear_kernel(basis.reshape(10, -1), nu, got)
+    assert np.array_equal(got.reshape(6, 37, 3), want)
