@@ -66,6 +66,22 @@ def compiled_kernels(
     return _loaded[module]
 
 
+def module_kernels(
+    namespace: dict, attr: str, module: str, env_var: str, what: str
+) -> ModuleType | None:
+    """:func:`compiled_kernels` for the backend a module keeps in ``namespace[attr]``.
+
+    ``namespace`` is that module's ``globals()``; when numba was chosen by
+    default but fails to import, the setting falls back to ``"numpy"`` there,
+    so the module's numpy path is used from then on.
+    """
+    setting = f"{namespace['__name__'].rsplit('.', 1)[-1]}.{attr}"
+    kernels = compiled_kernels(namespace[attr], setting, module, env_var, what)
+    if kernels is None:
+        namespace[attr] = "numpy"
+    return kernels
+
+
 def load_kernels(module: str, env_var: str, what: str) -> ModuleType | None:
     """Import the compiled kernels ``module``; None (and a warning) when numba fails
     to import and the user did not ask for it, so the caller uses its numpy path.

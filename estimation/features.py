@@ -43,7 +43,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bodymetry.estimation.backends import compiled_kernels, default_backend
+from bodymetry.estimation.backends import default_backend, module_kernels
 
 __all__ = [
     "Codebook",
@@ -79,14 +79,13 @@ BACKEND: str = default_backend(
 
 def _kernels() -> ModuleType | None:
     """The compiled feature kernels, or None for the numpy path (see ``raster._kernels``)."""
-    global BACKEND
-    kernels = compiled_kernels(
-        BACKEND, "features.BACKEND", "bodymetry.estimation.feature_kernels",
-        "BODYMETRY_FEATURES", "shape-context features",
-    )  # fmt: skip
-    if kernels is None:
-        BACKEND = "numpy"
-    return kernels
+    return module_kernels(
+        globals(),
+        "BACKEND",
+        "bodymetry.estimation.feature_kernels",
+        "BODYMETRY_FEATURES",
+        "shape-context features",
+    )
 
 
 # Default ratio r_in / r_out of the log-polar grid. The paper uses r_in = 3 px

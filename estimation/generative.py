@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import Camera
-from bodymetry.estimation.backends import compiled_kernels, default_backend
+from bodymetry.estimation.backends import default_backend, module_kernels
 from bodymetry.estimation.body_model.model import THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import N_POSE, YAW
 from bodymetry.estimation.projection import camera_arrays, per_camera_masks
@@ -56,14 +56,13 @@ BACKEND: str = default_backend(
 def compiled_likelihood() -> ModuleType | None:
     """The compiled likelihood kernels (also used by the contour refinement), or None
     for the numpy path (see ``raster._kernels``)."""
-    global BACKEND
-    kernels = compiled_kernels(
-        BACKEND, "generative.BACKEND", "bodymetry.estimation.likelihood_kernels",
-        "BODYMETRY_LIKELIHOOD", "likelihood",
-    )  # fmt: skip
-    if kernels is None:
-        BACKEND = "numpy"
-    return kernels
+    return module_kernels(
+        globals(),
+        "BACKEND",
+        "bodymetry.estimation.likelihood_kernels",
+        "BODYMETRY_LIKELIHOOD",
+        "likelihood",
+    )
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from types import ModuleType
 
 import numpy as np
 
-from bodymetry.estimation.backends import compiled_kernels, default_backend
+from bodymetry.estimation.backends import default_backend, module_kernels
 
 log = logging.getLogger(__name__)
 
@@ -60,14 +60,13 @@ def _kernels() -> ModuleType | None:
     install), the numpy path is used with a log message; an explicit
     ``BODYMETRY_RASTER=numba`` raises instead.
     """
-    global BACKEND
-    kernels = compiled_kernels(
-        BACKEND, "raster.BACKEND", "bodymetry.estimation.raster_kernels", "BODYMETRY_RASTER",
+    return module_kernels(
+        globals(),
+        "BACKEND",
+        "bodymetry.estimation.raster_kernels",
+        "BODYMETRY_RASTER",
         "rasterizer",
-    )  # fmt: skip
-    if kernels is None:
-        BACKEND = "numpy"
-    return kernels
+    )
 
 
 _CULL_CODES = {"none": 0, "back": 1, "front": 2}

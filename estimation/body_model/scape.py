@@ -43,7 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from bodymetry.estimation.backends import compiled_kernels, default_backend
+from bodymetry.estimation.backends import default_backend, module_kernels
 from bodymetry.estimation.body_model.rotations import matrix_to_axis_angle
 
 log = logging.getLogger(__name__)
@@ -82,14 +82,13 @@ def _edge_kernels() -> ModuleType | None:
     install), the numpy path is used with a log message; an explicit
     ``BODYMETRY_SCAPE_EDGES=numba`` raises instead.
     """
-    global EDGES_BACKEND
-    kernels = compiled_kernels(
-        EDGES_BACKEND, "scape.EDGES_BACKEND", "bodymetry.estimation.body_model.scape_kernels",
-        "BODYMETRY_SCAPE_EDGES", "SCAPE edges",
-    )  # fmt: skip
-    if kernels is None:
-        EDGES_BACKEND = "numpy"
-    return kernels
+    return module_kernels(
+        globals(),
+        "EDGES_BACKEND",
+        "bodymetry.estimation.body_model.scape_kernels",
+        "BODYMETRY_SCAPE_EDGES",
+        "SCAPE edges",
+    )
 
 
 #: Features per triangle for Q: two joints' rotation vectors. No constant term:

@@ -25,7 +25,7 @@ from types import ModuleType
 
 import numpy as np
 
-from bodymetry.estimation.backends import compiled_kernels, default_backend
+from bodymetry.estimation.backends import default_backend, module_kernels
 from bodymetry.estimation.body_model.rotations import axis_rotation, euler_to_matrix
 
 PARTS: tuple[str, ...] = (
@@ -223,14 +223,13 @@ def skeleton_kernels() -> ModuleType | None:
     """The compiled kernel module when :data:`BACKEND` is ``"numba"``, else None
     (numba chosen by default but failing to import: the numpy path, logged).
     Also used by ``model.BodyModel`` for its shape-linear sums and anchors."""
-    global BACKEND
-    kernels = compiled_kernels(
-        BACKEND, "skeleton.BACKEND", "bodymetry.estimation.body_model.skeleton_kernels",
-        "BODYMETRY_SKELETON", "forward kinematics",
-    )  # fmt: skip
-    if kernels is None:
-        BACKEND = "numpy"
-    return kernels
+    return module_kernels(
+        globals(),
+        "BACKEND",
+        "bodymetry.estimation.body_model.skeleton_kernels",
+        "BODYMETRY_SKELETON",
+        "forward kinematics",
+    )
 
 
 def posed_skeleton(

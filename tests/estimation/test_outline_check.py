@@ -49,6 +49,16 @@ def _grown(masks, px):
     return [cv2.dilate(m.astype(np.uint8), kernel).astype(bool) for m in masks]
 
 
+def _with_grown_region(model, cameras, states, faces, px):
+    """Frames whose silhouettes are the body's own plus ``faces`` grown by ``px``."""
+    frames = []
+    for s in states:
+        own = _masks(model, cameras, s)
+        extra = _grown(_masks(model, cameras, s, faces), px)
+        frames.append(([a | b for a, b in zip(own, extra, strict=True)], s))
+    return frames
+
+
 def _region_faces(model, names):
     parts = model.full.arrays.parts
     return model.faces()[np.isin(parts, [PARTS.index(n) for n in names])]
@@ -87,11 +97,7 @@ def test_a_wider_trunk_warns_of_loose_clothing(scene):
     """A shirt: the trunk's outline grown by 3 px, the limbs as they are."""
     model, cameras, states = scene
     trunk = _region_faces(model, ("torso", "pelvis"))
-    frames = []
-    for s in states:
-        own = _masks(model, cameras, s)
-        shirt = _grown(_masks(model, cameras, s, trunk), 3)
-        frames.append(([a | b for a, b in zip(own, shirt, strict=True)], s))
+    frames = _with_grown_region(model, cameras, states, trunk, 3)
     check = check_outline(model, cameras, frames)
     px = _mm_per_px(cameras, states[0])
     assert check.trunk_excess_mm > 1.5 * px
@@ -108,11 +114,7 @@ def test_hair_at_the_crown_warns(scene):
     model, cameras, states = scene
     crown = crown_vertices(model, lod=False)
     faces = model.faces()[crown[model.faces()].all(axis=1)]
-    frames = []
-    for s in states:
-        own = _masks(model, cameras, s)
-        hair = _grown(_masks(model, cameras, s, faces), 3)
-        frames.append(([a | b for a, b in zip(own, hair, strict=True)], s))
+    frames = _with_grown_region(model, cameras, states, faces, 3)
     check = check_outline(model, cameras, frames)
     assert check.offsets_mm["crown"] > 1.5 * _mm_per_px(cameras, states[0])
     assert any(w.startswith("hair or headwear likely") for w in check.warnings)
@@ -124,11 +126,7 @@ def test_coarse_pixels_decide_nothing(scene):
     model, _, states = scene
     cameras = studio_rig(4, (160, 120), seed=4)
     trunk = _region_faces(model, ("torso", "pelvis"))
-    frames = []
-    for s in states:
-        own = _masks(model, cameras, s)
-        shirt = _grown(_masks(model, cameras, s, trunk), 1)
-        frames.append(([a | b for a, b in zip(own, shirt, strict=True)], s))
+    frames = _with_grown_region(model, cameras, states, trunk, 1)
     check = check_outline(model, cameras, frames)
     assert check.mm_per_px > OutlineConfig().max_mm_per_px
     assert check.status.startswith("undecided") and check.warnings == ()
