@@ -432,26 +432,9 @@ class ScapeMesh:
         """
         if targets is not None:
             return self._solve_anchored(edges, targets)
-        B = edges.shape[0]
-        kernels = _edge_kernels()
-        if kernels is not None:
-            # Aᵀ E without the transposed copy of the edges scipy's product makes
-            # (most of the solve's time for a batch): the same sums, in the same order.
-            rhs_t = np.empty((3 * B, self.n_vertices - 1))
-            kernels.normal_rhs_kernel(self._faces64, _kernel_arg(edges), rhs_t)
-            rhs = np.ascontiguousarray(rhs_t.T)
-        else:
-            E = np.ascontiguousarray(edges).reshape(B * 3, -1).T  # (2T, 3B)
-            rhs = np.asarray(self._At @ E)
         # Columns (state, xyz): the 3 coordinates of all states share one factorization.
-        X = self._factor(rhs)  # (V-1, 3B)
-        if kernels is not None:
-            out = np.empty((B, self.n_vertices, 3))
-            kernels.vertices_kernel(_kernel_arg(X), out)
-            return out
-        out = np.zeros((B, self.n_vertices, 3))
-        out[:, 1:] = X.reshape(-1, B, 3).transpose(1, 0, 2)
-        return out
+        X = self._factor(np.ascontiguousarray(self._pinned_rhs(edges)))  # (V-1, 3B)
+        return self._vertex_arrays(X, edges.shape[0])
 
     def _solve_anchored(self, edges: np.ndarray, targets: np.ndarray) -> np.ndarray:
         if self._anchors is None:
@@ -461,25 +444,38 @@ class ScapeMesh:
         targets = np.asarray(targets, dtype=float)
         if targets.shape != (B, len(idx), 3):
             raise ValueError(f"targets: expected shape {(B, len(idx), 3)}, got {targets.shape}")
-        kernels = _edge_kernels()
         rhs = np.empty((self.n_vertices, 3 * B))
-        if kernels is not None:
-            rhs_t = np.empty((3 * B, self.n_vertices - 1))
-            kernels.normal_rhs_kernel(self._faces64, _kernel_arg(edges), rhs_t)
-            rhs[1:] = rhs_t.T
-        else:
-            E = np.ascontiguousarray(edges).reshape(B * 3, -1).T  # (2T, 3B)
-            rhs[1:] = self._At @ E
+        rhs[1:] = self._pinned_rhs(edges)
         # Every edge adds +E to one end and -E to the other, so the rows of AᵀE sum
         # to zero: vertex 0's row (left out of the pinned system) is minus the rest.
         rhs[0] = -rhs[1:].sum(axis=0)
         rhs[idx] += w2 * targets.transpose(1, 0, 2).reshape(len(idx), 3 * B)
-        X = factor(rhs)  # (V, 3B)
+        return self._vertex_arrays(factor(rhs), B)  # (V, 3B) solved
+
+    def _pinned_rhs(self, edges: np.ndarray) -> np.ndarray:
+        """(V-1, 3B) ``Aᵀ E`` of the pinned system, columns (state, xyz); may be a view."""
+        B = edges.shape[0]
+        kernels = _edge_kernels()
+        if kernels is not None:
+            # Aᵀ E without the transposed copy of the edges scipy's product makes
+            # (most of the solve's time for a batch): the same sums, in the same order.
+            rhs_t = np.empty((3 * B, self.n_vertices - 1))
+            kernels.normal_rhs_kernel(self._faces64, _kernel_arg(edges), rhs_t)
+            return rhs_t.T
+        E = np.ascontiguousarray(edges).reshape(B * 3, -1).T  # (2T, 3B)
+        return np.asarray(self._At @ E)
+
+    def _vertex_arrays(self, X: np.ndarray, B: int) -> np.ndarray:
+        """(B, V, 3) vertices from a solve's columns (state, xyz): ``X`` (V-1, 3B)
+        of the pinned solve (vertex 0 at the origin) or (V, 3B) of the anchored one."""
+        kernels = _edge_kernels()
         if kernels is not None:
             out = np.empty((B, self.n_vertices, 3))
             kernels.vertices_kernel(_kernel_arg(X), out)  # the same copy, one pass
             return out
-        return np.ascontiguousarray(X.reshape(-1, B, 3).transpose(1, 0, 2))
+        out = np.zeros((B, self.n_vertices, 3))
+        out[:, self.n_vertices - len(X) :] = X.reshape(-1, B, 3).transpose(1, 0, 2)
+        return out
 
 
 def _factorize(K: sp.csr_matrix, solver: str) -> Callable[[np.ndarray], np.ndarray]:
