@@ -314,14 +314,13 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
     # 5. pose deformation ----------------------------------------------------------------------
     n_poses = config.n_train_poses + config.n_test_poses
     thetas = sample_training_poses(rng, n_poses, limits, config.max_bend)
-    n_fit = config.n_train_poses
     rot, joints = forward_kinematics(thetas, np.zeros(3), rest, hinge_axes)
     local = local_rotations(thetas, hinge_axes)
     rotvec = matrix_to_axis_angle(local)
     posed = lbs(template, weights, rest, rot, joints)
-    ptrain = slice(0, n_fit)
+    ptrain = slice(0, config.n_train_poses)
     pairs = nearest_joint_pairs(template, faces, parts, rest)
-    log.info("fitting pose deformations on %d posed meshes", n_fit)
+    log.info("fitting pose deformations on %d posed meshes", config.n_train_poses)
     pose_coef = fit_pose_coefficients(
         template, faces, parts, pairs, posed[ptrain], rot[ptrain], rotvec[ptrain]
     )
@@ -444,8 +443,8 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
         out,
         bodies[held],
         scores[held],
-        posed[n_fit:],
-        thetas[n_fit:],
+        posed[config.n_train_poses :],
+        thetas[config.n_train_poses :],
         overhead=(lbs(template, weights, rest, rot_o, joints_o), test_over),
         skinning=(weights, bodies_kp[held][:, : len(JOINTS)]),
     )
