@@ -101,18 +101,10 @@ def crown_vertices(body: BodyModel, lod: bool) -> np.ndarray:
 
     Taken on the mean shape standing (θ = 0); the set then moves with the head.
     """
-    parts = vertex_parts(body, lod)
+    parts = body.parts_of_vertices(lod)
     rest = body.pose(BodyState.rest(body.n_shape), lod=lod).vertices[0]
     head = parts == PARTS.index("head")
     return head & (rest[:, 2] >= rest[head, 2].max() - CROWN_DEPTH)
-
-
-def vertex_parts(body: BodyModel, lod: bool) -> np.ndarray:
-    """(V,) int: each vertex's body part (that of an incident triangle)."""
-    faces = body.faces(lod=lod)
-    out = np.zeros(int(faces.max()) + 1, np.int64)
-    out[faces.reshape(-1)] = np.repeat(body.lod.arrays.parts if lod else body.full.arrays.parts, 3)
-    return out
 
 
 def frame_offsets(
@@ -193,7 +185,7 @@ def check_outline(
     refinement = refinement or RefineConfig()
     config = config or OutlineConfig()
     lod = not refinement.full_mesh
-    parts = vertex_parts(body, lod)
+    parts = body.parts_of_vertices(lod)
     crown = crown_vertices(body, lod)
     members = {
         name: crown if name == "crown" else np.isin(parts, [PARTS.index(p) for p in names])

@@ -304,6 +304,17 @@ class BodyModel:
             for lod in (False, True)
         }
 
+    def parts_of_vertices(self, lod: bool = False) -> np.ndarray:
+        """(V,) int: each vertex's body part (that of an incident triangle), for the
+        full mesh (:attr:`vertex_parts`, stored by the bake by the same rule) or
+        the level of detail."""
+        if not lod:
+            return self.vertex_parts
+        faces = self.faces(lod=True)
+        out = np.zeros(self.lod.n_vertices, np.int64)
+        out[faces.reshape(-1)] = np.repeat(self.lod.arrays.parts, 3)
+        return out
+
     def skeleton_anchors(self, lod: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """The vertices the posed solve anchors to the skeleton, and their parts.
 

@@ -623,20 +623,13 @@ def test_raising_both_arms_leaves_the_head_where_it_was(model):
     states = BodyState(np.zeros((2, 3)), np.stack([np.zeros(N_POSE), theta]), np.stack([nu, nu]))
     for lod in (False, True):
         v = model.pose(states, lod=lod).vertices
-        parts = model.vertex_parts if not lod else _lod_vertex_parts(model)
+        parts = model.parts_of_vertices(lod)
         head, pelvis = parts == PARTS.index("head"), parts == PARTS.index("pelvis")
         rel = v[:, head].mean(axis=1) - v[:, pelvis].mean(axis=1)
         assert np.linalg.norm(rel[1] - rel[0]) < HEAD_STILL, rel[1] - rel[0]
         # and the hands went up, above the head
         hands = np.isin(parts, [PARTS.index("hand_l"), PARTS.index("hand_r")])
         assert v[1, hands, 2].mean() > v[1, head, 2].max()
-
-
-def _lod_vertex_parts(model: BodyModel) -> np.ndarray:
-    faces, parts = model.lod.arrays.faces, model.lod.arrays.parts
-    out = np.zeros(model.lod.n_vertices, np.int64)
-    out[faces.reshape(-1)] = np.repeat(parts, 3)
-    return out
 
 
 @pytest.mark.parametrize("lod", [False, True])

@@ -13,7 +13,6 @@ from bodymetry.estimation.outline_check import (
     OutlineConfig,
     check_outline,
     crown_vertices,
-    vertex_parts,
 )
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.records import OutlineCheck, SessionShape
@@ -136,12 +135,12 @@ def test_coarse_pixels_decide_nothing(scene):
 def test_regions_are_parts_of_the_mesh():
     model = BodyModel.load()
     for lod in (False, True):
-        parts = vertex_parts(model, lod)
+        parts = model.parts_of_vertices(lod)
         assert len(parts) == model.pose(BodyState.rest(model.n_shape), lod=lod).vertices.shape[1]
         crown = crown_vertices(model, lod)
         assert crown.any() and np.all(parts[crown] == PARTS.index("head"))
     # the crown is the top of the head, a small share of it
-    parts = vertex_parts(model, False)
+    parts = model.parts_of_vertices(False)
     assert crown_vertices(model, False).sum() < 0.5 * (parts == PARTS.index("head")).sum()
 
 
