@@ -118,6 +118,11 @@ def _finite_or_none(x: float | None, digits: int) -> float | None:
     return round(float(x), digits)
 
 
+def _nan_if_none(v: Any) -> float:
+    """The reverse of :func:`_finite_or_none`: a JSON null reads as NaN."""
+    return math.nan if v is None else float(v)
+
+
 @dataclass(frozen=True)
 class RunLayout:
     """Where a run folder keeps each record (docs/outputs.md).
@@ -348,14 +353,10 @@ class RefinementTrace:
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> RefinementTrace:
-        def num(key: str) -> float:
-            v = data.get(key)
-            return float("nan") if v is None else float(v)
-
         return cls(
             str(data.get("start", "")),
-            num("initial_cost_px2"),
-            num("cost_px2"),
+            _nan_if_none(data.get("initial_cost_px2")),
+            _nan_if_none(data.get("cost_px2")),
             int(data.get("iterations", 0)),
         )
 
@@ -655,19 +656,16 @@ class OutlineCheck:
         if not isinstance(data, Mapping):
             raise InputError(f"{where}: expected an object")
 
-        def num(v: Any) -> float:
-            return math.nan if v is None else float(v)
-
         try:
             return cls(
                 status=str(data.get("status", OK)),
                 frames=int(data.get("frames", 0)),
-                mm_per_px=num(data.get("mm_per_px")),
-                offsets_mm={str(k): num(v) for k, v in data.get("offsets_mm", {}).items()},
-                trunk_excess_mm=num(data.get("trunk_excess_mm")),
-                trunk_excess_se_mm=num(data.get("trunk_excess_se_mm")),
-                crown_excess_mm=num(data.get("crown_excess_mm")),
-                crown_excess_se_mm=num(data.get("crown_excess_se_mm")),
+                mm_per_px=_nan_if_none(data.get("mm_per_px")),
+                offsets_mm={str(k): _nan_if_none(v) for k, v in data.get("offsets_mm", {}).items()},
+                trunk_excess_mm=_nan_if_none(data.get("trunk_excess_mm")),
+                trunk_excess_se_mm=_nan_if_none(data.get("trunk_excess_se_mm")),
+                crown_excess_mm=_nan_if_none(data.get("crown_excess_mm")),
+                crown_excess_se_mm=_nan_if_none(data.get("crown_excess_se_mm")),
                 warnings=tuple(str(w) for w in data.get("warnings", ())),
             )
         except (TypeError, ValueError, AttributeError) as exc:
@@ -764,24 +762,25 @@ class SessionShape:
         if not isinstance(data, Mapping) or "status" not in data:
             raise InputError(f"{where}: expected an object with a 'status'")
 
-        def num(v: Any) -> float:
-            return math.nan if v is None else float(v)
-
         try:
             return cls(
                 status=str(data["status"]),
                 method=str(data.get("method", "")),
                 frames=tuple(int(f) for f in data.get("frames", ())),
-                nu=tuple(num(v) for v in data.get("nu", ())),
-                nu_se=tuple(num(v) for v in data.get("nu_se", ())),
-                start_nu=tuple(num(v) for v in data.get("start_nu", ())),
-                biometrics={k: num(v) for k, v in data.get("biometrics", {}).items()},
-                standard_errors={k: num(v) for k, v in data.get("standard_errors", {}).items()},
-                frame_weights={int(k): num(v) for k, v in data.get("frame_weights", {}).items()},
-                mean_iou=num(data.get("mean_iou")),
-                reference_iou=num(data.get("reference_iou")),
-                initial_cost=num(data.get("initial_cost")),
-                cost=num(data.get("cost")),
+                nu=tuple(_nan_if_none(v) for v in data.get("nu", ())),
+                nu_se=tuple(_nan_if_none(v) for v in data.get("nu_se", ())),
+                start_nu=tuple(_nan_if_none(v) for v in data.get("start_nu", ())),
+                biometrics={k: _nan_if_none(v) for k, v in data.get("biometrics", {}).items()},
+                standard_errors={
+                    k: _nan_if_none(v) for k, v in data.get("standard_errors", {}).items()
+                },
+                frame_weights={
+                    int(k): _nan_if_none(v) for k, v in data.get("frame_weights", {}).items()
+                },
+                mean_iou=_nan_if_none(data.get("mean_iou")),
+                reference_iou=_nan_if_none(data.get("reference_iou")),
+                initial_cost=_nan_if_none(data.get("initial_cost")),
+                cost=_nan_if_none(data.get("cost")),
                 iterations=int(data.get("iterations", 0)),
                 covariance=str(data.get("covariance", "")),
                 seconds=float(data.get("seconds", 0.0)),
