@@ -201,8 +201,8 @@ def _print_summary(results: RunResults) -> None:
     shape = results.session_shape
     if shape is not None and not shape.ok:
         console.print(f"session shape: {rich.markup.escape(shape.status)}")
-    if shape is not None and shape.outline is not None:
-        for warning in shape.outline.warnings:
-            console.print(f"[bold yellow]warning:[/] {rich.markup.escape(warning)}")
+    # Every run warning (cameras, calibration, the outline check), under the table.
+    for warning in results.warnings:
+        console.print(f"[bold yellow]warning:[/] {rich.markup.escape(warning)}")
     for f in failed:
         console.print(f"frame {f.frame}: {f.status}")
