@@ -31,7 +31,7 @@ from bodymetry.estimation.generative import (
     prepare_observation,
 )
 from bodymetry.estimation.landmark_pose import pose_from_landmarks
-from bodymetry.estimation.projection import project_silhouettes
+from bodymetry.estimation.projection import project_silhouettes, view_ious
 from bodymetry.estimation.records import (
     AnnealingTrace,
     FrameArrays,
@@ -401,11 +401,7 @@ def fit_frame(
     state = refined.state
     bios = measure(body, np.vstack([disc_state.nu, state.nu]), density=config.density)
     model_masks = project_silhouettes(body.pose(state, lod=True).vertices[0], faces, cameras)
-    iou = {}
-    for c, cam in enumerate(cameras):
-        if valid[c]:
-            union = np.logical_or(model_masks[c], masks[c]).sum()
-            iou[cam.name] = float(np.logical_and(model_masks[c], masks[c]).sum() / max(union, 1))
+    iou = view_ious(cameras, model_masks, masks, valid)
     mean_iou = float(np.mean(list(iou.values())))
     status = _gate_status(mean_iou, config.min_iou)
     record = FrameRecord(

@@ -76,6 +76,29 @@ def project_silhouettes(
     return masks
 
 
+def view_ious(
+    cameras: Sequence[Camera],
+    model: Sequence[np.ndarray],
+    observed: Sequence[np.ndarray],
+    used: Sequence[bool],
+) -> dict[str, float]:
+    """Silhouette IoU per used view, keyed by camera name.
+
+    Parameters
+    ----------
+    cameras : sequence of C Camera
+    model, observed : sequences of C (H_c, W_c) bool
+    used : sequence of C bool
+        The views to score (the others are left out).
+    """
+    out = {}
+    for cam, m, o, u in zip(cameras, model, observed, used, strict=True):
+        if u:
+            union = np.logical_or(m, o).sum()
+            out[cam.name] = float(np.logical_and(m, o).sum() / max(union, 1))
+    return out
+
+
 def same_size(cameras: Sequence[Camera]) -> bool:
     """True when every camera has one image size (an empty rig counts as one size)."""
     return len({tuple(cam.size) for cam in cameras}) <= 1

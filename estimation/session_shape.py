@@ -54,7 +54,7 @@ from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
 from bodymetry.estimation.body_model.model import NU, POSE_DIM, BodyModel, BodyState
 from bodymetry.estimation.generative import state_bounds
-from bodymetry.estimation.projection import project_silhouettes
+from bodymetry.estimation.projection import project_silhouettes, view_ious
 from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape, StageEstimate
 from bodymetry.estimation.refinement import (
     ContourCost,
@@ -190,12 +190,7 @@ def silhouette_iou(
     model = project_silhouettes(
         body.pose(state, lod=True).vertices[0], body.faces(lod=True), cameras
     )
-    out = {}
-    for c, cam in enumerate(cameras):
-        if masks[c].any():
-            union = np.logical_or(model[c], masks[c]).sum()
-            out[cam.name] = float(np.logical_and(model[c], masks[c]).sum() / max(union, 1))
-    return out
+    return view_ious(cameras, model, masks, [m.any() for m in masks])
 
 
 @dataclass(frozen=True)

@@ -216,3 +216,19 @@ def test_training_and_fit_on_a_mixed_rig(tmp_path):
     # A mask of the wrong size is a failed frame naming the camera, not a crash.
     bad = fit_frame(4, [masks[0], masks[0]], [[], []], cameras, trained, FitConfig.preset("fast"))
     assert bad.record.status.startswith("fit failed: camera cam_01: mask is 240x180")
+
+
+def test_view_ious_score_each_used_view_at_its_own_size():
+    """Known answers: half-overlapping boxes (IoU 1/3), an exact match, a view left out."""
+    from bodymetry.estimation.projection import view_ious
+    from bodymetry.studio.rig import studio_rig
+
+    small, large = studio_rig(1, (40, 30), seed=1)[0], studio_rig(1, (80, 60), seed=2)[0]
+    cams = [dataclasses.replace(c, name=n) for c, n in ((small, "a"), (large, "b"), (small, "c"))]
+    model = [np.zeros((30, 40), bool), np.zeros((60, 80), bool), np.zeros((30, 40), bool)]
+    observed = [m.copy() for m in model]
+    model[0][10:20, 0:20] = True
+    observed[0][10:20, 10:30] = True
+    model[1][5:50, 5:70] = observed[1][5:50, 5:70] = True
+    got = view_ious(cams, model, observed, [True, True, False])
+    assert got == {"a": pytest.approx(1 / 3), "b": 1.0}
