@@ -218,14 +218,14 @@ def check_outline(
         pass  # the figures are kept, but they decide nothing at this resolution
     elif np.isfinite(trunk) and trunk > config.loose_mm:
         warnings.append(
-            f"loose clothing likely: the silhouettes lie {trunk:.1f} ± {trunk_se:.1f} mm "
+            f"loose clothing likely: the silhouettes lie {_mm(trunk, trunk_se)} "
             "further outside the fitted body at the trunk than at the forearms and shins "
             f"(tight clothing: under {config.loose_mm:g} mm); the weight, circumferences "
             "and widths are probably overstated"
         )
     if not coarse and np.isfinite(crown) and crown > config.crown_mm:
         warnings.append(
-            f"hair or headwear likely: the silhouettes lie {crown:.1f} ± {crown_se:.1f} mm "
+            f"hair or headwear likely: the silhouettes lie {_mm(crown, crown_se)} "
             "further outside the fitted body at the crown than at the forearms and shins "
             f"(bare head: under {config.crown_mm:g} mm); the height is probably overstated"
         )
@@ -249,6 +249,11 @@ def check_outline(
         crown_excess_se_mm=crown_se,
         warnings=tuple(warnings),
     )
+
+
+def _mm(value: float, se: float) -> str:
+    """``"3.4 ± 0.6 mm"``; without the ± when one frame gives no standard error."""
+    return f"{value:.1f} ± {se:.1f} mm" if np.isfinite(se) else f"{value:.1f} mm"
 
 
 def _median(values: Sequence[float]) -> float:

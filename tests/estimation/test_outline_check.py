@@ -188,3 +188,12 @@ def test_json_round_trip_inside_the_session_block():
         SessionShape.from_json({"status": "ok", "outline": [1, 2]})
     with pytest.raises(InputError, match="malformed outline"):
         OutlineCheck.from_json({"frames": "many"})
+
+
+def test_one_frame_warns_without_a_standard_error(scene):
+    model, cameras, states = scene
+    trunk = _region_faces(model, ("torso", "pelvis"))
+    check = check_outline(model, cameras, _with_grown_region(model, cameras, states[:1], trunk, 3))
+    assert np.isnan(check.trunk_excess_se_mm)
+    (warning,) = [w for w in check.warnings if w.startswith("loose clothing likely")]
+    assert "nan" not in warning and f"{check.trunk_excess_mm:.1f} mm further" in warning
