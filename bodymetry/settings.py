@@ -11,6 +11,7 @@ so every layer may use it.
 from __future__ import annotations
 
 import dataclasses
+import re
 import types
 import typing
 from collections.abc import Iterable, Mapping
@@ -37,6 +38,10 @@ def to_jsonable(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     return obj
+
+
+#: A number in exponent notation without a dot, which PyYAML leaves a string.
+_EXPONENT_FLOAT = re.compile(r"[-+]?\d+[eE][-+]?\d+")
 
 
 def _field_types(cls: type) -> dict[str, Any]:
@@ -88,6 +93,9 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
             raise InputError(f"{where}: expected an integer, got {value!r}")
         return value
     if hint is float:
+        if isinstance(value, str) and _EXPONENT_FLOAT.fullmatch(value.strip()):
+            # YAML 1.1 (PyYAML) reads ``1e-5`` (no dot) as a string.
+            return float(value)
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise InputError(f"{where}: expected a number, got {value!r}")
         return float(value)

@@ -62,6 +62,7 @@ def test_overrides_reach_nested_fields_with_short_keys():
         ("min_iou=2", r"min_iou: expected in \[0, 1\], got 2"),
         ("review=maybe", r"review: expected true or false"),
         ("annealing.min_std=[1, 2]", r"min_std: expected 3 values, got 2"),
+        ("session_shape.tolerance=1e-x", r"tolerance: expected a number, got '1e-x'"),
         ("training.n_train=10", r"n_train >= 50"),
     ],
 )
@@ -96,6 +97,17 @@ def test_parse_override_reads_yaml_scalars():
     assert parse_override("a=true") == (["a"], True)
     assert parse_override("a=[1, 2]") == (["a"], [1, 2])
     assert parse_override("a=text") == (["a"], "text")
+
+
+def test_exponent_notation_without_a_dot_is_a_number():
+    # PyYAML reads "1e-5" (no dot) as a string; a float setting still takes it.
+    config = ProcessConfig().with_overrides(
+        ["session_shape.tolerance=1e-5", "refinement.tolerance=2E-4"]
+    )
+    assert config.session_shape.tolerance == 1e-5
+    assert config.fit.refinement.tolerance == 2e-4
+    with pytest.raises(InputError, match=r"n_particles: expected an integer, got '1e2'"):
+        ProcessConfig().with_overrides(["annealing.n_particles=1e2"])
 
 
 def test_overrides_leave_the_original_untouched():
