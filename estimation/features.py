@@ -649,6 +649,9 @@ def _histograms_numpy(
     base *= n_theta / (2.0 * np.pi)
     base += 0.5 + n_theta
     np.floor(base, out=base)
+    # n_theta = 1 puts the one bin edge at pi: arctan2 = pi lands on 2 n_theta,
+    # which is bin n_theta (= bin 0) again, not the next radial row's first bin.
+    base[base >= 2 * n_theta] -= n_theta
     # flat bin index (kept in float64, exact for integers) into an
     # (N, n_r + 1, 2 n_theta) array whose last radial row collects the points
     # at r >= r_out (and the point itself), dropped below

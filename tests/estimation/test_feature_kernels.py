@@ -94,7 +94,7 @@ def test_histograms_equal_the_reference_on_silhouettes(monkeypatch, config):
 
 def test_histograms_equal_the_reference_on_random_points(monkeypatch):
     """Integer grids (exactly horizontal, vertical and diagonal pairs), duplicates,
-    every n_theta >= 2 up to 16: the same bins."""
+    every n_theta from 1 (one edge, at pi) up to 16: the same bins."""
     rng = np.random.default_rng(11)
     for trial in range(60):
         n = int(rng.integers(2, 120))
@@ -103,7 +103,7 @@ def test_histograms_equal_the_reference_on_random_points(monkeypatch):
             pts = np.round(pts)
         if trial % 5 == 0:
             pts[-1] = pts[0]
-        n_theta = 2 + trial % 15
+        n_theta = 1 + trial % 16
         kwargs = {
             "kappas": tuple(rng.uniform(0.1, 1.5, 2)),
             "n_theta": n_theta,
@@ -117,6 +117,17 @@ def test_histograms_equal_the_reference_on_random_points(monkeypatch):
             monkeypatch, lambda p=pts, k=kwargs: multiscale_shape_contexts(p, len(p), 3, **k)
         )
         np.testing.assert_array_equal(fast, ref, err_msg=f"trial {trial}")
+
+
+def test_one_orientation_bin_keeps_the_neighbour_at_pi_in_its_ring(monkeypatch):
+    """n_theta = 1: a neighbour straight to the left (arctan2 = pi, on the one bin
+    edge) counts in the ring of its distance, like the one to the right (the
+    reference once moved it to the next ring)."""
+    pts = np.array([[0.0, 0.0], [5.0, 0.0], [2.0, 3.0]])
+    ref, fast = _both(monkeypatch, lambda: features._histograms(pts, 100.0, (1.0,), 1, 2, 0.1))
+    np.testing.assert_array_equal(fast, ref)
+    # r_in = 10, r_out = 100: every pair is closer than r_in, so in the inner ring.
+    np.testing.assert_array_equal(ref[0], [[1.0, 0.0]] * 3)
 
 
 def test_histograms_of_a_single_pixel(monkeypatch):
