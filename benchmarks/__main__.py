@@ -26,7 +26,11 @@ BENCHMARKS = (
     "real",
 )
 #: Reports that are not timed benchmarks (run only when named).
-REPORTS = {"imports": "benchmarks.imports", "profile": "benchmarks.bench_profile"}
+REPORTS = {
+    "imports": "benchmarks.imports",
+    "profile": "benchmarks.bench_profile",
+    "session_bias": "benchmarks.bench_session_bias",
+}
 
 
 def main(argv: list[str]) -> int:

@@ -1,0 +1,182 @@
+"""Where the session stage's error comes from: the stage again, from truer starts and data.
+
+``python -m benchmarks session_bias`` processes each studio session (the demo by
+default; ``BODYMETRY_BENCH_SESSIONS=a:b:c`` for others, rendered beforehand, e.g. by
+``bodymetry synth``) into ``$BODYMETRY_BENCH_RUN_DIR/<name>`` (a temporary folder by
+default; an existing finished run there is reused) with the user's model cache, then
+runs the session stage (:func:`~bodymetry.estimation.session_shape.fit_session_shape`,
+the run's own settings) four times over the same accepted frames:
+
+==========================  =============================  ==========================
+condition                   starts                         silhouettes
+==========================  =============================  ==========================
+``stage``                   the per-frame fits             segmented (the run's)
+``true_silhouettes``        the per-frame fits             rendered truth
+``true_states``             true τ, θ and ν                segmented
+``true_states_silhouettes`` true τ, θ and ν                rendered truth
+==========================  =============================  ==========================
+
+Each gives the error of height, arm span and weight against the subject's truth,
+the session cost before and after, and the steps taken. Reading the table: the
+gap between ``stage`` and ``true_states`` is what the per-frame fits' poses (local
+minima) cost; between ``true_states`` and ``true_states_silhouettes`` what the
+segmentation costs; and ``true_states_silhouettes`` itself is the floor of the
+cost (its correspondences and the body model). For a subject the model was not
+built from (``--subject independent:...``) there is no true ν: the "true states"
+then have the true pose and the per-frame fits' median ν (the stage's own start).
+
+For an independent subject the report also gives ``posing_offsets_mm``: at each
+frame's true pose and the subject's own shape (its rest body projected onto the
+model's shape space), how far the rendered true outline lies outside the model's
+contour, per body region (median over frames of
+:func:`~bodymetry.estimation.outline_check.frame_offsets`; + outside). It is the
+difference between our posed body model and the rig's linear blend skinning that
+poses the subject, which no fit of ν can remove.
+
+Only sessions with ground truth (``ground_truth/states.npz``,
+``ground_truth/silhouettes``, ``ground_truth/subject.json``) can be used.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bodymetry.capture.session import load_session
+from bodymetry.cli import DEMO_SESSION
+from bodymetry.config import ProcessConfig
+from bodymetry.estimation.body_model.model import NU
+from bodymetry.estimation.body_model.skeleton import PARTS
+from bodymetry.estimation.fit import shared_body_model
+from bodymetry.estimation.outline_check import REGIONS, frame_offsets
+from bodymetry.estimation.records import FrameArrays, RunLayout
+from bodymetry.estimation.session_shape import SessionFrame, fit_session_shape, session_frame
+from bodymetry.fileio import load_npz
+from bodymetry.process import process_session
+from bodymetry.review.run_data import load_run
+from bodymetry.studio.independent import IndependentSpec, IndependentSubject
+
+#: The biometrics compared (results.json keys).
+KEYS = ("height_mm", "arm_span_mm", "weight_kg")
+CONDITIONS = ("stage", "true_silhouettes", "true_states", "true_states_silhouettes")
+
+
+def _true_masks(session, cameras, frame: int) -> list[np.ndarray]:
+    """The rendered true silhouettes of one frame at the working cameras' sizes."""
+    out = []
+    for cam in cameras:
+        path = session.ground_truth_silhouette_path(cam.name, frame)
+        mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if mask is None:
+            raise FileNotFoundError(f"{path}: no true silhouette")
+        w, h = cam.size
+        if mask.shape != (h, w):
+            mask = cv2.resize(mask, (w, h), interpolation=cv2.INTER_AREA)
+        out.append(mask > 127)
+    return out
+
+
+def _true_states(session, frames: list[SessionFrame]) -> list[np.ndarray]:
+    """Each frame's true ``[τ, θ, ν]``; ν is the per-frame fits' median without a true one."""
+    folder = session.path(session.ground_truth)
+    states = load_npz(folder / "states.npz")
+    start_nu = np.median(np.stack([f.start[NU] for f in frames]), axis=0)
+    nu = states["nu"][: len(start_nu)] if "nu" in states else start_nu
+    out = []
+    for f in frames:
+        row = np.nonzero(states["frame"] == f.frame)[0]
+        if len(row) == 0:
+            raise ValueError(f"{folder}/states.npz: no state for frame {f.frame}")
+        i = int(row[0])
+        out.append(np.r_[states["tau"][i], states["theta"][i], nu])
+    return out
+
+
+def posing_offsets(body, cameras, subject: str, states, masks, refinement) -> dict:
+    """Median outline offset per region (mm) of an independent subject's rendered
+    truth against the model at the true pose and the subject's projected shape."""
+    spec = IndependentSpec.parse(subject.split(":", 1)[1])
+    nu = body.shape_from_vertices(IndependentSubject(spec).rest[None])[0]
+    parts = body.parts_of_vertices(not refinement.full_mesh)
+    per_region: dict[str, list[float]] = {name: [] for name in REGIONS if REGIONS[name]}
+    for state, frame_masks in zip(states, masks, strict=True):
+        y = np.r_[state[: len(state) - len(nu)], nu]
+        verts, mm, _ = frame_offsets(body, cameras, frame_masks, y, refinement)
+        for name, values in per_region.items():
+            sel = np.isin(parts[verts], [PARTS.index(p) for p in REGIONS[name]])
+            if sel.any():
+                values.append(float(np.median(mm[sel])))
+    return {k: round(float(np.median(v)), 2) for k, v in per_region.items() if v}
+
+
+def session_bias(session_dir: Path, run_dir: Path) -> dict:
+    """Process one session (or reuse its finished run) and run the four conditions."""
+    config = ProcessConfig(workers=os.cpu_count() or 1)
+    process_session(session_dir, run_dir, config)
+    run = load_run(run_dir)
+    session = load_session(session_dir)
+    truth = json.loads((session.path(session.ground_truth) / "subject.json").read_text())
+    recorded = ProcessConfig.from_json(run.results.config)
+    layout = RunLayout(run_dir)
+    accepted = [r for r in run.results.frames if r.ok]
+    frames = [
+        session_frame(r, FrameArrays.load(layout.frame_arrays(r.frame)), run.cameras)
+        for r in accepted
+    ]
+    true_masks = [_true_masks(session, run.cameras, f.frame) for f in frames]
+    true_states = _true_states(session, frames)
+    body = shared_body_model()
+    out = {
+        "session": str(session_dir),
+        "frames": len(frames),
+        "truth": {k: truth[k] for k in KEYS},
+        "true_nu": "nu" in load_npz(session.path(session.ground_truth) / "states.npz"),
+    }
+    for name in CONDITIONS:
+        use_truth = name.startswith("true_states")
+        use_masks = name.endswith("silhouettes")
+        inputs = [
+            replace(
+                f,
+                start=s if use_truth else f.start,
+                masks=m if use_masks else f.masks,
+            )
+            for f, s, m in zip(frames, true_states, true_masks, strict=True)
+        ]
+        fit = fit_session_shape(
+            body,
+            run.cameras,
+            inputs,
+            recorded.fit.refinement,
+            # The stage's verdict on the IoU is beside the point here.
+            replace(recorded.session_shape, max_iou_drop=1.0),
+            recorded.fit.density,
+        )
+        s = fit.summary
+        out[name] = {
+            "status": s.status,
+            "errors": {k: round(s.biometrics[k] - truth[k], 2) for k in KEYS},
+            "standard_errors": {k: round(s.standard_errors[k], 2) for k in KEYS},
+            "cost": [round(s.initial_cost, 2), round(s.cost, 2)],
+            "steps": s.iterations,
+        }
+    if str(truth.get("subject", "")).startswith("independent:"):
+        out["posing_offsets_mm"] = posing_offsets(
+            body, run.cameras, truth["subject"], true_states, true_masks, recorded.fit.refinement
+        )
+    return out
+
+
+def run() -> dict:
+    sessions = os.environ.get("BODYMETRY_BENCH_SESSIONS")
+    folders = [Path(p) for p in sessions.split(":")] if sessions else [Path(DEMO_SESSION)]
+    keep = os.environ.get("BODYMETRY_BENCH_RUN_DIR")
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(keep) if keep else Path(tmp)
+        return {"sessions": [session_bias(f, root / f.name) for f in folders]}
