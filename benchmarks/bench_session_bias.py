@@ -117,7 +117,7 @@ def posing_offsets(body, cameras, subject: str, states, masks, refinement) -> di
 
 def session_bias(session_dir: Path, run_dir: Path) -> dict:
     """Process one session (or reuse its finished run) and run the four conditions."""
-    config = ProcessConfig(workers=os.cpu_count() or 1)
+    config = ProcessConfig(workers=os.cpu_count() or 1, review=False)
     process_session(session_dir, run_dir, config)
     run = load_run(run_dir)
     session = load_session(session_dir)
