@@ -244,3 +244,80 @@ def vertices_kernel(solution, out):  # pragma: no cover
         for b in range(B):
             for x in range(3):
                 out[b, v + first, x] = row[3 * b + x]
+
+
+@numba.njit(cache=True, nogil=True)
+def anchored_rhs_kernel(
+    indptr, rows, signs, edges, anchor_of, weight2, targets, out
+):  # pragma: no cover
+    """The anchored solve's right-hand sides ``Aᵀ E + w² Pᵀ targets``, columns ``(state, xyz)``.
+
+    ``ScapeMesh._solve_anchored``'s numpy path builds them in four passes and
+    three copies: the pinned system's ``Aᵀ E`` (:func:`normal_rhs_kernel`),
+    transposed into place, vertex 0's row as minus the sum of the others, and
+    the transposed targets added to the anchored rows. This is one pass per
+    state with the same numbers: each vertex gathers its signed edges in the
+    order of the rows of ``A`` (the order the scatter and scipy's product add
+    them), vertex 0's row is minus the running sum of the rows after it, taken
+    row by row as numpy's ``sum(axis=0)`` adds them, and an anchored row then
+    adds ``w² · target``.
+
+    Parameters
+    ----------
+    indptr : (V + 1,) int64
+    rows : (nnz,) int64
+        Column ``v`` of ``A`` (CSC, sorted): the rows ``e * T + t`` of the edges
+        that vertex ``v`` ends (``+1``) or starts (``-1``).
+    signs : (nnz,) float64
+        ``+1.0`` or ``-1.0``.
+    edges : (B, 3, 2T) float64
+        Predicted edges, rows ``e * T + t`` per coordinate.
+    anchor_of : (V,) int64
+        The anchor of each vertex (index into ``targets``' second axis), -1 for none.
+    weight2 : float
+        The anchors' squared weight.
+    targets : (B, Na, 3) float64
+    out : (V, 3B) float64
+        Written.
+    """
+    B = edges.shape[0]
+    V = indptr.shape[0] - 1
+    for b in range(B):
+        e0, e1, e2 = edges[b, 0], edges[b, 1], edges[b, 2]
+        c = 3 * b
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for v in range(1, V):
+            g0 = 0.0
+            g1 = 0.0
+            g2 = 0.0
+            for jj in range(indptr[v], indptr[v + 1]):
+                r = rows[jj]
+                sg = signs[jj]
+                g0 += sg * e0[r]
+                g1 += sg * e1[r]
+                g2 += sg * e2[r]
+            if v == 1:
+                s0, s1, s2 = g0, g1, g2
+            else:
+                s0 += g0
+                s1 += g1
+                s2 += g2
+            a = anchor_of[v]
+            if a >= 0:
+                g0 += weight2 * targets[b, a, 0]
+                g1 += weight2 * targets[b, a, 1]
+                g2 += weight2 * targets[b, a, 2]
+            out[v, c] = g0
+            out[v, c + 1] = g1
+            out[v, c + 2] = g2
+        g0, g1, g2 = -s0, -s1, -s2
+        a = anchor_of[0]
+        if a >= 0:
+            g0 += weight2 * targets[b, a, 0]
+            g1 += weight2 * targets[b, a, 1]
+            g2 += weight2 * targets[b, a, 2]
+        out[0, c] = g0
+        out[0, c + 1] = g1
+        out[0, c + 2] = g2
