@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from bodymetry.estimation.raster_kernels import numba
 
 
@@ -153,17 +155,34 @@ def anchor_targets_kernel(basis, nu, parts, rest_joints, rot, joints, out):  # p
         Written.
     """
     n = nu.shape[1]
+    # The previous state's rest positions: a state with the same ν (the refinement's
+    # finite-difference batches move ν in 9 of their 50 states) reuses them, the same
+    # numbers without the 1 + n passes over the basis.
+    rest = np.empty((basis.shape[1], 3))
     for b in range(nu.shape[0]):
+        same = b > 0
+        if b > 0:
+            for i in range(n):
+                if nu[b, i] != nu[b - 1, i]:
+                    same = False
+        if not same:
+            for a in range(basis.shape[1]):
+                r0 = basis[0, a, 0]
+                r1 = basis[0, a, 1]
+                r2 = basis[0, a, 2]
+                for i in range(n):
+                    w = nu[b, i]
+                    r0 = r0 + w * basis[1 + i, a, 0]
+                    r1 = r1 + w * basis[1 + i, a, 1]
+                    r2 = r2 + w * basis[1 + i, a, 2]
+                rest[a, 0] = r0
+                rest[a, 1] = r1
+                rest[a, 2] = r2
         for a in range(basis.shape[1]):
             p = parts[a]
-            r0 = basis[0, a, 0]
-            r1 = basis[0, a, 1]
-            r2 = basis[0, a, 2]
-            for i in range(n):
-                w = nu[b, i]
-                r0 = r0 + w * basis[1 + i, a, 0]
-                r1 = r1 + w * basis[1 + i, a, 1]
-                r2 = r2 + w * basis[1 + i, a, 2]
+            r0 = rest[a, 0]
+            r1 = rest[a, 1]
+            r2 = rest[a, 2]
             q0 = r0 - rest_joints[b, p, 0]
             q1 = r1 - rest_joints[b, p, 1]
             q2 = r2 - rest_joints[b, p, 2]
