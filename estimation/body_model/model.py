@@ -359,9 +359,14 @@ class BodyModel:
 
     @cached_property
     def _rest_anchor_basis(self) -> dict[bool, np.ndarray]:
-        """Per resolution, (1 + n, Na, 3): the anchors' unposed positions."""
+        """Per resolution, (1 + n, Na, 3): the anchors' unposed positions.
+
+        C-contiguous: the fancy index alone gives strides (24, 240, 8), which the
+        compiled targets would copy on every pose (2.8 MB for the full mesh).
+        """
         return {
-            lod: self._rest_basis[lod][:, self._skeleton_anchors[lod][0]] for lod in (False, True)
+            lod: np.ascontiguousarray(self._rest_basis[lod][:, self._skeleton_anchors[lod][0]])
+            for lod in (False, True)
         }
 
     @cached_property

@@ -270,19 +270,10 @@ class ScapeMesh:
         V = self.n_vertices
         W = sp.csr_matrix((np.full(len(idx), weight**2), (idx, idx)), shape=(V, V))
         self._anchors = (idx, float(weight**2), _factorize((A.T @ A + W).tocsr(), self.solver))
-        # For the compiled right-hand sides: each vertex's signed edges (the columns of
-        # A, rows sorted: the order of the sums) and each vertex's anchor. With a vertex
-        # listed twice, the last listing's target is added, as numpy's ``rhs[idx] +=``.
-        cols = A.tocsc()
-        cols.sort_indices()
-        anchor_of = np.full(V, -1, dtype=np.int64)
-        anchor_of[idx] = np.arange(len(idx))
-        self._anchor_gather = (
-            cols.indptr.astype(np.int64),
-            cols.indices.astype(np.int64),
-            cols.data.astype(np.float64),
-            anchor_of,
-        )
+        # For the compiled right-hand sides: each vertex's anchor. With a vertex listed
+        # twice, the last listing's target is added, as numpy's ``rhs[idx] +=``.
+        self._anchor_of = np.full(V, -1, dtype=np.int64)
+        self._anchor_of[idx] = np.arange(len(idx))
 
     # --- Eq. (1) -------------------------------------------------------------
     def shape_deformations(self, nu: np.ndarray) -> np.ndarray:
@@ -461,11 +452,9 @@ class ScapeMesh:
         kernels = _edge_kernels()
         if kernels is not None:
             # One pass, the same numbers (scape_kernels.anchored_rhs_kernel).
-            indptr, rows, signs, anchor_of = self._anchor_gather
             kernels.anchored_rhs_kernel(
-                indptr, rows, signs, _kernel_arg(edges).reshape(B, 3, -1), anchor_of, w2,
-                _kernel_arg(targets), rhs,
-            )  # fmt: skip
+                self._faces64, _kernel_arg(edges), self._anchor_of, w2, _kernel_arg(targets), rhs
+            )
             return self._vertex_arrays(factor(rhs), B)
         rhs[1:] = self._pinned_rhs(edges)
         # Every edge adds +E to one end and -E to the other, so the rows of AᵀE sum
