@@ -93,6 +93,19 @@ def edges_kernel(
                     for q in range(K):
                         if nu[b, q] != nu[b - 1, q]:
                             same_shape = False
+                if same_pose and same_shape:
+                    # The part's rotation too: then the chunk's edges are the previous
+                    # state's (a finite-difference step of τ, or of a joint outside
+                    # this part's chain), copied rather than computed again.
+                    same_rot = True
+                    for i in range(3):
+                        for j in range(3):
+                            if part_rot[b, part, i, j] != part_rot[b - 1, part, i, j]:
+                                same_rot = False
+                    if same_rot:
+                        for r in range(6):
+                            out[b, r, c0:c1] = out[b - 1, r, c0:c1]
+                        continue
                 if not same_pose:
                     # Q_t Δx_t: the six features times their coefficients, then the template.
                     # The six terms in one expression, in the order of separate passes

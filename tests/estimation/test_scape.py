@@ -392,8 +392,9 @@ def test_numba_edges_are_the_numpy_edges(rng, monkeypatch, B, factors):
 @pytest.mark.skipif("numba" not in EDGE_BACKENDS, reason="numba is not installed")
 def test_numba_edges_of_repeated_shapes_and_poses_are_each_states_own(rng, monkeypatch):
     """A batch of finite-difference steps (each state moves one pose or shape value from
-    the first; the kernel reuses the previous state's Q Δx or S) gives, bit for bit,
-    the edges each state gets alone."""
+    the first; the kernel reuses the previous state's Q Δx or S, and copies a chunk's
+    edges when its pose, shape and part rotation are all the previous state's: states
+    1 and 4, and part 1 of state 5) gives, bit for bit, the edges each state gets alone."""
     monkeypatch.setattr(scape, "EDGES_BACKEND", "numba")
     mesh = scape.ScapeMesh(_deforming_arrays(rng, n_components=3), 2)
     part_rot = np.repeat(_random_rotations(rng, (1, 2)), 6, axis=0)
