@@ -30,11 +30,7 @@ import numpy as np
 
 # numba as raster_kernels imports it: after pointing its on-disk cache where that
 # module says (importing numba first would fix the cache directory too early).
-from bodymetry.estimation.raster_kernels import _finite_triangle, _setup, numba
-
-#: ``raster_kernels._setup`` inlined into the chamfer kernel's triangle loop (the same
-#: function, so the same expressions; a call per triangle cost ~10 % of the kernel).
-_setup_inline = numba.njit(cache=True, nogil=True, inline="always")(_setup.py_func)
+from bodymetry.estimation.raster_kernels import _finite_triangle, _setup_inline, numba
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
