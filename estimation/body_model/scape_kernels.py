@@ -129,7 +129,31 @@ def edges_kernel(
                                 )
                                 + f5 * p5[k]
                             ) + tr[k]
-                if not same_shape:
+                if not same_shape and K == 9:
+                    # The default nine components: the same sums in one pass over S
+                    # (the nine terms in order from 0.0, then μ_t), one store of S
+                    # instead of three loads and stores per three components.
+                    w0, w1, w2 = nu[b, 0], nu[b, 1], nu[b, 2]
+                    w3, w4, w5 = nu[b, 3], nu[b, 4], nu[b, 5]
+                    w6, w7, w8 = nu[b, 6], nu[b, 7], nu[b, 8]
+                    for r in range(9):
+                        sr = s[r, :n]
+                        u0 = shape_basis[0, r, c0:c1]
+                        u1 = shape_basis[1, r, c0:c1]
+                        u2 = shape_basis[2, r, c0:c1]
+                        u3 = shape_basis[3, r, c0:c1]
+                        u4 = shape_basis[4, r, c0:c1]
+                        u5 = shape_basis[5, r, c0:c1]
+                        u6 = shape_basis[6, r, c0:c1]
+                        u7 = shape_basis[7, r, c0:c1]
+                        u8 = shape_basis[8, r, c0:c1]
+                        mr = shape_mean[r, c0:c1]
+                        for k in range(n):
+                            a = ((0.0 + w0 * u0[k]) + w1 * u1[k]) + w2 * u2[k]
+                            a = ((a + w3 * u3[k]) + w4 * u4[k]) + w5 * u5[k]
+                            a = ((a + w6 * u6[k]) + w7 * u7[k]) + w8 * u8[k]
+                            sr[k] = a + mr[k]
+                elif not same_shape:
                     # S_t(ν) = Σ_k ν_k U_kt, then μ_t.
                     for r in range(9):
                         s[r, :n] = 0.0
