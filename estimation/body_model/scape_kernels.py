@@ -93,6 +93,19 @@ def edges_kernel(
                     for q in range(K):
                         if nu[b, q] != nu[b - 1, q]:
                             same_shape = False
+                if same_pose and same_shape:
+                    # The part's rotation too: then the chunk's edges are the previous
+                    # state's (a finite-difference step of τ, or of a joint outside
+                    # this part's chain), copied rather than computed again.
+                    same_rot = True
+                    for i in range(3):
+                        for j in range(3):
+                            if part_rot[b, part, i, j] != part_rot[b - 1, part, i, j]:
+                                same_rot = False
+                    if same_rot:
+                        for r in range(6):
+                            out[b, r, c0:c1] = out[b - 1, r, c0:c1]
+                        continue
                 if not same_pose:
                     # Q_t Δx_t: the six features times their coefficients, then the template.
                     # The six terms in one expression, in the order of separate passes
@@ -116,7 +129,31 @@ def edges_kernel(
                                 )
                                 + f5 * p5[k]
                             ) + tr[k]
-                if not same_shape:
+                if not same_shape and K == 9:
+                    # The default nine components: the same sums in one pass over S
+                    # (the nine terms in order from 0.0, then μ_t), one store of S
+                    # instead of three loads and stores per three components.
+                    w0, w1, w2 = nu[b, 0], nu[b, 1], nu[b, 2]
+                    w3, w4, w5 = nu[b, 3], nu[b, 4], nu[b, 5]
+                    w6, w7, w8 = nu[b, 6], nu[b, 7], nu[b, 8]
+                    for r in range(9):
+                        sr = s[r, :n]
+                        u0 = shape_basis[0, r, c0:c1]
+                        u1 = shape_basis[1, r, c0:c1]
+                        u2 = shape_basis[2, r, c0:c1]
+                        u3 = shape_basis[3, r, c0:c1]
+                        u4 = shape_basis[4, r, c0:c1]
+                        u5 = shape_basis[5, r, c0:c1]
+                        u6 = shape_basis[6, r, c0:c1]
+                        u7 = shape_basis[7, r, c0:c1]
+                        u8 = shape_basis[8, r, c0:c1]
+                        mr = shape_mean[r, c0:c1]
+                        for k in range(n):
+                            a = ((0.0 + w0 * u0[k]) + w1 * u1[k]) + w2 * u2[k]
+                            a = ((a + w3 * u3[k]) + w4 * u4[k]) + w5 * u5[k]
+                            a = ((a + w6 * u6[k]) + w7 * u7[k]) + w8 * u8[k]
+                            sr[k] = a + mr[k]
+                elif not same_shape:
                     # S_t(ν) = Σ_k ν_k U_kt, then μ_t.
                     for r in range(9):
                         s[r, :n] = 0.0
@@ -244,3 +281,85 @@ def vertices_kernel(solution, out):  # pragma: no cover
         for b in range(B):
             for x in range(3):
                 out[b, v + first, x] = row[3 * b + x]
+
+
+@numba.njit(cache=True, nogil=True)
+def anchored_rhs_kernel(faces, edges, anchor_of, weight2, targets, out):  # pragma: no cover
+    """The anchored solve's right-hand sides ``Aᵀ E + w² Pᵀ targets``, columns ``(state, xyz)``.
+
+    ``ScapeMesh._solve_anchored``'s numpy path builds them in four passes and
+    three copies: the pinned system's ``Aᵀ E`` (:func:`normal_rhs_kernel`),
+    transposed into place, vertex 0's row as minus the sum of the others, and
+    the transposed targets added to the anchored rows. This is one pass per
+    state with the same numbers: each state's ``Aᵀ E`` is scattered into a
+    small (V, 3) buffer in the order of the rows of ``A`` (the order of
+    :func:`normal_rhs_kernel` and scipy's product; the buffer stays in the L1
+    cache, and the edges are read in order, which made it faster than
+    gathering each vertex's edges), then copied into the state's columns,
+    vertex 0's row being minus the running sum of the rows after it, taken row
+    by row as numpy's ``sum(axis=0)`` adds them, and an anchored row then adding
+    ``w² · target``.
+
+    Parameters
+    ----------
+    faces : (T, 3) int64
+        In the mesh's internal order.
+    edges : (B, 3, 2, T) float64
+        Predicted edges (:meth:`ScapeMesh.edges`).
+    anchor_of : (V,) int64
+        The anchor of each vertex (index into ``targets``' second axis), -1 for none.
+    weight2 : float
+        The anchors' squared weight.
+    targets : (B, Na, 3) float64
+    out : (V, 3B) float64
+        Written.
+    """
+    B = edges.shape[0]
+    T = faces.shape[0]
+    V = out.shape[0]
+    acc = np.empty((V, 3))
+    for b in range(B):
+        acc[:, :] = 0.0
+        for e in range(2):
+            ex, ey, ez = edges[b, 0, e], edges[b, 1, e], edges[b, 2, e]
+            for t in range(T):
+                v0 = faces[t, 0]
+                v = faces[t, e + 1]
+                # Vertex 0's own sums are not used (its row is minus the others').
+                acc[v, 0] += ex[t]
+                acc[v, 1] += ey[t]
+                acc[v, 2] += ez[t]
+                acc[v0, 0] -= ex[t]
+                acc[v0, 1] -= ey[t]
+                acc[v0, 2] -= ez[t]
+        c = 3 * b
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for v in range(1, V):
+            g0 = acc[v, 0]
+            g1 = acc[v, 1]
+            g2 = acc[v, 2]
+            if v == 1:
+                s0, s1, s2 = g0, g1, g2
+            else:
+                s0 += g0
+                s1 += g1
+                s2 += g2
+            a = anchor_of[v]
+            if a >= 0:
+                g0 += weight2 * targets[b, a, 0]
+                g1 += weight2 * targets[b, a, 1]
+                g2 += weight2 * targets[b, a, 2]
+            out[v, c] = g0
+            out[v, c + 1] = g1
+            out[v, c + 2] = g2
+        g0, g1, g2 = -s0, -s1, -s2
+        a = anchor_of[0]
+        if a >= 0:
+            g0 += weight2 * targets[b, a, 0]
+            g1 += weight2 * targets[b, a, 1]
+            g2 += weight2 * targets[b, a, 2]
+        out[0, c] = g0
+        out[0, c + 1] = g1
+        out[0, c + 2] = g2

@@ -30,6 +30,7 @@ from bodymetry.estimation.body_model.skeleton import (
     dof_names,
     forward_kinematics,
     local_rotations,
+    posed_skeleton,
 )
 
 # --------------------------------------------------------------------------------------
@@ -693,3 +694,26 @@ def test_compiled_skeleton_poses_the_numpy_vertices(model, rng, monkeypatch, lod
     np.testing.assert_allclose(got["numba"].vertices, got["numpy"].vertices, rtol=0, atol=1e-12)
     np.testing.assert_allclose(got["numba"].joints, got["numpy"].joints, rtol=0, atol=1e-12)
     np.testing.assert_allclose(got["numba"].keypoints, got["numpy"].keypoints, rtol=0, atol=1e-12)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
+@pytest.mark.parametrize("lod", [False, True])
+def test_batched_targets_of_repeated_shapes_are_each_states_own(model, rng, lod):
+    """The compiled anchor targets reuse the rest positions of a state whose ν equals
+    the previous state's (a finite-difference batch): every state's targets are the
+    ones it gets alone, bit for bit."""
+    state = _random_states(model, rng, 6)
+    nu = state.nu.copy()
+    nu[1] = nu[0]  # same shape, another pose
+    nu[3] = nu[2]
+    nu[4] = nu[3]
+    nu[5, 2] += 1e-6  # one coefficient moved, as a finite-difference step
+    state = BodyState(state.tau, state.theta, nu)
+    rest_kp = model._linear(model._keypoint_basis, state.nu)
+    rest_joints = rest_kp[:, : len(JOINTS)]
+    _, rot, joints = posed_skeleton(state.theta, state.tau, rest_joints, model.hinge_axes)
+    batch = model._anchor_targets(lod, state.nu, rest_joints, rot, joints)
+    for b in range(len(state)):
+        one = slice(b, b + 1)
+        alone = model._anchor_targets(lod, state.nu[one], rest_joints[one], rot[one], joints[one])
+        assert np.array_equal(batch[b], alone[0])

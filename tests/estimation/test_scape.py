@@ -392,8 +392,9 @@ def test_numba_edges_are_the_numpy_edges(rng, monkeypatch, B, factors):
 @pytest.mark.skipif("numba" not in EDGE_BACKENDS, reason="numba is not installed")
 def test_numba_edges_of_repeated_shapes_and_poses_are_each_states_own(rng, monkeypatch):
     """A batch of finite-difference steps (each state moves one pose or shape value from
-    the first; the kernel reuses the previous state's Q Δx or S) gives, bit for bit,
-    the edges each state gets alone."""
+    the first; the kernel reuses the previous state's Q Δx or S, and copies a chunk's
+    edges when its pose, shape and part rotation are all the previous state's: states
+    1 and 4, and part 1 of state 5) gives, bit for bit, the edges each state gets alone."""
     monkeypatch.setattr(scape, "EDGES_BACKEND", "numba")
     mesh = scape.ScapeMesh(_deforming_arrays(rng, n_components=3), 2)
     part_rot = np.repeat(_random_rotations(rng, (1, 2)), 6, axis=0)
@@ -439,3 +440,26 @@ def test_numba_anchored_solve_is_numpys(rng, monkeypatch):
         got[backend] = mesh.solve(edges, targets)
     assert got["numba"].shape == (4, mesh.n_vertices, 3)
     assert np.array_equal(got["numba"], got["numpy"])
+
+
+@pytest.mark.skipif("numba" not in EDGE_BACKENDS, reason="numba is not installed")
+@pytest.mark.parametrize("K", [8, 9, 10])
+def test_numba_shape_sums_of_nine_components_are_the_general_ones(rng, monkeypatch, K):
+    """The kernel sums nine shape components (the default ν) in one pass, other counts
+    three per pass: the same sums in the same order, so S = I + Σ ν_k U_k built from
+    nine of ten components equals the ten-component sum with ν_10 = 0 bit for bit
+    (adding 0 · U leaves every sum unchanged), and both paths agree to rounding."""
+    monkeypatch.setattr(scape, "EDGES_BACKEND", "numba")
+    mesh = scape.ScapeMesh(_deforming_arrays(rng, n_components=10), K)
+    part_rot = _random_rotations(rng, (4, 2))
+    local = _random_rotations(rng, (4, N_JOINTS))
+    nu = rng.normal(size=(4, K))
+    got = mesh.edges(part_rot, local, nu)
+    wider = scape.ScapeMesh(mesh.arrays, 10)
+    padded = np.hstack([nu, np.zeros((4, 10 - K))])
+    assert np.array_equal(got, wider.edges(part_rot, local, padded))
+    monkeypatch.setattr(scape, "EDGES_BACKEND", "numpy")
+    scale = np.abs(got).max()
+    np.testing.assert_allclose(
+        got, mesh.edges(part_rot, local, nu), rtol=0, atol=RTOL_EDGE_BACKENDS * scale
+    )

@@ -319,3 +319,16 @@ def test_linear_kernel_is_the_numpy_sum_bit_for_bit(rng):
     got = np.empty((6, 37 * 3))
     kernels.linear_kernel(basis.reshape(10, -1), nu, got)
     assert np.array_equal(got.reshape(6, 37, 3), want)
+
+
+@pytest.mark.skipif(not HAS_NUMBA, reason="numba is not installed")
+def test_translate_kernel_is_numpys_broadcast_add(rng):
+    """The posed mesh's placement: each state's vertices moved by its shift, the same
+    bits as numpy's ``vertices += shift[:, None, :]``."""
+    from bodymetry.estimation.body_model import skeleton_kernels as kernels
+
+    vertices = rng.normal(size=(5, 40, 3))
+    shift = rng.normal(size=(5, 3))
+    want = vertices + shift[:, None, :]
+    kernels.translate_kernel(vertices, shift)
+    assert np.array_equal(vertices, want)
