@@ -90,7 +90,15 @@ def _girth_extreme(
     largest: bool,
 ) -> float:
     levels = np.arange(z_lo, z_hi + 1e-9, GIRTH_STEP)
-    girths = np.array([geometry.girth(vertices, faces, z, mask) for z in levels])
+    if len(levels) == 0:
+        return float("nan")
+    # Only faces reaching into the band can be cut at one of its levels (a face
+    # is cut at z when min z < z <= max z, geometry.plane_section): the same
+    # sections, in the same order, from a fraction of the faces.
+    selected = faces[mask]
+    corners = vertices[selected, 2]
+    selected = selected[(corners.max(axis=1) >= levels[0]) & (corners.min(axis=1) < levels[-1])]
+    girths = np.array([geometry.girth(vertices, selected, level) for level in levels])
     girths = girths[girths > 0]
     if len(girths) == 0:
         return float("nan")

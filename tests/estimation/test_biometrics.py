@@ -14,8 +14,10 @@ import pytest
 from bodymetry.estimation.body_model import geometry
 from bodymetry.estimation.body_model.biometrics import (
     DEFAULT_DENSITY,
+    GIRTH_STEP,
     MEASUREMENTS,
     Biometrics,
+    _girth_extreme,
     measure,
 )
 from bodymetry.estimation.body_model.model import BodyModel
@@ -148,6 +150,19 @@ def test_girths_are_the_extremes_of_their_windows(model, mean_body):
         geometry.girth(v, faces, z, trunk) for z in rng.uniform(z_hip + 0.08, z_shoulder - 0.2, 8)
     ]
     assert min(waist) >= mean_body.waist_mm / 1000.0 - 1e-9
+
+
+def test_girth_windows_cut_the_same_sections_as_the_whole_mesh(model, rng_nu):
+    """The window's faces alone (those reaching into it) give every level's girth
+    exactly as the masked whole mesh does."""
+    v = model.canonical_vertices(rng_nu[:1])[0]
+    faces = model.faces()
+    torso = model.full.arrays.parts == PARTS.index("torso")
+    lo, hi = 1.15, 1.35
+    levels = np.arange(lo, hi + 1e-9, GIRTH_STEP)
+    whole = [geometry.girth(v, faces, z, torso) for z in levels]
+    assert _girth_extreme(v, faces, torso, lo, hi, True) == max(whole)
+    assert _girth_extreme(v, faces, torso, lo, hi, False) == min(g for g in whole if g > 0)
 
 
 def test_mean_body_landmarks_are_symmetric(model):
