@@ -175,9 +175,7 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
         "silhouette_iou_mean": round(ev["silhouette_iou_mean"], 4),
         "checks": checks,
         # Issue 15 item 4: the loose-clothing and hair check, as it comes.
-        "outline": None
-        if results.session_shape is None or results.session_shape.outline is None
-        else results.session_shape.outline.to_json(),
+        "outline": None if results.outline is None else results.outline.to_json(),
         "models_reused": results.config["models_reused"],
         "timing_seconds": {
             **results.timing_seconds,

@@ -185,9 +185,7 @@ def run() -> dict:
                 },
                 "timing_seconds": results.timing_seconds,
                 "warnings": list(results.warnings),
-                "outline": None
-                if results.session_shape is None or results.session_shape.outline is None
-                else results.session_shape.outline.to_json(),
+                "outline": None if results.outline is None else results.outline.to_json(),
             }
         )
         result["meets_targets"] = bool(

@@ -1,7 +1,9 @@
 """Choosing between a compiled path and its numpy reference, in one place.
 
 The rasterizer (``BODYMETRY_RASTER``), the silhouette likelihood and the contour
-refinement's kernels (``BODYMETRY_LIKELIHOOD``), the SCAPE edges
+refinement's kernels (``BODYMETRY_LIKELIHOOD``), the shape-context features
+(``BODYMETRY_FEATURES``), the skeleton's forward kinematics and the body model's
+anchor targets (``BODYMETRY_SKELETON``), the SCAPE edges
 (``BODYMETRY_SCAPE_EDGES``) and the SCAPE solve (``BODYMETRY_SCAPE_SOLVER``) each
 have a fast path from an optional package and a reference path. An environment
 variable picks one; unset, the fast path is used when its package is installed

@@ -886,6 +886,11 @@ class RunResults:
     def ok_frames(self) -> list[FrameRecord]:
         return [r for r in self.frames if r.ok]
 
+    @property
+    def outline(self) -> OutlineCheck | None:
+        """The session stage's outline check (None without the stage or the check)."""
+        return None if self.session_shape is None else self.session_shape.outline
+
     def working_cameras(self, cameras: Sequence[Camera]) -> list[Camera]:
         """The cameras the run was trained and fitted with, from its calibrated ones.
 

@@ -482,7 +482,7 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
         "figure3": figure3_rows(run),
         "figure3_columns": figure3_columns(run),
         "session_shape": results.session_shape,
-        "outline": None if results.session_shape is None else results.session_shape.outline,
+        "outline": results.outline,
         "warnings": list(results.warnings),
         "has_evaluation": run.evaluation is not None,
         "measurements": measurement_rows(run),

@@ -15,7 +15,7 @@ from bodymetry.estimation.outline_check import (
     crown_vertices,
 )
 from bodymetry.estimation.projection import project_silhouettes
-from bodymetry.estimation.records import OutlineCheck, SessionShape
+from bodymetry.estimation.records import OutlineCheck, RunResults, SessionInfo, SessionShape
 from bodymetry.estimation.refinement import RefineConfig
 from bodymetry.studio.rig import studio_rig
 
@@ -184,6 +184,10 @@ def test_json_round_trip_inside_the_session_block():
     assert back.outline.warnings == check.warnings and back.outline.trunk_excess_mm == 3.5
     assert back.outline.mm_per_px == 9.8 and back.outline.status == "ok"
     assert SessionShape.from_json(SessionShape(status="ok").to_json()).outline is None
+    info = SessionInfo("/s", "s", ("cam_00",), 25.0, 10)
+    assert RunResults(info, {}, (), {}, session_shape=shape).outline == check
+    assert RunResults(info, {}, (), {}).outline is None
+    assert RunResults(info, {}, (), {}, session_shape=SessionShape(status="ok")).outline is None
     with pytest.raises(InputError, match=r"session_shape\.outline"):
         SessionShape.from_json({"status": "ok", "outline": [1, 2]})
     with pytest.raises(InputError, match="malformed outline"):
