@@ -20,6 +20,7 @@ import bisect
 import functools
 import logging
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,6 +78,9 @@ class FitJob:
     fit : FitConfig
     landmarks : (33, 3) float or None
         The subject's body landmarks in the world frame, from capture.
+    proposals : dict of str to (40 + n_shape,) float, optional
+        More poses to search around (the rescue's neighbouring fits; see
+        :func:`~bodymetry.estimation.fit.fit_frame`).
     """
 
     frame: int
@@ -86,12 +90,20 @@ class FitJob:
     models_path: Path
     fit: FitConfig
     landmarks: np.ndarray | None = None
+    proposals: dict[str, np.ndarray] | None = None
 
 
 def run_fit_job(job: FitJob) -> FrameFit:
     """Fit one frame (in a worker: the rig's models are loaded once per process)."""
     models = _discriminative(job.models_path)
-    return fit_frame(job.frame, job.masks, job.flags, job.cameras, models, job.fit, job.landmarks)
+    return fit_frame(
+        job.frame, job.masks, job.flags, job.cameras, models, job.fit, job.landmarks, job.proposals
+    )
+
+
+def run_serially(jobs: Sequence[FitJob]) -> list[FrameFit]:
+    """:func:`run_fit_job` of each job in this process, in order."""
+    return [run_fit_job(job) for job in jobs]
 
 
 def fit_job(
@@ -228,16 +240,21 @@ def rescue_poor_frames(
     config: FitConfig,
     neighbours: int = 2,
     progress: Progress | None = None,
+    run_jobs: Callable[[Sequence[FitJob]], list[FrameFit]] = run_serially,
 ) -> dict[int, FrameRecord]:
     """Fit the frames the session's quality gate leaves out again, from their neighbours.
 
     Each fitted frame below the session gate (:func:`session_gate`) is fitted
     again with the generative fits of its ``neighbours`` nearest accepted
     frames as pose proposals (half the initial particles are drawn around them,
-    and each is a refinement start; see :func:`fit_frame`); a rescued frame
-    that passes the gate proposes for the frames after it. The second fit
-    replaces the first when its mean silhouette IoU is higher; either way the
-    attempt is recorded in ``frames/rescue.json``, so a resumed run does not repeat it.
+    and each is a refinement start; see :func:`fit_frame`). The frames are
+    fitted in rounds, all of a round at once (``run_jobs``, e.g. on the run's
+    worker pool): a frame rescued in one round (passing the gate) becomes a
+    neighbour for the next, and a frame still below the gate is tried again
+    only when its nearest accepted frames have changed. The second fit replaces
+    the first when its mean silhouette IoU is higher; either way the last
+    attempt is recorded in ``frames/rescue.json``, so a resumed run does not
+    repeat it.
 
     Parameters
     ----------
@@ -255,6 +272,9 @@ def rescue_poor_frames(
         Proposals per frame.
     progress : callable, optional
         ``progress("rescue", done, total)``.
+    run_jobs : callable
+        Fits a round's jobs and returns their fits in the same order (default:
+        one after the other in this process).
 
     Returns
     -------
@@ -274,39 +294,84 @@ def rescue_poor_frames(
         gate.threshold,
     )
     out = dict(records)
-    models = _discriminative(models_path)
+    proposed: dict[int, tuple[int, ...]] = {}
     if progress:
         progress("rescue", 0, len(poor))
-    for i, frame in enumerate(poor):
-        old = records[frame]
-        near = _neighbours(frame, accepted, neighbours)
-        proposals = {f"frame {n}": records[n].estimate().vector() for n in near}
-        arrays = FrameArrays.load(layout.frame_arrays(frame))
-        try:
-            masks = [arrays.observed[c.name] for c in cameras]
-        except KeyError as exc:
-            raise InputError(
-                f"{layout.frame_arrays(frame)}: no observed silhouette of camera {exc}"
-            ) from exc
-        flags = [list(old.flags.get(c.name, ())) for c in cameras]
-        fit = fit_frame(frame, masks, flags, cameras, models, config, arrays.landmarks, proposals)
-        kept = fit.record.fitted and fit.record.mean_iou > old.mean_iou
-        if kept:
-            out[frame] = write_frame(layout, fit)
-            if out[frame].mean_iou >= gate.threshold:  # it can propose for the next ones
-                bisect.insort(accepted, frame)
-        outcome = RescueOutcome(frame, tuple(near), old.mean_iou, fit.record.mean_iou, kept)
-        log.info(
-            "%s: frame %d: IoU %.3f -> %.3f from frames %s (%s)",
-            layout.folder,
-            frame,
-            outcome.iou_before,
-            outcome.iou_after,
-            ", ".join(map(str, near)),
-            "kept" if kept else "first fit kept",
-        )
-        tried[str(frame)] = outcome.to_json()
-        write_json_atomic(layout.frames_dir / RESCUE_FILE, tried)
+    while True:
+        # This round: every frame still below the gate whose nearest accepted
+        # frames are not the ones it was last tried from.
+        todo = [
+            (frame, tuple(_neighbours(frame, accepted, neighbours)))
+            for frame in poor
+            if out[frame].mean_iou < gate.threshold
+        ]
+        todo = [(frame, near) for frame, near in todo if proposed.get(frame) != near]
+        if not todo:
+            break
+        jobs = [
+            _rescue_job(layout, out, frame, near, cameras, models_path, config)
+            for frame, near in todo
+        ]
+        rescued = False
+        for (frame, near), fit in zip(todo, run_jobs(jobs), strict=True):
+            proposed[frame] = near
+            old = out[frame]
+            kept = fit.record.fitted and fit.record.mean_iou > old.mean_iou
+            if kept:
+                out[frame] = write_frame(layout, fit)
+                if out[frame].mean_iou >= gate.threshold:  # it proposes in the next round
+                    bisect.insort(accepted, frame)
+                    rescued = True
+            outcome = RescueOutcome(frame, near, old.mean_iou, fit.record.mean_iou, kept)
+            log.info(
+                "%s: frame %d: IoU %.3f -> %.3f from frames %s (%s)",
+                layout.folder,
+                frame,
+                outcome.iou_before,
+                outcome.iou_after,
+                ", ".join(map(str, near)),
+                "kept" if kept else "first fit kept",
+            )
+            tried[str(frame)] = outcome.to_json()
+            write_json_atomic(layout.frames_dir / RESCUE_FILE, tried)
         if progress:
-            progress("rescue", i + 1, len(poor))
+            progress("rescue", len(proposed), len(poor))
+        if not rescued:
+            break
     return out
+
+
+def _rescue_job(
+    layout: RunLayout,
+    records: dict[int, FrameRecord],
+    frame: int,
+    near: tuple[int, ...],
+    cameras: list[Camera],
+    models_path: Path,
+    config: FitConfig,
+) -> FitJob:
+    """The rescue's job for one frame: its recorded silhouettes and its neighbours' fits.
+
+    Raises
+    ------
+    InputError
+        When the frame's arrays lack a camera's silhouette.
+    """
+    arrays = FrameArrays.load(layout.frame_arrays(frame))
+    try:
+        masks = [arrays.observed[c.name] for c in cameras]
+    except KeyError as exc:
+        raise InputError(
+            f"{layout.frame_arrays(frame)}: no observed silhouette of camera {exc}"
+        ) from exc
+    old = records[frame]
+    return FitJob(
+        frame,
+        masks,
+        [list(old.flags.get(c.name, ())) for c in cameras],
+        cameras,
+        models_path,
+        config,
+        arrays.landmarks,
+        {f"frame {n}": records[n].estimate().vector() for n in near},
+    )

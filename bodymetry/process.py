@@ -29,8 +29,8 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -48,7 +48,7 @@ from bodymetry.capture.session import Session, load_session
 from bodymetry.capture.silhouette import segment_session
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
-from bodymetry.estimation.fit import MIN_PIXELS, session_gate, shared_body_model
+from bodymetry.estimation.fit import MIN_PIXELS, FrameFit, session_gate, shared_body_model
 from bodymetry.estimation.outline_check import check_outline
 from bodymetry.estimation.records import (
     FrameArrays,
@@ -88,6 +88,43 @@ __all__ = [
     "rig_models",
     "session_stage",
 ]
+
+
+class _Workers:
+    """The run's process pool for frame fits, started on first use and shared by the
+    first pass and the rescue (a worker keeps its loaded models and kernels)."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.pool: ProcessPoolExecutor | None = None
+
+    def __enter__(self) -> _Workers:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(cancel_futures=True)
+
+    def _submit(self, jobs: Sequence[FitJob]) -> list[Future]:
+        if self.pool is None:
+            # fork: workers inherit the loaded modules (the spawn start method re-imports).
+            self.pool = ProcessPoolExecutor(
+                self.n,
+                mp_context=mp.get_context("fork"),
+                initializer=_die_with_parent,
+                initargs=(os.getpid(),),
+            )
+        return [self.pool.submit(run_fit_job, job) for job in jobs]
+
+    def as_completed(self, jobs: Sequence[FitJob]) -> Iterator[FrameFit]:
+        """Each job's fit as it finishes."""
+        if jobs:
+            for future in as_completed(self._submit(jobs)):
+                yield future.result()
+
+    def run(self, jobs: Sequence[FitJob]) -> list[FrameFit]:
+        """The jobs' fits, in their order."""
+        return [future.result() for future in self._submit(jobs)] if jobs else []
 
 
 def _die_with_parent(parent: int) -> None:
@@ -504,31 +541,23 @@ def process_session(
     if progress:
         progress("frames", len(done), n_kept)
     t2 = time.perf_counter()
-    if jobs:
-        # fork: workers inherit the loaded modules (the spawn start method re-imports).
-        ctx = mp.get_context("fork")
-        with ProcessPoolExecutor(
-            config.workers_or_cores,
-            mp_context=ctx,
-            initializer=_die_with_parent,
-            initargs=(os.getpid(),),
-        ) as pool:
-            futures = [pool.submit(run_fit_job, job) for job in jobs]
-            for fut in as_completed(futures):
-                fit = fut.result()
-                # As written (rounded): a fresh run and a resumed one summarize the same.
-                done[fit.record.frame] = write_frame(layout, fit)
-                if progress:
-                    progress("frames", len(done), n_kept)
-    done = rescue_poor_frames(
-        layout,
-        done,
-        prepared.cameras,
-        models.path,
-        config.fit,
-        config.fit.rescue_neighbours,
-        progress,
-    )
+    with _Workers(config.workers_or_cores) as workers:
+        for fit in workers.as_completed(jobs):
+            # As written (rounded): a fresh run and a resumed one summarize the same.
+            done[fit.record.frame] = write_frame(layout, fit)
+            if progress:
+                progress("frames", len(done), n_kept)
+        # The rescue's rounds on the same workers (their models and kernels loaded).
+        done = rescue_poor_frames(
+            layout,
+            done,
+            prepared.cameras,
+            models.path,
+            config.fit,
+            config.fit.rescue_neighbours,
+            progress,
+            workers.run,
+        )
     timing = {
         "training": t_train,
         "silhouettes": t_sil,

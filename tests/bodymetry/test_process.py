@@ -270,19 +270,20 @@ def test_frame_step_override_is_used_and_recorded(run, tmp_path):
         process_module.process_session(session.folder, tmp_path / "run", _config(base))
 
 
-def _poor_copy(run, tmp_path, frame: int):
-    """A copy of the run folder whose ``frame`` reads as a poor fit (IoU 0.3 everywhere)."""
+def _poor_copy(run, tmp_path, *frames: int):
+    """A copy of the run folder whose ``frames`` read as poor fits (IoU 0.3 everywhere)."""
     _, out, _, _ = run
     copy = tmp_path / "run"
     shutil.copytree(out, copy)
     layout = RunLayout(copy)
-    record = FrameRecord.read(layout.frame_record(frame))
-    poor = dataclasses.replace(
-        record,
-        status="poor fit: mean silhouette IoU 0.30 < 0.50",
-        silhouette_iou={k: 0.3 for k in record.silhouette_iou},
-    )
-    layout.frame_record(frame).write_text(json.dumps(poor.to_json()))
+    for frame in frames:
+        record = FrameRecord.read(layout.frame_record(frame))
+        poor = dataclasses.replace(
+            record,
+            status="poor fit: mean silhouette IoU 0.30 < 0.50",
+            silhouette_iou={k: 0.3 for k in record.silhouette_iou},
+        )
+        layout.frame_record(frame).write_text(json.dumps(poor.to_json()))
     return layout, {f: FrameRecord.read(layout.frame_record(f)) for f in layout.recorded_frames()}
 
 
@@ -314,6 +315,40 @@ def test_rescue_fits_a_poor_frame_again_from_its_neighbours(run, tmp_path, monke
     monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: pytest.fail("fitted twice"))
     poor_again = {**out, 2: records[2]}
     assert rescue_poor_frames(layout, poor_again, cams, model_path, config) is poor_again
+
+
+def test_rescue_rounds_run_together_and_a_rescued_frame_proposes_next(run, tmp_path, monkeypatch):
+    """Frames 2 and 4 poor, frame 0 accepted: round one fits both at once from frame 0;
+    frame 2 is rescued there and so proposes for frame 4, which round two fits again."""
+    session, _, _, base = run
+    layout, records = _poor_copy(run, tmp_path, 2, 4)
+    good = {f: dataclasses.replace(records[f], status="ok", silhouette_iou={
+        k: 0.95 for k in records[f].silhouette_iou}) for f in (2, 4)}  # fmt: skip
+    calls = []
+
+    def fake(frame, *args):
+        calls.append((frame, sorted(args[-1])))
+        fails = frame == 4 and "frame 2" not in args[-1]  # frame 4 needs frame 2's fit
+        return FrameFit(records[frame] if fails else good[frame], FrameArrays())
+
+    monkeypatch.setattr(frame_jobs, "fit_frame", fake)
+    rounds = []
+
+    def run_jobs(jobs):
+        rounds.append([j.frame for j in jobs])
+        return frame_jobs.run_serially(jobs)
+
+    model_path = next((base / "cache" / "discriminative").glob("*.npz"))
+    cams = list(session.calibration())
+    out = rescue_poor_frames(
+        layout, records, cams, model_path, _config(base).fit, run_jobs=run_jobs
+    )
+    assert rounds == [[2, 4], [4]]
+    assert calls == [(2, ["frame 0"]), (4, ["frame 0"]), (4, ["frame 0", "frame 2"])]
+    assert out[2].ok and out[4].ok
+    tried = json.loads((layout.frames_dir / RESCUE_FILE).read_text())
+    assert tried["4"]["neighbours"] == [2, 0] and tried["4"]["kept"]
+    assert tried["2"]["neighbours"] == [0]
 
 
 def test_rescue_keeps_the_first_fit_when_the_second_is_no_better(run, tmp_path, monkeypatch):
