@@ -48,7 +48,13 @@ from bodymetry.capture.session import Session, load_session
 from bodymetry.capture.silhouette import segment_session
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
-from bodymetry.estimation.fit import MIN_PIXELS, FrameFit, session_gate, shared_body_model
+from bodymetry.estimation.fit import (
+    MIN_PIXELS,
+    FrameFit,
+    preload,
+    session_gate,
+    shared_body_model,
+)
 from bodymetry.estimation.outline_check import check_outline
 from bodymetry.estimation.records import (
     FrameArrays,
@@ -541,6 +547,10 @@ def process_session(
     if progress:
         progress("frames", len(done), n_kept)
     t2 = time.perf_counter()
+    if jobs:
+        # Loaded once here, inherited by the forked workers (the session stage,
+        # here later, needs them too).
+        preload(prepared.cameras, config.fit.refinement)
     with _Workers(config.workers_or_cores) as workers:
         for fit in workers.as_completed(jobs):
             # As written (rounded): a fresh run and a resumed one summarize the same.

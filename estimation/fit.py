@@ -159,6 +159,31 @@ def shared_body_model() -> BodyModel:
     return BodyModel.load()
 
 
+def preload(cameras: Sequence[Camera], refinement: RefineConfig | None = None) -> None:
+    """Load, in this process, what every frame's fit and the session stage both use.
+
+    The body model with its factorizations and skeleton anchors at both
+    resolutions, and the compiled kernels of posing, rasterizing and contour
+    alignment (numba loads each from its cache on first use): a worker pool
+    forked afterwards inherits them instead of loading them in every worker,
+    and the session stage, which runs here later, needs them anyway.
+
+    Parameters
+    ----------
+    cameras : sequence of Camera
+        The working cameras.
+    refinement : RefineConfig, optional
+        The run's contour alignment (one step of it runs on the rest body).
+    """
+    body = shared_body_model()
+    rest = BodyState.rest(body.n_shape)
+    body.pose(rest)  # the full mesh's anchors and factorization
+    lod = body.pose(rest, lod=True).vertices[0]
+    masks = project_silhouettes(lod, body.faces(lod=True), list(cameras))
+    config = replace(refinement or RefineConfig(), iterations=1)
+    refine(body, prepare_contours(cameras, masks, config.image_scale), rest.vector()[0], config)
+
+
 def discriminative_particles(
     models: DiscriminativeModels,
     masks: Sequence[np.ndarray] | np.ndarray,
