@@ -406,7 +406,13 @@ def session_stage(
         (f.masks, fit.estimates[f.frame].vector() if f.frame in fit.estimates else f.start)
         for f in frames
     ]
-    outline = check_outline(shared_body_model(), prepared.cameras, checked, config.fit.refinement)
+    outline = check_outline(
+        shared_body_model(),
+        prepared.cameras,
+        checked,
+        config.fit.refinement,
+        alignments=[fit.alignments.get(f.frame) for f in frames],
+    )
     out = [
         replace(r, estimates={**r.estimates, "session": fit.estimates[r.frame]})
         if r.frame in fit.estimates

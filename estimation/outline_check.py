@@ -41,7 +41,12 @@ from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.records import OutlineCheck
-from bodymetry.estimation.refinement import ContourCost, RefineConfig, prepare_contours
+from bodymetry.estimation.refinement import (
+    Alignment,
+    ContourCost,
+    RefineConfig,
+    prepare_contours,
+)
 
 #: Body regions the offsets are pooled over, by part name.
 REGIONS: dict[str, tuple[str, ...]] = {
@@ -113,6 +118,7 @@ def frame_offsets(
     masks: Sequence[np.ndarray],
     state: np.ndarray,
     refinement: RefineConfig,
+    alignment: Alignment | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Signed outline offsets of one frame's model contour, every usable view.
 
@@ -126,6 +132,10 @@ def frame_offsets(
         ``[τ, θ, ν]`` of the frame.
     refinement : RefineConfig
         The contour cost's settings (mesh, scale, points).
+    alignment : Alignment, optional
+        The frame's contour cost on these masks with these settings (the
+        session stage's): its prepared outline is used, and its
+        correspondences when ``state`` is its state. The same offsets.
 
     Returns
     -------
@@ -137,10 +147,13 @@ def frame_offsets(
     mm_per_px : (N,) float
         The size of a working pixel at each edge's depth, millimetres.
     """
-    obs = prepare_contours(cameras, masks, refinement.image_scale, refinement.max_points)
-    cost = ContourCost(body, obs, refinement)
     y = np.asarray(state, float)
-    _, pairs = cost.evaluate(y)
+    if alignment is None:
+        obs = prepare_contours(cameras, masks, refinement.image_scale, refinement.max_points)
+        cost = ContourCost(body, obs, refinement)
+        _, pairs = cost.evaluate(y)
+    else:
+        cost, obs, pairs = alignment.cost, alignment.cost.obs, alignment.pairs_at(y)
     V = cost.vertices(y)[0]
     verts, offsets, sizes = [], [], []
     for p in pairs:
@@ -164,6 +177,7 @@ def check_outline(
     frames: Sequence[tuple[Sequence[np.ndarray], np.ndarray]],
     refinement: RefineConfig | None = None,
     config: OutlineConfig | None = None,
+    alignments: Sequence[Alignment | None] | None = None,
 ) -> OutlineCheck:
     """The session's outline offsets per region, and its warnings.
 
@@ -177,6 +191,9 @@ def check_outline(
         :func:`frame_offsets`).
     refinement : RefineConfig, optional
     config : OutlineConfig, optional
+    alignments : sequence of (Alignment or None), optional
+        Per frame, its contour cost from the session stage (see
+        :func:`frame_offsets`); saves preparing the outlines again.
 
     Returns
     -------
@@ -197,8 +214,11 @@ def check_outline(
     # every region alike and is not clothing.
     excess: dict[str, list[float]] = {"trunk": [], "crown": []}
     pixel = []
-    for masks, state in frames:
-        verts, mm, size = frame_offsets(body, cameras, masks, state, refinement)
+    aligned = [None] * len(frames) if alignments is None else list(alignments)
+    if len(aligned) != len(frames):
+        raise ValueError(f"alignments: expected {len(frames)}, got {len(aligned)}")
+    for (masks, state), alignment in zip(frames, aligned, strict=True):
+        verts, mm, size = frame_offsets(body, cameras, masks, state, refinement, alignment)
         pixel.append(size)
         med = {}
         for name, member in members.items():

@@ -793,6 +793,31 @@ class _ContourCost:
 ContourCost = _ContourCost
 
 
+@dataclass(frozen=True)
+class Alignment:
+    """One frame's contour cost and the correspondences it found at ``state``
+    (what :meth:`ContourCost.evaluate` returned there), kept for a later reader
+    at the same state (the outline check after the session stage).
+
+    Attributes
+    ----------
+    cost : ContourCost
+        Holds the prepared observation (``cost.obs``).
+    state : (40 + n_shape,) float
+    pairs : list
+        The correspondences at ``state``.
+    """
+
+    cost: ContourCost
+    state: np.ndarray
+    pairs: list
+
+    def pairs_at(self, state: np.ndarray) -> list:
+        """The correspondences at ``state``: the kept ones when it is the same state."""
+        y = np.asarray(state, dtype=float)
+        return self.pairs if np.array_equal(y, self.state) else self.cost.evaluate(y)[1]
+
+
 def _edges(model: BodyModel, lod: bool) -> tuple[np.ndarray, np.ndarray]:
     """:func:`mesh_edges` of the model's level of detail or full mesh (computed once)."""
     cache = model.__dict__.setdefault("_refinement_edges", {})

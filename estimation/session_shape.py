@@ -57,6 +57,7 @@ from bodymetry.estimation.generative import state_bounds
 from bodymetry.estimation.projection import project_silhouettes, view_ious
 from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape, StageEstimate
 from bodymetry.estimation.refinement import (
+    Alignment,
     ContourCost,
     RefineConfig,
     difference_steps,
@@ -204,10 +205,15 @@ class SessionShapeFit:
     estimates : dict of int to StageEstimate
         Per frame: the shared ν with the frame's refined pose, the biometrics
         and the silhouette IoU (empty unless the result was accepted).
+    alignments : dict of int to Alignment
+        Per frame: its contour cost (the prepared outline) and the
+        correspondences at its last state, for the outline check (empty when
+        the stage stopped before aligning).
     """
 
     summary: SessionShape
     estimates: dict[int, StageEstimate] = field(default_factory=dict)
+    alignments: dict[int, Alignment] = field(default_factory=dict)
 
 
 @dataclass
@@ -286,7 +292,7 @@ def fit_session_shape(
     config = config or SessionShapeConfig()
     used = tuple(int(f.frame) for f in frames)
 
-    def give_up(status: str, **kw) -> SessionShapeFit:
+    def give_up(status: str, alignments: dict | None = None, **kw) -> SessionShapeFit:
         log.info("session shape: %s", status)
         return SessionShapeFit(
             SessionShape(
@@ -295,7 +301,8 @@ def fit_session_shape(
                 frames=used,
                 seconds=time.perf_counter() - t0,
                 **kw,
-            )
+            ),
+            alignments=alignments or {},
         )
 
     if len(frames) < config.min_frames:
@@ -406,10 +413,15 @@ def fit_session_shape(
         iterations=accepted,
         covariance=how,
     )
+    alignments = {
+        fr.frame: Alignment(w.cost_fn, w.y.copy(), w.pairs)
+        for fr, w in zip(frames, work, strict=True)
+    }
     if mean_iou < reference - config.max_iou_drop:
         return give_up(
             f"rejected: the shared shape lowers the frames' mean silhouette IoU from "
             f"{reference:.3f} to {mean_iou:.3f} (more than {config.max_iou_drop})",
+            alignments,
             **kw,
         )
     summary = SessionShape(
@@ -426,7 +438,7 @@ def fit_session_shape(
         summary.seconds,
         time.process_time() - cpu0,
     )
-    return SessionShapeFit(summary, estimates)
+    return SessionShapeFit(summary, estimates, alignments)
 
 
 def _covariance(

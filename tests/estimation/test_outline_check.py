@@ -13,10 +13,16 @@ from bodymetry.estimation.outline_check import (
     OutlineConfig,
     check_outline,
     crown_vertices,
+    frame_offsets,
 )
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.records import OutlineCheck, RunResults, SessionInfo, SessionShape
-from bodymetry.estimation.refinement import RefineConfig
+from bodymetry.estimation.refinement import (
+    Alignment,
+    ContourCost,
+    RefineConfig,
+    prepare_contours,
+)
 from bodymetry.studio.rig import studio_rig
 
 NU = np.array([0.5, -0.3, 0.2, 0.0, 0.3, 0.0, -0.2, 0.0, 0.1])
@@ -165,6 +171,35 @@ def test_config_is_validated():
         OutlineConfig(min_points=0)
     with pytest.raises(ValueError, match="max_mm_per_px"):
         OutlineConfig(max_mm_per_px=0)
+
+
+def test_a_kept_alignment_gives_the_same_offsets(scene):
+    """The session stage's contour cost and correspondences, reused: the same offsets
+    at its state, and at another state the ones computed afresh."""
+    model, cameras, states = scene
+    trunk = _region_faces(model, ("torso", "pelvis"))
+    masks, state = _with_grown_region(model, cameras, states[:1], trunk, 3)[0]
+    config = RefineConfig()
+    cost = ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
+    alignment = Alignment(cost, state.copy(), cost.evaluate(state)[1])
+    fresh = frame_offsets(model, cameras, masks, state, config)
+    for got, want in zip(
+        frame_offsets(model, cameras, masks, state, config, alignment), fresh, strict=True
+    ):
+        np.testing.assert_array_equal(got, want)
+    moved = state.copy()
+    moved[0] += 0.01
+    for got, want in zip(
+        frame_offsets(model, cameras, masks, moved, config, alignment),
+        frame_offsets(model, cameras, masks, moved, config),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(got, want)
+    check = check_outline(model, cameras, [(masks, state)], config, alignments=[alignment])
+    again = check_outline(model, cameras, [(masks, state)], config)
+    assert check.to_json() == again.to_json() and check.warnings  # one frame: s.e. NaN
+    with pytest.raises(ValueError, match="alignments: expected 1, got 2"):
+        check_outline(model, cameras, [(masks, state)], config, alignments=[None, None])
 
 
 def test_json_round_trip_inside_the_session_block():
