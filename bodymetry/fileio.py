@@ -10,6 +10,8 @@
 * Text files read whole (YAML, TOML, JSON) are read through
   :func:`read_text_limited`, so a wrong path to a huge file is a clear error,
   not minutes of parsing or an exhausted memory.
+* YAML (session and calibration files, ``--set`` values) is parsed by
+  :func:`parse_yaml`: safe, duplicate keys refused, ``1e-5`` a number.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import io
 import json
 import math
 import os
+import re
 import tempfile
 import zipfile
 from collections.abc import Iterator, Mapping
@@ -26,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from bodymetry.errors import InputError
 
@@ -261,3 +265,55 @@ def load_npz(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
         if isinstance(exc, InputError):
             raise
         raise InputError(f"{path}: not a readable .npz file ({exc})") from exc
+
+
+# --------------------------------------------------------------------------
+# YAML reading: safe loader, duplicate keys refused, YAML 1.2 floats.
+# --------------------------------------------------------------------------
+class _SafeStrictLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses duplicate keys and reads ``1e-5`` as a float.
+
+    PyYAML implements YAML 1.1, where ``1e-5`` (no dot, or no exponent sign) is a
+    *string*; YAML 1.2 and every other tool read it as a number.
+    """
+
+
+_FLOAT_12 = re.compile(
+    r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$",
+)
+_SafeStrictLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
+
+
+def _construct_mapping_no_duplicates(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
+    loader.flatten_mapping(node)
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        try:
+            hash(key)
+        except TypeError:
+            raise yaml.constructor.ConstructorError(
+                "while constructing a mapping",
+                node.start_mark,
+                "found an unhashable key",
+                key_node.start_mark,
+            ) from None
+        if key in seen:
+            raise yaml.constructor.ConstructorError(
+                "while constructing a mapping",
+                node.start_mark,
+                f"found duplicate key {key!r} (first on line {seen[key] + 1})",
+                key_node.start_mark,
+            )
+        seen[key] = key_node.start_mark.line
+    return loader.construct_mapping(node, deep=True)
+
+
+_SafeStrictLoader.add_constructor(
+    yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping_no_duplicates
+)
+
+
+def parse_yaml(text: str) -> Any:
+    """Parse YAML text safely (no object construction), refusing duplicate keys."""
+    return yaml.load(text, Loader=_SafeStrictLoader)  # a SafeLoader subclass: safe

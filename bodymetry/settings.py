@@ -11,7 +11,6 @@ so every layer may use it.
 from __future__ import annotations
 
 import dataclasses
-import re
 import types
 import typing
 from collections.abc import Iterable, Mapping
@@ -21,6 +20,7 @@ from typing import Any, TypeVar
 import yaml
 
 from bodymetry.errors import InputError
+from bodymetry.fileio import parse_yaml
 
 T = TypeVar("T")
 
@@ -38,10 +38,6 @@ def to_jsonable(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     return obj
-
-
-#: A number in exponent notation without a dot, which PyYAML leaves a string.
-_EXPONENT_FLOAT = re.compile(r"[-+]?\d+[eE][-+]?\d+")
 
 
 def _field_types(cls: type) -> dict[str, Any]:
@@ -93,9 +89,6 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
             raise InputError(f"{where}: expected an integer, got {value!r}")
         return value
     if hint is float:
-        if isinstance(value, str) and _EXPONENT_FLOAT.fullmatch(value.strip()):
-            # YAML 1.1 (PyYAML) reads ``1e-5`` (no dot) as a string.
-            return float(value)
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise InputError(f"{where}: expected a number, got {value!r}")
         return float(value)
@@ -146,7 +139,7 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     if not sep or not key.strip():
         raise InputError(f"--set {text!r}: expected KEY=VALUE, e.g. annealing.n_particles=120")
     try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
+        value = parse_yaml(raw) if raw.strip() else ""
     except yaml.YAMLError as exc:
         raise InputError(f"--set {text!r}: the value is not valid YAML ({exc})") from exc
     return key.strip().split("."), value

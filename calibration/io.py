@@ -44,7 +44,7 @@ from scipy.spatial.transform import Rotation
 
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.errors import InputError
-from bodymetry.fileio import read_text_limited, write_text_atomic
+from bodymetry.fileio import parse_yaml, read_text_limited, write_text_atomic
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -60,7 +60,6 @@ __all__ = [
     "import_anipose_toml",
     "join_field",
     "load_calibration",
-    "parse_yaml",
     "plain_number",
     "read_calibration",
     "read_yaml_mapping",
@@ -87,58 +86,6 @@ _YAML_HEADER = (
     "bodymetry camera calibration (docs/calibration-format.md)\n"
     "x_cam = R @ x_world + t; t in metres; K and dist in OpenCV conventions"
 )
-
-
-# --------------------------------------------------------------------------
-# YAML reading: safe loader, duplicate keys refused, YAML 1.2 floats.
-# --------------------------------------------------------------------------
-class _SafeStrictLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` that refuses duplicate keys and reads ``1e-5`` as a float.
-
-    PyYAML implements YAML 1.1, where ``1e-5`` (no dot, or no exponent sign) is a
-    *string*; YAML 1.2 and every other tool read it as a number.
-    """
-
-
-_FLOAT_12 = re.compile(
-    r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$",
-)
-_SafeStrictLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
-
-
-def _construct_mapping_no_duplicates(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
-    loader.flatten_mapping(node)
-    seen: dict[Any, int] = {}
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=True)
-        try:
-            hash(key)
-        except TypeError:
-            raise yaml.constructor.ConstructorError(
-                "while constructing a mapping",
-                node.start_mark,
-                "found an unhashable key",
-                key_node.start_mark,
-            ) from None
-        if key in seen:
-            raise yaml.constructor.ConstructorError(
-                "while constructing a mapping",
-                node.start_mark,
-                f"found duplicate key {key!r} (first on line {seen[key] + 1})",
-                key_node.start_mark,
-            )
-        seen[key] = key_node.start_mark.line
-    return loader.construct_mapping(node, deep=True)
-
-
-_SafeStrictLoader.add_constructor(
-    yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping_no_duplicates
-)
-
-
-def parse_yaml(text: str) -> Any:
-    """Parse YAML text safely (no object construction), refusing duplicate keys."""
-    return yaml.load(text, Loader=_SafeStrictLoader)  # a SafeLoader subclass: safe
 
 
 def read_yaml_mapping(

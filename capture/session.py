@@ -36,12 +36,11 @@ from bodymetry.calibration.io import (
     describe,
     dump_yaml,
     join_field,
-    parse_yaml,
     read_calibration,
     read_yaml_mapping,
 )
 from bodymetry.errors import InputError
-from bodymetry.fileio import write_text_atomic
+from bodymetry.fileio import parse_yaml, write_text_atomic
 
 if TYPE_CHECKING:
     from bodymetry.calibration.camera import CameraGroup

@@ -93,6 +93,7 @@ def test_pdf_needs_the_review():
 
 def test_parse_override_reads_yaml_scalars():
     assert parse_override("a.b=3") == (["a", "b"], 3)
+    assert parse_override("a=1e-5") == (["a"], 1e-5)
     assert parse_override("a=0.5") == (["a"], 0.5)
     assert parse_override("a=true") == (["a"], True)
     assert parse_override("a=[1, 2]") == (["a"], [1, 2])
@@ -100,13 +101,14 @@ def test_parse_override_reads_yaml_scalars():
 
 
 def test_exponent_notation_without_a_dot_is_a_number():
-    # PyYAML reads "1e-5" (no dot) as a string; a float setting still takes it.
+    # Plain PyYAML reads "1e-5" (no dot) as a string; --set values go through the
+    # project's YAML loader (fileio.parse_yaml), which reads it as a number.
     config = ProcessConfig().with_overrides(
         ["session_shape.tolerance=1e-5", "refinement.tolerance=2E-4"]
     )
     assert config.session_shape.tolerance == 1e-5
     assert config.fit.refinement.tolerance == 2e-4
-    with pytest.raises(InputError, match=r"n_particles: expected an integer, got '1e2'"):
+    with pytest.raises(InputError, match=r"n_particles: expected an integer, got 100\.0"):
         ProcessConfig().with_overrides(["annealing.n_particles=1e2"])
 
 
