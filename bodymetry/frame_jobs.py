@@ -300,19 +300,19 @@ def rescue_poor_frames(
     while True:
         # This round: every frame still below the gate whose nearest accepted
         # frames are not the ones it was last tried from.
-        todo = [
-            (frame, tuple(_neighbours(frame, accepted, neighbours)))
+        # (None rescued in a round: no neighbour changes, and the next round is empty.)
+        near_of = {
+            frame: tuple(_neighbours(frame, accepted, neighbours))
             for frame in poor
             if out[frame].mean_iou < gate.threshold
-        ]
-        todo = [(frame, near) for frame, near in todo if proposed.get(frame) != near]
+        }
+        todo = [(frame, near) for frame, near in near_of.items() if proposed.get(frame) != near]
         if not todo:
             break
         jobs = [
             _rescue_job(layout, out, frame, near, cameras, models_path, config)
             for frame, near in todo
         ]
-        rescued = False
         for (frame, near), fit in zip(todo, run_jobs(jobs), strict=True):
             proposed[frame] = near
             old = out[frame]
@@ -321,7 +321,6 @@ def rescue_poor_frames(
                 out[frame] = write_frame(layout, fit)
                 if out[frame].mean_iou >= gate.threshold:  # it proposes in the next round
                     bisect.insort(accepted, frame)
-                    rescued = True
             outcome = RescueOutcome(frame, near, old.mean_iou, fit.record.mean_iou, kept)
             log.info(
                 "%s: frame %d: IoU %.3f -> %.3f from frames %s (%s)",
@@ -336,8 +335,6 @@ def rescue_poor_frames(
             write_json_atomic(layout.frames_dir / RESCUE_FILE, tried)
         if progress:
             progress("rescue", len(proposed), len(poor))
-        if not rescued:
-            break
     return out
 
 
