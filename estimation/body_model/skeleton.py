@@ -202,7 +202,14 @@ def forward_kinematics(
     rotations : (B, 15, 3, 3) float
     joints : (B, 15, 3) float
     """
-    local = local_rotations(theta, hinge_axes)
+    return _chain(local_rotations(theta, hinge_axes), tau, rest_joints)
+
+
+def _chain(
+    local: np.ndarray, tau: np.ndarray, rest_joints: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`forward_kinematics` from the local rotations (B, 15, 3, 3): the tree
+    walked from the root."""
     B = local.shape[0]
     tau = np.broadcast_to(np.asarray(tau, dtype=float), (B, 3))
     rest = np.broadcast_to(np.asarray(rest_joints, dtype=float), (B, N_PARTS, 3))
@@ -237,8 +244,8 @@ def posed_skeleton(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Local rotations and forward kinematics of a batch in one call (what a pose needs).
 
-    :func:`local_rotations` and :func:`forward_kinematics` together, which
-    would build the local rotations twice; with :data:`BACKEND` ``"numba"`` one
+    :func:`local_rotations` and :func:`forward_kinematics` together, the local
+    rotations built once; with :data:`BACKEND` ``"numba"`` one
     compiled pass (the same expressions; equal to the numpy path to rounding,
     a few 1e-16).
 
@@ -263,8 +270,8 @@ def posed_skeleton(
         raise ValueError(f"theta: expected shape (B, {N_POSE}), got {theta.shape}")
     kernels = skeleton_kernels()
     if kernels is None:
-        rot, joints = forward_kinematics(theta, tau, rest_joints, hinge_axes)
-        return local_rotations(theta, hinge_axes), rot, joints
+        local = local_rotations(theta, hinge_axes)
+        return (local, *_chain(local, tau, rest_joints))
     B = theta.shape[0]
     axes = np.asarray(hinge_axes, dtype=float)
     if axes.shape != (N_PARTS, 3):
