@@ -153,6 +153,46 @@ def _sparse(data: dict[str, np.ndarray], prefix: str) -> sp.csr_matrix:
     )
 
 
+def rigid_targets(
+    rest: np.ndarray,
+    parts: np.ndarray,
+    rest_joints: np.ndarray,
+    rot: np.ndarray,
+    joints: np.ndarray,
+) -> np.ndarray:
+    """Where each part's rigid motion about its joint carries points of the rest body.
+
+    A point ``p`` of part ``k`` goes to ``R[k] @ (p - rest_joints[k]) + joints[k]``
+    (the skeleton anchors' targets, :meth:`BodyModel.pose`).
+
+    Parameters
+    ----------
+    rest : (B, N, 3) or (N, 3) float
+        The points in the rest pose.
+    parts : (N,) int
+        Each point's part, sorted (the points of a part are one slice).
+    rest_joints : (B, 15, 3) or (15, 3) float
+    rot : (B, 15, 3, 3) float
+        Global part rotations (``skeleton.forward_kinematics``).
+    joints : (B, 15, 3) float
+        Posed joint positions.
+
+    Returns
+    -------
+    (B, N, 3) float
+    """
+    B = len(rot)
+    rest = np.broadcast_to(rest, (B, *np.shape(rest)[-2:]))
+    rest_joints = np.broadcast_to(rest_joints, (B, len(PARTS), 3))
+    out = np.empty(rest.shape)
+    bounds = np.searchsorted(parts, np.arange(len(PARTS) + 1))
+    for p in range(len(PARTS)):
+        sel = slice(bounds[p], bounds[p + 1])
+        rel = rest[:, sel] - rest_joints[:, p, None]
+        out[:, sel] = joints[:, p, None] + rel @ np.swapaxes(rot[:, p], 1, 2)
+    return out
+
+
 class BodyModel:
     """Our SCAPE body model (paper §2) built from the MakeHuman body.
 
@@ -496,13 +536,7 @@ class BodyModel:
             )
             return out
         rest = self._linear(self._rest_anchor_basis[lod], nu)  # (B, Na, 3)
-        out = np.empty_like(rest)
-        bounds = np.searchsorted(parts, np.arange(len(PARTS) + 1))
-        for p in range(len(PARTS)):
-            sel = slice(bounds[p], bounds[p + 1])
-            rel = rest[:, sel] - rest_joints[:, p, None]
-            out[:, sel] = joints[:, p, None] + rel @ np.swapaxes(rot[:, p], 1, 2)
-        return out
+        return rigid_targets(rest, parts, rest_joints, rot, joints)
 
     # --- pose ------------------------------------------------------------------
     def pose(

@@ -51,7 +51,12 @@ from bodymetry.estimation.body_model.bake.rigging import (
     part_weights,
     segment_triangles,
 )
-from bodymetry.estimation.body_model.model import MODEL_FORMAT, BodyModel, BodyState
+from bodymetry.estimation.body_model.model import (
+    MODEL_FORMAT,
+    BodyModel,
+    BodyState,
+    rigid_targets,
+)
 from bodymetry.estimation.body_model.rotations import (
     axis_rotation,
     matrix_to_axis_angle,
@@ -515,12 +520,13 @@ def validate(
     rest_joints = (model.keypoint_regressor @ mesh.arrays.template)[: len(JOINTS)]
 
     anchors, anchor_parts = model.skeleton_anchors()
-    rel = mesh.arrays.template[anchors] - rest_joints[anchor_parts]
 
     def pose_errors(posed: np.ndarray, thetas: np.ndarray) -> dict:
         rot, joints = forward_kinematics(thetas, np.zeros(3), rest_joints, model.hinge_axes)
         # The runtime's anchored solve (BodyModel.pose), on the template (S = I).
-        targets = joints[:, anchor_parts] + np.einsum("bnij,nj->bni", rot[:, anchor_parts], rel)
+        targets = rigid_targets(
+            mesh.arrays.template[anchors], anchor_parts, rest_joints, rot, joints
+        )
         errors = {}
         for name, use_q, anchored in (
             ("with_q", True, True),
