@@ -234,9 +234,8 @@ def check_outline(
     mm_per_px = float(np.median(np.concatenate(pixel))) if any(len(p) for p in pixel) else np.nan
     coarse = not mm_per_px <= config.max_mm_per_px
     warnings = []
-    if coarse:
-        pass  # the figures are kept, but they decide nothing at this resolution
-    elif np.isfinite(trunk) and trunk > config.loose_mm:
+    # Coarse pixels: the figures are kept, but they decide nothing.
+    if not coarse and np.isfinite(trunk) and trunk > config.loose_mm:
         warnings.append(
             f"loose clothing likely: the silhouettes lie {_mm(trunk, trunk_se)} "
             "further outside the fitted body at the trunk than at the forearms and shins "
