@@ -82,8 +82,9 @@ def _true_masks(session, cameras, frame: int) -> list[np.ndarray]:
     return out
 
 
-def _true_states(session, frames: list[SessionFrame]) -> list[np.ndarray]:
-    """Each frame's true ``[τ, θ, ν]``; ν is the per-frame fits' median without a true one."""
+def _true_states(session, frames: list[SessionFrame]) -> tuple[list[np.ndarray], bool]:
+    """Each frame's true ``[τ, θ, ν]`` (ν the per-frame fits' median without a true
+    one), and whether the session has a true ν."""
     folder = session.path(session.ground_truth)
     states = load_npz(folder / "states.npz")
     start_nu = np.median(np.stack([f.start[NU] for f in frames]), axis=0)
@@ -95,7 +96,7 @@ def _true_states(session, frames: list[SessionFrame]) -> list[np.ndarray]:
             raise ValueError(f"{folder}/states.npz: no state for frame {f.frame}")
         i = int(row[0])
         out.append(np.r_[states["tau"][i], states["theta"][i], nu])
-    return out
+    return out, "nu" in states
 
 
 def posing_offsets(body, cameras, subject: str, states, masks, refinement) -> dict:
@@ -130,13 +131,13 @@ def session_bias(session_dir: Path, run_dir: Path) -> dict:
         for r in accepted
     ]
     true_masks = [_true_masks(session, run.cameras, f.frame) for f in frames]
-    true_states = _true_states(session, frames)
+    true_states, true_nu = _true_states(session, frames)
     body = shared_body_model()
     out = {
         "session": str(session_dir),
         "frames": len(frames),
         "truth": {k: truth[k] for k in KEYS},
-        "true_nu": "nu" in load_npz(session.path(session.ground_truth) / "states.npz"),
+        "true_nu": true_nu,
     }
     for name in CONDITIONS:
         use_truth = name.startswith("true_states")
