@@ -30,7 +30,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -523,6 +523,11 @@ def process_session(
     prepared = prepare_run(session_path, out, config, progress, restart=restart)
     layout = prepared.layout
     done = read_done_frames(layout)
+    # The fit's models and kernels load on the idle core while this thread cuts the
+    # silhouettes (the forked workers inherit them; the session stage needs them too).
+    loader = ThreadPoolExecutor(1, thread_name_prefix="preload")
+    loading = loader.submit(preload, prepared.cameras, config.fit.refinement)
+    loader.shutdown(wait=False)
     pending: list[tuple[FitJob, tuple]] = []
     view_landmarks = []
     n_kept = 0
@@ -536,6 +541,7 @@ def process_session(
             # the cameras and models are set once the calibration check and training are done.
             job = fit_job(sil, prepared.cameras, prepared.resolution, Path(), config.fit)
             pending.append((job, sil.view_landmarks))
+    loading.result()  # before anything else poses the body model (training does)
     t_sil = time.perf_counter() - t0
     prepared = check_calibration(prepared, view_landmarks, config)
     t1 = time.perf_counter()
@@ -553,10 +559,6 @@ def process_session(
     if progress:
         progress("frames", len(done), n_kept)
     t2 = time.perf_counter()
-    if jobs:
-        # Loaded once here, inherited by the forked workers (the session stage,
-        # here later, needs them too).
-        preload(prepared.cameras, config.fit.refinement)
     with _Workers(config.workers_or_cores) as workers:
         for fit in workers.as_completed(jobs):
             # As written (rounded): a fresh run and a resumed one summarize the same.

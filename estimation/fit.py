@@ -22,6 +22,7 @@ import numpy as np
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
 from bodymetry.estimation.body_model.model import NU, TAU, THETA, BodyModel, BodyState
+from bodymetry.estimation.features import ShapeContextConfig, silhouette_features
 from bodymetry.estimation.generative import (
     AnnealingConfig,
     AnnealingResult,
@@ -163,10 +164,12 @@ def preload(cameras: Sequence[Camera], refinement: RefineConfig | None = None) -
     """Load, in this process, what every frame's fit and the session stage both use.
 
     The body model with its factorizations and skeleton anchors at both
-    resolutions, and the compiled kernels of posing, rasterizing and contour
-    alignment (numba loads each from its cache on first use): a worker pool
-    forked afterwards inherits them instead of loading them in every worker,
-    and the session stage, which runs here later, needs them anyway.
+    resolutions, and the compiled kernels of posing, rasterizing, the
+    likelihood, the silhouette features and contour alignment (numba loads
+    each from its cache on first use): a worker pool forked afterwards inherits
+    them instead of loading them in every worker, and the session stage, which
+    runs here later, needs them anyway. Thread-safe against work that does not
+    use the body model (``process`` runs it beside the silhouettes).
 
     Parameters
     ----------
@@ -179,7 +182,12 @@ def preload(cameras: Sequence[Camera], refinement: RefineConfig | None = None) -
     rest = BodyState.rest(body.n_shape)
     body.pose(rest)  # the full mesh's anchors and factorization
     lod = body.pose(rest, lod=True).vertices[0]
-    masks = project_silhouettes(lod, body.faces(lod=True), list(cameras))
+    faces = body.faces(lod=True)
+    masks = project_silhouettes(lod, faces, list(cameras))
+    chamfer_costs(prepare_observation(cameras, masks, AnnealingConfig().image_scale), lod, faces)
+    seen = [m for m in masks if m.any()]
+    if seen:
+        silhouette_features(seen[0], np.random.default_rng(0), ShapeContextConfig())
     config = replace(refinement or RefineConfig(), iterations=1)
     refine(body, prepare_contours(cameras, masks, config.image_scale), rest.vector()[0], config)
 

@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.body_model.rotations import matrix_to_euler
-from bodymetry.estimation.body_model.skeleton import JOINT_SLICES, JOINTS, PARTS, forward_kinematics
+from bodymetry.estimation.body_model.skeleton import JOINT_SLICES, JOINTS, PARTS, posed_skeleton
 
 __all__ = ["LANDMARK_JOINTS", "LandmarkPose", "pose_from_landmarks"]
 
@@ -188,7 +188,7 @@ def pose_from_landmarks(
 
     def batch(X: np.ndarray) -> np.ndarray:
         """Residuals (B, R) of states X (B, 40): one forward kinematics for the batch."""
-        rot, joints = forward_kinematics(X[:, 3:], X[:, :3], rest.joints, body.hinge_axes)
+        _, rot, joints = posed_skeleton(X[:, 3:], X[:, :3], rest.joints, body.hinge_axes)
         posed = joints[:, parts] + np.einsum("bkij,kj->bki", rot[:, parts], rel)
         model = np.concatenate([joints[:, joint_ids], posed], axis=1)
         fit = ((model - targets) * weights).reshape(len(X), -1)
@@ -206,7 +206,9 @@ def pose_from_landmarks(
         return ((r[1:] - r[0]) / step).T
 
     best = None
-    for start in (neutral, np.zeros(37)):
+    # The neutral pose, and the rest pose when that is another start.
+    starts = [neutral] if not np.any(neutral) else [neutral, np.zeros(37)]
+    for start in starts:
         theta0 = np.clip(start, lo, hi).copy()
         theta0[:3] = np.clip(root0, lo[:3], hi[:3])
         x0 = np.r_[tau0, theta0]
