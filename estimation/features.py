@@ -1149,7 +1149,7 @@ class Codebook:
 
 
 def fit_codebook(
-    descriptors: ArrayLike,
+    descriptors: ArrayLike | Sequence[ArrayLike],
     k: int = 100,
     rng: RngLike = 0,
     *,
@@ -1167,9 +1167,11 @@ def fit_codebook(
 
     Parameters
     ----------
-    descriptors : (S, N, D) or (N, D) float
-        Pooled shape contexts of the training silhouettes, e.g. the
-        concatenation along ``N`` of :func:`sc_descriptors` outputs.
+    descriptors : (S, N, D) or (N, D) float, or a list of (S, N_i, D) float
+        Pooled shape contexts of the training silhouettes: one array, or the
+        :func:`sc_descriptors` outputs themselves (the same codebook as their
+        concatenation along ``N``; only the sampled rows are gathered, so a
+        large pool is never copied whole).
     k : int, default 100
         Codewords per scale (paper ``K = 100``); at most ``N``.
     rng : numpy.random.Generator or int, default 0
@@ -1190,31 +1192,73 @@ def fit_codebook(
     -------
     Codebook
     """
-    d = _as_scaled_descriptors(descriptors, "descriptors")
-    s, n, dim = d.shape
+    pool = _DescriptorPool(descriptors, "descriptors")
+    s, n, dim = pool.shape
     k = _positive_int(k, "k")
     if k > n:
         raise ValueError(f"k: expected at most the number of descriptors ({n}), got {k}")
     max_samples = _positive_int(max_samples, "max_samples")
     max_iter = _positive_int(max_iter, "max_iter")
     if config is None:
-        config = (
-            ShapeContextConfig()
-            if np.ndim(descriptors) == 3
-            else ShapeContextConfig(kappas=(0.25,))
-        )
+        config = ShapeContextConfig() if pool.scales_given else ShapeContextConfig(kappas=(0.25,))
     gen = _as_rng(rng)
     centers = np.empty((s, k, dim))
     sigma = np.empty(s)
     for i in range(s):
-        x = d[i]
-        if n > max_samples:
-            x = x[np.sort(gen.choice(n, size=max_samples, replace=False))]
+        rows = np.sort(gen.choice(n, size=max_samples, replace=False)) if n > max_samples else None
+        x = pool.rows(i, rows)
         centers[i] = _kmeans(x, k, gen, max_iter, float(tol))
         nearest = np.sqrt(_sq_dists(x, centers[i]).min(1))
         med = float(np.median(nearest))
         sigma[i] = med if med > 0 else max(float(nearest.mean()), 1e-6)
     return Codebook(centers=centers, sigma=sigma, config=config, n_nearest=n_nearest)
+
+
+class _DescriptorPool:
+    """Descriptors given as one (S, N, D) array or as blocks (S, N_i, D) pooled along N,
+    read a scale's rows at a time (a training set's pool is hundreds of MB)."""
+
+    def __init__(self, descriptors: ArrayLike | Sequence[ArrayLike], name: str) -> None:
+        if (
+            isinstance(descriptors, (list, tuple))
+            and len(descriptors)
+            and np.ndim(descriptors[0]) == 3
+        ):
+            blocks = [np.asarray(b, dtype=np.float64) for b in descriptors]
+            if len({b.shape[0] for b in blocks}) != 1 or len({b.shape[2] for b in blocks}) != 1:
+                raise ValueError(
+                    f"{name}: expected blocks of one shape (S, N_i, D), got shapes "
+                    f"{sorted({b.shape for b in blocks})[:3]}"
+                )
+            for b in blocks:
+                if not np.all(np.isfinite(b)):
+                    raise ValueError(f"{name}: contains non-finite values")
+            self.blocks = blocks
+            self.scales_given = True
+        else:
+            self.blocks = [_as_scaled_descriptors(descriptors, name)]
+            self.scales_given = np.ndim(descriptors) == 3
+        self.starts = np.cumsum([0] + [b.shape[1] for b in self.blocks])
+        first = self.blocks[0]
+        self.shape = (first.shape[0], int(self.starts[-1]), first.shape[2])
+        if self.shape[1] < 1 or self.shape[2] < 1:
+            raise ValueError(f"{name}: expected at least one descriptor, got shape {self.shape}")
+
+    def rows(self, scale: int, rows: np.ndarray | None) -> NDArray[np.float64]:
+        """(R, D) descriptors of one scale: ``rows`` (sorted) of the pool, or all (None)."""
+        if len(self.blocks) == 1:
+            d = self.blocks[0][scale]
+            return d if rows is None else d[rows]
+        if rows is None:
+            return np.concatenate([b[scale] for b in self.blocks])
+        # Sorted rows: each block's rows are one run.
+        bounds = np.searchsorted(rows, self.starts)
+        out = np.empty((len(rows), self.shape[2]))
+        for j, block in enumerate(self.blocks):
+            lo, hi = bounds[j], bounds[j + 1]
+            if hi > lo:
+                out[lo:hi] = block[scale, rows[lo:hi] - self.starts[j]]
+        return out
 
 
 def sc_features(mask: ArrayLike, codebook: Codebook, rng: RngLike) -> NDArray[np.float64]:

@@ -460,7 +460,7 @@ def train(
     t_cb = time.perf_counter() - t_cb
     t_codebook = time.perf_counter()
     codebook = feat.fit_codebook(
-        np.concatenate(descriptors, axis=1),
+        descriptors,
         config.codebook_size,
         np.random.default_rng(config.seed),
         config=sc_config,
@@ -647,11 +647,16 @@ def _fit_models(
 _CHUNK = 32
 
 
-def _vertex_errors(model: BodyModel, nu: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """Mean vertex distance (B,) of the canonical bodies of ``nu`` (B, n) from ``truth``."""
+def _vertex_errors(
+    model: BodyModel, nu: np.ndarray, truth: np.ndarray, rows: np.ndarray | None = None
+) -> np.ndarray:
+    """Mean vertex distance (B,) of the canonical bodies of ``nu`` (B, n) from ``truth``
+    (B, V, 3), or from ``truth[rows]`` (taken a chunk at a time: the test set's
+    meshes are hundreds of MB, and a copy of them all costs seconds here)."""
+    rows = np.arange(len(nu)) if rows is None else rows
     out = np.empty(len(nu))
     for s in range(0, len(nu), _CHUNK):
-        d = model.canonical_vertices(nu[s : s + _CHUNK]) - truth[s : s + _CHUNK]
+        d = model.canonical_vertices(nu[s : s + _CHUNK]) - truth[rows[s : s + _CHUNK]]
         out[s : s + _CHUNK] = np.sqrt(np.einsum("bvi,bvi->bv", d, d)).mean(axis=1)
     return out
 
@@ -702,7 +707,7 @@ def evaluate(
         out = {}
         for name in ("nu_rdf", "nu_sc"):
             X = _inputs(name, rdf[c, idx], codes[c, idx])
-            err = _vertex_errors(model, m[name].predict(X), truth_canon[idx])
+            err = _vertex_errors(model, m[name].predict(X), truth_canon, idx)
             out[f"shape_{name.split('_')[1]}_improvement_over_mean"] = float(
                 1 - err.mean() / err_mean[idx].mean()
             )

@@ -298,6 +298,33 @@ def test_encoding_is_unit_length_and_non_negative(codebook):
         )
 
 
+@pytest.mark.parametrize("max_samples", [150, 100_000])
+def test_codebook_of_descriptor_blocks_equals_that_of_their_concatenation(max_samples):
+    # Training passes the silhouettes' descriptors as blocks, gathering only the
+    # sampled rows; the codebook must be the one of the pooled array, bit for bit,
+    # both when rows are sampled (150 of 300) and when all are used.
+    cfg = ShapeContextConfig(kappas=(0.25, 0.5), n_points=50)
+    blocks = [
+        sc_descriptors(figure_mask(200, (320, 40), arm=a), i, cfg)
+        for i, a in enumerate((0.3, 1.2, 2.4, 0.8, 1.9, 2.9))
+    ]
+    pooled = fit_codebook(np.concatenate(blocks, axis=1), k=12, rng=4, config=cfg,
+                          max_samples=max_samples)  # fmt: skip
+    split = fit_codebook(blocks, k=12, rng=4, config=cfg, max_samples=max_samples)
+    np.testing.assert_array_equal(split.centers, pooled.centers)
+    np.testing.assert_array_equal(split.sigma, pooled.sigma)
+
+
+def test_codebook_refuses_blocks_that_do_not_pool():
+    good = np.zeros((2, 10, 60))
+    with pytest.raises(ValueError, match="blocks of one shape"):
+        fit_codebook([good, np.zeros((3, 10, 60))], k=2)
+    bad = good.copy()
+    bad[1, 3, 7] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        fit_codebook([good, bad], k=2)
+
+
 def test_codebook_is_deterministic_by_seed():
     cfg = ShapeContextConfig(kappas=(0.25, 0.5), n_points=100)
     desc = np.concatenate(
