@@ -10,7 +10,6 @@ workers, run folders) is the application's (``bodymetry.process``).
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from collections.abc import Sequence
@@ -21,7 +20,14 @@ import numpy as np
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
-from bodymetry.estimation.body_model.model import NU, TAU, THETA, BodyModel, BodyState
+from bodymetry.estimation.body_model.model import (
+    NU,
+    TAU,
+    THETA,
+    BodyModel,
+    BodyState,
+    shipped_model,
+)
 from bodymetry.estimation.features import ShapeContextConfig, silhouette_features
 from bodymetry.estimation.generative import (
     AnnealingConfig,
@@ -154,10 +160,10 @@ class FitConfig:
         return cls(annealing=annealing, refinement=refinement, **kwargs)
 
 
-@functools.lru_cache(maxsize=1)
 def shared_body_model() -> BodyModel:
-    """The shipped body model, loaded once per process (workers fit many frames)."""
-    return BodyModel.load()
+    """The shipped body model, loaded once per process (workers fit many frames;
+    training uses the same one, :func:`~bodymetry.estimation.body_model.model.shipped_model`)."""
+    return shipped_model()
 
 
 def preload(cameras: Sequence[Camera], refinement: RefineConfig | None = None) -> None:

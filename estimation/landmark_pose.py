@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.body_model.rotations import matrix_to_euler
-from bodymetry.estimation.body_model.skeleton import JOINT_SLICES, JOINTS, PARTS, posed_skeleton
+from bodymetry.estimation.body_model.skeleton import JOINT_SLICES, JOINTS, PARTS, forward_kinematics
 
 __all__ = ["LANDMARK_JOINTS", "LandmarkPose", "pose_from_landmarks"]
 
@@ -188,7 +188,10 @@ def pose_from_landmarks(
 
     def batch(X: np.ndarray) -> np.ndarray:
         """Residuals (B, R) of states X (B, 40): one forward kinematics for the batch."""
-        _, rot, joints = posed_skeleton(X[:, 3:], X[:, :3], rest.joints, body.hinge_axes)
+        # numpy's kinematics: the compiled pass agrees to 1e-16, but the forward
+        # differences make that 1e-10 in the Jacobian, and the solve ends elsewhere
+        # in its tolerance (4.7e-4 rad), which moves every later fit a little.
+        rot, joints = forward_kinematics(X[:, 3:], X[:, :3], rest.joints, body.hinge_axes)
         posed = joints[:, parts] + np.einsum("bkij,kj->bki", rot[:, parts], rel)
         model = np.concatenate([joints[:, joint_ids], posed], axis=1)
         fit = ((model - targets) * weights).reshape(len(X), -1)

@@ -39,6 +39,7 @@ from bodymetry.estimation.body_model.model import (
     DEFAULT_SHAPE_DOFS,
     BodyModel,
     BodyState,
+    shipped_model,
 )
 from bodymetry.estimation.body_model.motion.contact import place_root
 from bodymetry.estimation.body_model.motion.prior import sample_pose_prior
@@ -264,15 +265,12 @@ def _training_bodies(
     return states, verts
 
 
-@functools.lru_cache(maxsize=2)
 def _body_model(n_shape: int) -> BodyModel:
-    """The shipped body model, loaded once per process.
-
-    Loading and factorizing it takes about a second; the render workers are
-    forked after :func:`train` has loaded it, so they inherit it instead of
-    loading it again for every chunk of examples.
-    """
-    return BodyModel.load(n_shape=n_shape)
+    """The shipped body model (:func:`shipped_model`: loaded and factorized once per
+    process, shared with the fit); the render workers are forked after
+    :func:`train` has loaded it, so they inherit it instead of loading it again
+    for every chunk of examples."""
+    return shipped_model(n_shape)
 
 
 def _render_features(args) -> tuple:

@@ -10,6 +10,7 @@ Typical use::
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass
 from functools import cached_property
@@ -590,3 +591,18 @@ class BodyModel:
         rel = rest_kp - rest_joints[:, parts]
         kp = joints[:, parts] + np.einsum("bkij,bkj->bki", rot[:, parts], rel)
         return PosedBody(verts, self.faces(lod), joints, kp)
+
+
+def shipped_model(n_shape: int = DEFAULT_SHAPE_DOFS) -> BodyModel:
+    """The shipped body model with ``n_shape`` components, loaded once per process.
+
+    Training and fitting share it, so its factorizations and anchors, built on
+    first use, are built once; forked workers inherit them. Treat it as
+    read-only.
+    """
+    return _shipped(int(n_shape))  # one cache entry however n_shape is passed
+
+
+@functools.lru_cache(maxsize=2)
+def _shipped(n_shape: int) -> BodyModel:
+    return BodyModel.load(n_shape=n_shape)
