@@ -12,21 +12,9 @@ import numpy as np
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.capture.session import Session
-from bodymetry.estimation.training import TrainConfig
 from bodymetry.studio.rig import look_at
 from bodymetry.studio.synth import SynthConfig, synthesize
-
-TINY_TRAIN = TrainConfig(
-    n_train=60,
-    n_test=10,
-    codebook_size=8,
-    codebook_examples=20,
-    sc_points=40,
-    experts=(1,),
-    ridges=(10.0,),
-    max_iter=5,
-)
-
+from bodymetry.warmup import TINY_TRAIN
 
 #: Image size of the smallest studio sessions (the synth tests).
 SYNTH_SIZE = (160, 120)

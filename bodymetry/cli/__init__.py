@@ -42,6 +42,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "bodymetry.cli.check:check",
         "Check SESSION (and --out) and list every problem found, before any training or fitting.",
     ),
+    "compile": (
+        "bodymetry.cli.compile:compile_",
+        "Compile and cache the numeric kernels now (make does it at install), "
+        "not in the first run.",
+    ),
     "estimate-image": (
         "bodymetry.cli.image:estimate_image",
         "Body shape and measurements from one segmented photo, uncalibrated (paper Figure 2).",
