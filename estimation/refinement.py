@@ -27,9 +27,11 @@ Everything is deterministic (no random choices).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import functools
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from types import ModuleType
+from typing import Any
 
 import cv2
 import numpy as np
@@ -878,6 +880,80 @@ def difference_steps(config: RefineConfig, n_shape: int) -> np.ndarray:
     ]
 
 
+@dataclass
+class Damping:
+    """The Levenberg-Marquardt damping λ of one descent (:func:`damped_step`).
+
+    Divided by 3 after an accepted step (down to 1e-6), multiplied by 4 after a
+    rejected one; shared by the frame refinement and the session stage.
+    """
+
+    lam: float = 1e-2
+
+
+def damped_step(
+    propose: Callable[[float], tuple[float, Any]],
+    cost: float,
+    damping: Damping,
+    tolerance: float,
+    *,
+    max_lam: float = 1e4,
+    retries: int | None = None,
+) -> tuple[Any, float, bool]:
+    """Try ever more damped steps until one lowers ``cost``.
+
+    Parameters
+    ----------
+    propose : callable
+        ``propose(lam)`` -> (the cost of the step damped by ``lam``, the step's
+        payload), e.g. the new state and its correspondences.
+    cost : float
+        The current cost.
+    damping : Damping
+        Updated in place.
+    tolerance : float
+        A step that lowers the cost by less than this fraction is accepted but
+        ends the descent (``improved`` False).
+    max_lam : float
+        Give up once λ exceeds this (checked before each try) ...
+    retries : int, optional
+        ... or, when given, after this many tries whatever λ.
+
+    Returns
+    -------
+    payload : object or None
+        The accepted step's payload; None when every try raised the cost.
+    cost : float
+        Its cost (the input cost when none was accepted).
+    improved : bool
+        Whether to go on descending.
+    """
+    tries = 0
+    while (tries < retries) if retries is not None else (damping.lam <= max_lam):
+        tries += 1
+        new_cost, payload = propose(damping.lam)
+        if new_cost < cost:
+            damping.lam = max(damping.lam / 3.0, 1e-6)
+            return payload, new_cost, cost - new_cost > tolerance * cost
+        damping.lam *= 4.0
+    return None, cost, False
+
+
+def _gauss_newton_step(
+    cost_fn: _ContourCost,
+    y: np.ndarray,
+    JJ: np.ndarray,
+    g: np.ndarray,
+    bounds: tuple[np.ndarray, np.ndarray],
+    lam: float,
+) -> tuple[float, tuple[np.ndarray, list]]:
+    """:func:`refine`'s step from ``y`` damped by ``lam``: its cost, state and pairs."""
+    dy = -np.linalg.solve(JJ + lam * np.diag(np.diag(JJ) + 1e-9), g)
+    y_new = np.clip(y + dy, *bounds)
+    f_new, pairs_new = cost_fn.evaluate(y_new)
+    return f_new, (y_new, pairs_new)
+
+
 def refine(
     model: BodyModel,
     obs: ContourObservation,
@@ -913,7 +989,7 @@ def refine(
     step = difference_steps(config, model.n_shape)
     cost_fn = _ContourCost(model, obs, config)
     f, pairs = cost_fn.evaluate(y)
-    f0, accepted, lam = f, 0, 1e-2
+    f0, accepted, damping = f, 0, Damping()
     if not np.isfinite(f):
         return RefineResult(y, f, f0, 0)
     prior = np.zeros((model.n_shape, n))
@@ -922,18 +998,12 @@ def refine(
         r0, J = cost_fn.linearize(y, pairs, step)
         JJ = J.T @ J + prior.T @ prior
         g = J.T @ r0 + prior.T @ (prior @ y)
-        improved = False
-        while lam <= 1e4:
-            dy = -np.linalg.solve(JJ + lam * np.diag(np.diag(JJ) + 1e-9), g)
-            y_new = np.clip(y + dy, lo, hi)
-            f_new, pairs_new = cost_fn.evaluate(y_new)
-            if f_new < f:
-                improved = f - f_new > config.tolerance * f
-                y, f, pairs = y_new, f_new, pairs_new
-                lam = max(lam / 3.0, 1e-6)
-                accepted += 1
-                break
-            lam *= 4.0
+
+        propose = functools.partial(_gauss_newton_step, cost_fn, y, JJ, g, (lo, hi))
+        step_taken, f, improved = damped_step(propose, f, damping, config.tolerance)
+        if step_taken is not None:
+            y, pairs = step_taken
+            accepted += 1
         if not improved:
             break
     return RefineResult(y, f, f0, accepted)

@@ -43,9 +43,10 @@ respect to ν. With fewer than 3 frames the classical covariance is used.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -59,7 +60,9 @@ from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape,
 from bodymetry.estimation.refinement import (
     Alignment,
     ContourCost,
+    Damping,
     RefineConfig,
+    damped_step,
     difference_steps,
     prepare_contours,
 )
@@ -250,6 +253,41 @@ def _blocks(frames: Sequence[_Frame], step: np.ndarray) -> list[_Blocks]:
     return out
 
 
+def _joint_step(
+    work: list[_Frame],
+    blocks: list[tuple],
+    weights: np.ndarray,
+    nu: np.ndarray,
+    prior: float,
+    bounds: tuple[np.ndarray, np.ndarray],
+    total: Callable[[np.ndarray, np.ndarray], float],
+    lam: float,
+) -> tuple[float, tuple[list[np.ndarray], list[tuple]]]:
+    """The stage's joint step damped by ``lam`` (the shape's Schur complement over
+    every frame's pose block): its total cost, each frame's state and evaluation."""
+    n_shape = len(nu)
+    C_sum = sum(w * b[2] for w, b in zip(weights, blocks, strict=True))
+    g_sum = sum(w * b[4] for w, b in zip(weights, blocks, strict=True))
+    S = C_sum + prior * np.eye(n_shape)
+    S = S + lam * np.diag(np.diag(S) + 1e-9)
+    g = g_sum + prior * nu
+    inverses = []
+    for w, (A, B, _, gp, _, _, _) in zip(weights, blocks, strict=True):
+        Ainv = _damped_inverse(w * A, lam)
+        inverses.append(Ainv)
+        S = S - (w * B).T @ Ainv @ (w * B)
+        g = g - (w * B).T @ Ainv @ (w * gp)
+    dnu = -np.linalg.solve(S, g)
+    candidates = []
+    for w, Ainv, (_, B, _, gp, _, _, _), fr in zip(weights, inverses, blocks, work, strict=True):
+        dp = -Ainv @ (w * gp + (w * B) @ dnu)
+        candidates.append(np.clip(np.r_[fr.y[:POSE_DIM] + dp, nu + dnu], *bounds))
+    evaluated = [fr.cost_fn.evaluate(y) for fr, y in zip(work, candidates, strict=True)]
+    fs = np.array([e[0] for e in evaluated])
+    f_new = total(fs, candidates[0][NU]) if np.all(np.isfinite(fs)) else np.inf
+    return f_new, (candidates, evaluated)
+
+
 def _damped_inverse(A: np.ndarray, lam: float) -> np.ndarray:
     """``(A + λ diag A + ε)⁻¹`` of a frame's pose block (ε keeps unseen joints solvable)."""
     damped = A + np.diag(lam * np.diag(A) + 1e-9 + 1e-9 * np.trace(A) / len(A))
@@ -337,50 +375,28 @@ def fit_session_shape(
         return float(weights @ fs + prior * shape @ shape)
 
     f_total = f0 = total(costs, nu)
-    lam, accepted = 1e-2, 0
+    damping, accepted = Damping(), 0
     blocks = None
     for it in range(config.iterations):
         if progress:
             progress("session shape", it, config.iterations)
         blocks = _blocks(work, step)
-        improved = False
+
+        propose = functools.partial(_joint_step, work, blocks, weights, nu, prior, (lo, hi), total)
         # Each retry costs one evaluation of every frame: a step that fails at
         # λ × 4⁴ means the descent has converged (or stalled) for this session.
-        for _ in range(_RETRIES):
-            C_sum = sum(w * b[2] for w, b in zip(weights, blocks, strict=True))
-            g_sum = sum(w * b[4] for w, b in zip(weights, blocks, strict=True))
-            S = C_sum + prior * np.eye(n_shape)
-            S = S + lam * np.diag(np.diag(S) + 1e-9)
-            g = g_sum + prior * nu
-            inverses = []
-            for w, (A, B, _, gp, _, _, _) in zip(weights, blocks, strict=True):
-                Ainv = _damped_inverse(w * A, lam)
-                inverses.append(Ainv)
-                S = S - (w * B).T @ Ainv @ (w * B)
-                g = g - (w * B).T @ Ainv @ (w * gp)
-            dnu = -np.linalg.solve(S, g)
-            candidates = []
-            for w, Ainv, (_, B, _, gp, _, _, _), fr in zip(
-                weights, inverses, blocks, work, strict=True
-            ):
-                dp = -Ainv @ (w * gp + (w * B) @ dnu)
-                candidates.append(np.clip(np.r_[fr.y[:POSE_DIM] + dp, nu + dnu], lo, hi))
-            nu_new = candidates[0][NU]
-            evaluated = [fr.cost_fn.evaluate(y) for fr, y in zip(work, candidates, strict=True)]
-            fs = np.array([e[0] for e in evaluated])
-            f_new = total(fs, nu_new) if np.all(np.isfinite(fs)) else np.inf
-            if f_new < f_total:
-                improved = f_total - f_new > config.tolerance * f_total
-                for fr, y, (f, pairs) in zip(work, candidates, evaluated, strict=True):
-                    fr.y, fr.f, fr.pairs = y, f, pairs
-                nu, f_total = nu_new, f_new
-                lam = max(lam / 3.0, 1e-6)
-                accepted += 1
-                break
-            lam *= 4.0
+        step_taken, f_total, improved = damped_step(
+            propose, f_total, damping, config.tolerance, retries=_RETRIES
+        )
+        if step_taken is not None:
+            candidates, evaluated = step_taken
+            for fr, y, (f, pairs) in zip(work, candidates, evaluated, strict=True):
+                fr.y, fr.f, fr.pairs = y, f, pairs
+            nu = candidates[0][NU]
+            accepted += 1
         if not improved:
             break
-        log.debug("session shape: step %d, cost %.4g (λ %.2g)", it + 1, f_total, lam)
+        log.debug("session shape: step %d, cost %.4g (λ %.2g)", it + 1, f_total, damping.lam)
         # Re-weight the frames at the new state (the next step compares costs under these).
         weights = _frame_weights(np.array([w.f for w in work]), config.frame_scale)
         f_total = total(np.array([w.f for w in work]), nu)
