@@ -8,10 +8,10 @@ then the record that marks it done) and :func:`read_done_frames` reads back
 the frames an interrupted run finished.
 
 :func:`rescue_poor_frames` is the second look at the frames the quality gate
-left out: each is fitted again with its nearest accepted neighbours' fits as
-pose proposals (a person moves little between kept frames), and the better
-fit is kept. The observed silhouettes come from the frame's own arrays, so
-nothing is segmented twice.
+left out: each is refined again from its nearest accepted neighbours' fits (a
+person moves little between kept frames), and fitted again with them as pose
+proposals when that is not enough; the best fit is kept. The observed
+silhouettes come from the frame's own arrays, so nothing is segmented twice.
 """
 
 from __future__ import annotations
@@ -29,7 +29,15 @@ import numpy as np
 from bodymetry.calibration.camera import Camera
 from bodymetry.capture.silhouette import SilhouetteFrame
 from bodymetry.errors import InputError
-from bodymetry.estimation.fit import FitConfig, FrameFit, fit_frame, session_gate, shared_body_model
+from bodymetry.estimation.fit import (
+    FitConfig,
+    FrameFit,
+    SessionGate,
+    fit_frame,
+    refit_frame,
+    session_gate,
+    shared_body_model,
+)
 from bodymetry.estimation.records import FrameArrays, FrameRecord, RunLayout, read_json_object
 from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.training import DiscriminativeModels
@@ -81,6 +89,9 @@ class FitJob:
     proposals : dict of str to (40 + n_shape,) float, optional
         More poses to search around (the rescue's neighbouring fits; see
         :func:`~bodymetry.estimation.fit.fit_frame`).
+    previous : FrameFit, optional
+        The frame's fit so far: the job then only refines it and the proposals
+        (:func:`~bodymetry.estimation.fit.refit_frame`, the rescue's first try).
     """
 
     frame: int
@@ -91,10 +102,13 @@ class FitJob:
     fit: FitConfig
     landmarks: np.ndarray | None = None
     proposals: dict[str, np.ndarray] | None = None
+    previous: FrameFit | None = None
 
 
 def run_fit_job(job: FitJob) -> FrameFit:
     """Fit one frame (in a worker: the rig's models are loaded once per process)."""
+    if job.previous is not None:
+        return refit_frame(job.previous, job.cameras, job.fit, job.proposals or {})
     models = _discriminative(job.models_path)
     return fit_frame(
         job.frame, job.masks, job.flags, job.cameras, models, job.fit, job.landmarks, job.proposals
@@ -201,9 +215,14 @@ class RescueOutcome:
     neighbours : tuple of int
         The accepted frames whose fits were the proposals.
     iou_before, iou_after : float
-        Mean silhouette IoU of the first fit and of the second.
+        Mean silhouette IoU of the first fit and of the rescue's best.
     kept : bool
-        Whether the second fit replaced the first (it fits better).
+        Whether the rescue's fit replaced the first (it fits better).
+    method : str
+        How the rescue's best fit was found: ``"refinement"`` (contour
+        refinement from the neighbours' fits and the first fit) or
+        ``"annealing"`` (a whole fit with the neighbours' fits as proposals,
+        tried when the refinement stays below the gate).
     """
 
     frame: int
@@ -211,6 +230,7 @@ class RescueOutcome:
     iou_before: float
     iou_after: float
     kept: bool
+    method: str
 
     def to_json(self) -> dict:
         return {
@@ -218,6 +238,7 @@ class RescueOutcome:
             "iou_before": round(self.iou_before, 4) if math.isfinite(self.iou_before) else None,
             "iou_after": round(self.iou_after, 4) if math.isfinite(self.iou_after) else None,
             "kept": self.kept,
+            "method": self.method,
         }
 
 
@@ -244,17 +265,19 @@ def rescue_poor_frames(
 ) -> dict[int, FrameRecord]:
     """Fit the frames the session's quality gate leaves out again, from their neighbours.
 
-    Each fitted frame below the session gate (:func:`session_gate`) is fitted
-    again with the generative fits of its ``neighbours`` nearest accepted
-    frames as pose proposals (half the initial particles are drawn around them,
-    and each is a refinement start; see :func:`fit_frame`). The frames are
-    fitted in rounds, all of a round at once (``run_jobs``, e.g. on the run's
-    worker pool): a frame rescued in one round (passing the gate) becomes a
-    neighbour for the next, and a frame still below the gate is tried again
-    only when its nearest accepted frames have changed. The second fit replaces
-    the first when its mean silhouette IoU is higher; either way the last
-    attempt is recorded in ``frames/rescue.json``, so a resumed run does not
-    repeat it.
+    Each fitted frame below the session gate (:func:`session_gate`) is first
+    refined again from the generative fits of its ``neighbours`` nearest
+    accepted frames and from its own (:func:`refit_frame`: contour refinement
+    only, a fraction of a fit's time). A frame still below the gate is then
+    fitted again with those fits as pose proposals (half the initial particles
+    are drawn around them, and each is a refinement start; see
+    :func:`fit_frame`). The frames are fitted in rounds, all of a round at once
+    (``run_jobs``, e.g. on the run's worker pool): a frame rescued in one round
+    (passing the gate) becomes a neighbour for the next, and a frame still
+    below the gate is tried again only when its nearest accepted frames have
+    changed. The rescue's best fit replaces the first when its mean silhouette
+    IoU is higher; either way the last attempt is recorded in
+    ``frames/rescue.json``, so a resumed run does not repeat it.
 
     Parameters
     ----------
@@ -309,11 +332,31 @@ def rescue_poor_frames(
         todo = [(frame, near) for frame, near in near_of.items() if proposed.get(frame) != near]
         if not todo:
             break
+        # Refinement from the neighbours first; a whole fit for what it leaves below the gate.
+        best = {
+            frame: ("refinement", fit)
+            for (frame, _), fit in zip(
+                todo,
+                run_jobs(
+                    [
+                        _rescue_job(layout, out, frame, near, cameras, models_path, config, True)
+                        for frame, near in todo
+                    ]
+                ),
+                strict=True,
+            )
+        }
+        again = [(frame, near) for frame, near in todo if not _passes(best[frame][1], gate)]
         jobs = [
-            _rescue_job(layout, out, frame, near, cameras, models_path, config)
-            for frame, near in todo
+            _rescue_job(layout, out, frame, near, cameras, models_path, config, False)
+            for frame, near in again
         ]
-        for (frame, near), fit in zip(todo, run_jobs(jobs), strict=True):
+        for (frame, _), fit in zip(again, run_jobs(jobs) if jobs else [], strict=True):
+            first = best[frame][1].record
+            if fit.record.fitted and (not first.fitted or fit.record.mean_iou > first.mean_iou):
+                best[frame] = ("annealing", fit)
+        for frame, near in todo:
+            method, fit = best[frame]
             proposed[frame] = near
             old = out[frame]
             kept = fit.record.fitted and fit.record.mean_iou > old.mean_iou
@@ -321,13 +364,14 @@ def rescue_poor_frames(
                 out[frame] = write_frame(layout, fit)
                 if out[frame].mean_iou >= gate.threshold:  # it proposes in the next round
                     bisect.insort(accepted, frame)
-            outcome = RescueOutcome(frame, near, old.mean_iou, fit.record.mean_iou, kept)
+            outcome = RescueOutcome(frame, near, old.mean_iou, fit.record.mean_iou, kept, method)
             log.info(
-                "%s: frame %d: IoU %.3f -> %.3f from frames %s (%s)",
+                "%s: frame %d: IoU %.3f -> %.3f by %s from frames %s (%s)",
                 layout.folder,
                 frame,
                 outcome.iou_before,
                 outcome.iou_after,
+                method,
                 ", ".join(map(str, near)),
                 "kept" if kept else "first fit kept",
             )
@@ -338,6 +382,11 @@ def rescue_poor_frames(
     return out
 
 
+def _passes(fit: FrameFit, gate: SessionGate) -> bool:
+    """Whether a fit passes the session's gate."""
+    return fit.record.fitted and fit.record.mean_iou >= gate.threshold
+
+
 def _rescue_job(
     layout: RunLayout,
     records: dict[int, FrameRecord],
@@ -346,8 +395,10 @@ def _rescue_job(
     cameras: list[Camera],
     models_path: Path,
     config: FitConfig,
+    refine: bool,
 ) -> FitJob:
-    """The rescue's job for one frame: its recorded silhouettes and its neighbours' fits.
+    """The rescue's job for one frame: its recorded silhouettes and its neighbours' fits;
+    with ``refine``, only a refinement of its current fit and theirs.
 
     Raises
     ------
@@ -371,4 +422,5 @@ def _rescue_job(
         config,
         arrays.landmarks,
         {f"frame {n}": records[n].estimate().vector() for n in near},
+        FrameFit(old, arrays) if refine else None,
     )

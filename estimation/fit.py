@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from bodymetry.calibration.camera import Camera
-from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
+from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, Biometrics, measure
 from bodymetry.estimation.body_model.model import (
     NU,
     TAU,
@@ -65,6 +65,7 @@ __all__ = [
     "fit_frame",
     "generative_fit",
     "polish",
+    "refit_frame",
     "shared_body_model",
 ]
 
@@ -437,46 +438,145 @@ def fit_frame(
     result, refined = fit.annealing, fit.refined
     if not np.all(np.isfinite(refined.vector)) or not np.isfinite(result.best_cost):
         return failed("likelihood collapse (non-finite estimate)")
+    bios = measure(body, np.vstack([disc_state.nu, refined.state.nu]), density=config.density)
+    return _finish(
+        body,
+        FrameRecord(
+            frame=int(frame),
+            status="",
+            flags=flag_map,
+            person_pixels=pixels,
+            estimates={"discriminative": StageEstimate(disc_state, bios[0].to_dict())},
+            annealing=AnnealingTrace(
+                tuple(result.layer_log_likelihood.tolist()),
+                tuple(result.layer_beta.tolist()),
+                tuple(result.particles[:, TAU].std(axis=0).tolist()),
+                tuple(result.particles[:, NU].std(axis=0).tolist()),
+            ),
+            seconds={
+                "discriminative": t_disc,
+                "annealing": fit.seconds[0],
+                "refinement": fit.seconds[1],
+                "generative": t_gen,
+            },
+        ),
+        replace(observed_arrays, particles=result.particles, weights=result.weights),
+        refined,
+        bios[1],
+        fit.start,
+        cameras,
+        valid,
+        config,
+        t0,
+    )
+
+
+def _finish(
+    body: BodyModel,
+    record: FrameRecord,
+    arrays: FrameArrays,
+    refined: RefineResult,
+    biometrics: Biometrics,
+    start: str,
+    cameras: list[Camera],
+    valid: np.ndarray,
+    config: FitConfig,
+    t0: float,
+) -> FrameFit:
+    """A frame's fit from its refined state: the generative estimate, the model
+    silhouettes and their IoU, the gate status and the total time, added to
+    ``record`` (its other fields as the caller set them) and ``arrays``."""
     state = refined.state
-    bios = measure(body, np.vstack([disc_state.nu, state.nu]), density=config.density)
-    model_masks = project_silhouettes(body.pose(state, lod=True).vertices[0], faces, cameras)
+    names = [c.name for c in cameras]
+    masks = [arrays.observed[n] for n in names]
+    model_masks = project_silhouettes(
+        body.pose(state, lod=True).vertices[0], body.faces(lod=True), cameras
+    )
     iou = view_ious(cameras, model_masks, masks, valid)
     mean_iou = float(np.mean(list(iou.values())))
-    status = _gate_status(mean_iou, config.min_iou)
-    record = FrameRecord(
-        frame=int(frame),
-        status=status,
-        flags=flag_map,
-        person_pixels=pixels,
+    record = replace(
+        record,
+        status=_gate_status(mean_iou, config.min_iou),
         estimates={
-            "discriminative": StageEstimate(disc_state, bios[0].to_dict()),
-            "generative": StageEstimate(state, bios[1].to_dict()),
+            **record.estimates,
+            "generative": StageEstimate(state, biometrics.to_dict()),
         },
         silhouette_iou=iou,
-        annealing=AnnealingTrace(
-            tuple(result.layer_log_likelihood.tolist()),
-            tuple(result.layer_beta.tolist()),
-            tuple(result.particles[:, TAU].std(axis=0).tolist()),
-            tuple(result.particles[:, NU].std(axis=0).tolist()),
-        ),
-        refinement=RefinementTrace(
-            fit.start, refined.initial_cost, refined.cost, refined.iterations
-        ),
-        seconds={
-            "discriminative": t_disc,
-            "annealing": fit.seconds[0],
-            "refinement": fit.seconds[1],
-            "generative": t_gen,
-            "total": time.perf_counter() - t0,
-        },
+        refinement=RefinementTrace(start, refined.initial_cost, refined.cost, refined.iterations),
+        seconds={**record.seconds, "total": time.perf_counter() - t0},
     )
-    arrays = replace(
-        observed_arrays,
-        model={n: model_masks[c] for c, n in enumerate(names)},
-        particles=result.particles,
-        weights=result.weights,
-    )
+    arrays = replace(arrays, model={n: model_masks[c] for c, n in enumerate(names)})
     return FrameFit(record, arrays, state)
+
+
+def refit_frame(
+    previous: FrameFit, cameras: list[Camera], config: FitConfig, proposals: dict[str, np.ndarray]
+) -> FrameFit:
+    """Fit a frame again by contour refinement alone, from other poses (a cheap rescue).
+
+    The starts are ``proposals`` (e.g. the neighbouring frames' fits, a person
+    moves little between kept frames) and the frame's own generative estimate,
+    screened and polished as :func:`generative_fit` does. The discriminative
+    estimate, the annealing's trace and its last layer are the previous fit's;
+    ``seconds`` adds ``rescue``, and its total is both fits'.
+
+    Parameters
+    ----------
+    previous : FrameFit
+        The frame's fit: its record and arrays (observed silhouettes at the
+        working resolution, last annealing layer).
+    cameras : list of Camera
+        The working cameras it was fitted with.
+    config : FitConfig
+    proposals : name -> (40 + n_shape,) float
+
+    Returns
+    -------
+    FrameFit
+        ``previous`` itself when it has no generative estimate or the refinement
+        fails.
+    """
+    record, body = previous.record, shared_body_model()
+    # The record's total is the work behind it: the first fit's and this.
+    t0 = time.perf_counter() - record.seconds.get("total", 0.0)
+    t_start = time.perf_counter()
+    first = record.estimate("generative")
+    if first is None or not first.finite:
+        return previous
+    names = [c.name for c in cameras]
+    masks = [previous.arrays.observed[n] for n in names]
+    valid = np.array(
+        [
+            record.person_pixels.get(n, 0) >= MIN_PIXELS
+            and "unreadable" not in record.flags.get(n, ())
+            for n in names
+        ]
+    )
+    observed = [m if ok else np.zeros_like(m) for m, ok in zip(masks, valid, strict=True)]
+    try:
+        contours = prepare_contours(
+            cameras, observed, config.refinement.image_scale, config.refinement.max_points
+        )
+        starts = {**proposals, f"frame {record.frame} (first fit)": first.vector()}
+        refined, start = polish(body, contours, starts, config.refinement)
+    except (ValueError, np.linalg.LinAlgError):
+        return previous
+    if not np.all(np.isfinite(refined.vector)):
+        return previous
+    bios = measure(body, refined.state.nu, density=config.density)[0]
+    seconds = {**record.seconds, "rescue": time.perf_counter() - t_start}
+    return _finish(
+        body,
+        replace(record, seconds=seconds),
+        previous.arrays,
+        refined,
+        bios,
+        start,
+        cameras,
+        valid,
+        config,
+        t0,
+    )
 
 
 @dataclass(frozen=True)

@@ -287,12 +287,52 @@ def _poor_copy(run, tmp_path, *frames: int):
     return layout, {f: FrameRecord.read(layout.frame_record(f)) for f in layout.recorded_frames()}
 
 
-def test_rescue_fits_a_poor_frame_again_from_its_neighbours(run, tmp_path, monkeypatch):
+def test_rescue_refines_a_poor_frame_again_from_its_neighbours(run, tmp_path, monkeypatch):
     session, _, _, base = run
     layout, records = _poor_copy(run, tmp_path, 2)
     config = _config(base).fit
     cams = list(session.calibration())
     model_path = next((base / "cache" / "discriminative").glob("*.npz"))
+    seen = {}
+    real_refit = frame_jobs.refit_frame
+
+    def spy(previous, cameras, fit_config, proposals):
+        seen[previous.record.frame] = proposals
+        return real_refit(previous, cameras, fit_config, proposals)
+
+    monkeypatch.setattr(frame_jobs, "refit_frame", spy)
+    # The refinement is enough here (the frame's own fit is good; only its record
+    # was made poor): no whole fit.
+    monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: pytest.fail("refitted whole"))
+    out = rescue_poor_frames(layout, records, cams, model_path, config)
+    assert list(seen) == [2]  # only the poor frame, from both neighbours
+    assert set(seen[2]) == {"frame 0", "frame 4"}
+    assert out[2].mean_iou > 0.5 and out[2].status == "ok"
+    # The refit keeps the first fit's discriminative estimate and annealing trace.
+    before, after = records[2].to_json(), out[2].to_json()
+    assert after["discriminative"] == before["discriminative"]
+    assert after["annealing"] == before["annealing"]
+    assert out[2].seconds["total"] >= records[2].seconds["total"] + out[2].seconds["rescue"]
+    assert FrameRecord.read(layout.frame_record(2)).to_json() == out[2].to_json()  # written
+    assert all(out[f] is records[f] for f in (0, 4))
+    tried = json.loads((layout.frames_dir / RESCUE_FILE).read_text())
+    assert tried["2"]["kept"] and tried["2"]["neighbours"] == [0, 4]
+    assert tried["2"]["iou_before"] == pytest.approx(0.3)
+    assert tried["2"]["method"] == "refinement"
+
+    # Tried once: a resumed run does not try it again.
+    monkeypatch.setattr(frame_jobs, "refit_frame", lambda *a: pytest.fail("refined twice"))
+    poor_again = {**out, 2: records[2]}
+    assert rescue_poor_frames(layout, poor_again, cams, model_path, config) is poor_again
+
+
+def test_rescue_fits_whole_when_the_refinement_stays_below_the_gate(run, tmp_path, monkeypatch):
+    session, _, _, base = run
+    layout, records = _poor_copy(run, tmp_path, 2)
+    config = _config(base).fit
+    cams = list(session.calibration())
+    model_path = next((base / "cache" / "discriminative").glob("*.npz"))
+    monkeypatch.setattr(frame_jobs, "refit_frame", lambda previous, *a: previous)  # no better
     seen = {}
     real_fit = frame_jobs.fit_frame
 
@@ -302,19 +342,10 @@ def test_rescue_fits_a_poor_frame_again_from_its_neighbours(run, tmp_path, monke
 
     monkeypatch.setattr(frame_jobs, "fit_frame", spy)
     out = rescue_poor_frames(layout, records, cams, model_path, config)
-    assert list(seen) == [2]  # only the poor frame, from both neighbours
     assert set(seen[2]) == {"frame 0", "frame 4"}
     assert out[2].mean_iou > 0.5 and out[2].status == "ok"
-    assert FrameRecord.read(layout.frame_record(2)).to_json() == out[2].to_json()  # written
-    assert all(out[f] is records[f] for f in (0, 4))
     tried = json.loads((layout.frames_dir / RESCUE_FILE).read_text())
-    assert tried["2"]["kept"] and tried["2"]["neighbours"] == [0, 4]
-    assert tried["2"]["iou_before"] == pytest.approx(0.3)
-
-    # Tried once: a resumed run does not try it again.
-    monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: pytest.fail("fitted twice"))
-    poor_again = {**out, 2: records[2]}
-    assert rescue_poor_frames(layout, poor_again, cams, model_path, config) is poor_again
+    assert tried["2"]["kept"] and tried["2"]["method"] == "annealing"
 
 
 def test_rescue_rounds_run_together_and_a_rescued_frame_proposes_next(run, tmp_path, monkeypatch):
@@ -332,6 +363,7 @@ def test_rescue_rounds_run_together_and_a_rescued_frame_proposes_next(run, tmp_p
         return FrameFit(records[frame] if fails else good[frame], FrameArrays())
 
     monkeypatch.setattr(frame_jobs, "fit_frame", fake)
+    monkeypatch.setattr(frame_jobs, "refit_frame", lambda previous, *a: previous)  # never enough
     rounds = []
 
     def run_jobs(jobs):
@@ -343,7 +375,7 @@ def test_rescue_rounds_run_together_and_a_rescued_frame_proposes_next(run, tmp_p
     out = rescue_poor_frames(
         layout, records, cams, model_path, _config(base).fit, run_jobs=run_jobs
     )
-    assert rounds == [[2, 4], [4]]
+    assert rounds == [[2, 4], [2, 4], [4], [4]]  # each round: refinements, then whole fits
     assert calls == [(2, ["frame 0"]), (4, ["frame 0"]), (4, ["frame 0", "frame 2"])]
     assert out[2].ok and out[4].ok
     tried = json.loads((layout.frames_dir / RESCUE_FILE).read_text())
@@ -358,6 +390,7 @@ def test_rescue_keeps_the_first_fit_when_the_second_is_no_better(run, tmp_path, 
         records[4], silhouette_iou={k: 0.1 for k in records[4].silhouette_iou}
     )
     monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: FrameFit(worse, FrameArrays()))
+    monkeypatch.setattr(frame_jobs, "refit_frame", lambda *a: FrameFit(worse, FrameArrays()))
     model_path = next((base / "cache" / "discriminative").glob("*.npz"))
     cams = list(session.calibration())
     out = rescue_poor_frames(layout, records, cams, model_path, _config(base).fit)
@@ -365,13 +398,20 @@ def test_rescue_keeps_the_first_fit_when_the_second_is_no_better(run, tmp_path, 
     assert FrameRecord.read(layout.frame_record(4)).to_json() == records[4].to_json()
     tried = json.loads((layout.frames_dir / RESCUE_FILE).read_text())
     assert tried == {
-        "4": {"neighbours": [2, 0], "iou_before": 0.3, "iou_after": 0.1, "kept": False}
+        "4": {
+            "neighbours": [2, 0],
+            "iou_before": 0.3,
+            "iou_after": 0.1,
+            "kept": False,
+            "method": "refinement",
+        }
     }
 
 
 def test_rescue_off_and_nothing_to_rescue(run, tmp_path, monkeypatch):
     session, out, results, base = run
     monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: pytest.fail("nothing to rescue"))
+    monkeypatch.setattr(frame_jobs, "refit_frame", lambda *a: pytest.fail("nothing to rescue"))
     cams = list(session.calibration())
     model_path = next((base / "cache" / "discriminative").glob("*.npz"))
     records = {r.frame: r for r in results.frames}
