@@ -6,6 +6,7 @@ small enough that ``process_session`` runs in seconds.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -13,8 +14,8 @@ import numpy as np
 from bodymetry.calibration.camera import Camera
 from bodymetry.capture.session import Session
 from bodymetry.studio.rig import look_at
-from bodymetry.studio.synth import SynthConfig, synthesize
-from bodymetry.warmup import TINY_TRAIN
+from bodymetry.studio.synth import synthesize
+from bodymetry.warmup import TINY_SESSION, TINY_TRAIN
 
 #: Image size of the smallest studio sessions (the synth tests).
 SYNTH_SIZE = (160, 120)
@@ -37,21 +38,8 @@ def tiny_session(folder: Path, seed: int, frames: int = 5, rig_seed: int | None 
     Sessions with one ``rig_seed`` share their cameras (one rig); by default the
     rig follows ``seed``.
     """
-    return synthesize(
-        folder,
-        SynthConfig(
-            frames=frames,
-            frame_step=2,
-            cameras=2,
-            size=(240, 180),
-            seed=seed,
-            rig_seed=rig_seed,
-            motion="apose",
-            background_frames=3,
-            calibration_frames=30,
-        ),
-        workers=1,
-    )
+    config = dataclasses.replace(TINY_SESSION, seed=seed, frames=frames, rig_seed=rig_seed)
+    return synthesize(folder, config, workers=1)
 
 
 def tiny_train_overrides() -> list[str]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -287,12 +288,16 @@ def _poor_copy(run, tmp_path, *frames: int):
     return layout, {f: FrameRecord.read(layout.frame_record(f)) for f in layout.recorded_frames()}
 
 
-def test_rescue_refines_a_poor_frame_again_from_its_neighbours(run, tmp_path, monkeypatch):
+def _rescue_inputs(run) -> tuple[list, Path, FitConfig]:
+    """The working cameras, the models and the fit settings of the tiny run."""
     session, _, _, base = run
-    layout, records = _poor_copy(run, tmp_path, 2)
-    config = _config(base).fit
-    cams = list(session.calibration())
     model_path = next((base / "cache" / "discriminative").glob("*.npz"))
+    return list(session.calibration()), model_path, _config(base).fit
+
+
+def test_rescue_refines_a_poor_frame_again_from_its_neighbours(run, tmp_path, monkeypatch):
+    layout, records = _poor_copy(run, tmp_path, 2)
+    cams, model_path, config = _rescue_inputs(run)
     seen = {}
     real_refit = frame_jobs.refit_frame
 
@@ -327,11 +332,8 @@ def test_rescue_refines_a_poor_frame_again_from_its_neighbours(run, tmp_path, mo
 
 
 def test_rescue_fits_whole_when_the_refinement_stays_below_the_gate(run, tmp_path, monkeypatch):
-    session, _, _, base = run
     layout, records = _poor_copy(run, tmp_path, 2)
-    config = _config(base).fit
-    cams = list(session.calibration())
-    model_path = next((base / "cache" / "discriminative").glob("*.npz"))
+    cams, model_path, config = _rescue_inputs(run)
     monkeypatch.setattr(frame_jobs, "refit_frame", lambda previous, *a: previous)  # no better
     seen = {}
     real_fit = frame_jobs.fit_frame

@@ -10,6 +10,7 @@ recorded silhouettes are at it, and so are the review and ``evaluate``.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -30,7 +31,8 @@ from bodymetry.estimation.training import rig_key
 from bodymetry.process import process_session
 from bodymetry.review.evaluation import evaluate_run
 from bodymetry.review.run_data import frame_views, load_run
-from bodymetry.studio.synth import SynthConfig, synthesize
+from bodymetry.studio.synth import synthesize
+from bodymetry.warmup import TINY_SESSION
 
 TARGET_PX = 130.0
 WORKING_SIZE = (160, 213)  # 480 / 3, round(640 / 3)
@@ -39,20 +41,9 @@ WORKING_SIZE = (160, 213)  # 480 / 3, round(640 / 3)
 @pytest.fixture(scope="module")
 def hires(tmp_path_factory):
     base = tmp_path_factory.mktemp("hires")
-    session = synthesize(
-        base / "session",
-        SynthConfig(
-            frames=5,
-            frame_step=2,
-            cameras=2,
-            size=(480, 640),
-            seed=5,
-            motion="apose",
-            background_frames=3,
-            calibration_frames=30,
-        ),
-        workers=1,
-    )
+    # The tiny session at four times the pixels, portrait.
+    config = dataclasses.replace(TINY_SESSION, size=(480, 640), seed=5)
+    session = synthesize(base / "session", config, workers=1)
     config = ProcessConfig.preset(
         "fast",
         fit=FitConfig.preset("fast", min_iou=0.5),

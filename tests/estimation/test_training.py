@@ -27,17 +27,9 @@ from bodymetry.estimation.training import (
 )
 from bodymetry.estimation.uncalibrated import compare_photos, estimate_photo, read_mask
 from bodymetry.studio.rig import studio_rig
+from bodymetry.warmup import TINY_TRAIN
 
-TINY = TrainConfig(
-    n_train=60,
-    n_test=12,
-    codebook_size=8,
-    codebook_examples=20,
-    sc_points=40,
-    experts=(1, 2),
-    ridges=(10.0,),
-    max_iter=10,
-)
+TINY = dataclasses.replace(TINY_TRAIN, n_test=12, experts=(1, 2), max_iter=10)
 #: Feet on the floor after grounding on the LOD mesh, metres.
 FLOOR_TOL = 1e-6
 
