@@ -68,9 +68,15 @@ def compile_kernels(workdir: str | Path | None = None) -> float:
     Returns
     -------
     float
-        Seconds taken (most of it compiling, the first time).
+        Seconds taken (most of it compiling, the first time); 0.0 when numba
+        cannot be imported (every stage then runs its numpy path).
     """
     t0 = time.perf_counter()
+    try:
+        import numba  # noqa: F401
+    except ImportError as exc:  # the numpy paths run instead: nothing to compile
+        log.warning("numba fails to import (%s): no kernels to compile", exc)
+        return 0.0
     with tempfile.TemporaryDirectory(prefix="bodymetry-compile-", dir=workdir) as tmp:
         base = Path(tmp)
         session = synthesize(base / "session", TINY_SESSION, workers=1)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 from click.testing import CliRunner
 
 from bodymetry.cli import main
@@ -20,3 +22,10 @@ def test_compile_command_reports_its_time(monkeypatch):
     result = CliRunner().invoke(main, ["compile"])
     assert result.exit_code == 0, result.output
     assert "kernels compiled and cached (12 s)" in result.output
+
+
+def test_compile_kernels_without_numba_compiles_nothing(monkeypatch, tmp_path, caplog):
+    monkeypatch.setitem(sys.modules, "numba", None)  # import numba raises ImportError
+    assert compile_kernels(tmp_path) == 0.0
+    assert "no kernels to compile" in caplog.text
+    assert list(tmp_path.iterdir()) == []
