@@ -17,7 +17,9 @@ condition                   starts                         silhouettes
 ==========================  =============================  ==========================
 
 Each gives the error of height, arm span and weight against the subject's truth,
-the session cost before and after, and the steps taken. Reading the table: the
+the session cost before and after, and the steps taken; ``arms_subsets`` repeats
+``stage`` and ``true_states_silhouettes`` on the frames whose true pose has a wrist
+above its shoulder and on the others (each when it has 3 frames or more). Reading the table: the
 gap between ``stage`` and ``true_states`` is what the per-frame fits' poses (local
 minima) cost; between ``true_states`` and ``true_states_silhouettes`` what the
 segmentation costs; and ``true_states_silhouettes`` itself is the floor of the
@@ -51,7 +53,7 @@ import numpy as np
 from bodymetry.capture.session import load_session
 from bodymetry.cli import DEMO_SESSION
 from bodymetry.config import ProcessConfig
-from bodymetry.estimation.body_model.model import NU
+from bodymetry.estimation.body_model.model import NU, BodyState
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.outline_check import REGIONS, frame_offsets
@@ -65,6 +67,8 @@ from bodymetry.studio.independent import IndependentSpec, IndependentSubject
 #: The biometrics compared (results.json keys).
 KEYS = ("height_mm", "arm_span_mm", "weight_kg")
 CONDITIONS = ("stage", "true_silhouettes", "true_states", "true_states_silhouettes")
+#: The arm subsets are reported when each has at least this many frames.
+MIN_SUBSET = 3
 
 
 def _true_masks(session, cameras, frame: int) -> list[np.ndarray]:
@@ -97,6 +101,19 @@ def _true_states(session, frames: list[SessionFrame]) -> tuple[list[np.ndarray],
         i = int(row[0])
         out.append(np.r_[states["tau"][i], states["theta"][i], nu])
     return out, "nu" in states
+
+
+def _arms_up(body, states: list[np.ndarray]) -> np.ndarray:
+    """(F,) bool: frames whose true pose has either wrist above its shoulder."""
+    names = body.keypoint_names
+    kp = body.pose(BodyState.from_vector(np.stack(states))).keypoints
+    return np.array(
+        [
+            max(k[names.index(f"wrist_{s}"), 2] - k[names.index(f"shoulder_{s}"), 2] for s in "lr")
+            > 0
+            for k in kp
+        ]
+    )
 
 
 def posing_offsets(body, cameras, subject: str, states, masks, refinement) -> dict:
@@ -139,7 +156,9 @@ def session_bias(session_dir: Path, run_dir: Path) -> dict:
         "truth": {k: truth[k] for k in KEYS},
         "true_nu": true_nu,
     }
-    for name in CONDITIONS:
+
+    def condition(name: str, use: np.ndarray) -> dict:
+        """The stage under one condition, on the frames where ``use`` is True."""
         use_truth = name.startswith("true_states")
         use_masks = name.endswith("silhouettes")
         inputs = [
@@ -148,7 +167,8 @@ def session_bias(session_dir: Path, run_dir: Path) -> dict:
                 start=s if use_truth else f.start,
                 masks=m if use_masks else f.masks,
             )
-            for f, s, m in zip(frames, true_states, true_masks, strict=True)
+            for f, s, m, u in zip(frames, true_states, true_masks, use, strict=True)
+            if u
         ]
         fit = fit_session_shape(
             body,
@@ -160,13 +180,26 @@ def session_bias(session_dir: Path, run_dir: Path) -> dict:
             recorded.fit.density,
         )
         s = fit.summary
-        out[name] = {
+        return {
             "status": s.status,
+            "frames": len(inputs),
             "errors": {k: round(s.biometrics[k] - truth[k], 2) for k in KEYS},
             "standard_errors": {k: round(s.standard_errors[k], 2) for k in KEYS},
             "cost": [round(s.initial_cost, 2), round(s.cost, 2)],
             "steps": s.iterations,
         }
+
+    every = np.ones(len(frames), bool)
+    for name in CONDITIONS:
+        out[name] = condition(name, every)
+    # The same on the frames with either wrist above its shoulder (true pose) and on
+    # the others: whether the floor comes from the arms-overhead frames.
+    up = _arms_up(body, true_states)
+    out["arms_subsets"] = {
+        label: {name: condition(name, use) for name in ("stage", "true_states_silhouettes")}
+        for label, use in (("arms_up", up), ("arms_down", ~up))
+        if use.sum() >= MIN_SUBSET
+    }
     if str(truth.get("subject", "")).startswith("independent:"):
         out["posing_offsets_mm"] = posing_offsets(
             body, run.cameras, truth["subject"], true_states, true_masks, recorded.fit.refinement
