@@ -14,5 +14,6 @@ __all__ = ["compile_"]
 @friendly_errors
 def compile_() -> None:
     """Compile and cache the numeric kernels now (make does it at install), not in the first run."""
+    click.echo("compiling bodymetry's kernels: a tiny studio session end to end (once, ~45 s)")
     seconds = compile_kernels()
     click.echo(f"kernels compiled and cached ({seconds:.0f} s)")
