@@ -16,7 +16,7 @@ $(BIN)/python:
 $(VENV)/.installed: $(BIN)/python pyproject.toml requirements-segmenter.txt
 	$(BIN)/python -m pip install --quiet -e .
 	$(BIN)/python -m pip install --quiet --no-deps -r requirements-segmenter.txt
-	# numba compiles the kernels here, once, instead of in the first run (about 40 s).
+	# numba compiles the kernels here, once, instead of in the first run (about 45 s).
 	$(BIN)/bodymetry compile
 	touch $@
 
