@@ -1225,7 +1225,10 @@ class _DescriptorPool:
             and np.ndim(descriptors[0]) == 3
         ):
             blocks = [np.asarray(b, dtype=np.float64) for b in descriptors]
-            if len({b.shape[0] for b in blocks}) != 1 or len({b.shape[2] for b in blocks}) != 1:
+            if (
+                any(b.ndim != 3 for b in blocks)
+                or len({(b.shape[0], b.shape[2]) for b in blocks}) != 1
+            ):
                 raise ValueError(
                     f"{name}: expected blocks of one shape (S, N_i, D), got shapes "
                     f"{sorted({b.shape for b in blocks})[:3]}"

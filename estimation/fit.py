@@ -377,13 +377,8 @@ def fit_frame(
     rng = np.random.default_rng([config.seed, frame])
     names = [c.name for c in cameras]
     pixels = {n: int(np.count_nonzero(m)) for n, m in zip(names, masks, strict=True)}
-    valid = np.array(
-        [
-            pixels[n] >= MIN_PIXELS and "unreadable" not in f
-            for n, f in zip(names, flags, strict=True)
-        ]
-    )
     flag_map = {n: tuple(f) for n, f in zip(names, flags, strict=True)}
+    valid = _usable_views(names, pixels, flag_map)
     observed_arrays = FrameArrays(
         observed={n: np.asarray(m, bool) for n, m in zip(names, masks, strict=True)},
         landmarks=landmarks,
@@ -399,7 +394,7 @@ def fit_frame(
     try:
         # Unusable views become empty masks of their own size (left out downstream).
         # Prepared first: it checks every mask against its camera's size.
-        observed = [m if ok else np.zeros_like(m) for m, ok in zip(masks, valid, strict=True)]
+        observed = _blank_unusable(masks, valid)
         obs = prepare_observation(cameras, observed, config.annealing.image_scale)
         particles, points = discriminative_particles(
             models, masks, valid, config.initial_particles, rng
@@ -469,6 +464,20 @@ def fit_frame(
         config,
         t0,
     )
+
+
+def _usable_views(
+    names: Sequence[str], pixels: dict[str, int], flags: dict[str, Sequence[str]]
+) -> np.ndarray:
+    """(C,) bool: the views with a person silhouette to fit (enough pixels, readable)."""
+    return np.array(
+        [pixels.get(n, 0) >= MIN_PIXELS and "unreadable" not in flags.get(n, ()) for n in names]
+    )
+
+
+def _blank_unusable(masks: Sequence[np.ndarray], valid: np.ndarray) -> list[np.ndarray]:
+    """The masks with the unusable views emptied (each at its own size): left out downstream."""
+    return [m if ok else np.zeros_like(m) for m, ok in zip(masks, valid, strict=True)]
 
 
 def _finish(
@@ -545,14 +554,8 @@ def refit_frame(
         return previous
     names = [c.name for c in cameras]
     masks = [previous.arrays.observed[n] for n in names]
-    valid = np.array(
-        [
-            record.person_pixels.get(n, 0) >= MIN_PIXELS
-            and "unreadable" not in record.flags.get(n, ())
-            for n in names
-        ]
-    )
-    observed = [m if ok else np.zeros_like(m) for m, ok in zip(masks, valid, strict=True)]
+    valid = _usable_views(names, record.person_pixels, record.flags)
+    observed = _blank_unusable(masks, valid)
     try:
         contours = prepare_contours(
             cameras, observed, config.refinement.image_scale, config.refinement.max_points

@@ -939,6 +939,12 @@ def damped_step(
     return None, cost, False
 
 
+def marquardt(A: np.ndarray, lam: float) -> np.ndarray:
+    """``A + λ (diag A + 1e-9)``: a normal matrix damped by Marquardt's scaling
+    (the 1e-9 keeps directions no residual sees solvable)."""
+    return A + lam * np.diag(np.diag(A) + 1e-9)
+
+
 def _gauss_newton_step(
     cost_fn: _ContourCost,
     y: np.ndarray,
@@ -948,7 +954,7 @@ def _gauss_newton_step(
     lam: float,
 ) -> tuple[float, tuple[np.ndarray, list]]:
     """:func:`refine`'s step from ``y`` damped by ``lam``: its cost, state and pairs."""
-    dy = -np.linalg.solve(JJ + lam * np.diag(np.diag(JJ) + 1e-9), g)
+    dy = -np.linalg.solve(marquardt(JJ, lam), g)
     y_new = np.clip(y + dy, *bounds)
     f_new, pairs_new = cost_fn.evaluate(y_new)
     return f_new, (y_new, pairs_new)

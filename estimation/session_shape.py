@@ -64,6 +64,7 @@ from bodymetry.estimation.refinement import (
     RefineConfig,
     damped_step,
     difference_steps,
+    marquardt,
     prepare_contours,
 )
 from bodymetry.log import Progress
@@ -268,8 +269,7 @@ def _joint_step(
     n_shape = len(nu)
     C_sum = sum(w * b[2] for w, b in zip(weights, blocks, strict=True))
     g_sum = sum(w * b[4] for w, b in zip(weights, blocks, strict=True))
-    S = C_sum + prior * np.eye(n_shape)
-    S = S + lam * np.diag(np.diag(S) + 1e-9)
+    S = marquardt(C_sum + prior * np.eye(n_shape), lam)
     g = g_sum + prior * nu
     inverses = []
     for w, (A, B, _, gp, _, _, _) in zip(weights, blocks, strict=True):

@@ -238,7 +238,7 @@ def _sample_bodies(
 def _pose_job(args: tuple[int, BodyState]) -> np.ndarray:
     """Worker: LOD vertices of a block of states (the shipped model, inherited by fork)."""
     n_shape, states = args
-    return _body_model(n_shape).pose(states, lod=True).vertices
+    return shipped_model(n_shape).pose(states, lod=True).vertices
 
 
 @functools.lru_cache(maxsize=2)
@@ -252,7 +252,7 @@ def _training_bodies(
     batch``) draws them once; ``workers`` processes pose them. The meshes are
     read-only.
     """
-    model = _body_model(n_shape)
+    model = shipped_model(n_shape)
     pose = None
     if workers > 1:
 
@@ -265,18 +265,10 @@ def _training_bodies(
     return states, verts
 
 
-def _body_model(n_shape: int) -> BodyModel:
-    """The shipped body model (:func:`shipped_model`: loaded and factorized once per
-    process, shared with the fit); the render workers are forked after
-    :func:`train` has loaded it, so they inherit it instead of loading it again
-    for every chunk of examples."""
-    return shipped_model(n_shape)
-
-
 def _render_features(args) -> tuple:
     """Worker: silhouettes of a chunk of states -> RDF and SC descriptors or codes."""
     states, meshes, cameras, codebook_arrays, seed, sc_config = args
-    model = _body_model(states.nu.shape[1])
+    model = shipped_model(states.nu.shape[1])
     codebook = None if codebook_arrays is None else feat.Codebook.from_arrays(codebook_arrays)
     rng = np.random.default_rng(seed)
     C, B = len(cameras), len(states)
@@ -422,7 +414,9 @@ def train(
     cameras = list(cameras)
     workers = workers or os.cpu_count() or 1
     t0 = time.perf_counter()
-    model = _body_model(DEFAULT_SHAPE_DOFS)
+    # Loaded (and factorized) here, once per process and shared with the fit: the
+    # render workers forked below inherit it instead of loading it per chunk.
+    model = shipped_model(DEFAULT_SHAPE_DOFS)
     train_states, train_meshes = _training_bodies(
         model.n_shape, config.n_train, "train", config.seed, config.volume, workers
     )

@@ -319,6 +319,8 @@ def test_codebook_refuses_blocks_that_do_not_pool():
     good = np.zeros((2, 10, 60))
     with pytest.raises(ValueError, match="blocks of one shape"):
         fit_codebook([good, np.zeros((3, 10, 60))], k=2)
+    with pytest.raises(ValueError, match="blocks of one shape"):
+        fit_codebook([good, np.zeros((10, 60))], k=2)  # not a block of scales
     bad = good.copy()
     bad[1, 3, 7] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
