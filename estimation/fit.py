@@ -741,13 +741,15 @@ def polish(
     str
         The name of the candidate it started from.
     """
-    # Screening is on the level of detail with a working-resolution raster (cheap);
-    # the chosen start gets the full config.
+    # Screening is on the level of detail with a working-resolution raster and no
+    # outline offsets (cheap: it only ranks the starts); the chosen one gets the
+    # full config.
     screen = replace(
         config,
         iterations=config.screen_iterations,
         full_mesh=False,
         visibility_scale=config.image_scale,
+        outline_offsets=False,
     )
     trials = {name: refine(body, contours, y, screen) for name, y in candidates.items()}
     name = min(trials, key=lambda k: trials[k].cost)

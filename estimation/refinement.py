@@ -86,6 +86,14 @@ class RefineConfig:
         coarse raster admits the zig-zag contour edges that lie just inside
         the outline; those make the model look smaller than it is and the fit
         inflates the body to compensate.
+    outline_offsets : bool
+        Compare like with like: each contour edge's residual is taken less
+        its own offset from the model's rendered outline (the residual mesh
+        rasterized at the camera's resolution, its boundary found as the
+        observed one's), held fixed within a step. A mesh's occluding contour
+        zig-zags and the rendered outline is its outermost part, so its edges
+        lie on average a fraction of a pixel inside the outline they draw;
+        without the correction the fit grows the body to close that gap.
     """
 
     iterations: int = 15
@@ -98,6 +106,7 @@ class RefineConfig:
     screen_iterations: int = 3
     full_mesh: bool = True
     visibility_scale: float = 1.0
+    outline_offsets: bool = True
 
     def __post_init__(self) -> None:
         for name in ("iterations", "screen_iterations"):
@@ -259,15 +268,29 @@ def prepare_contours(
     small = [c.scaled(scale) for c in cameras]
     points, normals, trees = [], [], []
     for mask in masks:
-        p = boundary_points(mask)
-        if len(p) > max_points:
-            p = p[np.linspace(0, len(p) - 1, max_points).round().astype(int)]
+        p = outline_samples(mask, max_points)
         normals.append(outline_normals(mask, p))
         # Pixel centres map as x' = (x + 0.5) s - 0.5 (see Camera.scaled).
         points.append((p + 0.5) * scale - 0.5)
         trees.append(cKDTree(points[-1]) if len(p) >= 10 else None)
     centers = np.stack([c.center for c in cameras])
     return ContourObservation(small, centers, points, normals, trees, list(cameras))
+
+
+def outline_samples(mask: np.ndarray, max_points: int) -> np.ndarray:
+    """At most ``max_points`` of a mask's :func:`boundary_points`, evenly spread
+    along their list (the observed outline and the model's own, for
+    :class:`RefineConfig.outline_offsets`, are sampled alike).
+
+    Returns
+    -------
+    (P, 2) float
+        ``(x, y)`` pixels, ``P <= max_points``.
+    """
+    p = boundary_points(mask)
+    if len(p) > max_points:
+        p = p[np.linspace(0, len(p) - 1, max_points).round().astype(int)]
+    return p
 
 
 def outline_normals(mask: np.ndarray, points: np.ndarray, smooth_px: float = 2.0) -> np.ndarray:
@@ -506,6 +529,27 @@ class _Pairs:
     source: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class _Silhouette:
+    """A model silhouette (H, W) bool at ``camera``'s resolution, and the box
+    ``low`` (x0, y0) to ``high`` (x1, y1) (exclusive) that holds its outline."""
+
+    mask: np.ndarray
+    camera: Camera
+    low: np.ndarray
+    high: np.ndarray
+
+    def outline(self, working: Camera, config: RefineConfig) -> np.ndarray:
+        """(M, 2) outline samples in ``working``'s pixels, traced and sampled as the
+        observed outline is (:func:`prepare_contours`)."""
+        (x0, y0), (x1, y1) = self.low, self.high
+        if x1 <= x0 or y1 <= y0:
+            return np.zeros((0, 2))
+        points = outline_samples(self.mask[y0:y1, x0:x1], config.max_points)
+        scale = working.K[0, 0] / self.camera.K[0, 0]  # the working scale, exactly
+        return (points + (x0, y0) + 0.5) * scale - 0.5
+
+
 class _ContourCost:
     """The alignment cost of one frame for one body model (see the module docstring).
 
@@ -626,9 +670,13 @@ class _ContourCost:
             if tree is None:
                 continue
             vis = self.visibility[c]
-            visible = (
-                None if lod is None else fill_silhouette(vis.project(lod), self.lod_faces, vis.size)
-            )
+            own = self._own_silhouette(c, V) if self.config.outline_offsets else None
+            if own is not None and vis.size == own.mask.shape[::-1]:
+                visible = own.mask  # the residual mesh's own raster at the camera's size
+            elif lod is not None:
+                visible = fill_silhouette(vis.project(lod), self.lod_faces, vis.size)
+            else:
+                visible = None
             kernels = compiled_likelihood()
             if kernels is not None and self._topology is not None:
                 ids = _contour_ids(
@@ -652,9 +700,32 @@ class _ContourCost:
             p = self._project(c, V, e)
             pts, nrm = self.obs.points[c], self.obs.normals[c]
             j, k = _nearest(tree, p, pts)
-            out.append(_Pairs(c, e, pts[j], nrm[j], 1.0 / len(e)))
-            out.append(_Pairs(c, e[k], pts, nrm, 1.0 / len(k), source=k))
+            to_model, to_observed = pts[j], pts
+            outline = None if own is None else own.outline(self.obs.cameras[c], self.config)
+            if outline is not None and len(outline):
+                # The edge's offset from its own rendered outline, along the observed
+                # normal the residual is measured on: the target moves by as much, so
+                # the residual compares outline with outline.
+                _, near = cKDTree(outline).query(p)
+                delta = np.einsum("ij,ij->i", p - outline[near], nrm[j])
+                to_model = to_model + delta[:, None] * nrm[j]
+                to_observed = to_observed + delta[k][:, None] * nrm
+            out.append(_Pairs(c, e, to_model, nrm[j], 1.0 / len(e)))
+            out.append(_Pairs(c, e[k], to_observed, nrm, 1.0 / len(k), source=k))
         return out
+
+    def _own_silhouette(self, c: int, V: np.ndarray) -> _Silhouette | None:
+        """The residual mesh's silhouette in view ``c`` at the camera's own resolution
+        (None when no vertex projects)."""
+        cam = (self.obs.originals or self.obs.cameras)[c]
+        pixels = cam.project(V)
+        finite = pixels[np.all(np.isfinite(pixels), axis=1)]
+        if not len(finite):
+            return None
+        w, h = cam.size
+        low = np.clip(np.floor(finite.min(0)).astype(int) - 2, 0, None)
+        high = np.minimum(np.ceil(finite.max(0)).astype(int) + 3, (w, h))
+        return _Silhouette(fill_silhouette(pixels, self.faces, cam.size), cam, low, high)
 
     def _project(self, c: int, V: np.ndarray, e: np.ndarray) -> np.ndarray:
         """Projected edge midpoints; V may carry leading batch axes.
