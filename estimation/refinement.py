@@ -44,6 +44,7 @@ from bodymetry.estimation.body_model.model import NU, POSE_DIM, THETA, BodyModel
 from bodymetry.estimation.body_model.skeleton import YAW
 from bodymetry.estimation.generative import compiled_likelihood, state_bounds
 from bodymetry.estimation.projection import camera_arrays, fill_silhouette, per_camera_masks
+from bodymetry.estimation.raster import coverage_views
 
 
 @dataclass(frozen=True)
@@ -568,6 +569,8 @@ class _ContourCost:
         self.edges, self.edge_faces = _edges(model, lod=not full)
         self.map = full_from_lod(model) if full else None
         self._last: tuple[bytes, np.ndarray] | None = None
+        # camera_arrays of the original cameras, per set of usable views.
+        self._own_arrays: dict[tuple[int, ...], tuple[np.ndarray, ...]] = {}
         originals = obs.originals or obs.cameras
         self.visibility = [c.scaled(config.visibility_scale) for c in originals]
         self._cam_arrays = [camera_arrays([cam]) for cam in obs.cameras]
@@ -665,12 +668,13 @@ class _ContourCost:
         out = []
         # The compiled contour pass takes the frames from the vertices itself.
         frames = face_frames(V, self.faces) if compiled_likelihood() is None else None
+        owns = self._own_silhouettes(V) if self.config.outline_offsets else {}
         for c in range(len(self.obs.cameras)):
             tree = self.obs.trees[c]
             if tree is None:
                 continue
             vis = self.visibility[c]
-            own = self._own_silhouette(c, V) if self.config.outline_offsets else None
+            own = owns.get(c)
             if own is not None and vis.size == own.mask.shape[::-1]:
                 visible = own.mask  # the residual mesh's own raster at the camera's size
             elif lod is not None:
@@ -714,18 +718,42 @@ class _ContourCost:
             out.append(_Pairs(c, e[k], to_observed, nrm, 1.0 / len(k), source=k))
         return out
 
-    def _own_silhouette(self, c: int, V: np.ndarray) -> _Silhouette | None:
-        """The residual mesh's silhouette in view ``c`` at the camera's own resolution
-        (None when no vertex projects)."""
-        cam = (self.obs.originals or self.obs.cameras)[c]
-        pixels = cam.project(V)
-        finite = pixels[np.all(np.isfinite(pixels), axis=1)]
-        if not len(finite):
-            return None
-        w, h = cam.size
-        low = np.clip(np.floor(finite.min(0)).astype(int) - 2, 0, None)
-        high = np.minimum(np.ceil(finite.max(0)).astype(int) + 3, (w, h))
-        return _Silhouette(fill_silhouette(pixels, self.faces, cam.size), cam, low, high)
+    def _own_silhouettes(self, V: np.ndarray) -> dict[int, _Silhouette]:
+        """The residual mesh's silhouettes (``V`` (V, 3)) in the usable views at the
+        cameras' own resolution, by view index (views where no vertex projects are
+        left out). One projection and one raster pass for all views."""
+        views = [c for c in range(len(self.obs.cameras)) if self.obs.trees[c] is not None]
+        if not views:
+            return {}
+        cams = [(self.obs.originals or self.obs.cameras)[c] for c in views]
+        kernels = compiled_likelihood()
+        # u and v as two contiguous planes (C, V): the raster takes them without a
+        # copy and the bounding boxes are fast reductions.
+        planes = np.empty((2, 1, len(views), len(V)))
+        pixels = np.moveaxis(planes, 0, -1)  # (1, C, V, 2)
+        if kernels is not None:
+            arrays = self._own_arrays.get(tuple(views))
+            if arrays is None:
+                arrays = self._own_arrays[tuple(views)] = camera_arrays(cams)
+            kernels.project_kernel(np.ascontiguousarray(V[None]), *arrays, pixels)
+        else:
+            pixels[0] = np.stack([cam.project(V) for cam in cams])
+        masks = coverage_views(pixels[0], self.faces, [cam.size for cam in cams], closed=True)
+        out = {}
+        for k, (c, cam) in enumerate(zip(views, cams, strict=True)):
+            xs, ys = planes[0, 0, k], planes[1, 0, k]
+            lo, hi = np.array([xs.min(), ys.min()]), np.array([xs.max(), ys.max()])
+            if not (np.isfinite(lo).all() and np.isfinite(hi).all()):  # NaN: behind it
+                finite = np.isfinite(xs) & np.isfinite(ys)
+                if not finite.any():
+                    continue
+                lo = np.array([xs[finite].min(), ys[finite].min()])
+                hi = np.array([xs[finite].max(), ys[finite].max()])
+            w, h = cam.size
+            low = np.clip(np.floor(lo).astype(int) - 2, 0, None)
+            high = np.minimum(np.ceil(hi).astype(int) + 3, (w, h))
+            out[c] = _Silhouette(masks[k], cam, low, high)
+        return out
 
     def _project(self, c: int, V: np.ndarray, e: np.ndarray) -> np.ndarray:
         """Projected edge midpoints; V may carry leading batch axes.
