@@ -249,6 +249,70 @@ def test_near_outside_is_the_distance_transform_within_one_pixel(seed):
     assert got.any() and not got.all()
 
 
+def _model_to_outline(cost: _ContourCost, y: np.ndarray) -> np.ndarray:
+    """Model-to-outline residuals (working pixels, unweighted) of every view at ``y``."""
+    V = cost.vertices(y)[0]
+    pairs = cost.pairs(V, cost.vertices(y, lod=True)[0])
+    out = []
+    for p in pairs:
+        if p.source is None:
+            q = cost._project(p.camera, V, p.edges)
+            out.append(((q - p.targets) * p.normals).sum(-1))
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_outline_offsets_zero_the_residuals_of_the_exact_state(scene, backend, monkeypatch):
+    """A body rendered by the model itself, at its exact state: comparing like with
+    like, every model-to-outline residual is zero (the model's own outline is traced
+    and sampled as the observed one, so each edge's offset equals its residual).
+    Without the offsets they lean inwards (contour edges inside the rendered
+    outline, sparse samples on a convex curve): measured mean -0.086 px here."""
+    if backend == "numba" and importlib.util.find_spec("numba") is None:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(generative, "BACKEND", backend)
+    model, cameras, truth, masks = scene
+    y = truth.vector()[0]
+    obs = prepare_contours(cameras, masks, 0.5)
+    with_offsets = _model_to_outline(_ContourCost(model, obs, RefineConfig()), y)
+    without = _model_to_outline(_ContourCost(model, obs, RefineConfig(outline_offsets=False)), y)
+    assert len(with_offsets) > 100
+    assert np.abs(with_offsets).max() < 1e-9
+    assert without.mean() < -0.02
+
+
+def test_own_silhouettes_are_the_rendered_silhouettes(scene):
+    """The model's own silhouettes (one projection and one raster pass for all
+    views) are exactly the masks the mesh renders to view by view, and their boxes
+    hold every pixel of them."""
+    model, cameras, truth, masks = scene
+    obs = prepare_contours(cameras, masks, 0.5)
+    cost = _ContourCost(model, obs, RefineConfig())
+    V = cost.vertices(truth.vector()[0])[0]
+    owns = cost._own_silhouettes(V)
+    assert sorted(owns) == list(range(len(cameras)))
+    for c, own in owns.items():
+        assert np.array_equal(own.mask, masks[c])
+        ys, xs = np.nonzero(own.mask)
+        assert xs.min() >= own.low[0] and ys.min() >= own.low[1]
+        assert xs.max() < own.high[0] and ys.max() < own.high[1]
+
+
+def test_own_silhouettes_leave_out_views_behind_the_body(scene):
+    """A camera that sees none of the body (every vertex behind it) gives no
+    silhouette, and the views without an observed outline are not rasterized."""
+    model, cameras, truth, masks = scene
+    far = [c for c in cameras]
+    # Turn camera 1 around: the body is now behind it.
+    flip = np.diag([-1.0, 1.0, -1.0])
+    far[1] = replace(cameras[1], R=flip @ cameras[1].R, t=flip @ cameras[1].t)
+    masks = [m if c != 2 else np.zeros_like(m) for c, m in enumerate(masks)]
+    obs = prepare_contours(far, masks, 0.5)
+    cost = _ContourCost(model, obs, RefineConfig())
+    owns = cost._own_silhouettes(cost.vertices(truth.vector()[0])[0])
+    assert sorted(owns) == [0, 3]
+
+
 @pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
 def test_compiled_correspondences_are_the_numpy_ones(scene, monkeypatch):
     """The contour kernel (facing test, generator edges, visibility) and the midpoint
