@@ -264,19 +264,40 @@ def chamfer_costs(obs: Observation, vertices: np.ndarray, faces: np.ndarray) -> 
     return costs[0] if single else costs
 
 
+def project_planes(
+    kernels: ModuleType, verts: np.ndarray, cameras: tuple[np.ndarray, ...]
+) -> np.ndarray:
+    """Bodies through cameras by the compiled projection, as two coordinate planes.
+
+    Parameters
+    ----------
+    kernels : module
+        :func:`compiled_likelihood`'s.
+    verts : (B, V, 3) float
+    cameras : tuple of arrays
+        :func:`~bodymetry.estimation.projection.camera_arrays` of C cameras.
+
+    Returns
+    -------
+    (2, B, C, V) float
+        u and v (NaN behind a camera). The kernel writes (B, C, V, 2) pixels;
+        through a view of this array its u and v land in two contiguous planes,
+        which the raster and chamfer kernels take without a copy.
+    """
+    B, V, _ = verts.shape
+    planes = np.empty((2, B, len(cameras[0]), V))
+    kernels.project_kernel(np.ascontiguousarray(verts), *cameras, np.moveaxis(planes, 0, -1))
+    return planes
+
+
 def _chamfer_numba(
     kernels: ModuleType, obs: Observation, verts: np.ndarray, faces: np.ndarray
 ) -> np.ndarray:
     """(B, C') costs of the usable views by the fused kernels (one call each)."""
     pack = obs.packed()
-    R, t, K, dist, tilt, mode = pack["cameras"]
     B, V, _ = verts.shape
-    # The kernel writes (B, C', V, 2) pixels; through this view its u and v land in
-    # two contiguous planes, the chamfer kernel's xs and ys, without copying them.
-    planes = np.empty((2, B, len(R), V))
-    pixels = np.moveaxis(planes, 0, -1)
-    kernels.project_kernel(np.ascontiguousarray(verts), R, t, K, dist, tilt, mode, pixels)
-    out = np.empty((B, len(R)))
+    planes = project_planes(kernels, verts, pack["cameras"])
+    out = np.empty((B, planes.shape[2]))
     status = kernels.chamfer_kernel(
         planes[0],
         planes[1],

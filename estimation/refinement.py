@@ -42,7 +42,7 @@ from scipy.spatial import cKDTree
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import NU, POSE_DIM, THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import YAW
-from bodymetry.estimation.generative import compiled_likelihood, state_bounds
+from bodymetry.estimation.generative import compiled_likelihood, project_planes, state_bounds
 from bodymetry.estimation.projection import camera_arrays, fill_silhouette, per_camera_masks
 from bodymetry.estimation.raster import coverage_views
 
@@ -569,9 +569,12 @@ class _ContourCost:
         self.edges, self.edge_faces = _edges(model, lod=not full)
         self.map = full_from_lod(model) if full else None
         self._last: tuple[bytes, np.ndarray] | None = None
-        # camera_arrays of the original cameras, per set of usable views.
-        self._own_arrays: dict[tuple[int, ...], tuple[np.ndarray, ...]] = {}
         originals = obs.originals or obs.cameras
+        # The views with an observed outline (fixed for the frame) at their own size:
+        # where the model's own silhouettes are drawn (outline_offsets).
+        self._own_views = [c for c, tree in enumerate(obs.trees) if tree is not None]
+        self._own_cameras = [originals[c] for c in self._own_views]
+        self._own_arrays = camera_arrays(self._own_cameras) if self._own_views else None
         self.visibility = [c.scaled(config.visibility_scale) for c in originals]
         self._cam_arrays = [camera_arrays([cam]) for cam in obs.cameras]
         self._vis_arrays = [camera_arrays([cam]) for cam in self.visibility]
@@ -722,22 +725,15 @@ class _ContourCost:
         """The residual mesh's silhouettes (``V`` (V, 3)) in the usable views at the
         cameras' own resolution, by view index (views where no vertex projects are
         left out). One projection and one raster pass for all views."""
-        views = [c for c in range(len(self.obs.cameras)) if self.obs.trees[c] is not None]
+        views, cams = self._own_views, self._own_cameras
         if not views:
             return {}
-        cams = [(self.obs.originals or self.obs.cameras)[c] for c in views]
         kernels = compiled_likelihood()
-        # u and v as two contiguous planes (C, V): the raster takes them without a
-        # copy and the bounding boxes are fast reductions.
-        planes = np.empty((2, 1, len(views), len(V)))
-        pixels = np.moveaxis(planes, 0, -1)  # (1, C, V, 2)
         if kernels is not None:
-            arrays = self._own_arrays.get(tuple(views))
-            if arrays is None:
-                arrays = self._own_arrays[tuple(views)] = camera_arrays(cams)
-            kernels.project_kernel(np.ascontiguousarray(V[None]), *arrays, pixels)
+            planes = project_planes(kernels, V[None], self._own_arrays)  # (2, 1, C, V)
         else:
-            pixels[0] = np.stack([cam.project(V) for cam in cams])
+            planes = np.moveaxis(np.stack([cam.project(V) for cam in cams]), -1, 0)[:, None]
+        pixels = np.moveaxis(planes, 0, -1)  # (1, C, V, 2)
         masks = coverage_views(pixels[0], self.faces, [cam.size for cam in cams], closed=True)
         out = {}
         for k, (c, cam) in enumerate(zip(views, cams, strict=True)):
