@@ -1,0 +1,60 @@
+"""The pipeline benchmark's comparison of the session stage with the per-frame mean."""
+
+import numpy as np
+import pytest
+
+from benchmarks.bench_pipeline import SIGNIFICANT_Z, stage_comparison
+
+
+def _session(name: str, errors: dict[str, tuple[float, float, float, float]]) -> dict:
+    """A session result whose Figure 3 has, per biometric, (per-frame error, its std
+    over 16 frames, session error, session standard error) around a truth of 100."""
+    table = {}
+    for key in ("height_mm", "arm_span_mm", "weight_kg"):
+        e_pf, std, e_s, se = errors.get(key, (1.0, 4.0, 0.5, 0.5))
+        table[key] = {
+            "actual": 100.0,
+            "disc_generative": {"mean": 100.0 + e_pf, "std": std, "n": 16},
+            "session": {"mean": 100.0 + e_s, "std": se, "n": 16},
+        }
+    return {"session": f"/somewhere/{name}", "figure3": table}
+
+
+def test_known_errors_give_known_table():
+    sessions = [
+        _session("a", {"arm_span_mm": (-10.0, 8.0, -4.0, 1.0)}),
+        _session("b", {"arm_span_mm": (0.5, 8.0, -3.0, 1.0)}),
+    ]
+    out = stage_comparison(sessions)
+    arm = out["arm_span_mm"]
+    assert arm["mean_absolute_error"] == {"per_frame": 5.25, "session": 3.5}
+    assert arm["rms_error"]["per_frame"] == pytest.approx(np.sqrt((100 + 0.25) / 2), abs=0.01)
+    assert arm["rms_error"]["session"] == pytest.approx(np.sqrt((16 + 9) / 2), abs=0.01)
+    assert arm["session_at_least_as_accurate"] is True
+    assert arm["sessions_at_least_as_accurate"] == "1/2"
+    # b: |−3| − |0.5| = 2.5 over hypot(8/4, 1) = 2.236: z 1.12, not significant.
+    b = arm["sessions"][1]
+    assert b["session"] == "b" and b["difference"] == 2.5
+    assert b["z"] == pytest.approx(2.5 / np.hypot(2.0, 1.0), abs=0.01)
+    assert arm["significantly_worse"] == []
+    assert out["all_biometrics"] is True
+
+
+def test_a_significantly_worse_session_fails_the_table():
+    # Session stage 6 units off with tight standard errors where the per-frame mean is exact.
+    worse = _session("worse", {"weight_kg": (0.0, 1.0, 6.0, 0.5)})
+    out = stage_comparison([_session("a", {}), worse])
+    weight = out["weight_kg"]
+    assert weight["sessions"][1]["z"] >= SIGNIFICANT_Z
+    assert weight["significantly_worse"] == ["worse"]
+    assert weight["session_at_least_as_accurate"] is False
+    assert out["all_biometrics"] is False
+
+
+def test_sessions_without_a_session_stage_are_left_out():
+    plain = _session("plain", {})
+    for row in plain["figure3"].values():
+        del row["session"]
+    assert stage_comparison([plain]) == {}
+    out = stage_comparison([plain, _session("a", {})])
+    assert [r["session"] for r in out["height_mm"]["sessions"]] == ["a"]
