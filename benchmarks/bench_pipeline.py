@@ -18,7 +18,9 @@ renders :data:`INDEPENDENT_SESSIONS` instead: six subjects whose geometry the mo
 not built from (``--subject independent:...``, docs/studio.md), three in tight clothing
 and three in the loose clothing layer with hair; the demo still runs first.
 ``--validation`` renders :data:`VALIDATION_SESSIONS`, four more such subjects held out
-from every setting chosen on the independent six.
+from every setting chosen on the independent six; ``--held-out`` renders
+:data:`HELD_OUT_SESSIONS`, a replication of the four same-model sessions with new
+subjects.
 
 ``BODYMETRY_BENCH_SESSIONS=a:b:c`` uses sessions rendered beforehand instead of
 rendering the three studio sessions (the demo always runs). The discriminative
@@ -60,6 +62,16 @@ SESSIONS = (
     (12, "arm_raises", {}),
     (13, "reach", {}),
     (14, "mixed", {"background_clip": False, "bystanders": 2}),
+)
+#: A held-out replication of :data:`SESSIONS` (``python -m benchmarks pipeline
+#: --held-out``): new subjects (seeds never used before) with the same motions and
+#: recording conditions, rendered after the session stage and its comparison with the
+#: per-frame mean (:func:`stage_comparison`) were settled on :data:`SESSIONS`.
+HELD_OUT_SESSIONS = (
+    (61, "walk_turn", {}),
+    (62, "arm_raises", {}),
+    (63, "reach", {}),
+    (64, "mixed", {"background_clip": False, "bystanders": 2}),
 )
 #: Sessions of independent-geometry subjects on the demo's rig (issue 15): (seed, motion,
 #: --subject text). These seeds were never used by a studio session before; each draws
@@ -277,8 +289,9 @@ def stage_comparison(sessions: list[dict]) -> dict:
     return out
 
 
-def run(independent: bool = False, validation: bool = False) -> dict:
+def run(independent: bool = False, validation: bool = False, held_out: bool = False) -> dict:
     reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
+    same_model = HELD_OUT_SESSIONS if held_out else SESSIONS
     independent = independent or bool(os.environ.get("BODYMETRY_BENCH_INDEPENDENT"))
     subjects = VALIDATION_SESSIONS if validation else INDEPENDENT_SESSIONS
     independent = independent or validation
@@ -294,13 +307,13 @@ def run(independent: bool = False, validation: bool = False) -> dict:
         else:
             folders = [
                 _render(tmp / f"seed{seed}_{motion}", seed, motion, options)
-                for seed, motion, options in SESSIONS
+                for seed, motion, options in same_model
             ]
         cache = None if os.environ.get("BODYMETRY_BENCH_WARM") else tmp / "cache"
         skip_demo = bool(os.environ.get("BODYMETRY_BENCH_SKIP_DEMO"))
         out = [] if skip_demo else [evaluate_session(Path(DEMO_SESSION), tmp / "run_demo", cache)]
         out += [evaluate_session(f, tmp / f"run_{f.name}", cache) for f in folders]
-    listed = subjects if independent else SESSIONS
+    listed = subjects if independent else same_model
     described = (
         [f.name for f in folders] if reuse else [s[::2] if independent else s[:2] for s in listed]
     )

@@ -49,6 +49,8 @@ from bodymetry.estimation.records import (
 )
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
+from bodymetry.review.accuracy import SESSION_ACCURACY
+from bodymetry.review.accuracy import SOURCE as ACCURACY_SOURCE
 from bodymetry.review.mcap_recording import overlay_silhouettes
 from bodymetry.review.run_data import FrameView, RunData, frame_views, load_run
 
@@ -409,6 +411,7 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
                     "std": gen[1],
                     "session": _stat(summary, "session", key),
                     "actual": (truth or {}).get(key),
+                    "accuracy": SESSION_ACCURACY.get(key),
                 }
             )
     figures = {}
@@ -479,6 +482,7 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
         "truth": truth,
         "truth_source": (truth or {}).get("source"),
         "headline": headline,
+        "accuracy_source": ACCURACY_SOURCE,
         "figure3": figure3_rows(run),
         "figure3_columns": figure3_columns(run),
         "session_shape": results.session_shape,
@@ -647,8 +651,20 @@ def _summary_page(ctx: dict[str, Any]) -> Any:
         f"Calibration: {ctx['calibration']['source']}.",
         f"Generated {ctx['generated']} by bodymetry {ctx['version']}.",
     ]
+    measured = [h for h in ctx["headline"] if h["session"] and h["accuracy"]]
+    if measured:
+        lines.append(
+            "Measured accuracy of the session values (RMS / worst error): "
+            + ", ".join(
+                f"{h['label'].lower()} {_num(h['accuracy'].rms)} / {_num(h['accuracy'].worst)} "
+                f"{h['unit']}"
+                for h in measured
+            )
+            + ":"
+        )
+        lines.append(f"{ctx['accuracy_source']}.")
     for i, line in enumerate(lines):
-        fig.text(0.04, 0.90 - 0.03 * i, line, fontsize=9)
+        fig.text(0.04, 0.90 - 0.026 * i, line, fontsize=9)
     # Figure 3 table.
     ax = fig.add_axes((0.04, 0.52, 0.92, 0.22))
     ax.set_axis_off()

@@ -17,6 +17,8 @@ from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.records import FrameRecord, RunResults, SessionInfo
 from bodymetry.review import plots
+from bodymetry.review.accuracy import SESSION_ACCURACY
+from bodymetry.review.accuracy import SOURCE as ACCURACY_SOURCE
 from bodymetry.review.build import build_review
 from bodymetry.review.report import (
     body_renders,
@@ -277,6 +279,10 @@ def test_the_session_stage_is_beside_the_per_frame_stages(review_run):
     height = review_run.results.summary["session"]["height_mm"]
     assert f"{height.mean:,.1f}".replace(",", " ") in html
     assert f"{height.std:.1f}" in html
+    # Beside each core session value, the accuracy the benchmarks measured, and whence.
+    for key, accuracy in SESSION_ACCURACY.items():
+        assert f"RMS error {accuracy.rms:.1f}" in html, key
+    assert ACCURACY_SOURCE in html
     with open(review_run.folder / "measurements.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     used = {str(f) for f in shape.frames}
@@ -298,6 +304,8 @@ def test_a_run_without_the_session_stage_has_no_session_column(review_run, bare_
     (bare_run / "results.json").write_text(json.dumps(data))
     html = build_report(bare_run).html.read_text()
     assert "Session (one shape)" not in html and "Disc. + Generative" in html
+    # The measured accuracy is that of the session values: none without them.
+    assert "measured accuracy" not in html.lower()
 
 
 def test_the_outline_check_and_the_run_warnings_are_in_the_report(review_run, bare_run):
