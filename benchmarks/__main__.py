@@ -30,6 +30,7 @@ REPORTS = {
     "imports": "benchmarks.imports",
     "profile": "benchmarks.bench_profile",
     "session_bias": "benchmarks.bench_session_bias",
+    "session_spread": "benchmarks.bench_session_spread",
     "standing_shape": "benchmarks.bench_standing_shape",
 }
 

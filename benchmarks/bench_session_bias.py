@@ -44,13 +44,13 @@ from __future__ import annotations
 import json
 import os
 import tempfile
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from bodymetry.capture.session import load_session
+from bodymetry.capture.session import Session, load_session
 from bodymetry.cli import DEMO_SESSION
 from bodymetry.config import ProcessConfig
 from bodymetry.estimation.body_model.model import NU, BodyState
@@ -61,7 +61,7 @@ from bodymetry.estimation.records import FrameArrays, RunLayout
 from bodymetry.estimation.session_shape import SessionFrame, fit_session_shape, session_frame
 from bodymetry.fileio import load_npz
 from bodymetry.process import process_session
-from bodymetry.review.run_data import load_run
+from bodymetry.review.run_data import RunData, load_run
 from bodymetry.studio.independent import IndependentSpec, IndependentSubject
 
 #: The biometrics compared (results.json keys).
@@ -133,20 +133,41 @@ def posing_offsets(body, cameras, subject: str, states, masks, refinement) -> di
     return {k: round(float(np.median(v)), 2) for k, v in per_region.items() if v}
 
 
-def session_bias(session_dir: Path, run_dir: Path) -> dict:
-    """Process one session (or reuse its finished run) and run the four conditions."""
+@dataclass(frozen=True)
+class ProcessedSession:
+    """A processed studio session, as the session stage sees it, with its truth."""
+
+    run: RunData
+    session: Session
+    truth: dict
+    recorded: ProcessConfig
+    frames: list[SessionFrame]
+
+
+def processed_session(session_dir: Path, run_dir: Path) -> ProcessedSession:
+    """Process one session into ``run_dir`` (or reuse its finished run there) and load
+    its accepted frames and its ground truth."""
     config = ProcessConfig(workers=os.cpu_count() or 1, review=False)
     process_session(session_dir, run_dir, config)
     run = load_run(run_dir)
     session = load_session(session_dir)
     truth = json.loads((session.path(session.ground_truth) / "subject.json").read_text())
-    recorded = ProcessConfig.from_json(run.results.config)
     layout = RunLayout(run_dir)
-    accepted = [r for r in run.results.frames if r.ok]
     frames = [
         session_frame(r, FrameArrays.load(layout.frame_arrays(r.frame)), run.cameras)
-        for r in accepted
+        for r in run.results.frames
+        if r.ok
     ]
+    return ProcessedSession(
+        run, session, truth, ProcessConfig.from_json(run.results.config), frames
+    )
+
+
+def session_bias(session_dir: Path, run_dir: Path) -> dict:
+    """Process one session (or reuse its finished run) and run the four conditions."""
+    processed = processed_session(session_dir, run_dir)
+    run, session, truth = processed.run, processed.session, processed.truth
+    recorded, frames = processed.recorded, processed.frames
     true_masks = [_true_masks(session, run.cameras, f.frame) for f in frames]
     true_states, true_nu = _true_states(session, frames)
     body = shared_body_model()
