@@ -44,6 +44,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -228,10 +229,17 @@ def session_bias(session_dir: Path, run_dir: Path) -> dict:
     return out
 
 
-def run() -> dict:
+def per_session(report: Callable[[Path, Path], dict]) -> dict:
+    """``report(session_dir, run_dir)`` for each session of ``BODYMETRY_BENCH_SESSIONS``
+    (the demo by default), its run in ``$BODYMETRY_BENCH_RUN_DIR/<name>`` (a temporary
+    folder by default)."""
     sessions = os.environ.get("BODYMETRY_BENCH_SESSIONS")
     folders = [Path(p) for p in sessions.split(":")] if sessions else [Path(DEMO_SESSION)]
     keep = os.environ.get("BODYMETRY_BENCH_RUN_DIR")
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(keep) if keep else Path(tmp)
-        return {"sessions": [session_bias(f, root / f.name) for f in folders]}
+        return {"sessions": [report(f, root / f.name) for f in folders]}
+
+
+def run() -> dict:
+    return per_session(session_bias)

@@ -22,15 +22,12 @@ and the stage's own standard error beside them.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.bench_session_bias import KEYS, processed_session
-from bodymetry.cli import DEMO_SESSION
+from benchmarks.bench_session_bias import KEYS, per_session, processed_session
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.session_shape import fit_session_shape
 
@@ -88,9 +85,4 @@ def session_spread(session_dir: Path, run_dir: Path) -> dict:
 
 
 def run() -> dict:
-    sessions = os.environ.get("BODYMETRY_BENCH_SESSIONS")
-    folders = [Path(p) for p in sessions.split(":")] if sessions else [Path(DEMO_SESSION)]
-    keep = os.environ.get("BODYMETRY_BENCH_RUN_DIR")
-    with tempfile.TemporaryDirectory() as tmp:
-        root = Path(keep) if keep else Path(tmp)
-        return {"sessions": [session_spread(f, root / f.name) for f in folders]}
+    return per_session(session_spread)
