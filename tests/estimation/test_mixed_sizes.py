@@ -203,11 +203,13 @@ def test_training_and_fit_on_a_mixed_rig(tmp_path):
     truth = dataclasses.replace(truth, tau=truth.tau - [0.0, 0.0, lowest])
     masks = project_silhouettes(model.pose(truth).vertices[0], model.faces(), cameras)
     assert isinstance(masks, list) and masks[0].shape != masks[1].shape
-    fit = fit_frame(3, masks, [[], []], cameras, trained, FitConfig.preset("fast"))
+    # The default preset: the fast one's few particles found this body within 1 cm on
+    # one machine and missed it by 13 cm (IoU 0.81) on another, whose floating point
+    # differs in the last digits; the default's found it within 2.2 cm (IoU 0.93).
+    fit = fit_frame(3, masks, [[], []], cameras, trained, FitConfig.preset("default"))
     record = fit.record
     assert record.status == "ok" or record.status.startswith("poor fit"), record.status
     assert np.all(np.isfinite(fit.state.vector()))
-    # Measured: status ok, IoU 0.97 in both views, the root within 1 cm.
     assert np.linalg.norm(fit.state.tau[0] - truth.tau[0]) < 0.1
     assert np.isfinite(record.estimates["generative"].biometrics["height_mm"])
     for cam, mask in zip(cameras, masks, strict=True):
