@@ -202,18 +202,17 @@ def part_recall(folder: Path = DEMO) -> dict:
     nu = states["nu"]
     body = shipped_model(len(nu))
     parts = body.parts_of_vertices(False)
-    counts = np.zeros((len(PARTS), 3), np.int64)  # true, missed, added
+    gt = GroundTruth(session, with_shadows=False)
+    counts = np.zeros((3, len(PARTS)), np.int64)  # true, missed, added
     for frame in segment_session(session, keep_images=False):
         y = np.r_[states["tau"][frame.frame], states["theta"][frame.frame], nu]
         vertices = body.pose(BodyState.from_vector(y[None])).vertices[0]
         for camera, observed in zip(cameras, frame.masks, strict=True):
-            path = session.ground_truth_silhouette_path(camera.name, frame.frame)
-            true = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 127
+            true = gt.person(camera.name, frame.frame)
             labels = _part_labels(camera.project(vertices), parts, camera.size)
-            for k in range(len(PARTS)):
-                near = labels == k
-                counts[k] += [(true & near).sum(), (true & ~observed & near).sum(),
-                              (observed & ~true & near).sum()]  # fmt: skip
+            for row, pixels in enumerate((true, true & ~observed, observed & ~true)):
+                near = labels[pixels]
+                counts[row] += np.bincount(near[near >= 0], minlength=len(PARTS))
     return {
         "session": str(folder),
         "radius_px": PART_RADIUS_PX,
@@ -222,7 +221,7 @@ def part_recall(folder: Path = DEMO) -> dict:
                 "missed": round(float(c[1] / c[0]), 4),
                 "added": round(float(c[2] / c[0]), 4),
             }
-            for name, c in zip(PARTS, counts, strict=True)
+            for name, c in zip(PARTS, counts.T, strict=True)
             if c[0]
         },
     }
