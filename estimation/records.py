@@ -701,9 +701,15 @@ class SessionShape:
     initial_cost, cost : float
         The session's contour cost before and after.
     iterations : int
-        Accepted joint steps.
+        Accepted joint steps, over all descents.
     covariance : str
         Which covariance the standard errors come from.
+    descents : int
+        Joint descents averaged (one from the per-frame fits, the others from
+        jittered copies of them).
+    descent_spread : dict of str to float
+        Per measurement, the standard deviation of the descents' end points
+        (0 for one descent); the standard errors include it.
     seconds : float
     outline : OutlineCheck or None
         The loose-clothing and hair check on the session's frames (at the
@@ -725,6 +731,8 @@ class SessionShape:
     cost: float = math.nan
     iterations: int = 0
     covariance: str = ""
+    descents: int = 1
+    descent_spread: dict[str, float] = field(default_factory=dict)
     seconds: float = 0.0
     outline: OutlineCheck | None = None
 
@@ -752,6 +760,8 @@ class SessionShape:
             "initial_cost": _finite_or_none(self.initial_cost, 4),
             "cost": _finite_or_none(self.cost, 4),
             "iterations": int(self.iterations),
+            "descents": int(self.descents),
+            "descent_spread": {k: _finite_or_none(v, 4) for k, v in self.descent_spread.items()},
             "seconds": round(float(self.seconds), 2),
             "outline": None if self.outline is None else self.outline.to_json(),
         }
@@ -783,6 +793,10 @@ class SessionShape:
                 cost=_nan_if_none(data.get("cost")),
                 iterations=int(data.get("iterations", 0)),
                 covariance=str(data.get("covariance", "")),
+                descents=int(data.get("descents", 1)),
+                descent_spread={
+                    k: _nan_if_none(v) for k, v in data.get("descent_spread", {}).items()
+                },
                 seconds=float(data.get("seconds", 0.0)),
                 outline=None
                 if data.get("outline") is None

@@ -21,7 +21,16 @@ Huber weights as each frame's own refinement):
   cost), so one badly segmented frame cannot pull the shared shape.
 
 The start is the per-frame generative fits with their shapes replaced by the
-coordinate-wise median of their ν. The result is accepted only when it keeps
+coordinate-wise median of their ν. The contour cost is piecewise constant in
+which edges are on the contour and which outline point each pairs with, so
+where a descent ends moves with the last digits of its start (two CPUs'
+rounding is enough; docs/session-shape.md). The stage therefore runs
+``descents`` descents, the first from that start and the others from copies of
+it jittered by ``jitter`` (seeded), and reports their average: the states are
+averaged frame by frame (the shape rows stay one shared ν), and the
+correspondences, IoUs and covariance are those of the averaged state.
+
+The result is accepted only when it keeps
 the frames' silhouette overlap: the mean IoU over the frames (the level of
 detail, as the quality gate measures it) may drop by at most
 ``max_iou_drop`` from the per-frame fits' (a shared shape has fewer degrees
@@ -38,7 +47,9 @@ classical ``σ² H⁻¹`` would treat thousands of residuals as independent and
 understate the error; frame-to-frame disagreement is what the sandwich
 measures. Each biometric's standard error follows by propagating that
 covariance through a central-difference Jacobian of the biometrics with
-respect to ν. With fewer than 3 frames the classical covariance is used.
+respect to ν. With fewer than 3 frames the classical covariance is used. The
+average of K descents scatters by the covariance of their end points over K,
+which is added (``descent_spread`` records each measurement's spread).
 """
 
 from __future__ import annotations
@@ -85,7 +96,8 @@ __all__ = [
 #: How the stage estimates and what its standard errors are (recorded in results.json).
 METHOD = (
     "joint Levenberg-Marquardt of one shape and every frame's pose on the stacked "
-    "contour residuals; standard errors: cluster-robust (frames) Gauss-Newton covariance"
+    "contour residuals, averaged over descents from jittered starts; standard errors: "
+    "cluster-robust (frames) Gauss-Newton covariance plus the descents' spread"
 )
 
 #: Most damping increases (× 4 each) tried for one joint step.
@@ -115,6 +127,14 @@ class SessionShapeConfig:
         Fewer accepted frames than this: the stage is skipped.
     tolerance : float
         Stop when a step lowers the session cost by less than this fraction.
+    descents : int
+        Joint descents averaged: one from the per-frame fits, the others from
+        copies of them jittered by ``jitter``.
+    jitter : float
+        Standard deviation of the jitter of every start value (metres, radians
+        and shape standard deviations alike: far below what a fit resolves).
+    seed : int
+        Seed of the jitter.
     """
 
     enabled: bool = True
@@ -123,6 +143,9 @@ class SessionShapeConfig:
     max_iou_drop: float = 0.01
     min_frames: int = 2
     tolerance: float = 1e-3
+    descents: int = 4
+    jitter: float = 1e-3
+    seed: int = 0
 
     def __post_init__(self) -> None:
         if self.iterations < 0:
@@ -135,6 +158,10 @@ class SessionShapeConfig:
             raise ValueError(f"min_frames: expected >= 1, got {self.min_frames}")
         if not self.tolerance > 0:
             raise ValueError(f"tolerance: expected > 0, got {self.tolerance}")
+        if self.descents < 1:
+            raise ValueError(f"descents: expected >= 1, got {self.descents}")
+        if not self.jitter >= 0:
+            raise ValueError(f"jitter: expected >= 0, got {self.jitter}")
 
 
 @dataclass(frozen=True)
@@ -294,6 +321,77 @@ def _damped_inverse(A: np.ndarray, lam: float) -> np.ndarray:
     return np.linalg.inv(damped)
 
 
+@dataclass(frozen=True)
+class _Descent:
+    """One joint descent's end point: every frame's state (F, 40 + n_shape) (one
+    shared ν), its weighted session cost and the steps it took."""
+
+    states: np.ndarray
+    cost: float
+    steps: int
+
+
+def _descend(
+    costs: Sequence[ContourCost],
+    states: np.ndarray,
+    prior: float,
+    bounds: tuple[np.ndarray, np.ndarray],
+    config: SessionShapeConfig,
+    step: np.ndarray,
+    tick: Callable[[], None],
+) -> _Descent | None:
+    """One joint Levenberg-Marquardt descent from ``states`` (F, 40 + n_shape), whose
+    ν rows are equal; None when a frame has no contour there."""
+    work = []
+    for cost_fn, y in zip(costs, states, strict=True):
+        f, pairs = cost_fn.evaluate(y)
+        work.append(_Frame(cost_fn, y, f, pairs))
+    fs = np.array([w.f for w in work])
+    if not np.all(np.isfinite(fs)):
+        return None
+    nu = states[0, NU]
+    weights = _frame_weights(fs, config.frame_scale)
+
+    def total(fs: np.ndarray, shape: np.ndarray) -> float:
+        return float(weights @ fs + prior * shape @ shape)
+
+    f_total = total(fs, nu)
+    damping, accepted = Damping(), 0
+    for it in range(config.iterations):
+        tick()
+        blocks = _blocks(work, step)
+        propose = functools.partial(_joint_step, work, blocks, weights, nu, prior, bounds, total)
+        # Each retry costs one evaluation of every frame: a step that fails at
+        # λ × 4⁴ means the descent has converged (or stalled) here.
+        step_taken, f_total, improved = damped_step(
+            propose, f_total, damping, config.tolerance, retries=_RETRIES
+        )
+        if step_taken is not None:
+            candidates, evaluated = step_taken
+            for fr, y, (f, pairs) in zip(work, candidates, evaluated, strict=True):
+                fr.y, fr.f, fr.pairs = y, f, pairs
+            nu = candidates[0][NU]
+            accepted += 1
+        if not improved:
+            break
+        log.debug("session shape: step %d, cost %.4g (λ %.2g)", it + 1, f_total, damping.lam)
+        # Re-weight the frames at the new state (the next step compares costs under these).
+        weights = _frame_weights(np.array([w.f for w in work]), config.frame_scale)
+        f_total = total(np.array([w.f for w in work]), nu)
+    return _Descent(np.array([w.y for w in work]), f_total, accepted)
+
+
+def _jittered(
+    states: np.ndarray, scale: float, rng: np.random.Generator, bounds: tuple[np.ndarray, ...]
+) -> np.ndarray:
+    """``states`` (F, 40 + n_shape) with every pose value and the shared ν moved by
+    Gaussian noise of ``scale``, within the bounds."""
+    out = states.copy()
+    out[:, :POSE_DIM] += rng.normal(0.0, scale, out[:, :POSE_DIM].shape)
+    out[:, NU] += rng.normal(0.0, scale, out.shape[1] - POSE_DIM)
+    return np.clip(out, *bounds)
+
+
 def fit_session_shape(
     body: BodyModel,
     cameras: Sequence[Camera],
@@ -351,68 +449,73 @@ def fit_session_shape(
         raise ValueError(
             f"start states: expected {POSE_DIM + n_shape} values, got {starts.shape[1]}"
         )
-    nu = np.median(starts[:, NU], axis=0)
-    start_nu = nu.copy()
-    lo, hi = state_bounds(body)
+    start_nu = np.median(starts[:, NU], axis=0)
+    bounds = state_bounds(body)
     # Data term only per frame: the shape prior enters once for the session.
     data_config = replace(refinement, shape_prior=0.0)
-    work = []
-    for fr, y in zip(frames, starts, strict=True):
-        obs = prepare_contours(cameras, fr.masks, refinement.image_scale, refinement.max_points)
-        cost_fn = ContourCost(body, obs, data_config)
-        y = np.clip(np.r_[y[:POSE_DIM], nu], lo, hi)
-        f, pairs = cost_fn.evaluate(y)
-        work.append(_Frame(cost_fn, y, f, pairs))
-    costs = np.array([w.f for w in work])
-    if not np.all(np.isfinite(costs)):
-        bad = [fr.frame for fr, c in zip(frames, costs, strict=True) if not np.isfinite(c)]
+    costs = [
+        ContourCost(
+            body,
+            prepare_contours(cameras, fr.masks, refinement.image_scale, refinement.max_points),
+            data_config,
+        )
+        for fr in frames
+    ]
+    first = np.clip(np.c_[starts[:, :POSE_DIM], np.tile(start_nu, (len(frames), 1))], *bounds)
+    f_start = np.array([c.evaluate(y)[0] for c, y in zip(costs, first, strict=True)])
+    if not np.all(np.isfinite(f_start)):
+        bad = [fr.frame for fr, c in zip(frames, f_start, strict=True) if not np.isfinite(c)]
         return give_up(f"failed: no contour in frames {bad}")
     prior = refinement.shape_prior
     step = difference_steps(refinement, n_shape)
-    weights = _frame_weights(costs, config.frame_scale)
+    f0 = float(_frame_weights(f_start, config.frame_scale) @ f_start + prior * start_nu @ start_nu)
+    steps_total = config.descents * config.iterations
+    ticks = iter(range(steps_total))
 
-    def total(fs: np.ndarray, shape: np.ndarray) -> float:
-        return float(weights @ fs + prior * shape @ shape)
-
-    f_total = f0 = total(costs, nu)
-    damping, accepted = Damping(), 0
-    blocks = None
-    for it in range(config.iterations):
+    def tick() -> None:
         if progress:
-            progress("session shape", it, config.iterations)
-        blocks = _blocks(work, step)
+            progress("session shape", next(ticks, steps_total), steps_total)
 
-        propose = functools.partial(_joint_step, work, blocks, weights, nu, prior, (lo, hi), total)
-        # Each retry costs one evaluation of every frame: a step that fails at
-        # λ × 4⁴ means the descent has converged (or stalled) for this session.
-        step_taken, f_total, improved = damped_step(
-            propose, f_total, damping, config.tolerance, retries=_RETRIES
-        )
-        if step_taken is not None:
-            candidates, evaluated = step_taken
-            for fr, y, (f, pairs) in zip(work, candidates, evaluated, strict=True):
-                fr.y, fr.f, fr.pairs = y, f, pairs
-            nu = candidates[0][NU]
-            accepted += 1
-        if not improved:
-            break
-        log.debug("session shape: step %d, cost %.4g (λ %.2g)", it + 1, f_total, damping.lam)
-        # Re-weight the frames at the new state (the next step compares costs under these).
-        weights = _frame_weights(np.array([w.f for w in work]), config.frame_scale)
-        f_total = total(np.array([w.f for w in work]), nu)
+    # The contour cost is piecewise (which edges are on the contour, and their
+    # nearest outline points, change in jumps), so a descent's end point moves
+    # with the last digits of its start. Several descents from jittered starts,
+    # averaged, make the result less a matter of chance, and their spread is
+    # part of the standard error (docs/session-shape.md).
+    rng = np.random.default_rng(config.seed)
+    descents = []
+    for k in range(config.descents):
+        begin = first if k == 0 else _jittered(first, config.jitter, rng, bounds)
+        end = _descend(costs, begin, prior, bounds, config, step, tick)
+        if end is None:
+            log.info("session shape: descent %d started where a frame has no contour", k)
+            continue
+        descents.append(end)
     if progress:
-        progress("session shape", config.iterations, config.iterations)
-    if blocks is None:  # no iteration ran
-        blocks = _blocks(work, step)
-    # The last linearization (one step behind the state when the last step was
-    # accepted: close enough for a standard error, and it saves one per frame).
-    cov, how = _covariance(blocks, weights, prior, n_shape)
+        progress("session shape", steps_total, steps_total)
+    # The average of the end points (one shared ν: the ν rows stay equal).
+    states = np.clip(np.mean([d.states for d in descents], axis=0), *bounds)
+    nu = states[0, NU]
+    work = []
+    for cost_fn, y in zip(costs, states, strict=True):
+        f, pairs = cost_fn.evaluate(y)
+        work.append(_Frame(cost_fn, y, f, pairs))
+    fs = np.array([w.f for w in work])
+    if not np.all(np.isfinite(fs)):
+        bad = [fr.frame for fr, c in zip(frames, fs, strict=True) if not np.isfinite(c)]
+        return give_up(f"failed: no contour in frames {bad} at the averaged shape")
+    weights = _frame_weights(fs, config.frame_scale)
+    f_total = float(weights @ fs + prior * nu @ nu)
+    cov, how = _covariance(_blocks(work, step), weights, prior, n_shape)
+    # The average of K end points scatters by their spread / sqrt(K).
+    ends = np.array([d.states[0, NU] for d in descents])
+    if len(descents) > 1:
+        cov = cov + np.atleast_2d(np.cov(ends.T, ddof=1)) / len(descents)
+        how = f"{how} + spread of {len(descents)} descents"
     nu_se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     bios, bio_se = biometric_errors(body, nu, cov, density)
-    states = {
-        fr.frame: BodyState.from_vector(w.y[None]) for fr, w in zip(frames, work, strict=True)
-    }
-    ious = {fr.frame: silhouette_iou(body, states[fr.frame], cameras, fr.masks) for fr in frames}
+    spread = _spread(body, ends, density)
+    poses = {fr.frame: BodyState.from_vector(w.y[None]) for fr, w in zip(frames, work, strict=True)}
+    ious = {fr.frame: silhouette_iou(body, poses[fr.frame], cameras, fr.masks) for fr in frames}
     mean_iou = float(np.mean([np.mean(list(v.values())) for v in ious.values()]))
     reference = float(np.nanmean([fr.iou for fr in frames]))
     kw = dict(
@@ -426,8 +529,10 @@ def fit_session_shape(
         reference_iou=reference,
         initial_cost=f0,
         cost=f_total,
-        iterations=accepted,
+        iterations=sum(d.steps for d in descents),
         covariance=how,
+        descents=len(descents),
+        descent_spread=spread,
     )
     alignments = {
         fr.frame: Alignment(w.cost_fn, w.y.copy(), w.pairs)
@@ -443,18 +548,28 @@ def fit_session_shape(
     summary = SessionShape(
         status="ok", method=METHOD, frames=used, seconds=time.perf_counter() - t0, **kw
     )
-    estimates = {f: StageEstimate(states[f], dict(bios), silhouette_iou=ious[f]) for f in states}
+    estimates = {f: StageEstimate(poses[f], dict(bios), silhouette_iou=ious[f]) for f in poses}
     log.info(
-        "session shape: %d frames, %d steps, mean IoU %.4f (per-frame fits %.4f), %.1f s "
-        "(%.1f s CPU)",
+        "session shape: %d frames, %d descents, %d steps, mean IoU %.4f (per-frame fits "
+        "%.4f), %.1f s (%.1f s CPU)",
         len(frames),
-        accepted,
+        len(descents),
+        summary.iterations,
         mean_iou,
         reference,
         summary.seconds,
         time.process_time() - cpu0,
     )
     return SessionShapeFit(summary, estimates, alignments)
+
+
+def _spread(body: BodyModel, ends: np.ndarray, density: float) -> dict[str, float]:
+    """Per measurement, the standard deviation over the shapes ``ends`` (K, n_shape)
+    (0 for one)."""
+    measured = [b.to_dict() for b in measure(body, ends, density=density)]
+    if len(measured) < 2:
+        return {k: 0.0 for k in measured[0]}
+    return {k: float(np.std([m[k] for m in measured], ddof=1)) for k in measured[0]}
 
 
 def _covariance(

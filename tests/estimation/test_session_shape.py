@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -154,6 +156,34 @@ def test_too_few_frames_are_skipped(scene):
         SessionShapeConfig(frame_scale=0.5)
 
 
+def test_descents_are_averaged_and_their_spread_is_in_the_standard_errors(scene):
+    """Several descents from jittered starts: one shared shape at their average, the
+    same result again with the same seed, and standard errors that hold the
+    spread of the end points over sqrt(K) (besides the frames' disagreement)."""
+    model, cameras = scene[:2]
+    frames = _frames(scene, np.random.default_rng(6), indices=range(3))
+    config = SessionShapeConfig(iterations=2, descents=3, jitter=0.02)
+    fit = fit_session_shape(model, cameras, frames, config=config)
+    s = fit.summary
+    assert s.ok and s.descents == 3 and s.covariance.endswith("spread of 3 descents")
+    assert set(s.descent_spread) == set(s.biometrics)
+    assert any(v > 0 for v in s.descent_spread.values())
+    for key, spread in s.descent_spread.items():
+        # The spread is measured on the end points themselves, the standard error
+        # propagated linearly from the shape's covariance: 10 % for the difference.
+        assert s.standard_errors[key] >= 0.9 * spread / np.sqrt(3), key
+    for est in fit.estimates.values():
+        np.testing.assert_allclose(est.state.nu[0], s.nu)
+    again = fit_session_shape(model, cameras, frames, config=config).summary
+    assert again.nu == s.nu and again.biometrics == s.biometrics
+    one = fit_session_shape(model, cameras, frames, config=replace(config, descents=1)).summary
+    assert one.descents == 1 and set(one.descent_spread.values()) == {0.0}
+    assert "spread" not in one.covariance
+    for bad in ({"descents": 0}, {"jitter": -1.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            SessionShapeConfig(**bad)
+
+
 def _linear_blocks(n_frames: int, rng: np.random.Generator) -> list[tuple]:
     """Gauss-Newton blocks of a linear model at its truth: per frame 40 pose and 3
     shared parameters, residual noise that differs from frame to frame."""
@@ -212,7 +242,9 @@ def _shape() -> SessionShape:
         initial_cost=2.0,
         cost=1.5,
         iterations=3,
-        covariance="cluster-robust (frames)",
+        covariance="cluster-robust (frames) + spread of 4 descents",
+        descents=4,
+        descent_spread={"height_mm": 0.3, "weight_kg": 0.05},
         seconds=1.2,
     )
 
