@@ -219,8 +219,9 @@ def stage_comparison(sessions: list[dict]) -> dict:
       mean's (negative: the session stage is nearer the truth), and ``z``, that
       difference over ``sqrt(se_session² + se_per_frame²)``, where the per-frame
       mean's standard error is its standard deviation over ``sqrt(n)`` and the
-      session's is the stage's own (cluster-robust). Both estimates come from the
-      same frames, so their errors are positively correlated and this ``z``
+      session's is the stage's own (a one-frame session has no per-frame standard
+      error: None, and the z uses the session's alone). Both estimates come from
+      the same frames, so their errors are positively correlated and this ``z``
       understates how distinguishable a difference is, in either direction;
     - ``sessions_at_least_as_accurate``: how many sessions have ``difference <= 0``;
       ``significantly_worse``: the sessions with ``z >= SIGNIFICANT_Z``.
@@ -246,14 +247,16 @@ def stage_comparison(sessions: list[dict]) -> dict:
                 continue
             pf, st = row["disc_generative"], row["session"]
             e_pf, e_s = pf["mean"] - row["actual"], st["mean"] - row["actual"]
-            se_pf = pf["std"] / np.sqrt(pf["n"]) if pf["n"] > 1 else np.nan
-            spread = float(np.hypot(se_pf, st["std"]))  # "std" of the session stage: its SE
+            # One frame has no spread to take a standard error from: the session's
+            # own standard error is then all the z has.
+            se_pf = pf["std"] / np.sqrt(pf["n"]) if pf["n"] > 1 else None
+            spread = float(np.hypot(se_pf or 0.0, st["std"]))  # the session's "std": its SE
             diff = abs(e_s) - abs(e_pf)
             rows.append(
                 {
                     "session": Path(s["session"]).name,
                     "per_frame_error": round(e_pf, 2),
-                    "per_frame_standard_error": round(float(se_pf), 2),
+                    "per_frame_standard_error": None if se_pf is None else round(se_pf, 2),
                     "session_error": round(e_s, 2),
                     "session_standard_error": round(st["std"], 2),
                     "difference": round(diff, 2),

@@ -1,5 +1,7 @@
 """The pipeline benchmark's comparison of the session stage with the per-frame mean."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -58,3 +60,14 @@ def test_sessions_without_a_session_stage_are_left_out():
     assert stage_comparison([plain]) == {}
     out = stage_comparison([plain, _session("a", {})])
     assert [r["session"] for r in out["height_mm"]["sessions"]] == ["a"]
+
+
+def test_a_one_frame_session_has_no_per_frame_standard_error():
+    """One frame: no spread to take the per-frame mean's standard error from; the z
+    uses the session's alone, and the table stays valid JSON (no NaN)."""
+    one = _session("one", {"height_mm": (2.0, 0.0, 3.0, 0.5)})
+    one["figure3"]["height_mm"]["disc_generative"]["n"] = 1
+    row = stage_comparison([one])["height_mm"]["sessions"][0]
+    assert row["per_frame_standard_error"] is None
+    assert row["z"] == pytest.approx(1.0 / 0.5)
+    json.dumps(stage_comparison([one]), allow_nan=False)
