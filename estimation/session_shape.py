@@ -342,11 +342,7 @@ def _descend(
 ) -> _Descent | None:
     """One joint Levenberg-Marquardt descent from ``states`` (F, 40 + n_shape), whose
     ν rows are equal; None when a frame has no contour there."""
-    work = []
-    for cost_fn, y in zip(costs, states, strict=True):
-        f, pairs = cost_fn.evaluate(y)
-        work.append(_Frame(cost_fn, y, f, pairs))
-    fs = np.array([w.f for w in work])
+    work, fs = _evaluated(costs, states)
     if not np.all(np.isfinite(fs)):
         return None
     nu = states[0, NU]
@@ -379,6 +375,15 @@ def _descend(
         weights = _frame_weights(np.array([w.f for w in work]), config.frame_scale)
         f_total = total(np.array([w.f for w in work]), nu)
     return _Descent(np.array([w.y for w in work]), f_total, accepted)
+
+
+def _evaluated(costs: Sequence[ContourCost], states: np.ndarray) -> tuple[list[_Frame], np.ndarray]:
+    """Every frame's working state at ``states`` (F, 40 + n_shape), and its costs (F,)."""
+    work = []
+    for cost_fn, y in zip(costs, states, strict=True):
+        f, pairs = cost_fn.evaluate(y)
+        work.append(_Frame(cost_fn, y, f, pairs))
+    return work, np.array([w.f for w in work])
 
 
 def _jittered(
@@ -462,7 +467,7 @@ def fit_session_shape(
         for fr in frames
     ]
     first = np.clip(np.c_[starts[:, :POSE_DIM], np.tile(start_nu, (len(frames), 1))], *bounds)
-    f_start = np.array([c.evaluate(y)[0] for c, y in zip(costs, first, strict=True)])
+    f_start = _evaluated(costs, first)[1]
     if not np.all(np.isfinite(f_start)):
         bad = [fr.frame for fr, c in zip(frames, f_start, strict=True) if not np.isfinite(c)]
         return give_up(f"failed: no contour in frames {bad}")
@@ -495,11 +500,7 @@ def fit_session_shape(
     # The average of the end points (one shared ν: the ν rows stay equal).
     states = np.clip(np.mean([d.states for d in descents], axis=0), *bounds)
     nu = states[0, NU]
-    work = []
-    for cost_fn, y in zip(costs, states, strict=True):
-        f, pairs = cost_fn.evaluate(y)
-        work.append(_Frame(cost_fn, y, f, pairs))
-    fs = np.array([w.f for w in work])
+    work, fs = _evaluated(costs, states)
     if not np.all(np.isfinite(fs)):
         bad = [fr.frame for fr, c in zip(frames, fs, strict=True) if not np.isfinite(c)]
         return give_up(f"failed: no contour in frames {bad} at the averaged shape")
