@@ -6,6 +6,7 @@ Results are printed and written as JSON to ``benchmarks/results/<name>.json``
 
 from __future__ import annotations
 
+import datetime
 import importlib
 import json
 import os
@@ -53,7 +54,7 @@ def main(argv: list[str]) -> int:
     for name in names:
         module = importlib.import_module(REPORTS.get(name, f"benchmarks.bench_{name}"))
         result = module.run(**flags)
-        result["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count()}
+        result["machine"] = _machine()
         text = json.dumps(result, indent=2)
         print(f"== {name}\n{text}")
         # A flagged run is another benchmark's result: pipeline --independent ->
@@ -61,6 +62,29 @@ def main(argv: list[str]) -> int:
         suffix = "".join(f"_{f}" for f in sorted(flags))
         (out_dir / f"{name}{suffix}.json").write_text(text + "\n")
     return 0
+
+
+def _machine() -> dict:
+    """What ran the benchmark: results differ in their last digits between CPUs
+    (README, "The same code on three machines"), so the CPU and its widest vector
+    instructions are recorded beside the date."""
+    model, flags = platform.processor() or platform.machine(), set()
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():
+        for line in cpuinfo.read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name":
+                model = value.strip()
+            elif key.strip() == "flags":
+                flags = set(value.split())
+    simd = next((f for f in ("avx512f", "avx2", "sse4_2") if f in flags), None)
+    return {
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "cpu": model,
+        "simd": simd,
+        "date": datetime.date.today().isoformat(),
+    }
 
 
 if __name__ == "__main__":
