@@ -5,7 +5,7 @@ descends from the per-frame fits in a few joint Levenberg-Marquardt steps. Its
 contour cost is piecewise: which model edges are on the contour, and which
 outline point each is paired with, change in jumps. Differences in the last
 digits of the starts, such as two CPUs' floating point produce (README, "The
-same code on two machines"), can therefore end a descent elsewhere. The stage
+same code on three machines"), can therefore end a descent elsewhere. The stage
 averages several descents from jittered starts (``session_shape.descents``) and
 adds their spread to its standard error; this benchmark measures what that buys.
 
