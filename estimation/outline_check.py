@@ -236,17 +236,20 @@ def check_outline(
     warnings = []
     # Coarse pixels: the figures are kept, but they decide nothing.
     if not coarse and np.isfinite(trunk) and trunk > config.loose_mm:
+        note = _borderline(trunk, trunk_se, config.loose_mm)
         warnings.append(
             f"loose clothing likely: the silhouettes lie {_mm(trunk, trunk_se)} "
             "further outside the fitted body at the trunk than at the forearms and shins "
-            f"(tight clothing: under {config.loose_mm:g} mm); the weight, circumferences "
-            "and widths are probably overstated"
+            f"(tight clothing: under {config.loose_mm:g} mm{note}); the weight, "
+            "circumferences and widths are probably overstated"
         )
     if not coarse and np.isfinite(crown) and crown > config.crown_mm:
+        note = _borderline(crown, crown_se, config.crown_mm)
         warnings.append(
             f"hair or headwear likely: the silhouettes lie {_mm(crown, crown_se)} "
             "further outside the fitted body at the crown than at the forearms and shins "
-            f"(bare head: under {config.crown_mm:g} mm); the height is probably overstated"
+            f"(bare head: under {config.crown_mm:g} mm{note}); the height is probably "
+            "overstated"
         )
     if not np.isfinite(mm_per_px):
         status = "no contour"
@@ -273,6 +276,14 @@ def check_outline(
 def _mm(value: float, se: float) -> str:
     """``"3.4 ± 0.6 mm"``; without the ± when one frame gives no standard error."""
     return f"{value:.1f} ± {se:.1f} mm" if np.isfinite(se) else f"{value:.1f} mm"
+
+
+def _borderline(value: float, se: float, threshold: float) -> str:
+    """A note for a warning whose figure lies within one standard error above its
+    threshold: the frames do not settle the verdict (empty otherwise)."""
+    if np.isfinite(se) and value - se <= threshold:
+        return "; borderline: within one standard error of it"
+    return ""
 
 
 def _median(values: Sequence[float]) -> float:

@@ -236,3 +236,13 @@ def test_one_frame_warns_without_a_standard_error(scene):
     assert np.isnan(check.trunk_excess_se_mm)
     (warning,) = [w for w in check.warnings if w.startswith("loose clothing likely")]
     assert "nan" not in warning and f"{check.trunk_excess_mm:.1f} mm further" in warning
+
+
+def test_a_warning_within_one_standard_error_of_its_threshold_says_so():
+    """A figure above its threshold by less than its standard error: the warning
+    stands, and says the frames do not settle it."""
+    from bodymetry.estimation.outline_check import _borderline
+
+    assert _borderline(3.3, 1.3, 3.2).startswith("; borderline")
+    assert _borderline(5.0, 1.3, 3.2) == ""
+    assert _borderline(3.3, float("nan"), 3.2) == ""  # one frame: no standard error
