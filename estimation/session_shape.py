@@ -30,12 +30,12 @@ it jittered by ``jitter`` (seeded), and reports their average: the states are
 averaged frame by frame (the shape rows stay one shared ν), and the
 correspondences, IoUs and covariance are those of the averaged state.
 
-The result is accepted only when it keeps
-the frames' silhouette overlap: the mean IoU over the frames (the level of
-detail, as the quality gate measures it) may drop by at most
-``max_iou_drop`` from the per-frame fits' (a shared shape has fewer degrees
-of freedom than a shape per frame; a larger drop means it does not explain the
-frames); otherwise the status says why and the stage's estimate is withheld.
+The result is accepted only when it keeps the frames' silhouette overlap: the
+mean IoU over the frames (the level of detail, as the quality gate measures it)
+may drop by at most ``max_iou_drop`` from the per-frame fits' (a shared shape
+has fewer degrees of freedom than a shape per frame; a larger drop means it
+does not explain the frames); otherwise the status says why and the stage's
+estimate is withheld.
 
 Uncertainty (docs/session-shape.md): the covariance of ν is the cluster-robust
 (sandwich) Gauss-Newton covariance with the frames as clusters,
