@@ -420,7 +420,10 @@ def state_bounds(model: BodyModel) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def _weighted_estimate(Y: np.ndarray, w: np.ndarray) -> np.ndarray:
+def weighted_estimate(Y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The weighted mean (40 + n_shape,) of states ``Y`` (N, 40 + n_shape) under
+    weights ``w`` (N,) summing to 1; the heading (yaw), which wraps at ±π, as a
+    circular mean."""
     est = w @ Y
     yaw = THETA.start + YAW
     est[yaw] = np.arctan2(w @ np.sin(Y[:, yaw]), w @ np.cos(Y[:, yaw]))
@@ -482,7 +485,7 @@ def anneal(
         # the layer's mean (0 x -inf is NaN); finite terms are summed as before.
         layer_ll.append(float(w @ np.where(w > 0, ll, 0.0)))
         layer_beta.append(beta)
-    est = _weighted_estimate(Y, w)
+    est = weighted_estimate(Y, w)
     return AnnealingResult(
         BodyState.from_vector(est[None]),
         Y,

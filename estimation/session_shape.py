@@ -65,7 +65,7 @@ import numpy as np
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
 from bodymetry.estimation.body_model.model import NU, POSE_DIM, BodyModel, BodyState
-from bodymetry.estimation.generative import state_bounds
+from bodymetry.estimation.generative import state_bounds, weighted_estimate
 from bodymetry.estimation.projection import project_silhouettes, view_ious
 from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape, StageEstimate
 from bodymetry.estimation.refinement import (
@@ -497,8 +497,11 @@ def fit_session_shape(
         descents.append(end)
     if progress:
         progress("session shape", steps_total, steps_total)
-    # The average of the end points (one shared ν: the ν rows stay equal).
-    states = np.clip(np.mean([d.states for d in descents], axis=0), *bounds)
+    # The average of the end points, frame by frame (one shared ν: the ν rows stay
+    # equal; the heading as a circular mean).
+    ends_f = np.stack([d.states for d in descents], axis=1)  # (F, K, 40 + n_shape)
+    even = np.full(len(descents), 1.0 / len(descents))
+    states = np.clip(np.array([weighted_estimate(Y, even) for Y in ends_f]), *bounds)
     nu = states[0, NU]
     work, fs = _evaluated(costs, states)
     if not np.all(np.isfinite(fs)):

@@ -163,3 +163,17 @@ def test_likelihood_batches_do_not_change_the_vertices(setup, monkeypatch):
     whole = model.pose(states, lod=True).vertices
     parts = [model.pose(states[s : s + 64], lod=True).vertices for s in range(0, 150, 64)]
     assert np.array_equal(whole, np.concatenate(parts))
+
+
+def test_the_weighted_estimate_takes_the_heading_around_the_circle():
+    """Two states facing almost backwards, one each side of ±π: their mean faces
+    backwards (not forwards, as a plain mean of -3.13 and +3.13 would); every
+    other value is the plain weighted mean."""
+    from bodymetry.estimation.body_model.skeleton import YAW
+
+    Y = np.zeros((2, 49))
+    Y[:, 0] = [1.0, 3.0]
+    Y[0, THETA.start + YAW], Y[1, THETA.start + YAW] = 3.13, -3.13
+    est = generative.weighted_estimate(Y, np.array([0.5, 0.5]))
+    assert abs(abs(est[THETA.start + YAW]) - np.pi) < 1e-9
+    assert est[0] == pytest.approx(2.0)
