@@ -9,7 +9,7 @@ import pytest
 from bodymetry.review.accuracy import SESSION_ACCURACY
 
 RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
-FILES = ("pipeline_independent.json", "pipeline_validation.json")
+FILES = ("pipeline_independent.json", "pipeline_validation.json", "pipeline_heavy.json")
 
 
 def _tight_sessions() -> list[dict]:
