@@ -71,3 +71,29 @@ def test_a_one_frame_session_has_no_per_frame_standard_error():
     assert row["per_frame_standard_error"] is None
     assert row["z"] == pytest.approx(1.0 / 0.5)
     json.dumps(stage_comparison([one]), allow_nan=False)
+
+
+def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodies():
+    """The held-out and heavy sets are only held out if no other set used their seeds
+    or, for subjects the model was not built from, their bank bodies."""
+    from benchmarks.bench_pipeline import (
+        HEAVY_SESSIONS,
+        HELD_OUT_SESSIONS,
+        INDEPENDENT_SESSIONS,
+        SESSIONS,
+        VALIDATION_SESSIONS,
+    )
+    from bodymetry.studio.independent import IndependentSpec, committed_bank
+
+    sets = (SESSIONS, HELD_OUT_SESSIONS, INDEPENDENT_SESSIONS, VALIDATION_SESSIONS, HEAVY_SESSIONS)
+    seeds = [s[0] for group in sets for s in group]
+    assert len(seeds) == len(set(seeds))
+    n = len(committed_bank())
+
+    def bodies(group):
+        return {IndependentSpec.parse(s[2].split(":", 1)[1]).index(n) for s in group}
+
+    independent, validation, heavy = (
+        bodies(g) for g in (INDEPENDENT_SESSIONS, VALIDATION_SESSIONS, HEAVY_SESSIONS)
+    )
+    assert not independent & validation and not heavy & (independent | validation)
