@@ -331,25 +331,28 @@ class _Descent:
     steps: int
 
 
+def _session_cost(weights: np.ndarray, fs: np.ndarray, nu: np.ndarray, prior: float) -> float:
+    """The session's cost: the frames' contour costs ``fs`` (F,) under their robust
+    weights (F,), plus the shape prior on the shared ν, once."""
+    return float(weights @ fs + prior * nu @ nu)
+
+
 def _descend(
-    costs: Sequence[ContourCost],
-    states: np.ndarray,
+    work: list[_Frame],
     prior: float,
     bounds: tuple[np.ndarray, np.ndarray],
     config: SessionShapeConfig,
     step: np.ndarray,
     tick: Callable[[], None],
-) -> _Descent | None:
-    """One joint Levenberg-Marquardt descent from ``states`` (F, 40 + n_shape), whose
-    ν rows are equal; None when a frame has no contour there."""
-    work, fs = _evaluated(costs, states)
-    if not np.all(np.isfinite(fs)):
-        return None
-    nu = states[0, NU]
+) -> _Descent:
+    """One joint Levenberg-Marquardt descent from ``work`` (:func:`_evaluated` at
+    states whose ν rows are equal, every cost finite); updates it in place."""
+    fs = np.array([w.f for w in work])
+    nu = work[0].y[NU]
     weights = _frame_weights(fs, config.frame_scale)
 
     def total(fs: np.ndarray, shape: np.ndarray) -> float:
-        return float(weights @ fs + prior * shape @ shape)
+        return _session_cost(weights, fs, shape, prior)
 
     f_total = total(fs, nu)
     damping, accepted = Damping(), 0
@@ -467,13 +470,13 @@ def fit_session_shape(
         for fr in frames
     ]
     first = np.clip(np.c_[starts[:, :POSE_DIM], np.tile(start_nu, (len(frames), 1))], *bounds)
-    f_start = _evaluated(costs, first)[1]
+    start, f_start = _evaluated(costs, first)
     if not np.all(np.isfinite(f_start)):
         bad = [fr.frame for fr, c in zip(frames, f_start, strict=True) if not np.isfinite(c)]
         return give_up(f"failed: no contour in frames {bad}")
     prior = refinement.shape_prior
     step = difference_steps(refinement, n_shape)
-    f0 = float(_frame_weights(f_start, config.frame_scale) @ f_start + prior * start_nu @ start_nu)
+    f0 = _session_cost(_frame_weights(f_start, config.frame_scale), f_start, start_nu, prior)
     steps_total = config.descents * config.iterations
     ticks = iter(range(steps_total))
 
@@ -489,12 +492,14 @@ def fit_session_shape(
     rng = np.random.default_rng(config.seed)
     descents = []
     for k in range(config.descents):
-        begin = first if k == 0 else _jittered(first, config.jitter, rng, bounds)
-        end = _descend(costs, begin, prior, bounds, config, step, tick)
-        if end is None:
+        # The first descent starts where the start was just evaluated.
+        work = (
+            start if k == 0 else _evaluated(costs, _jittered(first, config.jitter, rng, bounds))[0]
+        )
+        if not all(np.isfinite(w.f) for w in work):
             log.info("session shape: descent %d started where a frame has no contour", k)
             continue
-        descents.append(end)
+        descents.append(_descend(work, prior, bounds, config, step, tick))
     if progress:
         progress("session shape", steps_total, steps_total)
     # The average of the end points, frame by frame (one shared ν: the ν rows stay
@@ -508,7 +513,7 @@ def fit_session_shape(
         bad = [fr.frame for fr, c in zip(frames, fs, strict=True) if not np.isfinite(c)]
         return give_up(f"failed: no contour in frames {bad} at the averaged shape")
     weights = _frame_weights(fs, config.frame_scale)
-    f_total = float(weights @ fs + prior * nu @ nu)
+    f_total = _session_cost(weights, fs, nu, prior)
     cov, how = _covariance(_blocks(work, step), weights, prior, n_shape)
     # The average of K end points scatters by their spread / sqrt(K).
     ends = np.array([d.states[0, NU] for d in descents])
