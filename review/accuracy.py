@@ -5,10 +5,11 @@ frames agree (and how far the stage's descents spread), not what they share
 (our body model's posing and shape space, the segmentation). What those shared
 errors came to was measured on studio subjects whose geometry the body model
 was not built from, in tight clothing (``python -m benchmarks pipeline
---independent``, ``--validation`` and ``--heavy``; README, "Accuracy"): the report quotes it
-beside each of the three core measurements, with where it comes from, so that a
-reader can weigh a difference between two sessions. Real footage adds its own
-errors (lighting, clothing, calibration), which studio renders cannot measure.
+--independent``, ``--validation`` and ``--heavy``; README, "Accuracy"): the
+report quotes it beside each of the three core measurements, with where it
+comes from, so that a reader can weigh a difference between two sessions. Real
+footage adds its own errors (lighting, clothing, calibration), which studio
+renders cannot measure.
 
 The figures are those of the committed benchmark results;
 ``tests/review/test_accuracy.py`` recomputes them from
