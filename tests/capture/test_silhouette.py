@@ -23,6 +23,7 @@ from bodymetry.capture.silhouette import (
     background_models,
     clean_mask,
     overlay,
+    refine_edges,
     segment_session,
 )
 from bodymetry.capture.toy import ToyScene, toy_background, toy_frame, write_toy_session
@@ -241,3 +242,54 @@ def test_camera_order_does_not_change_the_masks(toy: Path, tmp_path: Path) -> No
         assert x.flags == y.flags[::-1]
         for u, v in zip(x.masks, y.masks[::-1], strict=True):
             np.testing.assert_array_equal(u, v)
+
+
+# --------------------------------------------------------------------------
+# Edge refinement
+# --------------------------------------------------------------------------
+def _blurred_edge(person: tuple, background: tuple, sigma: float = 1.5):
+    """A vertical straight edge: columns < 50 are the person (pixel centres), blurred by
+    ``sigma`` px as optics and compression blur it; the true mask and the image."""
+    truth = np.zeros((60, 100), bool)
+    truth[:, :50] = True
+    img = np.where(truth[..., None], np.float32(person), np.float32(background))
+    img = cv2.GaussianBlur(img.astype(np.float32), (0, 0), sigma)
+    return truth, np.clip(img + 0.5, 0, 255).astype(np.uint8), np.float32(background)
+
+
+@pytest.mark.parametrize(
+    ("person", "background"),
+    [((40, 30, 150), (200, 190, 180)), ((220, 210, 200), (40, 50, 60))],
+)
+def test_refine_edges_puts_a_blurred_edge_where_half_the_pixel_is_person(person, background):
+    # Known answer: the threshold's mask is 2 px too wide (as the change threshold
+    # makes it); the refined outline must lie on the true one (half-coverage) along
+    # the whole edge, dark person on light background and the reverse. A single pass
+    # takes the person's colour from an interior that holds mixed edge pixels and
+    # keeps the first outside column (alpha 0.37 here).
+    truth, img, bg = _blurred_edge(person, background)
+    wide = np.zeros_like(truth)
+    wide[:, :52] = True
+    bg_img = np.broadcast_to(bg, img.shape).copy()
+    out = refine_edges(img, bg_img, wide, radius=2, window=7)
+    rows = slice(10, 50)  # away from the image's top and bottom
+    np.testing.assert_array_equal(out[rows], truth[rows])
+    # Invariance: the same edge transposed (horizontal) gives the transposed answer.
+    out_t = refine_edges(
+        img.transpose(1, 0, 2).copy(), bg_img.transpose(1, 0, 2).copy(), wide.T.copy(), 2, 7
+    )
+    np.testing.assert_array_equal(out_t[:, rows], truth.T[:, rows])
+
+
+def test_refine_edges_never_adds_shadow_and_keeps_an_empty_mask():
+    truth, img, bg = _blurred_edge((40, 30, 150), (200, 190, 180))
+    bg_img = np.broadcast_to(bg, img.shape).copy()
+    narrow = np.zeros_like(truth)
+    narrow[:, :48] = True  # 2 px too narrow: refinement grows it back to column 49...
+    shadow = np.zeros_like(truth)
+    shadow[:30, 48:50] = True  # ...except where those pixels are labelled shadow
+    out = refine_edges(img, bg_img, narrow, 2, 7, shadow)
+    assert out[40:50, :50].all() and not out[40:50, 50:].any()
+    assert not out[:30, 48:].any() and out[:30, :48].all()
+    empty = np.zeros_like(truth)
+    assert not refine_edges(img, bg_img, empty).any()
