@@ -74,9 +74,10 @@ def test_a_one_frame_session_has_no_per_frame_standard_error():
 
 
 def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodies():
-    """The held-out and heavy sets are only held out if no other set used their seeds
+    """The held-out, heavy and fresh sets are only held out if no other set used their seeds
     or, for subjects the model was not built from, their bank bodies."""
     from benchmarks.bench_pipeline import (
+        FRESH_SESSIONS,
         HEAVY_SESSIONS,
         HELD_OUT_SESSIONS,
         INDEPENDENT_SESSIONS,
@@ -85,7 +86,14 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
     )
     from bodymetry.studio.independent import IndependentSpec, committed_bank
 
-    sets = (SESSIONS, HELD_OUT_SESSIONS, INDEPENDENT_SESSIONS, VALIDATION_SESSIONS, HEAVY_SESSIONS)
+    sets = (
+        SESSIONS,
+        HELD_OUT_SESSIONS,
+        INDEPENDENT_SESSIONS,
+        VALIDATION_SESSIONS,
+        HEAVY_SESSIONS,
+        FRESH_SESSIONS,
+    )
     seeds = [s[0] for group in sets for s in group]
     assert len(seeds) == len(set(seeds))
     n = len(committed_bank())
@@ -93,7 +101,9 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
     def bodies(group):
         return {IndependentSpec.parse(s[2].split(":", 1)[1]).index(n) for s in group}
 
-    independent, validation, heavy = (
-        bodies(g) for g in (INDEPENDENT_SESSIONS, VALIDATION_SESSIONS, HEAVY_SESSIONS)
+    independent, validation, heavy, fresh = (
+        bodies(g)
+        for g in (INDEPENDENT_SESSIONS, VALIDATION_SESSIONS, HEAVY_SESSIONS, FRESH_SESSIONS)
     )
     assert not independent & validation and not heavy & (independent | validation)
+    assert not fresh & (independent | validation | heavy) and len(fresh) == len(FRESH_SESSIONS)
