@@ -5,7 +5,7 @@ frames agree (and how far the stage's descents spread), not what they share
 (our body model's posing and shape space, the segmentation). What those shared
 errors came to was measured on studio subjects whose geometry the body model
 was not built from, in tight clothing (``python -m benchmarks pipeline
---independent``, ``--validation`` and ``--heavy``; README, "Accuracy"): the
+--independent``, ``--validation``, ``--heavy`` and ``--fresh``; README, "Accuracy"): the
 report quotes it beside each of the three core measurements, with where it
 comes from, so that a reader can weigh a difference between two sessions. Real
 footage adds its own errors (lighting, clothing, calibration), which studio
@@ -13,8 +13,9 @@ renders cannot measure.
 
 The figures are those of the committed benchmark results;
 ``tests/review/test_accuracy.py`` recomputes them from
-``benchmarks/results/pipeline_independent.json``, ``pipeline_validation.json`` and
-``pipeline_heavy.json``, so they cannot drift from what was measured.
+``benchmarks/results/pipeline_independent.json``, ``pipeline_validation.json``,
+``pipeline_heavy.json`` and ``pipeline_fresh.json``, so they cannot drift from what was
+measured.
 """
 
 from __future__ import annotations
@@ -46,21 +47,23 @@ class MeasuredAccuracy:
     sessions: int
 
 
-#: Per core measurement (results.json key): the session stage's error on the eight
+#: Per core measurement (results.json key): the session stage's error on the eleven
 #: tight-clothed studio subjects the model was not built from (seeds 42, 43, 49, the
-#: held-out 71, 72 and the heavy 81, 82, 83; 16 kept frames each), benchmark runs of the
-#: evening of 2026-12-02 with the session stage averaging 4 descents. Other machines
+#: held-out 71, 72, the heavy 81, 82, 83 and the fresh 91, 92, 96; 16 kept frames each),
+#: benchmark runs of 2026-12-03 with the session stage averaging 4 descents and the
+#: edge refinement's second pass. Other machines
 #: running the same code give values a few millimetres and a few tenths of a kilogram
 #: apart (README, "The same code on three machines").
 SESSION_ACCURACY: dict[str, MeasuredAccuracy] = {
-    "height_mm": MeasuredAccuracy(rms=3.8, worst=9.1, bias=2.7, sessions=8),
-    "arm_span_mm": MeasuredAccuracy(rms=7.5, worst=12.8, bias=-5.5, sessions=8),
-    "weight_kg": MeasuredAccuracy(rms=1.2, worst=1.7, bias=0.7, sessions=8),
+    "height_mm": MeasuredAccuracy(rms=3.4, worst=7.5, bias=2.0, sessions=11),
+    "arm_span_mm": MeasuredAccuracy(rms=8.8, worst=14.5, bias=-6.9, sessions=11),
+    "weight_kg": MeasuredAccuracy(rms=0.8, worst=1.2, bias=0.3, sessions=11),
 }
 
 #: Where :data:`SESSION_ACCURACY` comes from, for the report.
 SOURCE = (
-    "the error of the session stage on 8 studio subjects whose bodies the model was not built "
-    "from, in tight clothing (python -m benchmarks pipeline --independent, --validation and "
-    "--heavy, 2026-12-02); real footage adds errors that studio renders cannot measure"
+    "the error of the session stage on 11 studio subjects whose bodies the model was not built "
+    "from, in tight clothing (python -m benchmarks pipeline --independent, --validation, "
+    "--heavy and --fresh, 2026-12-03); real footage adds errors that studio renders cannot "
+    "measure"
 )
