@@ -441,26 +441,21 @@ def refine_edges(
     pad = radius + window
     y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, h)
     x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, w)
-    m = mask[y0:y1, x0:x1].astype(np.uint8)
+    inside = mask[y0:y1, x0:x1]
+    m = inside.astype(np.uint8)
     img = image[y0:y1, x0:x1].astype(np.float32)
     d_background = ((img - background[y0:y1, x0:x1]) ** 2).sum(axis=2)
     disc = _disc(radius)
     band = (cv2.dilate(m, disc) > 0) & ~(cv2.erode(m, disc) > 0)
-    keep_out = None if shadow is None else shadow[y0:y1, x0:x1] & ~mask[y0:y1, x0:x1]
-    first, has_interior = _nearer_person(img, d_background, m.astype(bool), window)
-    first &= has_interior
-    if keep_out is not None:
-        first &= ~keep_out
-    decided = np.where(band, first, m.astype(bool))
-    second, has_interior = _nearer_person(img, d_background, decided, window)
+    allowed = True if shadow is None else ~(shadow[y0:y1, x0:x1] & ~inside)
+    first, has_interior = _nearer_person(img, d_background, inside, window)
+    first &= has_interior & allowed
+    second, has_interior = _nearer_person(img, d_background, np.where(band, first, inside), window)
     # Where the refined interior leaves no pixel in the window (a hand, a wrist),
     # the first answer stands.
-    second = np.where(has_interior, second, first)
-    if keep_out is not None:
-        second &= ~keep_out
-    decided = np.where(band, second, m.astype(bool))
+    second = np.where(has_interior, second & allowed, first)
     out = mask.copy()
-    out[y0:y1, x0:x1] = decided
+    out[y0:y1, x0:x1] = np.where(band, second, inside)
     return out
 
 

@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.bench_pipeline import _outfit
 from bodymetry.review.accuracy import SESSION_ACCURACY
 
 RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
@@ -21,8 +22,7 @@ def _tight_sessions() -> list[dict]:
     sessions = []
     for name in FILES:
         data = json.loads((RESULTS / name).read_text())
-        # Loose-clothed sessions are named ..._loose (bench_pipeline._outfit).
-        sessions += [s for s in data["sessions"] if not s["session"].endswith("_loose")]
+        sessions += [s for s in data["sessions"] if _outfit(Path(s["session"]).name) == "tight"]
     return sessions
 
 
