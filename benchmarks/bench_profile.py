@@ -46,8 +46,8 @@ from bodymetry.estimation import generative, raster
 from bodymetry.estimation.body_model import scape
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.resolution import WorkingResolution
-from bodymetry.frame_jobs import fit_job, run_fit_job
-from bodymetry.process import rig_models
+from bodymetry.estimation.training import cached_models_path, load_or_train
+from bodymetry.frame_jobs import FitJob, run_fit_job
 
 #: Compiled kernels named by function (their module serves several categories).
 KERNELS = {
@@ -131,13 +131,26 @@ def run() -> dict:
     session = load_session(DEMO_SESSION)
     resolution = WorkingResolution.choose(session.calibration(), config.working_person_px)
     cameras = resolution.apply(session.calibration())
-    models = rig_models(cameras, config)
+    models, _ = load_or_train(cameras, config.training, config.cache_dir)
+    models_path = cached_models_path(models.key, config.cache_dir)
     shared_body_model()  # loaded outside the profile
     kept = list(segment_session(session, keep_images=False))
     # Spread the frames over the recording (standing, walking, arms raised).
     step = max(1, len(kept) // n_frames)
     frames = kept[::step][:n_frames]
-    jobs = [fit_job(sil, cameras, resolution, models.path, config.fit) for sil in frames]
+    names = [c.name for c in cameras]
+    jobs = [
+        FitJob(
+            sil.frame,
+            resolution.downscale(names, sil.masks),
+            [list(f) for f in sil.flags],
+            cameras,
+            models_path,
+            config.fit,
+            sil.landmarks,
+        )
+        for sil in frames
+    ]
     # CPU time of this process, for the profile and the total: on a machine shared
     # with other jobs, wall time counts their share of the cores too.
     profiler = cProfile.Profile(time.process_time)

@@ -39,7 +39,8 @@ def long_functions(limit: int = LONG) -> list[dict]:
             if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
                 n = node.end_lineno - node.lineno + 1
                 if n > limit:
-                    out.append({"where": f"{_rel(path)}:{node.lineno}", "name": node.name, "lines": n})
+                    where = f"{_rel(path)}:{node.lineno}"
+                    out.append({"where": where, "name": node.name, "lines": n})
     return sorted(out, key=lambda f: -f["lines"])
 
 

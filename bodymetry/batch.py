@@ -1,19 +1,16 @@
 """``bodymetry batch``: many sessions on Dask, from one laptop to a cluster.
 
-The study's work is a Dask task graph at the grain that balances (docs/batch.md):
-
-- per session: the up-front check, the run folder and the cameras
-  (:func:`bodymetry.process.prepare_run`), then which frames are still to do;
-- per distinct rig: the discriminative models, trained once (a task keyed by
-  the rig's cache key, so sessions on one rig share it) into the model cache
-  that every worker reads;
-- per session: the background models (once, kept on the cluster);
-- per kept frame: its silhouettes (that frame only, read by seeking) and its
-  fit, written into the session's run folder exactly as ``bodymetry process``
-  writes it;
-- per session: the summary (``results.json``) and the review outputs;
-- then ``study.json`` and the cohort table and report (``cohort.csv``,
-  ``cohort.html``).
+Every session runs the step graph of ``bodymetry process``
+(:func:`bodymetry.pipeline.run_session`) on one
+:class:`~bodymetry.executors.DaskExecutor`: the same steps, as Dask tasks at the
+grain that balances (docs/batch.md): per session the up-front check, the plan
+and the background models; per distinct rig the discriminative models, trained
+once (a task keyed by the rig's cache key, so sessions on one rig share it) into
+the model cache that every worker reads; per kept frame its silhouettes (that
+frame only, read by seeking, segmented once) and its fit, written into the
+session's run folder; per session the rescue, the summary (``results.json``) and
+the review outputs. Then ``study.json`` and the cohort table and report
+(``cohort.csv``, ``cohort.html``).
 
 Each session's results land in ``STUDY/<session>/`` exactly as
 ``bodymetry process --out STUDY/<session>`` would write them. A rerun of the
@@ -27,48 +24,27 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import multiprocessing as mp
 import os
+import threading
 import time
-import uuid
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import as_completed as futures_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import dask
-from distributed import Client, Future, LocalCluster, as_completed
+from distributed import Client, LocalCluster
 
-from bodymetry.capture.background import BackgroundModel
-from bodymetry.capture.ingest import SyncReport, check_sync
 from bodymetry.capture.session import SESSION_FILE
-from bodymetry.capture.silhouette import background_models, segment_session
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import (
-    FrameRecord,
-    RunResults,
-    StudyResults,
-    StudySession,
-)
-from bodymetry.estimation.training import rig_key
+from bodymetry.estimation.records import RunResults, StudyResults, StudySession
+from bodymetry.executors import DaskExecutor
 from bodymetry.fileio import read_text_limited, write_json_atomic
-from bodymetry.frame_jobs import (
-    fit_job,
-    read_done_frames,
-    rescue_poor_frames,
-    run_fit_job,
-    write_frame,
-)
 from bodymetry.log import Progress
-from bodymetry.process import (
-    PreparedRun,
-    RigModels,
-    check_calibration,
-    finish_run,
-    prepare_run,
-    rig_models,
-)
+from bodymetry.pipeline import SessionRun, run_session
 from bodymetry.review.cohort import write_cohort
 
 log = logging.getLogger(__name__)
@@ -82,6 +58,8 @@ __all__ = [
     "run_names",
 ]
 
+#: Sessions in flight at once (each a thread here that waits on its steps).
+MAX_SESSION_THREADS = 32
 #: A list of sessions given as a file is read whole; it is small.
 SESSION_LIST_MAX_BYTES = 1 << 20
 STUDY_FILE = "study.json"
@@ -143,133 +121,6 @@ def run_names(sessions: Sequence[Path]) -> list[str]:
         seen[base] = seen.get(base, 0) + 1
         names.append(base if seen[base] == 1 else f"{base}-{seen[base]}")
     return names
-
-
-# --- the tasks (module level: workers import them by name) ------------------------------------
-@dataclass(frozen=True)
-class SessionPlan:
-    """What is left to do in a session's run folder.
-
-    Attributes
-    ----------
-    report : SyncReport
-        The session's videos and kept frames (probed once, reused by its tasks).
-    done : dict of int to FrameRecord
-        Frames already recorded whole.
-    finished : bool
-        ``results.json`` holds every kept frame and the review is written: nothing to do.
-    """
-
-    report: SyncReport
-    done: dict[int, FrameRecord]
-    finished: bool
-
-    @property
-    def kept(self) -> tuple[int, ...]:
-        """The session's kept frames."""
-        return tuple(int(f) for f in self.report.kept)
-
-    @property
-    def pending(self) -> list[int]:
-        return [f for f in self.kept if f not in self.done]
-
-
-def _prepare_task(
-    session_path: Path, out: Path, config: ProcessConfig, restart: bool
-) -> PreparedRun:
-    prepared = prepare_run(session_path, out, config, restart=restart)
-    if not (config.capture.landmarks.refine_calibration and config.capture.uses_segmenter):
-        return prepared
-    # The calibration check needs every kept frame's landmarks before any frame is
-    # fitted (as in `process`); the frame tasks segment their frame again.
-    views = [
-        sil.view_landmarks
-        for sil in segment_session(
-            prepared.session, config=config.capture, cameras=prepared.calibrated, keep_images=False
-        )
-    ]
-    return check_calibration(prepared, views, config)
-
-
-def _train_task(prepared: PreparedRun, config: ProcessConfig) -> RigModels:
-    # A worker of a cluster started with `dask worker` is a daemon process, which
-    # may not start processes: it trains in its own process (a local cluster's
-    # workers are not daemons and render the training set in parallel).
-    workers = 1 if mp.current_process().daemon else None
-    return rig_models(prepared.cameras, config, workers=workers)
-
-
-def _plan_task(prepared: PreparedRun, config: ProcessConfig) -> SessionPlan:
-    report = check_sync(prepared.session)
-    kept = {int(f) for f in report.kept}
-    layout = prepared.layout
-    done = read_done_frames(layout)
-    finished = False
-    if layout.results.is_file() and set(done) == kept:
-        try:
-            recorded = RunResults.read(layout.results)
-            finished = {r.frame for r in recorded.frames} == kept and (
-                not config.review or all(p.is_file() for p in layout.review_files)
-            )
-        except InputError as exc:
-            log.warning("%s; summarizing the run again", exc)
-    return SessionPlan(report, done, finished)
-
-
-def _background_task(
-    prepared: PreparedRun, plan: SessionPlan, config: ProcessConfig
-) -> list[BackgroundModel | None]:
-    median = not config.capture.uses_segmenter
-    return list(background_models(prepared.session, plan.report, method="seek", median=median))
-
-
-def _frame_task(
-    prepared: PreparedRun,
-    plan: SessionPlan,
-    bg: list[BackgroundModel | None],
-    models: RigModels,
-    frame: int,
-    config: ProcessConfig,
-) -> FrameRecord:
-    # One frame, read by seeking: the silhouettes never travel between machines.
-    (sil,) = segment_session(
-        prepared.session,
-        config=config.capture,
-        cameras=prepared.calibrated,
-        report=plan.report,
-        models=bg,
-        frames=[frame],
-        read_method="seek",
-        keep_images=False,
-    )
-    fit = run_fit_job(fit_job(sil, prepared.cameras, prepared.resolution, models.path, config.fit))
-    return write_frame(prepared.layout, fit)
-
-
-def _finish_task(
-    prepared: PreparedRun,
-    config: ProcessConfig,
-    models: RigModels,
-    plan: SessionPlan,
-    *records: FrameRecord,
-) -> RunResults:
-    done = {**plan.done, **{r.frame: r for r in records}}
-    # The few frames the gate leaves out are fitted again here, one after another.
-    done = rescue_poor_frames(
-        prepared.layout,
-        done,
-        prepared.cameras,
-        models.path,
-        config.fit,
-        config.fit.rescue_neighbours,
-    )
-    # Frames ran on many workers at once: the session's wall time is not its own,
-    # so the timing says what the work cost (CPU seconds of this call's frames).
-    timing = {
-        "training": models.seconds,
-        "fitting_cpu": sum(r.seconds.get("total", 0.0) for r in records),
-    }
-    return finish_run(prepared, config, models, done, timing)
 
 
 # --- the cluster ----------------------------------------------------------------------------------
@@ -350,6 +201,12 @@ def run_batch(
 ) -> BatchResult:
     """Process every session on the Dask cluster of ``client`` into ``study/<name>/``.
 
+    Each session runs the step graph of ``bodymetry process``
+    (:func:`bodymetry.pipeline.run_session`) on one shared
+    :class:`~bodymetry.executors.DaskExecutor`, all sessions at once (a thread
+    each here, their steps on the cluster); sessions on one rig share one
+    training task.
+
     Parameters
     ----------
     sessions : sequence of Path
@@ -378,128 +235,44 @@ def run_batch(
     study = Path(study)
     study.mkdir(parents=True, exist_ok=True)
     names = run_names(sessions)
-    entries: dict[str, StudySession] = {
-        n: StudySession(n, str(p), "pending") for n, p in zip(names, sessions, strict=True)
-    }
+    tally = _Tally(names, progress)
+    executor = DaskExecutor(client)
+
+    def one(name: str, path: Path) -> SessionRun:
+        return run_session(
+            path, study / name, config, executor, tally.frames(name), restart=restart
+        )
+
+    runs: dict[str, SessionRun] = {}
+    entries: dict[str, StudySession] = {}
+    tally.report()
+    # A thread per session waits on its steps; the cluster does the work.
+    with ThreadPoolExecutor(min(len(names), MAX_SESSION_THREADS) or 1) as threads:
+        futures = {
+            threads.submit(one, name, path): (name, path)
+            for name, path in zip(names, sessions, strict=True)
+        }
+        for fut in futures_completed(futures):
+            name, path = futures[fut]
+            try:
+                run = fut.result()
+            except Exception as exc:  # a session's failure is its own: the others go on
+                entries[name] = StudySession(name, str(path), "failed", _reason(exc))
+                log.error("%s: %s", name, entries[name].reason)
+            else:
+                runs[name] = run
+                entries[name] = StudySession(name, str(path), "done", "", run.rig)
+                log.info("%s: %s", name, "done" if run.ran else "already finished")
+            tally.finished(name)
     rigs: dict[str, dict[str, Any]] = {}
-    trains: dict[str, Future] = {}
-    prepared_futs: dict[str, Future] = {}
-    role: dict[str, tuple[str, str]] = {}  # future key -> (kind, session or rig)
-    session_rig: dict[str, str] = {}
-    started: dict[str, float] = {}
-    results: dict[str, RunResults] = {}
-    frames_total = frames_done = 0
-
-    def report() -> None:
-        if progress:
-            finished = sum(e.status != "pending" for e in entries.values())
-            progress("sessions", finished, len(entries))
-            if frames_total:
-                progress("frames", frames_done, frames_total)
-
-    def mark(name: str, status: str, reason: str = "") -> None:
-        entries[name] = StudySession(
-            name, entries[name].session_path, status, reason, session_rig.get(name, "")
-        )
-        report()
-
-    def fail(name: str, exc: BaseException) -> None:
-        mark(name, "failed", _reason(exc))
-        log.error("%s: %s", name, entries[name].reason)
-
-    # Keys unique to this call: a long-lived scheduler must not hand back old results.
-    token = uuid.uuid4().hex[:8]
-    queue = as_completed()
-
-    def submit(kind: str, owner: str, key: str, func: Callable, *args: Any) -> Future:
-        """Submit a task whose completion the loop below handles as ``kind`` of ``owner``."""
-        fut = client.submit(func, *args, key=f"{kind}-{key}-{token}", pure=False)
-        role[fut.key] = (kind, owner)
-        queue.add(fut)
-        return fut
-
-    for name, path in zip(names, sessions, strict=True):
-        prepared_futs[name] = submit(
-            "prepare", name, name, _prepare_task, path, study / name, config, restart
-        )
-    report()
-    for fut in queue:
-        kind, name = role[fut.key]
-        if kind == "train":
-            rig = name
-            if fut.status == "error":
-                rigs[rig]["error"] = _reason(fut.exception())
-            else:
-                trained = fut.result()
-                rigs[rig].update(trained=not trained.reused, seconds=round(trained.seconds, 1))
+    for name in names:
+        run = runs.get(name)
+        if run is None:
             continue
-        if entries[name].status == "failed":
-            continue
-        if fut.status == "error":
-            if kind == "frame":
-                frames_done += 1
-                report()
-            else:
-                fail(name, fut.exception())
-            continue
-        if kind == "prepare":
-            prepared: PreparedRun = fut.result()
-            rig = rig_key(prepared.cameras, config.training)
-            session_rig[name] = rig
-            if rig not in trains:
-                # Keyed by the rig: sessions on one rig share one training task.
-                trains[rig] = submit("train", rig, rig, _train_task, fut, config)
-                rigs[rig] = {"trained": None, "sessions": []}
-            rigs[rig]["sessions"].append(name)
-            submit("plan", name, name, _plan_task, fut, config)
-        elif kind == "plan":
-            plan: SessionPlan = fut.result()
-            frames_total += len(plan.kept)
-            frames_done += len(plan.done)
-            if plan.finished:
-                log.info("%s: already finished", name)
-                mark(name, "done")
-                continue
-            prep = prepared_futs[name]
-            train = trains[session_rig[name]]
-            started[name] = time.perf_counter()
-            frame_futs = []
-            if plan.pending:
-                # Kept on the cluster for the session's frame tasks (not tracked below).
-                background = client.submit(
-                    _background_task,
-                    prep,
-                    fut,
-                    config,
-                    key=f"background-{name}-{token}",
-                    pure=False,
-                )
-                frame_futs = [
-                    submit(
-                        "frame",
-                        name,
-                        f"{name}-{frame}",
-                        _frame_task,
-                        prep,
-                        fut,
-                        background,
-                        train,
-                        frame,
-                        config,
-                    )
-                    for frame in plan.pending
-                ]
-            submit("finish", name, name, _finish_task, prep, config, train, fut, *frame_futs)
-            report()
-        elif kind == "frame":
-            frames_done += 1
-            report()
-        elif kind == "finish":
-            results[name] = fut.result()
-            log.info("%s: done in %.0f s", name, time.perf_counter() - started[name])
-            mark(name, "done")
-    for info in rigs.values():
-        info["sessions"] = sorted(info["sessions"])
+        info = rigs.setdefault(run.rig, {"trained": None, "sessions": []})
+        info["sessions"].append(name)
+        if run.models is not None:
+            info.update(trained=not run.models.reused, seconds=round(run.models.seconds, 1))
     study_results = StudyResults(
         sessions=tuple(entries[n] for n in names),
         rigs=rigs,
@@ -507,4 +280,41 @@ def run_batch(
     )
     write_json_atomic(study / STUDY_FILE, study_results.to_json())
     write_cohort(study)
-    return BatchResult(study_results, results)
+    return BatchResult(study_results, {n: r.results for n, r in runs.items() if r.ran})
+
+
+class _Tally:
+    """The study's progress: sessions finished, and frames summed over the sessions."""
+
+    def __init__(self, names: Sequence[str], progress: Progress | None) -> None:
+        self.progress = progress
+        self.total = len(names)
+        self.done_sessions = 0
+        self.frame_counts: dict[str, tuple[int, int]] = {}
+        self.lock = threading.Lock()
+
+    def report(self) -> None:
+        if self.progress is None:
+            return
+        with self.lock:
+            self.progress("sessions", self.done_sessions, self.total)
+            done = sum(d for d, _ in self.frame_counts.values())
+            total = sum(t for _, t in self.frame_counts.values())
+            if total:
+                self.progress("frames", done, total)
+
+    def frames(self, name: str) -> Progress:
+        """The progress callback of one session (its ``frames``; other labels are dropped)."""
+
+        def update(label: str, done: int, total: int) -> None:
+            if label == "frames":
+                with self.lock:
+                    self.frame_counts[name] = (done, total)
+                self.report()
+
+        return update
+
+    def finished(self, name: str) -> None:
+        with self.lock:
+            self.done_sessions += 1
+        self.report()

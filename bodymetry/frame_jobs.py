@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 
 from bodymetry.calibration.camera import Camera
-from bodymetry.capture.silhouette import SilhouetteFrame
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import (
     FitConfig,
@@ -39,7 +38,6 @@ from bodymetry.estimation.fit import (
     shared_body_model,
 )
 from bodymetry.estimation.records import FrameArrays, FrameRecord, RunLayout, read_json_object
-from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.training import DiscriminativeModels
 from bodymetry.fileio import save_npz, write_json_atomic
 from bodymetry.log import Progress
@@ -50,7 +48,6 @@ log = logging.getLogger(__name__)
 __all__ = [
     "RESCUE_FILE",
     "FitJob",
-    "fit_job",
     "read_done_frames",
     "rescue_poor_frames",
     "run_fit_job",
@@ -118,34 +115,6 @@ def run_fit_job(job: FitJob) -> FrameFit:
 def run_serially(jobs: Sequence[FitJob]) -> list[FrameFit]:
     """:func:`run_fit_job` of each job in this process, in order."""
     return [run_fit_job(job) for job in jobs]
-
-
-def fit_job(
-    sil: SilhouetteFrame,
-    cameras: list[Camera],
-    resolution: WorkingResolution,
-    models_path: Path,
-    fit: FitConfig,
-) -> FitJob:
-    """The job of one segmented frame: its silhouettes brought to the working resolution.
-
-    Parameters
-    ----------
-    sil : SilhouetteFrame
-        Masks (H_c, W_c) at the cameras' own resolution (capture).
-    cameras : list of Camera
-        The working cameras (:attr:`PreparedRun.cameras`), camera order.
-    resolution : WorkingResolution
-        Their factors (:attr:`PreparedRun.resolution`); each mask is
-        area-averaged and thresholded at 0.5
-        (:func:`bodymetry.estimation.resolution.downscale_mask`).
-    models_path : Path
-    fit : FitConfig
-    """
-    masks = resolution.downscale([c.name for c in cameras], sil.masks)
-    return FitJob(
-        sil.frame, masks, [list(f) for f in sil.flags], cameras, models_path, fit, sil.landmarks
-    )
 
 
 def write_frame(layout: RunLayout, fit: FrameFit) -> FrameRecord:

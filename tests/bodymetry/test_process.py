@@ -14,6 +14,7 @@ from tiny_run import TINY_TRAIN, tiny_session
 
 import bodymetry.cameras as cameras_module
 import bodymetry.frame_jobs as frame_jobs
+import bodymetry.pipeline as pipeline
 import bodymetry.process as process_module
 from bodymetry.capture.session import load_session
 from bodymetry.capture.silhouette import segment_session
@@ -105,14 +106,28 @@ def test_frame_artifacts(run):
             assert recomputed == pytest.approx(iou, abs=5e-5)  # the record keeps 4 decimals
 
 
-def test_resume_does_not_refit(run, monkeypatch):
+def test_a_finished_run_is_returned_as_recorded(run, monkeypatch):
+    """Nothing runs again: no training, no fit, no session stage, no review."""
     session, out, results, base = run
+    for step in ("train", "fit", "finish", "review", "segment"):
+        monkeypatch.setattr(pipeline, step, lambda *a, step=step: pytest.fail(f"{step} ran"))
+    again = _process(session, out, base)
+    assert again.to_json() == results.to_json()
+
+
+def test_resume_does_not_refit(run, monkeypatch, tmp_path):
+    session, out, results, base = run
+    # A run killed after its last frame, before results.json: the frames are kept.
+    resumed = tmp_path / "run"
+    shutil.copytree(out, resumed)
+    (resumed / "results.json").unlink()
 
     def boom(*args, **kwargs):
         raise AssertionError("a finished frame was fitted again")
 
-    monkeypatch.setattr(process_module, "run_fit_job", boom)
-    again = _process(session, out, base)
+    monkeypatch.setattr(pipeline, "run_fit_job", boom)
+    again = _process(session, resumed, base)
+    out = resumed
     assert again.summary == results.summary
     assert again.config["models_reused"]
     # The session stage is redone from the recorded frames, to the same shape;

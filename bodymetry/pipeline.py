@@ -1,0 +1,807 @@
+"""The run as one step graph: plain step functions with typed inputs and outputs.
+
+A run of one session is these steps (docs/design.md, "The step graph"):
+
+====================  ===========  =============================================================
+step                  grain        does
+====================  ===========  =============================================================
+:func:`prepare`       session      checks the inputs, creates or resumes the run folder, resolves
+                                   the cameras and their working resolution
+:func:`plan`          session      which kept frames are recorded already; whether the run is
+                                   finished (then nothing else runs)
+:func:`backgrounds`   session      the empty-scene background model of each camera
+:func:`segment`       frames       each kept frame's silhouettes (once per frame), at the working
+                                   resolution, with the subject's landmarks
+:func:`check_calibration`  session  shifts a camera whose calibration the landmarks contradict
+:func:`train`         rig          the rig's discriminative models (cached; once per rig)
+:func:`fit`           frame        one frame's fit, written to the run folder (arrays and mesh,
+                                   then the record that marks it done)
+:func:`rescue`        session      the frames below the session's quality gate, again from
+                                   their neighbours
+:func:`finish`        session      the session stage and ``results.json``
+:func:`review`        session      the recording, MCAP, report and CSV
+====================  ===========  =============================================================
+
+:func:`run_session` wires them, once, for both executors
+(:mod:`bodymetry.executors`): ``bodymetry process`` runs it on a local process
+pool, ``bodymetry batch`` on Dask (one call per session, all sessions at once).
+The executor only decides where a step runs and at which grain frames are read
+(one sequential pass on a workstation, a seek per frame on a cluster); the steps
+and their order are the same, so ``process`` of a session and ``batch`` of it
+write the same run.
+
+Training and the fit work at each camera's working resolution
+(:mod:`bodymetry.estimation.resolution`, chosen from the calibration by
+:func:`prepare`): the models are trained with the working cameras, and the
+observed silhouettes, segmented at the cameras' resolution, are downscaled to
+it in :func:`segment` before the fit and the record.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import multiprocessing as mp
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.io import save_calibration
+from bodymetry.cameras import resolve_cameras
+from bodymetry.capture.background import BackgroundModel
+from bodymetry.capture.ingest import SyncReport, check_sync
+from bodymetry.capture.landmarks import (
+    LandmarkConfig,
+    principal_point_offsets,
+    triangulate_landmarks,
+)
+from bodymetry.capture.session import Session, load_session
+from bodymetry.capture.silhouette import background_models, segment_session
+from bodymetry.config import ProcessConfig
+from bodymetry.errors import InputError
+from bodymetry.estimation.fit import (
+    MIN_PIXELS,
+    FrameFit,
+    preload,
+    session_gate,
+    shared_body_model,
+)
+from bodymetry.estimation.outline_check import check_outline
+from bodymetry.estimation.records import (
+    FrameArrays,
+    FrameRecord,
+    RunLayout,
+    RunResults,
+    SessionInfo,
+    SessionShape,
+    summarize,
+)
+from bodymetry.estimation.resolution import WorkingResolution
+from bodymetry.estimation.session_shape import fit_session_shape, session_frame
+from bodymetry.estimation.training import cached_models_path, load_or_train, rig_key
+from bodymetry.executors import Executor
+from bodymetry.fileio import write_json_atomic
+from bodymetry.frame_jobs import (
+    FitJob,
+    read_done_frames,
+    rescue_poor_frames,
+    run_fit_job,
+    write_frame,
+)
+from bodymetry.log import Progress
+from bodymetry.preflight import check_session
+from bodymetry.review.build import build_review
+from bodymetry.run_folder import prepare_run_folder
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "STEPS",
+    "PreparedRun",
+    "RigModels",
+    "SegmentedFrame",
+    "SessionPlan",
+    "SessionRun",
+    "backgrounds",
+    "camera_warnings",
+    "check_calibration",
+    "finish",
+    "fit",
+    "plan",
+    "prepare",
+    "rescue",
+    "review",
+    "run_session",
+    "segment",
+    "session_stage",
+    "train",
+]
+
+
+# --- what the steps hand each other -------------------------------------------------------------
+@dataclass(frozen=True)
+class PreparedRun:
+    """A session checked, its run folder ready and its cameras resolved.
+
+    Attributes
+    ----------
+    session : Session
+    layout : RunLayout
+    cameras : list of Camera
+        The working cameras (session order): the calibration's cameras at
+        their working resolution, what training and the fit use.
+    calibration_source : str
+    resolution : WorkingResolution
+        Each camera's working resolution (recorded in ``results.json``).
+    calibrated : list of Camera
+        The calibration's cameras at the videos' resolution: what capture
+        uses (its silhouettes and landmarks are at that resolution).
+    warnings : tuple of str
+        The up-front check's warnings (and the calibration check's).
+    landmark_config : LandmarkConfig or None
+        Set when :func:`check_calibration` shifted cameras: the subject's
+        landmarks are then triangulated again through them.
+    """
+
+    session: Session
+    layout: RunLayout
+    cameras: list[Camera]
+    calibration_source: str
+    resolution: WorkingResolution
+    calibrated: list[Camera]
+    warnings: tuple[str, ...] = ()
+    landmark_config: LandmarkConfig | None = None
+
+    def landmarks(
+        self, views: Sequence[np.ndarray | None], recorded: np.ndarray | None
+    ) -> np.ndarray | None:
+        """A frame's 3D landmarks through the final cameras: ``recorded`` (capture's)
+        unless the calibration check shifted cameras, then triangulated again."""
+        if self.landmark_config is None or not views:
+            return recorded
+        if sum(v is not None for v in views) < 2:
+            return None
+        return triangulate_landmarks(self.calibrated, views, self.landmark_config)
+
+
+@dataclass(frozen=True)
+class SessionPlan:
+    """What is left to do in a session's run folder.
+
+    Attributes
+    ----------
+    report : SyncReport
+        The session's videos and kept frames (probed once, reused by its steps).
+    done : dict of int to FrameRecord
+        Frames already recorded whole.
+    finished : RunResults or None
+        The recorded ``results.json`` when it holds every kept frame with these
+        settings and the review is written: nothing is left to do.
+    """
+
+    report: SyncReport
+    done: dict[int, FrameRecord]
+    finished: RunResults | None = None
+
+    @property
+    def kept(self) -> tuple[int, ...]:
+        """The session's kept frames."""
+        return tuple(int(f) for f in self.report.kept)
+
+    @property
+    def pending(self) -> tuple[int, ...]:
+        """The kept frames still to fit."""
+        return tuple(f for f in self.kept if f not in self.done)
+
+
+@dataclass(frozen=True)
+class SegmentedFrame:
+    """One kept frame's silhouettes, as the fit needs them.
+
+    Attributes
+    ----------
+    frame : int
+    masks : tuple of (h_c, w_c) bool
+        Observed silhouettes at the working resolution, camera order
+        (:meth:`WorkingResolution.downscale` of capture's full-size masks).
+    flags : tuple of tuple of str
+        Capture's flags per camera.
+    landmarks : (33, 3) float or None
+        The subject's landmarks triangulated through the calibrated cameras.
+    view_landmarks : tuple
+        Each camera's 2D landmarks (empty without the learned segmenter).
+    """
+
+    frame: int
+    masks: tuple[np.ndarray, ...]
+    flags: tuple[tuple[str, ...], ...]
+    landmarks: np.ndarray | None
+    view_landmarks: tuple
+
+
+@dataclass(frozen=True)
+class RigModels:
+    """The discriminative models of a rig, in the cache.
+
+    Attributes
+    ----------
+    key : str
+        :func:`bodymetry.estimation.training.rig_key`.
+    path : Path
+    reused : bool
+        Found in the cache (not trained by this call).
+    seconds : float
+    """
+
+    key: str
+    path: Path
+    reused: bool
+    seconds: float
+
+
+# --- the steps ------------------------------------------------------------------------------------
+def prepare(
+    session_path: str | Path,
+    out: str | Path,
+    config: ProcessConfig,
+    restart: bool = False,
+    progress: Progress | None = None,
+) -> PreparedRun:
+    """Check the session, create or resume the run folder, resolve the cameras and
+    choose their working resolution (``config.working_person_px``).
+
+    Every problem with the inputs and the output folder is listed before any
+    long work, and before the run folder is created (a bad session leaves
+    nothing behind).
+
+    Raises
+    ------
+    InputError
+        Listing every problem found.
+    """
+    report = check_session(session_path, Path(out))
+    report.raise_if_failed()
+    for warning in report.warnings:
+        log.warning("%s", warning)
+    session = load_session(session_path)
+    if config.frame_step is not None and config.frame_step != session.frame_step:
+        log.info(
+            "%s: fitting every %d. frame (session.yaml says %d)",
+            session.folder,
+            config.frame_step,
+            session.frame_step,
+        )
+        session = replace(session, frame_step=config.frame_step)
+    layout = RunLayout(Path(out))
+    prepare_run_folder(layout.folder, session, config, restart=restart)
+    layout.frames_dir.mkdir(parents=True, exist_ok=True)
+    resolved = resolve_cameras(session, layout.folder, progress)
+    resolution = WorkingResolution.choose(resolved.cameras, config.working_person_px)
+    return PreparedRun(
+        session,
+        layout,
+        resolution.apply(resolved.cameras),
+        resolved.source,
+        resolution,
+        list(resolved.cameras),
+        tuple(str(w) for w in report.warnings),
+    )
+
+
+def plan(prepared: PreparedRun, config: ProcessConfig) -> SessionPlan:
+    """The kept frames, those recorded whole already, and whether the run is finished.
+
+    A run is finished when ``results.json`` holds every kept frame, was made
+    with these settings (the session stage's and the review's included) and
+    the review files are written.
+    """
+    report = check_sync(prepared.session)
+    kept = {int(f) for f in report.kept}
+    layout = prepared.layout
+    done = read_done_frames(layout)
+    if not (layout.results.is_file() and set(done) == kept):
+        return SessionPlan(report, done)
+    try:
+        recorded = RunResults.read(layout.results)
+    except InputError as exc:
+        log.warning("%s; summarizing the run again", exc)
+        return SessionPlan(report, done)
+    finished = (
+        {r.frame for r in recorded.frames} == kept
+        and _settings(recorded.config) == _settings(config.to_json())
+        and (not config.review or all(p.is_file() for p in layout.review_files))
+    )
+    return SessionPlan(report, done, recorded if finished else None)
+
+
+def _settings(config: dict) -> dict:
+    # What a finished run must have been made with: all but the parallelism.
+    return {k: v for k, v in config.items() if k not in ("workers", "models", "models_reused")}
+
+
+def backgrounds(
+    prepared: PreparedRun, plan: SessionPlan, config: ProcessConfig, read_method: str
+) -> list[BackgroundModel | None]:
+    """Each camera's background model (None per camera where capture uses the segmenter alone).
+
+    ``read_method`` is ``"sequential"`` or ``"seek"`` (the executor's way of
+    reading video; both read the same frames).
+    """
+    if config.capture.method == "person":
+        return [None] * len(prepared.session.cameras)
+    median = not config.capture.uses_segmenter
+    return list(
+        background_models(prepared.session, plan.report, method=read_method, median=median)
+    )
+
+
+def segment(
+    prepared: PreparedRun,
+    plan: SessionPlan,
+    models: Sequence[BackgroundModel | None],
+    frames: Sequence[int],
+    config: ProcessConfig,
+    read_method: str,
+) -> list[SegmentedFrame]:
+    """The silhouettes of ``frames`` (capture), brought to the working resolution.
+
+    Parameters
+    ----------
+    prepared : PreparedRun
+    plan : SessionPlan
+    models : sequence of (BackgroundModel or None)
+        :func:`backgrounds`, camera order.
+    frames : sequence of int
+        Kept frames, in order (one sequential pass reads them all; the Dask
+        executor segments one frame a task).
+    config : ProcessConfig
+    read_method : {"sequential", "seek"}
+    """
+    names = [c.name for c in prepared.cameras]
+    return [
+        SegmentedFrame(
+            frame=sil.frame,
+            # Held at the working resolution (a long session's full-size masks are large).
+            masks=tuple(prepared.resolution.downscale(names, sil.masks)),
+            flags=tuple(tuple(f) for f in sil.flags),
+            landmarks=sil.landmarks,
+            view_landmarks=tuple(sil.view_landmarks),
+        )
+        for sil in segment_session(
+            prepared.session,
+            config=config.capture,
+            cameras=prepared.calibrated,
+            report=plan.report,
+            models=models,
+            frames=list(frames),
+            read_method=read_method,
+            keep_images=False,
+        )
+    ]
+
+
+def needs_every_frame(config: ProcessConfig) -> bool:
+    """Whether the calibration check runs, and so needs every kept frame segmented
+    (its landmarks) before any frame is fitted; otherwise only the pending frames are."""
+    return config.capture.landmarks.refine_calibration and config.capture.uses_segmenter
+
+
+def check_calibration(
+    prepared: PreparedRun, segmented: Sequence[SegmentedFrame], config: ProcessConfig
+) -> PreparedRun:
+    """Check the cameras against the subject's landmarks in all kept frames; shift the
+    principal point of a camera that is systematically off
+    (:func:`bodymetry.capture.landmarks.principal_point_offsets`).
+
+    A shifted camera is written to the run's ``calibration.yaml`` (the session's
+    file is never modified) and named in a warning (``results.json``). Without
+    landmarks (no segmenter) or with ``capture.landmarks.refine_calibration``
+    off, the run keeps the calibration as given.
+    """
+    cfg = config.capture.landmarks
+    frames = [s.view_landmarks for s in segmented if s.view_landmarks]
+    if not cfg.refine_calibration or not frames:
+        return prepared
+    cameras, offsets = principal_point_offsets(prepared.calibrated, frames, cfg)
+    for offset in offsets:
+        log.info("%s", offset.describe())
+    applied = [o for o in offsets if o.applied]
+    if not applied:
+        return prepared
+    warnings = tuple(
+        f"{o.describe()}: the calibration does not fit this video, so its principal point "
+        "was shifted by that offset for this run (RUN/calibration.yaml; "
+        "--set capture.landmarks.refine_calibration=false keeps the calibration as given)"
+        for o in applied
+    )
+    for text in warnings:
+        log.warning("%s", text)
+    save_calibration(prepared.layout.calibration, CameraGroup(cameras))
+    return replace(
+        prepared,
+        calibrated=cameras,
+        cameras=prepared.resolution.apply(cameras),
+        warnings=(*prepared.warnings, *warnings),
+        landmark_config=cfg,
+    )
+
+
+def rig_of(prepared: PreparedRun, config: ProcessConfig) -> str:
+    """The cache key of the run's rig (:func:`bodymetry.estimation.training.rig_key`)."""
+    return rig_key(prepared.cameras, config.training)
+
+
+def train(
+    prepared: PreparedRun,
+    config: ProcessConfig,
+    progress: Progress | None = None,
+    workers: int | None = None,
+) -> RigModels:
+    """Load the rig's models from the cache, training them first if needed.
+
+    The training set is rendered at the working cameras' sizes
+    (:attr:`PreparedRun.cameras`), and the cache key is theirs. ``workers``
+    (default ``config.workers``) render it in parallel; in a daemon process
+    (a worker of a cluster started with ``dask worker``, which may not start
+    processes) it renders in this process.
+    """
+    if mp.current_process().daemon:
+        workers = 1
+    t0 = time.perf_counter()
+    models, reused = load_or_train(
+        prepared.cameras,
+        config.training,
+        config.cache_dir,
+        workers=workers if workers is not None else config.workers,
+        progress=(lambda label, d, t: progress(f"training: {label}", d, t)) if progress else None,
+    )
+    path = cached_models_path(models.key, config.cache_dir)
+    return RigModels(models.key, path, reused, time.perf_counter() - t0)
+
+
+def fit_job_of(
+    prepared: PreparedRun, models: RigModels, seg: SegmentedFrame, config: ProcessConfig
+) -> FitJob:
+    """The fit's job for one segmented frame, through the run's final cameras."""
+    return FitJob(
+        seg.frame,
+        list(seg.masks),
+        [list(f) for f in seg.flags],
+        prepared.cameras,
+        models.path,
+        config.fit,
+        prepared.landmarks(seg.view_landmarks, seg.landmarks),
+    )
+
+
+def fit(
+    prepared: PreparedRun, models: RigModels, seg: SegmentedFrame, config: ProcessConfig
+) -> FrameRecord:
+    """Fit one frame and write it (:func:`bodymetry.frame_jobs.write_frame`).
+
+    Returns the record as written (rounded as in the file), so that a fresh
+    run and a resumed one summarize exactly the same numbers.
+    """
+    return write_frame(prepared.layout, run_fit_job(fit_job_of(prepared, models, seg, config)))
+
+
+def rescue(
+    prepared: PreparedRun,
+    models: RigModels,
+    records: dict[int, FrameRecord],
+    config: ProcessConfig,
+    run_jobs: Callable[[Sequence[FitJob]], list[FrameFit]],
+    progress: Progress | None = None,
+) -> dict[int, FrameRecord]:
+    """The frames below the session's quality gate, fitted again from their neighbours
+    (:func:`bodymetry.frame_jobs.rescue_poor_frames`); ``run_jobs`` fits a round's jobs
+    on the executor's workers."""
+    return rescue_poor_frames(
+        prepared.layout,
+        records,
+        prepared.cameras,
+        models.path,
+        config.fit,
+        config.fit.rescue_neighbours,
+        progress,
+        run_jobs,
+    )
+
+
+def session_stage(
+    prepared: PreparedRun,
+    config: ProcessConfig,
+    records: Sequence[FrameRecord],
+    progress: Progress | None = None,
+) -> tuple[SessionShape | None, list[FrameRecord]]:
+    """One shape for the session (:mod:`bodymetry.estimation.session_shape`).
+
+    Reads the accepted frames' silhouettes back from the run folder (the
+    ``frames/FFFFFF.npz`` written with their records), so it runs the same
+    after a resumed run. The frame records on disk are left as they are: the
+    ``session`` estimates live in ``results.json``.
+
+    Returns
+    -------
+    SessionShape or None
+        None when ``config.session_shape.enabled`` is off.
+    list of FrameRecord
+        ``records`` with each accepted frame's ``session`` estimate added when
+        the stage was accepted (unchanged otherwise).
+    """
+    if not config.session_shape.enabled:
+        return None, list(records)
+    ok = [r for r in records if r.ok]
+    log.info("%s: session shape from %d accepted frames", prepared.session.folder, len(ok))
+    try:
+        frames = [
+            session_frame(
+                r, FrameArrays.load(prepared.layout.frame_arrays(r.frame)), prepared.cameras
+            )
+            for r in ok
+        ]
+        shape = fit_session_shape(
+            shared_body_model(),
+            prepared.cameras,
+            frames,
+            config.fit.refinement,
+            config.session_shape,
+            config.fit.density,
+            progress,
+        )
+    except (InputError, ValueError, np.linalg.LinAlgError) as exc:
+        log.warning("%s: the session shape failed: %s", prepared.session.folder, exc)
+        return SessionShape(status=f"failed: {exc}", frames=tuple(r.frame for r in ok)), list(
+            records
+        )
+    if not shape.summary.ok:
+        log.warning("%s: session shape %s", prepared.session.folder, shape.summary.status)
+    # The outline check at the states the summary reports: the shared shape
+    # when accepted, else each frame's own fit.
+    checked = [
+        (f.masks, shape.estimates[f.frame].vector() if f.frame in shape.estimates else f.start)
+        for f in frames
+    ]
+    outline = check_outline(
+        shared_body_model(),
+        prepared.cameras,
+        checked,
+        config.fit.refinement,
+        alignments=[shape.alignments.get(f.frame) for f in frames],
+    )
+    out = [
+        replace(r, estimates={**r.estimates, "session": shape.estimates[r.frame]})
+        if r.frame in shape.estimates
+        else r
+        for r in records
+    ]
+    return replace(shape.summary, outline=outline), out
+
+
+def camera_warnings(camera_frames: dict[str, int], n_kept: int) -> list[str]:
+    """Warnings for cameras that saw no usable silhouette in any kept frame."""
+    return [
+        f"camera {name!r} saw no person in any of the {n_kept} kept frames (covered, black "
+        "or pointing away?); it contributed nothing to the measurements"
+        for name, n in camera_frames.items()
+        if n == 0 and n_kept > 0
+    ]
+
+
+def finish(
+    prepared: PreparedRun,
+    config: ProcessConfig,
+    models: RigModels,
+    records: dict[int, FrameRecord],
+    timing: dict[str, float],
+    progress: Progress | None = None,
+) -> RunResults:
+    """Hold the recorded frames to the session's quality gate, fit the session's one
+    shape (:func:`session_stage`) and write ``results.json``."""
+    session = prepared.session
+    gate, gated = session_gate([records[f] for f in sorted(records)], config.fit)
+    t0 = time.perf_counter()
+    shape, gated = session_stage(prepared, config, gated, progress)
+    if shape is not None:
+        timing = {**timing, "session_shape": time.perf_counter() - t0}
+    ordered = tuple(gated)
+    if gate.threshold < gate.min_iou:
+        log.info(
+            "%s: quality gate %.2f (the session's good frames score %.2f; min_iou %.2f)",
+            session.folder,
+            gate.threshold,
+            gate.reference,
+            gate.min_iou,
+        )
+    camera_frames = {
+        name: sum(r.person_pixels.get(name, 0) >= MIN_PIXELS for r in ordered)
+        for name in session.camera_names
+    }
+    warnings = camera_warnings(camera_frames, len(ordered))
+    if not any(r.ok for r in ordered):
+        warnings.append(f"no frame of the {len(ordered)} kept frames was measured")
+    if shape is not None and shape.outline is not None:
+        warnings.extend(shape.outline.warnings)
+    for text in warnings:
+        log.warning("%s: %s", session.folder, text)
+    results = RunResults(
+        session=SessionInfo(
+            path=str(session.folder.resolve()),
+            name=session.name,
+            cameras=tuple(session.camera_names),
+            fps=session.fps,
+            frame_step=session.frame_step,
+        ),
+        config={**config.to_json(), "models": models.key, "models_reused": models.reused},
+        frames=ordered,
+        summary=summarize(ordered, shape),
+        timing_seconds={k: round(v, 1) for k, v in timing.items()},
+        calibration_source=prepared.calibration_source,
+        ground_truth=_ground_truth(session),
+        camera_frames=camera_frames,
+        warnings=(*prepared.warnings, *warnings),
+        working_resolution=prepared.resolution,
+        quality_gate=gate.to_json(),
+        session_shape=shape,
+    )
+    write_json_atomic(prepared.layout.results, results.to_json())
+    return results
+
+
+def review(prepared: PreparedRun, config: ProcessConfig, progress: Progress | None = None) -> None:
+    """The review outputs of the finished run (``config.review``), from its folder.
+
+    A failure here is logged, never raised: ``results.json`` is safe on disk.
+    """
+    if not config.review:
+        return
+    try:
+        build_review(prepared.layout.folder, pdf=config.pdf, progress=progress)
+    except Exception:  # results.json is written; the review is extra
+        log.exception("%s: building the review outputs failed", prepared.layout.folder)
+
+
+def _ground_truth(session: Session) -> dict | None:
+    gt = session.ground_truth_path
+    if gt is None or not (gt / "subject.json").is_file():
+        return None
+    return json.loads((gt / "subject.json").read_text())
+
+
+#: The steps in graph order (docs/design.md draws them).
+STEPS: tuple[Callable, ...] = (
+    prepare,
+    plan,
+    backgrounds,
+    segment,
+    check_calibration,
+    train,
+    fit,
+    rescue,
+    finish,
+    review,
+)
+
+
+# --- the graph ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SessionRun:
+    """What :func:`run_session` did for one session.
+
+    Attributes
+    ----------
+    results : RunResults
+        The run's results (as recorded, when it was finished already).
+    rig : str
+        The rig's cache key.
+    models : RigModels or None
+        The rig's models; None when the run was finished already (nothing ran).
+    """
+
+    results: RunResults
+    rig: str
+    models: RigModels | None
+
+    @property
+    def ran(self) -> bool:
+        """Whether anything was computed (False: the run was finished already)."""
+        return self.models is not None
+
+
+def run_session(
+    session_path: str | Path,
+    out: str | Path,
+    config: ProcessConfig,
+    executor: Executor,
+    progress: Progress | None = None,
+    *,
+    restart: bool = False,
+) -> SessionRun:
+    """Run the step graph of one session on ``executor``; the one wiring of the steps.
+
+    Parameters
+    ----------
+    session_path : path
+        A session folder (docs/session-format.md).
+    out : path
+        The run folder; frames already recorded there are not fitted again, and
+        a finished run (:func:`plan`) is returned as recorded.
+    config : ProcessConfig
+    executor : LocalExecutor or DaskExecutor
+        Where the steps run (:mod:`bodymetry.executors`).
+    progress : callable, optional
+        ``progress(label, done, total)``: ``frames``, ``rescue``, ``training: ...``
+        and the session stage's. Steps on a remote executor report no progress of
+        their own.
+    restart : bool
+        Replace a run of another session or other settings in ``out``.
+
+    Raises
+    ------
+    InputError
+        For bad inputs, before any long work (:func:`prepare`).
+    """
+    ex = executor
+    t0 = time.perf_counter()
+    # Progress callbacks stay in this process: a remote step gets none.
+    local = None if ex.remote else progress
+    prep_f = ex.submit(prepare, session_path, out, config, restart, local)
+    prepared: PreparedRun = prep_f.result()
+    plan_f = ex.submit(plan, prep_f, config)
+    planned: SessionPlan = plan_f.result()
+    if planned.finished is not None:
+        log.info("%s: finished already (%s)", prepared.session.folder, prepared.layout.results)
+        return SessionRun(planned.finished, planned.finished.config["models"], None)
+    # The fit's models and kernels load while the frames are segmented (a local
+    # pool's forked workers inherit them; the session stage needs them too).
+    ex.warm_up(preload, prepared.cameras, config.fit.refinement)
+    every = needs_every_frame(config)
+    frames = planned.kept if every else planned.pending
+    segmented = {}
+    if frames:
+        bg_f = ex.submit(backgrounds, prep_f, plan_f, config, ex.read_method)
+        chunks = ex.frame_chunks(frames)
+        chunk_fs = [
+            ex.submit(segment, prep_f, plan_f, bg_f, chunk, config, ex.read_method)
+            for chunk in chunks
+        ]
+        segmented = {
+            frame: ex.item(chunk_f, i)
+            for chunk_f, chunk in zip(chunk_fs, chunks, strict=True)
+            for i, frame in enumerate(chunk)
+        }
+    if every:
+        prep_f = ex.submit(check_calibration, prep_f, list(segmented.values()), config)
+        prepared = prep_f.result()
+    t_sil = time.perf_counter() - t0
+    ex.wait_warm()  # before training poses the body model here
+    rig = rig_of(prepared, config)
+    models_f = ex.shared(rig, train, prep_f, config, local)
+    models: RigModels = models_f.result()
+    done = dict(planned.done)
+    if progress:
+        progress("frames", len(done), len(planned.kept))
+    t1 = time.perf_counter()
+    fits = ex.submit_many(fit, [(prep_f, models_f, segmented[f], config) for f in planned.pending])
+    new: list[FrameRecord] = []
+    for future in ex.as_completed(fits):
+        record = future.result()
+        new.append(record)
+        done[record.frame] = record
+        if progress:
+            progress("frames", len(done), len(planned.kept))
+    done = ex.submit(rescue, prep_f, models_f, done, config, ex.job_runner(), local).result()
+    timing = {
+        "training": models.seconds,
+        "fitting_cpu": sum(r.seconds.get("total", 0.0) for r in new),
+    }
+    if not ex.remote:  # wall times of this session's own work (on Dask, steps interleave)
+        timing |= {"silhouettes": t_sil, "fitting": time.perf_counter() - t1}
+    timing["total"] = time.perf_counter() - t0
+    results = ex.submit(finish, prep_f, config, models_f, done, timing, local).result()
+    ex.submit(review, prep_f, config, local).result()
+    return SessionRun(results, rig, models)
