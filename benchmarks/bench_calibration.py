@@ -16,7 +16,6 @@ rendered sessions instead of rendering.
 
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 import time
@@ -26,6 +25,7 @@ import numpy as np
 
 from bodymetry.calibration.io import load_calibration
 from bodymetry.calibration.session_calibration import calibrate_session, detect_session
+from bodymetry.capture.ground_truth import StudioRecord
 from bodymetry.capture.session import load_session
 from bodymetry.studio.synth import SynthConfig, synthesize
 
@@ -124,10 +124,8 @@ SETUP = (
 
 
 def _seed(folder: Path) -> int | None:
-    studio = folder / "ground_truth" / "studio.json"
-    if not studio.is_file():
-        return None
-    return json.loads(studio.read_text())["config"]["seed"]
+    studio = StudioRecord.read(folder / "ground_truth")
+    return None if studio is None else studio.config["seed"]
 
 
 def run() -> dict:

@@ -42,7 +42,6 @@ what the rescue did (``frames/rescue.json``).
 
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 import time
@@ -51,8 +50,9 @@ from pathlib import Path
 import numpy as np
 
 from bodymetry.cli import DEMO_SESSION
-from bodymetry.config import ProcessConfig
-from bodymetry.frame_jobs import RESCUE_FILE
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunLayout
+from bodymetry.frame_jobs import read_rescue
 from bodymetry.process import process_session
 from bodymetry.review.evaluation import evaluate_run
 from bodymetry.studio.synth import SubjectSpec, SynthConfig, synthesize
@@ -160,8 +160,7 @@ def _render(
 
 
 def _rescue_log(run: Path) -> dict:
-    path = run / "frames" / RESCUE_FILE
-    return json.loads(path.read_text()) if path.is_file() else {}
+    return {str(f): o.to_json() for f, o in read_rescue(RunLayout(run)).items()}
 
 
 def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) -> dict:
@@ -171,7 +170,7 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
     results = process_session(session, run, ProcessConfig(workers=workers, cache_dir=cache_dir))
     t_process = time.perf_counter() - t0
     t0 = time.perf_counter()
-    ev = evaluate_run(run, workers=workers)
+    ev = evaluate_run(run, workers=workers).to_json()
     t_eval = time.perf_counter() - t0
     frames = results.frames
     fitted = [f for f in frames if f.fitted]
@@ -183,13 +182,13 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
     checks = {}
     for key, target in TARGETS.items():
         row = table[key]
-        err = row["disc_generative"]["mean"] - row["actual"]
+        err = row["generative"]["mean"] - row["actual"]
         checks[key] = {
             "mean_error": round(err, 2),
-            "std": round(row["disc_generative"]["std"], 2),
+            "std": round(row["generative"]["std"], 2),
             "discriminative_error": round(row["discriminative"]["mean"] - row["actual"], 2),
             "pass_mean": abs(err) <= target["mean_error"],
-            "pass_std": row["disc_generative"]["std"] <= target["std"],
+            "pass_std": row["generative"]["std"] <= target["std"],
             "generative_better": abs(err) < abs(row["discriminative"]["mean"] - row["actual"]),
         }
         if "session" in row:
@@ -215,7 +214,7 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
         "checks": checks,
         # Issue 15 item 4: the loose-clothing and hair check, as it comes.
         "outline": None if results.outline is None else results.outline.to_json(),
-        "models_reused": results.config["models_reused"],
+        "models_reused": results.models_reused,
         "timing_seconds": {
             **results.timing_seconds,
             "process_wall_with_review": round(t_process, 1),
@@ -270,7 +269,7 @@ def stage_comparison(sessions: list[dict]) -> dict:
             row = s["figure3"][key]
             if "session" not in row:
                 continue
-            pf, st = row["disc_generative"], row["session"]
+            pf, st = row["generative"], row["session"]
             e_pf, e_s = pf["mean"] - row["actual"], st["mean"] - row["actual"]
             # One frame has no spread to take a standard error from: the session's
             # own standard error is then all the z has.

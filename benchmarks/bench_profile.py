@@ -41,11 +41,11 @@ from pathlib import Path
 from bodymetry.capture.session import load_session
 from bodymetry.capture.silhouette import segment_session
 from bodymetry.cli import DEMO_SESSION
-from bodymetry.config import ProcessConfig
 from bodymetry.estimation import generative, raster
 from bodymetry.estimation.body_model import scape
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.resolution import WorkingResolution
+from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.training import cached_models_path, load_or_train
 from bodymetry.frame_jobs import FitJob, run_fit_job
 

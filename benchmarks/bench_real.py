@@ -38,7 +38,7 @@ import numpy as np
 
 from bodymetry.capture.video import H264Writer
 from bodymetry.estimation.fit import shared_body_model
-from bodymetry.estimation.records import RunResults
+from bodymetry.estimation.run_files import RunResults
 from bodymetry.review.report import compute_overlays
 from bodymetry.review.run_data import load_run
 

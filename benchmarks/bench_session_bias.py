@@ -41,7 +41,6 @@ Only sessions with ground truth (``ground_truth/states.npz``,
 
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 from collections.abc import Callable
@@ -51,14 +50,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.capture.session import Session, load_session
 from bodymetry.cli import DEMO_SESSION
-from bodymetry.config import ProcessConfig
 from bodymetry.estimation.body_model.model import NU, BodyState
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.outline_check import REGIONS, frame_offsets
-from bodymetry.estimation.records import FrameArrays, RunLayout
+from bodymetry.estimation.records import FrameArrays
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunLayout
 from bodymetry.estimation.session_shape import SessionFrame, fit_session_shape, session_frame
 from bodymetry.fileio import load_npz
 from bodymetry.process import process_session
@@ -152,7 +153,7 @@ def processed_session(session_dir: Path, run_dir: Path) -> ProcessedSession:
     process_session(session_dir, run_dir, config)
     run = load_run(run_dir)
     session = load_session(session_dir)
-    truth = json.loads((session.path(session.ground_truth) / "subject.json").read_text())
+    truth = SubjectTruth.read(session.ground_truth_path).measurements
     layout = RunLayout(run_dir)
     frames = [
         session_frame(r, FrameArrays.load(layout.frame_arrays(r.frame)), run.cameras)

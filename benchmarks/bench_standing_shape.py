@@ -31,11 +31,11 @@ import numpy as np
 
 from bodymetry.capture.session import load_session
 from bodymetry.cli import DEMO_SESSION
-from bodymetry.config import ProcessConfig
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import BodyState, shipped_model
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.resolution import WorkingResolution
+from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.session_shape import SessionFrame, fit_session_shape
 from bodymetry.studio.independent import IndependentSpec, IndependentSubject
 

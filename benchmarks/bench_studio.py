@@ -9,7 +9,6 @@ present in every camera (shadow area as a fraction of the person's area).
 
 from __future__ import annotations
 
-import json
 import tempfile
 import time
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from bodymetry.capture.ground_truth import StudioRecord
 from bodymetry.capture.session import load_session
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.fileio import load_npz
@@ -66,7 +66,7 @@ def run() -> dict:
         t0 = time.perf_counter()
         synthesize(folder, SynthConfig(frames=200, seed=11))
         seconds = time.perf_counter() - t0
-        studio = json.loads((folder / "ground_truth" / "studio.json").read_text())
+        studio = StudioRecord.read(folder / "ground_truth").to_json()
         size_mb = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
         result = {
             "session": "200 frames, 4 cameras, 640x480, + 30 background and 300 "

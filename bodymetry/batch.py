@@ -32,15 +32,14 @@ from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures import as_completed as futures_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import dask
 from distributed import Client, LocalCluster
 
 from bodymetry.capture.session import SESSION_FILE
-from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import RunResults, StudyResults, StudySession
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RigEntry, RunResults, StudyResults, StudySession
 from bodymetry.executors import DaskExecutor
 from bodymetry.fileio import read_text_limited, write_json_atomic
 from bodymetry.log import Progress
@@ -264,15 +263,15 @@ def run_batch(
                 entries[name] = StudySession(name, str(path), "done", "", run.rig)
                 log.info("%s: %s", name, "done" if run.ran else "already finished")
             tally.finished(name)
-    rigs: dict[str, dict[str, Any]] = {}
-    for name in names:
-        run = runs.get(name)
-        if run is None:
-            continue
-        info = rigs.setdefault(run.rig, {"trained": None, "sessions": []})
-        info["sessions"].append(name)
-        if run.models is not None:
-            info.update(trained=not run.models.reused, seconds=round(run.models.seconds, 1))
+    rigs: dict[str, RigEntry] = {}
+    for rig in dict.fromkeys(r.rig for r in runs.values()):
+        on_rig = [n for n in names if n in runs and runs[n].rig == rig]
+        models = next((runs[n].models for n in on_rig if runs[n].models is not None), None)
+        rigs[rig] = RigEntry(
+            tuple(sorted(on_rig)),
+            None if models is None else not models.reused,
+            None if models is None else round(models.seconds, 1),
+        )
     study_results = StudyResults(
         sessions=tuple(entries[n] for n in names),
         rigs=rigs,

@@ -24,7 +24,7 @@ from bodymetry.calibration.session_calibration import (
 )
 from bodymetry.capture.session import Session, load_session
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import RunLayout
+from bodymetry.estimation.run_files import RunLayout
 from bodymetry.fileio import write_bytes_atomic
 from bodymetry.log import Progress
 

@@ -317,3 +317,37 @@ _SafeStrictLoader.add_constructor(
 def parse_yaml(text: str) -> Any:
     """Parse YAML text safely (no object construction), refusing duplicate keys."""
     return yaml.load(text, Loader=_SafeStrictLoader)  # a SafeLoader subclass: safe
+
+
+#: The largest JSON file read whole by default (a long run's ``results.json`` at the best
+#: quality stays well under; anything larger is the wrong file).
+JSON_MAX_BYTES = 256_000_000
+
+
+def read_json_object(
+    path: Path, max_bytes: int = JSON_MAX_BYTES, what: str = "run JSON file"
+) -> dict[str, Any]:
+    """A JSON object from a file; InputError naming the file when it is unreadable.
+
+    Parameters
+    ----------
+    path
+        The file.
+    max_bytes
+        The largest file read (default :data:`JSON_MAX_BYTES`).
+    what
+        What the file is, for the size-limit message.
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable, too large or malformed file, or not a JSON object.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(read_text_limited(path, max_bytes, what))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: not a readable JSON file ({exc})") from exc
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a JSON object, got {type(data).__name__}")
+    return data

@@ -23,6 +23,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -31,15 +32,15 @@ from bodymetry.errors import InputError
 from bodymetry.estimation.fit import (
     FitConfig,
     FrameFit,
-    SessionGate,
     fit_frame,
     refit_frame,
     session_gate,
     shared_body_model,
 )
-from bodymetry.estimation.records import FrameArrays, FrameRecord, RunLayout, read_json_object
+from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionGate
+from bodymetry.estimation.run_files import RunLayout
 from bodymetry.estimation.training import DiscriminativeModels
-from bodymetry.fileio import save_npz, write_json_atomic
+from bodymetry.fileio import read_json_object, save_npz, write_json_atomic
 from bodymetry.log import Progress
 from bodymetry.review.meshes import write_mesh
 
@@ -49,6 +50,7 @@ __all__ = [
     "RESCUE_FILE",
     "FitJob",
     "read_done_frames",
+    "read_rescue",
     "rescue_poor_frames",
     "run_fit_job",
     "write_frame",
@@ -210,16 +212,49 @@ class RescueOutcome:
             "method": self.method,
         }
 
+    @classmethod
+    def from_json(cls, frame: int, data: Any, where: str = RESCUE_FILE) -> RescueOutcome:
+        try:
+            return cls(
+                frame,
+                tuple(int(n) for n in data["neighbours"]),
+                _nan_if_none(data["iou_before"]),
+                _nan_if_none(data["iou_after"]),
+                bool(data["kept"]),
+                str(data["method"]),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{where}: frame {frame}: malformed rescue entry ({exc})") from exc
 
-def _read_rescue(layout: RunLayout) -> dict[str, dict]:
+
+def _nan_if_none(v: Any) -> float:
+    return math.nan if v is None else float(v)
+
+
+def read_rescue(layout: RunLayout) -> dict[int, RescueOutcome]:
+    """The rescue's log of a run (``frames/rescue.json``): what it tried, per frame.
+
+    A torn or malformed file reads as empty (with a warning): its frames are
+    tried again, nothing is lost.
+    """
     path = layout.frames_dir / RESCUE_FILE
     if not path.is_file():
         return {}
     try:
-        return dict(read_json_object(path))
-    except InputError as exc:  # a torn file: the frames are tried again, nothing is lost
+        return {
+            int(k): RescueOutcome.from_json(int(k), v, str(path))
+            for k, v in read_json_object(path).items()
+        }
+    except (InputError, ValueError) as exc:
         log.warning("%s; the rescue tries its frames again", exc)
         return {}
+
+
+def write_rescue(layout: RunLayout, tried: dict[int, RescueOutcome]) -> None:
+    """Write the rescue's log (atomically; keyed by frame)."""
+    write_json_atomic(
+        layout.frames_dir / RESCUE_FILE, {str(f): o.to_json() for f, o in sorted(tried.items())}
+    )
 
 
 def rescue_poor_frames(
@@ -275,8 +310,8 @@ def rescue_poor_frames(
     """
     gate, gated = session_gate([records[f] for f in sorted(records)], config)
     accepted = [r.frame for r in gated if r.ok]
-    tried = _read_rescue(layout)
-    poor = [r.frame for r in gated if r.fitted and not r.ok and str(r.frame) not in tried]
+    tried = read_rescue(layout)
+    poor = [r.frame for r in gated if r.fitted and not r.ok and r.frame not in tried]
     if not poor or not accepted or neighbours < 1:
         return records
     log.info(
@@ -344,8 +379,8 @@ def rescue_poor_frames(
                 ", ".join(map(str, near)),
                 "kept" if kept else "first fit kept",
             )
-            tried[str(frame)] = outcome.to_json()
-            write_json_atomic(layout.frames_dir / RESCUE_FILE, tried)
+            tried[frame] = outcome
+            write_rescue(layout, tried)
         if progress:
             progress("rescue", len(proposed), len(poor))
     return out

@@ -39,7 +39,6 @@ it in :func:`segment` before the fit and the record.
 
 from __future__ import annotations
 
-import json
 import logging
 import multiprocessing as mp
 import time
@@ -53,6 +52,7 @@ from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import save_calibration
 from bodymetry.cameras import resolve_cameras
 from bodymetry.capture.background import BackgroundModel
+from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.capture.ingest import SyncReport, check_sync
 from bodymetry.capture.landmarks import (
     LandmarkConfig,
@@ -61,7 +61,6 @@ from bodymetry.capture.landmarks import (
 )
 from bodymetry.capture.session import Session, load_session
 from bodymetry.capture.silhouette import background_models, segment_session
-from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import (
     MIN_PIXELS,
@@ -71,16 +70,10 @@ from bodymetry.estimation.fit import (
     shared_body_model,
 )
 from bodymetry.estimation.outline_check import check_outline
-from bodymetry.estimation.records import (
-    FrameArrays,
-    FrameRecord,
-    RunLayout,
-    RunResults,
-    SessionInfo,
-    SessionShape,
-    summarize,
-)
+from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape, summarize
 from bodymetry.estimation.resolution import WorkingResolution
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunLayout, RunResults, SessionInfo
 from bodymetry.estimation.session_shape import fit_session_shape, session_frame
 from bodymetry.estimation.training import cached_models_path, load_or_train, rig_key
 from bodymetry.executors import Executor
@@ -312,15 +305,10 @@ def plan(prepared: PreparedRun, config: ProcessConfig) -> SessionPlan:
         return SessionPlan(report, done)
     finished = (
         {r.frame for r in recorded.frames} == kept
-        and _settings(recorded.config) == _settings(config.to_json())
+        and replace(recorded.config, workers=None) == replace(config, workers=None)
         and (not config.review or all(p.is_file() for p in layout.review_files))
     )
     return SessionPlan(report, done, recorded if finished else None)
-
-
-def _settings(config: dict) -> dict:
-    # What a finished run must have been made with: all but the parallelism.
-    return {k: v for k, v in config.items() if k not in ("workers", "models", "models_reused")}
 
 
 def backgrounds(
@@ -334,9 +322,7 @@ def backgrounds(
     if config.capture.method == "person":
         return [None] * len(prepared.session.cameras)
     median = not config.capture.uses_segmenter
-    return list(
-        background_models(prepared.session, plan.report, method=read_method, median=median)
-    )
+    return list(background_models(prepared.session, plan.report, method=read_method, median=median))
 
 
 def segment(
@@ -636,16 +622,20 @@ def finish(
             fps=session.fps,
             frame_step=session.frame_step,
         ),
-        config={**config.to_json(), "models": models.key, "models_reused": models.reused},
+        config=config,
+        models=models.key,
+        models_reused=models.reused,
         frames=ordered,
         summary=summarize(ordered, shape),
         timing_seconds={k: round(v, 1) for k, v in timing.items()},
         calibration_source=prepared.calibration_source,
-        ground_truth=_ground_truth(session),
+        ground_truth=(
+            SubjectTruth.read(session.ground_truth_path) if session.ground_truth_path else None
+        ),
         camera_frames=camera_frames,
         warnings=(*prepared.warnings, *warnings),
         working_resolution=prepared.resolution,
-        quality_gate=gate.to_json(),
+        quality_gate=gate,
         session_shape=shape,
     )
     write_json_atomic(prepared.layout.results, results.to_json())
@@ -663,13 +653,6 @@ def review(prepared: PreparedRun, config: ProcessConfig, progress: Progress | No
         build_review(prepared.layout.folder, pdf=config.pdf, progress=progress)
     except Exception:  # results.json is written; the review is extra
         log.exception("%s: building the review outputs failed", prepared.layout.folder)
-
-
-def _ground_truth(session: Session) -> dict | None:
-    gt = session.ground_truth_path
-    if gt is None or not (gt / "subject.json").is_file():
-        return None
-    return json.loads((gt / "subject.json").read_text())
 
 
 #: The steps in graph order (docs/design.md draws them).
@@ -755,7 +738,7 @@ def run_session(
     planned: SessionPlan = plan_f.result()
     if planned.finished is not None:
         log.info("%s: finished already (%s)", prepared.session.folder, prepared.layout.results)
-        return SessionRun(planned.finished, planned.finished.config["models"], None)
+        return SessionRun(planned.finished, planned.finished.models, None)
     # The fit's models and kernels load while the frames are segmented (a local
     # pool's forked workers inherit them; the session stage needs them too).
     ex.warm_up(preload, prepared.cameras, config.fit.refinement)

@@ -64,7 +64,7 @@ from bodymetry.capture.session import (
     load_session,
 )
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import RunLayout
+from bodymetry.estimation.run_files import RunLayout
 
 __all__ = [
     "BLACK_FRAMES",
@@ -78,10 +78,6 @@ __all__ = [
 #: below ``BLACK_MEAN`` (0..255) is reported as black (a covered lens, no signal).
 BLACK_MEAN = 2.0
 BLACK_FRAMES = 3
-
-#: A run's own description, where a run writes one; with ``results.json`` and
-#: ``frames/`` (which ``process`` creates first) it marks a folder as a run.
-_RUN_MANIFEST = "run.json"
 
 
 @dataclass(frozen=True)
@@ -509,7 +505,7 @@ def _check_out(findings: _Findings, out: Path) -> None:
             findings.problem(out, f"--out {out}: cannot list the folder: {exc}")
             return
         layout = RunLayout(out)
-        markers = (layout.results, layout.frames_dir, out / _RUN_MANIFEST)
+        markers = (layout.results, layout.frames_dir, layout.manifest)
         if entries and not any(m.exists() for m in markers):
             shown = ", ".join(sorted(entries)[:5]) + (", ..." if len(entries) > 5 else "")
             findings.problem(

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bodymetry.config import ProcessConfig
-from bodymetry.estimation.records import RunResults
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunResults
 from bodymetry.executors import LocalExecutor
 from bodymetry.log import Progress
 from bodymetry.pipeline import run_session

@@ -23,67 +23,24 @@ import hashlib
 import json
 import logging
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from bodymetry import __version__
 from bodymetry.capture.session import SESSION_FILE, Session
-from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import RunLayout, read_json_object
-from bodymetry.fileio import write_json_atomic
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import MANIFEST_FORMAT, RunLayout, RunManifest
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "MANIFEST_FORMAT",
-    "RunManifest",
     "config_fingerprint",
     "prepare_run_folder",
     "session_fingerprint",
 ]
 
-#: Version of ``run.json``.
-MANIFEST_FORMAT = 1
 _CHUNK = 1 << 20
-
-
-@dataclass(frozen=True)
-class RunManifest:
-    """``run.json``.
-
-    Attributes
-    ----------
-    format : int
-    session_path : str
-        The session folder (absolute).
-    session_fingerprint : str
-        :func:`session_fingerprint` of the session.
-    config_fingerprint : str
-        :func:`config_fingerprint` of the settings.
-    bodymetry_version : str
-    created : str
-        ISO 8601 time (UTC) the run folder was started.
-    """
-
-    format: int
-    session_path: str
-    session_fingerprint: str
-    config_fingerprint: str
-    bodymetry_version: str
-    created: str
-
-    def to_json(self) -> dict[str, Any]:
-        return dict(self.__dict__)
-
-    @classmethod
-    def read(cls, path: Path) -> RunManifest:
-        data = read_json_object(path)
-        try:
-            return cls(**{k: data[k] for k in cls.__dataclass_fields__})
-        except (KeyError, TypeError) as exc:
-            raise InputError(f"{path}: not a bodymetry run.json ({exc})") from exc
 
 
 def _hash_file_ends(h: Any, path: Path) -> None:
@@ -193,7 +150,7 @@ def prepare_run_folder(
         _clear_run(layout)
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        write_json_atomic(layout.manifest, manifest.to_json())
+        manifest.write(layout)
     except OSError as exc:
         raise InputError(
             f"{exc.filename or folder}: cannot write the run folder ({exc.strerror})"

@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bodymetry.config import ProcessConfig
+from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.training import TrainConfig
 from bodymetry.process import process_session
 from bodymetry.studio.synth import SynthConfig, synthesize

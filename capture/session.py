@@ -39,6 +39,7 @@ from bodymetry.calibration.io import (
     read_calibration,
     read_yaml_mapping,
 )
+from bodymetry.capture.ground_truth import GROUND_TRUTH_SILHOUETTES
 from bodymetry.errors import InputError
 from bodymetry.fileio import parse_yaml, write_text_atomic
 
@@ -47,9 +48,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DEFAULT_FRAME_STEP",
-    "GROUND_TRUTH_SILHOUETTES",
-    "GROUND_TRUTH_STATES",
-    "GROUND_TRUTH_SUBJECT",
     "SESSION_FILE",
     "SESSION_FORMAT",
     "SESSION_MAX_BYTES",
@@ -69,10 +67,6 @@ SESSION_MAX_BYTES = 1_000_000
 DEFAULT_CALIBRATION_FILE = "calibration.yaml"
 DEFAULT_FRAME_STEP = 25
 
-# ground_truth/ layout (written by the synthetic studio; see docs/session-format.md).
-GROUND_TRUTH_SUBJECT = "subject.json"
-GROUND_TRUTH_STATES = "states.npz"
-GROUND_TRUTH_SILHOUETTES = "silhouettes"
 
 _TOP_REQUIRED = ("format", "name", "fps", "cameras")
 _TOP_OPTIONAL = (

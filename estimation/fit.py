@@ -14,7 +14,6 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 
@@ -44,6 +43,7 @@ from bodymetry.estimation.records import (
     FrameArrays,
     FrameRecord,
     RefinementTrace,
+    SessionGate,
     StageEstimate,
 )
 from bodymetry.estimation.refinement import (
@@ -580,32 +580,6 @@ def refit_frame(
         config,
         t0,
     )
-
-
-@dataclass(frozen=True)
-class SessionGate:
-    """The quality gate a session's frames were held to (:func:`session_gate`).
-
-    Attributes
-    ----------
-    threshold : float
-        The mean IoU a frame needed.
-    min_iou : float
-        The configured gate.
-    reference : float or None
-        The 75th percentile of the fitted frames' mean IoU (None: no fitted frame).
-    """
-
-    threshold: float
-    min_iou: float
-    reference: float | None
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "threshold": round(self.threshold, 4),
-            "min_iou": self.min_iou,
-            "reference": None if self.reference is None else round(self.reference, 4),
-        }
 
 
 def session_gate(

@@ -1,18 +1,17 @@
-"""The run schema: what ``bodymetry process`` records, read by every consumer.
+"""The fit's records: what the steps record of each frame and of the session's shape.
 
-One typed schema for a run folder (docs/outputs.md): the per-frame records
+One typed schema (docs/outputs.md): the per-frame records
 (``frames/FFFFFF.json``), the arrays a fit leaves for review
 (``frames/FFFFFF.npz``: observed and model silhouettes, the last annealing
-layer) and ``results.json``. ``process`` writes it; ``evaluate``, the review
-outputs, the report and ``batch`` read it. JSON keeps the layout of earlier
-versions (a stage's measurements beside its ``state``), and ``results.json``
-carries a ``format`` number: an older file gets a clear error, not a
-``KeyError``.
+layer), the per-stage summary, the session stage's shape and the quality gate.
+The files of a whole run (``results.json``, ``run.json``, ``evaluation.json``,
+``study.json``) are :mod:`bodymetry.estimation.run_files`, built from these.
+JSON keeps the layout of earlier versions (a stage's measurements beside its
+``state``).
 """
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -21,37 +20,23 @@ from typing import Any
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyState
-from bodymetry.estimation.resolution import WorkingResolution
-from bodymetry.fileio import load_npz, read_text_limited
+from bodymetry.fileio import load_npz, read_json_object
 
 __all__ = [
     "CORE_MEASUREMENTS",
     "FRAME_STAGES",
-    "MEASUREMENTS_CSV",
-    "RECORDING_MCAP",
-    "RECORDING_RRD",
-    "REPORT_HTML",
-    "REPORT_PDF",
-    "RESULTS_FORMAT",
     "STAGES",
-    "STUDY_FORMAT",
     "AnnealingTrace",
     "FrameArrays",
     "FrameRecord",
     "OutlineCheck",
     "RefinementTrace",
-    "RunLayout",
-    "RunResults",
-    "SessionInfo",
+    "SessionGate",
     "SessionShape",
     "StageEstimate",
     "Stat",
-    "StudyResults",
-    "StudySession",
-    "read_json_object",
     "summarize",
 ]
 
@@ -63,52 +48,10 @@ STAGES: tuple[str, ...] = ("discriminative", "generative", "session")
 FRAME_STAGES: tuple[str, ...] = STAGES[:2]
 #: The three measurements of the paper's Figure 3.
 CORE_MEASUREMENTS: tuple[str, ...] = ("height_mm", "arm_span_mm", "weight_kg")
-#: Version of ``results.json`` written by this code (1: before the typed schema).
-RESULTS_FORMAT = 2
-#: Review files written into the run folder (docs/review.md).
-RECORDING_RRD = "recording.rrd"
-RECORDING_MCAP = "recording.mcap"
-REPORT_HTML = "report.html"
-REPORT_PDF = "report.pdf"
-MEASUREMENTS_CSV = "measurements.csv"
 #: Status of a frame that counts in the summary.
 OK = "ok"
-
-
-#: The largest ``results.json`` read (a long session at the best quality stays
-#: well under; anything larger is the wrong file).
-RESULTS_MAX_BYTES = 256_000_000
 #: The largest per-frame record (``frames/FFFFFF.json``) read.
 FRAME_RECORD_MAX_BYTES = 4_000_000
-
-
-def read_json_object(
-    path: Path, max_bytes: int = RESULTS_MAX_BYTES, what: str = "run JSON file"
-) -> dict[str, Any]:
-    """A JSON object from a file; InputError naming the file when it is unreadable.
-
-    Parameters
-    ----------
-    path
-        The file.
-    max_bytes
-        The largest file read (:data:`FRAME_RECORD_MAX_BYTES` for a frame record).
-    what
-        What the file is, for the size-limit message.
-
-    Raises
-    ------
-    InputError
-        Missing, unreadable, too large or malformed file, or not a JSON object.
-    """
-    path = Path(path)
-    try:
-        data = json.loads(read_text_limited(path, max_bytes, what))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: not a readable JSON file ({exc})") from exc
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: expected a JSON object, got {type(data).__name__}")
-    return data
 
 
 def _finite_or_none(x: float | None, digits: int) -> float | None:
@@ -121,85 +64,6 @@ def _finite_or_none(x: float | None, digits: int) -> float | None:
 def _nan_if_none(v: Any) -> float:
     """The reverse of :func:`_finite_or_none`: a JSON null reads as NaN."""
     return math.nan if v is None else float(v)
-
-
-@dataclass(frozen=True)
-class RunLayout:
-    """Where a run folder keeps each record (docs/outputs.md).
-
-    Attributes
-    ----------
-    folder : Path
-    """
-
-    folder: Path
-
-    @property
-    def manifest(self) -> Path:
-        """``run.json``: what the run is of (written first; see ``bodymetry.run_folder``)."""
-        return self.folder / "run.json"
-
-    @property
-    def results(self) -> Path:
-        return self.folder / "results.json"
-
-    @property
-    def frames_dir(self) -> Path:
-        return self.folder / "frames"
-
-    @property
-    def meshes_dir(self) -> Path:
-        return self.folder / "meshes"
-
-    @property
-    def calibration(self) -> Path:
-        """The cameras the run was fitted with (copied or solved into the run)."""
-        return self.folder / "calibration.yaml"
-
-    @property
-    def calibration_report(self) -> Path:
-        return self.folder / "calibration-report.json"
-
-    @property
-    def evaluation(self) -> Path:
-        return self.folder / "evaluation.json"
-
-    @property
-    def review_files(self) -> tuple[Path, ...]:
-        """What the review always writes (``report.pdf`` only on request)."""
-        return tuple(
-            self.folder / n for n in (RECORDING_RRD, RECORDING_MCAP, REPORT_HTML, MEASUREMENTS_CSV)
-        )
-
-    @property
-    def entries(self) -> tuple[Path, ...]:
-        """Everything a run writes into its folder (a restart removes these, nothing else)."""
-        return (
-            self.manifest,
-            self.results,
-            self.evaluation,
-            self.frames_dir,
-            self.meshes_dir,
-            self.calibration,
-            self.calibration_report,
-            *self.review_files,
-            self.folder / REPORT_PDF,
-        )
-
-    def frame_record(self, frame: int) -> Path:
-        return self.frames_dir / f"{frame:06d}.json"
-
-    def frame_arrays(self, frame: int) -> Path:
-        return self.frames_dir / f"{frame:06d}.npz"
-
-    def frame_mesh(self, frame: int) -> Path:
-        return self.meshes_dir / f"{frame:06d}.ply"
-
-    def recorded_frames(self) -> list[int]:
-        """Frames that have a record, in order."""
-        if not self.frames_dir.is_dir():
-            return []
-        return sorted(int(p.stem) for p in self.frames_dir.glob("*.json") if p.stem.isdigit())
 
 
 def _state_to_json(state: BodyState) -> dict[str, list[float]]:
@@ -807,294 +671,38 @@ class SessionShape:
 
 
 @dataclass(frozen=True)
-class SessionInfo:
-    """The session a run measured.
+class SessionGate:
+    """The quality gate a session's frames were held to
+    (:func:`bodymetry.estimation.fit.session_gate`; ``results.json``'s ``quality_gate``).
 
     Attributes
     ----------
-    path : str
-        The session folder (absolute, as processed).
-    name : str
-    cameras : tuple of str
-    fps : float
-    frame_step : int
+    threshold : float
+        The mean IoU a frame needed.
+    min_iou : float
+        The configured gate.
+    reference : float or None
+        The 75th percentile of the fitted frames' mean IoU (None: no fitted frame).
     """
 
-    path: str
-    name: str
-    cameras: tuple[str, ...]
-    fps: float
-    frame_step: int
+    threshold: float
+    min_iou: float
+    reference: float | None
 
     def to_json(self) -> dict[str, Any]:
         return {
-            "path": self.path,
-            "name": self.name,
-            "cameras": list(self.cameras),
-            "fps": self.fps,
-            "frame_step": self.frame_step,
+            "threshold": round(self.threshold, 4),
+            "min_iou": self.min_iou,
+            "reference": None if self.reference is None else round(self.reference, 4),
         }
 
     @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> SessionInfo:
-        return cls(
-            str(data.get("path", "")),
-            str(data.get("name", "")),
-            tuple(data.get("cameras", ())),
-            float(data.get("fps") or 25.0),
-            int(data.get("frame_step", 1)),
-        )
-
-
-@dataclass(frozen=True)
-class RunResults:
-    """``results.json``: a whole run.
-
-    Attributes
-    ----------
-    session : SessionInfo
-    config : dict
-        The settings the run used, as recorded (``ProcessConfig`` as JSON, plus
-        the discriminative models' cache key); read back by ``evaluate``.
-    frames : tuple of FrameRecord
-        Every kept frame, in frame order.
-    summary : dict of str to dict of str to Stat
-        Per stage and measurement, over the ``ok`` frames.
-    timing_seconds : dict of str to float
-    calibration_source : str
-        Where the run's cameras came from (a file, or "solved from the clips").
-    ground_truth : dict or None
-        The studio subject's true measurements, when the session has them.
-    camera_frames : dict of str to int
-        Per camera, the kept frames in which it saw a usable silhouette (a camera
-        with none contributed nothing: covered, black, or no person in view).
-    warnings : tuple of str
-        What the user should know about the run (also logged).
-    working_resolution : WorkingResolution or None
-        The resolution each camera was trained and fitted at (the recorded
-        silhouettes are at it); None for runs recorded before working
-        resolutions, which worked at the cameras' own resolution.
-    quality_gate : dict or None
-        The gate the frames' statuses were set by
-        (:func:`bodymetry.estimation.fit.session_gate`): ``threshold``,
-        ``min_iou``, ``reference``.
-    session_shape : SessionShape or None
-        The session stage (one shape for the session); None when it was
-        disabled or for runs recorded before it.
-    """
-
-    session: SessionInfo
-    config: dict[str, Any]
-    frames: tuple[FrameRecord, ...]
-    summary: dict[str, dict[str, Stat]]
-    timing_seconds: dict[str, float] = field(default_factory=dict)
-    calibration_source: str = ""
-    ground_truth: dict[str, Any] | None = None
-    camera_frames: dict[str, int] = field(default_factory=dict)
-    warnings: tuple[str, ...] = ()
-    working_resolution: WorkingResolution | None = None
-    quality_gate: dict[str, Any] | None = None
-    session_shape: SessionShape | None = None
-
-    @property
-    def ok_frames(self) -> list[FrameRecord]:
-        return [r for r in self.frames if r.ok]
-
-    @property
-    def outline(self) -> OutlineCheck | None:
-        """The session stage's outline check (None without the stage or the check)."""
-        return None if self.session_shape is None else self.session_shape.outline
-
-    def working_cameras(self, cameras: Sequence[Camera]) -> list[Camera]:
-        """The cameras the run was trained and fitted with, from its calibrated ones.
-
-        The one place a reader of a run turns the run's ``calibration.yaml``
-        into the cameras of its recorded silhouettes.
-
-        Raises
-        ------
-        InputError
-            When the calibration does not match the recorded working resolution.
-        """
-        resolution = self.working_resolution or WorkingResolution.full(cameras)
-        return resolution.apply(cameras)
-
-    @property
-    def fitted_frames(self) -> list[FrameRecord]:
-        return [r for r in self.frames if r.fitted]
-
-    def to_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
-            "format": RESULTS_FORMAT,
-            "session": self.session.to_json(),
-            "config": self.config,
-            "calibration_source": self.calibration_source,
-            "frames": [r.to_json() for r in self.frames],
-            "summary": {
-                stage: {k: s.to_json() for k, s in stats.items()}
-                for stage, stats in self.summary.items()
-            },
-            "timing_seconds": self.timing_seconds,
-            "camera_frames": self.camera_frames,
-            "warnings": list(self.warnings),
-        }
-        if self.working_resolution is not None:
-            out["working_resolution"] = self.working_resolution.to_json()
-        if self.quality_gate is not None:
-            out["quality_gate"] = self.quality_gate
-        if self.session_shape is not None:
-            out["session_shape"] = self.session_shape.to_json()
-        if self.ground_truth is not None:
-            out["ground_truth"] = self.ground_truth
-        return out
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any], where: str = "results.json") -> RunResults:
-        """Read ``results.json`` content; InputError naming ``where`` for old or foreign files."""
-        fmt = data.get("format")
-        if fmt is None:
-            raise InputError(
-                f"{where}: written by an older bodymetry (no 'format' key); "
-                "run `bodymetry process` again to update it"
-            )
-        if fmt != RESULTS_FORMAT:
-            raise InputError(
-                f"{where}: results format {fmt!r}, this bodymetry reads format {RESULTS_FORMAT}"
-            )
-        if not isinstance(data.get("frames"), list) or not isinstance(data.get("session"), Mapping):
-            raise InputError(
-                f"{where}: no 'frames' list; not a results file of `bodymetry process`"
-            )
-        frames = tuple(
-            sorted(
-                (
-                    FrameRecord.from_json(f, f"{where}: frames[{i}]")
-                    for i, f in enumerate(data["frames"])
-                ),
-                key=lambda r: r.frame,
-            )
-        )
-        summary = {
-            stage: {k: Stat.from_json(v) for k, v in stats.items()}
-            for stage, stats in data.get("summary", {}).items()
-        }
-        return cls(
-            session=SessionInfo.from_json(data["session"]),
-            config=dict(data.get("config", {})),
-            frames=frames,
-            summary=summary,
-            timing_seconds=dict(data.get("timing_seconds", {})),
-            calibration_source=str(data.get("calibration_source", "")),
-            camera_frames={k: int(v) for k, v in data.get("camera_frames", {}).items()},
-            warnings=tuple(str(w) for w in data.get("warnings", [])),
-            ground_truth=data.get("ground_truth"),
-            quality_gate=(
-                dict(data["quality_gate"])
-                if isinstance(data.get("quality_gate"), Mapping)
-                else None
-            ),
-            session_shape=(
-                SessionShape.from_json(data["session_shape"], f"{where}: session_shape")
-                if data.get("session_shape") is not None
-                else None
-            ),
-            working_resolution=(
-                WorkingResolution.from_json(
-                    data["working_resolution"], f"{where}: working_resolution"
-                )
-                if data.get("working_resolution") is not None
-                else None
-            ),
-        )
-
-    @classmethod
-    def read(cls, path: Path) -> RunResults:
-        return cls.from_json(read_json_object(path), str(path))
-
-
-#: Version of ``study.json`` written by ``bodymetry batch``.
-STUDY_FORMAT = 1
-
-
-@dataclass(frozen=True)
-class StudySession:
-    """One session of a study (``bodymetry batch``).
-
-    Attributes
-    ----------
-    name : str
-        Its run folder's name inside the study folder (unique in the study).
-    session_path : str
-        The session folder.
-    status : str
-        ``"done"`` (results.json written), ``"failed"`` or ``"pending"``.
-    reason : str
-        Why it failed (one line), else empty.
-    rig : str
-        The discriminative models' key of its camera rig (empty when unknown).
-    """
-
-    name: str
-    session_path: str
-    status: str
-    reason: str = ""
-    rig: str = ""
-
-    def to_json(self) -> dict[str, Any]:
-        return dict(self.__dict__)
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any], where: str = "study.json") -> StudySession:
+    def from_json(cls, data: Any, where: str = "quality_gate") -> SessionGate:
         try:
             return cls(
-                name=str(data["name"]),
-                session_path=str(data["session_path"]),
-                status=str(data["status"]),
-                reason=str(data.get("reason", "")),
-                rig=str(data.get("rig", "")),
+                float(data["threshold"]),
+                float(data["min_iou"]),
+                None if data.get("reference") is None else float(data["reference"]),
             )
-        except (KeyError, TypeError) as exc:
-            raise InputError(f"{where}: malformed session entry ({exc})") from exc
-
-
-@dataclass(frozen=True)
-class StudyResults:
-    """``study.json``: what ``bodymetry batch`` did, read by the cohort report.
-
-    Attributes
-    ----------
-    sessions : tuple of StudySession
-        In the order given on the command line.
-    rigs : dict of str to dict
-        Per rig key: ``{"trained": bool, "seconds": float, "sessions": [names]}``.
-    timing_seconds : dict of str to float
-    """
-
-    sessions: tuple[StudySession, ...]
-    rigs: dict[str, dict[str, Any]] = field(default_factory=dict)
-    timing_seconds: dict[str, float] = field(default_factory=dict)
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "format": STUDY_FORMAT,
-            "sessions": [s.to_json() for s in self.sessions],
-            "rigs": self.rigs,
-            "timing_seconds": self.timing_seconds,
-        }
-
-    @classmethod
-    def read(cls, path: Path) -> StudyResults:
-        """Read ``STUDY/study.json``; InputError naming the file when it is not one."""
-        data = read_json_object(path)
-        if data.get("format") != STUDY_FORMAT or not isinstance(data.get("sessions"), list):
-            raise InputError(
-                f"{path}: not a study.json of `bodymetry batch` (format {STUDY_FORMAT})"
-            )
-        return cls(
-            sessions=tuple(
-                StudySession.from_json(s, f"{path}: sessions[{i}]")
-                for i, s in enumerate(data["sessions"])
-            ),
-            rigs=dict(data.get("rigs", {})),
-            timing_seconds=dict(data.get("timing_seconds", {})),
-        )
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise InputError(f"{where}: malformed quality gate ({exc})") from exc

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from bodymetry.estimation.fit import shared_body_model
-from bodymetry.estimation.records import RECORDING_MCAP, RECORDING_RRD
+from bodymetry.estimation.run_files import RECORDING_MCAP, RECORDING_RRD
 from bodymetry.fileio import atomic_path
 from bodymetry.log import Progress
 from bodymetry.review.mcap_recording import McapWriter

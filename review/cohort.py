@@ -33,15 +33,8 @@ import numpy as np
 from bodymetry import __version__
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
-from bodymetry.estimation.records import (
-    CORE_MEASUREMENTS,
-    REPORT_HTML,
-    STAGES,
-    RunLayout,
-    RunResults,
-    Stat,
-    StudyResults,
-)
+from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, Stat
+from bodymetry.estimation.run_files import REPORT_HTML, RunLayout, RunResults, StudyResults
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
 from bodymetry.review.report import figure_uri, template_environment
@@ -487,12 +480,11 @@ def _html_context(
         "rigs": [
             {
                 "key": key,
-                "trained": bool(info.get("trained")),
-                "seconds": info.get("seconds"),
-                "sessions": ", ".join(str(s) for s in info.get("sessions", [])),
+                "trained": bool(info.trained),
+                "seconds": info.seconds,
+                "sessions": ", ".join(info.sessions),
             }
             for key, info in study.rigs.items()
-            if isinstance(info, Mapping)
         ],
         "timing": study.timing_seconds,
     }

@@ -17,15 +17,16 @@ from pathlib import Path
 import numpy as np
 
 from bodymetry.calibration.camera import Camera
-from bodymetry.capture.session import GROUND_TRUTH_STATES, load_session
+from bodymetry.capture.ground_truth import GROUND_TRUTH_STATES
+from bodymetry.capture.session import load_session
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.fit import FitConfig, generative_fit, shared_body_model
-from bodymetry.estimation.records import CORE_MEASUREMENTS, RunLayout, Stat
-from bodymetry.fileio import load_npz, write_json_atomic
+from bodymetry.estimation.records import CORE_MEASUREMENTS, FRAME_STAGES, Stat
+from bodymetry.estimation.run_files import GT_STAGE, Evaluation, RunLayout
+from bodymetry.fileio import load_npz
 from bodymetry.log import Progress
-from bodymetry.review.run_data import RunData, load_frame_arrays, load_run
-from bodymetry.settings import from_jsonable
+from bodymetry.review.run_data import load_frame_arrays, load_run
 
 #: Spread of the GT + Generative start around the true pose (τ m, θ rad, ν).
 GT_START_STD = (0.01, 0.02, 0.3)
@@ -51,22 +52,11 @@ def _gt_generative(
     return frame, bio, joints
 
 
-def _stats(values: list[float]) -> dict:
-    return Stat.of(values).to_json()
-
-
-def _fit_config(run: RunData) -> FitConfig:
-    recorded = run.results.config.get("fit")
-    if not isinstance(recorded, dict):
-        raise InputError(f"{run.layout.results}: the run does not record its fit settings")
-    return from_jsonable(FitConfig, recorded, f"{run.layout.results}: config.fit")
-
-
 def evaluate_run(
     run: str | Path,
     workers: int | None = None,
     progress: Progress | None = None,
-) -> dict:
+) -> Evaluation:
     """Compute the Figure 3 numbers for a run and write ``run/evaluation.json``.
 
     Raises
@@ -90,7 +80,7 @@ def evaluate_run(
         raise InputError(f"{layout.results}: no frame was fitted")
     if not data.cameras:
         raise InputError(f"{layout.calibration}: the run has no recorded cameras")
-    config = _fit_config(data)
+    config = data.results.config.fit
     names = data.camera_names
     jobs = []
     for record in ok:
@@ -125,16 +115,12 @@ def evaluate_run(
 
     # The session stage: one value and its standard error (in "std"), when the run has it.
     session = data.results.summary.get("session", {})
-    table = {}
+    table: dict[str, dict[str, Stat]] = {}
     for key in CORE_MEASUREMENTS:
-        table[key] = {
-            "actual": truth[key],
-            "discriminative": _stats([bio(r, "discriminative", key) for r in ok]),
-            "disc_generative": _stats([bio(r, "generative", key) for r in ok]),
-            "gt_generative": _stats([gt_gen[r.frame][0][key] for r in ok]),
-        }
+        table[key] = {stage: Stat.of([bio(r, stage, key) for r in ok]) for stage in FRAME_STAGES}
         if key in session and session[key].mean is not None:
-            table[key]["session"] = session[key].to_json()
+            table[key]["session"] = session[key]
+        table[key][GT_STAGE] = Stat.of([gt_gen[r.frame][0][key] for r in ok])
     gt_mpjpe = float(
         1000
         * np.mean(
@@ -146,19 +132,19 @@ def evaluate_run(
             ]
         )
     )
-    evaluation = {
-        "run": str(layout.folder.resolve()),
-        "session": data.name,
-        "frames": len(ok),
-        "frames_failed": len(data.frames) - len(ok),
-        "table": table,
-        "mpjpe_mm": {
-            "discriminative": mpjpe("discriminative"),
-            "disc_generative": mpjpe("generative"),
+    evaluation = Evaluation(
+        run=str(layout.folder.resolve()),
+        session=data.name,
+        frames=len(ok),
+        frames_failed=len(data.frames) - len(ok),
+        actual={key: truth.measurements[key] for key in CORE_MEASUREMENTS},
+        table=table,
+        mpjpe_mm={
+            **{stage: mpjpe(stage) for stage in FRAME_STAGES},
             **({"session": mpjpe("session")} if session else {}),
-            "gt_generative": gt_mpjpe,
+            GT_STAGE: gt_mpjpe,
         },
-        "silhouette_iou_mean": float(np.mean([r.mean_iou for r in ok])),
-    }
-    write_json_atomic(layout.evaluation, evaluation)
+        silhouette_iou_mean=float(np.mean([r.mean_iou for r in ok])),
+    )
+    evaluation.write(layout)
     return evaluation

@@ -94,7 +94,7 @@ def measurement_plots(run: RunData, keys: Sequence[str] | None = None) -> Any:
     )
     frames = np.array([r.frame for r in ok])
     failed = [r.frame for r in run.frames if not r.ok]
-    truth = run.ground_truth or {}
+    truth = run.ground_truth.measurements if run.ground_truth else {}
     for ax, key in zip(axes.flat, keys, strict=False):
         for stage in STAGES:
             values = np.array([_value(r, stage, key) for r in ok], float)

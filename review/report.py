@@ -39,14 +39,8 @@ from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.fit import shared_body_model
-from bodymetry.estimation.records import (
-    CORE_MEASUREMENTS,
-    MEASUREMENTS_CSV,
-    REPORT_HTML,
-    REPORT_PDF,
-    STAGES,
-    Stat,
-)
+from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, SessionGate, Stat
+from bodymetry.estimation.run_files import GT_STAGE, MEASUREMENTS_CSV, REPORT_HTML, REPORT_PDF
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
 from bodymetry.review.accuracy import SESSION_ACCURACY
@@ -176,12 +170,12 @@ def figure3_columns(run: RunData) -> list[dict[str, str]]:
     ``bodymetry evaluate``."""
     cols = [
         {"key": "discriminative", "title": "Discriminative", "spread": "Std"},
-        {"key": "disc_generative", "title": "Disc. + Generative", "spread": "Std"},
+        {"key": "generative", "title": "Disc. + Generative", "spread": "Std"},
     ]
     if "session" in run.results.summary:
         cols.append({"key": "session", "title": "Session (one shape)", "spread": "S.e."})
     if run.evaluation is not None:
-        cols.append({"key": "gt_generative", "title": "GT + Generative", "spread": "Std"})
+        cols.append({"key": GT_STAGE, "title": "GT + Generative", "spread": "Std"})
     return cols
 
 
@@ -189,25 +183,23 @@ def figure3_rows(run: RunData) -> list[dict[str, Any]]:
     """The paper's Figure 3 rows: Actual, Discriminative, Disc. + Generative, Session,
     GT + Generative.
 
-    Each row: ``key``, ``label``, ``actual`` (float or None) and
-    ``discriminative``, ``disc_generative``, ``gt_generative`` as (mean, std) and
-    ``session`` as (value, standard error), or None.
+    Each row: ``key``, ``label``, ``actual`` (float or None) and per stage of
+    :data:`STAGES` and :data:`GT_STAGE`: (mean, std), the session's (value,
+    standard error), or None.
     """
     summary = run.results.summary
-    truth = run.ground_truth or {}
-    table = (run.evaluation or {}).get("table", {})
+    truth = run.ground_truth
+    table = run.evaluation.table if run.evaluation is not None else {}
     rows = []
     for key in CORE_MEASUREMENTS:
-        gt_gen = table.get(key, {}).get("gt_generative")
+        gt_gen = table.get(key, {}).get(GT_STAGE)
         rows.append(
             {
                 "key": key,
                 "label": plots.label(key),
-                "actual": truth.get(key),
-                "discriminative": _stat(summary, "discriminative", key),
-                "disc_generative": _stat(summary, "generative", key),
-                "session": _stat(summary, "session", key),
-                "gt_generative": (float(gt_gen["mean"]), float(gt_gen["std"])) if gt_gen else None,
+                "actual": truth.get(key) if truth else None,
+                **{stage: _stat(summary, stage, key) for stage in STAGES},
+                GT_STAGE: (gt_gen.mean, gt_gen.std) if gt_gen is not None else None,
             }
         )
     return rows
@@ -217,14 +209,14 @@ def measurement_rows(run: RunData) -> list[dict[str, Any]]:
     """Every measurement: actual, mean ± std per frame stage, the session's value ±
     standard error, n, and the errors of the generative mean and the session value."""
     summary = run.results.summary
-    truth = run.ground_truth or {}
+    truth = run.ground_truth
     rows = []
     for key in MEASUREMENTS:
         disc = _stat(summary, "discriminative", key)
         gen = _stat(summary, "generative", key)
         if disc is None and gen is None:
             continue
-        actual = truth.get(key)
+        actual = truth.get(key) if truth else None
         error = None
         if actual is not None and gen is not None and actual:
             error = 100.0 * (gen[0] - actual) / actual
@@ -371,7 +363,7 @@ def body_renders(run: RunData, body: BodyModel) -> dict[str, dict[str, np.ndarra
         nu = np.mean([r.estimates["generative"].state.nu[0] for r in ok], axis=0)
         if len(nu) == body.n_shape:
             renders["fitted (mean shape)"] = plots.body_views(body, nu)
-    truth_nu = (run.ground_truth or {}).get("nu")
+    truth_nu = run.ground_truth.nu if run.ground_truth else None
     if truth_nu is not None and len(truth_nu) == body.n_shape:
         renders["actual (ground truth)"] = plots.body_views(body, np.asarray(truth_nu, float))
     return renders
@@ -390,11 +382,10 @@ class _Content:
 def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -> _Content:
     results = run.results
     session = results.session
-    # The settings as the run recorded them (ProcessConfig as JSON): a run
-    # made with other settings than today's defaults reports its own.
+    # The settings as the run recorded them: a run made with other settings
+    # than today's defaults reports its own.
     config = results.config
-    fit = config.get("fit", {})
-    annealing = fit.get("annealing", {})
+    fit = config.fit
     frames = run.frames
     ok = run.ok_frames
     truth = run.ground_truth
@@ -410,7 +401,7 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
                     "mean": gen[0],
                     "std": gen[1],
                     "session": _stat(summary, "session", key),
-                    "actual": (truth or {}).get(key),
+                    "actual": truth.get(key) if truth else None,
                     "accuracy": SESSION_ACCURACY.get(key),
                 }
             )
@@ -467,20 +458,19 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
             "fitted": len(run.fitted_frames),
             "failed": len(frames) - len(ok),
         },
-        "gate": results.quality_gate
-        or {"threshold": fit.get("min_iou"), "min_iou": fit.get("min_iou")},
+        "gate": results.quality_gate or SessionGate(fit.min_iou, fit.min_iou, None),
         "failed": [r for r in frames if not r.ok],
         "config": {
-            "quality": config.get("quality"),
-            "seed": fit.get("seed"),
-            "density": fit.get("density"),
-            "particles": annealing.get("n_particles"),
-            "layers": annealing.get("n_layers"),
-            "models": config.get("models"),
+            "quality": config.quality,
+            "seed": fit.seed,
+            "density": fit.density,
+            "particles": fit.annealing.n_particles,
+            "layers": fit.annealing.n_layers,
+            "models": results.models,
         },
         "timing": results.timing_seconds,
         "truth": truth,
-        "truth_source": (truth or {}).get("source"),
+        "truth_source": truth.source if truth else None,
         "headline": headline,
         "accuracy_source": ACCURACY_SOURCE,
         "figure3": figure3_rows(run),

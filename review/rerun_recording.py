@@ -248,7 +248,7 @@ class RerunWriter:
                     rr.SeriesLines(colors=[STAGE_RGB[stage]], names=[stage]),
                     static=True,
                 )
-        truth = self.run.ground_truth or {}
+        truth = self.run.ground_truth.measurements if self.run.ground_truth else {}
         self._truth = {k: float(truth[k]) for k in self.biometrics if k in truth}
         summary = _summary_text(self.run)
         rec.log("/notes", rr.TextDocument(summary, media_type="text/markdown"), static=True)

@@ -19,30 +19,29 @@ overlays, recordings and report line up with what the fit saw.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.calibration.io import read_calibration
+from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.capture.ingest import read_frame_sets
 from bodymetry.capture.session import load_session
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.body_model.skeleton import PART_PARENT
-from bodymetry.estimation.records import (
-    FrameArrays,
-    FrameRecord,
-    RunLayout,
-    RunResults,
-    read_json_object,
-)
+from bodymetry.estimation.records import FrameArrays, FrameRecord
+from bodymetry.estimation.run_files import Evaluation, RunLayout, RunResults
+from bodymetry.fileio import read_json_object
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -66,7 +65,7 @@ class RunData:
         ``calibration-report.json`` of the calibration, when there is one.
     calibration_quality : dict or None
         The ``quality:`` block of the calibration file, when it has one.
-    evaluation : dict or None
+    evaluation : Evaluation or None
         ``evaluation.json`` written by ``bodymetry evaluate``, when present.
     session_folder : Path or None
         The session folder, when it still exists.
@@ -79,7 +78,7 @@ class RunData:
     calibration_source: str = ""
     calibration_report: dict[str, Any] | None = None
     calibration_quality: dict[str, Any] | None = None
-    evaluation: dict[str, Any] | None = None
+    evaluation: Evaluation | None = None
     session_folder: Path | None = None
 
     @property
@@ -113,7 +112,7 @@ class RunData:
         return list(names) if names else [c.name for c in self.cameras]
 
     @property
-    def ground_truth(self) -> dict[str, Any] | None:
+    def ground_truth(self) -> SubjectTruth | None:
         return self.results.ground_truth
 
     @property
@@ -125,11 +124,12 @@ class RunData:
         return frame / self.fps
 
 
-def _optional_json(path: Path) -> dict[str, Any] | None:
+def _optional(read: Callable[[Path], T], path: Path) -> T | None:
+    """``read(path)`` of an optional file: None when it is missing or unreadable (a warning)."""
     if not path.is_file():
         return None
     try:
-        return read_json_object(path)
+        return read(path)
     except InputError as exc:
         log.warning("%s; left out of the review", exc)
         return None
@@ -187,9 +187,9 @@ def load_run(folder: str | Path) -> RunData:
         cameras=cameras,
         calibrated_cameras=calibrated,
         calibration_source=source,
-        calibration_report=_optional_json(layout.calibration_report),
+        calibration_report=_optional(read_json_object, layout.calibration_report),
         calibration_quality=quality,
-        evaluation=_optional_json(layout.evaluation),
+        evaluation=_optional(Evaluation.read, layout.evaluation),
         session_folder=session_folder,
     )
 

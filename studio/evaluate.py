@@ -19,7 +19,6 @@ scoring renders the studio's shadows and capture must not import the studio.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,8 +28,14 @@ import cv2
 import numpy as np
 
 from bodymetry.capture.background import SubtractionConfig
+from bodymetry.capture.ground_truth import (
+    GROUND_TRUTH_STATES,
+    GROUND_TRUTH_SUBJECT,
+    StudioRecord,
+    SubjectTruth,
+)
 from bodymetry.capture.ingest import check_sync
-from bodymetry.capture.session import GROUND_TRUTH_STATES, GROUND_TRUTH_SUBJECT, Session
+from bodymetry.capture.session import Session
 from bodymetry.capture.silhouette import (
     SilhouetteFrame,
     background_models,
@@ -104,10 +109,8 @@ class GroundTruth:
     def _setup(self) -> None:
         gt = self.session.ground_truth_path
         self._states = load_npz(gt / GROUND_TRUTH_STATES)
-        shadows = True
-        studio_json = gt / "studio.json"
-        if studio_json.is_file():
-            shadows = bool(json.loads(studio_json.read_text())["config"].get("shadows", True))
+        studio = StudioRecord.read(gt)
+        shadows = studio.shadows if studio is not None else True
         self._independent = None
         if "nu" in self._states:
             self._model = BodyModel.load(n_shape=len(self._states["nu"]))
@@ -156,10 +159,9 @@ def independent_spec(ground_truth: Path) -> IndependentSpec:
     InputError
         When the subject is not an independent one (its states should hold ν).
     """
-    path = ground_truth / GROUND_TRUTH_SUBJECT
-    subject = json.loads(path.read_text()) if path.is_file() else {}
-    text = str(subject.get("subject", ""))
-    if subject.get("source") != "independent" or not text.startswith("independent:"):
+    subject = SubjectTruth.read(ground_truth)
+    text = str(subject.details.get("subject", "")) if subject else ""
+    if subject is None or subject.source != "independent" or not text.startswith("independent:"):
         raise InputError(
             f"{ground_truth}: the states have no shape ν and {GROUND_TRUTH_SUBJECT} names no "
             "independent subject"

@@ -22,7 +22,6 @@ same session.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import multiprocessing as mp
 import queue as queue_module
@@ -39,15 +38,13 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import save_calibration
-from bodymetry.capture.session import (
+from bodymetry.capture.ground_truth import (
     GROUND_TRUTH_SILHOUETTES,
     GROUND_TRUTH_STATES,
-    GROUND_TRUTH_SUBJECT,
-    BoardSpec,
-    Session,
-    SessionCamera,
-    save_session,
+    StudioRecord,
+    SubjectTruth,
 )
+from bodymetry.capture.session import BoardSpec, Session, SessionCamera, save_session
 from bodymetry.capture.video import H264Writer
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import measure
@@ -60,7 +57,7 @@ from bodymetry.estimation.body_model.motion.library import (
 )
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.motion.seeds import seed_for
-from bodymetry.fileio import save_npz, write_bytes_atomic, write_json_atomic
+from bodymetry.fileio import save_npz, write_bytes_atomic
 from bodymetry.studio.bystanders import (
     MAX_BYSTANDERS,
     BystanderPlacement,
@@ -548,14 +545,13 @@ def synthesize(
     if nu is not None:  # an independent subject has no ν
         states["nu"] = nu
     save_npz(out / "ground_truth" / GROUND_TRUTH_STATES, states)
-    write_json_atomic(
-        out / "ground_truth" / GROUND_TRUTH_SUBJECT,
+    SubjectTruth.from_json(
         {
             **{k: round(v, 3) for k, v in bio.items()},
             **({"nu": nu.tolist()} if nu is not None else {}),
             **subject_info,
-        },
-    )
+        }
+    ).write(out / "ground_truth")
     save_calibration(
         out / "calibration.yaml",
         group,
@@ -623,26 +619,25 @@ def synthesize(
     )
     save_session(session, out)
     shadow = {r["camera"]: float(np.mean(r["shadow_to_person_area"] or [0.0])) for r in results}
-    write_json_atomic(
-        out / "ground_truth" / "studio.json",
-        {
-            "config": {**asdict(config), "subject": asdict(config.subject)},
-            "motion_seed": motion_seed,
-            "bystanders": [b.to_json() for b in bystanders],
-            "render_seconds": round(time.perf_counter() - t0, 2),
-            "shadow_to_person_area_mean": shadow,
-        },
-    )
+    StudioRecord(
+        config={**asdict(config), "subject": asdict(config.subject)},
+        motion_seed=motion_seed,
+        bystanders=[b.to_json() for b in bystanders],
+        render_seconds=round(time.perf_counter() - t0, 2),
+        shadow_to_person_area_mean=shadow,
+    ).write(out / "ground_truth")
     log.info("rendered %s in %.1f s", out, time.perf_counter() - t0)
     return session
 
 
 def describe(session: Session) -> str:
     """A one-paragraph summary of a rendered session (for the CLI)."""
-    gt = json.loads((session.folder / "ground_truth" / GROUND_TRUTH_SUBJECT).read_text())
-    studio = json.loads((session.folder / "ground_truth" / "studio.json").read_text())
+    gt = SubjectTruth.read(session.folder / "ground_truth")
+    studio = StudioRecord.read(session.folder / "ground_truth")
+    if gt is None or studio is None:
+        raise InputError(f"{session.folder}: not a studio session (no ground_truth/ records)")
     extras = []
-    bystanders = studio.get("bystanders", [])
+    bystanders = studio.bystanders
     if bystanders:
         seen = "; ".join(
             f"at ({b['position_m'][0]:.1f}, {b['position_m'][1]:.1f}) m seen by "
@@ -653,8 +648,9 @@ def describe(session: Session) -> str:
     if all(cam.background is None for cam in session.cameras):
         extras.append("no background clip")
     return (
-        f"{session.folder}: {len(session.cameras)} cameras, {studio['config']['frames']} frames at "
-        f"{session.fps:g} fps, subject {gt['height_mm']:.0f} mm / {gt['weight_kg']:.1f} kg, "
+        f"{session.folder}: {len(session.cameras)} cameras, {studio.config['frames']} frames at "
+        f"{session.fps:g} fps, subject {gt.measurements['height_mm']:.0f} mm / "
+        f"{gt.measurements['weight_kg']:.1f} kg, "
         + "".join(f"{e}, " for e in extras)
-        + f"rendered in {studio['render_seconds']:.0f} s"
+        + f"rendered in {studio.render_seconds:.0f} s"
     )

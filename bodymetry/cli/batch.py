@@ -16,8 +16,8 @@ from bodymetry.cli.common import (
     labelled_progress,
     quality_option,
 )
-from bodymetry.config import ProcessConfig
 from bodymetry.estimation.records import CORE_MEASUREMENTS
+from bodymetry.estimation.run_config import ProcessConfig
 
 __all__ = ["EXIT_SESSIONS_FAILED", "batch"]
 
@@ -102,7 +102,7 @@ def _print_study(study, folder: Path) -> None:
     for entry in study.sessions:
         table.add_row(entry.name, entry.status, entry.rig[:8], entry.reason)
     console.print(table)
-    trained = sum(1 for r in study.rigs.values() if r.get("trained"))
+    trained = sum(1 for r in study.rigs.values() if r.trained)
     console.print(
         f"{len(study.rigs)} rig(s), {trained} trained now; cohort: {folder / 'cohort.csv'}, "
         f"{folder / 'cohort.html'} ({', '.join(CORE_MEASUREMENTS)} per session)"

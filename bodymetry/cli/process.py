@@ -19,17 +19,16 @@ from bodymetry.cli.common import (
     labelled_progress,
     quality_option,
 )
-from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import FitConfig
-from bodymetry.estimation.records import (
-    CORE_MEASUREMENTS,
+from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import (
     MEASUREMENTS_CSV,
     RECORDING_MCAP,
     RECORDING_RRD,
     REPORT_HTML,
     REPORT_PDF,
-    STAGES,
     RunResults,
 )
 from bodymetry.process import process_session
@@ -192,7 +191,8 @@ def _print_summary(results: RunResults) -> None:
     for key in (*CORE_MEASUREMENTS, "chest_mm", "waist_mm", "hip_mm"):
         row = [key]
         if truth:
-            row.append(f"{truth[key]:.1f}" if key in truth else "-")
+            actual = truth.get(key)
+            row.append("-" if actual is None else f"{actual:.1f}")
         for stage in STAGES:
             s = results.summary.get(stage, {}).get(key)
             row.append("-" if s is None or s.mean is None else f"{s.mean:.1f} ± {s.std:.1f}")

@@ -14,7 +14,7 @@ from rich.table import Table
 
 from bodymetry.cli.common import console, friendly_errors, labelled_progress
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import RECORDING_MCAP, RECORDING_RRD
+from bodymetry.estimation.run_files import GT_STAGE, RECORDING_MCAP, RECORDING_RRD
 from bodymetry.review.build import build_review
 from bodymetry.review.cohort import STUDY_JSON, write_cohort
 
@@ -124,34 +124,28 @@ def evaluate(run: Path, workers: int | None, as_json: bool) -> None:
     with labelled_progress() as update:
         ev = evaluate_run(run, workers=workers, progress=update)
     if as_json:
-        click.echo(json.dumps(ev))
+        click.echo(json.dumps(ev.to_json()))
         return
-    table = Table(title=f"{ev['session']} ({ev['frames']} frames): Figure 3")
+    table = Table(title=f"{ev.session} ({ev.frames} frames): Figure 3")
     table.add_column("biometric")
     table.add_column("actual", justify="right")
-    has_session = all("session" in row for row in ev["table"].values())
-    cols = [
-        ("discriminative", "discriminative", "std"),
-        ("disc_generative", "disc. + generative", "std"),
-    ]
-    if has_session:
-        # One value for the session, ± its standard error.
-        cols.append(("session", "session", "s.e."))
-    cols.append(("gt_generative", "GT + generative", "std"))
-    for _, title, spread in cols:
+    # The session's one value is ± its standard error; the others ± their spread.
+    titles = {
+        "discriminative": ("discriminative", "std"),
+        "generative": ("disc. + generative", "std"),
+        "session": ("session", "s.e."),
+        GT_STAGE: ("GT + generative", "std"),
+    }
+    stages = [s for s in ev.stages if all(s in row for row in ev.table.values())]
+    for stage in stages:
+        title, spread = titles[stage]
         table.add_column(f"{title} mean", justify="right")
         table.add_column(spread, justify="right")
-    for key, row in ev["table"].items():
-        cells = [key, f"{row['actual']:.1f}"]
-        for col, _, _ in cols:
-            cells += [f"{row[col]['mean']:.1f}", f"{row[col]['std']:.1f}"]
+    for key, row in ev.table.items():
+        cells = [key, f"{ev.actual[key]:.1f}"]
+        for stage in stages:
+            cells += [f"{row[stage].mean:.1f}", f"{row[stage].std:.1f}"]
         table.add_row(*cells)
     console.print(table)
-    m = ev["mpjpe_mm"]
-    session_mpjpe = f"session {m['session']:.0f} mm, " if "session" in m else ""
-    console.print(
-        f"MPJPE: discriminative {m['discriminative']:.0f} mm, "
-        f"disc. + generative {m['disc_generative']:.0f} mm, {session_mpjpe}"
-        f"GT + generative {m['gt_generative']:.0f} mm; "
-        f"silhouette IoU of the fit {ev['silhouette_iou_mean']:.3f}"
-    )
+    mpjpe = ", ".join(f"{titles[s][0]} {mm:.0f} mm" for s, mm in ev.mpjpe_mm.items())
+    console.print(f"MPJPE: {mpjpe}; silhouette IoU of the fit {ev.silhouette_iou_mean:.3f}")

@@ -16,7 +16,7 @@ def _session(name: str, errors: dict[str, tuple[float, float, float, float]]) ->
         e_pf, std, e_s, se = errors.get(key, (1.0, 4.0, 0.5, 0.5))
         table[key] = {
             "actual": 100.0,
-            "disc_generative": {"mean": 100.0 + e_pf, "std": std, "n": 16},
+            "generative": {"mean": 100.0 + e_pf, "std": std, "n": 16},
             "session": {"mean": 100.0 + e_s, "std": se, "n": 16},
         }
     return {"session": f"/somewhere/{name}", "figure3": table}
@@ -66,7 +66,7 @@ def test_a_one_frame_session_has_no_per_frame_standard_error():
     """One frame: no spread to take the per-frame mean's standard error from; the z
     uses the session's alone, and the table stays valid JSON (no NaN)."""
     one = _session("one", {"height_mm": (2.0, 0.0, 3.0, 0.5)})
-    one["figure3"]["height_mm"]["disc_generative"]["n"] = 1
+    one["figure3"]["height_mm"]["generative"]["n"] = 1
     row = stage_comparison([one])["height_mm"]["sessions"][0]
     assert row["per_frame_standard_error"] is None
     assert row["z"] == pytest.approx(1.0 / 0.5)

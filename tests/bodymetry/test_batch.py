@@ -12,9 +12,9 @@ from tiny_run import TINY_TRAIN, tiny_session
 
 from bodymetry.batch import dask_client, find_sessions, run_batch, run_names
 from bodymetry.cli import main
-from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import RunResults, StudyResults
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunResults, StudyResults
 from bodymetry.process import process_session
 
 
@@ -45,8 +45,8 @@ def test_each_rig_is_trained_exactly_once(study):
     _, _, first, _ = study
     rigs = first.study.rigs
     assert len(rigs) == 2
-    assert sorted(sorted(r["sessions"]) for r in rigs.values()) == [["anna", "ben"], ["cleo"]]
-    assert all(r["trained"] is True for r in rigs.values())
+    assert sorted(list(r.sessions) for r in rigs.values()) == [["anna", "ben"], ["cleo"]]
+    assert all(r.trained is True for r in rigs.values())
 
 
 def test_every_frame_is_fitted_and_a_bad_session_does_not_stop_the_others(study):
@@ -71,10 +71,7 @@ def test_a_session_of_a_batch_is_what_process_writes(study):
     assert strip == [{k: v for k, v in r.to_json().items() if k != "seconds"} for r in batch.frames]
     assert batch.summary == alone.summary
 
-    def settings(results: RunResults) -> dict:
-        return {k: v for k, v in results.config.items() if k != "models_reused"}
-
-    assert settings(batch) == settings(alone)
+    assert batch.config == alone.config and batch.models == alone.models
     for name in ("calibration.yaml", "run.json"):
         assert (base / "study" / "anna" / name).is_file()
 
@@ -98,7 +95,7 @@ def test_a_rerun_skips_finished_sessions(study):
         s.name: s.status for s in first.study.sessions
     }
     assert again.results == {}  # nothing was summarized again
-    assert all(r["trained"] is not True for r in again.study.rigs.values())
+    assert all(r.trained is not True for r in again.study.rigs.values())
 
 
 def test_sessions_from_folders_lists_and_files(tmp_path, study):

@@ -28,7 +28,9 @@ from bodymetry.cli.common import describe_error, labelled_progress, warnings_to_
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS, measure
 from bodymetry.estimation.body_model.model import BodyModel
-from bodymetry.estimation.records import FrameRecord, RunResults, SessionInfo
+from bodymetry.estimation.records import FrameRecord
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunResults, SessionInfo
 from bodymetry.log import PROGRESS_LOGGER, setup_logging
 
 # --------------------------------------------------------------------------------------
@@ -307,6 +309,7 @@ def test_top_level_help_imports_no_command_module():
         "bodymetry.log",
         "bodymetry.cli.common",
         "bodymetry.cli.lazy",
+        "bodymetry.threads",  # the BLAS limit set at import (os and sys only)
     }, loaded
 
 
@@ -487,7 +490,7 @@ def test_click_usage_errors_keep_their_status() -> None:
 def _failed_results(statuses: dict[int, str]) -> RunResults:
     return RunResults(
         session=SessionInfo("/s", "s", ("cam_00",), 25.0, 10),
-        config={},
+        config=ProcessConfig(),
         frames=tuple(FrameRecord(f, s) for f, s in statuses.items()),
         summary={},
     )

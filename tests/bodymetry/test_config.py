@@ -6,11 +6,11 @@ import json
 
 import pytest
 
-from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import PRESETS, FitConfig
 from bodymetry.estimation.refinement import RefineConfig
 from bodymetry.estimation.resolution import DEFAULT_WORKING_PERSON_PX
+from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.run_folder import config_fingerprint
 from bodymetry.settings import apply_overrides, parse_override
 

@@ -23,10 +23,10 @@ from mcap.reader import make_reader
 from tiny_run import TINY_TRAIN
 
 from bodymetry.capture.silhouette import segment_session
-from bodymetry.config import ProcessConfig
 from bodymetry.estimation.fit import FitConfig, shared_body_model
 from bodymetry.estimation.records import FrameArrays
 from bodymetry.estimation.resolution import downscale_mask, person_height_px
+from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.training import rig_key
 from bodymetry.process import process_session
 from bodymetry.review.evaluation import evaluate_run
@@ -97,9 +97,9 @@ def test_training_is_at_the_working_size(hires):
     cameras = list(session.calibration())
     working = load_run(out).cameras
     assert [c.size for c in working] == [WORKING_SIZE] * 2
-    assert results.config["models"] == rig_key(working, config.training)
-    assert results.config["models"] != rig_key(cameras, config.training)
-    assert (config.cache_dir / "discriminative" / f"{results.config['models']}.npz").is_file()
+    assert results.models == rig_key(working, config.training)
+    assert results.models != rig_key(cameras, config.training)
+    assert (config.cache_dir / "discriminative" / f"{results.models}.npz").is_file()
 
 
 def test_recorded_masks_are_the_downscaled_silhouettes(hires):
@@ -144,5 +144,5 @@ def test_review_outputs_are_at_the_working_size(hires):
 def test_evaluate_refits_at_the_working_size(hires):
     _, out, results, _, _ = hires
     evaluation = evaluate_run(out, workers=1)
-    assert evaluation["frames"] == len(results.ok_frames)
-    assert np.isfinite(evaluation["table"]["height_mm"]["gt_generative"]["mean"])
+    assert evaluation.frames == len(results.ok_frames)
+    assert np.isfinite(evaluation.table["height_mm"]["gt_generative"].mean)

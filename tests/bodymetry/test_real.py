@@ -15,7 +15,8 @@ from tiny_run import tiny_train_overrides
 from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.person import SEGMENTER_REQUIREMENT, segmenter_available
 from bodymetry.cli import main
-from bodymetry.estimation.records import FrameArrays, RunResults
+from bodymetry.estimation.records import FrameArrays
+from bodymetry.estimation.run_files import RunResults
 
 FIXTURE = Path(__file__).resolve().parents[1] / "data" / "pose2sim"
 

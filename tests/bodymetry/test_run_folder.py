@@ -15,16 +15,12 @@ import pytest
 from tiny_run import TINY_TRAIN, tiny_session, tiny_train_overrides
 
 from bodymetry.capture.session import load_session
-from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import FrameArrays, FrameRecord, RunLayout, RunResults
+from bodymetry.estimation.records import FrameArrays, FrameRecord
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunLayout, RunManifest, RunResults
 from bodymetry.process import process_session
-from bodymetry.run_folder import (
-    RunManifest,
-    config_fingerprint,
-    prepare_run_folder,
-    session_fingerprint,
-)
+from bodymetry.run_folder import config_fingerprint, prepare_run_folder, session_fingerprint
 
 
 @pytest.fixture(scope="module")

@@ -8,13 +8,9 @@ from pathlib import Path
 import pytest
 
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import (
-    FRAME_RECORD_MAX_BYTES,
-    RESULTS_MAX_BYTES,
-    FrameRecord,
-    RunResults,
-    read_json_object,
-)
+from bodymetry.estimation.records import FRAME_RECORD_MAX_BYTES, FrameRecord
+from bodymetry.estimation.run_files import RunResults
+from bodymetry.fileio import JSON_MAX_BYTES, read_json_object
 
 
 def _sparse(path: Path, size: int) -> Path:
@@ -25,7 +21,7 @@ def _sparse(path: Path, size: int) -> Path:
 
 
 def test_oversized_results_json(tmp_path: Path) -> None:
-    path = _sparse(tmp_path / "run" / "results.json", RESULTS_MAX_BYTES + 52_400_000)
+    path = _sparse(tmp_path / "run" / "results.json", JSON_MAX_BYTES + 52_400_000)
     with pytest.raises(InputError) as info:
         RunResults.read(path)
     assert str(info.value) == f"{path}: 308.4 MB, larger than the 256 MB limit for a run JSON file"

@@ -16,13 +16,14 @@ from bodymetry.estimation.outline_check import (
     frame_offsets,
 )
 from bodymetry.estimation.projection import project_silhouettes
-from bodymetry.estimation.records import OutlineCheck, RunResults, SessionInfo, SessionShape
+from bodymetry.estimation.records import OutlineCheck, SessionShape
 from bodymetry.estimation.refinement import (
     Alignment,
     ContourCost,
     RefineConfig,
     prepare_contours,
 )
+from bodymetry.estimation.run_files import RunResults, SessionInfo
 from bodymetry.studio.rig import studio_rig
 
 NU = np.array([0.5, -0.3, 0.2, 0.0, 0.3, 0.0, -0.2, 0.0, 0.1])

@@ -15,7 +15,6 @@ from bodymetry.cli import DEMO_SESSION
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.projection import project_silhouettes
-from bodymetry.estimation.records import RunResults, SessionInfo
 from bodymetry.estimation.resolution import (
     DEFAULT_WORKING_PERSON_PX,
     CameraScale,
@@ -24,6 +23,8 @@ from bodymetry.estimation.resolution import (
     person_height_px,
     working_factor,
 )
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunResults, SessionInfo
 
 
 def test_the_demo_rig_keeps_full_resolution():
@@ -165,7 +166,7 @@ def test_run_results_give_the_working_cameras():
     cameras = portrait_rig()
     resolution = WorkingResolution.choose(cameras, DEFAULT_WORKING_PERSON_PX)
     info = SessionInfo("/s", "s", tuple(c.name for c in cameras), 30.0, 1)
-    results = RunResults(info, {}, (), {}, working_resolution=resolution)
+    results = RunResults(info, ProcessConfig(), (), {}, working_resolution=resolution)
     back = RunResults.from_json(results.to_json())
     assert [c.size for c in back.working_cameras(cameras)][:2] == [(360, 640), (363, 640)]
     # A run recorded before working resolutions worked at full resolution.

@@ -11,14 +11,9 @@ from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import NU, POSE_DIM, BodyModel, BodyState
 from bodymetry.estimation.projection import project_silhouettes
-from bodymetry.estimation.records import (
-    FrameRecord,
-    RunResults,
-    SessionInfo,
-    SessionShape,
-    StageEstimate,
-    summarize,
-)
+from bodymetry.estimation.records import FrameRecord, SessionShape, StageEstimate, summarize
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunResults, SessionInfo
 from bodymetry.estimation.session_shape import (
     SessionFrame,
     SessionShapeConfig,
@@ -257,7 +252,7 @@ def test_results_round_trip_with_the_session_stage():
     assert summary["session"]["height_mm"].std == 0.4 and summary["session"]["height_mm"].n == 2
     results = RunResults(
         SessionInfo("/s", "s", ("cam_00",), 25.0, 1),
-        {},
+        ProcessConfig(),
         tuple(records),
         summary,
         session_shape=shape,
@@ -276,7 +271,10 @@ def test_results_without_the_session_stage_still_load():
     """A run recorded before the session stage (or with it disabled) reads as before."""
     records = [_record(f, TRUE_NU, session=False) for f in (0, 1)]
     data = RunResults(
-        SessionInfo("/s", "s", ("cam_00",), 25.0, 1), {}, tuple(records), summarize(records)
+        SessionInfo("/s", "s", ("cam_00",), 25.0, 1),
+        ProcessConfig(),
+        tuple(records),
+        summarize(records),
     ).to_json()
     assert "session_shape" not in data and "session" not in data["summary"]
     back = RunResults.from_json(data)

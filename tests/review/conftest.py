@@ -15,8 +15,8 @@ import pytest
 from tiny_run import TINY_TRAIN, tiny_session
 
 from bodymetry.capture.session import Session
-from bodymetry.config import ProcessConfig
-from bodymetry.estimation.records import RunResults
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunResults
 from bodymetry.process import process_session
 
 

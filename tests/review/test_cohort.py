@@ -16,14 +16,8 @@ from click.testing import CliRunner
 from bodymetry.cli import main
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
-from bodymetry.estimation.records import (
-    CORE_MEASUREMENTS,
-    STAGES,
-    RunResults,
-    StudyResults,
-    StudySession,
-    summarize,
-)
+from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, summarize
+from bodymetry.estimation.run_files import RigEntry, RunResults, StudyResults, StudySession
 from bodymetry.fileio import write_json_atomic
 from bodymetry.review import cohort
 from bodymetry.review.cohort import cohort_columns, cohort_rows, measurement_keys, write_cohort
@@ -76,7 +70,7 @@ def study(review_run, tmp_path, monkeypatch):
     _write_study(
         folder,
         sessions,
-        rigs={"abc123": {"trained": True, "seconds": 12.5, "sessions": [*NAMES, "carol"]}},
+        rigs={"abc123": RigEntry((*NAMES, "carol"), True, 12.5)},
         timing_seconds={"total": 99.0},
     )
     # Parquet is tested on its own; here the CSV and HTML only.

@@ -15,7 +15,8 @@ import pytest
 
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel
-from bodymetry.estimation.records import FrameRecord, RunResults, SessionInfo
+from bodymetry.estimation.records import FrameRecord
+from bodymetry.estimation.run_files import EVALUATION_FORMAT, RunResults, SessionInfo
 from bodymetry.review import plots
 from bodymetry.review.accuracy import SESSION_ACCURACY
 from bodymetry.review.accuracy import SOURCE as ACCURACY_SOURCE
@@ -66,10 +67,10 @@ def test_report_is_self_contained_with_every_section(review_run):
     # plots (measurements, fit quality, body) + one overlay tile per camera per frame
     assert len(images) == 3 + n_overlays * n_cams
     truth = review_run.results.ground_truth
-    assert f"{truth['height_mm']:,.1f}".replace(",", " ") in html
+    assert f"{truth.get('height_mm'):,.1f}".replace(",", " ") in html
     # What the numbers assume and what a frame needed to count.
     assert "assume tight clothing" in html
-    gate = review_run.results.quality_gate["threshold"]
+    gate = review_run.results.quality_gate.threshold
     assert f"mean IoU of at least {gate:.2f}" in html
 
 
@@ -113,14 +114,24 @@ def bare_run(review_run, tmp_path):
 def test_figure_3_gets_the_gt_generative_column_from_evaluation_json(review_run, bare_run):
     table = {
         key: {
-            "actual": review_run.results.ground_truth[key],
+            "actual": review_run.results.ground_truth.get(key),
             "discriminative": {"mean": 1.0, "std": 0.1, "n": 3},
-            "disc_generative": {"mean": 2.0, "std": 0.2, "n": 3},
+            "generative": {"mean": 2.0, "std": 0.2, "n": 3},
             "gt_generative": {"mean": 4321.5, "std": 12.25, "n": 3},
         }
         for key in ("height_mm", "arm_span_mm", "weight_kg")
     }
-    (bare_run / "evaluation.json").write_text(json.dumps({"table": table}))
+    evaluation = {
+        "format": EVALUATION_FORMAT,
+        "run": str(bare_run),
+        "session": "bare",
+        "frames": 3,
+        "frames_failed": 0,
+        "table": table,
+        "mpjpe_mm": {"discriminative": 90.0, "generative": 40.0, "gt_generative": 20.0},
+        "silhouette_iou_mean": 0.9,
+    }
+    (bare_run / "evaluation.json").write_text(json.dumps(evaluation))
     files = build_report(bare_run)
     html = files.html.read_text()
     assert "GT + Generative" in html and "4 321.5" in html
@@ -235,7 +246,7 @@ def _empty_run():
 def test_report_parts_of_a_run_without_fitted_frames():
     run = _empty_run()
     assert select_overlay_frames(run) == []
-    assert [row["disc_generative"] for row in figure3_rows(run)] == [None, None, None]
+    assert [row["generative"] for row in figure3_rows(run)] == [None, None, None]
     assert measurement_rows(run) == []
     assert body_renders(run, BodyModel.load()) == {}
     plots.measurement_plots(run)

@@ -10,9 +10,9 @@ import pytest
 from tiny_run import SYNTH_TINY, TINY_TRAIN
 
 from bodymetry.capture.session import load_session
-from bodymetry.config import ProcessConfig
 from bodymetry.estimation.fit import FitConfig
 from bodymetry.estimation.records import CORE_MEASUREMENTS
+from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.fileio import load_npz
 from bodymetry.process import process_session
 from bodymetry.review.evaluation import evaluate_run
@@ -75,11 +75,11 @@ def test_process_and_evaluate_read_the_session(session, tmp_path):
         review=False,
     )
     results = process_session(session.folder, tmp_path / "run", config)
-    assert results.ground_truth["source"] == "independent"
-    assert "nu" not in results.ground_truth
+    assert results.ground_truth.source == "independent"
+    assert results.ground_truth.nu is None
     ev = evaluate_run(tmp_path / "run", workers=1)
-    assert ev["frames"] >= 1
+    assert ev.frames >= 1
     for key in CORE_MEASUREMENTS:
-        assert ev["table"][key]["actual"] == results.ground_truth[key]
-        assert np.isfinite(ev["table"][key]["gt_generative"]["mean"])
-    assert all(np.isfinite(v) for v in ev["mpjpe_mm"].values())
+        assert ev.actual[key] == results.ground_truth.get(key)
+        assert np.isfinite(ev.table[key]["gt_generative"].mean)
+    assert all(np.isfinite(v) for v in ev.mpjpe_mm.values())

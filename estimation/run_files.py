@@ -1,0 +1,640 @@
+"""The files of a run folder and a study, each one typed class read and written here.
+
+``bodymetry process`` writes a run folder (docs/outputs.md); ``evaluate``, the
+review outputs, the report and ``batch`` read it. Every JSON file in it has its
+class, and no other module parses these files:
+
+==========================  ==================  ===========================================
+file                        class               written by
+==========================  ==================  ===========================================
+``run.json``                :class:`RunManifest`  :func:`bodymetry.run_folder.prepare_run_folder`
+``results.json``            :class:`RunResults`   :func:`bodymetry.pipeline.finish`
+``evaluation.json``         :class:`Evaluation`   :func:`bodymetry.review.evaluation.evaluate_run`
+``STUDY/study.json``        :class:`StudyResults` :func:`bodymetry.batch.run_batch`
+==========================  ==================  ===========================================
+
+The per-frame records and arrays are :mod:`bodymetry.estimation.records`; where
+each file lies is :class:`RunLayout`. Each file carries a ``format`` number: an
+older or foreign file gets a clear error naming it, not a ``KeyError``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bodymetry.calibration.camera import Camera
+from bodymetry.capture.ground_truth import SubjectTruth
+from bodymetry.errors import InputError
+from bodymetry.estimation.records import (
+    STAGES,
+    FrameRecord,
+    OutlineCheck,
+    SessionGate,
+    SessionShape,
+    Stat,
+)
+from bodymetry.estimation.resolution import WorkingResolution
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.fileio import read_json_object, write_json_atomic
+
+__all__ = [
+    "EVALUATION_FORMAT",
+    "GT_STAGE",
+    "MANIFEST_FORMAT",
+    "MEASUREMENTS_CSV",
+    "RECORDING_MCAP",
+    "RECORDING_RRD",
+    "REPORT_HTML",
+    "REPORT_PDF",
+    "RESULTS_FORMAT",
+    "STUDY_FORMAT",
+    "Evaluation",
+    "RigEntry",
+    "RunLayout",
+    "RunManifest",
+    "RunResults",
+    "SessionInfo",
+    "StudyResults",
+    "StudySession",
+]
+
+#: Version of ``results.json`` written by this code (1: before the typed schema).
+RESULTS_FORMAT = 2
+#: Version of ``run.json``.
+MANIFEST_FORMAT = 1
+#: Version of ``evaluation.json`` (1: the generative stage was ``disc_generative``).
+EVALUATION_FORMAT = 2
+#: Review files written into the run folder (docs/review.md).
+RECORDING_RRD = "recording.rrd"
+RECORDING_MCAP = "recording.mcap"
+REPORT_HTML = "report.html"
+REPORT_PDF = "report.pdf"
+MEASUREMENTS_CSV = "measurements.csv"
+#: The evaluation's extra stage: the generative fit started from the true pose
+#: (the paper's "GT + Generative"), beside the run's :data:`STAGES`.
+GT_STAGE = "gt_generative"
+
+
+@dataclass(frozen=True)
+class RunLayout:
+    """Where a run folder keeps each record (docs/outputs.md).
+
+    Attributes
+    ----------
+    folder : Path
+    """
+
+    folder: Path
+
+    @property
+    def manifest(self) -> Path:
+        """``run.json``: what the run is of (written first; see ``bodymetry.run_folder``)."""
+        return self.folder / "run.json"
+
+    @property
+    def results(self) -> Path:
+        return self.folder / "results.json"
+
+    @property
+    def frames_dir(self) -> Path:
+        return self.folder / "frames"
+
+    @property
+    def meshes_dir(self) -> Path:
+        return self.folder / "meshes"
+
+    @property
+    def calibration(self) -> Path:
+        """The cameras the run was fitted with (copied or solved into the run)."""
+        return self.folder / "calibration.yaml"
+
+    @property
+    def calibration_report(self) -> Path:
+        return self.folder / "calibration-report.json"
+
+    @property
+    def evaluation(self) -> Path:
+        return self.folder / "evaluation.json"
+
+    @property
+    def review_files(self) -> tuple[Path, ...]:
+        """What the review always writes (``report.pdf`` only on request)."""
+        return tuple(
+            self.folder / n for n in (RECORDING_RRD, RECORDING_MCAP, REPORT_HTML, MEASUREMENTS_CSV)
+        )
+
+    @property
+    def entries(self) -> tuple[Path, ...]:
+        """Everything a run writes into its folder (a restart removes these, nothing else)."""
+        return (
+            self.manifest,
+            self.results,
+            self.evaluation,
+            self.frames_dir,
+            self.meshes_dir,
+            self.calibration,
+            self.calibration_report,
+            *self.review_files,
+            self.folder / REPORT_PDF,
+        )
+
+    def frame_record(self, frame: int) -> Path:
+        return self.frames_dir / f"{frame:06d}.json"
+
+    def frame_arrays(self, frame: int) -> Path:
+        return self.frames_dir / f"{frame:06d}.npz"
+
+    def frame_mesh(self, frame: int) -> Path:
+        return self.meshes_dir / f"{frame:06d}.ply"
+
+    def recorded_frames(self) -> list[int]:
+        """Frames that have a record, in order."""
+        if not self.frames_dir.is_dir():
+            return []
+        return sorted(int(p.stem) for p in self.frames_dir.glob("*.json") if p.stem.isdigit())
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    """The session a run measured.
+
+    Attributes
+    ----------
+    path : str
+        The session folder (absolute, as processed).
+    name : str
+    cameras : tuple of str
+    fps : float
+    frame_step : int
+    """
+
+    path: str
+    name: str
+    cameras: tuple[str, ...]
+    fps: float
+    frame_step: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "path": self.path,
+            "name": self.name,
+            "cameras": list(self.cameras),
+            "fps": self.fps,
+            "frame_step": self.frame_step,
+        }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> SessionInfo:
+        return cls(
+            str(data.get("path", "")),
+            str(data.get("name", "")),
+            tuple(data.get("cameras", ())),
+            float(data.get("fps") or 25.0),
+            int(data.get("frame_step", 1)),
+        )
+
+
+@dataclass(frozen=True)
+class RunResults:
+    """``results.json``: a whole run.
+
+    Attributes
+    ----------
+    session : SessionInfo
+    config : ProcessConfig
+        The settings the run used; read back by ``evaluate``.
+    frames : tuple of FrameRecord
+        Every kept frame, in frame order.
+    summary : dict of str to dict of str to Stat
+        Per stage and measurement, over the ``ok`` frames.
+    timing_seconds : dict of str to float
+    calibration_source : str
+        Where the run's cameras came from (a file, or "solved from the clips").
+    ground_truth : SubjectTruth or None
+        The studio subject's true measurements, when the session has them.
+    camera_frames : dict of str to int
+        Per camera, the kept frames in which it saw a usable silhouette (a camera
+        with none contributed nothing: covered, black, or no person in view).
+    warnings : tuple of str
+        What the user should know about the run (also logged).
+    working_resolution : WorkingResolution or None
+        The resolution each camera was trained and fitted at (the recorded
+        silhouettes are at it); None for runs recorded before working
+        resolutions, which worked at the cameras' own resolution.
+    quality_gate : SessionGate or None
+        The gate the frames' statuses were set by
+        (:func:`bodymetry.estimation.fit.session_gate`).
+    session_shape : SessionShape or None
+        The session stage (one shape for the session); None when it was
+        disabled or for runs recorded before it.
+    models : str
+        The discriminative models' cache key (recorded inside ``config`` in the file).
+    models_reused : bool
+        The models came from the cache (not trained by this run).
+    """
+
+    session: SessionInfo
+    config: ProcessConfig
+    frames: tuple[FrameRecord, ...]
+    summary: dict[str, dict[str, Stat]]
+    timing_seconds: dict[str, float] = field(default_factory=dict)
+    calibration_source: str = ""
+    ground_truth: SubjectTruth | None = None
+    camera_frames: dict[str, int] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    working_resolution: WorkingResolution | None = None
+    quality_gate: SessionGate | None = None
+    session_shape: SessionShape | None = None
+    models: str = ""
+    models_reused: bool = False
+
+    @property
+    def ok_frames(self) -> list[FrameRecord]:
+        return [r for r in self.frames if r.ok]
+
+    @property
+    def outline(self) -> OutlineCheck | None:
+        """The session stage's outline check (None without the stage or the check)."""
+        return None if self.session_shape is None else self.session_shape.outline
+
+    def working_cameras(self, cameras: Sequence[Camera]) -> list[Camera]:
+        """The cameras the run was trained and fitted with, from its calibrated ones.
+
+        The one place a reader of a run turns the run's ``calibration.yaml``
+        into the cameras of its recorded silhouettes.
+
+        Raises
+        ------
+        InputError
+            When the calibration does not match the recorded working resolution.
+        """
+        resolution = self.working_resolution or WorkingResolution.full(cameras)
+        return resolution.apply(cameras)
+
+    @property
+    def fitted_frames(self) -> list[FrameRecord]:
+        return [r for r in self.frames if r.fitted]
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "format": RESULTS_FORMAT,
+            "session": self.session.to_json(),
+            "config": {
+                **self.config.to_json(),
+                "models": self.models,
+                "models_reused": self.models_reused,
+            },
+            "calibration_source": self.calibration_source,
+            "frames": [r.to_json() for r in self.frames],
+            "summary": {
+                stage: {k: s.to_json() for k, s in stats.items()}
+                for stage, stats in self.summary.items()
+            },
+            "timing_seconds": self.timing_seconds,
+            "camera_frames": self.camera_frames,
+            "warnings": list(self.warnings),
+        }
+        if self.working_resolution is not None:
+            out["working_resolution"] = self.working_resolution.to_json()
+        if self.quality_gate is not None:
+            out["quality_gate"] = self.quality_gate.to_json()
+        if self.session_shape is not None:
+            out["session_shape"] = self.session_shape.to_json()
+        if self.ground_truth is not None:
+            out["ground_truth"] = self.ground_truth.to_json()
+        return out
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any], where: str = "results.json") -> RunResults:
+        """Read ``results.json`` content; InputError naming ``where`` for old or foreign files."""
+        fmt = data.get("format")
+        if fmt is None:
+            raise InputError(
+                f"{where}: written by an older bodymetry (no 'format' key); "
+                "run `bodymetry process` again to update it"
+            )
+        if fmt != RESULTS_FORMAT:
+            raise InputError(
+                f"{where}: results format {fmt!r}, this bodymetry reads format {RESULTS_FORMAT}"
+            )
+        if not isinstance(data.get("frames"), list) or not isinstance(data.get("session"), Mapping):
+            raise InputError(
+                f"{where}: no 'frames' list; not a results file of `bodymetry process`"
+            )
+        frames = tuple(
+            sorted(
+                (
+                    FrameRecord.from_json(f, f"{where}: frames[{i}]")
+                    for i, f in enumerate(data["frames"])
+                ),
+                key=lambda r: r.frame,
+            )
+        )
+        summary = {
+            stage: {k: Stat.from_json(v) for k, v in stats.items()}
+            for stage, stats in data.get("summary", {}).items()
+        }
+        config = data.get("config")
+        if not isinstance(config, Mapping):
+            raise InputError(
+                f"{where}: no 'config' object; not a results file of `bodymetry process`"
+            )
+        return cls(
+            session=SessionInfo.from_json(data["session"]),
+            config=ProcessConfig.from_json(dict(config), f"{where}: config"),
+            models=str(config.get("models", "")),
+            models_reused=bool(config.get("models_reused", False)),
+            frames=frames,
+            summary=summary,
+            timing_seconds=dict(data.get("timing_seconds", {})),
+            calibration_source=str(data.get("calibration_source", "")),
+            camera_frames={k: int(v) for k, v in data.get("camera_frames", {}).items()},
+            warnings=tuple(str(w) for w in data.get("warnings", [])),
+            ground_truth=(
+                SubjectTruth.from_json(data["ground_truth"], f"{where}: ground_truth")
+                if data.get("ground_truth") is not None
+                else None
+            ),
+            quality_gate=(
+                SessionGate.from_json(data["quality_gate"], f"{where}: quality_gate")
+                if data.get("quality_gate") is not None
+                else None
+            ),
+            session_shape=(
+                SessionShape.from_json(data["session_shape"], f"{where}: session_shape")
+                if data.get("session_shape") is not None
+                else None
+            ),
+            working_resolution=(
+                WorkingResolution.from_json(
+                    data["working_resolution"], f"{where}: working_resolution"
+                )
+                if data.get("working_resolution") is not None
+                else None
+            ),
+        )
+
+    @classmethod
+    def read(cls, path: Path) -> RunResults:
+        return cls.from_json(read_json_object(path), str(path))
+
+
+#: Version of ``study.json`` written by ``bodymetry batch``.
+STUDY_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class StudySession:
+    """One session of a study (``bodymetry batch``).
+
+    Attributes
+    ----------
+    name : str
+        Its run folder's name inside the study folder (unique in the study).
+    session_path : str
+        The session folder.
+    status : str
+        ``"done"`` (results.json written), ``"failed"`` or ``"pending"``.
+    reason : str
+        Why it failed (one line), else empty.
+    rig : str
+        The discriminative models' key of its camera rig (empty when unknown).
+    """
+
+    name: str
+    session_path: str
+    status: str
+    reason: str = ""
+    rig: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any], where: str = "study.json") -> StudySession:
+        try:
+            return cls(
+                name=str(data["name"]),
+                session_path=str(data["session_path"]),
+                status=str(data["status"]),
+                reason=str(data.get("reason", "")),
+                rig=str(data.get("rig", "")),
+            )
+        except (KeyError, TypeError) as exc:
+            raise InputError(f"{where}: malformed session entry ({exc})") from exc
+
+
+@dataclass(frozen=True)
+class RigEntry:
+    """One camera rig of a study: its models and the sessions on it.
+
+    Attributes
+    ----------
+    sessions : tuple of str
+        The study's session names on this rig, sorted.
+    trained : bool or None
+        Whether this call trained the models (False: from the cache; None: every
+        session on the rig was finished already, nothing was loaded).
+    seconds : float or None
+        Time to train or load the models.
+    """
+
+    sessions: tuple[str, ...]
+    trained: bool | None = None
+    seconds: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"trained": self.trained, "sessions": list(self.sessions)}
+        if self.seconds is not None:
+            out["seconds"] = self.seconds
+        return out
+
+    @classmethod
+    def from_json(cls, data: Any, where: str = "rig") -> RigEntry:
+        try:
+            seconds = data.get("seconds")
+            return cls(
+                tuple(str(s) for s in data["sessions"]),
+                None if data.get("trained") is None else bool(data["trained"]),
+                None if seconds is None else float(seconds),
+            )
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise InputError(f"{where}: malformed rig entry ({exc})") from exc
+
+
+@dataclass(frozen=True)
+class StudyResults:
+    """``study.json``: what ``bodymetry batch`` did, read by the cohort report.
+
+    Attributes
+    ----------
+    sessions : tuple of StudySession
+        In the order given on the command line.
+    rigs : dict of str to RigEntry
+        Per rig key.
+    timing_seconds : dict of str to float
+    """
+
+    sessions: tuple[StudySession, ...]
+    rigs: dict[str, RigEntry] = field(default_factory=dict)
+    timing_seconds: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "format": STUDY_FORMAT,
+            "sessions": [s.to_json() for s in self.sessions],
+            "rigs": {k: r.to_json() for k, r in self.rigs.items()},
+            "timing_seconds": self.timing_seconds,
+        }
+
+    @classmethod
+    def read(cls, path: Path) -> StudyResults:
+        """Read ``STUDY/study.json``; InputError naming the file when it is not one."""
+        data = read_json_object(path)
+        if data.get("format") != STUDY_FORMAT or not isinstance(data.get("sessions"), list):
+            raise InputError(
+                f"{path}: not a study.json of `bodymetry batch` (format {STUDY_FORMAT})"
+            )
+        return cls(
+            sessions=tuple(
+                StudySession.from_json(s, f"{path}: sessions[{i}]")
+                for i, s in enumerate(data["sessions"])
+            ),
+            rigs={
+                k: RigEntry.from_json(r, f"{path}: rigs.{k}")
+                for k, r in dict(data.get("rigs", {})).items()
+            },
+            timing_seconds=dict(data.get("timing_seconds", {})),
+        )
+
+
+@dataclass(frozen=True)
+class RunManifest:
+    """``run.json``: what a run folder is of, written before anything else
+    (:func:`bodymetry.run_folder.prepare_run_folder`).
+
+    Attributes
+    ----------
+    format : int
+    session_path : str
+        The session folder (absolute).
+    session_fingerprint : str
+        :func:`bodymetry.run_folder.session_fingerprint` of the session.
+    config_fingerprint : str
+        :func:`bodymetry.run_folder.config_fingerprint` of the settings.
+    bodymetry_version : str
+    created : str
+        ISO 8601 time (UTC) the run folder was started.
+    """
+
+    format: int
+    session_path: str
+    session_fingerprint: str
+    config_fingerprint: str
+    bodymetry_version: str
+    created: str
+
+    def to_json(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+    def write(self, layout: RunLayout) -> None:
+        write_json_atomic(layout.manifest, self.to_json())
+
+    @classmethod
+    def read(cls, path: Path) -> RunManifest:
+        data = read_json_object(path)
+        try:
+            return cls(**{k: data[k] for k in cls.__dataclass_fields__})
+        except (KeyError, TypeError) as exc:
+            raise InputError(f"{path}: not a bodymetry run.json ({exc})") from exc
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """``evaluation.json``: the paper's Figure 3 for a run with ground truth
+    (``bodymetry evaluate``).
+
+    Attributes
+    ----------
+    run : str
+        The run folder (absolute).
+    session : str
+        The session's name.
+    frames : int
+        The frames evaluated (the run's ``ok`` frames).
+    frames_failed : int
+    actual : dict of str to float
+        The true value of each of :data:`CORE_MEASUREMENTS`.
+    table : dict of str to dict of str to Stat
+        Per measurement, per stage (:data:`STAGES` the run has, then
+        :data:`GT_STAGE`): mean and spread over the frames (the session
+        stage's ``std`` is its standard error).
+    mpjpe_mm : dict of str to float
+        Mean per-joint position error per stage.
+    silhouette_iou_mean : float
+    """
+
+    run: str
+    session: str
+    frames: int
+    frames_failed: int
+    actual: dict[str, float]
+    table: dict[str, dict[str, Stat]]
+    mpjpe_mm: dict[str, float]
+    silhouette_iou_mean: float
+
+    @property
+    def stages(self) -> tuple[str, ...]:
+        """The stages evaluated, in pipeline order (:data:`STAGES`, then :data:`GT_STAGE`)."""
+        present = {s for row in self.table.values() for s in row}
+        return tuple(s for s in (*STAGES, GT_STAGE) if s in present)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "format": EVALUATION_FORMAT,
+            "run": self.run,
+            "session": self.session,
+            "frames": self.frames,
+            "frames_failed": self.frames_failed,
+            "table": {
+                key: {"actual": self.actual[key], **{s: v.to_json() for s, v in row.items()}}
+                for key, row in self.table.items()
+            },
+            "mpjpe_mm": self.mpjpe_mm,
+            "silhouette_iou_mean": self.silhouette_iou_mean,
+        }
+
+    def write(self, layout: RunLayout) -> None:
+        write_json_atomic(layout.evaluation, self.to_json())
+
+    @classmethod
+    def read(cls, path: Path) -> Evaluation:
+        """Read ``evaluation.json``; InputError naming the file for an old or foreign one."""
+        data = read_json_object(path)
+        if data.get("format") != EVALUATION_FORMAT:
+            raise InputError(
+                f"{path}: not an evaluation.json of this bodymetry (format "
+                f"{data.get('format')!r}, expected {EVALUATION_FORMAT}); run `bodymetry evaluate` "
+                "again"
+            )
+        try:
+            table = {
+                str(key): {str(s): Stat.from_json(v) for s, v in dict(row).items() if s != "actual"}
+                for key, row in dict(data["table"]).items()
+            }
+            actual = {str(k): float(row["actual"]) for k, row in dict(data["table"]).items()}
+            return cls(
+                run=str(data["run"]),
+                session=str(data["session"]),
+                frames=int(data["frames"]),
+                frames_failed=int(data["frames_failed"]),
+                actual=actual,
+                table=table,
+                mpjpe_mm={str(k): float(v) for k, v in dict(data["mpjpe_mm"]).items()},
+                silhouette_iou_mean=float(data["silhouette_iou_mean"]),
+            )
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise InputError(f"{path}: malformed evaluation ({exc})") from exc
