@@ -704,11 +704,47 @@ def calibrate_cameras(
     opts = options or CalibrationOptions()
     if not detections:
         raise CalibrationError("no cameras to calibrate")
-    C = len(detections)
     for det in detections:
         if det.boards_detected == 0:
             raise _never_found(det, geom)
+    floor_frame = _floor_frame_mask(detections, opts)
+    cams = _cameras_intrinsics(detections, geom, floor_frame, opts)
+    floor = _floor_board_views(cams, geom, floor_frame, opts)
+    root = _root_camera(floor)
+    cam_from_world = _initial_extrinsics(cams, root, geom, floor, floor_frame, opts)
+    frames, poses0 = _initial_board_poses(cams, cam_from_world, floor_frame)
+    pb = _bundle_problem(cams, geom, frames, floor, root, opts)
+    x0 = _pack(
+        [(c.K, c.dist, T[:3, :3], T[:3, 3]) for c, T in zip(cams, cam_from_world, strict=True)],
+        poses0,
+    )
+    fit = _bundle_adjust(pb, x0, opts)
+    out_cams, per_camera = _solved_cameras(cams, fit, floor, opts)
+    _check_converged(fit, opts)
+    return CalibrationResult(
+        cameras=CameraGroup(out_cams),
+        rms_px=fit.rms,
+        per_camera=per_camera,
+        frames_used=len(frames),
+        observations=len(fit.problem.cam),
+        outliers=fit.outliers,
+        world=_world_description(cams, root, floor, opts),
+        solver={
+            "initial_median_px": round(float(np.median(fit.initial_error)), 4),
+            "outlier_threshold_px": round(fit.threshold, 4),
+            "evaluations": int(fit.first.nfev + fit.second.nfev),
+            "iterations": int(fit.first.iterations + fit.second.iterations),
+            "status": int(fit.second.status),
+            "message": str(fit.second.message),
+            "root_camera": cams[root].det.name,
+        },
+    )
 
+
+def _floor_frame_mask(
+    detections: Sequence[CameraDetections], opts: CalibrationOptions
+) -> np.ndarray:
+    """Which clip frames show the board lying on the floor: (max frame + 2,) bool."""
     max_frame = max(int(d.frames.max()) for d in detections) + 1
     floor_frame = np.zeros(max_frame + 1, dtype=bool)
     if opts.floor_frames is not None:
@@ -718,8 +754,16 @@ def calibrate_cameras(
                 f"floor frames must be START:END with 0 <= START < END, got {a}:{b}"
             )
         floor_frame[a : min(b, max_frame + 1)] = True
+    return floor_frame
 
-    # 1-2. intrinsics and per-view board poses
+
+def _cameras_intrinsics(
+    detections: Sequence[CameraDetections],
+    geom: BoardGeometry,
+    floor_frame: np.ndarray,
+    opts: CalibrationOptions,
+) -> list[_CamData]:
+    """Steps 1-2: each camera's intrinsics and its per-view board poses."""
     cams: list[_CamData] = []
     for det in detections:
         fmask = floor_frame[det.frames]
@@ -732,64 +776,106 @@ def calibrate_cameras(
         poses = _board_poses(det, geom, K, dist, opts.min_corners)
         cams.append(_CamData(det, K, dist, rms, nv, radial, coverage, poses))
         log.info("%s: intrinsics from %d views, RMS %.3f px", det.name, nv, rms)
+    return cams
 
-    # 4a. the floor board as seen by each camera (median over the still frames)
-    floor_obs: dict[int, np.ndarray] = {}
-    floor_count: dict[int, np.ndarray] = {}
-    floor_pose_cam: dict[int, tuple[np.ndarray, float]] = {}
-    if opts.floor_frames is not None:
-        for ci, c in enumerate(cams):
-            fm = floor_frame[c.det.frames]
-            if not np.any(fm):
-                continue
-            pts = c.det.corners[fm]  # (n, N, 2)
-            with np.errstate(all="ignore"), warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN corners
-                med = np.nanmedian(pts, axis=0)
-            seen = np.isfinite(pts).all(-1)
-            # a corner counts when found in at least half the floor frames
-            ok = np.isfinite(med).all(-1) & (seen.sum(0) >= max(1, fm.sum() // 2))
-            ids = np.flatnonzero(ok)
-            if len(ids) < opts.min_corners or not _spans_plane(ids, geom.squares[0]):
-                continue
-            spread = np.nanmax(np.linalg.norm(pts[:, ids] - med[ids], axis=-1))
-            if spread > 5.0:
-                raise CalibrationError(
-                    f"camera {c.det.name!r}: the board moved during the floor frames "
-                    f"{opts.floor_frames[0]}:{opts.floor_frames[1]} (corners move by up to "
-                    f"{spread:.1f} px); it must lie still on the floor there (--floor-frames)"
-                )
-            obs = np.full_like(med, np.nan)
-            obs[ids] = med[ids]
-            res = _pnp(c.K, c.dist, geom.points[ids], med[ids])
-            if res is None:
-                continue
-            floor_obs[ci] = obs
-            floor_count[ci] = seen.sum(0)
-            floor_pose_cam[ci] = res
-        if not floor_obs:
+
+@dataclass
+class _FloorBoard:
+    """The board lying on the floor as each camera saw it (cameras that did not: absent).
+
+    Attributes
+    ----------
+    obs : camera index -> (N, 2) median corner positions over the floor frames
+        (NaN for corners not seen in at least half of them).
+    count : camera index -> (N,) number of floor frames each corner was found in.
+    pose_cam : camera index -> (camera_from_board (4, 4), PnP error) of the floor board.
+    """
+
+    obs: dict[int, np.ndarray] = field(default_factory=dict)
+    count: dict[int, np.ndarray] = field(default_factory=dict)
+    pose_cam: dict[int, tuple[np.ndarray, float]] = field(default_factory=dict)
+
+
+def _floor_board_views(
+    cams: list[_CamData], geom: BoardGeometry, floor_frame: np.ndarray, opts: CalibrationOptions
+) -> _FloorBoard:
+    """Step 4a: the floor board as seen by each camera (median over the still frames).
+
+    Raises when the board moved during the floor frames or no camera saw it
+    there; empty when no floor frames are given.
+    """
+    floor = _FloorBoard()
+    if opts.floor_frames is None:
+        return floor
+    for ci, c in enumerate(cams):
+        fm = floor_frame[c.det.frames]
+        if not np.any(fm):
+            continue
+        pts = c.det.corners[fm]  # (n, N, 2)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN corners
+            med = np.nanmedian(pts, axis=0)
+        seen = np.isfinite(pts).all(-1)
+        # a corner counts when found in at least half the floor frames
+        ok = np.isfinite(med).all(-1) & (seen.sum(0) >= max(1, fm.sum() // 2))
+        ids = np.flatnonzero(ok)
+        if len(ids) < opts.min_corners or not _spans_plane(ids, geom.squares[0]):
+            continue
+        spread = np.nanmax(np.linalg.norm(pts[:, ids] - med[ids], axis=-1))
+        if spread > 5.0:
             raise CalibrationError(
-                f"no camera saw the board lying on the floor in frames "
-                f"{opts.floor_frames[0]}:{opts.floor_frames[1]} (it defines the world frame); "
-                "lay the board flat, printed side up, where at least one camera sees it, at "
-                "the start of the clip, or give its frames with --floor-frames START:END"
+                f"camera {c.det.name!r}: the board moved during the floor frames "
+                f"{opts.floor_frames[0]}:{opts.floor_frames[1]} (corners move by up to "
+                f"{spread:.1f} px); it must lie still on the floor there (--floor-frames)"
             )
-
-    # 3. camera graph, rooted at the camera that sees the floor board best
-    if floor_obs:
-        root = max(
-            floor_obs,
-            key=lambda ci: np.isfinite(floor_obs[ci]).all(-1).sum() - floor_pose_cam[ci][1],
+        obs = np.full_like(med, np.nan)
+        obs[ids] = med[ids]
+        res = _pnp(c.K, c.dist, geom.points[ids], med[ids])
+        if res is None:
+            continue
+        floor.obs[ci] = obs
+        floor.count[ci] = seen.sum(0)
+        floor.pose_cam[ci] = res
+    if not floor.obs:
+        raise CalibrationError(
+            f"no camera saw the board lying on the floor in frames "
+            f"{opts.floor_frames[0]}:{opts.floor_frames[1]} (it defines the world frame); "
+            "lay the board flat, printed side up, where at least one camera sees it, at "
+            "the start of the clip, or give its frames with --floor-frames START:END"
         )
-    else:
-        root = 0
+    return floor
+
+
+def _root_camera(floor: _FloorBoard) -> int:
+    """The camera that sees the floor board best (most corners, least PnP error); else 0."""
+    if floor.obs:
+        return max(
+            floor.obs,
+            key=lambda ci: np.isfinite(floor.obs[ci]).all(-1).sum() - floor.pose_cam[ci][1],
+        )
+    return 0
+
+
+def _initial_extrinsics(
+    cams: list[_CamData],
+    root: int,
+    geom: BoardGeometry,
+    floor: _FloorBoard,
+    floor_frame: np.ndarray,
+    opts: CalibrationOptions,
+) -> list[np.ndarray]:
+    """Steps 3 and 4b: each camera's camera_from_world (4, 4), chained along the
+    camera graph from ``root`` and placed by the floor board (else root = world)."""
     cam_from_root = _spanning_tree(cams, root, geom, opts, floor_frame)
+    root_from_world = floor.pose_cam[root][0] @ _inv(FLOOR_BOARD_POSE) if floor.obs else np.eye(4)
+    return [T @ root_from_world for T in cam_from_root]
 
-    # 4b. world frame
-    root_from_world = floor_pose_cam[root][0] @ _inv(FLOOR_BOARD_POSE) if floor_obs else np.eye(4)
-    cam_from_world = [T @ root_from_world for T in cam_from_root]
 
-    # initial board poses: from the camera with the most corners in each frame
+def _initial_board_poses(
+    cams: list[_CamData], cam_from_world: list[np.ndarray], floor_frame: np.ndarray
+) -> tuple[list[int], np.ndarray]:
+    """The moving board's frames (sorted) and its initial world_from_board (F, 4, 4),
+    each from the camera with the most corners in that frame."""
     frame_views: dict[int, list[tuple[int, int]]] = {}
     for ci, c in enumerate(cams):
         for i in c.poses:
@@ -802,8 +888,21 @@ def calibrate_cameras(
     for f in frames:
         ci, i = max(frame_views[f], key=lambda v: cams[v[0]].det.found[v[1]].sum())
         poses0[pose_index[f]] = _inv(cam_from_world[ci]) @ cams[ci].poses[i]
+    return frames, poses0
 
-    # observations: every detected corner of a frame with an initial pose
+
+def _bundle_problem(
+    cams: list[_CamData],
+    geom: BoardGeometry,
+    frames: list[int],
+    floor: _FloorBoard,
+    root: int,
+    opts: CalibrationOptions,
+) -> _Problem:
+    """The bundle adjustment: every detected corner of a frame with an initial pose,
+    the floor board's corners, and which parameters are free."""
+    C = len(cams)
+    pose_index = {f: k for k, f in enumerate(frames)}
     cam_l, pose_l, pt_l, uv_l, sw_l = [], [], [], [], []
     for ci, c in enumerate(cams):
         for i, f in enumerate(c.det.frames):
@@ -819,15 +918,35 @@ def calibrate_cameras(
                 sw_l.append(np.ones(len(ids)))
             else:
                 sw_l.append(np.where(c.det.refined[i, ids], 1.0, np.sqrt(opts.unrefined_weight)))
-        if ci in floor_obs:
-            ids = np.flatnonzero(np.isfinite(floor_obs[ci]).all(-1))
+        if ci in floor.obs:
+            ids = np.flatnonzero(np.isfinite(floor.obs[ci]).all(-1))
             cam_l.append(np.full(len(ids), ci))
             pose_l.append(np.full(len(ids), -1))
             pt_l.append(ids)
-            uv_l.append(floor_obs[ci][ids])
-            n_still = floor_count[ci][ids] if opts.floor_weight == "frames" else np.ones(len(ids))
+            uv_l.append(floor.obs[ci][ids])
+            n_still = floor.count[ci][ids] if opts.floor_weight == "frames" else np.ones(len(ids))
             sw_l.append(np.sqrt(n_still))
-    n_params = C * _NC + len(frames) * 6
+    return _Problem(
+        cam=np.concatenate(cam_l).astype(int),
+        pose=np.concatenate(pose_l).astype(int),
+        point=np.concatenate(pt_l).astype(int),
+        uv=np.concatenate(uv_l),
+        n_cams=C,
+        n_poses=len(frames),
+        obj=geom.points,
+        fixed_pose=FLOOR_BOARD_POSE,
+        free=_free_parameters(cams, len(frames), root, bool(floor.obs), opts),
+        sw=np.concatenate(sw_l),
+        square=opts.square_pixels,
+    )
+
+
+def _free_parameters(
+    cams: list[_CamData], n_frames: int, root: int, has_floor: bool, opts: CalibrationOptions
+) -> np.ndarray:
+    """Which of the C * 14 + F * 6 parameters the bundle adjustment moves (bool)."""
+    C = len(cams)
+    n_params = C * _NC + n_frames * 6
     free = np.ones(n_params, dtype=bool)
     if not opts.refine_intrinsics:
         for ci in range(C):
@@ -840,35 +959,53 @@ def calibrate_cameras(
             free[ci * _NC + 7] = False
     for ci in range(C):
         free[ci * _NC + 10 + cams[ci].radial : ci * _NC + 12] = False
-    if not floor_obs:
+    if not has_floor:
         free[root * _NC : root * _NC + 6] = False  # gauge: the root camera is the world
-    pb = _Problem(
-        cam=np.concatenate(cam_l).astype(int),
-        pose=np.concatenate(pose_l).astype(int),
-        point=np.concatenate(pt_l).astype(int),
-        uv=np.concatenate(uv_l),
-        n_cams=C,
-        n_poses=len(frames),
-        obj=geom.points,
-        fixed_pose=FLOOR_BOARD_POSE,
-        free=free,
-        sw=np.concatenate(sw_l),
-        square=opts.square_pixels,
-    )
-    x0 = _pack(
-        [(c.K, c.dist, T[:3, :3], T[:3, 3]) for c, T in zip(cams, cam_from_world, strict=True)],
-        poses0,
-    )
+    return free
+
+
+@dataclass
+class _BundleFit:
+    """The outcome of :func:`_bundle_adjust`.
+
+    Attributes
+    ----------
+    x : the solution (parameters of :func:`_pack`'s layout).
+    problem : the problem without the rejected outliers (M observations).
+    error : (M,) reprojection error of each kept corner (px).
+    rms : RMS of ``error`` (px).
+    initial_error : (M0,) reprojection error of every corner at the start (px).
+    threshold : the outlier threshold (px).
+    outliers : how many corners were rejected.
+    keep : (M0,) bool, the corners kept.
+    all_cam : (M0,) camera index of every corner before the rejection.
+    first, second : the two solves.
+    """
+
+    x: np.ndarray
+    problem: _Problem
+    error: np.ndarray
+    rms: float
+    initial_error: np.ndarray
+    threshold: float
+    outliers: int
+    keep: np.ndarray
+    all_cam: np.ndarray
+    first: _SolveResult
+    second: _SolveResult
+
+
+def _bundle_adjust(pb: _Problem, x0: np.ndarray, opts: CalibrationOptions) -> _BundleFit:
+    """Step 5: robust solve, reject outliers, solve again (raises on NaN)."""
+    C, n_frames = pb.n_cams, pb.n_poses
     init_err = np.linalg.norm(_residuals(x0, pb).reshape(-1, 2), axis=1)
     log.info(
         "bundle adjustment: %d cameras, %d board poses, %d corners; initial median %.2f px",
         C,
-        len(frames),
+        n_frames,
         len(pb.cam),
         float(np.median(init_err)),
     )
-
-    # 5. robust solve, reject outliers, solve again
     x1, res1 = _solve(pb, x0, opts, opts.loss)
     err = np.linalg.norm(_residuals(x1, pb).reshape(-1, 2), axis=1)
     _check_finite(err, x1, "first")
@@ -881,8 +1018,15 @@ def calibrate_cameras(
     err2 = np.linalg.norm(_residuals(x2, pb2).reshape(-1, 2), axis=1)
     _check_finite(err2, x2, "second")
     rms = float(np.sqrt(np.mean(err2**2)))
+    return _BundleFit(x2, pb2, err2, rms, init_err, thr, n_out, keep, pb.cam, res1, res2)
 
-    cam_params, _ = _unpack(x2, C, len(frames))
+
+def _solved_cameras(
+    cams: list[_CamData], fit: _BundleFit, floor: _FloorBoard, opts: CalibrationOptions
+) -> tuple[list[Camera], dict[str, dict[str, Any]]]:
+    """The solved cameras and each one's quality figures; raises for a camera whose
+    principal point left the image or whose RMS is not trustworthy."""
+    cam_params, _ = _unpack(fit.x, len(cams), fit.problem.n_poses)
     out_cams = []
     per_camera: dict[str, dict[str, Any]] = {}
     for ci, c in enumerate(cams):
@@ -898,8 +1042,8 @@ def calibrate_cameras(
                 f"bundle adjustment gave an invalid camera {c.det.name!r}: {exc}"
             ) from exc
         out_cams.append(cam)
-        mine = pb2.cam == ci
-        e = err2[mine]
+        mine = fit.problem.cam == ci
+        e = fit.error[mine]
         crms = float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
         w, h = c.det.size
         if not (0 < p[8] < w and 0 < p[9] < h):
@@ -908,69 +1052,67 @@ def calibrate_cameras(
                 f"the {w}x{h} image in the bundle adjustment; the views do not constrain this "
                 "camera (show the board closer and at more angles)"
             )
-        per_camera[c.det.name] = {
-            "frames_read": int(c.det.frames_read),
-            "boards_detected": int(c.det.boards_detected),
-            "corners_detected": int(c.det.corners_detected),
-            "corners_refined": c.det.corners_refined,
-            "corners_used": int(mine.sum()),
-            "outliers_rejected": int((pb.cam[~keep] == ci).sum()),
-            "rms_px": round(crms, 4),
-            "intrinsic_views": c.intrinsic_views,
-            "intrinsic_only_rms_px": round(c.intrinsic_rms, 4),
-            "sees_floor": ci in floor_obs,
-            "image_coverage": round(c.coverage, 3),
-            "radial_terms": ["k1", "k2"][: c.radial],
-        }
+        per_camera[c.det.name] = _camera_quality(c, ci, fit, mine, crms, floor)
         if not np.isfinite(crms) or crms > opts.max_rms_px:
             raise CalibrationError(
                 f"camera {c.det.name!r}: bundle adjustment did not converge to a trustworthy "
                 f"solution (reprojection RMS {crms:.2f} px > {opts.max_rms_px} px); check that "
                 "the clips are synchronized and the board description is right"
             )
-    if not res2.success:
+    return out_cams, per_camera
+
+
+def _camera_quality(
+    c: _CamData, ci: int, fit: _BundleFit, mine: np.ndarray, crms: float, floor: _FloorBoard
+) -> dict[str, Any]:
+    """One camera's entry of :attr:`CalibrationResult.per_camera`."""
+    return {
+        "frames_read": int(c.det.frames_read),
+        "boards_detected": int(c.det.boards_detected),
+        "corners_detected": int(c.det.corners_detected),
+        "corners_refined": c.det.corners_refined,
+        "corners_used": int(mine.sum()),
+        "outliers_rejected": int((fit.all_cam[~fit.keep] == ci).sum()),
+        "rms_px": round(crms, 4),
+        "intrinsic_views": c.intrinsic_views,
+        "intrinsic_only_rms_px": round(c.intrinsic_rms, 4),
+        "sees_floor": ci in floor.obs,
+        "image_coverage": round(c.coverage, 3),
+        "radial_terms": ["k1", "k2"][: c.radial],
+    }
+
+
+def _check_converged(fit: _BundleFit, opts: CalibrationOptions) -> None:
+    """Raise unless the second solve converged to an RMS under ``max_rms_px``."""
+    if not fit.second.success:
         raise CalibrationError(
             f"bundle adjustment did not converge within {opts.max_iterations} iterations "
-            f"(RMS {rms:.3f} px); the views may be too few or inconsistent"
+            f"(RMS {fit.rms:.3f} px); the views may be too few or inconsistent"
         )
-    if rms > opts.max_rms_px:
+    if fit.rms > opts.max_rms_px:
         raise CalibrationError(
-            f"bundle adjustment did not converge to a trustworthy solution: RMS {rms:.2f} px "
+            f"bundle adjustment did not converge to a trustworthy solution: RMS {fit.rms:.2f} px "
             f"> {opts.max_rms_px} px"
         )
-    world = (
-        {
+
+
+def _world_description(
+    cams: list[_CamData], root: int, floor: _FloorBoard, opts: CalibrationOptions
+) -> dict[str, str]:
+    """The calibration's ``world`` note: how the world frame was defined."""
+    if floor.obs:
+        return {
             "frame": "ChArUco board on the floor, z up, metres",
             "note": (
                 f"origin at the board's pattern origin, x along its columns; floor frames "
                 f"{opts.floor_frames[0]}:{opts.floor_frames[1]}; seen by "
-                f"{[cams[ci].det.name for ci in sorted(floor_obs)]}"
+                f"{[cams[ci].det.name for ci in sorted(floor.obs)]}"
             ),
         }
-        if floor_obs
-        else {
-            "frame": f"camera {cams[root].det.name} (no floor board: z is NOT up)",
-            "note": "no floor frames were given",
-        }
-    )
-    return CalibrationResult(
-        cameras=CameraGroup(out_cams),
-        rms_px=rms,
-        per_camera=per_camera,
-        frames_used=len(frames),
-        observations=len(pb2.cam),
-        outliers=n_out,
-        world=world,
-        solver={
-            "initial_median_px": round(float(np.median(init_err)), 4),
-            "outlier_threshold_px": round(thr, 4),
-            "evaluations": int(res1.nfev + res2.nfev),
-            "iterations": int(res1.iterations + res2.iterations),
-            "status": int(res2.status),
-            "message": str(res2.message),
-            "root_camera": cams[root].det.name,
-        },
-    )
+    return {
+        "frame": f"camera {cams[root].det.name} (no floor board: z is NOT up)",
+        "note": "no floor frames were given",
+    }
 
 
 def _check_finite(err: np.ndarray, x: np.ndarray, which: str) -> None:
