@@ -41,8 +41,8 @@ from distributed import Client, Future, LocalCluster, as_completed
 
 from bodymetry.capture.background import BackgroundModel
 from bodymetry.capture.ingest import SyncReport, check_sync
+from bodymetry.capture.segmentation import background_models, segment_session
 from bodymetry.capture.session import SESSION_FILE
-from bodymetry.capture.silhouette import background_models, segment_session
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.records import (

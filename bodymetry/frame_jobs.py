@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from bodymetry.calibration.camera import Camera
-from bodymetry.capture.silhouette import SilhouetteFrame
+from bodymetry.capture.segmentation import SilhouetteFrame
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import (
     FitConfig,

@@ -44,8 +44,8 @@ from bodymetry.capture.landmarks import (
     principal_point_offsets,
     triangulate_landmarks,
 )
+from bodymetry.capture.segmentation import segment_session
 from bodymetry.capture.session import Session, load_session
-from bodymetry.capture.silhouette import segment_session
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import (

@@ -15,8 +15,8 @@ from tiny_run import TINY_TRAIN, tiny_session
 import bodymetry.cameras as cameras_module
 import bodymetry.frame_jobs as frame_jobs
 import bodymetry.process as process_module
+from bodymetry.capture.segmentation import segment_session
 from bodymetry.capture.session import load_session
-from bodymetry.capture.silhouette import segment_session
 from bodymetry.capture.video import H264Writer
 from bodymetry.config import ProcessConfig
 from bodymetry.errors import InputError
