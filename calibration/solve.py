@@ -20,7 +20,8 @@ Pipeline (docs/calibration.md):
    cy, k1[, k2], p1, p2) and every moving board pose; the floor pose is fixed
    (it is the gauge). Corners that the corner refiner could not place
    (:class:`calibration.charuco.CornerRefiner`) are down-weighted.
-   Levenberg-Marquardt on sparse normal equations with a sparse
+   Levenberg-Marquardt (:mod:`calibration.bundle_adjustment`) on sparse
+   normal equations with a sparse
    forward-difference Jacobian (column grouping: 20 residual evaluations per
    Jacobian), robust ``soft_l1`` loss (1 px scale) by IRLS, then outlier
    rejection (4 sigma of the robust error spread, at least ``outlier_min_px``)
@@ -42,9 +43,17 @@ from typing import Any
 
 import cv2
 import numpy as np
-from scipy.sparse import csr_matrix, diags
-from scipy.sparse.linalg import spsolve
 
+from bodymetry.calibration.bundle_adjustment import (
+    CAMERA_PARAMS,
+    BundleProblem,
+    SolveResult,
+    pack_parameters,
+    reprojection_residuals,
+    rodrigues,
+    solve_bundle,
+    unpack_parameters,
+)
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.charuco import BoardGeometry, CameraDetections
 from bodymetry.errors import InputError
@@ -61,10 +70,6 @@ __all__ = [
 
 #: world_from_board of the board lying face up on the floor (4, 4).
 FLOOR_BOARD_POSE = np.diag([1.0, -1.0, -1.0, 1.0])
-
-#: Intrinsic parameters per camera in the bundle adjustment.
-_INTR = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
-_NC = 6 + len(_INTR)
 
 
 class CalibrationError(InputError):
@@ -180,33 +185,6 @@ class CalibrationResult:
 # ---------------------------------------------------------------------------------------
 # small geometry helpers
 # ---------------------------------------------------------------------------------------
-def rodrigues(rv: np.ndarray) -> np.ndarray:
-    """Rotation vectors (..., 3) -> matrices (..., 3, 3)."""
-    rv = np.asarray(rv, dtype=float)
-    theta = np.linalg.norm(rv, axis=-1)[..., None, None]
-    k = rv / np.where(theta[..., 0] > 1e-12, theta[..., 0], 1.0)
-    Kx = np.zeros(rv.shape[:-1] + (3, 3))
-    Kx[..., 0, 1], Kx[..., 0, 2] = -k[..., 2], k[..., 1]
-    Kx[..., 1, 0], Kx[..., 1, 2] = k[..., 2], -k[..., 0]
-    Kx[..., 2, 0], Kx[..., 2, 1] = -k[..., 1], k[..., 0]
-    small = theta < 1e-8
-    s, c = np.sin(theta), np.cos(theta)
-    R = np.eye(3) + s * Kx + (1 - c) * (Kx @ Kx)
-    # First order near zero (keeps finite differences exact there).
-    Rs = np.eye(3) + _skew(rv)
-    return np.where(small, Rs, R)
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-    return S
-
-
-def _rvec(R: np.ndarray) -> np.ndarray:
-    return cv2.Rodrigues(np.asarray(R, dtype=float))[0].reshape(3)
 
 
 def _T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -468,216 +446,6 @@ def _edge(
 
 
 # ---------------------------------------------------------------------------------------
-# stage 5: bundle adjustment
-# ---------------------------------------------------------------------------------------
-@dataclass
-class _Problem:
-    cam: np.ndarray  # (M,) camera index
-    pose: np.ndarray  # (M,) pose index, -1 = the fixed floor pose
-    point: np.ndarray  # (M,) corner id
-    uv: np.ndarray  # (M, 2) observed pixels
-    n_cams: int
-    n_poses: int
-    obj: np.ndarray  # (N, 3)
-    fixed_pose: np.ndarray  # (4, 4) world_from_board of pose -1
-    free: np.ndarray  # (n_params,) bool
-    sw: np.ndarray  # (M,) sqrt weight of each observation
-    square: bool = False  # fy := fx
-
-    def subset(self, keep: np.ndarray) -> _Problem:
-        return _Problem(
-            self.cam[keep],
-            self.pose[keep],
-            self.point[keep],
-            self.uv[keep],
-            self.n_cams,
-            self.n_poses,
-            self.obj,
-            self.fixed_pose,
-            self.free,
-            self.sw[keep],
-            self.square,
-        )
-
-
-def _pack(
-    cams: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], poses: np.ndarray
-) -> np.ndarray:
-    """cams: (K, dist, R, t) camera_from_world; poses (P, 4, 4) world_from_board."""
-    blocks = []
-    for K, dist, R, t in cams:
-        d = np.zeros(5)
-        d[: min(5, dist.size)] = dist[:5]
-        blocks.append(np.concatenate([_rvec(R), t, [K[0, 0], K[1, 1], K[0, 2], K[1, 2]], d[:4]]))
-    for T in poses:
-        blocks.append(np.concatenate([_rvec(T[:3, :3]), T[:3, 3]]))
-    return np.concatenate(blocks) if blocks else np.zeros(0)
-
-
-def _unpack(x: np.ndarray, n_cams: int, n_poses: int):
-    cam = x[: n_cams * _NC].reshape(n_cams, _NC)
-    pose = x[n_cams * _NC :].reshape(n_poses, 6)
-    return cam, pose
-
-
-def _residuals(x: np.ndarray, pb: _Problem) -> np.ndarray:
-    cam, pose = _unpack(x, pb.n_cams, pb.n_poses)
-    Rb = rodrigues(pose[:, :3])
-    tb = pose[:, 3:]
-    Rb = np.concatenate([Rb, pb.fixed_pose[None, :3, :3]])  # index -1 -> fixed
-    tb = np.concatenate([tb, pb.fixed_pose[None, :3, 3]])
-    Rc = rodrigues(cam[:, :3])
-    X = np.einsum("mij,mj->mi", Rb[pb.pose], pb.obj[pb.point]) + tb[pb.pose]
-    c = cam[pb.cam]
-    Xc = np.einsum("mij,mj->mi", Rc[pb.cam], X) + c[:, 3:6]
-    z = Xc[:, 2]
-    zs = np.where(np.abs(z) > 1e-6, z, 1e-6)
-    x_, y_ = Xc[:, 0] / zs, Xc[:, 1] / zs
-    fx, fy, cx, cy, k1, k2, p1, p2 = c[:, 6:14].T
-    if pb.square:
-        fy = fx
-    r2 = x_ * x_ + y_ * y_
-    rad = 1 + r2 * (k1 + r2 * k2)
-    xd = x_ * rad + 2 * p1 * x_ * y_ + p2 * (r2 + 2 * x_ * x_)
-    yd = y_ * rad + p1 * (r2 + 2 * y_ * y_) + 2 * p2 * x_ * y_
-    u = fx * xd + cx
-    v = fy * yd + cy
-    return np.stack([u - pb.uv[:, 0], v - pb.uv[:, 1]], axis=1).reshape(-1)
-
-
-def _jacobian(x: np.ndarray, pb: _Problem, r0: np.ndarray) -> csr_matrix:
-    """Sparse forward-difference Jacobian (2M, n_free) by column grouping.
-
-    Parameter ``k`` of every camera touches disjoint rows (each observation has
-    one camera), and so does parameter ``k`` of every board pose: 14 + 6
-    residual evaluations give the whole Jacobian.
-    """
-    M = len(pb.cam)
-    C, P = pb.n_cams, pb.n_poses
-    rows = np.arange(2 * M)
-    obs = rows // 2
-    data, rr, cc = [], [], []
-    col_of = -np.ones(len(x), dtype=int)
-    col_of[pb.free] = np.arange(int(pb.free.sum()))
-    for k in range(_NC):
-        cols = np.arange(C) * _NC + k
-        if not np.any(pb.free[cols]):
-            continue
-        h = 1e-6 * np.maximum(1.0, np.abs(x[cols]))
-        xp = x.copy()
-        xp[cols] += h * pb.free[cols]
-        d = (_residuals(xp, pb) - r0) / h[pb.cam[obs]]
-        c = col_of[cols][pb.cam[obs]]
-        ok = c >= 0
-        data.append(d[ok]), rr.append(rows[ok]), cc.append(c[ok])
-    if P:
-        moving = pb.pose[obs] >= 0
-        for k in range(6):
-            cols = C * _NC + np.arange(P) * 6 + k
-            h = 1e-7 * np.maximum(1.0, np.abs(x[cols]))
-            xp = x.copy()
-            xp[cols] += h
-            pidx = np.where(moving, pb.pose[obs], 0)
-            d = (_residuals(xp, pb) - r0) / h[pidx]
-            c = col_of[cols][pidx]
-            ok = moving & (c >= 0)
-            data.append(d[ok]), rr.append(rows[ok]), cc.append(c[ok])
-    n = int(pb.free.sum())
-    return csr_matrix(
-        (np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))), shape=(2 * M, n)
-    )
-
-
-@dataclass
-class _SolveResult:
-    success: bool
-    status: int
-    message: str
-    nfev: int
-    iterations: int
-
-
-def _robust_weights(
-    r: np.ndarray, loss: str, f_scale: float, sw: np.ndarray
-) -> tuple[np.ndarray, float]:
-    """IRLS weights per residual (2M,) and the robust cost ``sum sw^2 rho(|e|^2)``.
-
-    The loss acts on each corner's 2-D error; ``sw`` (M,) are square-root
-    observation weights.
-    """
-    e2 = (r.reshape(-1, 2) ** 2).sum(axis=1) / f_scale**2
-    if loss == "linear":
-        w = np.ones_like(e2)
-        cost = e2
-    elif loss == "soft_l1":
-        w = 1.0 / np.sqrt(1.0 + e2)
-        cost = 2.0 * (np.sqrt(1.0 + e2) - 1.0)
-    elif loss == "huber":
-        w = np.where(e2 <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(e2, 1e-300)))
-        cost = np.where(e2 <= 1.0, e2, 2.0 * np.sqrt(e2) - 1.0)
-    elif loss == "cauchy":
-        w = 1.0 / (1.0 + e2)
-        cost = np.log1p(e2)
-    else:
-        raise ValueError(f"unknown loss {loss!r}; use linear, soft_l1, huber or cauchy")
-    s2 = sw**2
-    return np.repeat(w * s2, 2), float(f_scale**2 * np.sum(s2 * cost))
-
-
-def _solve(pb: _Problem, x0: np.ndarray, opts: CalibrationOptions, loss: str):
-    """Levenberg-Marquardt with IRLS robust weights and sparse normal equations."""
-    x = x0.copy()
-    free = pb.free
-    r = _residuals(x, pb)
-    w, cost = _robust_weights(r, loss, opts.f_scale_px, pb.sw)
-    lam = 1e-3
-    nfev = 1
-    status, message = 0, "maximum number of iterations reached"
-    it = 0
-    while it < opts.max_iterations:
-        it += 1
-        J = _jacobian(x, pb, r)
-        nfev += 20
-        Jw = J.multiply(w[:, None]).tocsr()
-        A = (J.T @ Jw).tocsc()
-        g = Jw.T @ r
-        diag = A.diagonal().copy()
-        diag[diag <= 0] = 1e-12
-        improved = False
-        while lam < 1e12:
-            H = A + diags(lam * diag)
-            try:
-                step = spsolve(H.tocsc(), -g)
-            except RuntimeError:
-                step = np.full_like(g, np.nan)
-            if not np.all(np.isfinite(step)):
-                lam *= 10
-                continue
-            xn = x.copy()
-            xn[free] += step
-            rn = _residuals(xn, pb)
-            nfev += 1
-            if not np.all(np.isfinite(rn)):
-                lam *= 10
-                continue
-            wn, cn = _robust_weights(rn, loss, opts.f_scale_px, pb.sw)
-            if cn < cost:
-                improved = True
-                rel = (cost - cn) / max(cost, 1e-300)
-                x, r, w, cost = xn, rn, wn, cn
-                lam = max(lam / 10, 1e-12)
-                break
-            lam *= 10
-        if not improved:
-            status, message = 2, "converged (no further decrease)"
-            break
-        if rel < 1e-12 or np.max(np.abs(step) / np.maximum(np.abs(x[free]), 1.0)) < 1e-12:
-            status, message = 1, "converged"
-            break
-    return x, _SolveResult(status > 0, status, message, nfev, it)
-
-
-# ---------------------------------------------------------------------------------------
 # main entry point
 # ---------------------------------------------------------------------------------------
 def calibrate_cameras(
@@ -714,7 +482,7 @@ def calibrate_cameras(
     cam_from_world = _initial_extrinsics(cams, root, geom, floor, floor_frame, opts)
     frames, poses0 = _initial_board_poses(cams, cam_from_world, floor_frame)
     pb = _bundle_problem(cams, geom, frames, floor, root, opts)
-    x0 = _pack(
+    x0 = pack_parameters(
         [(c.K, c.dist, T[:3, :3], T[:3, 3]) for c, T in zip(cams, cam_from_world, strict=True)],
         poses0,
     )
@@ -898,7 +666,7 @@ def _bundle_problem(
     floor: _FloorBoard,
     root: int,
     opts: CalibrationOptions,
-) -> _Problem:
+) -> BundleProblem:
     """The bundle adjustment: every detected corner of a frame with an initial pose,
     the floor board's corners, and which parameters are free."""
     C = len(cams)
@@ -926,7 +694,7 @@ def _bundle_problem(
             uv_l.append(floor.obs[ci][ids])
             n_still = floor.count[ci][ids] if opts.floor_weight == "frames" else np.ones(len(ids))
             sw_l.append(np.sqrt(n_still))
-    return _Problem(
+    return BundleProblem(
         cam=np.concatenate(cam_l).astype(int),
         pose=np.concatenate(pose_l).astype(int),
         point=np.concatenate(pt_l).astype(int),
@@ -946,21 +714,23 @@ def _free_parameters(
 ) -> np.ndarray:
     """Which of the C * 14 + F * 6 parameters the bundle adjustment moves (bool)."""
     C = len(cams)
-    n_params = C * _NC + n_frames * 6
+    n_params = C * CAMERA_PARAMS + n_frames * 6
     free = np.ones(n_params, dtype=bool)
     if not opts.refine_intrinsics:
         for ci in range(C):
-            free[ci * _NC + 6 : (ci + 1) * _NC] = False
+            free[ci * CAMERA_PARAMS + 6 : (ci + 1) * CAMERA_PARAMS] = False
     if not opts.tangential:
         for ci in range(C):
-            free[ci * _NC + 12 : ci * _NC + 14] = False
+            free[ci * CAMERA_PARAMS + 12 : ci * CAMERA_PARAMS + 14] = False
     if opts.square_pixels:
         for ci in range(C):
-            free[ci * _NC + 7] = False
+            free[ci * CAMERA_PARAMS + 7] = False
     for ci in range(C):
-        free[ci * _NC + 10 + cams[ci].radial : ci * _NC + 12] = False
+        free[ci * CAMERA_PARAMS + 10 + cams[ci].radial : ci * CAMERA_PARAMS + 12] = False
     if not has_floor:
-        free[root * _NC : root * _NC + 6] = False  # gauge: the root camera is the world
+        free[root * CAMERA_PARAMS : root * CAMERA_PARAMS + 6] = (
+            False  # gauge: the root camera is the world
+        )
     return free
 
 
@@ -970,7 +740,7 @@ class _BundleFit:
 
     Attributes
     ----------
-    x : the solution (parameters of :func:`_pack`'s layout).
+    x : the solution (parameters of :func:`pack_parameters`'s layout).
     problem : the problem without the rejected outliers (M observations).
     error : (M,) reprojection error of each kept corner (px).
     rms : RMS of ``error`` (px).
@@ -983,7 +753,7 @@ class _BundleFit:
     """
 
     x: np.ndarray
-    problem: _Problem
+    problem: BundleProblem
     error: np.ndarray
     rms: float
     initial_error: np.ndarray
@@ -991,14 +761,14 @@ class _BundleFit:
     outliers: int
     keep: np.ndarray
     all_cam: np.ndarray
-    first: _SolveResult
-    second: _SolveResult
+    first: SolveResult
+    second: SolveResult
 
 
-def _bundle_adjust(pb: _Problem, x0: np.ndarray, opts: CalibrationOptions) -> _BundleFit:
+def _bundle_adjust(pb: BundleProblem, x0: np.ndarray, opts: CalibrationOptions) -> _BundleFit:
     """Step 5: robust solve, reject outliers, solve again (raises on NaN)."""
     C, n_frames = pb.n_cams, pb.n_poses
-    init_err = np.linalg.norm(_residuals(x0, pb).reshape(-1, 2), axis=1)
+    init_err = np.linalg.norm(reprojection_residuals(x0, pb).reshape(-1, 2), axis=1)
     log.info(
         "bundle adjustment: %d cameras, %d board poses, %d corners; initial median %.2f px",
         C,
@@ -1006,16 +776,16 @@ def _bundle_adjust(pb: _Problem, x0: np.ndarray, opts: CalibrationOptions) -> _B
         len(pb.cam),
         float(np.median(init_err)),
     )
-    x1, res1 = _solve(pb, x0, opts, opts.loss)
-    err = np.linalg.norm(_residuals(x1, pb).reshape(-1, 2), axis=1)
+    x1, res1 = solve_bundle(pb, x0, opts, opts.loss)
+    err = np.linalg.norm(reprojection_residuals(x1, pb).reshape(-1, 2), axis=1)
     _check_finite(err, x1, "first")
     sigma = float(np.median(err)) / 1.1774  # Rayleigh: median = 1.1774 sigma
     thr = max(opts.outlier_min_px, opts.outlier_sigma * sigma)
     keep = err <= thr
     n_out = int((~keep).sum())
     pb2 = pb.subset(keep)
-    x2, res2 = _solve(pb2, x1, opts, opts.loss)
-    err2 = np.linalg.norm(_residuals(x2, pb2).reshape(-1, 2), axis=1)
+    x2, res2 = solve_bundle(pb2, x1, opts, opts.loss)
+    err2 = np.linalg.norm(reprojection_residuals(x2, pb2).reshape(-1, 2), axis=1)
     _check_finite(err2, x2, "second")
     rms = float(np.sqrt(np.mean(err2**2)))
     return _BundleFit(x2, pb2, err2, rms, init_err, thr, n_out, keep, pb.cam, res1, res2)
@@ -1026,7 +796,7 @@ def _solved_cameras(
 ) -> tuple[list[Camera], dict[str, dict[str, Any]]]:
     """The solved cameras and each one's quality figures; raises for a camera whose
     principal point left the image or whose RMS is not trustworthy."""
-    cam_params, _ = _unpack(fit.x, len(cams), fit.problem.n_poses)
+    cam_params, _ = unpack_parameters(fit.x, len(cams), fit.problem.n_poses)
     out_cams = []
     per_camera: dict[str, dict[str, Any]] = {}
     for ci, c in enumerate(cams):
