@@ -153,6 +153,7 @@ class Fields:
         return InputError(f"{self.source}: {message}")
 
     def mapping(self, value: Any, field: str) -> dict[str, Any]:
+        """``value`` as a mapping with string keys."""
         if not isinstance(value, dict):
             raise self.error(field, f"expected a mapping (key: value), got {describe(value)}")
         for key in value:
@@ -191,6 +192,7 @@ class Fields:
                     )
 
     def string(self, value: Any, field: str, *, allow_empty: bool = False) -> str:
+        """``value`` as a string (non-blank unless ``allow_empty``)."""
         if not isinstance(value, str):
             raise self.error(field, f"expected a string, got {describe(value)}")
         if not allow_empty and not value.strip():
@@ -198,11 +200,13 @@ class Fields:
         return value
 
     def boolean(self, value: Any, field: str) -> bool:
+        """``value`` as ``true`` or ``false`` (not 0 / 1)."""
         if not isinstance(value, bool):
             raise self.error(field, f"expected true or false, got {describe(value)}")
         return value
 
     def integer(self, value: Any, field: str, *, minimum: int | None = None) -> int:
+        """``value`` as an integer (a whole float is accepted), at least ``minimum``."""
         ok = isinstance(value, int) and not isinstance(value, bool)
         if isinstance(value, float) and value.is_integer():
             ok, value = True, int(value)
@@ -215,6 +219,7 @@ class Fields:
     def number(
         self, value: Any, field: str, *, positive: bool = False, minimum: float | None = None
     ) -> float:
+        """``value`` as a finite float; ``positive``: > 0; at least ``minimum``."""
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.error(field, f"expected a number, got {describe(value)}")
         x = float(value)
