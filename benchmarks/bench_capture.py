@@ -33,14 +33,14 @@ import numpy as np
 from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.background import METHODS, BackgroundModel, SubtractionConfig, Subtractor
 from bodymetry.capture.ingest import check_sync, read_frame_sets
+from bodymetry.capture.masks import clean_mask
 from bodymetry.capture.person import segmenter_available
-from bodymetry.capture.session import load_session
-from bodymetry.capture.silhouette import (
+from bodymetry.capture.segmentation import (
     CaptureConfig,
     background_models,
-    clean_mask,
     segment_session,
 )
+from bodymetry.capture.session import load_session
 from bodymetry.estimation.body_model.model import BodyState, shipped_model
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.fileio import load_npz

@@ -38,8 +38,8 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+from bodymetry.capture.segmentation import segment_session
 from bodymetry.capture.session import load_session
-from bodymetry.capture.silhouette import segment_session
 from bodymetry.cli import DEMO_SESSION
 from bodymetry.estimation import generative, raster
 from bodymetry.estimation.body_model import scape

@@ -8,8 +8,8 @@ function-local imports. ``tests/test_layers.py`` asserts the same rules.
 Layers, lowest first (a package may import only its own layer and lower ones):
 
 0. ``foundation``: ``bodymetry`` itself (``__version__``), ``bodymetry.errors``,
-   ``bodymetry.fileio``, ``bodymetry.log``, ``bodymetry.settings`` (shared by every
-   stage; they import no stage);
+   ``bodymetry.fileio``, ``bodymetry.log``, ``bodymetry.schema``,
+   ``bodymetry.settings`` (shared by every stage; they import no stage);
 1. ``calibration``; 2. ``capture``; 3. ``estimation``;
 4. ``studio`` (beside capture: renders sessions with estimation's body model) and
    ``review`` (reads a run); neither imports the other;
@@ -34,7 +34,7 @@ FOLDERS = {
     "review": "review",
     "bodymetry": "bodymetry",
 }
-FOUNDATION = ("__init__", "errors", "fileio", "log", "settings", "threads")
+FOUNDATION = ("__init__", "errors", "fileio", "log", "schema", "settings", "threads")
 #: Layer of each package: imports may only go to the same or a lower number.
 LAYERS = {
     "foundation": 0,

@@ -37,11 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
+from bodymetry.calibration.anipose import import_anipose_toml
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import (
     CALIBRATION_MAX_BYTES,
     Calibration,
-    import_anipose_toml,
     read_calibration,
     save_calibration,
 )

@@ -59,8 +59,8 @@ from bodymetry.capture.landmarks import (
     principal_point_offsets,
     triangulate_landmarks,
 )
+from bodymetry.capture.segmentation import background_models, segment_session
 from bodymetry.capture.session import Session, load_session
-from bodymetry.capture.silhouette import background_models, segment_session
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import (
     MIN_PIXELS,

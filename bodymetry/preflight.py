@@ -40,7 +40,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from bodymetry.calibration.io import Fields, join_field, read_calibration, read_yaml_mapping
+from bodymetry.calibration.io import read_calibration
 from bodymetry.capture.background import read_clip
 from bodymetry.capture.ingest import (
     VideoInfo,
@@ -52,19 +52,20 @@ from bodymetry.capture.ingest import (
 from bodymetry.capture.person import SEGMENTER_REQUIREMENT, segmenter_available
 
 # load_session stops at the first problem. To list every missing file, the
-# session's structure is read without looking at files (_session_from_data) and
-# each path is then checked on its own (_relative_path): the same rules and the
+# session's structure is read without looking at files (session_from_data) and
+# each path is then checked on its own (session_relative_path): the same rules and the
 # same messages as load_session.
 from bodymetry.capture.session import (
     DEFAULT_CALIBRATION_FILE,
     SESSION_FILE,
     Session,
-    _relative_path,
-    _session_from_data,
     load_session,
+    session_from_data,
+    session_relative_path,
 )
 from bodymetry.errors import InputError
 from bodymetry.estimation.run_files import RunLayout
+from bodymetry.schema import Fields, join_field, read_yaml_mapping
 
 __all__ = [
     "BLACK_FRAMES",
@@ -277,7 +278,7 @@ def _load(findings: _Findings, path: Path) -> Session | None:
         # reports the missing calibration.
         data["calibration"] = DEFAULT_CALIBRATION_FILE
     try:
-        session = _session_from_data(data, fields, folder, check_files=False)
+        session = session_from_data(data, fields, folder, check_files=False)
     except InputError as exc:
         # A malformed session.yaml: its cameras are unknown, nothing more to check.
         findings.problem(yaml_path, exc)
@@ -319,7 +320,9 @@ def _paths(session: Session) -> Iterable[tuple[str, str, str, bool]]:
 def _check_paths(findings: _Findings, session: Session, fields: Fields) -> None:
     for relative, field_name, what, directory in _paths(session):
         try:
-            _relative_path(fields, relative, field_name, session.folder, what, directory=directory)
+            session_relative_path(
+                fields, relative, field_name, session.folder, what, directory=directory
+            )
         except InputError as exc:
             findings.problem(session.path(relative), exc, bad=True)
 

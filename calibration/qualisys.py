@@ -186,7 +186,6 @@ def read_qca(path: str | os.PathLike[str], *, binning_factor: int = 1) -> QcaCal
             f"{path}: no <cameras><camera> elements (<{root.tag}> at the top); "
             "not a Qualisys calibration?"
         )
-    b = float(binning_factor)
     found: list[tuple[Camera, str, float]] = []
     first: dict[str, int] = {}
     for index, element in enumerate(elements):
@@ -199,58 +198,7 @@ def read_qca(path: str | os.PathLike[str], *, binning_factor: int = 1) -> QcaCal
             raise InputError(f"{path}: {where}: duplicate serial (also camera {first[serial]})")
         first[serial] = index
         residual = _number(path, element, "avg-residual", where, default=math.nan)
-        fov = _child(path, element, "fov_video", where)
-        left, top, right, bottom = (
-            _number(path, fov, key, where) for key in ("left", "top", "right", "bottom")
-        )
-        width, height = (right - left + 1) / b, (bottom - top + 1) / b
-        if not (width >= 1 and height >= 1 and width.is_integer() and height.is_integer()):
-            raise InputError(
-                f"{path}: {where}: <fov_video> gives an image of {width:g}x{height:g} px "
-                f"(binning factor {binning_factor}); expected whole positive sizes"
-            )
-        intr = _child(path, element, "intrinsic", where)
-
-        def sub(key: str, default: float | None = None, *, _e=intr, _w=where) -> float:
-            return _number(path, _e, key, _w, default=default) / QCA_SUBPIXELS / b
-
-        # QTM spells it "tangental"; accept the dictionary spelling too.
-        tangential = [
-            sub(k) if intr.get(k) is not None else sub(k.replace("tangental", "tangential"))
-            for k in ("tangentalDistortion1", "tangentalDistortion2")
-        ]
-        dist = [sub("radialDistortion1"), sub("radialDistortion2"), *tangential]
-        dist.append(sub("radialDistortion3", 0.0))
-        K = np.array(
-            [
-                [sub("focalLengthU"), 0.0, sub("centerPointU") - left],
-                [0.0, sub("focalLengthV"), sub("centerPointV") - top],
-                [0.0, 0.0, 1.0],
-            ]
-        )
-        for key in ("skew", "viewrotation"):
-            source = intr if key == "skew" else element
-            if _number(path, source, key, where, default=0.0) != 0:
-                log.warning(
-                    "%s: %s: %s=%s is ignored (as Pose2Sim does)", path, where, key, source.get(key)
-                )
-        tr = _child(path, element, "transform", where)
-        position = np.array([_number(path, tr, k, where) for k in ("x", "y", "z")]) / 1000.0
-        M = np.array([_number(path, tr, k, where) for k in _ROTATION_KEYS]).reshape(3, 3)
-        if not np.allclose(M @ M.T, np.eye(3), atol=1e-6) or np.linalg.det(M) <= 0:
-            raise InputError(
-                f"{path}: {where}: <transform r11..r33> is not a rotation "
-                f"(|M M^T - I| = {np.abs(M @ M.T - np.eye(3)).max():.2g}, "
-                f"det = {np.linalg.det(M):.6g})"
-            )
-        R = _QTM_TO_OPENCV @ M
-        t = -R @ position
-        try:
-            camera = Camera(
-                name=serial, size=(int(width), int(height)), K=K, dist=np.array(dist), R=R, t=t
-            )
-        except ValueError as exc:
-            raise InputError(f"{path}: {where}: {exc}") from exc
+        camera = _camera(path, element, serial, where, binning_factor)
         found.append((camera, element.get("model", ""), residual))
     found.sort(key=lambda item: natural_key(item[0].name))
     return QcaCalibration(
@@ -258,6 +206,80 @@ def read_qca(path: str | os.PathLike[str], *, binning_factor: int = 1) -> QcaCal
         models={cam.name: model for cam, model, _ in found},
         residuals_mm={cam.name: res for cam, _, res in found},
     )
+
+
+def _camera(
+    path: Path, element: ET.Element, serial: str, where: str, binning_factor: int
+) -> Camera:
+    """One ``<camera>`` as a :class:`Camera` named ``serial`` (``where`` names it in errors)."""
+    b = float(binning_factor)
+    fov = _child(path, element, "fov_video", where)
+    left, top, right, bottom = (
+        _number(path, fov, key, where) for key in ("left", "top", "right", "bottom")
+    )
+    width, height = (right - left + 1) / b, (bottom - top + 1) / b
+    if not (width >= 1 and height >= 1 and width.is_integer() and height.is_integer()):
+        raise InputError(
+            f"{path}: {where}: <fov_video> gives an image of {width:g}x{height:g} px "
+            f"(binning factor {binning_factor}); expected whole positive sizes"
+        )
+    K, dist = _lens(path, element, where, left, top, b)
+    R, t = _pose(path, element, where)
+    try:
+        return Camera(
+            name=serial, size=(int(width), int(height)), K=K, dist=np.array(dist), R=R, t=t
+        )
+    except ValueError as exc:
+        raise InputError(f"{path}: {where}: {exc}") from exc
+
+
+def _lens(
+    path: Path, element: ET.Element, where: str, left: float, top: float, b: float
+) -> tuple[np.ndarray, list[float]]:
+    """K (3, 3) and ``[k1, k2, p1, p2, k3]`` from ``<intrinsic>`` (1/64 px units, binned by
+    ``b``; the principal point shifted by the video window's ``left`` / ``top``)."""
+    intr = _child(path, element, "intrinsic", where)
+
+    def sub(key: str, default: float | None = None) -> float:
+        return _number(path, intr, key, where, default=default) / QCA_SUBPIXELS / b
+
+    # QTM spells it "tangental"; accept the dictionary spelling too.
+    tangential = [
+        sub(k) if intr.get(k) is not None else sub(k.replace("tangental", "tangential"))
+        for k in ("tangentalDistortion1", "tangentalDistortion2")
+    ]
+    dist = [sub("radialDistortion1"), sub("radialDistortion2"), *tangential]
+    dist.append(sub("radialDistortion3", 0.0))
+    K = np.array(
+        [
+            [sub("focalLengthU"), 0.0, sub("centerPointU") - left],
+            [0.0, sub("focalLengthV"), sub("centerPointV") - top],
+            [0.0, 0.0, 1.0],
+        ]
+    )
+    for key in ("skew", "viewrotation"):
+        source = intr if key == "skew" else element
+        if _number(path, source, key, where, default=0.0) != 0:
+            log.warning(
+                "%s: %s: %s=%s is ignored (as Pose2Sim does)", path, where, key, source.get(key)
+            )
+    return K, dist
+
+
+def _pose(path: Path, element: ET.Element, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """The OpenCV camera_from_world ``R`` (3, 3) and ``t`` (3,) in metres from ``<transform>``."""
+    tr = _child(path, element, "transform", where)
+    position = np.array([_number(path, tr, k, where) for k in ("x", "y", "z")]) / 1000.0
+    M = np.array([_number(path, tr, k, where) for k in _ROTATION_KEYS]).reshape(3, 3)
+    if not np.allclose(M @ M.T, np.eye(3), atol=1e-6) or np.linalg.det(M) <= 0:
+        raise InputError(
+            f"{path}: {where}: <transform r11..r33> is not a rotation "
+            f"(|M M^T - I| = {np.abs(M @ M.T - np.eye(3)).max():.2g}, "
+            f"det = {np.linalg.det(M):.6g})"
+        )
+    R = _QTM_TO_OPENCV @ M
+    t = -R @ position
+    return R, t
 
 
 def import_qca(path: str | os.PathLike[str], *, binning_factor: int = 1) -> CameraGroup:

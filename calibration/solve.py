@@ -20,7 +20,8 @@ Pipeline (docs/calibration.md):
    cy, k1[, k2], p1, p2) and every moving board pose; the floor pose is fixed
    (it is the gauge). Corners that the corner refiner could not place
    (:class:`calibration.charuco.CornerRefiner`) are down-weighted.
-   Levenberg-Marquardt on sparse normal equations with a sparse
+   Levenberg-Marquardt (:mod:`calibration.bundle_adjustment`) on sparse
+   normal equations with a sparse
    forward-difference Jacobian (column grouping: 20 residual evaluations per
    Jacobian), robust ``soft_l1`` loss (1 px scale) by IRLS, then outlier
    rejection (4 sigma of the robust error spread, at least ``outlier_min_px``)
@@ -42,9 +43,17 @@ from typing import Any
 
 import cv2
 import numpy as np
-from scipy.sparse import csr_matrix, diags
-from scipy.sparse.linalg import spsolve
 
+from bodymetry.calibration.bundle_adjustment import (
+    CAMERA_PARAMS,
+    BundleProblem,
+    SolveResult,
+    pack_parameters,
+    reprojection_residuals,
+    rodrigues,
+    solve_bundle,
+    unpack_parameters,
+)
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.charuco import BoardGeometry, CameraDetections
 from bodymetry.errors import InputError
@@ -61,10 +70,6 @@ __all__ = [
 
 #: world_from_board of the board lying face up on the floor (4, 4).
 FLOOR_BOARD_POSE = np.diag([1.0, -1.0, -1.0, 1.0])
-
-#: Intrinsic parameters per camera in the bundle adjustment.
-_INTR = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
-_NC = 6 + len(_INTR)
 
 
 class CalibrationError(InputError):
@@ -180,33 +185,6 @@ class CalibrationResult:
 # ---------------------------------------------------------------------------------------
 # small geometry helpers
 # ---------------------------------------------------------------------------------------
-def rodrigues(rv: np.ndarray) -> np.ndarray:
-    """Rotation vectors (..., 3) -> matrices (..., 3, 3)."""
-    rv = np.asarray(rv, dtype=float)
-    theta = np.linalg.norm(rv, axis=-1)[..., None, None]
-    k = rv / np.where(theta[..., 0] > 1e-12, theta[..., 0], 1.0)
-    Kx = np.zeros(rv.shape[:-1] + (3, 3))
-    Kx[..., 0, 1], Kx[..., 0, 2] = -k[..., 2], k[..., 1]
-    Kx[..., 1, 0], Kx[..., 1, 2] = k[..., 2], -k[..., 0]
-    Kx[..., 2, 0], Kx[..., 2, 1] = -k[..., 1], k[..., 0]
-    small = theta < 1e-8
-    s, c = np.sin(theta), np.cos(theta)
-    R = np.eye(3) + s * Kx + (1 - c) * (Kx @ Kx)
-    # First order near zero (keeps finite differences exact there).
-    Rs = np.eye(3) + _skew(rv)
-    return np.where(small, Rs, R)
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-    return S
-
-
-def _rvec(R: np.ndarray) -> np.ndarray:
-    return cv2.Rodrigues(np.asarray(R, dtype=float))[0].reshape(3)
 
 
 def _T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -468,216 +446,6 @@ def _edge(
 
 
 # ---------------------------------------------------------------------------------------
-# stage 5: bundle adjustment
-# ---------------------------------------------------------------------------------------
-@dataclass
-class _Problem:
-    cam: np.ndarray  # (M,) camera index
-    pose: np.ndarray  # (M,) pose index, -1 = the fixed floor pose
-    point: np.ndarray  # (M,) corner id
-    uv: np.ndarray  # (M, 2) observed pixels
-    n_cams: int
-    n_poses: int
-    obj: np.ndarray  # (N, 3)
-    fixed_pose: np.ndarray  # (4, 4) world_from_board of pose -1
-    free: np.ndarray  # (n_params,) bool
-    sw: np.ndarray  # (M,) sqrt weight of each observation
-    square: bool = False  # fy := fx
-
-    def subset(self, keep: np.ndarray) -> _Problem:
-        return _Problem(
-            self.cam[keep],
-            self.pose[keep],
-            self.point[keep],
-            self.uv[keep],
-            self.n_cams,
-            self.n_poses,
-            self.obj,
-            self.fixed_pose,
-            self.free,
-            self.sw[keep],
-            self.square,
-        )
-
-
-def _pack(
-    cams: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], poses: np.ndarray
-) -> np.ndarray:
-    """cams: (K, dist, R, t) camera_from_world; poses (P, 4, 4) world_from_board."""
-    blocks = []
-    for K, dist, R, t in cams:
-        d = np.zeros(5)
-        d[: min(5, dist.size)] = dist[:5]
-        blocks.append(np.concatenate([_rvec(R), t, [K[0, 0], K[1, 1], K[0, 2], K[1, 2]], d[:4]]))
-    for T in poses:
-        blocks.append(np.concatenate([_rvec(T[:3, :3]), T[:3, 3]]))
-    return np.concatenate(blocks) if blocks else np.zeros(0)
-
-
-def _unpack(x: np.ndarray, n_cams: int, n_poses: int):
-    cam = x[: n_cams * _NC].reshape(n_cams, _NC)
-    pose = x[n_cams * _NC :].reshape(n_poses, 6)
-    return cam, pose
-
-
-def _residuals(x: np.ndarray, pb: _Problem) -> np.ndarray:
-    cam, pose = _unpack(x, pb.n_cams, pb.n_poses)
-    Rb = rodrigues(pose[:, :3])
-    tb = pose[:, 3:]
-    Rb = np.concatenate([Rb, pb.fixed_pose[None, :3, :3]])  # index -1 -> fixed
-    tb = np.concatenate([tb, pb.fixed_pose[None, :3, 3]])
-    Rc = rodrigues(cam[:, :3])
-    X = np.einsum("mij,mj->mi", Rb[pb.pose], pb.obj[pb.point]) + tb[pb.pose]
-    c = cam[pb.cam]
-    Xc = np.einsum("mij,mj->mi", Rc[pb.cam], X) + c[:, 3:6]
-    z = Xc[:, 2]
-    zs = np.where(np.abs(z) > 1e-6, z, 1e-6)
-    x_, y_ = Xc[:, 0] / zs, Xc[:, 1] / zs
-    fx, fy, cx, cy, k1, k2, p1, p2 = c[:, 6:14].T
-    if pb.square:
-        fy = fx
-    r2 = x_ * x_ + y_ * y_
-    rad = 1 + r2 * (k1 + r2 * k2)
-    xd = x_ * rad + 2 * p1 * x_ * y_ + p2 * (r2 + 2 * x_ * x_)
-    yd = y_ * rad + p1 * (r2 + 2 * y_ * y_) + 2 * p2 * x_ * y_
-    u = fx * xd + cx
-    v = fy * yd + cy
-    return np.stack([u - pb.uv[:, 0], v - pb.uv[:, 1]], axis=1).reshape(-1)
-
-
-def _jacobian(x: np.ndarray, pb: _Problem, r0: np.ndarray) -> csr_matrix:
-    """Sparse forward-difference Jacobian (2M, n_free) by column grouping.
-
-    Parameter ``k`` of every camera touches disjoint rows (each observation has
-    one camera), and so does parameter ``k`` of every board pose: 14 + 6
-    residual evaluations give the whole Jacobian.
-    """
-    M = len(pb.cam)
-    C, P = pb.n_cams, pb.n_poses
-    rows = np.arange(2 * M)
-    obs = rows // 2
-    data, rr, cc = [], [], []
-    col_of = -np.ones(len(x), dtype=int)
-    col_of[pb.free] = np.arange(int(pb.free.sum()))
-    for k in range(_NC):
-        cols = np.arange(C) * _NC + k
-        if not np.any(pb.free[cols]):
-            continue
-        h = 1e-6 * np.maximum(1.0, np.abs(x[cols]))
-        xp = x.copy()
-        xp[cols] += h * pb.free[cols]
-        d = (_residuals(xp, pb) - r0) / h[pb.cam[obs]]
-        c = col_of[cols][pb.cam[obs]]
-        ok = c >= 0
-        data.append(d[ok]), rr.append(rows[ok]), cc.append(c[ok])
-    if P:
-        moving = pb.pose[obs] >= 0
-        for k in range(6):
-            cols = C * _NC + np.arange(P) * 6 + k
-            h = 1e-7 * np.maximum(1.0, np.abs(x[cols]))
-            xp = x.copy()
-            xp[cols] += h
-            pidx = np.where(moving, pb.pose[obs], 0)
-            d = (_residuals(xp, pb) - r0) / h[pidx]
-            c = col_of[cols][pidx]
-            ok = moving & (c >= 0)
-            data.append(d[ok]), rr.append(rows[ok]), cc.append(c[ok])
-    n = int(pb.free.sum())
-    return csr_matrix(
-        (np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))), shape=(2 * M, n)
-    )
-
-
-@dataclass
-class _SolveResult:
-    success: bool
-    status: int
-    message: str
-    nfev: int
-    iterations: int
-
-
-def _robust_weights(
-    r: np.ndarray, loss: str, f_scale: float, sw: np.ndarray
-) -> tuple[np.ndarray, float]:
-    """IRLS weights per residual (2M,) and the robust cost ``sum sw^2 rho(|e|^2)``.
-
-    The loss acts on each corner's 2-D error; ``sw`` (M,) are square-root
-    observation weights.
-    """
-    e2 = (r.reshape(-1, 2) ** 2).sum(axis=1) / f_scale**2
-    if loss == "linear":
-        w = np.ones_like(e2)
-        cost = e2
-    elif loss == "soft_l1":
-        w = 1.0 / np.sqrt(1.0 + e2)
-        cost = 2.0 * (np.sqrt(1.0 + e2) - 1.0)
-    elif loss == "huber":
-        w = np.where(e2 <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(e2, 1e-300)))
-        cost = np.where(e2 <= 1.0, e2, 2.0 * np.sqrt(e2) - 1.0)
-    elif loss == "cauchy":
-        w = 1.0 / (1.0 + e2)
-        cost = np.log1p(e2)
-    else:
-        raise ValueError(f"unknown loss {loss!r}; use linear, soft_l1, huber or cauchy")
-    s2 = sw**2
-    return np.repeat(w * s2, 2), float(f_scale**2 * np.sum(s2 * cost))
-
-
-def _solve(pb: _Problem, x0: np.ndarray, opts: CalibrationOptions, loss: str):
-    """Levenberg-Marquardt with IRLS robust weights and sparse normal equations."""
-    x = x0.copy()
-    free = pb.free
-    r = _residuals(x, pb)
-    w, cost = _robust_weights(r, loss, opts.f_scale_px, pb.sw)
-    lam = 1e-3
-    nfev = 1
-    status, message = 0, "maximum number of iterations reached"
-    it = 0
-    while it < opts.max_iterations:
-        it += 1
-        J = _jacobian(x, pb, r)
-        nfev += 20
-        Jw = J.multiply(w[:, None]).tocsr()
-        A = (J.T @ Jw).tocsc()
-        g = Jw.T @ r
-        diag = A.diagonal().copy()
-        diag[diag <= 0] = 1e-12
-        improved = False
-        while lam < 1e12:
-            H = A + diags(lam * diag)
-            try:
-                step = spsolve(H.tocsc(), -g)
-            except RuntimeError:
-                step = np.full_like(g, np.nan)
-            if not np.all(np.isfinite(step)):
-                lam *= 10
-                continue
-            xn = x.copy()
-            xn[free] += step
-            rn = _residuals(xn, pb)
-            nfev += 1
-            if not np.all(np.isfinite(rn)):
-                lam *= 10
-                continue
-            wn, cn = _robust_weights(rn, loss, opts.f_scale_px, pb.sw)
-            if cn < cost:
-                improved = True
-                rel = (cost - cn) / max(cost, 1e-300)
-                x, r, w, cost = xn, rn, wn, cn
-                lam = max(lam / 10, 1e-12)
-                break
-            lam *= 10
-        if not improved:
-            status, message = 2, "converged (no further decrease)"
-            break
-        if rel < 1e-12 or np.max(np.abs(step) / np.maximum(np.abs(x[free]), 1.0)) < 1e-12:
-            status, message = 1, "converged"
-            break
-    return x, _SolveResult(status > 0, status, message, nfev, it)
-
-
-# ---------------------------------------------------------------------------------------
 # main entry point
 # ---------------------------------------------------------------------------------------
 def calibrate_cameras(
@@ -704,11 +472,47 @@ def calibrate_cameras(
     opts = options or CalibrationOptions()
     if not detections:
         raise CalibrationError("no cameras to calibrate")
-    C = len(detections)
     for det in detections:
         if det.boards_detected == 0:
             raise _never_found(det, geom)
+    floor_frame = _floor_frame_mask(detections, opts)
+    cams = _cameras_intrinsics(detections, geom, floor_frame, opts)
+    floor = _floor_board_views(cams, geom, floor_frame, opts)
+    root = _root_camera(floor)
+    cam_from_world = _initial_extrinsics(cams, root, geom, floor, floor_frame, opts)
+    frames, poses0 = _initial_board_poses(cams, cam_from_world, floor_frame)
+    pb = _bundle_problem(cams, geom, frames, floor, root, opts)
+    x0 = pack_parameters(
+        [(c.K, c.dist, T[:3, :3], T[:3, 3]) for c, T in zip(cams, cam_from_world, strict=True)],
+        poses0,
+    )
+    fit = _bundle_adjust(pb, x0, opts)
+    out_cams, per_camera = _solved_cameras(cams, fit, floor, opts)
+    _check_converged(fit, opts)
+    return CalibrationResult(
+        cameras=CameraGroup(out_cams),
+        rms_px=fit.rms,
+        per_camera=per_camera,
+        frames_used=len(frames),
+        observations=len(fit.problem.cam),
+        outliers=fit.outliers,
+        world=_world_description(cams, root, floor, opts),
+        solver={
+            "initial_median_px": round(float(np.median(fit.initial_error)), 4),
+            "outlier_threshold_px": round(fit.threshold, 4),
+            "evaluations": int(fit.first.nfev + fit.second.nfev),
+            "iterations": int(fit.first.iterations + fit.second.iterations),
+            "status": int(fit.second.status),
+            "message": str(fit.second.message),
+            "root_camera": cams[root].det.name,
+        },
+    )
 
+
+def _floor_frame_mask(
+    detections: Sequence[CameraDetections], opts: CalibrationOptions
+) -> np.ndarray:
+    """Which clip frames show the board lying on the floor: (max frame + 2,) bool."""
     max_frame = max(int(d.frames.max()) for d in detections) + 1
     floor_frame = np.zeros(max_frame + 1, dtype=bool)
     if opts.floor_frames is not None:
@@ -718,8 +522,16 @@ def calibrate_cameras(
                 f"floor frames must be START:END with 0 <= START < END, got {a}:{b}"
             )
         floor_frame[a : min(b, max_frame + 1)] = True
+    return floor_frame
 
-    # 1-2. intrinsics and per-view board poses
+
+def _cameras_intrinsics(
+    detections: Sequence[CameraDetections],
+    geom: BoardGeometry,
+    floor_frame: np.ndarray,
+    opts: CalibrationOptions,
+) -> list[_CamData]:
+    """Steps 1-2: each camera's intrinsics and its per-view board poses."""
     cams: list[_CamData] = []
     for det in detections:
         fmask = floor_frame[det.frames]
@@ -732,64 +544,106 @@ def calibrate_cameras(
         poses = _board_poses(det, geom, K, dist, opts.min_corners)
         cams.append(_CamData(det, K, dist, rms, nv, radial, coverage, poses))
         log.info("%s: intrinsics from %d views, RMS %.3f px", det.name, nv, rms)
+    return cams
 
-    # 4a. the floor board as seen by each camera (median over the still frames)
-    floor_obs: dict[int, np.ndarray] = {}
-    floor_count: dict[int, np.ndarray] = {}
-    floor_pose_cam: dict[int, tuple[np.ndarray, float]] = {}
-    if opts.floor_frames is not None:
-        for ci, c in enumerate(cams):
-            fm = floor_frame[c.det.frames]
-            if not np.any(fm):
-                continue
-            pts = c.det.corners[fm]  # (n, N, 2)
-            with np.errstate(all="ignore"), warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN corners
-                med = np.nanmedian(pts, axis=0)
-            seen = np.isfinite(pts).all(-1)
-            # a corner counts when found in at least half the floor frames
-            ok = np.isfinite(med).all(-1) & (seen.sum(0) >= max(1, fm.sum() // 2))
-            ids = np.flatnonzero(ok)
-            if len(ids) < opts.min_corners or not _spans_plane(ids, geom.squares[0]):
-                continue
-            spread = np.nanmax(np.linalg.norm(pts[:, ids] - med[ids], axis=-1))
-            if spread > 5.0:
-                raise CalibrationError(
-                    f"camera {c.det.name!r}: the board moved during the floor frames "
-                    f"{opts.floor_frames[0]}:{opts.floor_frames[1]} (corners move by up to "
-                    f"{spread:.1f} px); it must lie still on the floor there (--floor-frames)"
-                )
-            obs = np.full_like(med, np.nan)
-            obs[ids] = med[ids]
-            res = _pnp(c.K, c.dist, geom.points[ids], med[ids])
-            if res is None:
-                continue
-            floor_obs[ci] = obs
-            floor_count[ci] = seen.sum(0)
-            floor_pose_cam[ci] = res
-        if not floor_obs:
+
+@dataclass
+class _FloorBoard:
+    """The board lying on the floor as each camera saw it (cameras that did not: absent).
+
+    Attributes
+    ----------
+    obs : camera index -> (N, 2) median corner positions over the floor frames
+        (NaN for corners not seen in at least half of them).
+    count : camera index -> (N,) number of floor frames each corner was found in.
+    pose_cam : camera index -> (camera_from_board (4, 4), PnP error) of the floor board.
+    """
+
+    obs: dict[int, np.ndarray] = field(default_factory=dict)
+    count: dict[int, np.ndarray] = field(default_factory=dict)
+    pose_cam: dict[int, tuple[np.ndarray, float]] = field(default_factory=dict)
+
+
+def _floor_board_views(
+    cams: list[_CamData], geom: BoardGeometry, floor_frame: np.ndarray, opts: CalibrationOptions
+) -> _FloorBoard:
+    """Step 4a: the floor board as seen by each camera (median over the still frames).
+
+    Raises when the board moved during the floor frames or no camera saw it
+    there; empty when no floor frames are given.
+    """
+    floor = _FloorBoard()
+    if opts.floor_frames is None:
+        return floor
+    for ci, c in enumerate(cams):
+        fm = floor_frame[c.det.frames]
+        if not np.any(fm):
+            continue
+        pts = c.det.corners[fm]  # (n, N, 2)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN corners
+            med = np.nanmedian(pts, axis=0)
+        seen = np.isfinite(pts).all(-1)
+        # a corner counts when found in at least half the floor frames
+        ok = np.isfinite(med).all(-1) & (seen.sum(0) >= max(1, fm.sum() // 2))
+        ids = np.flatnonzero(ok)
+        if len(ids) < opts.min_corners or not _spans_plane(ids, geom.squares[0]):
+            continue
+        spread = np.nanmax(np.linalg.norm(pts[:, ids] - med[ids], axis=-1))
+        if spread > 5.0:
             raise CalibrationError(
-                f"no camera saw the board lying on the floor in frames "
-                f"{opts.floor_frames[0]}:{opts.floor_frames[1]} (it defines the world frame); "
-                "lay the board flat, printed side up, where at least one camera sees it, at "
-                "the start of the clip, or give its frames with --floor-frames START:END"
+                f"camera {c.det.name!r}: the board moved during the floor frames "
+                f"{opts.floor_frames[0]}:{opts.floor_frames[1]} (corners move by up to "
+                f"{spread:.1f} px); it must lie still on the floor there (--floor-frames)"
             )
-
-    # 3. camera graph, rooted at the camera that sees the floor board best
-    if floor_obs:
-        root = max(
-            floor_obs,
-            key=lambda ci: np.isfinite(floor_obs[ci]).all(-1).sum() - floor_pose_cam[ci][1],
+        obs = np.full_like(med, np.nan)
+        obs[ids] = med[ids]
+        res = _pnp(c.K, c.dist, geom.points[ids], med[ids])
+        if res is None:
+            continue
+        floor.obs[ci] = obs
+        floor.count[ci] = seen.sum(0)
+        floor.pose_cam[ci] = res
+    if not floor.obs:
+        raise CalibrationError(
+            f"no camera saw the board lying on the floor in frames "
+            f"{opts.floor_frames[0]}:{opts.floor_frames[1]} (it defines the world frame); "
+            "lay the board flat, printed side up, where at least one camera sees it, at "
+            "the start of the clip, or give its frames with --floor-frames START:END"
         )
-    else:
-        root = 0
+    return floor
+
+
+def _root_camera(floor: _FloorBoard) -> int:
+    """The camera that sees the floor board best (most corners, least PnP error); else 0."""
+    if floor.obs:
+        return max(
+            floor.obs,
+            key=lambda ci: np.isfinite(floor.obs[ci]).all(-1).sum() - floor.pose_cam[ci][1],
+        )
+    return 0
+
+
+def _initial_extrinsics(
+    cams: list[_CamData],
+    root: int,
+    geom: BoardGeometry,
+    floor: _FloorBoard,
+    floor_frame: np.ndarray,
+    opts: CalibrationOptions,
+) -> list[np.ndarray]:
+    """Steps 3 and 4b: each camera's camera_from_world (4, 4), chained along the
+    camera graph from ``root`` and placed by the floor board (else root = world)."""
     cam_from_root = _spanning_tree(cams, root, geom, opts, floor_frame)
+    root_from_world = floor.pose_cam[root][0] @ _inv(FLOOR_BOARD_POSE) if floor.obs else np.eye(4)
+    return [T @ root_from_world for T in cam_from_root]
 
-    # 4b. world frame
-    root_from_world = floor_pose_cam[root][0] @ _inv(FLOOR_BOARD_POSE) if floor_obs else np.eye(4)
-    cam_from_world = [T @ root_from_world for T in cam_from_root]
 
-    # initial board poses: from the camera with the most corners in each frame
+def _initial_board_poses(
+    cams: list[_CamData], cam_from_world: list[np.ndarray], floor_frame: np.ndarray
+) -> tuple[list[int], np.ndarray]:
+    """The moving board's frames (sorted) and its initial world_from_board (F, 4, 4),
+    each from the camera with the most corners in that frame."""
     frame_views: dict[int, list[tuple[int, int]]] = {}
     for ci, c in enumerate(cams):
         for i in c.poses:
@@ -802,8 +656,21 @@ def calibrate_cameras(
     for f in frames:
         ci, i = max(frame_views[f], key=lambda v: cams[v[0]].det.found[v[1]].sum())
         poses0[pose_index[f]] = _inv(cam_from_world[ci]) @ cams[ci].poses[i]
+    return frames, poses0
 
-    # observations: every detected corner of a frame with an initial pose
+
+def _bundle_problem(
+    cams: list[_CamData],
+    geom: BoardGeometry,
+    frames: list[int],
+    floor: _FloorBoard,
+    root: int,
+    opts: CalibrationOptions,
+) -> BundleProblem:
+    """The bundle adjustment: every detected corner of a frame with an initial pose,
+    the floor board's corners, and which parameters are free."""
+    C = len(cams)
+    pose_index = {f: k for k, f in enumerate(frames)}
     cam_l, pose_l, pt_l, uv_l, sw_l = [], [], [], [], []
     for ci, c in enumerate(cams):
         for i, f in enumerate(c.det.frames):
@@ -819,30 +686,15 @@ def calibrate_cameras(
                 sw_l.append(np.ones(len(ids)))
             else:
                 sw_l.append(np.where(c.det.refined[i, ids], 1.0, np.sqrt(opts.unrefined_weight)))
-        if ci in floor_obs:
-            ids = np.flatnonzero(np.isfinite(floor_obs[ci]).all(-1))
+        if ci in floor.obs:
+            ids = np.flatnonzero(np.isfinite(floor.obs[ci]).all(-1))
             cam_l.append(np.full(len(ids), ci))
             pose_l.append(np.full(len(ids), -1))
             pt_l.append(ids)
-            uv_l.append(floor_obs[ci][ids])
-            n_still = floor_count[ci][ids] if opts.floor_weight == "frames" else np.ones(len(ids))
+            uv_l.append(floor.obs[ci][ids])
+            n_still = floor.count[ci][ids] if opts.floor_weight == "frames" else np.ones(len(ids))
             sw_l.append(np.sqrt(n_still))
-    n_params = C * _NC + len(frames) * 6
-    free = np.ones(n_params, dtype=bool)
-    if not opts.refine_intrinsics:
-        for ci in range(C):
-            free[ci * _NC + 6 : (ci + 1) * _NC] = False
-    if not opts.tangential:
-        for ci in range(C):
-            free[ci * _NC + 12 : ci * _NC + 14] = False
-    if opts.square_pixels:
-        for ci in range(C):
-            free[ci * _NC + 7] = False
-    for ci in range(C):
-        free[ci * _NC + 10 + cams[ci].radial : ci * _NC + 12] = False
-    if not floor_obs:
-        free[root * _NC : root * _NC + 6] = False  # gauge: the root camera is the world
-    pb = _Problem(
+    return BundleProblem(
         cam=np.concatenate(cam_l).astype(int),
         pose=np.concatenate(pose_l).astype(int),
         point=np.concatenate(pt_l).astype(int),
@@ -851,38 +703,100 @@ def calibrate_cameras(
         n_poses=len(frames),
         obj=geom.points,
         fixed_pose=FLOOR_BOARD_POSE,
-        free=free,
+        free=_free_parameters(cams, len(frames), root, bool(floor.obs), opts),
         sw=np.concatenate(sw_l),
         square=opts.square_pixels,
     )
-    x0 = _pack(
-        [(c.K, c.dist, T[:3, :3], T[:3, 3]) for c, T in zip(cams, cam_from_world, strict=True)],
-        poses0,
-    )
-    init_err = np.linalg.norm(_residuals(x0, pb).reshape(-1, 2), axis=1)
+
+
+def _free_parameters(
+    cams: list[_CamData], n_frames: int, root: int, has_floor: bool, opts: CalibrationOptions
+) -> np.ndarray:
+    """Which of the C * 14 + F * 6 parameters the bundle adjustment moves (bool)."""
+    C = len(cams)
+    n_params = C * CAMERA_PARAMS + n_frames * 6
+    free = np.ones(n_params, dtype=bool)
+    if not opts.refine_intrinsics:
+        for ci in range(C):
+            free[ci * CAMERA_PARAMS + 6 : (ci + 1) * CAMERA_PARAMS] = False
+    if not opts.tangential:
+        for ci in range(C):
+            free[ci * CAMERA_PARAMS + 12 : ci * CAMERA_PARAMS + 14] = False
+    if opts.square_pixels:
+        for ci in range(C):
+            free[ci * CAMERA_PARAMS + 7] = False
+    for ci in range(C):
+        free[ci * CAMERA_PARAMS + 10 + cams[ci].radial : ci * CAMERA_PARAMS + 12] = False
+    if not has_floor:
+        free[root * CAMERA_PARAMS : root * CAMERA_PARAMS + 6] = (
+            False  # gauge: the root camera is the world
+        )
+    return free
+
+
+@dataclass
+class _BundleFit:
+    """The outcome of :func:`_bundle_adjust`.
+
+    Attributes
+    ----------
+    x : the solution (parameters of :func:`pack_parameters`'s layout).
+    problem : the problem without the rejected outliers (M observations).
+    error : (M,) reprojection error of each kept corner (px).
+    rms : RMS of ``error`` (px).
+    initial_error : (M0,) reprojection error of every corner at the start (px).
+    threshold : the outlier threshold (px).
+    outliers : how many corners were rejected.
+    keep : (M0,) bool, the corners kept.
+    all_cam : (M0,) camera index of every corner before the rejection.
+    first, second : the two solves.
+    """
+
+    x: np.ndarray
+    problem: BundleProblem
+    error: np.ndarray
+    rms: float
+    initial_error: np.ndarray
+    threshold: float
+    outliers: int
+    keep: np.ndarray
+    all_cam: np.ndarray
+    first: SolveResult
+    second: SolveResult
+
+
+def _bundle_adjust(pb: BundleProblem, x0: np.ndarray, opts: CalibrationOptions) -> _BundleFit:
+    """Step 5: robust solve, reject outliers, solve again (raises on NaN)."""
+    C, n_frames = pb.n_cams, pb.n_poses
+    init_err = np.linalg.norm(reprojection_residuals(x0, pb).reshape(-1, 2), axis=1)
     log.info(
         "bundle adjustment: %d cameras, %d board poses, %d corners; initial median %.2f px",
         C,
-        len(frames),
+        n_frames,
         len(pb.cam),
         float(np.median(init_err)),
     )
-
-    # 5. robust solve, reject outliers, solve again
-    x1, res1 = _solve(pb, x0, opts, opts.loss)
-    err = np.linalg.norm(_residuals(x1, pb).reshape(-1, 2), axis=1)
+    x1, res1 = solve_bundle(pb, x0, opts, opts.loss)
+    err = np.linalg.norm(reprojection_residuals(x1, pb).reshape(-1, 2), axis=1)
     _check_finite(err, x1, "first")
     sigma = float(np.median(err)) / 1.1774  # Rayleigh: median = 1.1774 sigma
     thr = max(opts.outlier_min_px, opts.outlier_sigma * sigma)
     keep = err <= thr
     n_out = int((~keep).sum())
     pb2 = pb.subset(keep)
-    x2, res2 = _solve(pb2, x1, opts, opts.loss)
-    err2 = np.linalg.norm(_residuals(x2, pb2).reshape(-1, 2), axis=1)
+    x2, res2 = solve_bundle(pb2, x1, opts, opts.loss)
+    err2 = np.linalg.norm(reprojection_residuals(x2, pb2).reshape(-1, 2), axis=1)
     _check_finite(err2, x2, "second")
     rms = float(np.sqrt(np.mean(err2**2)))
+    return _BundleFit(x2, pb2, err2, rms, init_err, thr, n_out, keep, pb.cam, res1, res2)
 
-    cam_params, _ = _unpack(x2, C, len(frames))
+
+def _solved_cameras(
+    cams: list[_CamData], fit: _BundleFit, floor: _FloorBoard, opts: CalibrationOptions
+) -> tuple[list[Camera], dict[str, dict[str, Any]]]:
+    """The solved cameras and each one's quality figures; raises for a camera whose
+    principal point left the image or whose RMS is not trustworthy."""
+    cam_params, _ = unpack_parameters(fit.x, len(cams), fit.problem.n_poses)
     out_cams = []
     per_camera: dict[str, dict[str, Any]] = {}
     for ci, c in enumerate(cams):
@@ -898,8 +812,8 @@ def calibrate_cameras(
                 f"bundle adjustment gave an invalid camera {c.det.name!r}: {exc}"
             ) from exc
         out_cams.append(cam)
-        mine = pb2.cam == ci
-        e = err2[mine]
+        mine = fit.problem.cam == ci
+        e = fit.error[mine]
         crms = float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
         w, h = c.det.size
         if not (0 < p[8] < w and 0 < p[9] < h):
@@ -908,69 +822,67 @@ def calibrate_cameras(
                 f"the {w}x{h} image in the bundle adjustment; the views do not constrain this "
                 "camera (show the board closer and at more angles)"
             )
-        per_camera[c.det.name] = {
-            "frames_read": int(c.det.frames_read),
-            "boards_detected": int(c.det.boards_detected),
-            "corners_detected": int(c.det.corners_detected),
-            "corners_refined": c.det.corners_refined,
-            "corners_used": int(mine.sum()),
-            "outliers_rejected": int((pb.cam[~keep] == ci).sum()),
-            "rms_px": round(crms, 4),
-            "intrinsic_views": c.intrinsic_views,
-            "intrinsic_only_rms_px": round(c.intrinsic_rms, 4),
-            "sees_floor": ci in floor_obs,
-            "image_coverage": round(c.coverage, 3),
-            "radial_terms": ["k1", "k2"][: c.radial],
-        }
+        per_camera[c.det.name] = _camera_quality(c, ci, fit, mine, crms, floor)
         if not np.isfinite(crms) or crms > opts.max_rms_px:
             raise CalibrationError(
                 f"camera {c.det.name!r}: bundle adjustment did not converge to a trustworthy "
                 f"solution (reprojection RMS {crms:.2f} px > {opts.max_rms_px} px); check that "
                 "the clips are synchronized and the board description is right"
             )
-    if not res2.success:
+    return out_cams, per_camera
+
+
+def _camera_quality(
+    c: _CamData, ci: int, fit: _BundleFit, mine: np.ndarray, crms: float, floor: _FloorBoard
+) -> dict[str, Any]:
+    """One camera's entry of :attr:`CalibrationResult.per_camera`."""
+    return {
+        "frames_read": int(c.det.frames_read),
+        "boards_detected": int(c.det.boards_detected),
+        "corners_detected": int(c.det.corners_detected),
+        "corners_refined": c.det.corners_refined,
+        "corners_used": int(mine.sum()),
+        "outliers_rejected": int((fit.all_cam[~fit.keep] == ci).sum()),
+        "rms_px": round(crms, 4),
+        "intrinsic_views": c.intrinsic_views,
+        "intrinsic_only_rms_px": round(c.intrinsic_rms, 4),
+        "sees_floor": ci in floor.obs,
+        "image_coverage": round(c.coverage, 3),
+        "radial_terms": ["k1", "k2"][: c.radial],
+    }
+
+
+def _check_converged(fit: _BundleFit, opts: CalibrationOptions) -> None:
+    """Raise unless the second solve converged to an RMS under ``max_rms_px``."""
+    if not fit.second.success:
         raise CalibrationError(
             f"bundle adjustment did not converge within {opts.max_iterations} iterations "
-            f"(RMS {rms:.3f} px); the views may be too few or inconsistent"
+            f"(RMS {fit.rms:.3f} px); the views may be too few or inconsistent"
         )
-    if rms > opts.max_rms_px:
+    if fit.rms > opts.max_rms_px:
         raise CalibrationError(
-            f"bundle adjustment did not converge to a trustworthy solution: RMS {rms:.2f} px "
+            f"bundle adjustment did not converge to a trustworthy solution: RMS {fit.rms:.2f} px "
             f"> {opts.max_rms_px} px"
         )
-    world = (
-        {
+
+
+def _world_description(
+    cams: list[_CamData], root: int, floor: _FloorBoard, opts: CalibrationOptions
+) -> dict[str, str]:
+    """The calibration's ``world`` note: how the world frame was defined."""
+    if floor.obs:
+        return {
             "frame": "ChArUco board on the floor, z up, metres",
             "note": (
                 f"origin at the board's pattern origin, x along its columns; floor frames "
                 f"{opts.floor_frames[0]}:{opts.floor_frames[1]}; seen by "
-                f"{[cams[ci].det.name for ci in sorted(floor_obs)]}"
+                f"{[cams[ci].det.name for ci in sorted(floor.obs)]}"
             ),
         }
-        if floor_obs
-        else {
-            "frame": f"camera {cams[root].det.name} (no floor board: z is NOT up)",
-            "note": "no floor frames were given",
-        }
-    )
-    return CalibrationResult(
-        cameras=CameraGroup(out_cams),
-        rms_px=rms,
-        per_camera=per_camera,
-        frames_used=len(frames),
-        observations=len(pb2.cam),
-        outliers=n_out,
-        world=world,
-        solver={
-            "initial_median_px": round(float(np.median(init_err)), 4),
-            "outlier_threshold_px": round(thr, 4),
-            "evaluations": int(res1.nfev + res2.nfev),
-            "iterations": int(res1.iterations + res2.iterations),
-            "status": int(res2.status),
-            "message": str(res2.message),
-            "root_camera": cams[root].det.name,
-        },
-    )
+    return {
+        "frame": f"camera {cams[root].det.name} (no floor board: z is NOT up)",
+        "note": "no floor frames were given",
+    }
 
 
 def _check_finite(err: np.ndarray, x: np.ndarray, which: str) -> None:

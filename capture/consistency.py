@@ -15,7 +15,7 @@ one thing every camera sees at one place in the room. So:
 3. in each camera, the silhouette's connected regions that the hull's
    projection does not touch are removed (bystanders, objects seen by one or
    two cameras only), and a view that lost most of its silhouette that way is
-   ``inconsistent``: :func:`bodymetry.capture.silhouette.segment_session` then
+   ``inconsistent``: :func:`bodymetry.capture.segmentation.segment_session` then
    asks its segmenter again in the box where the hull projects (:attr:`HullCheck.rois`).
 
 A region that all cameras see at one place is kept: the check rejects what is

@@ -30,18 +30,18 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from bodymetry.calibration.io import (
+from bodymetry.calibration.io import read_calibration
+from bodymetry.capture.ground_truth import GROUND_TRUTH_SILHOUETTES
+from bodymetry.errors import InputError
+from bodymetry.fileio import parse_yaml, write_text_atomic
+from bodymetry.schema import (
     Fields,
     check_format,
     describe,
     dump_yaml,
     join_field,
-    read_calibration,
     read_yaml_mapping,
 )
-from bodymetry.capture.ground_truth import GROUND_TRUTH_SILHOUETTES
-from bodymetry.errors import InputError
-from bodymetry.fileio import parse_yaml, write_text_atomic
 
 if TYPE_CHECKING:
     from bodymetry.calibration.camera import CameraGroup
@@ -56,6 +56,8 @@ __all__ = [
     "SessionCamera",
     "load_session",
     "save_session",
+    "session_from_data",
+    "session_relative_path",
     "session_to_yaml",
 ]
 
@@ -296,7 +298,7 @@ class Session:
 # --------------------------------------------------------------------------
 # Parsing
 # --------------------------------------------------------------------------
-def _relative_path(
+def session_relative_path(
     fields: Fields,
     value: Any,
     field_name: str,
@@ -305,8 +307,35 @@ def _relative_path(
     *,
     directory: bool = False,
 ) -> str:
-    """Validate a path written relative to the session folder; check it exists when
-    ``folder`` is given. Returns the path as written."""
+    """Validate a path written relative to the session folder.
+
+    Parameters
+    ----------
+    fields
+        Names the source in error messages.
+    value
+        The parsed value (must be a string).
+    field_name
+        The field, for messages (``cameras[0].video``).
+    folder
+        The session folder: when given, the path must exist there (inside it,
+        links resolved) and be a folder or a file as ``directory`` says; when
+        None only the spelling is checked.
+    what
+        What the path names, for messages (``"calibration file"``).
+    directory
+        Whether the path must name a folder (else a file).
+
+    Returns
+    -------
+    str
+        The path as written.
+
+    Raises
+    ------
+    InputError
+        Backslashes, absolute paths, paths leaving the folder, missing files.
+    """
     text = fields.string(value, field_name)
     if "\\" in text:
         raise fields.error(
@@ -402,7 +431,7 @@ def _camera_from_data(
     cam = fields.mapping(value, field_name)
     fields.keys(cam, field_name, _CAMERA_REQUIRED, _CAMERA_OPTIONAL)
     name = fields.string(cam["name"], join_field(field_name, "name"))
-    video = _relative_path(
+    video = session_relative_path(
         fields, cam["video"], join_field(field_name, "video"), folder, f"video of camera {name!r}"
     )
     offset = 0
@@ -412,7 +441,7 @@ def _camera_from_data(
         )
     background = None
     if cam.get("background") is not None:
-        background = _relative_path(
+        background = session_relative_path(
             fields,
             cam["background"],
             join_field(field_name, "background"),
@@ -435,88 +464,48 @@ def _check_calibration_names(
         )
 
 
-def _session_from_data(data: Any, fields: Fields, folder: Path, *, check_files: bool) -> Session:
-    """Validate parsed ``session.yaml`` content. With ``check_files`` every named
-    file must exist inside ``folder`` and the calibration must name the cameras."""
-    if not isinstance(data, dict):
-        raise fields.error("", f"expected a mapping at the top level, got {describe(data)}")
-    fields.mapping(data, "")
-    check_format(fields, data, SESSION_FORMAT)
-    fields.keys(data, "", _TOP_REQUIRED, _TOP_OPTIONAL)
-    files = folder if check_files else None
+def session_from_data(data: Any, fields: Fields, folder: Path, *, check_files: bool) -> Session:
+    """Validate parsed ``session.yaml`` content.
 
+    Parameters
+    ----------
+    data
+        The parsed YAML document.
+    fields
+        Names the source in error messages.
+    folder
+        The session folder (paths in the file are relative to it).
+    check_files
+        When true every named file must exist inside ``folder`` and the
+        calibration must name the session's cameras; when false only the
+        structure is checked (what :func:`save_session` writes, or a check that
+        lists every missing file itself with :func:`session_relative_path`).
+
+    Returns
+    -------
+    Session
+        The session; problems are reported in file order, the first one raised.
+
+    Raises
+    ------
+    InputError
+        For every problem, naming the source, the field, expected and actual.
+    """
+    _check_top_level(data, fields)
+    files = folder if check_files else None
     name = fields.string(data["name"], "name")
     fps = fields.number(data["fps"], "fps", positive=True)
     frame_step = DEFAULT_FRAME_STEP
     if data.get("frame_step") is not None:
         frame_step = fields.integer(data["frame_step"], "frame_step", minimum=1)
-
-    cams_value = data["cameras"]
-    if not isinstance(cams_value, list):
-        raise fields.error("cameras", f"expected a list of cameras, got {describe(cams_value)}")
-    if not cams_value:
-        raise fields.error("cameras", "expected at least one camera, got an empty list")
-    cameras: list[SessionCamera] = []
-    first: dict[str, int] = {}
-    for i, item in enumerate(cams_value):
-        # Names first, so that a duplicate is reported before its files are looked at.
-        if isinstance(item, dict) and isinstance(item.get("name"), str) and item["name"] in first:
-            raise fields.error(
-                join_field(join_field("cameras", i), "name"),
-                f"duplicate camera name {item['name']!r} (also cameras[{first[item['name']]}])",
-            )
-        cam = _camera_from_data(fields, item, join_field("cameras", i), files)
-        first[cam.name] = i
-        cameras.append(cam)
+    cameras = _cameras_from_list(fields, data["cameras"], files)
     names = tuple(cam.name for cam in cameras)
-
-    calibration_file = None
-    if data.get("calibration") is not None:
-        calibration_file = _relative_path(
-            fields, data["calibration"], "calibration", files, "calibration file"
-        )
-    elif check_files and (folder / DEFAULT_CALIBRATION_FILE).is_file():
-        calibration_file = _relative_path(
-            fields, DEFAULT_CALIBRATION_FILE, "calibration", files, "calibration file"
-        )
-
-    clips: dict[str, str] = {}
-    if data.get("calibration_clips") is not None:
-        clips_value = fields.mapping(data["calibration_clips"], "calibration_clips")
-        for cam_name, clip in clips_value.items():
-            clip_field = join_field("calibration_clips", cam_name)
-            if cam_name not in names:
-                raise fields.error(
-                    clip_field,
-                    f"no session camera is called {cam_name!r}; cameras are {list(names)}",
-                )
-            clips[cam_name] = _relative_path(
-                fields, clip, clip_field, files, f"calibration clip of camera {cam_name!r}"
-            )
-        missing = [n for n in names if n not in clips]
-        if missing:
-            raise fields.error(
-                "calibration_clips",
-                f"no clip for camera(s) {', '.join(map(repr, missing))}; every camera needs one",
-            )
-
-    board = None
-    if data.get("board") is not None:
-        board = _board_from_data(fields, data["board"], "board")
-    if clips and board is None:
-        raise fields.error(
-            "board", "missing key 'board': calibration_clips need a description of the board"
-        )
-    if calibration_file is None and not clips:
-        raise fields.error(
-            "calibration",
-            "the session has no calibration: give 'calibration: calibration.yaml', or "
-            "'calibration_clips' and 'board' to solve one from",
-        )
-
+    calibration_file = _calibration_file_from_data(fields, data, folder, check_files=check_files)
+    clips = _clips_from_data(fields, data, names, files)
+    board = _board_for_calibration(fields, data, calibration_file, clips)
     ground_truth = None
     if data.get("ground_truth") is not None:
-        ground_truth = _relative_path(
+        ground_truth = session_relative_path(
             fields,
             data["ground_truth"],
             "ground_truth",
@@ -524,15 +513,7 @@ def _session_from_data(data: Any, fields: Fields, folder: Path, *, check_files: 
             "ground-truth folder",
             directory=True,
         )
-
-    subject = data.get("subject")
-    if subject is not None and not isinstance(subject, (dict, str)):
-        raise fields.error(
-            "subject", f"expected notes (a mapping or a string), got {describe(subject)}"
-        )
-    if isinstance(subject, dict):
-        fields.mapping(subject, "subject")
-
+    subject = _subject_from_data(fields, data)
     session = Session(
         folder=folder,
         name=name,
@@ -549,6 +530,114 @@ def _session_from_data(data: Any, fields: Fields, folder: Path, *, check_files: 
         group = read_calibration(folder / calibration_file).cameras
         _check_calibration_names(fields, calibration_file, group, names)
     return session
+
+
+def _check_top_level(data: Any, fields: Fields) -> None:
+    """The document is a mapping with the session format and only known keys."""
+    if not isinstance(data, dict):
+        raise fields.error("", f"expected a mapping at the top level, got {describe(data)}")
+    fields.mapping(data, "")
+    check_format(fields, data, SESSION_FORMAT)
+    fields.keys(data, "", _TOP_REQUIRED, _TOP_OPTIONAL)
+
+
+def _cameras_from_list(fields: Fields, value: Any, files: Path | None) -> list[SessionCamera]:
+    """The ``cameras`` list: at least one, unique names (a duplicate is reported before
+    its files are looked at); files checked inside ``files`` when given."""
+    if not isinstance(value, list):
+        raise fields.error("cameras", f"expected a list of cameras, got {describe(value)}")
+    if not value:
+        raise fields.error("cameras", "expected at least one camera, got an empty list")
+    cameras: list[SessionCamera] = []
+    first: dict[str, int] = {}
+    for i, item in enumerate(value):
+        # Names first, so that a duplicate is reported before its files are looked at.
+        if isinstance(item, dict) and isinstance(item.get("name"), str) and item["name"] in first:
+            raise fields.error(
+                join_field(join_field("cameras", i), "name"),
+                f"duplicate camera name {item['name']!r} (also cameras[{first[item['name']]}])",
+            )
+        cam = _camera_from_data(fields, item, join_field("cameras", i), files)
+        first[cam.name] = i
+        cameras.append(cam)
+    return cameras
+
+
+def _calibration_file_from_data(
+    fields: Fields, data: dict[str, Any], folder: Path, *, check_files: bool
+) -> str | None:
+    """The ``calibration`` path as written; when files are checked and none is written,
+    ``calibration.yaml`` if the folder holds one; else None."""
+    files = folder if check_files else None
+    if data.get("calibration") is not None:
+        return session_relative_path(
+            fields, data["calibration"], "calibration", files, "calibration file"
+        )
+    if check_files and (folder / DEFAULT_CALIBRATION_FILE).is_file():
+        return session_relative_path(
+            fields, DEFAULT_CALIBRATION_FILE, "calibration", files, "calibration file"
+        )
+    return None
+
+
+def _clips_from_data(
+    fields: Fields, data: dict[str, Any], names: tuple[str, ...], files: Path | None
+) -> dict[str, str]:
+    """``calibration_clips``: one clip path per session camera (or none at all)."""
+    clips: dict[str, str] = {}
+    if data.get("calibration_clips") is None:
+        return clips
+    clips_value = fields.mapping(data["calibration_clips"], "calibration_clips")
+    for cam_name, clip in clips_value.items():
+        clip_field = join_field("calibration_clips", cam_name)
+        if cam_name not in names:
+            raise fields.error(
+                clip_field,
+                f"no session camera is called {cam_name!r}; cameras are {list(names)}",
+            )
+        clips[cam_name] = session_relative_path(
+            fields, clip, clip_field, files, f"calibration clip of camera {cam_name!r}"
+        )
+    missing = [n for n in names if n not in clips]
+    if missing:
+        raise fields.error(
+            "calibration_clips",
+            f"no clip for camera(s) {', '.join(map(repr, missing))}; every camera needs one",
+        )
+    return clips
+
+
+def _board_for_calibration(
+    fields: Fields, data: dict[str, Any], calibration_file: str | None, clips: dict[str, str]
+) -> BoardSpec | None:
+    """The ``board``; required with calibration clips. The session must have a
+    calibration file or clips (and a board) to solve one from."""
+    board = None
+    if data.get("board") is not None:
+        board = _board_from_data(fields, data["board"], "board")
+    if clips and board is None:
+        raise fields.error(
+            "board", "missing key 'board': calibration_clips need a description of the board"
+        )
+    if calibration_file is None and not clips:
+        raise fields.error(
+            "calibration",
+            "the session has no calibration: give 'calibration: calibration.yaml', or "
+            "'calibration_clips' and 'board' to solve one from",
+        )
+    return board
+
+
+def _subject_from_data(fields: Fields, data: dict[str, Any]) -> dict[str, Any] | str | None:
+    """Free notes on the subject: a mapping, a string or nothing."""
+    subject = data.get("subject")
+    if subject is not None and not isinstance(subject, (dict, str)):
+        raise fields.error(
+            "subject", f"expected notes (a mapping or a string), got {describe(subject)}"
+        )
+    if isinstance(subject, dict):
+        fields.mapping(subject, "subject")
+    return subject
 
 
 def load_session(path: str | os.PathLike[str]) -> Session:
@@ -581,7 +670,7 @@ def load_session(path: str | os.PathLike[str]) -> Session:
         raise InputError(f"{yaml_path}: session file not found (a session folder holds one)")
     yaml_path = yaml_path.absolute()
     data = read_yaml_mapping(yaml_path, "session file", SESSION_MAX_BYTES)
-    return _session_from_data(data, Fields(yaml_path), yaml_path.parent, check_files=True)
+    return session_from_data(data, Fields(yaml_path), yaml_path.parent, check_files=True)
 
 
 # --------------------------------------------------------------------------
@@ -632,7 +721,7 @@ def session_to_yaml(session: Session) -> str:
         text = dump_yaml(_session_to_data(session), header=_SESSION_HEADER)
     except TypeError as exc:
         raise ValueError(f"session {session.name!r} cannot be written: {exc}") from exc
-    _session_from_data(
+    session_from_data(
         parse_yaml(text),
         Fields(f"session {session.name!r} to be written"),
         session.folder,

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from bodymetry.capture.silhouette import CaptureConfig
+from bodymetry.capture.segmentation import CaptureConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import PRESETS, FitConfig
 from bodymetry.estimation.resolution import DEFAULT_WORKING_PERSON_PX

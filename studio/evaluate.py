@@ -35,13 +35,13 @@ from bodymetry.capture.ground_truth import (
     SubjectTruth,
 )
 from bodymetry.capture.ingest import check_sync
-from bodymetry.capture.session import Session
-from bodymetry.capture.silhouette import (
+from bodymetry.capture.overlays import save_silhouette_frame
+from bodymetry.capture.segmentation import (
     SilhouetteFrame,
     background_models,
-    save_silhouette_frame,
     segment_session,
 )
+from bodymetry.capture.session import Session
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.fileio import load_npz, write_json_atomic

@@ -16,8 +16,8 @@ import bodymetry.cameras as cameras_module
 import bodymetry.frame_jobs as frame_jobs
 import bodymetry.pipeline as pipeline
 import bodymetry.process as process_module
+from bodymetry.capture.segmentation import segment_session
 from bodymetry.capture.session import load_session
-from bodymetry.capture.silhouette import segment_session
 from bodymetry.capture.video import H264Writer
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import FitConfig, FrameFit, fit_frame

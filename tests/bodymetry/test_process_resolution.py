@@ -22,7 +22,7 @@ import pytest
 from mcap.reader import make_reader
 from tiny_run import TINY_TRAIN
 
-from bodymetry.capture.silhouette import segment_session
+from bodymetry.capture.segmentation import segment_session
 from bodymetry.estimation.fit import FitConfig, shared_body_model
 from bodymetry.estimation.records import FrameArrays
 from bodymetry.estimation.resolution import downscale_mask, person_height_px

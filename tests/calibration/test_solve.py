@@ -11,6 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bodymetry.calibration import solve
+from bodymetry.calibration.bundle_adjustment import SolveResult
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.charuco import CameraDetections, board_geometry
 from bodymetry.calibration.solve import (
@@ -224,9 +225,9 @@ def test_nan_in_bundle_adjustment_is_an_error(scene, monkeypatch) -> None:
     def broken(pb, x0, opts, loss):
         x = x0.copy()
         x[0] = np.nan
-        return x, solve._SolveResult(True, 1, "converged", 1, 1)
+        return x, SolveResult(True, 1, "converged", 1, 1)
 
-    monkeypatch.setattr(solve, "_solve", broken)
+    monkeypatch.setattr(solve, "solve_bundle", broken)
     with pytest.raises(CalibrationError, match="NaN"):
         calibrate_cameras(dets, GEOM, OPTS)
 

@@ -16,8 +16,8 @@ from bodymetry.capture.person import (
     PersonSegmenter,
     segmenter_available,
 )
+from bodymetry.capture.segmentation import CaptureConfig, segment_session
 from bodymetry.capture.session import load_session
-from bodymetry.capture.silhouette import CaptureConfig, segment_session
 from bodymetry.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[2]

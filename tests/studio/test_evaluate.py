@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bodymetry.capture.segmentation import background_models, segment_session
 from bodymetry.capture.session import load_session
-from bodymetry.capture.silhouette import background_models, segment_session
 from bodymetry.capture.toy import write_toy_session
 from bodymetry.errors import InputError
 from bodymetry.studio.evaluate import (

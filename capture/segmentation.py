@@ -1,0 +1,445 @@
+"""The capture stage: a session in, one silhouette per camera per kept frame out.
+
+Segmentation (:func:`segment_session`, :class:`CaptureConfig`): where a camera
+has an empty-scene clip, background subtraction with shadow suppression gives
+the silhouette's pixels, and the learned person segmenter
+(:mod:`bodymetry.capture.person`) decides which blobs are the person (a
+bystander or a moved chair is dropped). Where there is no clip, the segmenter's
+mask is the silhouette. Then the multi-view check
+(:mod:`bodymetry.capture.consistency`) removes what the calibrated cameras do
+not agree on, and a view whose segmenter picked someone else is segmented again
+in the box where the other views put the subject.
+
+Each view's raw mask is cleaned and flagged by :mod:`bodymetry.capture.masks`.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bodymetry.calibration.camera import Camera
+from bodymetry.capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
+from bodymetry.capture.consistency import HullConfig, visual_hull
+from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
+from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
+from bodymetry.capture.masks import CleanupConfig, clean_mask
+from bodymetry.capture.person import (
+    SEGMENTER_REQUIREMENT,
+    PersonConfig,
+    PersonSegmenter,
+    segmenter_available,
+)
+from bodymetry.capture.session import Session
+from bodymetry.errors import InputError
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "CAPTURE_METHODS",
+    "CaptureConfig",
+    "SilhouetteFrame",
+    "background_models",
+    "segment_session",
+]
+
+#: :attr:`CaptureConfig.method` values.
+CAPTURE_METHODS = ("auto", "background", "person")
+
+_warned_no_segmenter = False
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    """How the capture stage makes silhouettes.
+
+    Attributes
+    ----------
+    method : {"auto", "background", "person"}
+        ``auto``: background subtraction where the camera has an empty-scene
+        clip, its blobs kept only where the learned segmenter sees the person;
+        the segmenter alone where there is no clip. Without the segmenter
+        installed, background subtraction alone (the session's temporal median
+        where there is no clip), with a warning. ``background``: background
+        subtraction only. ``person``: the learned segmenter only.
+    consistency : bool
+        The multi-view check (:mod:`bodymetry.capture.consistency`), when the
+        calibrated cameras are given.
+    person : PersonConfig
+    hull : HullConfig
+    landmarks : LandmarkConfig
+        Triangulation of the segmenter's body landmarks.
+    """
+
+    method: str = "auto"
+    consistency: bool = True
+    person: PersonConfig = field(default_factory=PersonConfig)
+    hull: HullConfig = field(default_factory=HullConfig)
+    landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
+
+    def __post_init__(self) -> None:
+        if self.method not in CAPTURE_METHODS:
+            raise InputError(
+                f"capture.method: expected one of {', '.join(CAPTURE_METHODS)}, got {self.method!r}"
+            )
+
+    @property
+    def uses_segmenter(self) -> bool:
+        """Whether silhouettes use the learned segmenter here.
+
+        Raises
+        ------
+        InputError
+            For ``method="person"`` where the segmenter is not installed.
+        """
+        global _warned_no_segmenter
+        if self.method == "background":
+            return False
+        if segmenter_available():
+            return True
+        if self.method == "person":
+            raise InputError(
+                "capture.method 'person': the person segmenter is not installed "
+                f"(pip install --no-deps {SEGMENTER_REQUIREMENT})"
+            )
+        if not _warned_no_segmenter:
+            _warned_no_segmenter = True
+            log.warning(
+                "the person segmenter is not installed (pip install --no-deps %s): "
+                "silhouettes from background subtraction alone",
+                SEGMENTER_REQUIREMENT,
+            )
+        return False
+
+
+@dataclass(frozen=True)
+class SilhouetteFrame:
+    """The silhouettes of one kept session frame.
+
+    Attributes
+    ----------
+    frame : int
+        Session frame.
+    cameras : tuple of str
+        Camera names (session order).
+    masks : tuple of (H, W) bool, length C
+        Cleaned person mask per camera (all False when empty or unreadable).
+    flags : tuple of tuple of str, length C
+        Flags per camera (:data:`bodymetry.capture.masks.FLAGS`).
+    images : tuple of ((H, W, 3) uint8 or None), length C
+        The decoded images (None when unreadable), for overlays.
+    shadows : tuple of (H, W) bool, length C
+        Pixels suppressed as cast shadow (before clean-up).
+    landmarks : (33, 3) float or None
+        The subject's body landmarks in the world frame, metres
+        (:mod:`bodymetry.capture.landmarks`; NaN rows where too few views saw
+        one); None without the segmenter or the cameras.
+    view_landmarks : tuple of ((33, 3) float or None), length C
+        Per camera the segmenter's landmarks (pixel x, pixel y, visibility);
+        None where the view found nobody or was inconsistent (empty tuple
+        without the segmenter).
+    """
+
+    frame: int
+    cameras: tuple[str, ...]
+    masks: tuple[np.ndarray, ...]
+    flags: tuple[tuple[str, ...], ...]
+    images: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
+    shadows: tuple[np.ndarray, ...] = field(default=(), repr=False)
+    landmarks: np.ndarray | None = field(default=None, repr=False)
+    view_landmarks: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
+
+    def stack(self) -> np.ndarray:
+        """(C, H, W) bool masks, for rigs whose cameras all have one image size.
+
+        Rigs that mix image sizes use :attr:`masks` (one (H_c, W_c) mask per
+        camera), which every estimation stage accepts.
+
+        Raises
+        ------
+        ValueError
+            If the cameras' masks differ in size (the message names each
+            camera with its size).
+        """
+        shapes = [np.shape(m) for m in self.masks]
+        if len(set(shapes)) > 1:
+            sizes = ", ".join(
+                f"{name} {s[1]}x{s[0]}" for name, s in zip(self.cameras, shapes, strict=True)
+            )
+            raise ValueError(
+                f"frame {self.frame}: the cameras' masks differ in size (width x height: "
+                f"{sizes}); use .masks, one mask per camera"
+            )
+        return np.stack(self.masks)
+
+
+def background_models(
+    session: Session,
+    report: SyncReport | None = None,
+    *,
+    max_frames: int = 60,
+    method: str = "sequential",
+    median: bool = True,
+) -> list[BackgroundModel | None]:
+    """A :class:`BackgroundModel` per camera (session order).
+
+    From the camera's empty-scene clip when the session names one. Otherwise,
+    with ``median``, the temporal median of the session's kept frames (at most
+    ``max_frames``, evenly spread), with a warning naming the camera; without
+    it, None (the learned segmenter works without a background).
+    """
+    report = report or check_sync(session)
+    models: list[BackgroundModel | None] = []
+    missing = []
+    for c, cam in enumerate(session.cameras):
+        path = session.background_path(cam.name)
+        if path is None:
+            models.append(None)
+            missing.append(c)
+            continue
+        frames = read_clip(path, cam.name, max_frames)
+        size = report.videos[c].size
+        if (frames.shape[2], frames.shape[1]) != size:
+            raise InputError(
+                f"camera {cam.name!r}: background clip {path} is "
+                f"{frames.shape[2]}x{frames.shape[1]}, its video {size[0]}x{size[1]}"
+            )
+        models.append(BackgroundModel.from_frames(cam.name, frames, "clip"))
+    if missing and median:
+        names = [session.cameras[c].name for c in missing]
+        log.warning(
+            "no background clip for camera(s) %s and no person segmenter: using the temporal "
+            "median of the session's kept frames (a person who stands still in many of them "
+            "becomes background; install the segmenter: pip install --no-deps %s)",
+            ", ".join(names),
+            SEGMENTER_REQUIREMENT,
+        )
+        kept = report.kept
+        if len(kept) > max_frames:
+            kept = kept[np.linspace(0, len(kept) - 1, max_frames).round().astype(int)]
+        stacks: dict[int, list[np.ndarray]] = {c: [] for c in missing}
+        for fs in read_frame_sets(session, report, frames=kept, method=method):
+            for c in missing:
+                if fs.images[c] is not None:
+                    stacks[c].append(fs.images[c])
+        for c in missing:
+            name = session.cameras[c].name
+            if not stacks[c]:
+                raise InputError(f"camera {name!r}: no frame decodes; cannot model its background")
+            models[c] = BackgroundModel.from_frames(name, np.stack(stacks[c]), "session")
+    return models
+
+
+def _prefetch(items: Iterator, depth: int = 2) -> Iterator:
+    """Iterate ``items`` in a background thread, ``depth`` ahead (decoding overlaps
+    segmentation; both release the GIL). Exceptions are re-raised here."""
+
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    done = object()
+    stop = threading.Event()
+
+    def put(entry: tuple) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(entry, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def work() -> None:
+        try:
+            for item in items:
+                if not put(("item", item)):
+                    break
+            else:
+                put(("item", done))
+        except BaseException as exc:  # re-raised in the consumer
+            put(("error", exc))
+        finally:
+            close = getattr(items, "close", None)
+            if close is not None:
+                close()
+
+    thread = threading.Thread(target=work, daemon=True)
+    thread.start()
+    try:
+        while True:
+            kind, item = q.get()
+            if kind == "error":
+                raise item
+            if item is done:
+                return
+            yield item
+    finally:
+        stop.set()
+        thread.join()
+
+
+@dataclass
+class _View:
+    """One camera's silhouette of one frame, while the frame is segmented."""
+
+    mask: np.ndarray
+    flags: tuple[str, ...]
+    shadow: np.ndarray
+    landmarks: np.ndarray | None = None
+
+
+class _Views:
+    """Segments the views of one frame: the per-camera silhouette, then the
+    multi-view check and the landmarks in 3D (module docstring, "Segmentation")."""
+
+    def __init__(
+        self,
+        models: Sequence[BackgroundModel | None],
+        sizes: Sequence[tuple[int, int]],
+        config: CaptureConfig,
+        subtraction: SubtractionConfig | None,
+        cleanup: CleanupConfig | None,
+        cameras: Sequence[Camera] | None,
+    ) -> None:
+        self.models = list(models)
+        self.sizes = list(sizes)
+        self.cleanup = cleanup
+        self.config = config
+        self.cameras = None if cameras is None else list(cameras)
+        self.subtractors = [None if m is None else Subtractor(m, subtraction) for m in models]
+        self.segmenter = PersonSegmenter(config.person) if config.uses_segmenter else None
+        self.hull = None
+        if cameras is not None and config.consistency and len(cameras) >= config.hull.min_views:
+            try:
+                self.hull = visual_hull(cameras, config.hull)
+            except InputError as exc:
+                log.warning("%s; silhouettes are not checked across views", exc)
+
+    def _one(
+        self, c: int, image: np.ndarray | None, roi: tuple[int, int, int, int] | None = None
+    ) -> _View:
+        w, h = self.sizes[c]
+        none = np.zeros((h, w), bool)
+        if image is None:
+            return _View(none, ("unreadable",), none)
+        person = None if self.segmenter is None else self.segmenter.detect(image, roi)
+        found = None if person is None else person.mask(self.config.person.threshold)
+        landmarks = None if person is None else person.landmarks
+        model = self.models[c]
+        if model is None:  # no background: the segmenter's person is the silhouette
+            if found is None:
+                return _View(none, ("empty",), none)
+            mask, flags = clean_mask(found, self.cleanup)
+            return _View(mask, flags, none, landmarks)
+        raw, shadow = self.subtractors[c].labels(image)
+        mask, flags = clean_mask(raw, self.cleanup, image, model.median, shadow, found)
+        return _View(mask, flags, shadow, landmarks)
+
+    def __call__(
+        self, images: Sequence[np.ndarray | None]
+    ) -> tuple[list[_View], np.ndarray | None]:
+        """Per camera the view, and the (33, 3) world landmarks (None without a segmenter
+        or cameras)."""
+        views = [self._one(c, image) for c, image in enumerate(images)]
+        if self.hull is not None:
+            check = self.hull.check([v.mask for v in views])
+            if self.segmenter is not None and any(check.inconsistent):
+                # Ask again where the other views put the subject (the segmenter
+                # returns the most prominent person, maybe a bystander).
+                retry = [
+                    c for c, bad in enumerate(check.inconsistent)
+                    if bad and check.rois[c] is not None and images[c] is not None
+                ]  # fmt: skip
+                for c in retry:
+                    views[c] = self._one(c, images[c], check.rois[c])
+                if retry:
+                    check = self.hull.check([v.mask for v in views])
+            for view, mask, bad in zip(views, check.masks, check.inconsistent, strict=True):
+                view.mask = mask
+                if bad:
+                    view.flags = (*view.flags, "inconsistent")
+                    view.landmarks = None
+        landmarks = None
+        if self.cameras is not None and sum(v.landmarks is not None for v in views) >= 2:
+            landmarks = triangulate_landmarks(
+                self.cameras, [v.landmarks for v in views], self.config.landmarks
+            )
+        return views, landmarks
+
+    def close(self) -> None:
+        if self.segmenter is not None:
+            self.segmenter.close()
+
+
+def segment_session(
+    session: Session,
+    *,
+    config: CaptureConfig | None = None,
+    cameras: Sequence[Camera] | None = None,
+    subtraction: SubtractionConfig | None = None,
+    cleanup: CleanupConfig | None = None,
+    report: SyncReport | None = None,
+    models: Sequence[BackgroundModel | None] | None = None,
+    frames: Sequence[int] | None = None,
+    read_method: str = "sequential",
+    keep_images: bool = True,
+    on_frame: Callable[[SilhouetteFrame], None] | None = None,
+) -> Iterator[SilhouetteFrame]:
+    """The capture stage: yield a :class:`SilhouetteFrame` for every kept frame.
+
+    Parameters
+    ----------
+    session : Session
+    config : CaptureConfig, optional
+        Which segmentation (background subtraction, the learned segmenter or
+        both) and the multi-view check.
+    cameras : sequence of Camera, optional
+        The calibrated rig (session order), for the multi-view check (skipped
+        without it).
+    subtraction, cleanup : configs (defaults: Horprasert shadow suppression)
+    report : SyncReport, optional
+        From :func:`capture.ingest.check_sync` (computed when not given).
+    models : sequence of (BackgroundModel or None), optional
+        Per camera (computed by :func:`background_models` when not given).
+    frames : sequence of int, optional
+        Session frames (default: the kept frames).
+    read_method : {"sequential", "seek"}
+    keep_images : bool
+        Keep the decoded images in the frames (for overlays).
+    """
+    config = config or CaptureConfig()
+    report = report or check_sync(session)
+    if config.method == "person":
+        models = [None] * len(session.cameras)
+    if models is None:
+        models = background_models(
+            session, report, method=read_method, median=not config.uses_segmenter
+        )
+    if len(models) != len(session.cameras):
+        raise InputError(f"expected {len(session.cameras)} background models, got {len(models)}")
+    if config.method == "background" and any(m is None for m in models):
+        raise InputError("capture.method 'background' needs a background model for every camera")
+    views = _Views(models, [v.size for v in report.videos], config, subtraction, cleanup, cameras)
+    try:
+        for fs in _prefetch(read_frame_sets(session, report, frames=frames, method=read_method)):
+            per_view, landmarks = views(fs.images)
+            out = SilhouetteFrame(
+                frame=fs.frame,
+                cameras=fs.cameras,
+                masks=tuple(v.mask for v in per_view),
+                flags=tuple(v.flags for v in per_view),
+                images=fs.images if keep_images else (),
+                shadows=tuple(v.shadow for v in per_view),
+                landmarks=landmarks,
+                view_landmarks=tuple(v.landmarks for v in per_view)
+                if views.segmenter is not None
+                else (),
+            )
+            if on_frame is not None:
+                on_frame(out)
+            yield out
+    finally:
+        views.close()
