@@ -1,7 +1,7 @@
 """Compiled (numba) kernels of the silhouette features (:mod:`estimation.features`).
 
 Imported lazily, only when ``features.BACKEND`` is ``"numba"``
-(``$BODYMETRY_FEATURES``); numba comes through ``raster_kernels``, which points
+(``$BODYMETRY_FEATURES``); numba comes from :mod:`bodymetry.jit`, which points
 numba's on-disk cache first.
 
 - :func:`histograms_kernel`: the log-polar shape-context histograms of one
@@ -35,9 +35,7 @@ import math
 
 import numpy as np
 
-# numba as raster_kernels imports it: after pointing its on-disk cache where that
-# module says (importing numba first would fix the cache directory too early).
-from bodymetry.estimation.raster_kernels import numba
+from bodymetry.jit import numba
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

@@ -2,7 +2,7 @@
 and of the contour refinement's inner loops (:mod:`estimation.refinement`).
 
 Imported lazily, only when ``generative.BACKEND`` is ``"numba"``
-(``$BODYMETRY_LIKELIHOOD``); numba comes through ``raster_kernels``, which
+(``$BODYMETRY_LIKELIHOOD``); numba comes from :mod:`bodymetry.jit`, which
 points numba's on-disk cache first.
 
 - :func:`project_kernel`: every body's vertices through every camera in one
@@ -28,9 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-# numba as raster_kernels imports it: after pointing its on-disk cache where that
-# module says (importing numba first would fix the cache directory too early).
-from bodymetry.estimation.raster_kernels import _finite_triangle, _setup_inline, numba
+from bodymetry.estimation.raster_kernels import finite_triangle, triangle_setup_inline
+from bodymetry.jit import numba
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -328,9 +327,9 @@ def chamfer_kernel(
             # each without branches (an index is written, the count moves by 0 or 1):
             # the front faces by the winding test alone (NaN fails it, as numpy's
             # comparison), then those whose box holds a pixel centre in the view,
-            # ``_setup``'s test. Which triangle passes is a coin toss for the branch
+            # ``triangle_setup``'s test. Which triangle passes is a coin toss for the branch
             # predictor; the passes made the kernel 14 % faster (measured). The
-            # covering loop below runs ``_setup`` on the kept ones as before.
+            # covering loop below runs ``triangle_setup`` on the kept ones as before.
             n_front = 0
             for tri in range(T):
                 i0, i1, i2 = faces[tri, 0], faces[tri, 1], faces[tri, 2]
@@ -357,9 +356,9 @@ def chamfer_kernel(
                 i0, i1, i2 = faces[tri, 0], faces[tri, 1], faces[tri, 2]
                 x0, x1, x2 = xb[i0], xb[i1], xb[i2]
                 y0, y1, y2 = yb[i0] + off, yb[i1] + off, yb[i2] + off
-                if not _finite_triangle(x0, y0, x1, y1, x2, y2):
+                if not finite_triangle(x0, y0, x1, y1, x2, y2):
                     continue
-                ok, box = _setup_inline(x0, y0, x1, y1, x2, y2, 1, w_img, row_lo, row_hi)
+                ok, box = triangle_setup_inline(x0, y0, x1, y1, x2, y2, 1, w_img, row_lo, row_hi)
                 if not ok:
                     continue
                 bx0, bx1, by0, by1, a0, b0, c0, a1, b1, c1 = box

@@ -23,15 +23,14 @@ multiply-adds; only the order of some sums differs from the numpy reference
 (its matrix products), so the edges agree to rounding (measured: 4e-16 of the
 largest edge).
 
-The numba cache folder is the rasterizer kernels' (:mod:`bodymetry.estimation.
-raster_kernels` sets it before importing numba).
+numba, and its on-disk cache folder, come from :mod:`bodymetry.jit`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from bodymetry.estimation.raster_kernels import numba
+from bodymetry.jit import numba
 
 #: Triangles per chunk: the chunk's coefficients (up to ~1.2 kB per triangle with
 #: 20 shape components) stay in the L2 cache while all states are computed.
