@@ -28,7 +28,6 @@ from bodymetry.estimation.body_model.model import (
     BodyState,
     shipped_model,
 )
-from bodymetry.estimation.features import ShapeContextConfig, silhouette_features
 from bodymetry.estimation.generative import (
     AnnealingConfig,
     AnnealingResult,
@@ -53,7 +52,9 @@ from bodymetry.estimation.refinement import (
     prepare_contours,
     refine,
 )
+from bodymetry.estimation.shape_context import ShapeContextConfig
 from bodymetry.estimation.training import DiscriminativeModels, targets_to_theta
+from bodymetry.estimation.view_features import silhouette_features
 
 __all__ = [
     "MIN_PIXELS",

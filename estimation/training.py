@@ -31,7 +31,6 @@ import numpy as np
 
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.errors import InputError
-from bodymetry.estimation import features as feat
 from bodymetry.estimation.body_model.model import (
     ANCHOR_CLEARANCE,
     ANCHOR_WEIGHT,
@@ -45,8 +44,12 @@ from bodymetry.estimation.body_model.motion.contact import place_root
 from bodymetry.estimation.body_model.motion.prior import sample_pose_prior
 from bodymetry.estimation.body_model.motion.seeds import seed_for
 from bodymetry.estimation.body_model.skeleton import JOINTS, YAW, forward_kinematics
+from bodymetry.estimation.codebook import Codebook, fit_codebook
 from bodymetry.estimation.moe import MixtureOfExperts, fit_moe, select_moe
 from bodymetry.estimation.projection import project_silhouettes
+from bodymetry.estimation.rdf import rdf
+from bodymetry.estimation.shape_context import ShapeContextConfig
+from bodymetry.estimation.view_features import sc_features, silhouette_features
 from bodymetry.fileio import load_npz, save_npz
 from bodymetry.log import Progress
 
@@ -269,7 +272,7 @@ def _render_features(args) -> tuple:
     """Worker: silhouettes of a chunk of states -> RDF and SC descriptors or codes."""
     states, meshes, cameras, codebook_arrays, seed, sc_config = args
     model = shipped_model(states.nu.shape[1])
-    codebook = None if codebook_arrays is None else feat.Codebook.from_arrays(codebook_arrays)
+    codebook = None if codebook_arrays is None else Codebook.from_arrays(codebook_arrays)
     rng = np.random.default_rng(seed)
     C, B = len(cameras), len(states)
     rdfs = np.zeros((C, B, RDF_DIM))
@@ -284,7 +287,7 @@ def _render_features(args) -> tuple:
             if np.count_nonzero(masks[c]) < 50:
                 continue  # body (nearly) out of view: no training pair
             valid[c, b] = True
-            rdfs[c, b], sc = feat.silhouette_features(masks[c], rng, config)
+            rdfs[c, b], sc = silhouette_features(masks[c], rng, config)
             if codebook is not None:
                 codes[c, b] = codebook.encode(sc)
             else:
@@ -299,7 +302,7 @@ def _parallel_features(
     seed: int,
     workers: int,
     progress: Callable[[int], None] | None,
-    sc_config: feat.ShapeContextConfig | None = None,
+    sc_config: ShapeContextConfig | None = None,
 ):
     """Features of the bodies (states and their LOD meshes) in every camera, in chunks."""
     states, meshes = bodies
@@ -341,7 +344,7 @@ class DiscriminativeModels:
     Attributes
     ----------
     camera_names : tuple of str
-    codebook : features.Codebook
+    codebook : Codebook
     models : dict
         ``models[camera][name]`` for name in ``MODEL_NAMES``.
     metrics : dict
@@ -351,7 +354,7 @@ class DiscriminativeModels:
     """
 
     camera_names: tuple[str, ...]
-    codebook: feat.Codebook
+    codebook: Codebook
     models: dict[str, dict[str, MixtureOfExperts]]
     metrics: dict = field(default_factory=dict)
     key: str = ""
@@ -372,7 +375,7 @@ class DiscriminativeModels:
     def load(cls, path: Path) -> DiscriminativeModels:
         data = load_npz(path)
         names = tuple(str(x) for x in data["camera_names"])
-        codebook = feat.Codebook.from_arrays(
+        codebook = Codebook.from_arrays(
             {k.removeprefix("codebook_"): v for k, v in data.items() if k.startswith("codebook_")}
         )
         models = {
@@ -387,7 +390,7 @@ class DiscriminativeModels:
         self, camera: str, mask: np.ndarray, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:
         """(X_rdf, X_sc) of one silhouette seen by ``camera``."""
-        return feat.rdf(mask), feat.sc_features(mask, self.codebook, rng)
+        return rdf(mask), sc_features(mask, self.codebook, rng)
 
 
 def _outputs(states: BodyState) -> dict[str, np.ndarray]:
@@ -437,7 +440,7 @@ def train(
 
     # Codebook from the descriptors of the first examples (all cameras); those
     # examples are then encoded from their descriptors, not rendered again.
-    sc_config = feat.ShapeContextConfig(n_points=config.sc_points)
+    sc_config = ShapeContextConfig(n_points=config.sc_points)
     n_cb = min(config.codebook_examples, config.n_train)
     t_cb = time.perf_counter()
     rdf_cb, _, ok_cb, descriptors = _parallel_features(
@@ -451,7 +454,7 @@ def train(
     )
     t_cb = time.perf_counter() - t_cb
     t_codebook = time.perf_counter()
-    codebook = feat.fit_codebook(
+    codebook = fit_codebook(
         descriptors,
         config.codebook_size,
         np.random.default_rng(config.seed),

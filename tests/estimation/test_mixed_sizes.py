@@ -16,7 +16,6 @@ import pytest
 from tiny_run import TINY_TRAIN
 
 from bodymetry.estimation.body_model.model import NU, THETA, BodyModel, BodyState
-from bodymetry.estimation.features import rdf, rdf_batch
 from bodymetry.estimation.fit import FitConfig, fit_frame
 from bodymetry.estimation.generative import (
     AnnealingConfig,
@@ -26,6 +25,7 @@ from bodymetry.estimation.generative import (
 )
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.raster import coverage, coverage_views
+from bodymetry.estimation.rdf import rdf, rdf_batch
 from bodymetry.estimation.refinement import (
     RefineConfig,
     _ContourCost,
