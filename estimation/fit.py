@@ -28,6 +28,7 @@ from bodymetry.estimation.body_model.model import (
     BodyState,
     shipped_model,
 )
+from bodymetry.estimation.contours import ContourObservation, prepare_contours
 from bodymetry.estimation.generative import (
     AnnealingConfig,
     AnnealingResult,
@@ -45,13 +46,7 @@ from bodymetry.estimation.records import (
     RefinementTrace,
     StageEstimate,
 )
-from bodymetry.estimation.refinement import (
-    ContourObservation,
-    RefineConfig,
-    RefineResult,
-    prepare_contours,
-    refine,
-)
+from bodymetry.estimation.refinement import RefineConfig, RefineResult, refine
 from bodymetry.estimation.shape_context import ShapeContextConfig
 from bodymetry.estimation.training import DiscriminativeModels, targets_to_theta
 from bodymetry.estimation.view_features import silhouette_features

@@ -425,7 +425,7 @@ def chamfer_kernel(
 def contour_kernel(
     verts, faces, center, edges, edge_faces, mask, R, t, K, dist, tilt, mode, out
 ):  # pragma: no cover
-    """The visible occluding contour of a mesh in one view (``refinement.occluding_contour``).
+    """The visible occluding contour of a mesh in one view (``contours.occluding_contour``).
 
     An edge is a contour generator when one of its faces turns towards the
     camera and the other away; it is kept when the midpoint of its projected
@@ -439,11 +439,11 @@ def contour_kernel(
     faces : (T, 3) int64
         A face faces the camera when its normal ``(v1 - v0) x (v2 - v0)`` points
         towards the camera from its centroid ``(v0 + v1 + v2) / 3``
-        (``refinement.face_frames``, the same expressions).
+        (``contours.face_frames``, the same expressions).
     center : (3,) float64
         Camera centre.
     edges, edge_faces : (E, 2) int64
-        ``refinement.mesh_edges`` of the mesh.
+        ``contours.mesh_edges`` of the mesh.
     mask : (H, W) bool
         The silhouette deciding visibility, at the camera's size.
     R, t, K, dist, tilt, mode
@@ -513,7 +513,7 @@ def contour_kernel(
 def nearest_pairs_kernel(model, observed, model_to_observed, observed_to_model):  # pragma: no cover
     """Nearest neighbours in both directions between two small 2-D point sets.
 
-    The contour refinement's correspondences (``refinement._ContourCost.pairs``):
+    The contour refinement's correspondences (``refinement.ContourCost.pairs``):
     a few hundred model contour points against at most a few hundred observed
     boundary points. One pass over all pairs finds both directions, 2-4x faster
     than building a k-d tree and querying it twice (measured: 0.13 vs 0.46 ms

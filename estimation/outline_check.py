@@ -40,13 +40,9 @@ import numpy as np
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import PARTS
+from bodymetry.estimation.contours import prepare_contours
 from bodymetry.estimation.records import OutlineCheck
-from bodymetry.estimation.refinement import (
-    Alignment,
-    ContourCost,
-    RefineConfig,
-    prepare_contours,
-)
+from bodymetry.estimation.refinement import Alignment, ContourCost, RefineConfig
 
 #: Body regions the offsets are pooled over, by part name.
 REGIONS: dict[str, tuple[str, ...]] = {

@@ -65,18 +65,16 @@ import numpy as np
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
 from bodymetry.estimation.body_model.model import NU, POSE_DIM, BodyModel, BodyState
+from bodymetry.estimation.contours import prepare_contours
 from bodymetry.estimation.generative import state_bounds, weighted_estimate
+from bodymetry.estimation.least_squares import Damping, damped_inverse, damped_step, marquardt
 from bodymetry.estimation.projection import project_silhouettes, view_ious
 from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape, StageEstimate
 from bodymetry.estimation.refinement import (
     Alignment,
     ContourCost,
-    Damping,
     RefineConfig,
-    damped_step,
     difference_steps,
-    marquardt,
-    prepare_contours,
 )
 from bodymetry.log import Progress
 
@@ -300,7 +298,7 @@ def _joint_step(
     g = g_sum + prior * nu
     inverses = []
     for w, (A, B, _, gp, _, _, _) in zip(weights, blocks, strict=True):
-        Ainv = _damped_inverse(w * A, lam)
+        Ainv = damped_inverse(w * A, lam)
         inverses.append(Ainv)
         S = S - (w * B).T @ Ainv @ (w * B)
         g = g - (w * B).T @ Ainv @ (w * gp)
@@ -313,12 +311,6 @@ def _joint_step(
     fs = np.array([e[0] for e in evaluated])
     f_new = total(fs, candidates[0][NU]) if np.all(np.isfinite(fs)) else np.inf
     return f_new, (candidates, evaluated)
-
-
-def _damped_inverse(A: np.ndarray, lam: float) -> np.ndarray:
-    """``(A + λ diag A + ε)⁻¹`` of a frame's pose block (ε keeps unseen joints solvable)."""
-    damped = A + np.diag(lam * np.diag(A) + 1e-9 + 1e-9 * np.trace(A) / len(A))
-    return np.linalg.inv(damped)
 
 
 @dataclass(frozen=True)
@@ -594,7 +586,7 @@ def _covariance(
     grads = []
     sq, count = 0.0, 0
     for w, (A, B, C, gp, gn, rr, R) in zip(weights, blocks, strict=True):
-        Ainv = _damped_inverse(A, 0.0)
+        Ainv = damped_inverse(A, 0.0)
         H = H + w * (C - B.T @ Ainv @ B)
         grads.append(w * (gn - B.T @ Ainv @ gp))
         sq += w * rr
