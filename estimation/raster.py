@@ -2,7 +2,7 @@
 
 The studio renders its images with it and the estimation stage projects model
 silhouettes with it. A pixel belongs to a triangle when its centre (integer
-coordinates) passes the inside test ``l_i >= -_INSIDE_EPS`` of the triangle's
+coordinates) passes the inside test ``l_i >= -INSIDE_EPS`` of the triangle's
 affine barycentric functions, and the nearest triangle wins each pixel.
 (``cv2.fillPoly`` with many triangles applies the even-odd rule and leaves holes
 where a mesh overlaps itself.)
@@ -35,8 +35,10 @@ from bodymetry.estimation.backends import default_backend, module_kernels
 
 log = logging.getLogger(__name__)
 
-#: Tolerance of the inside test, in barycentric units.
-_INSIDE_EPS = 1e-9
+#: Tolerance of the inside test, in barycentric units (a pixel centre is covered when
+#: every barycentric coordinate is ``>= -INSIDE_EPS``); the compiled likelihood's
+#: coverage takes the same value.
+INSIDE_EPS = 1e-9
 
 _BACKENDS = ("numba", "numpy")
 
@@ -317,7 +319,7 @@ def _rasterize_numba(
         h_img,
         _CULL_CODES[cull],
         bool(perspective),
-        _INSIDE_EPS,
+        INSIDE_EPS,
         zbuf,
         tri_flat,
         lam,
@@ -421,7 +423,7 @@ def _covered(
     l0 = a0[local_tri] * fx + b0[local_tri] * fy + c0[local_tri]
     l1 = a1[local_tri] * fx + b1[local_tri] * fy + c1[local_tri]
     l2 = 1.0 - l0 - l1
-    inside = (l0 >= -_INSIDE_EPS) & (l1 >= -_INSIDE_EPS) & (l2 >= -_INSIDE_EPS)
+    inside = (l0 >= -INSIDE_EPS) & (l1 >= -INSIDE_EPS) & (l2 >= -INSIDE_EPS)
     cand = np.flatnonzero(inside)
     if cand.size == 0:
         return None
@@ -606,7 +608,7 @@ def _coverage_numba(
         _arg(sizes, np.int64),
         h_img,
         _CULL_CODES["back" if closed else "none"],
-        _INSIDE_EPS,
+        INSIDE_EPS,
         out,
     )
     if status != 0:

@@ -7,7 +7,7 @@ The kernels loop over triangles and the pixel centres of their bounding
 boxes, and evaluate the *same* floating-point expressions, in the same order,
 as the numpy reference (``raster._covered``): the affine barycentric functions
 ``l_i = a_i x + b_i y + c_i`` from the same coefficients, ``l2 = 1 - l0 - l1``,
-and the inside test ``l_i >= -_INSIDE_EPS``. Without ``fastmath`` LLVM neither
+and the inside test ``l_i >= -INSIDE_EPS``. Without ``fastmath`` LLVM neither
 reassociates nor fuses multiply-adds, so both paths decide every pixel
 identically (tests/estimation/test_raster.py compares them bit for bit).
 
