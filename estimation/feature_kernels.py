@@ -82,6 +82,9 @@ def histogram_counts_kernel(
     """Log-polar shape-context counts of ``N`` points at ``S`` scales, but for the
     pairs near a bin edge.
 
+    One function, not named steps: it is one compiled loop over the point pairs,
+    each pair binned once for both of its points at every scale.
+
     Each unordered pair of points is binned once for both of its points: the
     squared distance against the radial edges, the direction by
     :func:`_orientation_bin`. A pair within ``tol`` (relative) of an
@@ -305,6 +308,9 @@ def encode_kernel(d, centers_t, centers_sq, sigma, n_nearest, out):  # pragma: n
 @numba.njit(cache=True, nogil=True)
 def ray_extents_kernel(contour, cx, cy, n, out):  # pragma: no cover
     """Farthest intersection of ``n`` rays from ``(cx, cy)`` with a contour polygon.
+
+    One function, not named steps: it is one compiled pass over the contour's
+    edges (simplification and ray casting fused, with no intermediate polygon).
 
     ``rdf._simplify`` and ``rdf._ray_extents`` in one pass, term for
     term: collinear runs dropped (the same polygon), each edge intersected only

@@ -263,6 +263,10 @@ def chamfer_kernel(
 ):  # pragma: no cover
     """Bidirectional chamfer cost of B bodies in C views (``generative._view_cost``).
 
+    One function, not named steps: it is one compiled loop over bodies and views
+    (cull, cover while summing distances, then the observed side) that reuses
+    one model image and its dirty box from body to body.
+
     Parameters
     ----------
     xs, ys : (B, C, V) float64
@@ -426,6 +430,9 @@ def contour_kernel(
     verts, faces, center, edges, edge_faces, mask, R, t, K, dist, tilt, mode, out
 ):  # pragma: no cover
     """The visible occluding contour of a mesh in one view (``contours.occluding_contour``).
+
+    One function, not named steps: it is one compiled pass over the edges
+    (face orientation, projection and visibility test fused per edge).
 
     An edge is a contour generator when one of its faces turns towards the
     camera and the other away; it is kept when the midpoint of its projected

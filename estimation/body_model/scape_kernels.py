@@ -43,6 +43,10 @@ def edges_kernel(
 ):  # pragma: no cover
     """Eq. (1) for a batch of states, in the mesh's internal triangle order.
 
+    One function, not named steps: it is one compiled loop over the triangle
+    runs, whose buffers and reuse of the previous state's products would
+    otherwise pass between jitted calls in the innermost loop.
+
     Parameters
     ----------
     template : (6, T) float
