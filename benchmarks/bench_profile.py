@@ -18,8 +18,8 @@ process's CPU time (the machine may be shared), wall time beside the total:
   rasterization is counted here, not under ``rasterize``;
 - ``projection``: vertices through the cameras' lens model (``Camera.project``
   and the compiled projection kernels);
-- ``refinement``: the contour refinement (``estimation/refinement.py``, its
-  compiled contour kernel);
+- ``refinement``: the contour refinement (``estimation/refinement.py``,
+  ``contours.py``, ``least_squares.py``, its compiled contour kernel);
 - ``discriminative``: features and mixtures of experts;
 - ``fit (other)``: the per-frame fit's own glue (``estimation/fit.py``);
 - ``other``: numpy and OpenCV calls made by none of the above's own code, Python.
@@ -70,9 +70,15 @@ CATEGORIES = (
     ("estimation/body_model/", "pose"),
     ("estimation/projection.py", "rasterize"),
     ("estimation/refinement.py", "refinement"),
+    ("estimation/contours.py", "refinement"),
+    ("estimation/least_squares.py", "refinement"),
     ("estimation/generative.py", "chamfer"),
     ("estimation/likelihood_kernels.py", "chamfer"),
     ("estimation/features.py", "discriminative"),
+    ("estimation/rdf.py", "discriminative"),
+    ("estimation/shape_context.py", "discriminative"),
+    ("estimation/codebook.py", "discriminative"),
+    ("estimation/view_features.py", "discriminative"),
     ("estimation/moe.py", "discriminative"),
     ("estimation/training.py", "discriminative"),
     ("calibration/camera.py", "projection"),

@@ -34,7 +34,7 @@ FOLDERS = {
     "review": "review",
     "bodymetry": "bodymetry",
 }
-FOUNDATION = ("__init__", "errors", "fileio", "log", "schema", "settings", "threads")
+FOUNDATION = ("__init__", "errors", "fileio", "jit", "log", "schema", "settings", "threads")
 #: Layer of each package: imports may only go to the same or a lower number.
 LAYERS = {
     "foundation": 0,

@@ -1,7 +1,7 @@
 """Compile the numeric kernels before the first real run (``bodymetry compile``).
 
 numba compiles each kernel the first time it is called and keeps the machine
-code in its on-disk cache (``estimation/raster_kernels.py`` says where), so
+code in its on-disk cache (``bodymetry/jit.py`` says where), so
 every later process only loads it. On a fresh install that first compilation
 would land in the user's first ``bodymetry process``: on the 2-core reference
 machine the demo's training took 77 s instead of 56 s and its fitting 50 s

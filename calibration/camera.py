@@ -145,7 +145,7 @@ class Camera:
         xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + r2 * (s1 + r2 * s2)
         yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + r2 * (s3 + r2 * s4)
         if d[12] != 0 or d[13] != 0:
-            M = _tilt_matrix(d[12], d[13])
+            M = tilt_matrix(d[12], d[13])
             w = M[2, 0] * xd + M[2, 1] * yd + M[2, 2]
             xd, yd = (
                 (M[0, 0] * xd + M[0, 1] * yd + M[0, 2]) / w,
@@ -233,8 +233,21 @@ class Camera:
         return self.distort_normalized(xy) @ self.K[:2, :2].T + self.K[:2, 2]
 
 
-def _tilt_matrix(tau_x: float, tau_y: float) -> np.ndarray:
-    """OpenCV's tilted-sensor projection matrix (``computeTiltProjectionMatrix``)."""
+def tilt_matrix(tau_x: float, tau_y: float) -> np.ndarray:
+    """OpenCV's tilted-sensor projection matrix (``computeTiltProjectionMatrix``).
+
+    Parameters
+    ----------
+    tau_x, tau_y : float
+        The sensor's tilt angles (radians): distortion coefficients 12 and 13
+        of OpenCV's 14-coefficient model.
+
+    Returns
+    -------
+    (3, 3) float
+        The matrix applied to normalized, distorted image points
+        ``(x, y, 1)`` before division by the third coordinate.
+    """
     cx, sx = np.cos(tau_x), np.sin(tau_x)
     cy, sy = np.cos(tau_y), np.sin(tau_y)
     rot_x = np.array([[1, 0, 0], [0, cx, sx], [0, -sx, cx]])

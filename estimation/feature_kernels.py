@@ -1,11 +1,14 @@
-"""Compiled (numba) kernels of the silhouette features (:mod:`estimation.features`).
+"""Compiled (numba) kernels of the silhouette features.
+
+The kernels of :mod:`estimation.rdf`, :mod:`estimation.shape_context` and
+:mod:`estimation.codebook`.
 
 Imported lazily, only when ``features.BACKEND`` is ``"numba"``
-(``$BODYMETRY_FEATURES``); numba comes through ``raster_kernels``, which points
+(``$BODYMETRY_FEATURES``); numba comes from :mod:`bodymetry.jit`, which points
 numba's on-disk cache first.
 
 - :func:`histograms_kernel`: the log-polar shape-context histograms of one
-  silhouette's sampled points at every scale (``features._histograms``). The
+  silhouette's sampled points at every scale (``shape_context._histograms``). The
   numpy reference bins each ordered pair of points by ``floor`` of an
   ``arctan2`` and of a ``log``; here the same bins come from comparisons with
   the bin edges (a cross product with each orientation edge's direction, the
@@ -24,8 +27,8 @@ numba's on-disk cache first.
   not bit for bit (a descriptor equidistant from two centres to within that
   could vote differently; tests/estimation/test_feature_kernels.py states the
   tolerance).
-- :func:`ray_extents_kernel`: the RDF's ray casting (``features._simplify``
-  and ``features._ray_extents`` in one pass, the same expressions; extents
+- :func:`ray_extents_kernel`: the RDF's ray casting (``rdf._simplify``
+  and ``rdf._ray_extents`` in one pass, the same expressions; extents
   equal bit for bit on 256 rendered training views, tested to 1e-9 px).
 """
 
@@ -35,9 +38,7 @@ import math
 
 import numpy as np
 
-# numba as raster_kernels imports it: after pointing its on-disk cache where that
-# module says (importing numba first would fix the cache directory too early).
-from bodymetry.estimation.raster_kernels import numba
+from bodymetry.jit import numba
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -80,6 +81,9 @@ def histogram_counts_kernel(
 ):  # pragma: no cover
     """Log-polar shape-context counts of ``N`` points at ``S`` scales, but for the
     pairs near a bin edge.
+
+    One function, not named steps: it is one compiled loop over the point pairs,
+    each pair binned once for both of its points at every scale.
 
     Each unordered pair of points is binned once for both of its points: the
     squared distance against the radial edges, the direction by
@@ -305,7 +309,10 @@ def encode_kernel(d, centers_t, centers_sq, sigma, n_nearest, out):  # pragma: n
 def ray_extents_kernel(contour, cx, cy, n, out):  # pragma: no cover
     """Farthest intersection of ``n`` rays from ``(cx, cy)`` with a contour polygon.
 
-    ``features._simplify`` and ``features._ray_extents`` in one pass, term for
+    One function, not named steps: it is one compiled pass over the contour's
+    edges (simplification and ray casting fused, with no intermediate polygon).
+
+    ``rdf._simplify`` and ``rdf._ray_extents`` in one pass, term for
     term: collinear runs dropped (the same polygon), each edge intersected only
     with the rays inside the angle it subtends at the centre (widened by 1e-9
     rad), ray ``k`` at the angle ``k 2 pi / n``. ``arctan2``, ``cos`` and
@@ -324,7 +331,7 @@ def ray_extents_kernel(contour, cx, cy, n, out):  # pragma: no cover
         Receives the extents (0 for a ray that meets no edge).
     """
     p_all = contour.shape[0]
-    # collinear points dropped (features._simplify): a point whose incoming and
+    # collinear points dropped (rdf._simplify): a point whose incoming and
     # outgoing steps are equal
     keep = np.ones(p_all, np.bool_)
     if p_all >= 3:

@@ -27,7 +27,7 @@ from bodymetry.estimation.body_model.model import (
     BodyState,
     shipped_model,
 )
-from bodymetry.estimation.features import ShapeContextConfig, silhouette_features
+from bodymetry.estimation.contours import ContourObservation, prepare_contours
 from bodymetry.estimation.generative import (
     AnnealingConfig,
     AnnealingResult,
@@ -46,14 +46,10 @@ from bodymetry.estimation.records import (
     SessionGate,
     StageEstimate,
 )
-from bodymetry.estimation.refinement import (
-    ContourObservation,
-    RefineConfig,
-    RefineResult,
-    prepare_contours,
-    refine,
-)
+from bodymetry.estimation.refinement import RefineConfig, RefineResult, refine
+from bodymetry.estimation.shape_context import ShapeContextConfig
 from bodymetry.estimation.training import DiscriminativeModels, targets_to_theta
+from bodymetry.estimation.view_features import silhouette_features
 
 __all__ = [
     "MIN_PIXELS",
@@ -396,36 +392,13 @@ def fit_frame(
         # Prepared first: it checks every mask against its camera's size.
         observed = _blank_unusable(masks, valid)
         obs = prepare_observation(cameras, observed, config.annealing.image_scale)
-        particles, points = discriminative_particles(
-            models, masks, valid, config.initial_particles, rng
+        particles, points, disc_state = _discriminative(
+            body, models, masks, valid, obs, config, rng
         )
-        particles = _clip_pose(body, particles)
-        points = [_clip_pose(body, p) for p in points]
-        faces = body.faces(lod=True)
-        # Discriminative estimate: the camera prediction that explains all views best.
-        costs = [
-            chamfer_costs(
-                obs, body.pose(BodyState.from_vector(p[None]), lod=True).vertices[0], faces
-            ).sum()
-            for p in points
-        ]
-        disc_state = BodyState.from_vector(points[int(np.argmin(costs))][None])
         t_disc = time.perf_counter() - t0
-        starts = {
-            f"discriminative {cameras[c].name}": p
-            for c, p in zip(np.flatnonzero(valid), points, strict=True)
-        }
-        if proposals:
-            particles = _draws_around(
-                body, np.array(list(proposals.values())), particles, PROPOSAL_SHARE, rng
-            )
-            starts.update(proposals)
-        if landmarks is not None and config.landmark_share > 0:
-            particles, start = _with_landmark_particles(
-                body, landmarks, disc_state, particles, config.landmark_share, rng
-            )
-            if start is not None:
-                starts["landmarks"] = start
+        particles, starts = _search_starts(
+            body, cameras, valid, points, particles, disc_state, proposals, landmarks, config, rng
+        )
         fit = generative_fit(body, cameras, observed, particles, config, rng, starts, obs)
         t_gen = time.perf_counter() - t0 - t_disc
     except (ValueError, np.linalg.LinAlgError) as exc:
@@ -434,36 +407,121 @@ def fit_frame(
     if not np.all(np.isfinite(refined.vector)) or not np.isfinite(result.best_cost):
         return failed("likelihood collapse (non-finite estimate)")
     bios = measure(body, np.vstack([disc_state.nu, refined.state.nu]), density=config.density)
-    return _finish(
-        body,
-        FrameRecord(
-            frame=int(frame),
-            status="",
-            flags=flag_map,
-            person_pixels=pixels,
-            estimates={"discriminative": StageEstimate(disc_state, bios[0].to_dict())},
-            annealing=AnnealingTrace(
-                tuple(result.layer_log_likelihood.tolist()),
-                tuple(result.layer_beta.tolist()),
-                tuple(result.particles[:, TAU].std(axis=0).tolist()),
-                tuple(result.particles[:, NU].std(axis=0).tolist()),
-            ),
-            seconds={
-                "discriminative": t_disc,
-                "annealing": fit.seconds[0],
-                "refinement": fit.seconds[1],
-                "generative": t_gen,
-            },
-        ),
-        replace(observed_arrays, particles=result.particles, weights=result.weights),
-        refined,
-        bios[1],
-        fit.start,
-        cameras,
-        valid,
-        config,
-        t0,
+    record = _fitted_record(
+        frame, flag_map, pixels, StageEstimate(disc_state, bios[0].to_dict()), fit, t_disc, t_gen
     )
+    arrays = replace(observed_arrays, particles=result.particles, weights=result.weights)
+    return _finish(body, record, arrays, refined, bios[1], fit.start, cameras, valid, config, t0)
+
+
+def _fitted_record(
+    frame: int,
+    flags: dict[str, tuple[str, ...]],
+    pixels: dict[str, int],
+    discriminative: StageEstimate,
+    fit: GenerativeFit,
+    t_disc: float,
+    t_gen: float,
+) -> FrameRecord:
+    """The record of a fitted frame before :func:`_finish`: its flags, the
+    discriminative estimate, the annealing's trace and the stages' seconds."""
+    return FrameRecord(
+        frame=int(frame),
+        status="",
+        flags=flags,
+        person_pixels=pixels,
+        estimates={"discriminative": discriminative},
+        annealing=AnnealingTrace(
+            tuple(fit.annealing.layer_log_likelihood.tolist()),
+            tuple(fit.annealing.layer_beta.tolist()),
+            tuple(fit.annealing.particles[:, TAU].std(axis=0).tolist()),
+            tuple(fit.annealing.particles[:, NU].std(axis=0).tolist()),
+        ),
+        seconds={
+            "discriminative": t_disc,
+            "annealing": fit.seconds[0],
+            "refinement": fit.seconds[1],
+            "generative": t_gen,
+        },
+    )
+
+
+def _discriminative(
+    body: BodyModel,
+    models: DiscriminativeModels,
+    masks: Sequence[np.ndarray] | np.ndarray,
+    valid: np.ndarray,
+    obs: Observation,
+    config: FitConfig,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, list[np.ndarray], BodyState]:
+    """The discriminative stage of one frame.
+
+    Returns
+    -------
+    particles : (N, 40 + n_shape) float
+        Initial particles drawn from the mixtures, clipped to the pose limits.
+    points : list of (40 + n_shape,) float
+        Each usable camera's point prediction, clipped likewise.
+    estimate : BodyState
+        The discriminative estimate: the camera prediction whose body explains
+        all views best (lowest summed chamfer cost).
+    """
+    particles, points = discriminative_particles(
+        models, masks, valid, config.initial_particles, rng
+    )
+    particles = _clip_pose(body, particles)
+    points = [_clip_pose(body, p) for p in points]
+    faces = body.faces(lod=True)
+    costs = [
+        chamfer_costs(
+            obs, body.pose(BodyState.from_vector(p[None]), lod=True).vertices[0], faces
+        ).sum()
+        for p in points
+    ]
+    return particles, points, BodyState.from_vector(points[int(np.argmin(costs))][None])
+
+
+def _search_starts(
+    body: BodyModel,
+    cameras: Sequence[Camera],
+    valid: np.ndarray,
+    points: list[np.ndarray],
+    particles: np.ndarray,
+    disc_state: BodyState,
+    proposals: dict[str, np.ndarray] | None,
+    landmarks: np.ndarray | None,
+    config: FitConfig,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The annealing's initial particles and the refinement's named starts.
+
+    The starts are each usable camera's discriminative prediction, the
+    ``proposals`` (half of the mixtures' particles are redrawn around them)
+    and, with ``landmarks``, the pose fitted to them (``config.landmark_share``
+    of the particles drawn around it).
+
+    Returns
+    -------
+    particles : (N, 40 + n_shape) float
+    starts : dict of str -> (40 + n_shape,) float
+    """
+    starts = {
+        f"discriminative {cameras[c].name}": p
+        for c, p in zip(np.flatnonzero(valid), points, strict=True)
+    }
+    if proposals:
+        particles = _draws_around(
+            body, np.array(list(proposals.values())), particles, PROPOSAL_SHARE, rng
+        )
+        starts.update(proposals)
+    if landmarks is not None and config.landmark_share > 0:
+        particles, start = _with_landmark_particles(
+            body, landmarks, disc_state, particles, config.landmark_share, rng
+        )
+        if start is not None:
+            starts["landmarks"] = start
+    return particles, starts
 
 
 def _usable_views(

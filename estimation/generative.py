@@ -39,7 +39,7 @@ from bodymetry.estimation.backends import default_backend, module_kernels
 from bodymetry.estimation.body_model.model import THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import N_POSE, YAW
 from bodymetry.estimation.projection import camera_arrays, per_camera_masks
-from bodymetry.estimation.raster import _INSIDE_EPS, coverage_views
+from bodymetry.estimation.raster import INSIDE_EPS, coverage_views
 
 _BACKENDS = ("numba", "numpy")
 
@@ -309,7 +309,7 @@ def _chamfer_numba(
         pack["boxes"],
         pack["area"],
         float(obs.scale),
-        _INSIDE_EPS,
+        INSIDE_EPS,
         out,
     )
     if status != 0:

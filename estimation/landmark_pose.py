@@ -25,7 +25,7 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares
 
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.body_model.rotations import matrix_to_euler
@@ -184,32 +184,78 @@ def pose_from_landmarks(
     tau0, root0 = _initial_root(landmarks, rest)
 
     parts = rest.parts[point_ids]
-    rel = rest.points[point_ids] - rest.joints[parts]
+    residuals = _Residuals(
+        body=body,
+        rest_joints=rest.joints,
+        joint_ids=joint_ids,
+        parts=parts,
+        rel=rest.points[point_ids] - rest.joints[parts],
+        targets=targets,
+        weights=weights,
+        weak=weak,
+        neutral=neutral,
+    )
+    best = _solve(residuals, neutral, tau0, root0, lo, hi)
+    n_joint = len(joint_ids)
+    err = residuals(best.x)[: 3 * n_joint].reshape(-1, 3)
+    rms = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+    return LandmarkPose(best.x[:3], best.x[3:], rms, len(joint_ids) + len(point_ids))
 
-    def batch(X: np.ndarray) -> np.ndarray:
+
+@dataclass(frozen=True)
+class _Residuals:
+    """The landmark fit's residuals of a state ``[τ, θ]`` (40,): the weighted
+    offsets of the model's joints and orientation points (head, feet) from their
+    landmark targets, then the pull of the weakly observed joints towards
+    ``neutral``."""
+
+    body: BodyModel
+    rest_joints: np.ndarray
+    joint_ids: list[int]
+    parts: np.ndarray
+    rel: np.ndarray
+    targets: np.ndarray
+    weights: np.ndarray
+    weak: np.ndarray
+    neutral: np.ndarray
+
+    def batch(self, X: np.ndarray) -> np.ndarray:
         """Residuals (B, R) of states X (B, 40): one forward kinematics for the batch."""
         # numpy's kinematics: the compiled pass agrees to 1e-16, but the forward
         # differences make that 1e-10 in the Jacobian, and the solve ends elsewhere
         # in its tolerance (4.7e-4 rad), which moves every later fit a little.
-        rot, joints = forward_kinematics(X[:, 3:], X[:, :3], rest.joints, body.hinge_axes)
-        posed = joints[:, parts] + np.einsum("bkij,kj->bki", rot[:, parts], rel)
-        model = np.concatenate([joints[:, joint_ids], posed], axis=1)
-        fit = ((model - targets) * weights).reshape(len(X), -1)
-        return np.hstack([fit, _PRIOR_WEIGHT * (X[:, 3:][:, weak] - neutral[weak])])
+        rot, joints = forward_kinematics(X[:, 3:], X[:, :3], self.rest_joints, self.body.hinge_axes)
+        posed = joints[:, self.parts] + np.einsum("bkij,kj->bki", rot[:, self.parts], self.rel)
+        model = np.concatenate([joints[:, self.joint_ids], posed], axis=1)
+        fit = ((model - self.targets) * self.weights).reshape(len(X), -1)
+        weak = self.weak
+        return np.hstack([fit, _PRIOR_WEIGHT * (X[:, 3:][:, weak] - self.neutral[weak])])
 
-    def residuals(x: np.ndarray) -> np.ndarray:
-        return batch(x[None])[0]
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """Residuals (R,) of one state (40,)."""
+        return self.batch(x[None])[0]
 
-    def jacobian(x: np.ndarray) -> np.ndarray:
-        # Forward differences, all 40 in one batch (the scalar default calls the
-        # kinematics 40 times).
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """(R, 40) by forward differences, all 40 in one batch (the scalar default
+        calls the kinematics 40 times)."""
         step = 1e-6
         X = np.vstack([x, x + step * np.eye(len(x))])
-        r = batch(X)
+        r = self.batch(X)
         return ((r[1:] - r[0]) / step).T
 
+
+def _solve(
+    residuals: _Residuals,
+    neutral: np.ndarray,
+    tau0: np.ndarray,
+    root0: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+) -> OptimizeResult:
+    """The bounded least-squares solution from the neutral pose, and from the rest
+    pose when that is another start (the lower cost wins), with the root placed
+    at ``tau0``, ``root0`` and τ within a metre of it."""
     best = None
-    # The neutral pose, and the rest pose when that is another start.
     starts = [neutral] if not np.any(neutral) else [neutral, np.zeros(37)]
     for start in starts:
         theta0 = np.clip(start, lo, hi).copy()
@@ -217,11 +263,8 @@ def pose_from_landmarks(
         x0 = np.r_[tau0, theta0]
         bounds = (np.r_[tau0 - 1.0, lo], np.r_[tau0 + 1.0, hi])
         sol = least_squares(
-            residuals, np.clip(x0, *bounds), jac=jacobian, bounds=bounds, max_nfev=200
+            residuals, np.clip(x0, *bounds), jac=residuals.jacobian, bounds=bounds, max_nfev=200
         )
         if best is None or sol.cost < best.cost:
             best = sol
-    n_joint = len(joint_ids)
-    err = residuals(best.x)[: 3 * n_joint].reshape(-1, 3)
-    rms = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
-    return LandmarkPose(best.x[:3], best.x[3:], rms, len(joint_ids) + len(point_ids))
+    return best

@@ -2,7 +2,7 @@
 and of the contour refinement's inner loops (:mod:`estimation.refinement`).
 
 Imported lazily, only when ``generative.BACKEND`` is ``"numba"``
-(``$BODYMETRY_LIKELIHOOD``); numba comes through ``raster_kernels``, which
+(``$BODYMETRY_LIKELIHOOD``); numba comes from :mod:`bodymetry.jit`, which
 points numba's on-disk cache first.
 
 - :func:`project_kernel`: every body's vertices through every camera in one
@@ -28,9 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-# numba as raster_kernels imports it: after pointing its on-disk cache where that
-# module says (importing numba first would fix the cache directory too early).
-from bodymetry.estimation.raster_kernels import _finite_triangle, _setup_inline, numba
+from bodymetry.estimation.raster_kernels import finite_triangle, triangle_setup_inline
+from bodymetry.jit import numba
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -264,6 +263,10 @@ def chamfer_kernel(
 ):  # pragma: no cover
     """Bidirectional chamfer cost of B bodies in C views (``generative._view_cost``).
 
+    One function, not named steps: it is one compiled loop over bodies and views
+    (cull, cover while summing distances, then the observed side) that reuses
+    one model image and its dirty box from body to body.
+
     Parameters
     ----------
     xs, ys : (B, C, V) float64
@@ -328,9 +331,9 @@ def chamfer_kernel(
             # each without branches (an index is written, the count moves by 0 or 1):
             # the front faces by the winding test alone (NaN fails it, as numpy's
             # comparison), then those whose box holds a pixel centre in the view,
-            # ``_setup``'s test. Which triangle passes is a coin toss for the branch
+            # ``triangle_setup``'s test. Which triangle passes is a coin toss for the branch
             # predictor; the passes made the kernel 14 % faster (measured). The
-            # covering loop below runs ``_setup`` on the kept ones as before.
+            # covering loop below runs ``triangle_setup`` on the kept ones as before.
             n_front = 0
             for tri in range(T):
                 i0, i1, i2 = faces[tri, 0], faces[tri, 1], faces[tri, 2]
@@ -357,9 +360,9 @@ def chamfer_kernel(
                 i0, i1, i2 = faces[tri, 0], faces[tri, 1], faces[tri, 2]
                 x0, x1, x2 = xb[i0], xb[i1], xb[i2]
                 y0, y1, y2 = yb[i0] + off, yb[i1] + off, yb[i2] + off
-                if not _finite_triangle(x0, y0, x1, y1, x2, y2):
+                if not finite_triangle(x0, y0, x1, y1, x2, y2):
                     continue
-                ok, box = _setup_inline(x0, y0, x1, y1, x2, y2, 1, w_img, row_lo, row_hi)
+                ok, box = triangle_setup_inline(x0, y0, x1, y1, x2, y2, 1, w_img, row_lo, row_hi)
                 if not ok:
                     continue
                 bx0, bx1, by0, by1, a0, b0, c0, a1, b1, c1 = box
@@ -426,7 +429,10 @@ def chamfer_kernel(
 def contour_kernel(
     verts, faces, center, edges, edge_faces, mask, R, t, K, dist, tilt, mode, out
 ):  # pragma: no cover
-    """The visible occluding contour of a mesh in one view (``refinement.occluding_contour``).
+    """The visible occluding contour of a mesh in one view (``contours.occluding_contour``).
+
+    One function, not named steps: it is one compiled pass over the edges
+    (face orientation, projection and visibility test fused per edge).
 
     An edge is a contour generator when one of its faces turns towards the
     camera and the other away; it is kept when the midpoint of its projected
@@ -440,11 +446,11 @@ def contour_kernel(
     faces : (T, 3) int64
         A face faces the camera when its normal ``(v1 - v0) x (v2 - v0)`` points
         towards the camera from its centroid ``(v0 + v1 + v2) / 3``
-        (``refinement.face_frames``, the same expressions).
+        (``contours.face_frames``, the same expressions).
     center : (3,) float64
         Camera centre.
     edges, edge_faces : (E, 2) int64
-        ``refinement.mesh_edges`` of the mesh.
+        ``contours.mesh_edges`` of the mesh.
     mask : (H, W) bool
         The silhouette deciding visibility, at the camera's size.
     R, t, K, dist, tilt, mode
@@ -514,7 +520,7 @@ def contour_kernel(
 def nearest_pairs_kernel(model, observed, model_to_observed, observed_to_model):  # pragma: no cover
     """Nearest neighbours in both directions between two small 2-D point sets.
 
-    The contour refinement's correspondences (``refinement._ContourCost.pairs``):
+    The contour refinement's correspondences (``refinement.ContourCost.pairs``):
     a few hundred model contour points against at most a few hundred observed
     boundary points. One pass over all pairs finds both directions, 2-4x faster
     than building a k-d tree and querying it twice (measured: 0.13 vs 0.46 ms

@@ -228,51 +228,13 @@ def fit_moe(
     max_iter, tol : EM stops after ``max_iter`` iterations or when the
         objective improves by less than ``tol`` per example.
     """
-    X = np.asarray(X, dtype=float)
-    Y = np.asarray(Y, dtype=float)
-    if X.ndim != 2 or Y.ndim != 2 or len(X) != len(Y):
-        raise ValueError(
-            f"X, Y: expected (N, D) and (N, P) with the same N, got {X.shape} and {Y.shape}"
-        )
-    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
-        raise ValueError("X, Y: contain NaN or infinity")
-    if n_experts < 1:
-        raise ValueError(f"n_experts: expected at least 1, got {n_experts}")
-    if ridge < 0:
-        raise ValueError(f"ridge: expected >= 0, got {ridge}")
+    X, Y, M = _checked(X, Y, n_experts, ridge)
     N, D = X.shape
-    M = int(n_experts)
-    if N < 2 * M:
-        raise ValueError(f"too few examples ({N}) for {M} experts")
 
-    x_mean = X.mean(axis=0)
-    x_scale = X.std(axis=0)
-    x_scale[x_scale < 1e-12] = 1.0  # constant inputs carry no information
-    Xs = (X - x_mean) / x_scale
-    G = min(n_gate_dims, D, N - 1)
-    _, _, Vt = np.linalg.svd(Xs - Xs.mean(axis=0), full_matrices=False)
-    basis = Vt[:G].T
-    # Deterministic sign of each direction.
-    basis *= np.sign(basis[np.argmax(np.abs(basis), axis=0), np.arange(G)])
+    x_mean, x_scale, Xs, basis = _standardized(X, n_gate_dims)
     Xg = Xs @ basis
     y_scale = Y.std(axis=0).mean() + 1e-12
-
-    # k-means on outputs (paper) -> hard ownerships.
-    n_distinct = len(np.unique(np.round(Y / y_scale, 9), axis=0))
-    if M == 1:
-        labels = np.zeros(N, dtype=int)
-    elif n_distinct < M:
-        # Fewer distinct outputs than experts: k-means is undefined; start at random.
-        labels = rng.integers(M, size=N)
-    else:
-        seed = int(rng.integers(2**31 - 1))
-        with warnings.catch_warnings():
-            # An empty cluster is harmless here: the soft start below revives it.
-            warnings.simplefilter("ignore", UserWarning)
-            _, labels = kmeans2(Y / y_scale, M, minit="++", seed=seed, iter=30)
-    Z = np.zeros((N, M))
-    Z[np.arange(N), labels] = 1.0
-    Z = 0.98 * Z + 0.02 / M  # keep every component alive at the start
+    Z = _initial_ownerships(Y, M, y_scale, rng)
 
     A = np.hstack([Xs, np.ones((N, 1))])  # design with offset
     floors = (GATE_FLOOR, EXPERT_FLOOR * y_scale**2)
@@ -307,6 +269,94 @@ def fit_moe(
         ridge=float(ridge),
     )
     return FitResult(model, np.asarray(history))
+
+
+def _checked(
+    X: np.ndarray, Y: np.ndarray, n_experts: int, ridge: float
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`fit_moe`'s inputs as float arrays (N, D) and (N, P), and M.
+
+    Raises
+    ------
+    ValueError
+        For shapes that do not match, non-finite values, ``n_experts < 1``,
+        ``ridge < 0`` or fewer than ``2 M`` examples.
+    """
+    X = np.asarray(X, dtype=float)
+    Y = np.asarray(Y, dtype=float)
+    if X.ndim != 2 or Y.ndim != 2 or len(X) != len(Y):
+        raise ValueError(
+            f"X, Y: expected (N, D) and (N, P) with the same N, got {X.shape} and {Y.shape}"
+        )
+    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+        raise ValueError("X, Y: contain NaN or infinity")
+    if n_experts < 1:
+        raise ValueError(f"n_experts: expected at least 1, got {n_experts}")
+    if ridge < 0:
+        raise ValueError(f"ridge: expected >= 0, got {ridge}")
+    M = int(n_experts)
+    if len(X) < 2 * M:
+        raise ValueError(f"too few examples ({len(X)}) for {M} experts")
+    return X, Y, M
+
+
+def _standardized(
+    X: np.ndarray, n_gate_dims: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Standardized inputs and the gates' principal directions.
+
+    Parameters
+    ----------
+    X : (N, D) float
+    n_gate_dims : int
+        Principal components the gates see (at most D and N - 1).
+
+    Returns
+    -------
+    x_mean, x_scale : (D,) float
+        Per-input mean and standard deviation (1 for a constant input).
+    Xs : (N, D) float
+        The standardized inputs.
+    basis : (D, G) float
+        The first G principal directions of ``Xs``, each with a deterministic sign.
+    """
+    N, D = X.shape
+    x_mean = X.mean(axis=0)
+    x_scale = X.std(axis=0)
+    x_scale[x_scale < 1e-12] = 1.0  # constant inputs carry no information
+    Xs = (X - x_mean) / x_scale
+    G = min(n_gate_dims, D, N - 1)
+    _, _, Vt = np.linalg.svd(Xs - Xs.mean(axis=0), full_matrices=False)
+    basis = Vt[:G].T
+    # Deterministic sign of each direction.
+    basis *= np.sign(basis[np.argmax(np.abs(basis), axis=0), np.arange(G)])
+    return x_mean, x_scale, Xs, basis
+
+
+def _initial_ownerships(
+    Y: np.ndarray, M: int, y_scale: float, rng: np.random.Generator
+) -> np.ndarray:
+    """EM's starting ownerships (N, M): k-means on the outputs (paper), softened.
+
+    Hard k-means labels (random ones when there are fewer distinct outputs
+    than experts), then ``0.98 * hard + 0.02 / M`` so every expert starts alive.
+    """
+    N = len(Y)
+    n_distinct = len(np.unique(np.round(Y / y_scale, 9), axis=0))
+    if M == 1:
+        labels = np.zeros(N, dtype=int)
+    elif n_distinct < M:
+        # Fewer distinct outputs than experts: k-means is undefined; start at random.
+        labels = rng.integers(M, size=N)
+    else:
+        seed = int(rng.integers(2**31 - 1))
+        with warnings.catch_warnings():
+            # An empty cluster is harmless here: the soft start below revives it.
+            warnings.simplefilter("ignore", UserWarning)
+            _, labels = kmeans2(Y / y_scale, M, minit="++", seed=seed, iter=30)
+    Z = np.zeros((N, M))
+    Z[np.arange(N), labels] = 1.0
+    return 0.98 * Z + 0.02 / M  # keep every component alive at the start
 
 
 #: Ownerships below this fraction of an expert's largest are left out of its

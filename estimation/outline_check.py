@@ -40,13 +40,9 @@ import numpy as np
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import PARTS
+from bodymetry.estimation.contours import prepare_contours
 from bodymetry.estimation.records import OutlineCheck
-from bodymetry.estimation.refinement import (
-    Alignment,
-    ContourCost,
-    RefineConfig,
-    prepare_contours,
-)
+from bodymetry.estimation.refinement import Alignment, ContourCost, RefineConfig
 
 #: Body regions the offsets are pooled over, by part name.
 REGIONS: dict[str, tuple[str, ...]] = {
@@ -201,13 +197,7 @@ def check_outline(
     """
     refinement = refinement or RefineConfig()
     config = config or OutlineConfig()
-    lod = not refinement.full_mesh
-    parts = body.parts_of_vertices(lod)
-    crown = crown_vertices(body, lod)
-    members = {
-        name: crown if name == "crown" else np.isin(parts, [PARTS.index(p) for p in names])
-        for name, names in REGIONS.items()
-    }
+    members = _region_members(body, lod=not refinement.full_mesh)
     per_frame: dict[str, list[float]] = {name: [] for name in REGIONS}
     # Per frame, each region's offset relative to the bare forearms and shins:
     # a uniformly larger silhouette (a blurred or dilated segmentation) moves
@@ -233,33 +223,9 @@ def check_outline(
     crown, crown_se = _median(excess["crown"]), _standard_error(excess["crown"])
     mm_per_px = float(np.median(np.concatenate(pixel))) if any(len(p) for p in pixel) else np.nan
     coarse = not mm_per_px <= config.max_mm_per_px
-    warnings = []
     # Coarse pixels: the figures are kept, but they decide nothing.
-    if not coarse and np.isfinite(trunk) and trunk > config.loose_mm:
-        note = _borderline(trunk, trunk_se, config.loose_mm)
-        warnings.append(
-            f"loose clothing likely: the silhouettes lie {_mm(trunk, trunk_se)} "
-            "further outside the fitted body at the trunk than at the forearms and shins "
-            f"(tight clothing: under {config.loose_mm:g} mm{note}); the weight, "
-            "circumferences and widths are probably overstated"
-        )
-    if not coarse and np.isfinite(crown) and crown > config.crown_mm:
-        note = _borderline(crown, crown_se, config.crown_mm)
-        warnings.append(
-            f"hair or headwear likely: the silhouettes lie {_mm(crown, crown_se)} "
-            "further outside the fitted body at the crown than at the forearms and shins "
-            f"(bare head: under {config.crown_mm:g} mm{note}); the height is probably "
-            "overstated"
-        )
-    if not np.isfinite(mm_per_px):
-        status = "no contour"
-    elif coarse:
-        status = (
-            f"undecided: working pixels of {mm_per_px:.0f} mm at the body are coarser "
-            f"than the {config.max_mm_per_px:g} mm the check needs"
-        )
-    else:
-        status = "ok"
+    warnings = [] if coarse else _clothing_warnings(trunk, trunk_se, crown, crown_se, config)
+    status = _status(mm_per_px, coarse, config)
     return OutlineCheck(
         status=status,
         frames=len(frames),
@@ -271,6 +237,55 @@ def check_outline(
         crown_excess_se_mm=crown_se,
         warnings=tuple(warnings),
     )
+
+
+def _region_members(body: BodyModel, lod: bool) -> dict[str, np.ndarray]:
+    """Per region of :data:`REGIONS`, which vertices (V,) bool of the mesh
+    (level of detail or full) belong to it."""
+    parts = body.parts_of_vertices(lod)
+    crown = crown_vertices(body, lod)
+    return {
+        name: crown if name == "crown" else np.isin(parts, [PARTS.index(p) for p in names])
+        for name, names in REGIONS.items()
+    }
+
+
+def _clothing_warnings(
+    trunk: float, trunk_se: float, crown: float, crown_se: float, config: OutlineConfig
+) -> list[str]:
+    """The warnings for loose clothing (the trunk's excess offset, mm) and for hair
+    or headwear (the crown's), each with its standard error."""
+    warnings = []
+    if np.isfinite(trunk) and trunk > config.loose_mm:
+        note = _borderline(trunk, trunk_se, config.loose_mm)
+        warnings.append(
+            f"loose clothing likely: the silhouettes lie {_mm(trunk, trunk_se)} "
+            "further outside the fitted body at the trunk than at the forearms and shins "
+            f"(tight clothing: under {config.loose_mm:g} mm{note}); the weight, "
+            "circumferences and widths are probably overstated"
+        )
+    if np.isfinite(crown) and crown > config.crown_mm:
+        note = _borderline(crown, crown_se, config.crown_mm)
+        warnings.append(
+            f"hair or headwear likely: the silhouettes lie {_mm(crown, crown_se)} "
+            "further outside the fitted body at the crown than at the forearms and shins "
+            f"(bare head: under {config.crown_mm:g} mm{note}); the height is probably "
+            "overstated"
+        )
+    return warnings
+
+
+def _status(mm_per_px: float, coarse: bool, config: OutlineConfig) -> str:
+    """The check's status: ``"ok"``, ``"no contour"`` or ``"undecided: ..."`` when
+    the working pixels are too coarse at the body."""
+    if not np.isfinite(mm_per_px):
+        return "no contour"
+    if coarse:
+        return (
+            f"undecided: working pixels of {mm_per_px:.0f} mm at the body are coarser "
+            f"than the {config.max_mm_per_px:g} mm the check needs"
+        )
+    return "ok"
 
 
 def _mm(value: float, se: float) -> str:

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera, _tilt_matrix
+from bodymetry.calibration.camera import Camera, tilt_matrix
 from bodymetry.estimation.raster import coverage
 
 
@@ -171,6 +171,6 @@ def camera_arrays(cameras: Sequence[Camera]) -> tuple[np.ndarray, ...]:
         if dist[c, 5:].any():
             mode[c] = 1
         if dist[c, 12] != 0 or dist[c, 13] != 0:
-            tilt[c] = _tilt_matrix(dist[c, 12], dist[c, 13])
+            tilt[c] = tilt_matrix(dist[c, 12], dist[c, 13])
             mode[c] = 2
     return R, t, K, dist, tilt, mode

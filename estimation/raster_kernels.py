@@ -7,83 +7,39 @@ The kernels loop over triangles and the pixel centres of their bounding
 boxes, and evaluate the *same* floating-point expressions, in the same order,
 as the numpy reference (``raster._covered``): the affine barycentric functions
 ``l_i = a_i x + b_i y + c_i`` from the same coefficients, ``l2 = 1 - l0 - l1``,
-and the inside test ``l_i >= -_INSIDE_EPS``. Without ``fastmath`` LLVM neither
+and the inside test ``l_i >= -INSIDE_EPS``. Without ``fastmath`` LLVM neither
 reassociates nor fuses multiply-adds, so both paths decide every pixel
 identically (tests/estimation/test_raster.py compares them bit for bit).
 
-Compiled code is cached on disk (``cache=True``): next to this file when its
-``__pycache__`` is writable, else under ``$NUMBA_CACHE_DIR``, which
-:func:`numba_cache_dir` points to the bodymetry cache when it is unset.
+numba, and its on-disk cache, come from :mod:`bodymetry.jit`.
 """
 
 from __future__ import annotations
 
-import os
-import sys
-from pathlib import Path
-
 import numpy as np
 
-
-def numba_cache_dir(
-    package_dir: Path, environ: dict[str, str] | os._Environ, writable: bool
-) -> str | None:
-    """Where numba should cache the kernels, when its default would not do.
-
-    Numba caches next to the source when the package folder is writable
-    (an editable install) and otherwise in a user-wide folder; when neither is
-    usable it raises at decoration time. An installed, read-only package gets
-    ``$BODYMETRY_CACHE/numba`` (default ``~/.cache/bodymetry/numba``), next to
-    the trained models.
-
-    Parameters
-    ----------
-    package_dir : Path
-        The folder of this module.
-    environ : mapping
-        The environment (``NUMBA_CACHE_DIR``, ``BODYMETRY_CACHE``).
-    writable : bool
-        Whether ``package_dir`` (its ``__pycache__``) can be written.
-
-    Returns
-    -------
-    str or None
-        The folder to set as ``NUMBA_CACHE_DIR``; None to leave numba's choice
-        (the user set one, or the package folder is writable).
-    """
-    if environ.get("NUMBA_CACHE_DIR") or writable:
-        return None
-    root = environ.get("BODYMETRY_CACHE")
-    base = Path(root).expanduser() if root else Path.home() / ".cache" / "bodymetry"
-    return str(base / "numba")
-
-
-def _package_writable(package_dir: Path) -> bool:
-    pycache = package_dir / "__pycache__"
-    target = pycache if pycache.is_dir() else package_dir
-    return os.access(target, os.W_OK)
-
-
-_here = Path(__file__).resolve().parent
-_cache = numba_cache_dir(_here, os.environ, _package_writable(_here))
-if _cache is not None:
-    os.makedirs(_cache, exist_ok=True)
-    os.environ["NUMBA_CACHE_DIR"] = _cache
-
-import numba  # noqa: E402  (after NUMBA_CACHE_DIR is set)
-
-if _cache is not None and "numba.core.config" in sys.modules:
-    # numba reads its environment once at import; it may have been imported before.
-    numba.core.config.reload_config()
+from bodymetry.jit import inline_copy, numba
 
 #: Codes of ``raster``'s ``cull`` ("none", "back", "front") inside the kernels.
 _CULL_NONE, _CULL_BACK, _CULL_FRONT = 0, 1, 2
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _finite_triangle(x0, y0, x1, y1, x2, y2):  # pragma: no cover
-    """Whether a projected triangle's corners are all finite (a vertex behind a
-    camera or outside the lens model's range projects to NaN)."""
+def finite_triangle(x0, y0, x1, y1, x2, y2):  # pragma: no cover
+    """Whether a projected triangle's corners are all finite.
+
+    A vertex behind a camera or outside the lens model's range projects to NaN.
+
+    Parameters
+    ----------
+    x0, y0, x1, y1, x2, y2 : float
+        Pixel coordinates of the triangle's three corners.
+
+    Returns
+    -------
+    bool
+        True when all six coordinates are finite.
+    """
     return (
         np.isfinite(x0)
         and np.isfinite(x1)
@@ -95,13 +51,29 @@ def _finite_triangle(x0, y0, x1, y1, x2, y2):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
-def _setup(x0, y0, x1, y1, x2, y2, cull, w_img, row_lo, row_hi):  # pragma: no cover
+def triangle_setup(x0, y0, x1, y1, x2, y2, cull, w_img, row_lo, row_hi):  # pragma: no cover
     """Cull test, clipped pixel box and barycentric coefficients of one triangle.
 
-    The expressions are ``raster._covered``'s, term for term. ``row_lo`` and
-    ``row_hi`` bound the rows (the view's tile); columns are ``0 .. w_img - 1``.
-    Returns ``ok`` (False: no pixel centre to test) and ``(bx0, bx1, by0, by1,
-    a0, b0, c0, a1, b1, c1)``.
+    The expressions are ``raster._covered``'s, term for term.
+
+    Parameters
+    ----------
+    x0, y0, x1, y1, x2, y2 : float
+        Pixel coordinates of the triangle's three corners.
+    cull : int
+        ``_CULL_NONE``, ``_CULL_BACK`` or ``_CULL_FRONT``.
+    w_img : int
+        Image width: columns are ``0 .. w_img - 1``.
+    row_lo, row_hi : int
+        First and last row to test (the view's tile).
+
+    Returns
+    -------
+    ok : bool
+        False when there is no pixel centre to test.
+    box : tuple
+        ``(bx0, bx1, by0, by1, a0, b0, c0, a1, b1, c1)``: the clipped pixel box
+        (inclusive) and the coefficients of ``l0`` and ``l1``.
     """
     area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
     if cull == _CULL_BACK:
@@ -134,9 +106,9 @@ def _setup(x0, y0, x1, y1, x2, y2, cull, w_img, row_lo, row_hi):  # pragma: no c
     return True, (bx0, bx1, by0, by1, a0, b0, c0, a1, b1, c1)
 
 
-#: :func:`_setup` inlined into the triangle loops of the coverage and chamfer kernels
+#: :func:`triangle_setup` inlined into the triangle loops of the coverage and chamfer kernels
 #: (the same function, so the same expressions; a call per triangle cost ~10 %).
-_setup_inline = numba.njit(cache=True, nogil=True, inline="always")(_setup.py_func)
+triangle_setup_inline = inline_copy(triangle_setup)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -200,9 +172,9 @@ def coverage_kernel(xs, ys, valid, faces, sizes, h_canvas, cull, eps, out):  # p
                 continue
             x0, x1, x2 = xs[c, i0], xs[c, i1], xs[c, i2]
             y0, y1, y2 = ys[c, i0] + off, ys[c, i1] + off, ys[c, i2] + off
-            if not _finite_triangle(x0, y0, x1, y1, x2, y2):
+            if not finite_triangle(x0, y0, x1, y1, x2, y2):
                 continue
-            ok, box = _setup_inline(x0, y0, x1, y1, x2, y2, cull, w_img, row_lo, row_hi)
+            ok, box = triangle_setup_inline(x0, y0, x1, y1, x2, y2, cull, w_img, row_lo, row_hi)
             if not ok:
                 continue
             bx0, bx1, by0, by1, a0, b0, c0, a1, b1, c1 = box
@@ -270,7 +242,7 @@ def zbuffer_kernel(
             continue
         x0, x1, x2 = xs[i0], xs[i1], xs[i2]
         y0, y1, y2 = ys[i0], ys[i1], ys[i2]
-        ok, box = _setup(x0, y0, x1, y1, x2, y2, cull, w_img, 0, h_img - 1)
+        ok, box = triangle_setup(x0, y0, x1, y1, x2, y2, cull, w_img, 0, h_img - 1)
         if not ok:
             continue
         bx0, bx1, by0, by1, a0, b0, c0, a1, b1, c1 = box

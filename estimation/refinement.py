@@ -23,27 +23,38 @@ re-found after every accepted step.
 The Jacobian is taken by forward differences of the level-of-detail mesh: one
 batched pose of 1 + 49 states per iteration (~30 ms). Joint limits bound θ.
 Everything is deterministic (no random choices).
+
+The contours come from :mod:`bodymetry.estimation.contours`, the damping from
+:mod:`bodymetry.estimation.least_squares`; this module holds the settings, the
+cost (:class:`ContourCost`, shared with the session stage) and the descent
+(:func:`refine`).
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from types import ModuleType
-from typing import Any
 
-import cv2
 import numpy as np
 from scipy import sparse
-from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import NU, POSE_DIM, THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import YAW
+from bodymetry.estimation.contours import (
+    ContourObservation,
+    contour_ids,
+    contour_topology,
+    face_frames,
+    mesh_edges,
+    occluding_contour,
+    outline_samples,
+)
 from bodymetry.estimation.generative import compiled_likelihood, project_planes, state_bounds
-from bodymetry.estimation.projection import camera_arrays, fill_silhouette, per_camera_masks
+from bodymetry.estimation.least_squares import Damping, damped_step, marquardt
+from bodymetry.estimation.projection import camera_arrays, fill_silhouette
 from bodymetry.estimation.raster import coverage_views
 
 
@@ -152,329 +163,6 @@ class RefineResult:
         return BodyState.from_vector(self.vector[None])
 
 
-def boundary_points(mask: np.ndarray) -> np.ndarray:
-    """Sub-pixel boundary of a binary mask.
-
-    Parameters
-    ----------
-    mask : (H, W) bool
-
-    Returns
-    -------
-    (P, 2) float
-        ``(x, y)`` pixel coordinates of the midpoints between horizontally or
-        vertically adjacent pixels of which exactly one is inside: the
-        0.5-level crossing of the mask, unbiased (the boundary pixels' centres
-        lie half a pixel inside).
-    """
-    m = np.asarray(mask, dtype=bool)
-    if m.ndim != 2:
-        raise ValueError(f"mask must be 2-D, got shape {m.shape}")
-    ys, xs = np.nonzero(m[:, :-1] != m[:, 1:])
-    horizontal = np.c_[xs + 0.5, ys]
-    ys, xs = np.nonzero(m[:-1] != m[1:])
-    vertical = np.c_[xs, ys + 0.5]
-    return np.vstack([horizontal, vertical]).astype(float)
-
-
-def mesh_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Edges of a closed triangle mesh with their two faces.
-
-    Parameters
-    ----------
-    faces : (T, 3) int
-
-    Returns
-    -------
-    edges : (E, 2) int
-        Vertex pairs, each edge once.
-    edge_faces : (E, 2) int
-        The two triangles sharing each edge.
-
-    Raises
-    ------
-    ValueError
-        If some edge does not have exactly two faces (mesh not closed and manifold).
-    """
-    faces = np.asarray(faces)
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    owner = np.tile(np.arange(len(faces)), 3)
-    key = np.sort(e, axis=1)
-    order = np.lexsort((key[:, 1], key[:, 0]))
-    key, owner = key[order], owner[order]
-    _, counts = np.unique(key, axis=0, return_counts=True)
-    if len(counts) * 2 != len(key) or np.any(counts != 2):
-        raise ValueError("mesh is not closed: an edge does not have exactly two faces")
-    return key[0::2], np.c_[owner[0::2], owner[1::2]]
-
-
-@dataclass
-class ContourObservation:
-    """Observed boundary points of one frame, ready for :func:`refine`.
-
-    Attributes
-    ----------
-    cameras : list of Camera
-        Scaled to the working resolution.
-    centers : (C, 3) float
-        Camera centres (world, metres).
-    points : list of (P_c, 2) float
-        Boundary points per view in working pixels (empty where the view has none).
-    normals : list of (P_c, 2) float
-        Outward unit normals of the observed outline at those points.
-    trees : list of cKDTree or None
-    originals : list of Camera
-        The cameras at their own resolution.
-    """
-
-    cameras: list[Camera]
-    centers: np.ndarray
-    points: list[np.ndarray]
-    normals: list[np.ndarray]
-    trees: list[cKDTree | None]
-    originals: list[Camera] = field(default_factory=list)
-
-    @property
-    def valid(self) -> np.ndarray:
-        return np.array([t is not None for t in self.trees])
-
-
-def prepare_contours(
-    cameras: Sequence[Camera],
-    masks: Sequence[np.ndarray] | np.ndarray,
-    scale: float,
-    max_points: int = 400,
-) -> ContourObservation:
-    """Boundary points of the observed silhouettes at the working scale.
-
-    Every view is handled at its own camera's size (a rig may mix sizes); the
-    points, normals and visibility rasters are per view.
-
-    Parameters
-    ----------
-    cameras : sequence of Camera
-    masks : sequence of C (H_c, W_c) bool, or (C, H, W) bool
-        Observed silhouettes, each at its camera's resolution; an all-False
-        mask leaves the view out.
-    scale : float
-    max_points : int
-        Evenly spread subset kept per view.
-
-    Raises
-    ------
-    ValueError
-        If the masks do not match the cameras in number or size.
-    """
-    masks = per_camera_masks(cameras, masks)
-    small = [c.scaled(scale) for c in cameras]
-    points, normals, trees = [], [], []
-    for mask in masks:
-        p = outline_samples(mask, max_points)
-        normals.append(outline_normals(mask, p))
-        # Pixel centres map as x' = (x + 0.5) s - 0.5 (see Camera.scaled).
-        points.append((p + 0.5) * scale - 0.5)
-        trees.append(cKDTree(points[-1]) if len(p) >= 10 else None)
-    centers = np.stack([c.center for c in cameras])
-    return ContourObservation(small, centers, points, normals, trees, list(cameras))
-
-
-def outline_samples(mask: np.ndarray, max_points: int) -> np.ndarray:
-    """At most ``max_points`` of a mask's :func:`boundary_points`, evenly spread
-    along their list (the observed outline and the model's own, for
-    :class:`RefineConfig.outline_offsets`, are sampled alike).
-
-    Returns
-    -------
-    (P, 2) float
-        ``(x, y)`` pixels, ``P <= max_points``.
-    """
-    p = boundary_points(mask)
-    if len(p) > max_points:
-        p = p[np.linspace(0, len(p) - 1, max_points).round().astype(int)]
-    return p
-
-
-def outline_normals(mask: np.ndarray, points: np.ndarray, smooth_px: float = 2.0) -> np.ndarray:
-    """Outward unit normals of a mask's outline at given points.
-
-    Parameters
-    ----------
-    mask : (H, W) bool
-    points : (P, 2) float
-        ``(x, y)`` pixels, e.g. from :func:`boundary_points`.
-    smooth_px : float
-        Gaussian smoothing of the mask before taking its gradient (pixels).
-
-    Returns
-    -------
-    (P, 2) float
-        Minus the normalized gradient of the smoothed mask (zero where flat).
-    """
-    soft = cv2.GaussianBlur(np.asarray(mask, np.float32), (0, 0), smooth_px)
-    gy, gx = np.gradient(soft)
-    rc = np.asarray(points, float).reshape(-1, 2)[:, ::-1].T  # (row, col) for map_coordinates
-    n = -np.c_[map_coordinates(gx, rc, order=1), map_coordinates(gy, rc, order=1)].astype(float)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-
-
-def occluding_contour(
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    edges: np.ndarray,
-    edge_faces: np.ndarray,
-    camera: Camera,
-    center: np.ndarray,
-    silhouette: np.ndarray | None = None,
-    frames: tuple[np.ndarray, np.ndarray] | None = None,
-) -> np.ndarray:
-    """Edges on the visible outline of a mesh seen by one camera.
-
-    Parameters
-    ----------
-    vertices : (V, 3) float
-    faces : (T, 3) int
-    edges, edge_faces : from :func:`mesh_edges`
-    camera : Camera
-        At the working resolution.
-    center : (3,) float
-        Camera centre.
-    silhouette : (H, W) bool, optional
-        The silhouette that decides visibility (default: the mesh's own,
-        rasterized here). A coarser mesh of the same body gives the same
-        answer at a fraction of the cost (the full mesh's contour lies within
-        a fraction of a pixel of its level of detail's).
-    frames : ((T, 3), (T, 3)) float, optional
-        :func:`face_frames` of the mesh, when the caller has them (they do not
-        depend on the camera).
-
-    Returns
-    -------
-    (K,) int
-        Indices into ``edges`` of the contour-generator edges whose projected
-        midpoint lies on the boundary of the silhouette (within one pixel of
-        the outside).
-    """
-    kernels = compiled_likelihood()
-    if kernels is not None:
-        # One compiled pass (it takes the face frames from the vertices itself).
-        topology = _contour_topology(faces, edges, edge_faces, len(vertices))
-        return _contour_ids(
-            kernels, vertices, topology, camera, camera_arrays([camera]), center, silhouette
-        )
-    normal, centroid = face_frames(vertices, faces) if frames is None else frames
-    facing = np.einsum("ij,ij->i", normal, centroid - center) < 0
-    generator = np.nonzero(facing[edge_faces[:, 0]] != facing[edge_faces[:, 1]])[0]
-    ends = edges[generator]
-    if silhouette is None:
-        pixels = camera.project(vertices)
-        mask = fill_silhouette(pixels, faces, camera.size)
-        mid = 0.5 * (pixels[ends[:, 0]] + pixels[ends[:, 1]])
-    else:
-        # Only the contour edges' ends need projecting (a full mesh has 13k vertices).
-        mask = silhouette
-        p = camera.project(vertices[ends.reshape(-1)]).reshape(-1, 2, 2)
-        mid = 0.5 * (p[:, 0] + p[:, 1])
-    w, h = camera.size
-    ij = np.round(np.nan_to_num(mid, nan=-1.0)).astype(int)
-    ok = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
-    keep = np.zeros(len(generator), bool)
-    keep[ok] = near_outside(mask, ij[ok])
-    return generator[keep]
-
-
-@dataclass(frozen=True)
-class _Topology:
-    """A mesh's ``faces, edges, edge_faces`` as the contour kernel takes them
-    (C-ordered int64), checked once to index ``n_vertices`` vertices and the faces."""
-
-    faces: np.ndarray
-    edges: np.ndarray
-    edge_faces: np.ndarray
-    n_vertices: int
-
-
-def _contour_topology(
-    faces: np.ndarray, edges: np.ndarray, edge_faces: np.ndarray, n_vertices: int
-) -> _Topology:
-    """Check and convert a mesh's topology for :func:`_contour_ids`.
-
-    Raises
-    ------
-    IndexError
-        For an index out of range (the kernel does not check).
-    """
-    i64 = [np.require(a, np.int64, ["C", "W"]) for a in (faces, edges, edge_faces)]
-    for name, a, n in zip(
-        ("faces", "edges", "edge_faces"), i64, (n_vertices, n_vertices, len(faces)), strict=True
-    ):
-        if a.size and (a.min() < 0 or a.max() >= n):
-            raise IndexError(f"occluding_contour: {name} out of range for {n} entries")
-    return _Topology(i64[0], i64[1], i64[2], int(n_vertices))
-
-
-def _contour_ids(
-    kernels: ModuleType,
-    vertices: np.ndarray,
-    topology: _Topology,
-    camera: Camera,
-    arrays: tuple[np.ndarray, ...],
-    center: np.ndarray,
-    silhouette: np.ndarray | None,
-) -> np.ndarray:
-    """:func:`occluding_contour` by the compiled kernel, from a checked
-    :func:`_contour_topology` and the camera's :func:`camera_arrays` (a caller
-    finding the contour of one mesh many times prepares both once).
-
-    Raises
-    ------
-    IndexError
-        When ``vertices`` are not the ``topology.n_vertices`` it was checked for.
-    """
-    if len(vertices) != topology.n_vertices:
-        raise IndexError(
-            f"occluding_contour: {len(vertices)} vertices, the topology indexes "
-            f"{topology.n_vertices}"
-        )
-    if silhouette is None:
-        silhouette = fill_silhouette(camera.project(vertices), topology.faces, camera.size)
-    out = np.empty(len(topology.edges), np.int64)
-    n = kernels.contour_kernel(
-        np.require(vertices, np.float64, ["C", "W"]), topology.faces,
-        np.asarray(center, np.float64), topology.edges, topology.edge_faces,
-        np.require(silhouette, np.bool_, ["C", "W"]), *arrays, out,
-    )  # fmt: skip
-    return out[:n]
-
-
-def near_outside(mask: np.ndarray, ij: np.ndarray) -> np.ndarray:
-    """Whether pixels lie within one pixel of a mask's outside.
-
-    The same answer as ``cv2.distanceTransform(mask, DIST_L2, 3)[y, x] <= 1``
-    (the 3x3 mask's steps are 0.955 across an edge and 1.3693 across a corner,
-    and the image border is not outside), from the pixel and its four
-    neighbours instead of a transform of the whole image.
-
-    Parameters
-    ----------
-    mask : (H, W) bool
-    ij : (K, 2) int
-        ``(x, y)`` pixels inside the image.
-
-    Returns
-    -------
-    (K,) bool
-    """
-    m = np.asarray(mask, dtype=bool)
-    h, w = m.shape
-    x, y = ij[:, 0], ij[:, 1]
-    out = ~m[y, x]
-    for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        xx, yy = x + dx, y + dy
-        inside = (xx >= 0) & (xx < w) & (yy >= 0) & (yy < h)
-        out |= inside & ~m[np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)]
-    return out
-
-
 def _nearest(
     tree: cKDTree, model: np.ndarray, observed: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -501,12 +189,6 @@ def _nearest(
     return j, k
 
 
-def face_frames(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unnormalized normals (T, 3) and centroids (T, 3) of a mesh's triangles."""
-    v0, v1, v2 = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
-    return np.cross(v1 - v0, v2 - v0), (v0 + v1 + v2) / 3.0
-
-
 @dataclass(frozen=True)
 class _Pairs:
     """Correspondences of one view and direction: edges (n, 2) -> targets (n, 2).
@@ -518,7 +200,7 @@ class _Pairs:
 
     ``source``, optional: this pair's edges are the previous pair's edges at
     these indices (the observed-to-model direction picks model edges of the
-    model-to-observed one); :meth:`_ContourCost.residuals` then takes their
+    model-to-observed one); :meth:`ContourCost.residuals` then takes their
     projections from that pair's instead of projecting them again.
     """
 
@@ -551,7 +233,7 @@ class _Silhouette:
         return (points + (x0, y0) + 0.5) * scale - 0.5
 
 
-class _ContourCost:
+class ContourCost:
     """The alignment cost of one frame for one body model (see the module docstring).
 
     With ``config.full_mesh``, residuals are measured on the full-resolution mesh and its
@@ -580,7 +262,7 @@ class _ContourCost:
         self._vis_arrays = [camera_arrays([cam]) for cam in self.visibility]
         # The residual mesh's topology, checked once for the contour kernel.
         self._topology = (
-            _contour_topology(self.faces, self.edges, self.edge_faces, self._n_vertices())
+            contour_topology(self.faces, self.edges, self.edge_faces, self._n_vertices())
             if compiled_likelihood() is not None
             else None
         )
@@ -686,7 +368,7 @@ class _ContourCost:
                 visible = None
             kernels = compiled_likelihood()
             if kernels is not None and self._topology is not None:
-                ids = _contour_ids(
+                ids = contour_ids(
                     kernels, V, self._topology, vis, self._vis_arrays[c], self.obs.centers[c],
                     visible,
                 )  # fmt: skip
@@ -885,11 +567,6 @@ class _ContourCost:
         return float(((r * w) ** 2).sum() + self.config.shape_prior * nu @ nu), pairs
 
 
-#: The alignment cost of one frame, shared with the session stage
-#: (:mod:`bodymetry.estimation.session_shape`).
-ContourCost = _ContourCost
-
-
 @dataclass(frozen=True)
 class Alignment:
     """One frame's contour cost and the correspondences it found at ``state``
@@ -975,73 +652,8 @@ def difference_steps(config: RefineConfig, n_shape: int) -> np.ndarray:
     ]
 
 
-@dataclass
-class Damping:
-    """The Levenberg-Marquardt damping λ of one descent (:func:`damped_step`).
-
-    Divided by 3 after an accepted step (down to 1e-6), multiplied by 4 after a
-    rejected one; shared by the frame refinement and the session stage.
-    """
-
-    lam: float = 1e-2
-
-
-def damped_step(
-    propose: Callable[[float], tuple[float, Any]],
-    cost: float,
-    damping: Damping,
-    tolerance: float,
-    *,
-    max_lam: float = 1e4,
-    retries: int | None = None,
-) -> tuple[Any, float, bool]:
-    """Try ever more damped steps until one lowers ``cost``.
-
-    Parameters
-    ----------
-    propose : callable
-        ``propose(lam)`` -> (the cost of the step damped by ``lam``, the step's
-        payload), e.g. the new state and its correspondences.
-    cost : float
-        The current cost.
-    damping : Damping
-        Updated in place.
-    tolerance : float
-        A step that lowers the cost by less than this fraction is accepted but
-        ends the descent (``improved`` False).
-    max_lam : float
-        Give up once λ exceeds this (checked before each try) ...
-    retries : int, optional
-        ... or, when given, after this many tries whatever λ.
-
-    Returns
-    -------
-    payload : object or None
-        The accepted step's payload; None when every try raised the cost.
-    cost : float
-        Its cost (the input cost when none was accepted).
-    improved : bool
-        Whether to go on descending.
-    """
-    tries = 0
-    while (tries < retries) if retries is not None else (damping.lam <= max_lam):
-        tries += 1
-        new_cost, payload = propose(damping.lam)
-        if new_cost < cost:
-            damping.lam = max(damping.lam / 3.0, 1e-6)
-            return payload, new_cost, cost - new_cost > tolerance * cost
-        damping.lam *= 4.0
-    return None, cost, False
-
-
-def marquardt(A: np.ndarray, lam: float) -> np.ndarray:
-    """``A + λ (diag A + 1e-9)``: a normal matrix damped by Marquardt's scaling
-    (the 1e-9 keeps directions no residual sees solvable)."""
-    return A + lam * np.diag(np.diag(A) + 1e-9)
-
-
 def _gauss_newton_step(
-    cost_fn: _ContourCost,
+    cost_fn: ContourCost,
     y: np.ndarray,
     JJ: np.ndarray,
     g: np.ndarray,
@@ -1088,7 +700,7 @@ def refine(
     y[yaw] = (y[yaw] + np.pi) % (2 * np.pi) - np.pi
     y = np.clip(y, lo, hi)
     step = difference_steps(config, model.n_shape)
-    cost_fn = _ContourCost(model, obs, config)
+    cost_fn = ContourCost(model, obs, config)
     f, pairs = cost_fn.evaluate(y)
     f0, accepted, damping = f, 0, Damping()
     if not np.isfinite(f):

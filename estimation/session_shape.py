@@ -65,18 +65,16 @@ import numpy as np
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
 from bodymetry.estimation.body_model.model import NU, POSE_DIM, BodyModel, BodyState
+from bodymetry.estimation.contours import prepare_contours
 from bodymetry.estimation.generative import state_bounds, weighted_estimate
+from bodymetry.estimation.least_squares import Damping, damped_inverse, damped_step, marquardt
 from bodymetry.estimation.projection import project_silhouettes, view_ious
 from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape, StageEstimate
 from bodymetry.estimation.refinement import (
     Alignment,
     ContourCost,
-    Damping,
     RefineConfig,
-    damped_step,
     difference_steps,
-    marquardt,
-    prepare_contours,
 )
 from bodymetry.log import Progress
 
@@ -300,7 +298,7 @@ def _joint_step(
     g = g_sum + prior * nu
     inverses = []
     for w, (A, B, _, gp, _, _, _) in zip(weights, blocks, strict=True):
-        Ainv = _damped_inverse(w * A, lam)
+        Ainv = damped_inverse(w * A, lam)
         inverses.append(Ainv)
         S = S - (w * B).T @ Ainv @ (w * B)
         g = g - (w * B).T @ Ainv @ (w * gp)
@@ -313,12 +311,6 @@ def _joint_step(
     fs = np.array([e[0] for e in evaluated])
     f_new = total(fs, candidates[0][NU]) if np.all(np.isfinite(fs)) else np.inf
     return f_new, (candidates, evaluated)
-
-
-def _damped_inverse(A: np.ndarray, lam: float) -> np.ndarray:
-    """``(A + λ diag A + ε)⁻¹`` of a frame's pose block (ε keeps unseen joints solvable)."""
-    damped = A + np.diag(lam * np.diag(A) + 1e-9 + 1e-9 * np.trace(A) / len(A))
-    return np.linalg.inv(damped)
 
 
 @dataclass(frozen=True)
@@ -435,20 +427,7 @@ def fit_session_shape(
     refinement = refinement or RefineConfig()
     config = config or SessionShapeConfig()
     used = tuple(int(f.frame) for f in frames)
-
-    def give_up(status: str, alignments: dict | None = None, **kw) -> SessionShapeFit:
-        log.info("session shape: %s", status)
-        return SessionShapeFit(
-            SessionShape(
-                status=status,
-                method=METHOD,
-                frames=used,
-                seconds=time.perf_counter() - t0,
-                **kw,
-            ),
-            alignments=alignments or {},
-        )
-
+    give_up = functools.partial(_give_up, used, t0)
     if len(frames) < config.min_frames:
         return give_up(f"skipped: {len(frames)} accepted frames, need {config.min_frames}")
     n_shape = body.n_shape
@@ -459,72 +438,76 @@ def fit_session_shape(
         )
     start_nu = np.median(starts[:, NU], axis=0)
     bounds = state_bounds(body)
-    # Data term only per frame: the shape prior enters once for the session.
-    data_config = replace(refinement, shape_prior=0.0)
-    costs = [
-        ContourCost(
-            body,
-            prepare_contours(cameras, fr.masks, refinement.image_scale, refinement.max_points),
-            data_config,
-        )
-        for fr in frames
-    ]
+    costs = _frame_costs(body, cameras, frames, refinement)
     first = np.clip(np.c_[starts[:, :POSE_DIM], np.tile(start_nu, (len(frames), 1))], *bounds)
     start, f_start = _evaluated(costs, first)
     if not np.all(np.isfinite(f_start)):
         bad = [fr.frame for fr, c in zip(frames, f_start, strict=True) if not np.isfinite(c)]
         return give_up(f"failed: no contour in frames {bad}")
-    prior = refinement.shape_prior
-    step = difference_steps(refinement, n_shape)
-    f0 = _session_cost(_frame_weights(f_start, config.frame_scale), f_start, start_nu, prior)
-    steps_total = config.descents * config.iterations
-    ticks = iter(range(steps_total))
+    stage = _Stage(
+        body=body,
+        cameras=cameras,
+        frames=frames,
+        costs=costs,
+        config=config,
+        density=density,
+        prior=refinement.shape_prior,
+        bounds=bounds,
+        step=difference_steps(refinement, n_shape),
+        used=used,
+        t0=t0,
+        cpu0=cpu0,
+    )
+    f0 = _session_cost(_frame_weights(f_start, config.frame_scale), f_start, start_nu, stage.prior)
+    descents = _descents(stage, start, first, progress)
+    return _at_average(stage, descents, start_nu, f0)
 
-    def tick() -> None:
-        if progress:
-            progress("session shape", next(ticks, steps_total), steps_total)
 
-    # The contour cost is piecewise (which edges are on the contour, and their
-    # nearest outline points, change in jumps), so a descent's end point moves
-    # with the last digits of its start. Several descents from jittered starts,
-    # averaged, make the result less a matter of chance, and their spread is
-    # part of the standard error (docs/session-shape.md).
-    rng = np.random.default_rng(config.seed)
-    descents = []
-    for k in range(config.descents):
-        # The first descent starts where the start was just evaluated.
-        work = (
-            start if k == 0 else _evaluated(costs, _jittered(first, config.jitter, rng, bounds))[0]
-        )
-        if not all(np.isfinite(w.f) for w in work):
-            log.info("session shape: descent %d started where a frame has no contour", k)
-            continue
-        descents.append(_descend(work, prior, bounds, config, step, tick))
-    if progress:
-        progress("session shape", steps_total, steps_total)
-    # The average of the end points, frame by frame (one shared ν: the ν rows stay
-    # equal; the heading as a circular mean).
-    ends_f = np.stack([d.states for d in descents], axis=1)  # (F, K, 40 + n_shape)
-    even = np.full(len(descents), 1.0 / len(descents))
-    states = np.clip(np.array([weighted_estimate(Y, even) for Y in ends_f]), *bounds)
+@dataclass(frozen=True)
+class _Stage:
+    """What :func:`fit_session_shape`'s steps share: its inputs, each frame's
+    contour cost, the session's shape prior weight, the state bounds, the
+    finite-difference steps, the frames used and the start times."""
+
+    body: BodyModel
+    cameras: Sequence[Camera]
+    frames: Sequence[SessionFrame]
+    costs: list[ContourCost]
+    config: SessionShapeConfig
+    density: float
+    prior: float
+    bounds: tuple[np.ndarray, np.ndarray]
+    step: np.ndarray
+    used: tuple[int, ...]
+    t0: float
+    cpu0: float
+
+
+def _at_average(
+    stage: _Stage, descents: list[_Descent], start_nu: np.ndarray, f0: float
+) -> SessionShapeFit:
+    """The stage's result at the average of the descents' end points: the shared
+    shape with its standard errors and measurements, each frame's pose, and the
+    check that the shape does not lower the frames' silhouette IoU."""
+    body, frames, config = stage.body, stage.frames, stage.config
+    give_up = functools.partial(_give_up, stage.used, stage.t0)
+    states = _averaged(descents, stage.bounds)
     nu = states[0, NU]
-    work, fs = _evaluated(costs, states)
+    work, fs = _evaluated(stage.costs, states)
     if not np.all(np.isfinite(fs)):
         bad = [fr.frame for fr, c in zip(frames, fs, strict=True) if not np.isfinite(c)]
         return give_up(f"failed: no contour in frames {bad} at the averaged shape")
     weights = _frame_weights(fs, config.frame_scale)
-    f_total = _session_cost(weights, fs, nu, prior)
-    cov, how = _covariance(_blocks(work, step), weights, prior, n_shape)
-    # The average of K end points scatters by their spread / sqrt(K).
+    f_total = _session_cost(weights, fs, nu, stage.prior)
+    cov, how = _shape_covariance(work, stage.step, weights, stage.prior, body.n_shape, descents)
     ends = np.array([d.states[0, NU] for d in descents])
-    if len(descents) > 1:
-        cov = cov + np.atleast_2d(np.cov(ends.T, ddof=1)) / len(descents)
-        how = f"{how} + spread of {len(descents)} descents"
     nu_se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    bios, bio_se = biometric_errors(body, nu, cov, density)
-    spread = _spread(body, ends, density)
+    bios, bio_se = biometric_errors(body, nu, cov, stage.density)
+    spread = _spread(body, ends, stage.density)
     poses = {fr.frame: BodyState.from_vector(w.y[None]) for fr, w in zip(frames, work, strict=True)}
-    ious = {fr.frame: silhouette_iou(body, poses[fr.frame], cameras, fr.masks) for fr in frames}
+    ious = {
+        fr.frame: silhouette_iou(body, poses[fr.frame], stage.cameras, fr.masks) for fr in frames
+    }
     mean_iou = float(np.mean([np.mean(list(v.values())) for v in ious.values()]))
     reference = float(np.nanmean([fr.iou for fr in frames]))
     kw = dict(
@@ -555,7 +538,7 @@ def fit_session_shape(
             **kw,
         )
     summary = SessionShape(
-        status="ok", method=METHOD, frames=used, seconds=time.perf_counter() - t0, **kw
+        status="ok", method=METHOD, frames=stage.used, seconds=time.perf_counter() - stage.t0, **kw
     )
     estimates = {f: StageEstimate(poses[f], dict(bios), silhouette_iou=ious[f]) for f in poses}
     log.info(
@@ -567,9 +550,109 @@ def fit_session_shape(
         mean_iou,
         reference,
         summary.seconds,
-        time.process_time() - cpu0,
+        time.process_time() - stage.cpu0,
     )
     return SessionShapeFit(summary, estimates, alignments)
+
+
+def _give_up(
+    used: tuple[int, ...], t0: float, status: str, alignments: dict | None = None, **kw
+) -> SessionShapeFit:
+    """The stage's result when it stops early (``status`` says why), timed from ``t0``."""
+    log.info("session shape: %s", status)
+    return SessionShapeFit(
+        SessionShape(
+            status=status,
+            method=METHOD,
+            frames=used,
+            seconds=time.perf_counter() - t0,
+            **kw,
+        ),
+        alignments=alignments or {},
+    )
+
+
+def _frame_costs(
+    body: BodyModel,
+    cameras: Sequence[Camera],
+    frames: Sequence[SessionFrame],
+    refinement: RefineConfig,
+) -> list[ContourCost]:
+    """Each frame's contour cost, data term only (the shape prior enters once for
+    the session)."""
+    data_config = replace(refinement, shape_prior=0.0)
+    return [
+        ContourCost(
+            body,
+            prepare_contours(cameras, fr.masks, refinement.image_scale, refinement.max_points),
+            data_config,
+        )
+        for fr in frames
+    ]
+
+
+def _descents(
+    stage: _Stage, start: list[_Frame], first: np.ndarray, progress: Progress | None
+) -> list[_Descent]:
+    """``config.descents`` joint descents: the first from ``start`` (the frames
+    evaluated at ``first`` (F, 40 + n_shape)), the others from jittered copies of
+    ``first``; a start where some frame has no contour is skipped.
+
+    The contour cost is piecewise (which edges are on the contour, and their
+    nearest outline points, change in jumps), so a descent's end point moves
+    with the last digits of its start. Several descents from jittered starts,
+    averaged, make the result less a matter of chance, and their spread is
+    part of the standard error (docs/session-shape.md).
+    """
+    config, costs, bounds = stage.config, stage.costs, stage.bounds
+    steps_total = config.descents * config.iterations
+    ticks = iter(range(steps_total))
+
+    def tick() -> None:
+        if progress:
+            progress("session shape", next(ticks, steps_total), steps_total)
+
+    rng = np.random.default_rng(config.seed)
+    descents = []
+    for k in range(config.descents):
+        # The first descent starts where the start was just evaluated.
+        work = (
+            start if k == 0 else _evaluated(costs, _jittered(first, config.jitter, rng, bounds))[0]
+        )
+        if not all(np.isfinite(w.f) for w in work):
+            log.info("session shape: descent %d started where a frame has no contour", k)
+            continue
+        descents.append(_descend(work, stage.prior, bounds, config, stage.step, tick))
+    if progress:
+        progress("session shape", steps_total, steps_total)
+    return descents
+
+
+def _averaged(descents: Sequence[_Descent], bounds: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The average of the descents' end points, frame by frame (F, 40 + n_shape):
+    one shared ν (the ν rows stay equal), the heading as a circular mean."""
+    ends_f = np.stack([d.states for d in descents], axis=1)  # (F, K, 40 + n_shape)
+    even = np.full(len(descents), 1.0 / len(descents))
+    return np.clip(np.array([weighted_estimate(Y, even) for Y in ends_f]), *bounds)
+
+
+def _shape_covariance(
+    work: list[_Frame],
+    step: np.ndarray,
+    weights: np.ndarray,
+    prior: float,
+    n_shape: int,
+    descents: Sequence[_Descent],
+) -> tuple[np.ndarray, str]:
+    """The shared shape's covariance (n_shape, n_shape) at ``work`` and how it was
+    found: the curvature's, plus the scatter of the average of K descents' end
+    points (their spread / sqrt(K)) when there are several."""
+    cov, how = _covariance(_blocks(work, step), weights, prior, n_shape)
+    ends = np.array([d.states[0, NU] for d in descents])
+    if len(descents) > 1:
+        cov = cov + np.atleast_2d(np.cov(ends.T, ddof=1)) / len(descents)
+        how = f"{how} + spread of {len(descents)} descents"
+    return cov, how
 
 
 def _spread(body: BodyModel, ends: np.ndarray, density: float) -> dict[str, float]:
@@ -594,7 +677,7 @@ def _covariance(
     grads = []
     sq, count = 0.0, 0
     for w, (A, B, C, gp, gn, rr, R) in zip(weights, blocks, strict=True):
-        Ainv = _damped_inverse(A, 0.0)
+        Ainv = damped_inverse(A, 0.0)
         H = H + w * (C - B.T @ Ainv @ B)
         grads.append(w * (gn - B.T @ Ainv @ gp))
         sq += w * rr

@@ -31,7 +31,6 @@ import numpy as np
 
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.errors import InputError
-from bodymetry.estimation import features as feat
 from bodymetry.estimation.body_model.model import (
     ANCHOR_CLEARANCE,
     ANCHOR_WEIGHT,
@@ -45,8 +44,12 @@ from bodymetry.estimation.body_model.motion.contact import place_root
 from bodymetry.estimation.body_model.motion.prior import sample_pose_prior
 from bodymetry.estimation.body_model.motion.seeds import seed_for
 from bodymetry.estimation.body_model.skeleton import JOINTS, YAW, forward_kinematics
+from bodymetry.estimation.codebook import Codebook, fit_codebook
 from bodymetry.estimation.moe import MixtureOfExperts, fit_moe, select_moe
 from bodymetry.estimation.projection import project_silhouettes
+from bodymetry.estimation.rdf import rdf
+from bodymetry.estimation.shape_context import ShapeContextConfig
+from bodymetry.estimation.view_features import sc_features, silhouette_features
 from bodymetry.fileio import load_npz, save_npz
 from bodymetry.log import Progress
 
@@ -269,7 +272,7 @@ def _render_features(args) -> tuple:
     """Worker: silhouettes of a chunk of states -> RDF and SC descriptors or codes."""
     states, meshes, cameras, codebook_arrays, seed, sc_config = args
     model = shipped_model(states.nu.shape[1])
-    codebook = None if codebook_arrays is None else feat.Codebook.from_arrays(codebook_arrays)
+    codebook = None if codebook_arrays is None else Codebook.from_arrays(codebook_arrays)
     rng = np.random.default_rng(seed)
     C, B = len(cameras), len(states)
     rdfs = np.zeros((C, B, RDF_DIM))
@@ -284,7 +287,7 @@ def _render_features(args) -> tuple:
             if np.count_nonzero(masks[c]) < 50:
                 continue  # body (nearly) out of view: no training pair
             valid[c, b] = True
-            rdfs[c, b], sc = feat.silhouette_features(masks[c], rng, config)
+            rdfs[c, b], sc = silhouette_features(masks[c], rng, config)
             if codebook is not None:
                 codes[c, b] = codebook.encode(sc)
             else:
@@ -299,7 +302,7 @@ def _parallel_features(
     seed: int,
     workers: int,
     progress: Callable[[int], None] | None,
-    sc_config: feat.ShapeContextConfig | None = None,
+    sc_config: ShapeContextConfig | None = None,
 ):
     """Features of the bodies (states and their LOD meshes) in every camera, in chunks."""
     states, meshes = bodies
@@ -341,7 +344,7 @@ class DiscriminativeModels:
     Attributes
     ----------
     camera_names : tuple of str
-    codebook : features.Codebook
+    codebook : Codebook
     models : dict
         ``models[camera][name]`` for name in ``MODEL_NAMES``.
     metrics : dict
@@ -351,7 +354,7 @@ class DiscriminativeModels:
     """
 
     camera_names: tuple[str, ...]
-    codebook: feat.Codebook
+    codebook: Codebook
     models: dict[str, dict[str, MixtureOfExperts]]
     metrics: dict = field(default_factory=dict)
     key: str = ""
@@ -372,7 +375,7 @@ class DiscriminativeModels:
     def load(cls, path: Path) -> DiscriminativeModels:
         data = load_npz(path)
         names = tuple(str(x) for x in data["camera_names"])
-        codebook = feat.Codebook.from_arrays(
+        codebook = Codebook.from_arrays(
             {k.removeprefix("codebook_"): v for k, v in data.items() if k.startswith("codebook_")}
         )
         models = {
@@ -387,7 +390,7 @@ class DiscriminativeModels:
         self, camera: str, mask: np.ndarray, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:
         """(X_rdf, X_sc) of one silhouette seen by ``camera``."""
-        return feat.rdf(mask), feat.sc_features(mask, self.codebook, rng)
+        return rdf(mask), sc_features(mask, self.codebook, rng)
 
 
 def _outputs(states: BodyState) -> dict[str, np.ndarray]:
@@ -424,82 +427,28 @@ def train(
         model.n_shape, config.n_test, "test", config.seed, config.volume, workers
     )
     t_bodies = time.perf_counter() - t0
-
-    def step(label: str, total: int):
-        done = [0]
-
-        def advance(k: int) -> None:
-            done[0] += k
-            if progress:
-                progress(label, done[0], total)
-
-        return advance
-
-    # Codebook from the descriptors of the first examples (all cameras); those
-    # examples are then encoded from their descriptors, not rendered again.
-    sc_config = feat.ShapeContextConfig(n_points=config.sc_points)
     n_cb = min(config.codebook_examples, config.n_train)
     t_cb = time.perf_counter()
-    rdf_cb, _, ok_cb, descriptors = _parallel_features(
-        (train_states[:n_cb], train_meshes[:n_cb]),
-        cameras,
-        None,
-        config.seed,
-        workers,
-        step("codebook", n_cb),
-        sc_config,
+    codebook, cb_set, t_codebook = _codebook_set(
+        (train_states[:n_cb], train_meshes[:n_cb]), n_cb, cameras, config, workers, progress
     )
-    t_cb = time.perf_counter() - t_cb
-    t_codebook = time.perf_counter()
-    codebook = feat.fit_codebook(
-        descriptors,
-        config.codebook_size,
-        np.random.default_rng(config.seed),
-        config=sc_config,
-        max_samples=config.codebook_samples,
-        max_iter=config.codebook_iterations,
-    )
-    sc_cb = np.zeros((len(cameras), n_cb, codebook.dim))
-    it = iter(descriptors)
-    for b in range(n_cb):
-        for c in range(len(cameras)):
-            if ok_cb[c, b]:
-                sc_cb[c, b] = codebook.encode(next(it))
-    t_codebook = time.perf_counter() - t_codebook
+    t_cb = time.perf_counter() - t_cb - t_codebook
     t_rest = time.perf_counter()
-    rdf_rest, sc_rest, ok_rest = _parallel_features(
+    rest, test = _encoded_sets(
         (train_states[n_cb:], train_meshes[n_cb:]),
-        cameras,
-        codebook,
-        config.seed + 1,
-        workers,
-        step("training set", config.n_train - n_cb),
-    )[:3]
-    rdf_tr = np.concatenate([rdf_cb, rdf_rest], axis=1)
-    sc_tr = np.concatenate([sc_cb, sc_rest], axis=1)
-    ok_tr = np.concatenate([ok_cb, ok_rest], axis=1)
-    rdf_te, sc_te, ok_te = _parallel_features(
         (test_states, test_meshes),
         cameras,
         codebook,
-        config.seed + 2,
+        config,
         workers,
-        step("test set", config.n_test),
-    )[:3]
+        progress,
+    )
+    rdf_tr, sc_tr, ok_tr = (np.concatenate(pair, axis=1) for pair in zip(cb_set, rest, strict=True))
+    rdf_te, sc_te, ok_te = test
     t_render = time.perf_counter() - t0
     t_silhouettes = t_cb + time.perf_counter() - t_rest
     n_examples = config.n_train + config.n_test
-    log.info(
-        "training set: %d bodies x %d cameras rendered with features in %.1f s "
-        "(%.0f examples/s, %d workers); bodies %.1f s, codebook %.1f s",
-        n_examples,
-        len(cameras),
-        t_silhouettes,
-        n_examples / t_silhouettes,
-        workers,
-        t_bodies,
-        t_codebook,
-    )
+    _log_rendering(n_examples, len(cameras), t_silhouettes, workers, t_bodies, t_codebook)
 
     t_fit = time.perf_counter()
     chosen, models = _fit_models(
@@ -528,6 +477,120 @@ def train(
     return DiscriminativeModels(
         trained.camera_names, codebook, models, metrics, rig_key(cameras, config)
     )
+
+
+def _encoded_sets(
+    train_rest: tuple[BodyState, np.ndarray],
+    test: tuple[BodyState, np.ndarray],
+    cameras: list[Camera],
+    codebook: Codebook,
+    config: TrainConfig,
+    workers: int,
+    progress: Progress | None,
+) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+    """The features (RDFs, codebook features, usable flags) of the training
+    examples after the codebook's (seed + 1) and of the test set (seed + 2)."""
+    n_rest = config.n_train - min(config.codebook_examples, config.n_train)
+    rest = _parallel_features(
+        train_rest,
+        cameras,
+        codebook,
+        config.seed + 1,
+        workers,
+        _progress_step(progress, "training set", n_rest),
+    )[:3]
+    tested = _parallel_features(
+        test,
+        cameras,
+        codebook,
+        config.seed + 2,
+        workers,
+        _progress_step(progress, "test set", config.n_test),
+    )[:3]
+    return rest, tested
+
+
+def _log_rendering(
+    n_examples: int,
+    n_cameras: int,
+    seconds: float,
+    workers: int,
+    t_bodies: float,
+    t_codebook: float,
+) -> None:
+    """Log the training set's rendering rate and the times of its parts."""
+    log.info(
+        "training set: %d bodies x %d cameras rendered with features in %.1f s "
+        "(%.0f examples/s, %d workers); bodies %.1f s, codebook %.1f s",
+        n_examples,
+        n_cameras,
+        seconds,
+        n_examples / seconds,
+        workers,
+        t_bodies,
+        t_codebook,
+    )
+
+
+def _progress_step(progress: Progress | None, label: str, total: int) -> Callable[[int], None]:
+    """A callback that adds ``k`` examples done to ``label``'s count and reports
+    it to ``progress`` (when given) as ``progress(label, done, total)``."""
+    done = [0]
+
+    def advance(k: int) -> None:
+        done[0] += k
+        if progress:
+            progress(label, done[0], total)
+
+    return advance
+
+
+def _codebook_set(
+    bodies: tuple[BodyState, np.ndarray],
+    n_cb: int,
+    cameras: list[Camera],
+    config: TrainConfig,
+    workers: int,
+    progress: Progress | None,
+) -> tuple[Codebook, tuple[np.ndarray, np.ndarray, np.ndarray], float]:
+    """The codebook, from the shape contexts of the first ``n_cb`` training examples
+    ``bodies`` (all cameras), and those examples' features, encoded from their
+    descriptors (not rendered again).
+
+    Returns
+    -------
+    codebook : Codebook
+    features : ((C, n, n_rdf), (C, n, S * K), (C, n) bool)
+        The examples' RDFs, codebook features and usable flags.
+    seconds : float
+        Fitting the codebook and encoding the examples (rendering excluded).
+    """
+    sc_config = ShapeContextConfig(n_points=config.sc_points)
+    rdf_cb, _, ok_cb, descriptors = _parallel_features(
+        bodies,
+        cameras,
+        None,
+        config.seed,
+        workers,
+        _progress_step(progress, "codebook", n_cb),
+        sc_config,
+    )
+    t_codebook = time.perf_counter()
+    codebook = fit_codebook(
+        descriptors,
+        config.codebook_size,
+        np.random.default_rng(config.seed),
+        config=sc_config,
+        max_samples=config.codebook_samples,
+        max_iter=config.codebook_iterations,
+    )
+    sc_cb = np.zeros((len(cameras), n_cb, codebook.dim))
+    it = iter(descriptors)
+    for b in range(n_cb):
+        for c in range(len(cameras)):
+            if ok_cb[c, b]:
+                sc_cb[c, b] = codebook.encode(next(it))
+    return codebook, (rdf_cb, sc_cb, ok_cb), time.perf_counter() - t_codebook
 
 
 def _select_job(args: tuple) -> dict:

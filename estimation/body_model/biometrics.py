@@ -179,45 +179,68 @@ def measure_canonical(
             f"got {verts.shape} and {kp.shape}"
         )
     faces = model.faces()
+    regions = _girth_regions(model)
+    volume = np.atleast_1d(geometry.mesh_volume(verts, faces))
+    return [
+        _measure_one(model, faces, regions, verts[b], kp[b], span[b], volume[b], density)
+        for b in range(len(verts))
+    ]
+
+
+def _girth_regions(model: BodyModel) -> dict[str, np.ndarray]:
+    """The triangles (T,) bool of the full mesh each girth is searched on: the
+    chest on the torso, the waist on the trunk (torso and pelvis), the hips on
+    the pelvis and thighs."""
     parts = model.full.arrays.parts
     torso = parts == PARTS.index("torso")
-    trunk = torso | (parts == PARTS.index("pelvis"))
-    hips = np.isin(parts, [PARTS.index(p) for p in ("pelvis", "thigh_l", "thigh_r")])
-    volume = np.atleast_1d(geometry.mesh_volume(verts, faces))
+    return {
+        "chest": torso,
+        "waist": torso | (parts == PARTS.index("pelvis")),
+        "hip": np.isin(parts, [PARTS.index(p) for p in ("pelvis", "thigh_l", "thigh_r")]),
+    }
+
+
+def _measure_one(
+    model: BodyModel,
+    faces: np.ndarray,
+    regions: dict[str, np.ndarray],
+    v: np.ndarray,
+    k: np.ndarray,
+    span: float,
+    volume: float,
+    density: float,
+) -> Biometrics:
+    """:func:`measure_canonical` of one body: vertices ``v`` (V, 3), joint centres
+    ``k`` (K, 3), arm span and volume (m, m^3)."""
     lm = model.landmarks
-    out = []
-    for b in range(len(verts)):
-        v, k = verts[b], kp[b]
-        z = {j: k[JOINTS.index(j), 2] for j in ("hip_l", "spine", "shoulder_l")}
-        crotch = v[lm["crotch"], 2]
-        chest = _girth_extreme(
-            v, faces, torso, z["shoulder_l"] - 0.25, z["shoulder_l"] - 0.08, True
-        )
-        waist = _girth_extreme(v, faces, trunk, z["hip_l"] + 0.08, z["shoulder_l"] - 0.2, False)
-        hip = _girth_extreme(v, faces, hips, crotch + 0.02, z["hip_l"] + 0.1, True)
-        arm = np.mean(
-            [
-                np.linalg.norm(v[lm[f"acromion_{s}"]] - k[JOINTS.index(f"elbow_{s}")])
-                + np.linalg.norm(k[JOINTS.index(f"elbow_{s}")] - k[JOINTS.index(f"wrist_{s}")])
-                for s in "lr"
-            ]
-        )
-        height = v[:, 2].max()
-        weight = volume[b] * density
-        out.append(
-            Biometrics(
-                height_mm=1000.0 * height,
-                arm_span_mm=1000.0 * span[b],
-                weight_kg=weight,
-                volume_l=1000.0 * volume[b],
-                chest_mm=1000.0 * chest,
-                waist_mm=1000.0 * waist,
-                hip_mm=1000.0 * hip,
-                shoulder_breadth_mm=1000.0
-                * np.linalg.norm(v[lm["acromion_l"]] - v[lm["acromion_r"]]),
-                inseam_mm=1000.0 * crotch,
-                arm_length_mm=1000.0 * arm,
-                bmi=weight / height**2,
-            )
-        )
-    return out
+    z = {j: k[JOINTS.index(j), 2] for j in ("hip_l", "spine", "shoulder_l")}
+    crotch = v[lm["crotch"], 2]
+    chest = _girth_extreme(
+        v, faces, regions["chest"], z["shoulder_l"] - 0.25, z["shoulder_l"] - 0.08, True
+    )
+    waist = _girth_extreme(
+        v, faces, regions["waist"], z["hip_l"] + 0.08, z["shoulder_l"] - 0.2, False
+    )
+    hip = _girth_extreme(v, faces, regions["hip"], crotch + 0.02, z["hip_l"] + 0.1, True)
+    arm = np.mean(
+        [
+            np.linalg.norm(v[lm[f"acromion_{s}"]] - k[JOINTS.index(f"elbow_{s}")])
+            + np.linalg.norm(k[JOINTS.index(f"elbow_{s}")] - k[JOINTS.index(f"wrist_{s}")])
+            for s in "lr"
+        ]
+    )
+    height = v[:, 2].max()
+    weight = volume * density
+    return Biometrics(
+        height_mm=1000.0 * height,
+        arm_span_mm=1000.0 * span,
+        weight_kg=weight,
+        volume_l=1000.0 * volume,
+        chest_mm=1000.0 * chest,
+        waist_mm=1000.0 * waist,
+        hip_mm=1000.0 * hip,
+        shoulder_breadth_mm=1000.0 * np.linalg.norm(v[lm["acromion_l"]] - v[lm["acromion_r"]]),
+        inseam_mm=1000.0 * crotch,
+        arm_length_mm=1000.0 * arm,
+        bmi=weight / height**2,
+    )

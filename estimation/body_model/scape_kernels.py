@@ -23,15 +23,14 @@ multiply-adds; only the order of some sums differs from the numpy reference
 (its matrix products), so the edges agree to rounding (measured: 4e-16 of the
 largest edge).
 
-The numba cache folder is the rasterizer kernels' (:mod:`bodymetry.estimation.
-raster_kernels` sets it before importing numba).
+numba, and its on-disk cache folder, come from :mod:`bodymetry.jit`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from bodymetry.estimation.raster_kernels import numba
+from bodymetry.jit import numba
 
 #: Triangles per chunk: the chunk's coefficients (up to ~1.2 kB per triangle with
 #: 20 shape components) stay in the L2 cache while all states are computed.
@@ -43,6 +42,10 @@ def edges_kernel(
     template, pose_coef, shape_mean, shape_basis, blocks, rotvec, nu, part_rot, out
 ):  # pragma: no cover
     """Eq. (1) for a batch of states, in the mesh's internal triangle order.
+
+    One function, not named steps: it is one compiled loop over the triangle
+    runs, whose buffers and reuse of the previous state's products would
+    otherwise pass between jitted calls in the innermost loop.
 
     Parameters
     ----------

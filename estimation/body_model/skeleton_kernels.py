@@ -14,8 +14,7 @@ so the rotations and joints agree with the numpy path to rounding (a few
 1e-16), not bit for bit (tests/estimation/test_skeleton.py states the
 tolerance).
 
-The numba cache folder is the rasterizer kernels' (:mod:`bodymetry.estimation.
-raster_kernels` sets it before importing numba).
+numba, and its on-disk cache folder, come from :mod:`bodymetry.jit`.
 """
 
 from __future__ import annotations
@@ -24,7 +23,7 @@ import math
 
 import numpy as np
 
-from bodymetry.estimation.raster_kernels import numba
+from bodymetry.jit import numba
 
 
 @numba.njit(cache=True, nogil=True)

@@ -15,14 +15,14 @@ import cv2
 import numpy as np
 import pytest
 
-from bodymetry.estimation import features
-from bodymetry.estimation.features import (
+from bodymetry.estimation import features, shape_context
+from bodymetry.estimation.codebook import Codebook, fit_codebook
+from bodymetry.estimation.features import silhouette_contour
+from bodymetry.estimation.rdf import rdf
+from bodymetry.estimation.shape_context import (
     ShapeContextConfig,
-    fit_codebook,
     multiscale_shape_contexts,
-    rdf,
     sc_descriptors,
-    silhouette_contour,
 )
 
 pytest.importorskip("numba")
@@ -124,7 +124,7 @@ def test_one_orientation_bin_keeps_the_neighbour_at_pi_in_its_ring(monkeypatch):
     edge) counts in the ring of its distance, like the one to the right (the
     reference once moved it to the next ring)."""
     pts = np.array([[0.0, 0.0], [5.0, 0.0], [2.0, 3.0]])
-    ref, fast = _both(monkeypatch, lambda: features._histograms(pts, 100.0, (1.0,), 1, 2, 0.1))
+    ref, fast = _both(monkeypatch, lambda: shape_context._histograms(pts, 100.0, (1.0,), 1, 2, 0.1))
     np.testing.assert_array_equal(fast, ref)
     # r_in = 10, r_out = 100: every pair is closer than r_in, so in the inner ring.
     np.testing.assert_array_equal(ref[0], [[1.0, 0.0]] * 3)
@@ -145,7 +145,7 @@ def test_encoding_matches_the_reference(monkeypatch, n_nearest):
     config = ShapeContextConfig(n_points=200)
     descriptors = [sc_descriptors(m, i, config) for i, m in enumerate(_masks())]
     codebook = fit_codebook(np.concatenate(descriptors, axis=1), k=100, rng=0, config=config)
-    codebook = features.Codebook(codebook.centers, codebook.sigma, config, n_nearest)
+    codebook = Codebook(codebook.centers, codebook.sigma, config, n_nearest)
     for d in descriptors:
         ref, fast = _both(monkeypatch, lambda d=d: codebook.encode(d))
         np.testing.assert_allclose(fast, ref, rtol=0, atol=ATOL_ENCODE)

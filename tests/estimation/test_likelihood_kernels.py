@@ -9,7 +9,7 @@ import pytest
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.projection import camera_arrays
-from bodymetry.estimation.raster import _INSIDE_EPS, signed_area2
+from bodymetry.estimation.raster import INSIDE_EPS, signed_area2
 
 lk = pytest.importorskip("bodymetry.estimation.likelihood_kernels")
 
@@ -107,7 +107,7 @@ def _kernel_cost(xy, faces, observed, scale=1.0, status=0):
         np.array([[x, y, x + bw, y + bh]], np.int64),
         np.array([max(observed.sum(), 1) / scale**2]),
         scale,
-        _INSIDE_EPS,
+        INSIDE_EPS,
         out,
     )
     assert got == status
@@ -174,7 +174,7 @@ def test_chamfer_of_a_batch_is_each_bodys_own_cost():
         out = np.empty((len(xs), 2))
         status = lk.chamfer_kernel(
             xs, ys, faces.astype(np.int64), sizes, H, observed, dist, boxes, area, 1.0,
-            _INSIDE_EPS, out,
+            INSIDE_EPS, out,
         )  # fmt: skip
         assert status == 0
         return out

@@ -16,7 +16,7 @@ import pytest
 from tiny_run import TINY_TRAIN
 
 from bodymetry.estimation.body_model.model import NU, THETA, BodyModel, BodyState
-from bodymetry.estimation.features import rdf, rdf_batch
+from bodymetry.estimation.contours import prepare_contours
 from bodymetry.estimation.fit import FitConfig, fit_frame
 from bodymetry.estimation.generative import (
     AnnealingConfig,
@@ -26,12 +26,8 @@ from bodymetry.estimation.generative import (
 )
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.raster import coverage, coverage_views
-from bodymetry.estimation.refinement import (
-    RefineConfig,
-    _ContourCost,
-    prepare_contours,
-    refine,
-)
+from bodymetry.estimation.rdf import rdf, rdf_batch
+from bodymetry.estimation.refinement import ContourCost, RefineConfig, refine
 from bodymetry.estimation.training import load_or_train
 from bodymetry.studio.rig import studio_rig
 
@@ -152,14 +148,14 @@ def test_contours_per_camera_equal_each_camera_alone(scene):
     config = RefineConfig(full_mesh=False, visibility_scale=0.5, shape_prior=0.0)
     y = truth.vector()[0].copy()
     y[:3] += [0.02, -0.01, 0.01]
-    together = _ContourCost(model, obs, config).evaluate(y)[0]
+    together = ContourCost(model, obs, config).evaluate(y)[0]
     alone = 0.0
     for c, cam in enumerate(cameras):
         single = prepare_contours([cam], [masks[c]], 0.5, max_points=200)
         np.testing.assert_array_equal(single.points[0], obs.points[c])
         np.testing.assert_array_equal(single.normals[0], obs.normals[c])
         assert single.cameras[0].size == obs.cameras[c].size
-        alone += _ContourCost(model, single, config).evaluate(y)[0]
+        alone += ContourCost(model, single, config).evaluate(y)[0]
     # The cost is a sum over views (without the shape prior).
     assert together == pytest.approx(alone, rel=1e-12)
 

@@ -9,6 +9,7 @@ import pytest
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import PARTS
+from bodymetry.estimation.contours import prepare_contours
 from bodymetry.estimation.outline_check import (
     OutlineConfig,
     check_outline,
@@ -17,12 +18,7 @@ from bodymetry.estimation.outline_check import (
 )
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.records import OutlineCheck, SessionShape
-from bodymetry.estimation.refinement import (
-    Alignment,
-    ContourCost,
-    RefineConfig,
-    prepare_contours,
-)
+from bodymetry.estimation.refinement import Alignment, ContourCost, RefineConfig
 from bodymetry.estimation.run_files import RunResults, SessionInfo
 from bodymetry.studio.rig import studio_rig
 

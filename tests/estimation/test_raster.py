@@ -4,7 +4,6 @@ and the compiled (numba) rasterizer against the numpy reference, bit for bit."""
 from __future__ import annotations
 
 import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -270,16 +269,3 @@ def test_the_backend_is_chosen_in_one_place():
     assert raster._default_backend(None) == ("numba" if HAVE_NUMBA else "numpy")
     with pytest.raises(ValueError, match="BODYMETRY_RASTER"):
         raster._default_backend("cuda")
-
-
-@needs_numba
-def test_numba_cache_dir_only_when_the_package_is_read_only(tmp_path):
-    from bodymetry.estimation.raster_kernels import numba_cache_dir
-
-    here = Path(raster.__file__).parent
-    assert numba_cache_dir(here, {}, writable=True) is None
-    assert numba_cache_dir(here, {"NUMBA_CACHE_DIR": "/x"}, writable=False) is None
-    env = {"BODYMETRY_CACHE": str(tmp_path)}
-    assert numba_cache_dir(here, env, writable=False) == str(tmp_path / "numba")
-    default = Path.home() / ".cache" / "bodymetry" / "numba"
-    assert numba_cache_dir(here, {}, writable=False) == str(default)

@@ -1,4 +1,4 @@
-"""Contour refinement: sub-pixel outlines, occluding contours, and recovery of a known body."""
+"""Contour refinement: the alignment cost and the recovery of a known body."""
 
 from __future__ import annotations
 
@@ -10,25 +10,23 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import trimesh
 
 from bodymetry.capture.session import load_session
 from bodymetry.estimation import generative
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import NU, THETA, BodyModel, BodyState
+from bodymetry.estimation.contours import (
+    contour_ids,
+    contour_topology,
+    mesh_edges,
+    occluding_contour,
+    prepare_contours,
+)
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.refinement import (
-    Damping,
+    ContourCost,
     RefineConfig,
-    _ContourCost,
-    boundary_points,
-    damped_step,
     full_from_lod,
-    mesh_edges,
-    near_outside,
-    occluding_contour,
-    outline_normals,
-    prepare_contours,
     refine,
 )
 from bodymetry.fileio import load_npz
@@ -36,75 +34,6 @@ from bodymetry.studio.rig import studio_rig
 
 #: The bundled demo recording (a studio session with ground truth).
 DEMO = Path(__file__).resolve().parents[2] / "recordings" / "demo"
-#: A digitized disc's outline points lie this close (pixels, mean) to the true circle.
-OUTLINE_BIAS_PX = 0.05
-
-
-def _disc(radius: float, size: int = 64, centre: float = 31.7) -> np.ndarray:
-    y, x = np.mgrid[:size, :size]
-    return (x - centre) ** 2 + (y - centre + 0.4) ** 2 <= radius**2
-
-
-def test_boundary_points_are_unbiased():
-    """Pixel centres of the boundary lie half a pixel inside; the crossings do not."""
-    for radius in (8.0, 15.5, 25.0):
-        p = boundary_points(_disc(radius))
-        r = np.hypot(p[:, 0] - 31.7, p[:, 1] - 31.3)
-        assert abs(r.mean() - radius) < OUTLINE_BIAS_PX
-
-
-def test_boundary_points_of_a_square():
-    mask = np.zeros((10, 10), bool)
-    mask[2:5, 3:7] = True  # rows 2..4, columns 3..6
-    p = boundary_points(mask)
-    assert len(p) == 2 * 3 + 2 * 4
-    assert p[:, 0].min() == 2.5 and p[:, 0].max() == 6.5
-    assert p[:, 1].min() == 1.5 and p[:, 1].max() == 4.5
-    with pytest.raises(ValueError, match="2-D"):
-        boundary_points(np.zeros(5, bool))
-
-
-def test_outline_normals_point_outwards():
-    mask = _disc(20.0)
-    p = boundary_points(mask)
-    n = outline_normals(mask, p)
-    radial = (p - [31.7, 31.3]) / np.linalg.norm(p - [31.7, 31.3], axis=1, keepdims=True)
-    assert np.all(np.einsum("ij,ij->i", n, radial) > 0.95)
-    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-9)
-
-
-def test_mesh_edges_of_a_closed_mesh_and_refusal_of_an_open_one():
-    sphere = trimesh.creation.icosphere(subdivisions=2)
-    edges, faces_of = mesh_edges(sphere.faces)
-    assert len(edges) == 3 * len(sphere.faces) // 2
-    # Each edge's two faces really contain both of its vertices.
-    for (a, b), (f, g) in zip(edges[:50], faces_of[:50], strict=True):
-        assert {a, b} <= set(sphere.faces[f]) and {a, b} <= set(sphere.faces[g])
-    with pytest.raises(ValueError, match="not closed"):
-        mesh_edges(sphere.faces[1:])
-
-
-def test_occluding_contour_of_a_sphere_is_its_outline():
-    """The contour edges of a sphere project onto the rim of its image disc."""
-    cam = studio_rig(1, (320, 240), seed=0)[0]
-    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.3)
-    centre = np.array([0.0, 0.0, 1.0])
-    verts = sphere.vertices + centre
-    edges, faces_of = mesh_edges(sphere.faces)
-    ids = occluding_contour(verts, sphere.faces, edges, faces_of, cam, cam.center)
-    assert len(ids) > 30
-    mid = cam.project(0.5 * (verts[edges[ids, 0]] + verts[edges[ids, 1]]))
-    mask = project_silhouettes(verts, sphere.faces, [cam])[0]
-    # Every contour point is within a pixel of the silhouette's outline.
-    outline = boundary_points(mask)
-    d = np.min(np.linalg.norm(mid[:, None] - outline[None], axis=2), axis=1)
-    assert np.percentile(d, 95) < 1.0
-    # The 3-D contour generator lies where the view ray grazes the sphere.
-    p = 0.5 * (verts[edges[ids, 0]] + verts[edges[ids, 1]])
-    ray = p - cam.center
-    normal = (p - centre) / np.linalg.norm(p - centre, axis=1, keepdims=True)
-    cosine = np.einsum("ij,ij->i", ray / np.linalg.norm(ray, axis=1, keepdims=True), normal)
-    assert np.abs(cosine).max() < 0.1
 
 
 def _scene(size: tuple[int, int]):
@@ -235,21 +164,7 @@ def test_contour_sampling_bias_on_the_demo_frames():
     assert np.mean(change["old"]) > np.mean(change["new"]) + 0.3, change
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_near_outside_is_the_distance_transform_within_one_pixel(seed):
-    """Random blobs touching the image border: every pixel's answer is OpenCV's
-    ``distanceTransform(DIST_L2, 3) <= 1``."""
-    rng = np.random.default_rng(seed)
-    mask = cv2.GaussianBlur(rng.random((40, 50)).astype(np.float32), (0, 0), 2.0) > 0.5
-    mask[:, :3] = True  # touches the left border
-    want = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 3) <= 1.0
-    ys, xs = np.mgrid[:40, :50]
-    got = near_outside(mask, np.c_[xs.ravel(), ys.ravel()]).reshape(40, 50)
-    assert np.array_equal(got, want)
-    assert got.any() and not got.all()
-
-
-def _model_to_outline(cost: _ContourCost, y: np.ndarray) -> np.ndarray:
+def _model_to_outline(cost: ContourCost, y: np.ndarray) -> np.ndarray:
     """Model-to-outline residuals (working pixels, unweighted) of every view at ``y``."""
     V = cost.vertices(y)[0]
     pairs = cost.pairs(V, cost.vertices(y, lod=True)[0])
@@ -274,8 +189,8 @@ def test_outline_offsets_zero_the_residuals_of_the_exact_state(scene, backend, m
     model, cameras, truth, masks = scene
     y = truth.vector()[0]
     obs = prepare_contours(cameras, masks, 0.5)
-    with_offsets = _model_to_outline(_ContourCost(model, obs, RefineConfig()), y)
-    without = _model_to_outline(_ContourCost(model, obs, RefineConfig(outline_offsets=False)), y)
+    with_offsets = _model_to_outline(ContourCost(model, obs, RefineConfig()), y)
+    without = _model_to_outline(ContourCost(model, obs, RefineConfig(outline_offsets=False)), y)
     assert len(with_offsets) > 100
     assert np.abs(with_offsets).max() < 1e-9
     assert without.mean() < -0.02
@@ -287,7 +202,7 @@ def test_own_silhouettes_are_the_rendered_silhouettes(scene):
     hold every pixel of them."""
     model, cameras, truth, masks = scene
     obs = prepare_contours(cameras, masks, 0.5)
-    cost = _ContourCost(model, obs, RefineConfig())
+    cost = ContourCost(model, obs, RefineConfig())
     V = cost.vertices(truth.vector()[0])[0]
     owns = cost._own_silhouettes(V)
     assert sorted(owns) == list(range(len(cameras)))
@@ -308,7 +223,7 @@ def test_own_silhouettes_leave_out_views_behind_the_body(scene):
     far[1] = replace(cameras[1], R=flip @ cameras[1].R, t=flip @ cameras[1].t)
     masks = [m if c != 2 else np.zeros_like(m) for c, m in enumerate(masks)]
     obs = prepare_contours(far, masks, 0.5)
-    cost = _ContourCost(model, obs, RefineConfig())
+    cost = ContourCost(model, obs, RefineConfig())
     owns = cost._own_silhouettes(cost.vertices(truth.vector()[0])[0])
     assert sorted(owns) == [0, 3]
 
@@ -321,7 +236,7 @@ def test_compiled_correspondences_are_the_numpy_ones(scene, monkeypatch):
     with the full mesh's contour seen on its own raster."""
     model, cameras, truth, masks = scene
     obs = prepare_contours(cameras, masks, 0.5)
-    cost = _ContourCost(model, obs, RefineConfig())
+    cost = ContourCost(model, obs, RefineConfig())
     y = truth.vector()[0].copy()
     y[THETA] += np.random.default_rng(5).normal(0, 0.05, 37)
     V, lod = cost.vertices(y)[0], cost.vertices(y, lod=True)[0]
@@ -342,7 +257,7 @@ def test_perturbed_residuals_build_only_the_used_vertices(scene):
     the whole perturbed mesh, bit for bit."""
     model, cameras, truth, masks = scene
     config = RefineConfig()
-    cost = _ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
+    cost = ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
     y = truth.vector()[0]
     _, pairs = cost.evaluate(y)
     step = np.full(len(y), 1e-3)
@@ -364,7 +279,7 @@ def test_compiled_moved_rows_are_the_sparse_products(scene, monkeypatch):
     scipy's sparse product: the same sums in the same order, bit for bit."""
     model, cameras, truth, masks = scene
     config = RefineConfig()
-    cost = _ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
+    cost = ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
     y = truth.vector()[0]
     step = np.full(len(y), 1e-3)
     lod = cost.vertices(np.vstack([y, y + np.diag(step)]), lod=True)
@@ -384,21 +299,20 @@ def test_compiled_moved_rows_are_the_sparse_products(scene, monkeypatch):
 def test_prepared_contour_topology_is_checked(scene):
     """The refinement checks its mesh's topology once; a mesh of another size is refused."""
     from bodymetry.estimation.projection import camera_arrays
-    from bodymetry.estimation.refinement import _contour_ids, _contour_topology
 
     model, cameras, truth, _ = scene
     faces = model.faces(lod=True)
     edges, edge_faces = mesh_edges(faces)
     verts = model.pose(truth, lod=True).vertices[0]
-    topology = _contour_topology(faces, edges, edge_faces, len(verts))
+    topology = contour_topology(faces, edges, edge_faces, len(verts))
     cam = cameras[0]
     kernels = generative.compiled_likelihood()
-    ids = _contour_ids(kernels, verts, topology, cam, camera_arrays([cam]), cam.center, None)
+    ids = contour_ids(kernels, verts, topology, cam, camera_arrays([cam]), cam.center, None)
     assert np.array_equal(ids, occluding_contour(verts, faces, edges, edge_faces, cam, cam.center))
     with pytest.raises(IndexError, match="topology"):
-        _contour_ids(kernels, verts[:-1], topology, cam, camera_arrays([cam]), cam.center, None)
+        contour_ids(kernels, verts[:-1], topology, cam, camera_arrays([cam]), cam.center, None)
     with pytest.raises(IndexError, match="faces"):
-        _contour_topology(faces, edges, edge_faces, len(verts) - 1)
+        contour_topology(faces, edges, edge_faces, len(verts) - 1)
 
 
 @pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
@@ -408,7 +322,7 @@ def test_compiled_residuals_of_a_batch_are_the_numpy_ones(scene, monkeypatch):
     bit for bit, and the same robust weights."""
     model, cameras, truth, masks = scene
     config = RefineConfig()
-    cost = _ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
+    cost = ContourCost(model, prepare_contours(cameras, masks, config.image_scale), config)
     y = truth.vector()[0]
     _, pairs = cost.evaluate(y)
     V = cost.perturbed(y, np.full(len(y), 1e-3))[:5]
@@ -424,34 +338,3 @@ def test_compiled_residuals_of_a_batch_are_the_numpy_ones(scene, monkeypatch):
         alone = cost.residuals(V[s], pairs)
         assert alone[0].shape == (R,)
         assert np.array_equal(alone[0], got["numba"][0][s])
-
-
-def test_damped_step_raises_damping_until_a_step_lowers_the_cost():
-    tried = []
-
-    def propose(lam):
-        tried.append(lam)
-        return (12.0 if len(tried) < 3 else 7.0), f"step at {lam:g}"
-
-    damping = Damping()
-    payload, cost, improved = damped_step(propose, 10.0, damping, tolerance=1e-4)
-    np.testing.assert_allclose(tried, [1e-2, 4e-2, 16e-2], rtol=1e-15)
-    assert payload == "step at 0.16" and cost == 7.0 and improved
-    np.testing.assert_allclose(damping.lam, 0.16 / 3, rtol=1e-15)
-    # A decrease below the tolerance is taken but ends the descent.
-    payload, cost, improved = damped_step(lambda lam: (6.99999, "tiny"), 7.0, damping, 1e-4)
-    assert payload == "tiny" and cost == 6.99999 and not improved
-
-
-def test_damped_step_gives_up_after_its_retries_or_past_max_lambda():
-    worse = lambda lam: (11.0, "worse")  # noqa: E731
-    damping = Damping(1.0)
-    assert damped_step(worse, 10.0, damping, 1e-4, retries=5) == (None, 10.0, False)
-    assert damping.lam == 4.0**5
-    damping = Damping(1.0)
-    assert damped_step(worse, 10.0, damping, 1e-4, max_lam=100.0) == (None, 10.0, False)
-    assert damping.lam == 256.0  # tried at 1, 4, 16, 64; 256 is past the limit
-    # Never below 1e-6 after a success.
-    damping = Damping(1e-6)
-    damped_step(lambda lam: (1.0, None), 10.0, damping, 1e-4)
-    assert damping.lam == 1e-6
