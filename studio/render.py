@@ -371,6 +371,167 @@ class _Board:
     mips: list[np.ndarray] = field(default_factory=list)
 
 
+@dataclass
+class _Layers:
+    """What one render has drawn before shadows and compositing (None: not drawn).
+
+    Attributes
+    ----------
+    body_cov, person_cov : (H*W,) float32
+        Coverage by any body and by the person alone.
+    person_rad : (H*W, 3) float32
+        Radiance x coverage of the bodies.
+    person_depth : (H*W,) float32
+        Nearest body depth (inf where none).
+    board_px : (N,) int
+        Pixels where the board is visible.
+    board_rad : (N, 3) float32
+        Their albedo.
+    board_light : (3, N) float32
+        Their light-space coordinates.
+    board_side_direct : ((N,) float32, (N,) float32)
+        Ambient and direct irradiance of the board's visible side.
+    """
+
+    body_cov: np.ndarray | None = None
+    person_cov: np.ndarray | None = None
+    person_rad: np.ndarray | None = None
+    person_depth: np.ndarray | None = None
+    board_px: np.ndarray | None = None
+    board_rad: np.ndarray | None = None
+    board_light: np.ndarray | None = None
+    board_side_direct: tuple[np.ndarray, np.ndarray] | None = None
+
+
+def _board_region(
+    camera: Camera, cache: _CameraCache, board: _Board
+) -> tuple[int, int, int, int] | None:
+    """Candidate pixels of the board: the bounding box of its projected sheet outline.
+
+    Returns
+    -------
+    (x0, x1, y0, y1) or None
+        Inclusive pixel bounds (the whole image when the outline is partly behind
+        the camera or beyond the lens range); None when the board cannot be seen.
+    """
+    w, h = camera.size
+    tex, pose = board.texture, board.pose
+    c = tex.corners()
+    outline = np.concatenate(
+        [c[i] + np.linspace(0, 1, 33)[:, None] * (c[(i + 1) % 4] - c[i]) for i in range(4)]
+    )
+    pw = pose.to_world(outline)
+    xy, _, valid = project_for_raster(camera, pw, 1, cache.r_limit)
+    if valid.sum() < 3:
+        return None
+    x0 = max(int(np.floor(xy[valid, 0].min())) - 2, 0)
+    x1 = min(int(np.ceil(xy[valid, 0].max())) + 2, w - 1)
+    y0 = max(int(np.floor(xy[valid, 1].min())) - 2, 0)
+    y1 = min(int(np.ceil(xy[valid, 1].max())) + 2, h - 1)
+    if not np.all(valid):  # partly behind the camera or beyond the lens range
+        x0, x1, y0, y1 = 0, w - 1, 0, h - 1
+    if x1 < x0 or y1 < y0:
+        return None
+    return x0, x1, y0, y1
+
+
+def _board_hits(
+    camera: Camera, board: _Board, d: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Intersect pixel rays with the board's plane.
+
+    Parameters
+    ----------
+    d : (N, 3) float
+        World ray directions of the candidate pixels.
+
+    Returns
+    -------
+    lam : (N,) float
+        Ray parameter of the hit (depth along the ray).
+    p : (N, 3) float
+        Hit points, world frame.
+    pb : (N, 3) float
+        Hit points, board frame.
+    inside : (N,) bool
+        The hit is in front of the camera and on the sheet (pattern plus margin).
+    """
+    tex, pose = board.texture, board.pose
+    origin = camera.center
+    nrm = pose.R[:, 2]
+    denom = d @ nrm
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = ((pose.t - origin) @ nrm) / denom
+    p = origin + lam[:, None] * d
+    pb = (p - pose.t) @ pose.R  # board frame
+    m = tex.margin
+    pwid, phei = tex.pattern_size
+    inside = (
+        np.isfinite(lam)
+        & (lam > 1e-6)
+        & (pb[:, 0] >= -m)
+        & (pb[:, 0] <= pwid + m)
+        & (pb[:, 1] >= -m)
+        & (pb[:, 1] <= phei + m)
+    )
+    return lam, p, pb, inside
+
+
+def _texture_footprint(
+    tex: BoardTexture, pb: np.ndarray, gh: int, gw: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Texel coordinates of the candidate pixels and their footprint.
+
+    Parameters
+    ----------
+    pb : (gh * gw, 3) float
+        Hit points in the board frame, row-major over the candidate box.
+
+    Returns
+    -------
+    u, v : (gh, gw) float
+        Texel coordinates.
+    foot : (gh * gw,) float
+        Texels per pixel, from the coordinates' gradients.
+    """
+    m = tex.margin
+    ppm = tex.image.shape[1] / tex.sheet_size[0]  # texels per metre
+    u = ((pb[:, 0] + m) * ppm).reshape(gh, gw)
+    vv = ((pb[:, 1] + m) * ppm).reshape(gh, gw)
+    with np.errstate(invalid="ignore"):
+        gu = np.hypot(*np.gradient(u)) if min(gh, gw) > 1 else np.ones_like(u)
+        gv = np.hypot(*np.gradient(vv)) if min(gh, gw) > 1 else np.ones_like(u)
+    foot = np.nan_to_num(np.maximum(gu, gv), nan=1.0, posinf=1.0).reshape(-1)
+    return u, vv, foot
+
+
+def _board_albedo(board: _Board, us: np.ndarray, vs: np.ndarray, foot: np.ndarray) -> np.ndarray:
+    """Printed-side albedo (N,) float32, trilinear over the board's mip levels.
+
+    Parameters
+    ----------
+    us, vs : (N,) float
+        Texel coordinates.
+    foot : (N,) float
+        Texels per pixel (picks the mip levels).
+    """
+    level = np.clip(np.log2(np.maximum(foot, 1e-6)), 0, len(board.mips) - 1)
+    l0 = np.floor(level).astype(int)
+    frac = (level - l0).astype(np.float32)
+    alb = np.zeros(us.size, np.float32)
+    for lev in np.unique(np.concatenate([l0, np.minimum(l0 + 1, len(board.mips) - 1)])):
+        wgt = np.where(l0 == lev, 1 - frac, 0) + np.where(
+            np.minimum(l0 + 1, len(board.mips) - 1) == lev, frac, 0
+        )
+        use = np.flatnonzero(wgt > 0)
+        if use.size == 0:
+            continue
+        sc = 2.0**lev
+        val = _sample(board.mips[lev], us[use] / sc - 0.5, vs[use] / sc - 0.5, cv2.INTER_LINEAR)
+        alb[use] += wgt[use] * val
+    return alb
+
+
 class Studio:
     """The synthetic lab: room, light, subject appearance and camera effects.
 
@@ -677,6 +838,15 @@ class Studio:
         effects: bool,
         others: Sequence[Body] = (),
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """One image: the bodies, the board, their shadows, composited, then the camera.
+
+        Returns
+        -------
+        image : (H, W, 3) uint8
+        person, shadow, board : (H, W) bool
+            Where the person is, where a shadow falls on the scene (not on a
+            body), where the board is.
+        """
         if not isinstance(camera, Camera):
             raise ValueError(
                 f"render: camera must be a calibration.camera.Camera, got {type(camera)}"
@@ -687,68 +857,114 @@ class Studio:
             rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
         cache = self._camera(camera)
         w, h = camera.size
-        npx = w * h
         s = self.supersample
-        light = self.light
-        col = np.asarray(light.color, dtype=np.float32)
 
         # --- bodies (the person, then bystanders): one z-buffer, shading -------------------
         bodies = self._bodies(vertices, others)
-        person_cov = None  # (H*W,) float32 coverage by the person alone
-        body_cov = None  # (H*W,) float32 coverage by any body
-        person_rad = None  # (H*W, 3) float32 radiance x coverage of the bodies
-        person_depth = None  # (H*W,) float32 nearest body depth (inf where none)
+        layers = _Layers()
         if bodies:
             pixels, depth, rad, subject = self._raster_bodies(camera, cache, bodies, vertices)
-            body_cov, person_cov, person_rad, person_depth = _downsample_bodies(
-                pixels, depth, rad, subject, s, w, h
+            layers.body_cov, layers.person_cov, layers.person_rad, layers.person_depth = (
+                _downsample_bodies(pixels, depth, rad, subject, s, w, h)
             )
 
         # --- board: analytic ray-plane intersection --------------------------------------
-        board_px = None
-        board_rad = None
-        board_light = None
-        board_side_direct = None
         if board is not None:
-            board_px, board_rad, board_light, board_side_direct = self._board_pixels(
-                camera, cache, board, person_depth
+            layers.board_px, layers.board_rad, layers.board_light, layers.board_side_direct = (
+                self._board_pixels(camera, cache, board, layers.person_depth)
             )
 
-        # --- shadows -------------------------------------------------------------------
+        shade_bg, shade_board = self._shadows(cache, w * h, bodies, board, layers)
+        rad, person_mask, body_mask, board_mask, shadow_amount = self._composite(
+            cache, w * h, layers, shade_bg, shade_board
+        )
+        shadow_mask = (shadow_amount > 0.5) & ~person_mask & ~body_mask
+        img = rad.reshape(h, w, 3) * cache.camera_gain
+        if effects:
+            img = self._camera_effects(img, rng)
+        out = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+        return (
+            out,
+            person_mask.reshape(h, w),
+            shadow_mask.reshape(h, w),
+            board_mask.reshape(h, w),
+        )
+
+    def _shadows(
+        self,
+        cache: _CameraCache,
+        npx: int,
+        bodies: list[tuple[np.ndarray, np.ndarray]],
+        board: _Board | None,
+        layers: _Layers,
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Shadow amounts on the background and on the board's visible pixels.
+
+        Returns
+        -------
+        shade_bg : (H*W,) float32
+            Shadow of every caster (bodies and board) on the room.
+        shade_board : (N,) float32 or None
+            Shadow of the bodies on the board's pixels (None: no board, no body
+            or no shadows).
+        """
         shade_bg = np.zeros(npx, np.float32)
         shade_board = None
-        if self.shadows:
-            casters = [(v, self.faces, "back") for v, _ in bodies]
-            if board is not None:
-                corners = board.pose.to_world(board.texture.corners())
-                casters.append((corners, np.array([[0, 1, 2], [0, 2, 3]]), "none"))
-            if casters:
-                origin, tau, depths = self._shadow_maps(casters)
-                all_map = self._finish_shadow_map(origin, tau, np.minimum.reduce(depths))
-                q = cache.bg_light
-                hh, ww = all_map.coverage.shape
-                sel = np.flatnonzero(
-                    (q[0] >= origin[0] - tau)
-                    & (q[0] <= origin[0] + ww * tau)
-                    & (q[1] >= origin[1] - tau)
-                    & (q[1] <= origin[1] + hh * tau)
-                )
-                if sel.size:
-                    shade_bg[sel] = self._shadow_lookup(all_map, q[:, sel])
-                if bodies and board_px is not None and board_px.size:
-                    person_map = self._finish_shadow_map(
-                        origin, tau, np.minimum.reduce(depths[: len(bodies)])
-                    )
-                    shade_board = self._shadow_lookup(person_map, board_light)
+        if not self.shadows:
+            return shade_bg, shade_board
+        casters = [(v, self.faces, "back") for v, _ in bodies]
+        if board is not None:
+            corners = board.pose.to_world(board.texture.corners())
+            casters.append((corners, np.array([[0, 1, 2], [0, 2, 3]]), "none"))
+        if not casters:
+            return shade_bg, shade_board
+        origin, tau, depths = self._shadow_maps(casters)
+        all_map = self._finish_shadow_map(origin, tau, np.minimum.reduce(depths))
+        q = cache.bg_light
+        hh, ww = all_map.coverage.shape
+        sel = np.flatnonzero(
+            (q[0] >= origin[0] - tau)
+            & (q[0] <= origin[0] + ww * tau)
+            & (q[1] >= origin[1] - tau)
+            & (q[1] <= origin[1] + hh * tau)
+        )
+        if sel.size:
+            shade_bg[sel] = self._shadow_lookup(all_map, q[:, sel])
+        if bodies and layers.board_px is not None and layers.board_px.size:
+            person_map = self._finish_shadow_map(
+                origin, tau, np.minimum.reduce(depths[: len(bodies)])
+            )
+            shade_board = self._shadow_lookup(person_map, layers.board_light)
+        return shade_bg, shade_board
 
-        # --- composite (linear radiance) -----------------------------------------------------
+    def _composite(
+        self,
+        cache: _CameraCache,
+        npx: int,
+        layers: _Layers,
+        shade_bg: np.ndarray,
+        shade_board: np.ndarray | None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Composite the room, the board and the bodies in linear radiance.
+
+        Returns
+        -------
+        rad : (H*W, 3) float
+            Radiance of every pixel.
+        person_mask, body_mask, board_mask : (H*W,) bool
+        shadow_amount : (H*W,) float32
+            Shadow on the room and the board (before the bodies cover it).
+        """
+        col = np.asarray(self.light.color, dtype=np.float32)
+        board_px = layers.board_px
+        body_cov, person_cov, person_rad = layers.body_cov, layers.person_cov, layers.person_rad
         rad = cache.bg_ambient + cache.bg_direct * (1.0 - shade_bg)[:, None]
         shadow_amount = shade_bg.copy()
         board_mask = np.zeros(npx, bool)
         if board_px is not None and board_px.size:
             sb = shade_board if shade_board is not None else np.zeros(board_px.size, np.float32)
-            amb_b, dir_b = board_side_direct
-            rad[board_px] = board_rad * (amb_b + dir_b * (1.0 - sb))[:, None] * col
+            amb_b, dir_b = layers.board_side_direct
+            rad[board_px] = layers.board_rad * (amb_b + dir_b * (1.0 - sb))[:, None] * col
             shadow_amount[board_px] = sb
             board_mask[board_px] = True
         person_mask = np.zeros(npx, bool)
@@ -764,24 +980,16 @@ class Studio:
             rad = rad * (1.0 - body_cov)[:, None] + person_rad * col
             person_mask = person_cov >= 0.5
             body_mask = body_cov >= 0.5
-        shadow_mask = (shadow_amount > 0.5) & ~person_mask & ~body_mask
+        return rad, person_mask, body_mask, board_mask, shadow_amount
 
-        # --- camera ----------------------------------------------------------------------
-        img = rad.reshape(h, w, 3) * cache.camera_gain
+    def _camera_effects(self, img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The camera's blur, flicker and noise on an image (H, W, 3) of camera values."""
         ef = self.effects
-        if effects:
-            if ef.blur_sigma > 0:
-                img = cv2.GaussianBlur(img, (0, 0), ef.blur_sigma)
-            img = img * np.float32(1.0 + ef.flicker * rng.standard_normal())
-            sigma = np.sqrt(ef.read_noise**2 + ef.shot_noise * np.maximum(img, 0.0))
-            img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
-        out = np.clip(img + 0.5, 0, 255).astype(np.uint8)
-        return (
-            out,
-            person_mask.reshape(h, w),
-            shadow_mask.reshape(h, w),
-            board_mask.reshape(h, w),
-        )
+        if ef.blur_sigma > 0:
+            img = cv2.GaussianBlur(img, (0, 0), ef.blur_sigma)
+        img = img * np.float32(1.0 + ef.flicker * rng.standard_normal())
+        sigma = np.sqrt(ef.read_noise**2 + ef.shot_noise * np.maximum(img, 0.0))
+        return img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
 
     def _bodies(
         self, vertices: np.ndarray | None, others: Sequence[Body]
@@ -882,82 +1090,31 @@ class Studio:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
         """Pixels where the board is visible, their albedo (N, 3), light-space
         coordinates (3, N) and (ambient, direct) irradiance of the visible side."""
-        w, h = camera.size
-        tex, pose = board.texture, board.pose
-        # Candidate region: bounding box of the projected sheet outline.
-        c = tex.corners()
-        outline = np.concatenate(
-            [c[i] + np.linspace(0, 1, 33)[:, None] * (c[(i + 1) % 4] - c[i]) for i in range(4)]
-        )
-        pw = pose.to_world(outline)
-        xy, _, valid = project_for_raster(camera, pw, 1, cache.r_limit)
+        tex = board.texture
         empty = (
             np.zeros(0, np.int64),
             np.zeros((0, 3), np.float32),
             np.zeros((3, 0), np.float32),
             (np.zeros(0), np.zeros(0)),
         )
-        if valid.sum() < 3:
+        region = _board_region(camera, cache, board)
+        if region is None:
             return empty
-        x0 = max(int(np.floor(xy[valid, 0].min())) - 2, 0)
-        x1 = min(int(np.ceil(xy[valid, 0].max())) + 2, w - 1)
-        y0 = max(int(np.floor(xy[valid, 1].min())) - 2, 0)
-        y1 = min(int(np.ceil(xy[valid, 1].max())) + 2, h - 1)
-        if not np.all(valid):  # partly behind the camera or beyond the lens range
-            x0, x1, y0, y1 = 0, w - 1, 0, h - 1
-        if x1 < x0 or y1 < y0:
-            return empty
+        x0, x1, y0, y1 = region
         ys, xs = np.mgrid[y0 : y1 + 1, x0 : x1 + 1]
-        pix = (ys * w + xs).reshape(-1)
+        pix = (ys * camera.size[0] + xs).reshape(-1)
         d = cache.rays_world[pix]  # (N, 3)
-        origin = camera.center
-        nrm = pose.R[:, 2]
-        denom = d @ nrm
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lam = ((pose.t - origin) @ nrm) / denom
-        p = origin + lam[:, None] * d
-        pb = (p - pose.t) @ pose.R  # board frame
-        m = tex.margin
-        pwid, phei = tex.pattern_size
-        inside = (
-            np.isfinite(lam)
-            & (lam > 1e-6)
-            & (pb[:, 0] >= -m)
-            & (pb[:, 0] <= pwid + m)
-            & (pb[:, 1] >= -m)
-            & (pb[:, 1] <= phei + m)
-        )
+        lam, p, pb, inside = _board_hits(camera, board, d)
         if person_depth is not None:
             inside &= lam < person_depth[pix]
         gh, gw = ys.shape
-        # Texture footprint: texels per pixel from the board coordinates' gradients.
-        ppm = tex.image.shape[1] / tex.sheet_size[0]  # texels per metre
-        u = ((pb[:, 0] + m) * ppm).reshape(gh, gw)
-        vv = ((pb[:, 1] + m) * ppm).reshape(gh, gw)
-        with np.errstate(invalid="ignore"):
-            gu = np.hypot(*np.gradient(u)) if min(gh, gw) > 1 else np.ones_like(u)
-            gv = np.hypot(*np.gradient(vv)) if min(gh, gw) > 1 else np.ones_like(u)
-        foot = np.nan_to_num(np.maximum(gu, gv), nan=1.0, posinf=1.0).reshape(-1)
+        u, vv, foot = _texture_footprint(tex, pb, gh, gw)
         sel = np.flatnonzero(inside)
         if sel.size == 0:
             return empty
-        level = np.clip(np.log2(np.maximum(foot[sel], 1e-6)), 0, len(board.mips) - 1)
-        l0 = np.floor(level).astype(int)
-        frac = (level - l0).astype(np.float32)
-        us = u.reshape(-1)[sel]
-        vs = vv.reshape(-1)[sel]
-        alb = np.zeros(sel.size, np.float32)
-        for lev in np.unique(np.concatenate([l0, np.minimum(l0 + 1, len(board.mips) - 1)])):
-            wgt = np.where(l0 == lev, 1 - frac, 0) + np.where(
-                np.minimum(l0 + 1, len(board.mips) - 1) == lev, frac, 0
-            )
-            use = np.flatnonzero(wgt > 0)
-            if use.size == 0:
-                continue
-            sc = 2.0**lev
-            val = _sample(board.mips[lev], us[use] / sc - 0.5, vs[use] / sc - 0.5, cv2.INTER_LINEAR)
-            alb[use] += wgt[use] * val
+        alb = _board_albedo(board, u.reshape(-1)[sel], vv.reshape(-1)[sel], foot[sel])
         # Visible side: the printed side faces -z of the board.
+        nrm = board.pose.R[:, 2]
         facing_front = (d[sel] @ nrm) > 0  # ray runs along +z: sees the -z side
         alb = np.where(facing_front, alb, np.float32(tex.back_albedo))
         side_n = np.where(facing_front[:, None], -nrm[None], nrm[None])
