@@ -397,12 +397,31 @@ def synthesize(
         )
         for i, cam in enumerate(cameras)
     ]
-    background_frames = config.background_frames if config.background_clip else 0
-    total = config.cameras * (config.frames + background_frames + config.calibration_frames)
-    results = _render_cameras(jobs, workers, total, on_progress)
-
+    results = _render_cameras(jobs, workers, _frame_total(config), on_progress)
     session = _session_record(out, config, cameras)
     save_session(session, out)
+    _write_studio_record(out, config, subject, bystanders, results, t0)
+    log.info("rendered %s in %.1f s", out, time.perf_counter() - t0)
+    return session
+
+
+def _frame_total(config: SynthConfig) -> int:
+    """Frames rendered in all: every camera's recording, background and calibration clips."""
+    background_frames = config.background_frames if config.background_clip else 0
+    return config.cameras * (config.frames + background_frames + config.calibration_frames)
+
+
+def _write_studio_record(
+    out: Path,
+    config: SynthConfig,
+    subject: _SubjectMotion,
+    bystanders: list,
+    results: list[dict],
+    t0: float,
+) -> None:
+    """Write ``ground_truth/studio.json``: the configuration, motion seed, bystanders,
+    render time (since ``t0``, ``time.perf_counter``) and each camera's mean
+    shadow-to-person area."""
     shadow = {r["camera"]: float(np.mean(r["shadow_to_person_area"] or [0.0])) for r in results}
     write_json_atomic(
         out / "ground_truth" / "studio.json",
@@ -414,8 +433,6 @@ def synthesize(
             "shadow_to_person_area_mean": shadow,
         },
     )
-    log.info("rendered %s in %.1f s", out, time.perf_counter() - t0)
-    return session
 
 
 def _empty_folder(out: Path, overwrite: bool) -> None:
