@@ -350,8 +350,6 @@ def segment_and_score(
     if progress is not None:
         progress("background models", 0, total)
     models = background_models(session, report, method=read_method)
-    if progress is not None:
-        progress("silhouettes", 0, total)
     frames = segment_session(
         session,
         subtraction=SubtractionConfig(method=method),
@@ -393,7 +391,8 @@ def _save_and_score(
     Parameters
     ----------
     frames : iterable of SilhouetteFrame
-        The segmented kept frames (``segment_session``).
+        The segmented kept frames (``segment_session``'s generator: segmenting
+        starts as the loop runs, after the first progress call).
     scores : SilhouetteScores or None
         Updated with each frame (None: no ground truth).
     total : int
@@ -405,6 +404,8 @@ def _save_and_score(
     per_frame : list of dict
         ``{"frame": int, "flags": {camera: [flag, ...]}}`` per frame.
     """
+    if progress is not None:
+        progress("silhouettes", 0, total)
     flags: dict[str, dict[str, list[int]]] = {name: {} for name in session.camera_names}
     per_frame: list[dict[str, Any]] = []
     for sf in frames:

@@ -369,6 +369,25 @@ def synthesize(
     )
     del sparse_vertices
     _write_ground_truth(out, config, subject, joints, board_poses, bio)
+    _write_true_calibration(out, group)
+
+    # The studio dresses the subject in the default Appearance; bystanders wear their own.
+    independent = config.subject.independent
+    others = tuple(Body(b.vertices(model), b.appearance(Appearance())) for b in bystanders)
+    jobs = [
+        _CameraJob(i, cam, config, out, *subject.rendered(), board_poses, others, independent)
+        for i, cam in enumerate(cameras)
+    ]
+    results = _render_cameras(jobs, workers, _frame_total(config), on_progress)
+    session = _session_record(out, config, cameras)
+    save_session(session, out)
+    _write_studio_record(out, config, subject, bystanders, results, t0)
+    log.info("rendered %s in %.1f s", out, time.perf_counter() - t0)
+    return session
+
+
+def _write_true_calibration(out: Path, group: CameraGroup) -> None:
+    """Write the true cameras as the session's ``calibration.yaml``."""
     save_calibration(
         out / "calibration.yaml",
         group,
@@ -379,30 +398,6 @@ def synthesize(
             }
         },
     )
-
-    # The studio dresses the subject in the default Appearance; bystanders wear their own.
-    others = tuple(Body(b.vertices(model), b.appearance(Appearance())) for b in bystanders)
-    jobs = [
-        _CameraJob(
-            i,
-            cam,
-            config,
-            out,
-            subject.motion.tau,
-            subject.motion.theta,
-            subject.nu,
-            board_poses,
-            others,
-            config.subject.independent,
-        )
-        for i, cam in enumerate(cameras)
-    ]
-    results = _render_cameras(jobs, workers, _frame_total(config), on_progress)
-    session = _session_record(out, config, cameras)
-    save_session(session, out)
-    _write_studio_record(out, config, subject, bystanders, results, t0)
-    log.info("rendered %s in %.1f s", out, time.perf_counter() - t0)
-    return session
 
 
 def _frame_total(config: SynthConfig) -> int:
@@ -496,6 +491,10 @@ class _SubjectMotion:
             tau[:, 2] -= independent.lowest_point(motion.tau, motion.theta)
             motion = Motion(motion.theta, tau, motion.fps, motion.name)
         return cls(nu, subject_info, independent, motion, motion_seed)
+
+    def rendered(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """What a camera job poses: τ (F, 3), θ (F, 37) and ν (or None)."""
+        return self.motion.tau, self.motion.theta, self.nu
 
     def truth(self, model: BodyModel, frames: int) -> tuple[dict, np.ndarray, np.ndarray]:
         """The subject's true biometrics, joints and a sparse sample of its posed vertices.
