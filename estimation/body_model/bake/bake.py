@@ -185,11 +185,11 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
         targets = phenotype.load_macro_targets(root, len(assets.vertices), assets.vertices)
         prior = phenotype.load_shape_prior(root)
     rig = rest_rig(assets)
-    shape = shape_space(assets, targets, prior, rig.template, config, rng)
+    shape = fit_shape_space(assets, targets, prior, rig.template, config, rng)
     regressor = fit_keypoint_regressor(
         shape.bodies[shape.train], shape.keypoints[shape.train], rig.template, rig.keypoints
     )
-    pose = pose_space(rig, config, rng)
+    pose = fit_pose_space(rig, config, rng)
     lod = level_of_detail(rig, shape, pose, config)
     arrays = model_arrays(rig, shape, pose, lod, regressor, _provenance(wheel, config, shape))
     out = Path(out)
@@ -361,7 +361,7 @@ class ShapeSpace:
     explained: np.ndarray
 
 
-def shape_space(
+def fit_shape_space(
     assets: MakeHumanAssets,
     targets: phenotype.MacroTargets,
     prior: phenotype.ShapePrior,
@@ -440,7 +440,7 @@ class PoseSpace:
     coef: np.ndarray
 
 
-def pose_space(rig: RestRig, config: BakeConfig, rng: np.random.Generator) -> PoseSpace:
+def fit_pose_space(rig: RestRig, config: BakeConfig, rng: np.random.Generator) -> PoseSpace:
     """Step 5: pose the template by skinning at random poses and fit Q on the training ones.
 
     Parameters
