@@ -42,7 +42,7 @@ from bodymetry.estimation.body_model.motion.library import Motion, ground_motion
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.motion.signals import inner_clip, wrap_angle
 from bodymetry.estimation.body_model.skeleton import JOINT_SLICES, JOINTS, PARTS, YAW
-from bodymetry.studio.render import lens_radius_limit, project_for_raster
+from bodymetry.studio.lens import lens_radius_limit, project_for_raster
 from bodymetry.studio.scene import Appearance, Room
 
 log = logging.getLogger(__name__)

@@ -22,6 +22,9 @@ Pipeline of :meth:`Studio.render_frame` for one camera:
    (read noise + shot noise); 8-bit quantization. Compression is the video
    writer's job.
 
+Rays and projection with the lens model are in :mod:`bodymetry.studio.lens`; the
+board's visible pixels and texture sampling in :mod:`bodymetry.studio.board_render`.
+
 Coordinates follow docs/design.md: world z up, floor z = 0, metres; cameras OpenCV.
 """
 
@@ -29,7 +32,7 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import cv2
@@ -39,6 +42,15 @@ import scipy.sparse as sp
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.raster import Raster, rasterize
+from bodymetry.studio.board_render import (
+    BoardSheet,
+    board_albedo,
+    board_hits,
+    board_region,
+    sample_image,
+    texture_footprint,
+)
+from bodymetry.studio.lens import lens_radius_limit, pixel_rays, project_for_raster
 from bodymetry.studio.scene import (
     Appearance,
     BoardPose,
@@ -48,7 +60,7 @@ from bodymetry.studio.scene import (
 )
 
 # =============================================================================
-# Cameras: rays, projection for the rasterizer
+# Per-camera cache keys; body coverage on the output grid
 # =============================================================================
 
 
@@ -61,134 +73,6 @@ def _camera_key(camera: Camera) -> tuple:
         camera.R.tobytes(),
         camera.t.tobytes(),
     )
-
-
-def pixel_rays(camera: Camera) -> np.ndarray:
-    """Undistorted ray of every pixel centre, camera frame, z = 1.
-
-    Returns
-    -------
-    (H, W, 3) float64
-        ``(x, y, 1)`` with ``camera.project`` of ``camera.center + R.T @ ray``
-        landing on the pixel centre (to ~1e-10 px).
-    """
-    w, h = camera.size
-    grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1)
-    if np.any(camera.dist != 0):
-        und = cv2.undistortPoints(
-            grid.reshape(-1, 1, 2),
-            camera.K,
-            camera.dist,
-            R=np.eye(3),
-            P=np.eye(3),
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
-        ).reshape(h, w, 2)
-    else:
-        kinv = np.linalg.inv(camera.K)
-        und = grid @ kinv[:2, :2].T + kinv[:2, 2]
-    return np.concatenate([und, np.ones((h, w, 1))], axis=-1)
-
-
-def _radial_limit(camera: Camera, r_image: float) -> float:
-    """Largest undistorted radius (normalized) where the lens model is still
-    monotonic, capped at 1.5x the image corner radius: beyond it a polynomial
-    model can fold far-away points back into the image."""
-    d = np.zeros(8)
-    d[: min(8, camera.dist.size)] = camera.dist[:8]
-    k1, k2, _, _, k3, k4, k5, k6 = d
-    r = np.linspace(0.0, 4.0 * max(r_image, 0.1), 4001)
-    r2 = r * r
-    rd = r * (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-    bad = np.flatnonzero(np.diff(rd) <= 0)
-    r_mono = r[bad[0]] * 0.98 if bad.size else r[-1]
-    return float(min(1.5 * r_image, r_mono))
-
-
-def lens_radius_limit(camera: Camera) -> float:
-    """The lens model's valid normalized radius for ``camera`` (from its image border's
-    rays): points beyond it may fold back into the image and are not projected
-    (``project_for_raster``'s ``r_limit``)."""
-    w, h = camera.size
-    border = np.concatenate(
-        [
-            np.stack([np.arange(w), np.zeros(w)], 1),
-            np.stack([np.arange(w), np.full(w, h - 1)], 1),
-            np.stack([np.zeros(h), np.arange(h)], 1),
-            np.stack([np.full(h, w - 1), np.arange(h)], 1),
-        ]
-    ).astype(np.float64)
-    if np.any(camera.dist != 0):
-        und = cv2.undistortPoints(
-            border.reshape(-1, 1, 2), camera.K, camera.dist, R=np.eye(3), P=np.eye(3),
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
-        ).reshape(-1, 2)  # fmt: skip
-    else:
-        kinv = np.linalg.inv(camera.K)
-        und = border @ kinv[:2, :2].T + kinv[:2, 2]
-    return _radial_limit(camera, float(np.sqrt((und**2).sum(-1)).max()))
-
-
-def project_for_raster(
-    camera: Camera, points: np.ndarray, supersample: int = 1, r_limit: float | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Project world points for :func:`rasterize` (with lens distortion).
-
-    Parameters
-    ----------
-    camera : Camera
-    points : (N, 3) float
-        World points, metres.
-    supersample : int
-        Pixel grid refinement: pixel centres of the ``s``-times finer grid.
-    r_limit : float, optional
-        Normalized radius beyond which points are marked invalid (see
-        ``_radial_limit``); None: no limit.
-
-    Returns
-    -------
-    xy : (N, 2) float
-        Pixel coordinates on the (supersampled) grid.
-    z : (N,) float
-        Camera depth, metres.
-    valid : (N,) bool
-        In front of the camera and within the lens model's range.
-    """
-    pc = camera.to_camera(points)
-    z = pc[:, 2]
-    valid = z > 1e-6
-    with np.errstate(divide="ignore", invalid="ignore"):
-        n = pc[:, :2] / np.where(valid, z, 1.0)[:, None]
-    if r_limit is not None:
-        valid &= np.einsum("ij,ij->i", n, n) < r_limit**2
-    xy = camera.distort_normalized(n) @ camera.K[:2, :2].T + camera.K[:2, 2]
-    if supersample != 1:
-        xy = supersample * (xy + 0.5) - 0.5
-    return xy, z, valid
-
-
-def _sample(
-    image: np.ndarray, x: np.ndarray, y: np.ndarray, interp: int, border: float | None = None
-) -> np.ndarray:
-    """Sample a single-channel float32 image at points (x, y) (N,) with cv2.remap
-    (pixel centres at integers); ``border``: value outside, None: replicate the edge."""
-    n = x.size
-    cols = 4096
-    rows = max(1, -(-n // cols))
-    mx = np.zeros(rows * cols, np.float32)
-    my = np.zeros(rows * cols, np.float32)
-    mx[:n] = x
-    my[:n] = y
-    if border is None:
-        out = cv2.remap(
-            image, mx.reshape(rows, cols), my.reshape(rows, cols), interp,
-            borderMode=cv2.BORDER_REPLICATE,
-        )  # fmt: skip
-    else:
-        out = cv2.remap(
-            image, mx.reshape(rows, cols), my.reshape(rows, cols), interp,
-            borderMode=cv2.BORDER_CONSTANT, borderValue=float(border),
-        )  # fmt: skip
-    return out.reshape(-1)[:n]
 
 
 def _downsample_bodies(
@@ -365,13 +249,6 @@ class _ShadowMap:
 
 
 @dataclass
-class _Board:
-    texture: BoardTexture
-    pose: BoardPose
-    mips: list[np.ndarray] = field(default_factory=list)
-
-
-@dataclass
 class _Layers:
     """What one render has drawn before shadows and compositing (None: not drawn).
 
@@ -401,135 +278,6 @@ class _Layers:
     board_rad: np.ndarray | None = None
     board_light: np.ndarray | None = None
     board_side_direct: tuple[np.ndarray, np.ndarray] | None = None
-
-
-def _board_region(
-    camera: Camera, cache: _CameraCache, board: _Board
-) -> tuple[int, int, int, int] | None:
-    """Candidate pixels of the board: the bounding box of its projected sheet outline.
-
-    Returns
-    -------
-    (x0, x1, y0, y1) or None
-        Inclusive pixel bounds (the whole image when the outline is partly behind
-        the camera or beyond the lens range); None when the board cannot be seen.
-    """
-    w, h = camera.size
-    tex, pose = board.texture, board.pose
-    c = tex.corners()
-    outline = np.concatenate(
-        [c[i] + np.linspace(0, 1, 33)[:, None] * (c[(i + 1) % 4] - c[i]) for i in range(4)]
-    )
-    pw = pose.to_world(outline)
-    xy, _, valid = project_for_raster(camera, pw, 1, cache.r_limit)
-    if valid.sum() < 3:
-        return None
-    x0 = max(int(np.floor(xy[valid, 0].min())) - 2, 0)
-    x1 = min(int(np.ceil(xy[valid, 0].max())) + 2, w - 1)
-    y0 = max(int(np.floor(xy[valid, 1].min())) - 2, 0)
-    y1 = min(int(np.ceil(xy[valid, 1].max())) + 2, h - 1)
-    if not np.all(valid):  # partly behind the camera or beyond the lens range
-        x0, x1, y0, y1 = 0, w - 1, 0, h - 1
-    if x1 < x0 or y1 < y0:
-        return None
-    return x0, x1, y0, y1
-
-
-def _board_hits(
-    camera: Camera, board: _Board, d: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Intersect pixel rays with the board's plane.
-
-    Parameters
-    ----------
-    d : (N, 3) float
-        World ray directions of the candidate pixels.
-
-    Returns
-    -------
-    lam : (N,) float
-        Ray parameter of the hit (depth along the ray).
-    p : (N, 3) float
-        Hit points, world frame.
-    pb : (N, 3) float
-        Hit points, board frame.
-    inside : (N,) bool
-        The hit is in front of the camera and on the sheet (pattern plus margin).
-    """
-    tex, pose = board.texture, board.pose
-    origin = camera.center
-    nrm = pose.R[:, 2]
-    denom = d @ nrm
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lam = ((pose.t - origin) @ nrm) / denom
-    p = origin + lam[:, None] * d
-    pb = (p - pose.t) @ pose.R  # board frame
-    m = tex.margin
-    pwid, phei = tex.pattern_size
-    inside = (
-        np.isfinite(lam)
-        & (lam > 1e-6)
-        & (pb[:, 0] >= -m)
-        & (pb[:, 0] <= pwid + m)
-        & (pb[:, 1] >= -m)
-        & (pb[:, 1] <= phei + m)
-    )
-    return lam, p, pb, inside
-
-
-def _texture_footprint(
-    tex: BoardTexture, pb: np.ndarray, gh: int, gw: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Texel coordinates of the candidate pixels and their footprint.
-
-    Parameters
-    ----------
-    pb : (gh * gw, 3) float
-        Hit points in the board frame, row-major over the candidate box.
-
-    Returns
-    -------
-    u, v : (gh, gw) float
-        Texel coordinates.
-    foot : (gh * gw,) float
-        Texels per pixel, from the coordinates' gradients.
-    """
-    m = tex.margin
-    ppm = tex.image.shape[1] / tex.sheet_size[0]  # texels per metre
-    u = ((pb[:, 0] + m) * ppm).reshape(gh, gw)
-    vv = ((pb[:, 1] + m) * ppm).reshape(gh, gw)
-    with np.errstate(invalid="ignore"):
-        gu = np.hypot(*np.gradient(u)) if min(gh, gw) > 1 else np.ones_like(u)
-        gv = np.hypot(*np.gradient(vv)) if min(gh, gw) > 1 else np.ones_like(u)
-    foot = np.nan_to_num(np.maximum(gu, gv), nan=1.0, posinf=1.0).reshape(-1)
-    return u, vv, foot
-
-
-def _board_albedo(board: _Board, us: np.ndarray, vs: np.ndarray, foot: np.ndarray) -> np.ndarray:
-    """Printed-side albedo (N,) float32, trilinear over the board's mip levels.
-
-    Parameters
-    ----------
-    us, vs : (N,) float
-        Texel coordinates.
-    foot : (N,) float
-        Texels per pixel (picks the mip levels).
-    """
-    level = np.clip(np.log2(np.maximum(foot, 1e-6)), 0, len(board.mips) - 1)
-    l0 = np.floor(level).astype(int)
-    frac = (level - l0).astype(np.float32)
-    alb = np.zeros(us.size, np.float32)
-    for lev in np.unique(np.concatenate([l0, np.minimum(l0 + 1, len(board.mips) - 1)])):
-        wgt = np.where(l0 == lev, 1 - frac, 0) + np.where(
-            np.minimum(l0 + 1, len(board.mips) - 1) == lev, frac, 0
-        )
-        use = np.flatnonzero(wgt > 0)
-        if use.size == 0:
-            continue
-        sc = 2.0**lev
-        val = _sample(board.mips[lev], us[use] / sc - 0.5, vs[use] / sc - 0.5, cv2.INTER_LINEAR)
-        alb[use] += wgt[use] * val
-    return alb
 
 
 class Studio:
@@ -693,7 +441,7 @@ class Studio:
         if not isinstance(pose, BoardPose):
             raise ValueError(f"render_board: pose must be a BoardPose, got {type(pose)}")
         img, person, shadow, bmask = self._render(
-            camera, vertices, _Board(board, pose, self._mips(board)), rng, effects
+            camera, vertices, BoardSheet(board, pose, self._mips(board)), rng, effects
         )
         return BoardFrame(img, person, shadow, bmask)
 
@@ -824,8 +572,8 @@ class Studio:
         """Shadow amount in [0, 1] for receivers at light-space coordinates q (3, N)."""
         mx = (q[0] - smap.origin[0]) / smap.texel
         my = (q[1] - smap.origin[1]) / smap.texel
-        cov = _sample(smap.coverage, mx, my, cv2.INTER_LINEAR, 0.0)
-        zc = _sample(smap.zmin, mx, my, cv2.INTER_NEAREST, 1e9)
+        cov = sample_image(smap.coverage, mx, my, cv2.INTER_LINEAR, 0.0)
+        zc = sample_image(smap.zmin, mx, my, cv2.INTER_NEAREST, 1e9)
         return np.where(q[2] > zc + bias, cov, 0.0).astype(np.float32)
 
     # --- the render -----------------------------------------------------------------
@@ -833,7 +581,7 @@ class Studio:
         self,
         camera: Camera,
         vertices: np.ndarray | None,
-        board: _Board | None,
+        board: BoardSheet | None,
         rng: np.random.Generator | int | None,
         effects: bool,
         others: Sequence[Body] = (),
@@ -895,7 +643,7 @@ class Studio:
         cache: _CameraCache,
         npx: int,
         bodies: list[tuple[np.ndarray, np.ndarray]],
-        board: _Board | None,
+        board: BoardSheet | None,
         layers: _Layers,
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """Shadow amounts on the background and on the board's visible pixels.
@@ -1085,7 +833,7 @@ class Studio:
         self,
         camera: Camera,
         cache: _CameraCache,
-        board: _Board,
+        board: BoardSheet,
         person_depth: np.ndarray | None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
         """Pixels where the board is visible, their albedo (N, 3), light-space
@@ -1097,22 +845,22 @@ class Studio:
             np.zeros((3, 0), np.float32),
             (np.zeros(0), np.zeros(0)),
         )
-        region = _board_region(camera, cache, board)
+        region = board_region(camera, cache.r_limit, board)
         if region is None:
             return empty
         x0, x1, y0, y1 = region
         ys, xs = np.mgrid[y0 : y1 + 1, x0 : x1 + 1]
         pix = (ys * camera.size[0] + xs).reshape(-1)
         d = cache.rays_world[pix]  # (N, 3)
-        lam, p, pb, inside = _board_hits(camera, board, d)
+        lam, p, pb, inside = board_hits(camera, board, d)
         if person_depth is not None:
             inside &= lam < person_depth[pix]
         gh, gw = ys.shape
-        u, vv, foot = _texture_footprint(tex, pb, gh, gw)
+        u, vv, foot = texture_footprint(tex, pb, gh, gw)
         sel = np.flatnonzero(inside)
         if sel.size == 0:
             return empty
-        alb = _board_albedo(board, u.reshape(-1)[sel], vv.reshape(-1)[sel], foot[sel])
+        alb = board_albedo(board, u.reshape(-1)[sel], vv.reshape(-1)[sel], foot[sel])
         # Visible side: the printed side faces -z of the board.
         nrm = board.pose.R[:, 2]
         facing_front = (d[sel] @ nrm) > 0  # ray runs along +z: sees the -z side
