@@ -636,12 +636,58 @@ def import_recording(
         len(rec.videos),
         rec.calibration,
     )
-    group, quality = read_any_calibration(
+    group, quality = _read_calibration(rec, units)
+    pairs = _match_videos(rec, group)
+    cameras, fps, frames, warnings = _fit_cameras(rec, group, pairs)
+    rate = _common_rate(rec, fps, warnings)
+    shortest = min(frames)
+    if frame_step is None:
+        frame_step = _default_step_logged(shortest)
+    group_out = CameraGroup(cameras)
+    up = _world_up_warning(group_out, rec.calibration)
+    if up:
+        warnings.append(up)
+    for warning in warnings:
+        log.warning("%s", warning)
+
+    # Everything is read and checked: write.
+    links = _write_session(out, source, rec, group_out, quality, pairs, rate, int(frame_step), copy)
+    return ImportResult(
+        load_session(out), rec.kind, rec.calibration, links, shortest, tuple(warnings)
+    )
+
+
+def _read_calibration(rec: Recording, units: str | None) -> tuple[CameraGroup, dict]:
+    """The recording's calibration (:func:`read_any_calibration`) with its layout's
+    default units and binning factor.
+
+    Returns
+    -------
+    group : CameraGroup
+    quality : dict
+        Quality per calibration camera name, where the file states it.
+    """
+    return read_any_calibration(
         rec.calibration,
         units=units,
         default_units=_UNITS_BY_KIND.get(rec.kind),
         binning_factor=rec.binning_factor,
     )
+
+
+def _match_videos(rec: Recording, group: CameraGroup) -> dict[str, str]:
+    """Match the videos (by file stem) to the calibration's cameras (:func:`match_cameras`).
+
+    Returns
+    -------
+    dict video stem -> calibration camera name
+        Calibration cameras without a video are logged and left out.
+
+    Raises
+    ------
+    InputError
+        Two videos share a stem (e.g. different extensions), or no match.
+    """
     stems = [p.stem for p in rec.videos]
     duplicates = sorted({s for s in stems if stems.count(s) > 1})
     if duplicates:
@@ -653,6 +699,29 @@ def import_recording(
     unused = [n for n in group.names if n not in pairs.values()]
     if unused:
         log.info("%s: cameras without a video, left out: %s", rec.calibration, unused)
+    return pairs
+
+
+def _fit_cameras(
+    rec: Recording, group: CameraGroup, pairs: dict[str, str]
+) -> tuple[list[Camera], list[tuple[str, float]], list[int], list[str]]:
+    """Each video's camera, renamed after the video and fitted to its decoded size.
+
+    Parameters
+    ----------
+    pairs : dict video stem -> calibration camera name
+
+    Returns
+    -------
+    cameras : list of Camera
+        In video order.
+    fps : list of (name, float)
+        Each video's frame rate.
+    frames : list of int
+        Each video's frame count.
+    warnings : list of str
+        Size warnings of :func:`fit_size`.
+    """
     warnings: list[str] = []
     cameras: list[Camera] = []
     fps: list[tuple[str, float]] = []
@@ -668,6 +737,18 @@ def import_recording(
             warnings.append(warning)
         cameras.append(cam)
         log.info("camera %r: %s <-> calibration camera %r", name, video.name, pairs[name])
+    return cameras, fps, frames, warnings
+
+
+def _common_rate(rec: Recording, fps: list[tuple[str, float]], warnings: list[str]) -> float:
+    """The videos' one frame rate; appends a warning to ``warnings`` where a Pose2Sim
+    project declares another.
+
+    Raises
+    ------
+    InputError
+        The videos run at different rates (beyond :data:`FPS_TOLERANCE`).
+    """
     rate = fps[0][1]
     off = [f"{n}: {f:g}" for n, f in fps if abs(f - rate) > FPS_TOLERANCE * rate]
     if off:
@@ -684,36 +765,61 @@ def import_recording(
                 f"{rec.config}: project.frame_rate = {declared:g} but the videos run at "
                 f"{rate:g} fps; using the videos' rate"
             )
-    shortest = min(frames)
-    if frame_step is None:
-        frame_step = default_frame_step(shortest)
-        kept = len(range(0, shortest, frame_step))
-        if frame_step < DEFAULT_FRAME_STEP:
-            log.info(
-                "frame_step %d: the shortest video has %d frames, so every %d-th frame keeps "
-                "%d (the default %d would keep %d); --frame-step N to choose",
-                frame_step,
-                shortest,
-                frame_step,
-                kept,
-                DEFAULT_FRAME_STEP,
-                len(range(0, shortest, DEFAULT_FRAME_STEP)),
-            )
-        else:
-            log.info("frame_step %d: keeps %d of %d frames", frame_step, kept, shortest)
-    group_out = CameraGroup(cameras)
-    up = _world_up_warning(group_out, rec.calibration)
-    if up:
-        warnings.append(up)
-    for warning in warnings:
-        log.warning("%s", warning)
+    return rate
 
-    # Everything is read and checked: write.
+
+def _default_step_logged(shortest: int) -> int:
+    """:func:`default_frame_step` of the shortest video's frame count, logged."""
+    frame_step = default_frame_step(shortest)
+    kept = len(range(0, shortest, frame_step))
+    if frame_step < DEFAULT_FRAME_STEP:
+        log.info(
+            "frame_step %d: the shortest video has %d frames, so every %d-th frame keeps "
+            "%d (the default %d would keep %d); --frame-step N to choose",
+            frame_step,
+            shortest,
+            frame_step,
+            kept,
+            DEFAULT_FRAME_STEP,
+            len(range(0, shortest, DEFAULT_FRAME_STEP)),
+        )
+    else:
+        log.info("frame_step %d: keeps %d of %d frames", frame_step, kept, shortest)
+    return frame_step
+
+
+def _write_session(
+    out: Path,
+    source: Path,
+    rec: Recording,
+    group: CameraGroup,
+    quality: dict,
+    pairs: dict[str, str],
+    rate: float,
+    frame_step: int,
+    copy: bool,
+) -> str:
+    """Write the session folder: the videos (linked or copied), ``calibration.yaml``
+    and ``session.yaml``.
+
+    Parameters
+    ----------
+    group : CameraGroup
+        The fitted cameras, in video order.
+    quality : dict
+        The source calibration's quality per calibration camera name.
+    pairs : dict video stem -> calibration camera name
+
+    Returns
+    -------
+    str
+        How the videos were placed (``"hard link"``, ``"copy"``, comma-joined).
+    """
     out.mkdir(parents=True, exist_ok=True)
     (out / "videos").mkdir(exist_ok=True)
     how = []
     session_cams = []
-    for video, cam in zip(rec.videos, cameras, strict=True):
+    for video, cam in zip(rec.videos, group, strict=True):
         relative = f"videos/{video.name}"
         how.append(_place(video, out / relative, copy))
         session_cams.append(SessionCamera(name=cam.name, video=relative))
@@ -727,7 +833,7 @@ def import_recording(
     save_calibration(
         out / DEFAULT_CALIBRATION_FILE,
         Calibration(
-            cameras=group_out,
+            cameras=group,
             world=world,
             quality={v: quality[c] for v, c in pairs.items() if c in quality} or None,
         ),
@@ -737,12 +843,10 @@ def import_recording(
         name=source.resolve().name,
         fps=rate,
         cameras=tuple(session_cams),
-        frame_step=int(frame_step),
+        frame_step=frame_step,
         calibration_file=DEFAULT_CALIBRATION_FILE,
     )
     save_session(session)
     links = ", ".join(dict.fromkeys(how))
-    log.info("wrote the session %s (%d cameras, videos: %s)", out, len(cameras), links)
-    return ImportResult(
-        load_session(out), rec.kind, rec.calibration, links, shortest, tuple(warnings)
-    )
+    log.info("wrote the session %s (%d cameras, videos: %s)", out, len(group), links)
+    return links

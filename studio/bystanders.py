@@ -42,7 +42,7 @@ from bodymetry.estimation.body_model.motion.library import Motion, ground_motion
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.motion.signals import inner_clip, wrap_angle
 from bodymetry.estimation.body_model.skeleton import JOINT_SLICES, JOINTS, PARTS, YAW
-from bodymetry.studio.render import lens_radius_limit, project_for_raster
+from bodymetry.studio.lens import lens_radius_limit, project_for_raster
 from bodymetry.studio.scene import Appearance, Room
 
 log = logging.getLogger(__name__)
@@ -322,64 +322,155 @@ def place_bystanders(
     heldout = model.prior_shapes("heldout")
     free = [i for i in range(len(heldout)) if i not in set(exclude_heldout)]
     indices = rng.choice(free, size=n, replace=False)
-    footprints = subject_footprints(cameras, subject_vertices, placement.clearance_px)
-    r_limits = [lens_radius_limit(cam) for cam in cameras]
     lo, hi = room.bounds[:, :2] + [[placement.wall_clearance_m], [-placement.wall_clearance_m]]
-    cam_xy = np.stack([cam.center[:2] for cam in cameras])
+    site = _Site(
+        cameras=cameras,
+        r_limits=[lens_radius_limit(cam) for cam in cameras],
+        footprints=subject_footprints(cameras, subject_vertices, placement.clearance_px),
+        lo=lo,
+        hi=hi,
+        cam_xy=np.stack([cam.center[:2] for cam in cameras]),
+        placement=placement,
+    )
     placed: list[Bystander] = []
     for index in indices:
-        nu = heldout[index]
-        theta0, tau0 = _standing_pose(model, nu, rng)
-        v0 = model.pose(BodyState(tau0[None], theta0[None], nu[None])).vertices[0]
-        local = v0[::3] - [tau0[0], tau0[1], 0.0]
-        shirt = str(rng.choice(list(SHIRTS)))
-        trousers = str(rng.choice(list(TROUSERS)))
-        for _ in range(placement.attempts):
-            xy = rng.uniform(lo, hi)
-            if np.hypot(*xy) < placement.min_distance_m:
-                continue
-            if any(np.hypot(*(xy - b.tau[:2])) < placement.spacing_m for b in placed):
-                continue
-            # Face the room's centre, give or take 70 degrees.
-            facing = np.arctan2(-xy[1], -xy[0]) + rng.uniform(-1.2, 1.2)
-            yaw = facing + np.pi / 2  # heading 0 faces -y (azimuth -90 degrees)
-            c, s = np.cos(yaw), np.sin(yaw)
-            pts = local @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
-            pts[:, :2] += xy
-            if np.any(pts[:, :2] < lo) or np.any(pts[:, :2] > hi):
-                continue
-            d_cam = np.linalg.norm(pts[:, None, :2] - cam_xy[None], axis=-1)
-            if d_cam.min() < placement.camera_clearance_m:
-                continue
-            seen = _views(cameras, r_limits, pts, footprints, placement.min_visible_fraction)
-            if seen is None or not 1 <= len(seen) <= placement.max_views:
-                continue
-            theta = theta0.copy()
-            theta[YAW] = float(wrap_angle(theta0[YAW] + yaw))
-            tau = (float(xy[0]), float(xy[1]), float(tau0[2]))
-            bystander = Bystander(
-                int(index), tuple(map(float, nu)), tuple(map(float, theta)), tau, shirt, trousers
-            )
-            # The posed body, not the turned copy, decides.
-            final = bystander.vertices(model)[::3]
-            seen = _views(cameras, r_limits, final, footprints, placement.min_visible_fraction)
-            if seen is None or not 1 <= len(seen) <= placement.max_views:
-                continue
-            placed.append(dataclasses.replace(bystander, seen_by=seen))
-            log.info(
-                "bystander %d: held-out body %d at (%.2f, %.2f) m, seen by %s",
-                len(placed),
-                index,
-                xy[0],
-                xy[1],
-                ", ".join(seen),
-            )
-            break
-        else:
+        bystander = _place_one(model, site, index, heldout[index], placed, rng)
+        if bystander is None:
             raise InputError(
                 f"--bystanders {n}: placed {len(placed)}, found no room for another beside "
                 f"the subject's volume within {placement.attempts} tries (each must be seen by "
                 f"1..{placement.max_views} of {len(cameras)} cameras and clear of the subject "
                 "in every view); ask for fewer"
             )
+        placed.append(bystander)
+        log.info(
+            "bystander %d: held-out body %d at (%.2f, %.2f) m, seen by %s",
+            len(placed),
+            index,
+            bystander.tau[0],
+            bystander.tau[1],
+            ", ".join(bystander.seen_by),
+        )
     return placed
+
+
+@dataclass(frozen=True, eq=False)
+class _Site:
+    """Where bystanders may stand: the rig, the subject's footprints and the room.
+
+    Attributes
+    ----------
+    cameras : list of Camera
+    r_limits : list of float
+        Each camera's lens radius limit.
+    footprints : dict of camera name -> (H, W) bool
+        The subject's grown footprints.
+    lo, hi : (2,) float
+        Floor bounds (x, y) within the wall clearance.
+    cam_xy : (C, 2) float
+        Camera centres on the floor plan.
+    placement : BystanderPlacement
+    """
+
+    cameras: list[Camera]
+    r_limits: list[float]
+    footprints: dict[str, np.ndarray]
+    lo: np.ndarray
+    hi: np.ndarray
+    cam_xy: np.ndarray
+    placement: BystanderPlacement
+
+
+def _place_one(
+    model: BodyModel,
+    site: _Site,
+    index: int,
+    nu: np.ndarray,
+    placed: list[Bystander],
+    rng: np.random.Generator,
+) -> Bystander | None:
+    """Pose and dress held-out body ``index`` (shape ``nu`` (n_shape,)) and find it a spot.
+
+    Draws, in order: the standing pose, the shirt, the trousers, then up to
+    ``placement.attempts`` spots (:func:`_try_spot`).
+
+    Returns
+    -------
+    Bystander or None
+        Placed with its ``seen_by``; None when no attempt found room.
+    """
+    theta0, tau0 = _standing_pose(model, nu, rng)
+    v0 = model.pose(BodyState(tau0[None], theta0[None], nu[None])).vertices[0]
+    local = v0[::3] - [tau0[0], tau0[1], 0.0]
+    shirt = str(rng.choice(list(SHIRTS)))
+    trousers = str(rng.choice(list(TROUSERS)))
+    draft = Bystander(int(index), tuple(map(float, nu)), (), (0.0, 0.0, 0.0), shirt, trousers)
+    for _ in range(site.placement.attempts):
+        bystander = _try_spot(model, site, placed, rng, draft, theta0, tau0, local)
+        if bystander is not None:
+            return bystander
+    return None
+
+
+def _try_spot(
+    model: BodyModel,
+    site: _Site,
+    placed: list[Bystander],
+    rng: np.random.Generator,
+    draft: Bystander,
+    theta0: np.ndarray,
+    tau0: np.ndarray,
+    local: np.ndarray,
+) -> Bystander | None:
+    """One random spot and heading for a bystander, or None when it does not fit.
+
+    Parameters
+    ----------
+    draft : Bystander
+        Its held-out body, shape and clothes (pose and place to fill in).
+    theta0 : (37,) float
+        Its standing pose at heading 0.
+    tau0 : (3,) float
+        Its root at heading 0, above the origin.
+    local : (M, 3) float
+        A subset of its rest vertices about the root's floor point.
+
+    Returns
+    -------
+    Bystander or None
+        Placed (pose, position, ``seen_by``) when the spot is clear of the walls,
+        the cameras and the other bystanders, and 1..``max_views`` cameras see it
+        clear of the subject's footprint.
+    """
+    placement, lo, hi = site.placement, site.lo, site.hi
+    xy = rng.uniform(lo, hi)
+    if np.hypot(*xy) < placement.min_distance_m:
+        return None
+    if any(np.hypot(*(xy - b.tau[:2])) < placement.spacing_m for b in placed):
+        return None
+    # Face the room's centre, give or take 70 degrees.
+    facing = np.arctan2(-xy[1], -xy[0]) + rng.uniform(-1.2, 1.2)
+    yaw = facing + np.pi / 2  # heading 0 faces -y (azimuth -90 degrees)
+    c, s = np.cos(yaw), np.sin(yaw)
+    pts = local @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
+    pts[:, :2] += xy
+    if np.any(pts[:, :2] < lo) or np.any(pts[:, :2] > hi):
+        return None
+    d_cam = np.linalg.norm(pts[:, None, :2] - site.cam_xy[None], axis=-1)
+    if d_cam.min() < placement.camera_clearance_m:
+        return None
+    seen = _views(site.cameras, site.r_limits, pts, site.footprints, placement.min_visible_fraction)
+    if seen is None or not 1 <= len(seen) <= placement.max_views:
+        return None
+    theta = theta0.copy()
+    theta[YAW] = float(wrap_angle(theta0[YAW] + yaw))
+    tau = (float(xy[0]), float(xy[1]), float(tau0[2]))
+    bystander = dataclasses.replace(draft, theta=tuple(map(float, theta)), tau=tau)
+    # The posed body, not the turned copy, decides.
+    final = bystander.vertices(model)[::3]
+    seen = _views(
+        site.cameras, site.r_limits, final, site.footprints, placement.min_visible_fraction
+    )
+    if seen is None or not 1 <= len(seen) <= placement.max_views:
+        return None
+    return dataclasses.replace(bystander, seen_by=seen)

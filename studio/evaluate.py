@@ -20,6 +20,7 @@ scoring renders the studio's shadows and capture must not import the studio.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -347,39 +348,19 @@ def segment_and_score(
     report = check_sync(session, strict=strict)
     gt = load_ground_truth(session)
     scores = SilhouetteScores(gt, shadows=shadows) if gt is not None else None
-    flags: dict[str, dict[str, list[int]]] = {name: {} for name in session.camera_names}
-    per_frame: list[dict[str, Any]] = []
     total = len(report.kept)
     if progress is not None:
         progress("background models", 0, total)
     models = background_models(session, report, method=read_method)
-    if progress is not None:
-        progress("silhouettes", 0, total)
-    for sf in segment_session(
+    frames = segment_session(
         session,
         subtraction=SubtractionConfig(method=method),
         report=report,
         models=models,
         read_method=read_method,
-    ):
-        save_silhouette_frame(out, sf, overlays=overlays)
-        if scores is not None:
-            scores.update(sf)
-        for name, f in zip(sf.cameras, sf.flags, strict=True):
-            for flag in f:
-                flags[name].setdefault(flag, []).append(sf.frame)
-        per_frame.append(
-            {"frame": sf.frame, "flags": dict(zip(sf.cameras, map(list, sf.flags), strict=True))}
-        )
-        if progress is not None:
-            progress("silhouettes", len(per_frame), total)
-    summary = scores.summary() if scores is not None else {}
-    cameras: dict[str, dict[str, Any]] = {}
-    for name in session.camera_names:
-        entry: dict[str, Any] = {"frames": len(per_frame)}
-        entry.update(summary.get(name, {}))
-        entry["flags"] = flags[name]
-        cameras[name] = entry
+    )
+    flags, per_frame = _save_and_score(session, out, frames, scores, overlays, progress, total)
+    cameras = _camera_entries(session, per_frame, flags, scores)
     run = SilhouetteRun(
         session=str(session.folder),
         out=str(out),
@@ -396,3 +377,66 @@ def segment_and_score(
     )
     write_json_atomic(out / SILHOUETTES_JSON, {**run.to_dict(), "per_frame": per_frame})
     return run
+
+
+def _save_and_score(
+    session: Session,
+    out: Path,
+    frames: Iterable[SilhouetteFrame],
+    scores: SilhouetteScores | None,
+    overlays: bool,
+    progress: Progress | None,
+    total: int,
+) -> tuple[dict[str, dict[str, list[int]]], list[dict[str, Any]]]:
+    """Write each segmented frame's masks, score it and collect its flags.
+
+    Parameters
+    ----------
+    frames : iterable of SilhouetteFrame
+        The segmented kept frames (``segment_session``'s generator: segmenting
+        starts as the loop runs, after the first progress call).
+    scores : SilhouetteScores or None
+        Updated with each frame (None: no ground truth).
+    total : int
+        Kept frames (for ``progress``).
+
+    Returns
+    -------
+    flags : dict camera -> flag -> list of frame
+    per_frame : list of dict
+        ``{"frame": int, "flags": {camera: [flag, ...]}}`` per frame.
+    """
+    if progress is not None:
+        progress("silhouettes", 0, total)
+    flags: dict[str, dict[str, list[int]]] = {name: {} for name in session.camera_names}
+    per_frame: list[dict[str, Any]] = []
+    for sf in frames:
+        save_silhouette_frame(out, sf, overlays=overlays)
+        if scores is not None:
+            scores.update(sf)
+        for name, f in zip(sf.cameras, sf.flags, strict=True):
+            for flag in f:
+                flags[name].setdefault(flag, []).append(sf.frame)
+        per_frame.append(
+            {"frame": sf.frame, "flags": dict(zip(sf.cameras, map(list, sf.flags), strict=True))}
+        )
+        if progress is not None:
+            progress("silhouettes", len(per_frame), total)
+    return flags, per_frame
+
+
+def _camera_entries(
+    session: Session,
+    per_frame: list[dict[str, Any]],
+    flags: dict[str, dict[str, list[int]]],
+    scores: SilhouetteScores | None,
+) -> dict[str, dict[str, Any]]:
+    """Per camera: frames segmented, its scores (where there is ground truth) and its flags."""
+    summary = scores.summary() if scores is not None else {}
+    cameras: dict[str, dict[str, Any]] = {}
+    for name in session.camera_names:
+        entry: dict[str, Any] = {"frames": len(per_frame)}
+        entry.update(summary.get(name, {}))
+        entry["flags"] = flags[name]
+        cameras[name] = entry
+    return cameras

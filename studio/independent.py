@@ -26,9 +26,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from bodymetry.errors import InputError
-from bodymetry.estimation.body_model.bake.independent import INDEPENDENT_FORMAT
 from bodymetry.estimation.body_model.biometrics import Biometrics, measure_canonical
-from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.body_model.model import INDEPENDENT_FORMAT, BodyModel
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS, forward_kinematics
 from bodymetry.fileio import load_npz

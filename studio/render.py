@@ -22,6 +22,9 @@ Pipeline of :meth:`Studio.render_frame` for one camera:
    (read noise + shot noise); 8-bit quantization. Compression is the video
    writer's job.
 
+Rays and projection with the lens model are in :mod:`bodymetry.studio.lens`; the
+board's visible pixels and texture sampling in :mod:`bodymetry.studio.board_render`.
+
 Coordinates follow docs/design.md: world z up, floor z = 0, metres; cameras OpenCV.
 """
 
@@ -29,7 +32,7 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import cv2
@@ -39,6 +42,15 @@ import scipy.sparse as sp
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.raster import Raster, rasterize
+from bodymetry.studio.board_render import (
+    BoardSheet,
+    board_albedo,
+    board_hits,
+    board_region,
+    sample_image,
+    texture_footprint,
+)
+from bodymetry.studio.lens import lens_radius_limit, pixel_rays, project_for_raster
 from bodymetry.studio.scene import (
     Appearance,
     BoardPose,
@@ -48,7 +60,7 @@ from bodymetry.studio.scene import (
 )
 
 # =============================================================================
-# Cameras: rays, projection for the rasterizer
+# Per-camera cache keys; body coverage on the output grid
 # =============================================================================
 
 
@@ -61,134 +73,6 @@ def _camera_key(camera: Camera) -> tuple:
         camera.R.tobytes(),
         camera.t.tobytes(),
     )
-
-
-def pixel_rays(camera: Camera) -> np.ndarray:
-    """Undistorted ray of every pixel centre, camera frame, z = 1.
-
-    Returns
-    -------
-    (H, W, 3) float64
-        ``(x, y, 1)`` with ``camera.project`` of ``camera.center + R.T @ ray``
-        landing on the pixel centre (to ~1e-10 px).
-    """
-    w, h = camera.size
-    grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1)
-    if np.any(camera.dist != 0):
-        und = cv2.undistortPoints(
-            grid.reshape(-1, 1, 2),
-            camera.K,
-            camera.dist,
-            R=np.eye(3),
-            P=np.eye(3),
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
-        ).reshape(h, w, 2)
-    else:
-        kinv = np.linalg.inv(camera.K)
-        und = grid @ kinv[:2, :2].T + kinv[:2, 2]
-    return np.concatenate([und, np.ones((h, w, 1))], axis=-1)
-
-
-def _radial_limit(camera: Camera, r_image: float) -> float:
-    """Largest undistorted radius (normalized) where the lens model is still
-    monotonic, capped at 1.5x the image corner radius: beyond it a polynomial
-    model can fold far-away points back into the image."""
-    d = np.zeros(8)
-    d[: min(8, camera.dist.size)] = camera.dist[:8]
-    k1, k2, _, _, k3, k4, k5, k6 = d
-    r = np.linspace(0.0, 4.0 * max(r_image, 0.1), 4001)
-    r2 = r * r
-    rd = r * (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-    bad = np.flatnonzero(np.diff(rd) <= 0)
-    r_mono = r[bad[0]] * 0.98 if bad.size else r[-1]
-    return float(min(1.5 * r_image, r_mono))
-
-
-def lens_radius_limit(camera: Camera) -> float:
-    """The lens model's valid normalized radius for ``camera`` (from its image border's
-    rays): points beyond it may fold back into the image and are not projected
-    (``project_for_raster``'s ``r_limit``)."""
-    w, h = camera.size
-    border = np.concatenate(
-        [
-            np.stack([np.arange(w), np.zeros(w)], 1),
-            np.stack([np.arange(w), np.full(w, h - 1)], 1),
-            np.stack([np.zeros(h), np.arange(h)], 1),
-            np.stack([np.full(h, w - 1), np.arange(h)], 1),
-        ]
-    ).astype(np.float64)
-    if np.any(camera.dist != 0):
-        und = cv2.undistortPoints(
-            border.reshape(-1, 1, 2), camera.K, camera.dist, R=np.eye(3), P=np.eye(3),
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
-        ).reshape(-1, 2)  # fmt: skip
-    else:
-        kinv = np.linalg.inv(camera.K)
-        und = border @ kinv[:2, :2].T + kinv[:2, 2]
-    return _radial_limit(camera, float(np.sqrt((und**2).sum(-1)).max()))
-
-
-def project_for_raster(
-    camera: Camera, points: np.ndarray, supersample: int = 1, r_limit: float | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Project world points for :func:`rasterize` (with lens distortion).
-
-    Parameters
-    ----------
-    camera : Camera
-    points : (N, 3) float
-        World points, metres.
-    supersample : int
-        Pixel grid refinement: pixel centres of the ``s``-times finer grid.
-    r_limit : float, optional
-        Normalized radius beyond which points are marked invalid (see
-        ``_radial_limit``); None: no limit.
-
-    Returns
-    -------
-    xy : (N, 2) float
-        Pixel coordinates on the (supersampled) grid.
-    z : (N,) float
-        Camera depth, metres.
-    valid : (N,) bool
-        In front of the camera and within the lens model's range.
-    """
-    pc = camera.to_camera(points)
-    z = pc[:, 2]
-    valid = z > 1e-6
-    with np.errstate(divide="ignore", invalid="ignore"):
-        n = pc[:, :2] / np.where(valid, z, 1.0)[:, None]
-    if r_limit is not None:
-        valid &= np.einsum("ij,ij->i", n, n) < r_limit**2
-    xy = camera.distort_normalized(n) @ camera.K[:2, :2].T + camera.K[:2, 2]
-    if supersample != 1:
-        xy = supersample * (xy + 0.5) - 0.5
-    return xy, z, valid
-
-
-def _sample(
-    image: np.ndarray, x: np.ndarray, y: np.ndarray, interp: int, border: float | None = None
-) -> np.ndarray:
-    """Sample a single-channel float32 image at points (x, y) (N,) with cv2.remap
-    (pixel centres at integers); ``border``: value outside, None: replicate the edge."""
-    n = x.size
-    cols = 4096
-    rows = max(1, -(-n // cols))
-    mx = np.zeros(rows * cols, np.float32)
-    my = np.zeros(rows * cols, np.float32)
-    mx[:n] = x
-    my[:n] = y
-    if border is None:
-        out = cv2.remap(
-            image, mx.reshape(rows, cols), my.reshape(rows, cols), interp,
-            borderMode=cv2.BORDER_REPLICATE,
-        )  # fmt: skip
-    else:
-        out = cv2.remap(
-            image, mx.reshape(rows, cols), my.reshape(rows, cols), interp,
-            borderMode=cv2.BORDER_CONSTANT, borderValue=float(border),
-        )  # fmt: skip
-    return out.reshape(-1)[:n]
 
 
 def _downsample_bodies(
@@ -365,10 +249,35 @@ class _ShadowMap:
 
 
 @dataclass
-class _Board:
-    texture: BoardTexture
-    pose: BoardPose
-    mips: list[np.ndarray] = field(default_factory=list)
+class _Layers:
+    """What one render has drawn before shadows and compositing (None: not drawn).
+
+    Attributes
+    ----------
+    body_cov, person_cov : (H*W,) float32
+        Coverage by any body and by the person alone.
+    person_rad : (H*W, 3) float32
+        Radiance x coverage of the bodies.
+    person_depth : (H*W,) float32
+        Nearest body depth (inf where none).
+    board_px : (N,) int
+        Pixels where the board is visible.
+    board_rad : (N, 3) float32
+        Their albedo.
+    board_light : (3, N) float32
+        Their light-space coordinates.
+    board_side_direct : ((N,) float32, (N,) float32)
+        Ambient and direct irradiance of the board's visible side.
+    """
+
+    body_cov: np.ndarray | None = None
+    person_cov: np.ndarray | None = None
+    person_rad: np.ndarray | None = None
+    person_depth: np.ndarray | None = None
+    board_px: np.ndarray | None = None
+    board_rad: np.ndarray | None = None
+    board_light: np.ndarray | None = None
+    board_side_direct: tuple[np.ndarray, np.ndarray] | None = None
 
 
 class Studio:
@@ -532,7 +441,7 @@ class Studio:
         if not isinstance(pose, BoardPose):
             raise ValueError(f"render_board: pose must be a BoardPose, got {type(pose)}")
         img, person, shadow, bmask = self._render(
-            camera, vertices, _Board(board, pose, self._mips(board)), rng, effects
+            camera, vertices, BoardSheet(board, pose, self._mips(board)), rng, effects
         )
         return BoardFrame(img, person, shadow, bmask)
 
@@ -663,8 +572,8 @@ class Studio:
         """Shadow amount in [0, 1] for receivers at light-space coordinates q (3, N)."""
         mx = (q[0] - smap.origin[0]) / smap.texel
         my = (q[1] - smap.origin[1]) / smap.texel
-        cov = _sample(smap.coverage, mx, my, cv2.INTER_LINEAR, 0.0)
-        zc = _sample(smap.zmin, mx, my, cv2.INTER_NEAREST, 1e9)
+        cov = sample_image(smap.coverage, mx, my, cv2.INTER_LINEAR, 0.0)
+        zc = sample_image(smap.zmin, mx, my, cv2.INTER_NEAREST, 1e9)
         return np.where(q[2] > zc + bias, cov, 0.0).astype(np.float32)
 
     # --- the render -----------------------------------------------------------------
@@ -672,11 +581,20 @@ class Studio:
         self,
         camera: Camera,
         vertices: np.ndarray | None,
-        board: _Board | None,
+        board: BoardSheet | None,
         rng: np.random.Generator | int | None,
         effects: bool,
         others: Sequence[Body] = (),
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """One image: the bodies, the board, their shadows, composited, then the camera.
+
+        Returns
+        -------
+        image : (H, W, 3) uint8
+        person, shadow, board : (H, W) bool
+            Where the person is, where a shadow falls on the scene (not on a
+            body), where the board is.
+        """
         if not isinstance(camera, Camera):
             raise ValueError(
                 f"render: camera must be a calibration.camera.Camera, got {type(camera)}"
@@ -687,68 +605,114 @@ class Studio:
             rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
         cache = self._camera(camera)
         w, h = camera.size
-        npx = w * h
         s = self.supersample
-        light = self.light
-        col = np.asarray(light.color, dtype=np.float32)
 
         # --- bodies (the person, then bystanders): one z-buffer, shading -------------------
         bodies = self._bodies(vertices, others)
-        person_cov = None  # (H*W,) float32 coverage by the person alone
-        body_cov = None  # (H*W,) float32 coverage by any body
-        person_rad = None  # (H*W, 3) float32 radiance x coverage of the bodies
-        person_depth = None  # (H*W,) float32 nearest body depth (inf where none)
+        layers = _Layers()
         if bodies:
             pixels, depth, rad, subject = self._raster_bodies(camera, cache, bodies, vertices)
-            body_cov, person_cov, person_rad, person_depth = _downsample_bodies(
-                pixels, depth, rad, subject, s, w, h
+            layers.body_cov, layers.person_cov, layers.person_rad, layers.person_depth = (
+                _downsample_bodies(pixels, depth, rad, subject, s, w, h)
             )
 
         # --- board: analytic ray-plane intersection --------------------------------------
-        board_px = None
-        board_rad = None
-        board_light = None
-        board_side_direct = None
         if board is not None:
-            board_px, board_rad, board_light, board_side_direct = self._board_pixels(
-                camera, cache, board, person_depth
+            layers.board_px, layers.board_rad, layers.board_light, layers.board_side_direct = (
+                self._board_pixels(camera, cache, board, layers.person_depth)
             )
 
-        # --- shadows -------------------------------------------------------------------
+        shade_bg, shade_board = self._shadows(cache, w * h, bodies, board, layers)
+        rad, person_mask, body_mask, board_mask, shadow_amount = self._composite(
+            cache, w * h, layers, shade_bg, shade_board
+        )
+        shadow_mask = (shadow_amount > 0.5) & ~person_mask & ~body_mask
+        img = rad.reshape(h, w, 3) * cache.camera_gain
+        if effects:
+            img = self._camera_effects(img, rng)
+        out = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+        return (
+            out,
+            person_mask.reshape(h, w),
+            shadow_mask.reshape(h, w),
+            board_mask.reshape(h, w),
+        )
+
+    def _shadows(
+        self,
+        cache: _CameraCache,
+        npx: int,
+        bodies: list[tuple[np.ndarray, np.ndarray]],
+        board: BoardSheet | None,
+        layers: _Layers,
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Shadow amounts on the background and on the board's visible pixels.
+
+        Returns
+        -------
+        shade_bg : (H*W,) float32
+            Shadow of every caster (bodies and board) on the room.
+        shade_board : (N,) float32 or None
+            Shadow of the bodies on the board's pixels (None: no board, no body
+            or no shadows).
+        """
         shade_bg = np.zeros(npx, np.float32)
         shade_board = None
-        if self.shadows:
-            casters = [(v, self.faces, "back") for v, _ in bodies]
-            if board is not None:
-                corners = board.pose.to_world(board.texture.corners())
-                casters.append((corners, np.array([[0, 1, 2], [0, 2, 3]]), "none"))
-            if casters:
-                origin, tau, depths = self._shadow_maps(casters)
-                all_map = self._finish_shadow_map(origin, tau, np.minimum.reduce(depths))
-                q = cache.bg_light
-                hh, ww = all_map.coverage.shape
-                sel = np.flatnonzero(
-                    (q[0] >= origin[0] - tau)
-                    & (q[0] <= origin[0] + ww * tau)
-                    & (q[1] >= origin[1] - tau)
-                    & (q[1] <= origin[1] + hh * tau)
-                )
-                if sel.size:
-                    shade_bg[sel] = self._shadow_lookup(all_map, q[:, sel])
-                if bodies and board_px is not None and board_px.size:
-                    person_map = self._finish_shadow_map(
-                        origin, tau, np.minimum.reduce(depths[: len(bodies)])
-                    )
-                    shade_board = self._shadow_lookup(person_map, board_light)
+        if not self.shadows:
+            return shade_bg, shade_board
+        casters = [(v, self.faces, "back") for v, _ in bodies]
+        if board is not None:
+            corners = board.pose.to_world(board.texture.corners())
+            casters.append((corners, np.array([[0, 1, 2], [0, 2, 3]]), "none"))
+        if not casters:
+            return shade_bg, shade_board
+        origin, tau, depths = self._shadow_maps(casters)
+        all_map = self._finish_shadow_map(origin, tau, np.minimum.reduce(depths))
+        q = cache.bg_light
+        hh, ww = all_map.coverage.shape
+        sel = np.flatnonzero(
+            (q[0] >= origin[0] - tau)
+            & (q[0] <= origin[0] + ww * tau)
+            & (q[1] >= origin[1] - tau)
+            & (q[1] <= origin[1] + hh * tau)
+        )
+        if sel.size:
+            shade_bg[sel] = self._shadow_lookup(all_map, q[:, sel])
+        if bodies and layers.board_px is not None and layers.board_px.size:
+            person_map = self._finish_shadow_map(
+                origin, tau, np.minimum.reduce(depths[: len(bodies)])
+            )
+            shade_board = self._shadow_lookup(person_map, layers.board_light)
+        return shade_bg, shade_board
 
-        # --- composite (linear radiance) -----------------------------------------------------
+    def _composite(
+        self,
+        cache: _CameraCache,
+        npx: int,
+        layers: _Layers,
+        shade_bg: np.ndarray,
+        shade_board: np.ndarray | None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Composite the room, the board and the bodies in linear radiance.
+
+        Returns
+        -------
+        rad : (H*W, 3) float
+            Radiance of every pixel.
+        person_mask, body_mask, board_mask : (H*W,) bool
+        shadow_amount : (H*W,) float32
+            Shadow on the room and the board (before the bodies cover it).
+        """
+        col = np.asarray(self.light.color, dtype=np.float32)
+        board_px = layers.board_px
+        body_cov, person_cov, person_rad = layers.body_cov, layers.person_cov, layers.person_rad
         rad = cache.bg_ambient + cache.bg_direct * (1.0 - shade_bg)[:, None]
         shadow_amount = shade_bg.copy()
         board_mask = np.zeros(npx, bool)
         if board_px is not None and board_px.size:
             sb = shade_board if shade_board is not None else np.zeros(board_px.size, np.float32)
-            amb_b, dir_b = board_side_direct
-            rad[board_px] = board_rad * (amb_b + dir_b * (1.0 - sb))[:, None] * col
+            amb_b, dir_b = layers.board_side_direct
+            rad[board_px] = layers.board_rad * (amb_b + dir_b * (1.0 - sb))[:, None] * col
             shadow_amount[board_px] = sb
             board_mask[board_px] = True
         person_mask = np.zeros(npx, bool)
@@ -764,24 +728,16 @@ class Studio:
             rad = rad * (1.0 - body_cov)[:, None] + person_rad * col
             person_mask = person_cov >= 0.5
             body_mask = body_cov >= 0.5
-        shadow_mask = (shadow_amount > 0.5) & ~person_mask & ~body_mask
+        return rad, person_mask, body_mask, board_mask, shadow_amount
 
-        # --- camera ----------------------------------------------------------------------
-        img = rad.reshape(h, w, 3) * cache.camera_gain
+    def _camera_effects(self, img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The camera's blur, flicker and noise on an image (H, W, 3) of camera values."""
         ef = self.effects
-        if effects:
-            if ef.blur_sigma > 0:
-                img = cv2.GaussianBlur(img, (0, 0), ef.blur_sigma)
-            img = img * np.float32(1.0 + ef.flicker * rng.standard_normal())
-            sigma = np.sqrt(ef.read_noise**2 + ef.shot_noise * np.maximum(img, 0.0))
-            img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
-        out = np.clip(img + 0.5, 0, 255).astype(np.uint8)
-        return (
-            out,
-            person_mask.reshape(h, w),
-            shadow_mask.reshape(h, w),
-            board_mask.reshape(h, w),
-        )
+        if ef.blur_sigma > 0:
+            img = cv2.GaussianBlur(img, (0, 0), ef.blur_sigma)
+        img = img * np.float32(1.0 + ef.flicker * rng.standard_normal())
+        sigma = np.sqrt(ef.read_noise**2 + ef.shot_noise * np.maximum(img, 0.0))
+        return img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
 
     def _bodies(
         self, vertices: np.ndarray | None, others: Sequence[Body]
@@ -877,87 +833,36 @@ class Studio:
         self,
         camera: Camera,
         cache: _CameraCache,
-        board: _Board,
+        board: BoardSheet,
         person_depth: np.ndarray | None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
         """Pixels where the board is visible, their albedo (N, 3), light-space
         coordinates (3, N) and (ambient, direct) irradiance of the visible side."""
-        w, h = camera.size
-        tex, pose = board.texture, board.pose
-        # Candidate region: bounding box of the projected sheet outline.
-        c = tex.corners()
-        outline = np.concatenate(
-            [c[i] + np.linspace(0, 1, 33)[:, None] * (c[(i + 1) % 4] - c[i]) for i in range(4)]
-        )
-        pw = pose.to_world(outline)
-        xy, _, valid = project_for_raster(camera, pw, 1, cache.r_limit)
+        tex = board.texture
         empty = (
             np.zeros(0, np.int64),
             np.zeros((0, 3), np.float32),
             np.zeros((3, 0), np.float32),
             (np.zeros(0), np.zeros(0)),
         )
-        if valid.sum() < 3:
+        region = board_region(camera, cache.r_limit, board)
+        if region is None:
             return empty
-        x0 = max(int(np.floor(xy[valid, 0].min())) - 2, 0)
-        x1 = min(int(np.ceil(xy[valid, 0].max())) + 2, w - 1)
-        y0 = max(int(np.floor(xy[valid, 1].min())) - 2, 0)
-        y1 = min(int(np.ceil(xy[valid, 1].max())) + 2, h - 1)
-        if not np.all(valid):  # partly behind the camera or beyond the lens range
-            x0, x1, y0, y1 = 0, w - 1, 0, h - 1
-        if x1 < x0 or y1 < y0:
-            return empty
+        x0, x1, y0, y1 = region
         ys, xs = np.mgrid[y0 : y1 + 1, x0 : x1 + 1]
-        pix = (ys * w + xs).reshape(-1)
+        pix = (ys * camera.size[0] + xs).reshape(-1)
         d = cache.rays_world[pix]  # (N, 3)
-        origin = camera.center
-        nrm = pose.R[:, 2]
-        denom = d @ nrm
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lam = ((pose.t - origin) @ nrm) / denom
-        p = origin + lam[:, None] * d
-        pb = (p - pose.t) @ pose.R  # board frame
-        m = tex.margin
-        pwid, phei = tex.pattern_size
-        inside = (
-            np.isfinite(lam)
-            & (lam > 1e-6)
-            & (pb[:, 0] >= -m)
-            & (pb[:, 0] <= pwid + m)
-            & (pb[:, 1] >= -m)
-            & (pb[:, 1] <= phei + m)
-        )
+        lam, p, pb, inside = board_hits(camera, board, d)
         if person_depth is not None:
             inside &= lam < person_depth[pix]
         gh, gw = ys.shape
-        # Texture footprint: texels per pixel from the board coordinates' gradients.
-        ppm = tex.image.shape[1] / tex.sheet_size[0]  # texels per metre
-        u = ((pb[:, 0] + m) * ppm).reshape(gh, gw)
-        vv = ((pb[:, 1] + m) * ppm).reshape(gh, gw)
-        with np.errstate(invalid="ignore"):
-            gu = np.hypot(*np.gradient(u)) if min(gh, gw) > 1 else np.ones_like(u)
-            gv = np.hypot(*np.gradient(vv)) if min(gh, gw) > 1 else np.ones_like(u)
-        foot = np.nan_to_num(np.maximum(gu, gv), nan=1.0, posinf=1.0).reshape(-1)
+        u, vv, foot = texture_footprint(tex, pb, gh, gw)
         sel = np.flatnonzero(inside)
         if sel.size == 0:
             return empty
-        level = np.clip(np.log2(np.maximum(foot[sel], 1e-6)), 0, len(board.mips) - 1)
-        l0 = np.floor(level).astype(int)
-        frac = (level - l0).astype(np.float32)
-        us = u.reshape(-1)[sel]
-        vs = vv.reshape(-1)[sel]
-        alb = np.zeros(sel.size, np.float32)
-        for lev in np.unique(np.concatenate([l0, np.minimum(l0 + 1, len(board.mips) - 1)])):
-            wgt = np.where(l0 == lev, 1 - frac, 0) + np.where(
-                np.minimum(l0 + 1, len(board.mips) - 1) == lev, frac, 0
-            )
-            use = np.flatnonzero(wgt > 0)
-            if use.size == 0:
-                continue
-            sc = 2.0**lev
-            val = _sample(board.mips[lev], us[use] / sc - 0.5, vs[use] / sc - 0.5, cv2.INTER_LINEAR)
-            alb[use] += wgt[use] * val
+        alb = board_albedo(board, u.reshape(-1)[sel], vv.reshape(-1)[sel], foot[sel])
         # Visible side: the printed side faces -z of the board.
+        nrm = board.pose.R[:, 2]
         facing_front = (d[sel] @ nrm) > 0  # ray runs along +z: sees the -z side
         alb = np.where(facing_front, alb, np.float32(tex.back_albedo))
         side_n = np.where(facing_front[:, None], -nrm[None], nrm[None])

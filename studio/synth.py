@@ -34,7 +34,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import save_calibration
@@ -58,6 +57,7 @@ from bodymetry.estimation.body_model.motion.library import (
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.motion.seeds import seed_for
 from bodymetry.fileio import save_npz, write_bytes_atomic
+from bodymetry.studio.board_motion import board_trajectory
 from bodymetry.studio.bystanders import (
     MAX_BYSTANDERS,
     BystanderPlacement,
@@ -227,139 +227,6 @@ class SynthConfig:
             raise InputError(f"--bystanders: expected 0..{MAX_BYSTANDERS}, got {self.bystanders}")
 
 
-#: Where the close sweep puts the board centre in each camera's image, in units of the
-#: half image size from the principal point: a serpentine over a 3 x 3 grid (corners
-#: first), so that partly visible boards reach every image corner and border.
-SWEEP_GRID = ((-1, -1), (0, -1), (1, -1), (1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (0, 0))
-
-
-def _facing(normal: np.ndarray) -> np.ndarray:
-    """world_from_board rotation (3, 3) of an upright board whose printed side faces ``normal``."""
-    z_b = -normal / np.linalg.norm(normal)  # the printed side looks along -z_b
-    x_b = np.cross([0.0, 0.0, 1.0], z_b)
-    x_b /= np.linalg.norm(x_b)
-    return np.stack([x_b, np.cross(z_b, x_b), z_b], axis=1)
-
-
-def board_trajectory(
-    n_frames: int,
-    fps: float,
-    rng: np.random.Generator,
-    board: BoardSpec,
-    cameras: list[Camera],
-    *,
-    sweep_reach: float = 0.7,
-    sweep_depth_m: tuple[float, float] = (1.5, 2.3),
-    tilt_deg: float = 35.0,
-    height_m: tuple[float, float] = (0.5, 2.2),
-) -> np.ndarray:
-    """Poses of the calibration board through the clip, ``x_world = R x_board + t``.
-
-    The protocol of docs/calibration.md ("Recording the clip"), as a time-lapse:
-
-    1. The first second the board lies face up on the floor with its pattern
-       origin at the world origin and its x axis along world x: that defines
-       the world frame (docs/calibration-format.md).
-    2. Shared views: for each pair of neighbouring cameras, the board is held
-       in the volume at 0.9-1.6 m, facing between the two, at three tilted
-       poses (±25°).
-    3. Close sweeps: the operator steps up to each camera in turn and holds
-       the board 1.5-2.3 m in front of it at nine poses whose centres lie on a
-       3 x 3 grid over the image (:data:`SWEEP_GRID`, ``sweep_reach`` of the
-       half image size out from the centre, so that partly visible boards
-       cover the image corners), each tilted by up to ``tilt_deg`` about both
-       board axes. The image corners pin down distortion and the principal
-       point; the tilts pin down the focal length.
-
-    The board holds each key pose for 40 % of its share of the frames and moves
-    smoothly (position eased, rotation slerped) to the next. Pair poses get
-    one share, close sweeps two (per segment).
-
-    Parameters
-    ----------
-    cameras : list of Camera
-        The rig (the operator watches each camera's live image to aim the board).
-    sweep_reach, sweep_depth_m, tilt_deg : close-sweep geometry (see above).
-    height_m : (float, float)
-        Range of the board centre's height during the close sweeps (the
-        sweep distance is shortened or lengthened to stay within it).
-
-    Returns
-    -------
-    (n_frames, 4, 4) float
-        Homogeneous world_from_board transforms.
-    """
-    w = board.squares[0] * board.square_m
-    h = board.squares[1] * board.square_m
-    center = np.array([w / 2, h / 2, 0.0])
-    floor = np.eye(4)
-    # Printed side faces the board's -z; face up means board z = world -z.
-    floor[:3, :3] = np.diag([1.0, -1.0, -1.0])
-    n_floor = min(n_frames, round(fps))
-    out = np.empty((n_frames, 4, 4))
-    out[:n_floor] = floor
-    n_move = n_frames - n_floor
-    if n_move <= 0 or not cameras:
-        out[n_floor:] = floor
-        return out
-    centers = np.stack([cam.center for cam in cameras])
-    C = len(cameras)
-    order = np.argsort(np.arctan2(centers[:, 1], centers[:, 0]))
-    segments: list[tuple[float, list[tuple[np.ndarray, np.ndarray]]]] = []
-    for i in range(C if C > 1 else 0):
-        mid = 0.5 * (centers[order[i]] + centers[order[(i + 1) % C]])
-        toward = mid[:2] / max(np.linalg.norm(mid[:2]), 1e-9)
-        keys = []
-        for _ in range(3):
-            p = np.array([*(0.35 * toward + rng.uniform(-0.4, 0.4, 2)), rng.uniform(0.9, 1.6)])
-            tilt = rng.uniform(-1.0, 1.0, 3) * np.deg2rad([25.0, 25.0, 15.0])
-            keys.append((_facing(mid - p) @ Rotation.from_euler("xyz", tilt).as_matrix(), p))
-        segments.append((1.0, keys))
-    for i in range(C):
-        cam = cameras[order[i]]
-        (fx, _, cx), (_, fy, cy) = cam.K[:2]
-        half = np.array([cam.size[0], cam.size[1]]) / 2.0
-        first = int(rng.integers(len(SWEEP_GRID)))
-        keys = []
-        for k in range(len(SWEEP_GRID)):
-            g = np.asarray(SWEEP_GRID[(first + k) % len(SWEEP_GRID)], dtype=float)
-            u, v = np.array([cx, cy]) + g * sweep_reach * half
-            ray = np.array([(u - cx) / fx, (v - cy) / fy, 1.0])  # camera frame, z = 1
-            ray_w = cam.R.T @ ray
-            depth = rng.uniform(*sweep_depth_m)
-            z = cam.center[2] + depth * ray_w[2]
-            if abs(ray_w[2]) > 1e-9 and not height_m[0] <= z <= height_m[1]:
-                zc = np.clip(z, *height_m)
-                depth = float(np.clip((zc - cam.center[2]) / ray_w[2], 1.0, 3.5))
-            p_cam = depth * ray
-            # Upright in the image (board x along image x), facing the camera, then tilted.
-            z_b = p_cam / np.linalg.norm(p_cam)
-            x_b = np.cross(z_b, np.cross([1.0, 0.0, 0.0], z_b))
-            x_b /= np.linalg.norm(x_b)
-            R_cb = np.stack([x_b, np.cross(z_b, x_b), z_b], axis=1)
-            tilt = rng.uniform(-1.0, 1.0, 3) * np.deg2rad([tilt_deg, tilt_deg, 15.0])
-            R_cb = R_cb @ Rotation.from_euler("xyz", tilt).as_matrix()
-            keys.append((cam.R.T @ R_cb, cam.R.T @ (p_cam - cam.t)))
-        segments.append((2.0, keys))
-    keys = [key for _, seg in segments for key in seg]
-    share = np.array([weight / len(seg) for weight, seg in segments for _ in seg])
-    bounds = np.concatenate([[0.0], np.cumsum(share) / share.sum() * n_move])
-    rotations = Rotation.from_matrix(np.stack([R for R, _ in keys]))
-    positions = np.stack([p for _, p in keys])
-    for f in range(n_move):
-        k = min(int(np.searchsorted(bounds, f, side="right")) - 1, len(keys) - 1)
-        nxt = min(k + 1, len(keys) - 1)
-        s = (f - bounds[k]) / max(bounds[k + 1] - bounds[k], 1e-9)
-        a = float(np.clip((s - 0.4) / 0.6, 0.0, 1.0))
-        a = a * a * (3.0 - 2.0 * a)  # smoothstep
-        R = Slerp([0.0, 1.0], rotations[[k, nxt]])(a).as_matrix()
-        p = (1.0 - a) * positions[k] + a * positions[nxt]
-        out[n_floor + f] = np.eye(4)
-        out[n_floor + f, :3, :3] = R
-        out[n_floor + f, :3, 3] = p - R @ center
-    return out
-
-
 def _png(mask: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(".png", mask.astype(np.uint8) * 255)
     if not ok:  # pragma: no cover - OpenCV failure
@@ -469,33 +336,10 @@ def synthesize(
         The session as written (loadable with ``capture.session.load_session``).
     """
     out = Path(out)
-    if out.exists() and any(out.iterdir()):
-        if not overwrite:
-            raise InputError(
-                f"{out}: folder exists and is not empty (use --overwrite to replace it)"
-            )
-        shutil.rmtree(out)
-    out.mkdir(parents=True, exist_ok=True)
+    _empty_folder(out, overwrite)
     t0 = time.perf_counter()
     model = BodyModel.load()
-    independent = None
-    if config.subject.independent is not None:
-        independent = IndependentSubject(config.subject.independent, model=model)
-        nu, subject_info = None, independent.describe()
-        rest = independent.rest_pose_info()
-    else:
-        nu, subject_info = config.subject.resolve(model)
-        rest = RestPoseInfo.from_model(model, nu)
-    motion_seed = seed_for("test", config.seed)
-    motion = make_motion(
-        config.motion, config.frames, config.fps, motion_seed, limits=model.limits, rest=rest
-    )
-    if independent is None:
-        motion = ground_motion(model, motion, nu, lod=False)
-    else:
-        tau = motion.tau.copy()
-        tau[:, 2] -= independent.lowest_point(motion.tau, motion.theta)
-        motion = Motion(motion.theta, tau, motion.fps, motion.name)
+    subject = _SubjectMotion.draw(model, config)
     rig_seed = config.seed if config.rig_seed is None else config.rig_seed
     cameras = studio_rig(config.cameras, config.size, seed=rig_seed)
     group = CameraGroup(cameras)
@@ -508,21 +352,7 @@ def synthesize(
     )
 
     # Ground truth that does not need rendering.
-    if independent is None:
-        bio = measure(model, nu[None])[0].to_dict()
-        posed = model.pose(BodyState(motion.tau, motion.theta, nu[None]))
-        joints, sparse_vertices = posed.joints, posed.vertices[:, ::7]
-        del posed
-    else:
-        # The nude body: true joints of the skinning (what MPJPE is scored against).
-        bio = independent.biometrics().to_dict()
-        batches = [
-            independent.pose(motion.tau[s : s + 32], motion.theta[s : s + 32])
-            for s in range(0, config.frames, 32)
-        ]
-        joints = np.concatenate([j for _, j in batches])
-        sparse_vertices = np.concatenate([v[:, ::7] for v, _ in batches])
-        del batches
+    bio, joints, sparse_vertices = subject.truth(model, config.frames)
     bystanders = place_bystanders(
         model,
         cameras,
@@ -530,11 +360,187 @@ def synthesize(
         config.bystanders,
         config.seed,
         exclude_heldout=tuple(
-            [subject_info["heldout_index"]] if "heldout_index" in subject_info else []
+            [subject.info["heldout_index"]] if "heldout_index" in subject.info else []
         ),
         placement=config.bystander_placement,
     )
     del sparse_vertices
+    _write_ground_truth(out, config, subject, joints, board_poses, bio)
+    _write_true_calibration(out, group)
+
+    # The studio dresses the subject in the default Appearance; bystanders wear their own.
+    independent = config.subject.independent
+    others = tuple(Body(b.vertices(model), b.appearance(Appearance())) for b in bystanders)
+    jobs = [
+        _CameraJob(i, cam, config, out, *subject.rendered(), board_poses, others, independent)
+        for i, cam in enumerate(cameras)
+    ]
+    results = _render_cameras(jobs, workers, _frame_total(config), on_progress)
+    session = _session_record(out, config, cameras)
+    save_session(session, out)
+    _write_studio_record(out, config, subject, bystanders, results, t0)
+    log.info("rendered %s in %.1f s", out, time.perf_counter() - t0)
+    return session
+
+
+def _write_true_calibration(out: Path, group: CameraGroup) -> None:
+    """Write the true cameras as the session's ``calibration.yaml``."""
+    save_calibration(
+        out / "calibration.yaml",
+        group,
+        extra={
+            "world": {
+                "frame": "z up, floor z = 0, metres",
+                "note": "true cameras of a bodymetry studio session",
+            }
+        },
+    )
+
+
+def _frame_total(config: SynthConfig) -> int:
+    """Frames rendered in all: every camera's recording, background and calibration clips."""
+    background_frames = config.background_frames if config.background_clip else 0
+    return config.cameras * (config.frames + background_frames + config.calibration_frames)
+
+
+def _write_studio_record(
+    out: Path,
+    config: SynthConfig,
+    subject: _SubjectMotion,
+    bystanders: list,
+    results: list[dict],
+    t0: float,
+) -> None:
+    """Write ``ground_truth/studio.json``: the configuration, motion seed, bystanders,
+    render time (since ``t0``, ``time.perf_counter``) and each camera's mean
+    shadow-to-person area."""
+    shadow = {r["camera"]: float(np.mean(r["shadow_to_person_area"] or [0.0])) for r in results}
+    StudioRecord(
+        config={**asdict(config), "subject": asdict(config.subject)},
+        motion_seed=subject.motion_seed,
+        bystanders=[b.to_json() for b in bystanders],
+        render_seconds=round(time.perf_counter() - t0, 2),
+        shadow_to_person_area_mean=shadow,
+    ).write(out / "ground_truth")
+
+
+def _empty_folder(out: Path, overwrite: bool) -> None:
+    """Create ``out``, or empty it when ``overwrite``.
+
+    Raises
+    ------
+    InputError
+        ``out`` holds files and ``overwrite`` is off.
+    """
+    if out.exists() and any(out.iterdir()):
+        if not overwrite:
+            raise InputError(
+                f"{out}: folder exists and is not empty (use --overwrite to replace it)"
+            )
+        shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
+
+
+@dataclass(frozen=True, eq=False)
+class _SubjectMotion:
+    """The recorded subject and its grounded motion.
+
+    Attributes
+    ----------
+    nu : (n_shape,) float or None
+        The shape of a body of our model; None for an independent subject.
+    info : dict
+        The subject's description for ``subject.json``.
+    independent : IndependentSubject or None
+    motion : Motion
+        τ (F, 3) and θ (F, 37), lowest point on the floor.
+    motion_seed : int
+    """
+
+    nu: np.ndarray | None
+    info: dict
+    independent: IndependentSubject | None
+    motion: Motion
+    motion_seed: int
+
+    @classmethod
+    def draw(cls, model: BodyModel, config: SynthConfig) -> _SubjectMotion:
+        """Resolve the configuration's subject and make its motion, standing on the floor."""
+        independent = None
+        if config.subject.independent is not None:
+            independent = IndependentSubject(config.subject.independent, model=model)
+            nu, subject_info = None, independent.describe()
+            rest = independent.rest_pose_info()
+        else:
+            nu, subject_info = config.subject.resolve(model)
+            rest = RestPoseInfo.from_model(model, nu)
+        motion_seed = seed_for("test", config.seed)
+        motion = make_motion(
+            config.motion, config.frames, config.fps, motion_seed, limits=model.limits, rest=rest
+        )
+        if independent is None:
+            motion = ground_motion(model, motion, nu, lod=False)
+        else:
+            tau = motion.tau.copy()
+            tau[:, 2] -= independent.lowest_point(motion.tau, motion.theta)
+            motion = Motion(motion.theta, tau, motion.fps, motion.name)
+        return cls(nu, subject_info, independent, motion, motion_seed)
+
+    def rendered(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """What a camera job poses: τ (F, 3), θ (F, 37) and ν (or None)."""
+        return self.motion.tau, self.motion.theta, self.nu
+
+    def truth(self, model: BodyModel, frames: int) -> tuple[dict, np.ndarray, np.ndarray]:
+        """The subject's true biometrics, joints and a sparse sample of its posed vertices.
+
+        Returns
+        -------
+        bio : dict
+            Biometrics (``Biometrics.to_dict``).
+        joints : (F, 15, 3) float
+            True joints (of the nude body's skinning for an independent subject:
+            what MPJPE is scored against).
+        sparse_vertices : (F, V / 7, 3) float
+            Every 7th posed vertex (to place bystanders clear of the subject).
+        """
+        motion, nu, independent = self.motion, self.nu, self.independent
+        if independent is None:
+            bio = measure(model, nu[None])[0].to_dict()
+            posed = model.pose(BodyState(motion.tau, motion.theta, nu[None]))
+            joints, sparse_vertices = posed.joints, posed.vertices[:, ::7]
+            del posed
+        else:
+            # The nude body: true joints of the skinning (what MPJPE is scored against).
+            bio = independent.biometrics().to_dict()
+            batches = [
+                independent.pose(motion.tau[s : s + 32], motion.theta[s : s + 32])
+                for s in range(0, frames, 32)
+            ]
+            joints = np.concatenate([j for _, j in batches])
+            sparse_vertices = np.concatenate([v[:, ::7] for v, _ in batches])
+            del batches
+        return bio, joints, sparse_vertices
+
+
+def _write_ground_truth(
+    out: Path,
+    config: SynthConfig,
+    subject: _SubjectMotion,
+    joints: np.ndarray,
+    board_poses: np.ndarray,
+    bio: dict,
+) -> None:
+    """Write ``ground_truth/``'s per-frame states and ``subject.json``.
+
+    Parameters
+    ----------
+    joints : (F, 15, 3) float
+    board_poses : (calibration_frames, 4, 4) float
+        The calibration clip's board transforms.
+    bio : dict
+        The subject's biometrics.
+    """
+    nu, motion = subject.nu, subject.motion
     states = {
         "frame": np.arange(config.frames),
         "tau": motion.tau,
@@ -549,39 +555,31 @@ def synthesize(
         {
             **{k: round(v, 3) for k, v in bio.items()},
             **({"nu": nu.tolist()} if nu is not None else {}),
-            **subject_info,
+            **subject.info,
         }
     ).write(out / "ground_truth")
-    save_calibration(
-        out / "calibration.yaml",
-        group,
-        extra={
-            "world": {
-                "frame": "z up, floor z = 0, metres",
-                "note": "true cameras of a bodymetry studio session",
-            }
-        },
-    )
 
-    background_frames = config.background_frames if config.background_clip else 0
-    total = config.cameras * (config.frames + background_frames + config.calibration_frames)
-    # The studio dresses the subject in the default Appearance; bystanders wear their own.
-    others = tuple(Body(b.vertices(model), b.appearance(Appearance())) for b in bystanders)
-    jobs = [
-        _CameraJob(
-            i,
-            cam,
-            config,
-            out,
-            motion.tau,
-            motion.theta,
-            nu,
-            board_poses,
-            others,
-            config.subject.independent,
-        )
-        for i, cam in enumerate(cameras)
-    ]
+
+def _render_cameras(
+    jobs: list[_CameraJob],
+    workers: int | None,
+    total: int,
+    on_progress: Callable[[int, int], None] | None,
+) -> list[dict]:
+    """Render every camera's clips in worker processes, reporting progress.
+
+    Parameters
+    ----------
+    workers : int or None
+        Worker processes (default: one per core, at most one per job).
+    total : int
+        Frames to render in all (for ``on_progress``).
+
+    Returns
+    -------
+    list of dict
+        Each job's :func:`_render_camera` result, in job order (worker errors re-raised).
+    """
     n_workers = max(1, min(workers or mp.cpu_count() or 1, len(jobs)))
     ctx = mp.get_context("fork")
     with ctx.Manager() as manager:
@@ -597,8 +595,12 @@ def synthesize(
             results = [f.result() for f in futures]  # re-raises worker errors
         if on_progress:
             on_progress(total, total)
+    return results
 
-    session = Session(
+
+def _session_record(out: Path, config: SynthConfig, cameras: list[Camera]) -> Session:
+    """The rendered folder's session description (``session.yaml``)."""
+    return Session(
         folder=out,
         name=out.name,
         fps=config.fps,
@@ -617,17 +619,6 @@ def synthesize(
         ground_truth="ground_truth",
         subject={"note": "synthetic subject, see ground_truth/subject.json"},
     )
-    save_session(session, out)
-    shadow = {r["camera"]: float(np.mean(r["shadow_to_person_area"] or [0.0])) for r in results}
-    StudioRecord(
-        config={**asdict(config), "subject": asdict(config.subject)},
-        motion_seed=motion_seed,
-        bystanders=[b.to_json() for b in bystanders],
-        render_seconds=round(time.perf_counter() - t0, 2),
-        shadow_to_person_area_mean=shadow,
-    ).write(out / "ground_truth")
-    log.info("rendered %s in %.1f s", out, time.perf_counter() - t0)
-    return session
 
 
 def describe(session: Session) -> str:

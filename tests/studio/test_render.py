@@ -9,7 +9,8 @@ import pytest
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.raster import rasterize, signed_area2
-from bodymetry.studio.render import Body, Studio, pixel_rays
+from bodymetry.studio.lens import pixel_rays
+from bodymetry.studio.render import Body, Studio
 from bodymetry.studio.scene import Appearance, BoardPose, BoardTexture, Light
 
 SIZE = (320, 240)

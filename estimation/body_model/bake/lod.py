@@ -119,9 +119,27 @@ def mesh_defects(vertices: np.ndarray, faces: np.ndarray, area_eps: float = 1e-1
         Empty when the mesh passes every check.
     """
     v, f = _as_mesh(vertices, faces, "mesh_defects")
+    problems = _face_defects(v, f, area_eps)
+    edge_problems, twin = _edge_defects(v.shape[0], f)
+    problems += edge_problems
+    if problems:
+        return problems
+    # Edge-manifold and consistently oriented from here on: twin is well defined.
+    return _fan_defects(v.shape[0], twin) + _orientation_defects(v, f, twin)
+
+
+def _face_defects(v: np.ndarray, f: np.ndarray, area_eps: float) -> list[str]:
+    """Faces repeating an index, duplicate faces, unreferenced vertices, zero-area faces.
+
+    Parameters
+    ----------
+    v : (V, 3) float
+    f : (F, 3) int
+    area_eps : float
+        Relative area threshold (of the bounding-box diagonal squared).
+    """
     problems: list[str] = []
     n_v = v.shape[0]
-
     repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
     if repeated.any():
         problems.append(f"{int(repeated.sum())} faces repeat a vertex index")
@@ -137,7 +155,25 @@ def mesh_defects(vertices: np.ndarray, faces: np.ndarray, area_eps: float = 1e-1
     n_tiny = int((0.5 * area2 <= area_eps * diag**2).sum())
     if n_tiny:
         problems.append(f"{n_tiny} zero-area faces")
+    return problems
 
+
+def _edge_defects(n_v: int, f: np.ndarray) -> tuple[list[str], np.ndarray]:
+    """Directed edges used twice and half-edges without an opposite.
+
+    Parameters
+    ----------
+    n_v : int
+        Vertex count.
+    f : (F, 3) int
+
+    Returns
+    -------
+    problems : list of str
+    twin : (3F,) int
+        The opposite half-edge of each half-edge (meaningful only without problems).
+    """
+    problems: list[str] = []
     src, dst = _half_edges(f)
     key = src * n_v + dst
     order = np.argsort(key, kind="stable")
@@ -154,27 +190,47 @@ def mesh_defects(vertices: np.ndarray, faces: np.ndarray, area_eps: float = 1e-1
         problems.append(
             f"{int((~has_twin).sum())} half-edges without an opposite (open or flipped)"
         )
-    if problems:
-        return problems
+    return problems, order[pos]
 
-    # Edge-manifold and consistently oriented from here on: twin is well defined.
-    twin = order[pos]  # half-edge index of the opposite half-edge
-    he_face = np.arange(key.size) // 3
 
-    # Pinched vertices: corners (face, vertex) around the same vertex are linked
-    # across each edge incident to it; one fan per vertex <=> as many corner
-    # components as vertices. Half-edge h = (s -> d) in face F has corner s in F;
-    # its twin (d -> s) in face G has its *next* half-edge starting at s, so the
-    # corner at s in G is half-edge 3*G + (j+1)%3.
+def _fan_defects(n_v: int, twin: np.ndarray) -> list[str]:
+    """Pinched (non-manifold) vertices of an edge-manifold, consistently oriented mesh.
+
+    Corners (face, vertex) around the same vertex are linked across each edge
+    incident to it; one fan per vertex <=> as many corner components as vertices.
+    Half-edge h = (s -> d) in face F has corner s in F; its twin (d -> s) in face
+    G has its *next* half-edge starting at s, so the corner at s in G is half-edge
+    3*G + (j+1)%3.
+
+    Parameters
+    ----------
+    n_v : int
+        Vertex count.
+    twin : (3F,) int
+        Opposite half-edge of each half-edge.
+    """
     t_face, t_local = np.divmod(twin, 3)
     nxt = 3 * t_face + (t_local + 1) % 3
-    n_he = key.size
+    n_he = twin.size
     graph = sp.coo_matrix((np.ones(n_he), (np.arange(n_he), nxt)), shape=(n_he, n_he)).tocsr()
     n_corner_comp, _ = connected_components(graph, directed=False)
     if n_corner_comp != n_v:
-        problems.append(f"{n_corner_comp - n_v} pinched (non-manifold) vertices")
+        return [f"{n_corner_comp - n_v} pinched (non-manifold) vertices"]
+    return []
 
-    # Outward orientation per connected component.
+
+def _orientation_defects(v: np.ndarray, f: np.ndarray, twin: np.ndarray) -> list[str]:
+    """Connected components whose enclosed volume is not positive (inward or flat).
+
+    Parameters
+    ----------
+    v : (V, 3) float
+    f : (F, 3) int
+    twin : (3F,) int
+        Opposite half-edge of each half-edge.
+    """
+    n_he = twin.size
+    he_face = np.arange(n_he) // 3
     fgraph = sp.coo_matrix(
         (np.ones(n_he), (he_face, he_face[twin])), shape=(f.shape[0], f.shape[0])
     ).tocsr()
@@ -183,8 +239,8 @@ def mesh_defects(vertices: np.ndarray, faces: np.ndarray, area_eps: float = 1e-1
     a, b, c = v[f[:, 0]] - centre, v[f[:, 1]] - centre, v[f[:, 2]] - centre
     vol = np.bincount(comp, np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0, minlength=n_comp)
     if (vol <= 0).any():
-        problems.append(f"{int((vol <= 0).sum())} of {n_comp} components have non-positive volume")
-    return problems
+        return [f"{int((vol <= 0).sum())} of {n_comp} components have non-positive volume"]
+    return []
 
 
 # --------------------------------------------------------------------------
@@ -268,14 +324,7 @@ def decimate_watertight(
     import fast_simplification  # maintainer-only dependency
 
     v, f = _as_mesh(vertices, faces, "decimate_watertight")
-    defects = mesh_defects(v, f)
-    if defects:
-        raise InputError("decimate_watertight: input mesh is not watertight: " + "; ".join(defects))
-    target_faces = int(target_faces)
-    if not 4 <= target_faces < f.shape[0]:
-        raise InputError(
-            f"decimate_watertight: target_faces must be in 4..{f.shape[0] - 1}, got {target_faces}"
-        )
+    target_faces = _check_decimation_input(v, f, target_faces)
     vol_in = signed_volume(v, f)
     tried: list[str] = []
     counts = dict.fromkeys(2 * round(target_faces * float(x) / 2) for x in target_scales)
@@ -290,14 +339,9 @@ def decimate_watertight(
                 tried.append(f"target={count} agg={agg}: empty result")
                 continue
             out_v, out_f = _repair(out_v, out_f)
-            why = mesh_defects(out_v, out_f) if out_f.shape[0] else ["empty after repair"]
-            if not why:
-                n = out_f.shape[0]
-                if abs(n - target_faces) > face_tolerance * target_faces:
-                    why.append(f"{n} faces, target {target_faces}")
-                ratio = signed_volume(out_v, out_f) / vol_in
-                if abs(ratio - 1.0) > volume_tolerance:
-                    why.append(f"volume ratio {ratio:.4f}")
+            why = _decimation_defects(
+                out_v, out_f, target_faces, vol_in, face_tolerance, volume_tolerance
+            )
             if not why:
                 return out_v, out_f
             tried.append(f"target={count} agg={agg}: " + "; ".join(why))
@@ -305,6 +349,61 @@ def decimate_watertight(
         "decimate_watertight: no setting gave an acceptable watertight mesh; tried:\n  "
         + "\n  ".join(tried)
     )
+
+
+def _check_decimation_input(v: np.ndarray, f: np.ndarray, target_faces: int) -> int:
+    """The target face count as an int, after checking the input mesh and the target.
+
+    Parameters
+    ----------
+    v : (V, 3) float
+    f : (F, 3) int
+
+    Raises
+    ------
+    bodymetry.errors.InputError
+        The mesh has defects (:func:`mesh_defects`) or the target is not in 4..F-1.
+    """
+    defects = mesh_defects(v, f)
+    if defects:
+        raise InputError("decimate_watertight: input mesh is not watertight: " + "; ".join(defects))
+    target_faces = int(target_faces)
+    if not 4 <= target_faces < f.shape[0]:
+        raise InputError(
+            f"decimate_watertight: target_faces must be in 4..{f.shape[0] - 1}, got {target_faces}"
+        )
+    return target_faces
+
+
+def _decimation_defects(
+    out_v: np.ndarray,
+    out_f: np.ndarray,
+    target_faces: int,
+    vol_in: float,
+    face_tolerance: float,
+    volume_tolerance: float,
+) -> list[str]:
+    """Why a repaired decimation is not accepted (empty list: accepted).
+
+    Parameters
+    ----------
+    out_v : (V', 3) float
+    out_f : (F', 3) int
+    target_faces : int
+    vol_in : float
+        Signed volume of the input mesh.
+    face_tolerance, volume_tolerance : float
+        Relative bounds on the face count and the volume.
+    """
+    why = mesh_defects(out_v, out_f) if out_f.shape[0] else ["empty after repair"]
+    if not why:
+        n = out_f.shape[0]
+        if abs(n - target_faces) > face_tolerance * target_faces:
+            why.append(f"{n} faces, target {target_faces}")
+        ratio = signed_volume(out_v, out_f) / vol_in
+        if abs(ratio - 1.0) > volume_tolerance:
+            why.append(f"volume ratio {ratio:.4f}")
+    return why
 
 
 # --------------------------------------------------------------------------

