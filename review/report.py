@@ -26,6 +26,7 @@ import datetime as _dt
 import io
 import logging
 import re
+import textwrap
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -64,6 +65,8 @@ log = logging.getLogger(__name__)
 OVERLAY_FRAMES = 3
 #: Width of one overlay tile in the report (pixels).
 OVERLAY_WIDTH = 320
+#: Characters per line of the PDF summary page's text (9 pt across an A4 landscape page).
+SUMMARY_LINE_CHARS = 150
 
 
 @dataclass(frozen=True)
@@ -746,23 +749,43 @@ def _summary_page(ctx: dict[str, Any]) -> Any:
     fig.set_layout_engine("none")
     fig.text(0.04, 0.95, ctx["title"], fontsize=16, weight="bold")
     for i, line in enumerate(_summary_lines(ctx)):
-        fig.text(0.04, 0.90 - 0.024 * i, line, fontsize=9)
+        fig.text(0.04, 0.90 - 0.022 * i, line, fontsize=9)
     _figure3_table(fig, ctx)
     _measurements_table(fig, ctx)
     return fig
 
 
-def _headline_text(h: dict[str, Any]) -> str:
-    """One headline card in words: the session value ± s.e. (per-frame mean ± std)."""
-    frames = f"per-frame mean {_num(h['mean'])} ± {_num(h['std'])}"
-    if h["session"]:
-        return f"{h['label'].lower()} {_pm(h['session'])} {h['unit']} ({frames})"
-    return f"{h['label'].lower()} {frames} {h['unit']}"
+def _headline_lines(ctx: dict[str, Any]) -> list[str]:
+    """The headline cards in words: the session values ± standard error, then the
+    per-frame means ± std (or why there is no session value)."""
+    cards = ctx["headline"]
+    if not cards:
+        return []
+    lines = []
+    if any(h["session"] for h in cards):
+        lines.append(
+            "Session estimate ± standard error: "
+            + ", ".join(
+                f"{h['label'].lower()} {_pm(h['session'])} {h['unit']}"
+                for h in cards
+                if h["session"]
+            )
+            + "."
+        )
+    lines.append(
+        "Per-frame mean ± std (disc. + generative): "
+        + ", ".join(f"{h['label'].lower()} {_pm((h['mean'], h['std']))} {h['unit']}" for h in cards)
+        + "."
+    )
+    missing = [h for h in cards if not h["session"]]
+    if missing:
+        lines.append(f"Session estimate unavailable ({missing[0]['unavailable']}).")
+    return lines
 
 
 def _summary_lines(ctx: dict[str, Any]) -> list[str]:
     """The summary page's lines: session, frames and settings, the headline
-    values, calibration, provenance and the measured accuracy."""
+    values, calibration, provenance and the measured accuracy (long lines wrapped)."""
     s = ctx["session"]
     f = ctx["frames"]
     c = ctx["config"]
@@ -772,19 +795,7 @@ def _summary_lines(ctx: dict[str, Any]) -> list[str]:
         f"{f['ok']} of {f['kept']} kept frames in the measurements ({f['failed']} left out); "
         f"quality {c['quality']}, {c['particles']} particles x {c['layers']} layers, "
         f"seed {c['seed']}, density {c['density']} kg/m³.",
-    ]
-    if ctx["headline"]:
-        with_session = any(h["session"] for h in ctx["headline"])
-        lines.append(
-            ("Session estimate ± standard error: " if with_session else "")
-            + ", ".join(_headline_text(h) for h in ctx["headline"])
-            + (
-                "."
-                if with_session
-                else f"; session estimate unavailable: {ctx['session_unavailable']}."
-            )
-        )
-    lines += [
+        *_headline_lines(ctx),
         f"Calibration: {ctx['calibration']['source']}.",
         f"Generated {ctx['generated']} by bodymetry {ctx['version']}.",
     ]
@@ -800,12 +811,12 @@ def _summary_lines(ctx: dict[str, Any]) -> list[str]:
             + ":"
         )
         lines.append(f"{ctx['accuracy_source']}.")
-    return lines
+    return [part for line in lines for part in textwrap.wrap(line, SUMMARY_LINE_CHARS)]
 
 
 def _figure3_table(fig: Any, ctx: dict[str, Any]) -> None:
     """The Figure 3 table in the upper half of the summary page."""
-    ax = fig.add_axes((0.04, 0.52, 0.92, 0.2))
+    ax = fig.add_axes((0.04, 0.49, 0.92, 0.2))
     ax.set_axis_off()
     ax.set_title(
         "Basic biometric measurements (paper, Figure 3): mean / std over frames", fontsize=10
