@@ -542,6 +542,7 @@ def _figures(
 
 
 def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -> _Content:
+    """The report's template context, figures and renders (``body`` None: no renders)."""
     results = run.results
     truth = run.ground_truth
     figures, renders = _figures(run, body)
