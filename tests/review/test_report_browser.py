@@ -120,7 +120,7 @@ def test_report_has_no_broken_words_and_no_overflow(review_run, tmp_path):
     page.write_text(source.replace("</body>", CHECK_SCRIPT + "</body>"))
     for width in WIDTHS:
         verdict = _layout(page, width, tmp_path / f"profile-{width}")
-        assert verdict["width"] == width, verdict
+        assert width - 20 <= verdict["width"] <= width, verdict  # the viewport asked for
         assert verdict["words"] > 500, verdict  # the check saw the page
         assert verdict["scrollWidth"] <= verdict["width"], f"{width} px: overflows: {verdict}"
         assert verdict["broken"] == [], f"{width} px: words broken: {verdict['broken'][:10]}"
