@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.run_files import RECORDING_MCAP, RECORDING_RRD
 from bodymetry.fileio import atomic_path
@@ -114,26 +115,66 @@ def build_review(
     body = shared_body_model()
     files: dict[str, Path] = {}
     errors: dict[str, str] = {}
-    outputs: list[_Output] = []
-    if recordings:
-        for name, filename, cls in (
-            ("rrd", RECORDING_RRD, RerunWriter),
-            ("mcap", RECORDING_MCAP, McapWriter),
-        ):
-            try:
-                outputs.append(
-                    _Output(name, run.folder / filename, lambda p, c=cls: c(p, run, body))
-                )
-            except Exception as exc:
-                log.exception("%s: could not start %s", run.folder, filename)
-                errors[name] = f"{type(exc).__name__}: {exc}"
+    outputs = _start_recordings(run, body, errors) if recordings else []
     overlay_frames = set(select_overlay_frames(run)) if report else set()
+    overlays, done = _write_frames(
+        run, body, outputs, errors, overlay_frames, every_frame=recordings, progress=progress
+    )
+    _finish_recordings(outputs, files, errors)
+    if report:
+        _write_report(run, body, overlays, pdf, files, errors)
+    seconds = time.perf_counter() - t0
+    log.info(
+        "review of %s: %s in %.1f s%s",
+        run.folder,
+        ", ".join(p.name for p in files.values()) or "nothing written",
+        seconds,
+        f"; failed: {', '.join(errors)}" if errors else "",
+    )
+    return ReviewSummary(
+        files=files, errors=errors, frames=done if recordings else 0, seconds=seconds
+    )
+
+
+def _start_recordings(run: RunData, body: BodyModel, errors: dict[str, str]) -> list[_Output]:
+    """Open ``recording.rrd`` and ``recording.mcap`` (a writer that cannot start is
+    logged and named in ``errors``)."""
+    outputs: list[_Output] = []
+    for name, filename, cls in (
+        ("rrd", RECORDING_RRD, RerunWriter),
+        ("mcap", RECORDING_MCAP, McapWriter),
+    ):
+        try:
+            outputs.append(_Output(name, run.folder / filename, lambda p, c=cls: c(p, run, body)))
+        except Exception as exc:
+            log.exception("%s: could not start %s", run.folder, filename)
+            errors[name] = f"{type(exc).__name__}: {exc}"
+    return outputs
+
+
+def _write_frames(
+    run: RunData,
+    body: BodyModel,
+    outputs: list[_Output],
+    errors: dict[str, str],
+    overlay_frames: set[int],
+    *,
+    every_frame: bool,
+    progress: Progress | None,
+) -> tuple[list[OverlayRow], int]:
+    """The pass over the frames: each frame to every recording in ``outputs`` (a
+    writer that fails is discarded, removed from ``outputs`` and named in
+    ``errors``) and the overlays of ``overlay_frames`` for the report.
+
+    Every kept frame when ``every_frame``, else only the overlay frames.
+    Returns the overlay rows and the number of frames passed.
+    """
     overlays: list[OverlayRow] = []
     n_frames = len(run.frames)
     done = 0
-    wanted = None if recordings else sorted(overlay_frames)
+    wanted = None if every_frame else sorted(overlay_frames)
     if progress:
-        progress("review", 0, n_frames if recordings else len(overlay_frames))
+        progress("review", 0, n_frames if every_frame else len(overlay_frames))
     for view in frame_views(run, body, frames=wanted):
         for out in list(outputs):
             try:
@@ -149,7 +190,14 @@ def build_review(
                 overlays.append(row)
         done += 1
         if progress:
-            progress("review", done, n_frames if recordings else len(overlay_frames))
+            progress("review", done, n_frames if every_frame else len(overlay_frames))
+    return overlays, done
+
+
+def _finish_recordings(
+    outputs: list[_Output], files: dict[str, Path], errors: dict[str, str]
+) -> None:
+    """Move the finished recordings into place (into ``files``; a failure into ``errors``)."""
     for out in outputs:
         try:
             out.finish()
@@ -158,23 +206,23 @@ def build_review(
             log.exception("%s: could not finish", out.final)
             errors[out.name] = f"{type(exc).__name__}: {exc}"
             out.discard()
-    if report:
-        try:
-            written = build_report(run, body, overlays=overlays, pdf=pdf)
-            files["html"], files["csv"] = written.html, written.csv
-            if written.pdf is not None:
-                files["pdf"] = written.pdf
-        except Exception as exc:
-            log.exception("%s: could not write the report", run.folder)
-            errors["report"] = f"{type(exc).__name__}: {exc}"
-    seconds = time.perf_counter() - t0
-    log.info(
-        "review of %s: %s in %.1f s%s",
-        run.folder,
-        ", ".join(p.name for p in files.values()) or "nothing written",
-        seconds,
-        f"; failed: {', '.join(errors)}" if errors else "",
-    )
-    return ReviewSummary(
-        files=files, errors=errors, frames=done if recordings else 0, seconds=seconds
-    )
+
+
+def _write_report(
+    run: RunData,
+    body: BodyModel,
+    overlays: list[OverlayRow],
+    pdf: bool,
+    files: dict[str, Path],
+    errors: dict[str, str],
+) -> None:
+    """``report.html``, ``measurements.csv`` (and ``report.pdf``) into ``files``;
+    a failure into ``errors``."""
+    try:
+        written = build_report(run, body, overlays=overlays, pdf=pdf)
+        files["html"], files["csv"] = written.html, written.csv
+        if written.pdf is not None:
+            files["pdf"] = written.pdf
+    except Exception as exc:
+        log.exception("%s: could not write the report", run.folder)
+        errors["report"] = f"{type(exc).__name__}: {exc}"

@@ -25,6 +25,8 @@ import csv
 import datetime as _dt
 import io
 import logging
+import re
+import textwrap
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +34,7 @@ from typing import Any
 
 import cv2
 import jinja2
+import markupsafe
 import numpy as np
 
 from bodymetry import __version__
@@ -39,8 +42,14 @@ from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.fit import shared_body_model
-from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, SessionGate, Stat
-from bodymetry.estimation.run_files import GT_STAGE, MEASUREMENTS_CSV, REPORT_HTML, REPORT_PDF
+from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, SessionGate, SessionShape, Stat
+from bodymetry.estimation.run_files import (
+    GT_STAGE,
+    MEASUREMENTS_CSV,
+    REPORT_HTML,
+    REPORT_PDF,
+    RunResults,
+)
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
 from bodymetry.review.accuracy import SESSION_ACCURACY
@@ -54,6 +63,8 @@ log = logging.getLogger(__name__)
 OVERLAY_FRAMES = 3
 #: Width of one overlay tile in the report (pixels).
 OVERLAY_WIDTH = 320
+#: Characters per line of the PDF summary page's text (9 pt across an A4 landscape page).
+SUMMARY_LINE_CHARS = 150
 
 
 @dataclass(frozen=True)
@@ -379,44 +390,67 @@ class _Content:
     renders: dict[str, dict[str, np.ndarray]]
 
 
-def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -> _Content:
-    results = run.results
-    session = results.session
-    # The settings as the run recorded them: a run made with other settings
-    # than today's defaults reports its own.
-    config = results.config
-    fit = config.fit
-    frames = run.frames
-    ok = run.ok_frames
+def session_unavailable(shape: SessionShape | None) -> str:
+    """Why a run has no session estimate: ``""`` when its session stage was accepted,
+    else the stage's status (``"rejected: ..."``, ``"skipped: ..."``, ``"failed: ..."``)
+    or ``"the session stage was not run"``."""
+    if shape is None:
+        return "the session stage was not run"
+    return "" if shape.ok else shape.status
+
+
+def headline_cards(run: RunData) -> list[dict[str, Any]]:
+    """The Subject section's cards: one per core measurement that has a per-frame mean.
+
+    The headline value is the session estimate ± its standard error when the
+    session stage was accepted, with the per-frame mean ± std below it; without
+    the session stage, the per-frame mean ± std and why the session estimate is
+    unavailable.
+
+    Returns
+    -------
+    list of dict
+        Each: ``key``, ``label``, ``unit``; ``mean``, ``std`` and ``n`` of the
+        disc. + generative stage over the frames; ``session`` as (value,
+        standard error) or None; ``unavailable`` (why ``session`` is None, ``""``
+        when it is not); ``actual`` (float or None) and ``accuracy`` (the
+        measured accuracy of the session values, or None).
+    """
+    summary = run.results.summary
     truth = run.ground_truth
-    summary = results.summary
-    headline = []
+    why = session_unavailable(run.results.session_shape)
+    cards = []
     for key in CORE_MEASUREMENTS:
         gen = _stat(summary, "generative", key)
-        if gen is not None:
-            headline.append(
-                {
-                    "label": plots.LABELS[key],
-                    "unit": MEASUREMENTS[key],
-                    "mean": gen[0],
-                    "std": gen[1],
-                    "session": _stat(summary, "session", key),
-                    "actual": truth.get(key) if truth else None,
-                    "accuracy": SESSION_ACCURACY.get(key),
-                }
-            )
-    figures = {}
-    if run.fitted_frames:
-        figures["measurements"] = plots.measurement_plots(run)
-        figures["fit"] = plots.fit_quality_plots(run)
-    renders = body_renders(run, body) if body is not None else {}
-    if renders:
-        figures["body"] = plots.body_figure(renders)
-    per_frame = []
-    for r in frames:
+        if gen is None:
+            continue
+        session = _stat(summary, "session", key)
+        cards.append(
+            {
+                "key": key,
+                "label": plots.LABELS[key],
+                "unit": MEASUREMENTS[key],
+                "mean": gen[0],
+                "std": gen[1],
+                "n": summary["generative"][key].n,
+                "session": session,
+                "unavailable": "" if session else why or "no session value for this measurement",
+                "actual": truth.get(key) if truth else None,
+                "accuracy": SESSION_ACCURACY.get(key),
+            }
+        )
+    return cards
+
+
+def per_frame_rows(run: RunData) -> list[dict[str, Any]]:
+    """The Frames table: per kept frame its ``frame``, ``status``, ``flags`` (text),
+    the core measurements' ``values`` of its final estimate (None when missing),
+    ``iou`` (mean, None when not finite) and ``seconds``."""
+    rows = []
+    for r in run.frames:
         gen = r.estimate()
         iou = r.mean_iou
-        per_frame.append(
+        rows.append(
             {
                 "frame": r.frame,
                 "status": r.status,
@@ -430,36 +464,51 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
                 "seconds": r.seconds.get("total"),
             }
         )
-    context = {
-        "title": f"bodymetry report: {run.name}",
-        "name": run.name,
-        "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        "version": __version__,
-        "session": {
-            "path": session.path,
-            "cameras": ", ".join(run.camera_names),
-            "n_cameras": len(run.camera_names),
-            "fps": session.fps,
-            "frame_step": session.frame_step,
-            # Every distinct camera size, in camera order (rigs may mix camera models).
-            "image_size": (
-                ", ".join(
-                    dict.fromkeys(
-                        _size_text(c, w)
-                        for c, w in zip(run.calibrated_cameras, run.cameras, strict=True)
-                    )
+    return rows
+
+
+def _session_facts(run: RunData) -> dict[str, Any]:
+    """The session's folder, cameras, image sizes, frame rate and step."""
+    session = run.results.session
+    return {
+        "path": session.path,
+        "cameras": ", ".join(run.camera_names),
+        "n_cameras": len(run.camera_names),
+        "fps": session.fps,
+        "frame_step": session.frame_step,
+        # Every distinct camera size, in camera order (rigs may mix camera models).
+        "image_size": (
+            ", ".join(
+                dict.fromkeys(
+                    _size_text(c, w)
+                    for c, w in zip(run.calibrated_cameras, run.cameras, strict=True)
                 )
-                or "?"
-            ),
-        },
-        "frames": {
-            "kept": len(frames),
-            "ok": len(ok),
-            "fitted": len(run.fitted_frames),
-            "failed": len(frames) - len(ok),
-        },
+            )
+            or "?"
+        ),
+    }
+
+
+def _frame_counts(run: RunData) -> dict[str, int]:
+    """Kept, ok (in the measurements), fitted and failed frames."""
+    frames = run.frames
+    return {
+        "kept": len(frames),
+        "ok": len(run.ok_frames),
+        "fitted": len(run.fitted_frames),
+        "failed": len(frames) - len(run.ok_frames),
+    }
+
+
+def _recorded_settings(results: RunResults) -> dict[str, Any]:
+    """The report's ``gate`` (the quality gate) and ``config`` (quality preset,
+    seed, density, particles, layers, models) from the run's recorded settings."""
+    # The settings as the run recorded them: a run made with other settings
+    # than today's defaults reports its own.
+    config = results.config
+    fit = config.fit
+    return {
         "gate": results.quality_gate or SessionGate(fit.min_iou, fit.min_iou, None),
-        "failed": [r for r in frames if not r.ok],
         "config": {
             "quality": config.quality,
             "seed": fit.seed,
@@ -468,10 +517,43 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
             "layers": fit.annealing.n_layers,
             "models": results.models,
         },
+    }
+
+
+def _figures(
+    run: RunData, body: BodyModel | None
+) -> tuple[dict[str, Any], dict[str, dict[str, np.ndarray]]]:
+    """The report's matplotlib figures (per-frame measurements, fit quality, body)
+    and the body renders they were made from."""
+    figures = {}
+    if run.fitted_frames:
+        figures["measurements"] = plots.measurement_plots(run)
+        figures["fit"] = plots.fit_quality_plots(run)
+    renders = body_renders(run, body) if body is not None else {}
+    if renders:
+        figures["body"] = plots.body_figure(renders)
+    return figures, renders
+
+
+def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -> _Content:
+    """The report's template context, figures and renders (``body`` None: no renders)."""
+    results = run.results
+    truth = run.ground_truth
+    figures, renders = _figures(run, body)
+    context = {
+        "title": f"bodymetry report: {run.name}",
+        "name": run.name,
+        "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "version": __version__,
+        "session": _session_facts(run),
+        "frames": _frame_counts(run),
+        **_recorded_settings(results),
+        "failed": [r for r in run.frames if not r.ok],
         "timing": results.timing_seconds,
         "truth": truth,
         "truth_source": truth.source if truth else None,
-        "headline": headline,
+        "headline": headline_cards(run),
+        "session_unavailable": session_unavailable(results.session_shape),
         "accuracy_source": ACCURACY_SOURCE,
         "figure3": figure3_rows(run),
         "figure3_columns": figure3_columns(run),
@@ -481,7 +563,7 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
         "has_evaluation": run.evaluation is not None,
         "measurements": measurement_rows(run),
         "core_labels": [plots.label(k) for k in CORE_MEASUREMENTS],
-        "per_frame": per_frame,
+        "per_frame": per_frame_rows(run),
         "calibration": calibration_summary(run),
         "run_folder": str(run.folder.resolve()),
         "overlay_note": _overlay_note(run, overlays),
@@ -508,8 +590,9 @@ def _overlay_note(run: RunData, overlays: list[OverlayRow]) -> str:
 def template_environment() -> jinja2.Environment:
     """The Jinja2 environment of the review's HTML pages (``review/templates/``).
 
-    Autoescaped, strict about undefined names, with the ``num`` filter
-    (:func:`_num`); shared by ``report.html`` and the cohort's ``cohort.html``.
+    Autoescaped, strict about undefined names, with the ``num`` (:func:`_num`),
+    ``breakable`` (:func:`breakable`) and ``ordinal`` (:func:`ordinal`) filters;
+    shared by ``report.html`` and the cohort's ``cohort.html``.
     """
     env = jinja2.Environment(
         loader=jinja2.PackageLoader("bodymetry.review", "templates"),
@@ -519,7 +602,36 @@ def template_environment() -> jinja2.Environment:
         lstrip_blocks=True,
     )
     env.filters["num"] = _num
+    env.filters["breakable"] = breakable
+    env.filters["ordinal"] = ordinal
     return env
+
+
+def breakable(text: Any) -> markupsafe.Markup:
+    """``text`` (a file path, a model key) escaped for HTML, with a line-break
+    opportunity (``<wbr>``) after every ``/`` and ``_`` and none inside the
+    pieces between them (a piece with a hyphen is kept on one line): a long
+    path wraps at its separators instead of overflowing or breaking a name."""
+    pieces = [piece for piece in re.split(r"(?<=[/_])", str(text)) if piece]
+    html = [
+        f'<span class="nw">{markupsafe.escape(piece)}</span>'
+        if "-" in piece
+        else str(markupsafe.escape(piece))
+        for piece in pieces
+    ]
+    return markupsafe.Markup("<wbr>".join(html))
+
+
+def ordinal(n: Any) -> str:
+    """``1st``, ``2nd``, ``3rd``, ``4th``, ``11th``, ``22nd``...: ``str(n)`` for a non-integer."""
+    try:
+        k = int(n)
+    except (TypeError, ValueError):
+        return str(n)
+    if k != n:
+        return str(n)
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"{k}{suffix}"
 
 
 def figure_uri(fig: Any) -> str:
@@ -626,18 +738,59 @@ def write_pdf(content: _Content, path: str | Path) -> Path:
 
 
 def _summary_page(ctx: dict[str, Any]) -> Any:
+    """The PDF's first page: the run in a few lines, the Figure 3 table and every
+    measurement."""
     fig = plots.figure(11.69, 8.27)
     fig.set_layout_engine("none")
     fig.text(0.04, 0.95, ctx["title"], fontsize=16, weight="bold")
+    for i, line in enumerate(_summary_lines(ctx)):
+        fig.text(0.04, 0.90 - 0.022 * i, line, fontsize=9)
+    _figure3_table(fig, ctx)
+    _measurements_table(fig, ctx)
+    return fig
+
+
+def _headline_lines(ctx: dict[str, Any]) -> list[str]:
+    """The headline cards in words: the session values ± standard error, then the
+    per-frame means ± std (or why there is no session value)."""
+    cards = ctx["headline"]
+    if not cards:
+        return []
+    lines = []
+    if any(h["session"] for h in cards):
+        lines.append(
+            "Session estimate ± standard error: "
+            + ", ".join(
+                f"{h['label'].lower()} {_pm(h['session'])} {h['unit']}"
+                for h in cards
+                if h["session"]
+            )
+            + "."
+        )
+    lines.append(
+        "Per-frame mean ± std (disc. + generative): "
+        + ", ".join(f"{h['label'].lower()} {_pm((h['mean'], h['std']))} {h['unit']}" for h in cards)
+        + "."
+    )
+    missing = [h for h in cards if not h["session"]]
+    if missing:
+        lines.append(f"Session estimate unavailable ({missing[0]['unavailable']}).")
+    return lines
+
+
+def _summary_lines(ctx: dict[str, Any]) -> list[str]:
+    """The summary page's lines: session, frames and settings, the headline
+    values, calibration, provenance and the measured accuracy (long lines wrapped)."""
     s = ctx["session"]
     f = ctx["frames"]
     c = ctx["config"]
     lines = [
         f"Session {s['path']}: {s['n_cameras']} cameras ({s['image_size']}), {s['fps']} fps, "
-        f"every {s['frame_step']}th frame kept.",
+        f"every {ordinal(s['frame_step'])} frame kept.",
         f"{f['ok']} of {f['kept']} kept frames in the measurements ({f['failed']} left out); "
         f"quality {c['quality']}, {c['particles']} particles x {c['layers']} layers, "
         f"seed {c['seed']}, density {c['density']} kg/m³.",
+        *_headline_lines(ctx),
         f"Calibration: {ctx['calibration']['source']}.",
         f"Generated {ctx['generated']} by bodymetry {ctx['version']}.",
     ]
@@ -653,10 +806,12 @@ def _summary_page(ctx: dict[str, Any]) -> Any:
             + ":"
         )
         lines.append(f"{ctx['accuracy_source']}.")
-    for i, line in enumerate(lines):
-        fig.text(0.04, 0.90 - 0.026 * i, line, fontsize=9)
-    # Figure 3 table.
-    ax = fig.add_axes((0.04, 0.52, 0.92, 0.22))
+    return [part for line in lines for part in textwrap.wrap(line, SUMMARY_LINE_CHARS)]
+
+
+def _figure3_table(fig: Any, ctx: dict[str, Any]) -> None:
+    """The Figure 3 table in the upper half of the summary page."""
+    ax = fig.add_axes((0.04, 0.49, 0.92, 0.2))
     ax.set_axis_off()
     ax.set_title(
         "Basic biometric measurements (paper, Figure 3): mean / std over frames", fontsize=10
@@ -675,7 +830,11 @@ def _summary_page(ctx: dict[str, Any]) -> Any:
     table.auto_set_font_size(False)
     table.set_fontsize(9)
     table.scale(1, 1.4)
-    # All measurements.
+
+
+def _measurements_table(fig: Any, ctx: dict[str, Any]) -> None:
+    """Every measurement (per stage, the session's value and the errors) in the
+    lower half of the summary page."""
     ax2 = fig.add_axes((0.04, 0.04, 0.92, 0.42))
     ax2.set_axis_off()
     ax2.set_title("All measurements (mean ± std over fitted frames)", fontsize=10)
@@ -716,7 +875,6 @@ def _summary_page(ctx: dict[str, Any]) -> Any:
         t2.auto_set_font_size(False)
         t2.set_fontsize(8)
         t2.scale(1, 1.25)
-    return fig
 
 
 def _pm(value: tuple[float, float] | None) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import csv
+import html as html_text
 import json
 import re
 import shutil
@@ -23,10 +24,13 @@ from bodymetry.review.accuracy import SOURCE as ACCURACY_SOURCE
 from bodymetry.review.build import build_review
 from bodymetry.review.report import (
     body_renders,
+    breakable,
     build_report,
     csv_columns,
     figure3_rows,
+    headline_cards,
     measurement_rows,
+    ordinal,
     select_overlay_frames,
 )
 from bodymetry.review.run_data import load_run
@@ -349,3 +353,70 @@ def test_the_outline_check_and_the_run_warnings_are_in_the_report(review_run, ba
     box = html[html.index('class="warnings"') :]
     assert warning in box[: box.index("</div>")]
     assert "4.2 ± 0.3 mm further outside the fitted body at the trunk" in html
+
+
+# --- the headline: the session estimate first --------------------------------------------------
+def _card(html: str, key: str) -> dict[str, str]:
+    """The text of a headline card's parts: ``k`` (its title), ``v`` (the big
+    number), ``f`` (the per-frame mean) and ``u`` (why no session estimate)."""
+    start = html.index(f'id="headline-{key}"')
+    card = re.split(r'id="headline-|</section>', html[start + 1 :])[0]
+    parts = {}
+    for part in ("k", "v", "f", "u"):
+        found = re.search(rf'<div class="{part}">(.*?)</div>', card, re.S)
+        if found:
+            parts[part] = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", "", found.group(1))).strip()
+    return parts
+
+
+def _fmt(value: float) -> str:
+    return f"{value:,.1f}".replace(",", " ")
+
+
+def test_the_headline_is_the_session_estimate_with_its_standard_error(review_run):
+    html = (review_run.folder / "report.html").read_text()
+    summary = review_run.results.summary
+    for key in ("height_mm", "arm_span_mm", "weight_kg"):
+        card = _card(html, key)
+        session, frames = summary["session"][key], summary["generative"][key]
+        assert "session estimate ± standard error" in card["k"], card
+        assert card["v"].startswith(f"{_fmt(session.mean)} ± {_fmt(session.std)}"), card
+        assert card["v"].endswith("(s.e.)"), card
+        assert card["f"].startswith(f"per-frame mean {_fmt(frames.mean)} ± {_fmt(frames.std)}")
+        assert f"std over {frames.n} frames" in card["f"]
+        assert "u" not in card
+
+
+@pytest.mark.parametrize("stage", ["rejected", "not run"])
+def test_without_the_session_estimate_the_headline_is_the_per_frame_mean(
+    review_run, bare_run, stage
+):
+    data = json.loads((bare_run / "results.json").read_text())
+    data["summary"].pop("session")
+    for frame in data["frames"]:
+        frame.pop("session", None)
+    status = "rejected: the shared shape lowers the frames' mean silhouette IoU"
+    if stage == "rejected":
+        data["session_shape"]["status"] = status
+    else:
+        data.pop("session_shape")
+        status = "the session stage was not run"
+    (bare_run / "results.json").write_text(json.dumps(data))
+    html = build_report(bare_run).html.read_text()
+    generative = review_run.results.summary["generative"]["height_mm"]
+    card = _card(html, "height_mm")
+    assert "per-frame mean ± std" in card["k"], card
+    assert card["v"].startswith(f"{_fmt(generative.mean)} ± {_fmt(generative.std)}"), card
+    assert card["v"].endswith("(std)"), card
+    assert html_text.unescape(card["u"]) == f"Session estimate unavailable ({status})"
+
+
+def test_filters_of_the_report_pages():
+    assert str(breakable("/a/b-c/d_e<")) == (
+        '/<wbr>a/<wbr><span class="nw">b-c/</span><wbr>d_<wbr>e&lt;'
+    )
+    assert [ordinal(n) for n in (1, 2, 3, 4, 11, 12, 13, 21, 25, 112)] == [
+        "1st", "2nd", "3rd", "4th", "11th", "12th", "13th", "21st", "25th", "112th",
+    ]  # fmt: skip
+    assert ordinal(2.5) == "2.5"
+    assert headline_cards(_empty_run()) == []
