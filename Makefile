@@ -2,8 +2,8 @@
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-# Many small sparse solves: threaded BLAS makes them 20-100x slower.
-export OPENBLAS_NUM_THREADS ?= 1
+# BLAS threads: bodymetry limits them itself at import (bodymetry/threads.py), so
+# `make` and a plain shell run the same.
 
 .PHONY: demo test lint bench bake clean
 

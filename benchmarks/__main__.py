@@ -14,8 +14,7 @@ import platform
 import sys
 from pathlib import Path
 
-# Many small sparse solves: threaded BLAS makes them much slower (set before numpy).
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# BLAS threads: importing bodymetry limits them (bodymetry/threads.py).
 
 BENCHMARKS = (
     "body_model",

@@ -21,7 +21,7 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["BLAS_ENV", "THREADS_ENV", "blas_threads", "limit_threads"]
+__all__ = ["BLAS_ENV", "THREADS_ENV", "blas_threads", "blas_threads_in_use", "limit_threads"]
 
 #: The variable that overrides the limit.
 THREADS_ENV = "BODYMETRY_BLAS_THREADS"
@@ -57,3 +57,10 @@ def limit_threads() -> int:
 
         threadpool_limits(n, user_api="blas")
     return n
+
+
+def blas_threads_in_use() -> int:
+    """The most threads any BLAS loaded in this process uses now (0: none loaded)."""
+    from threadpoolctl import threadpool_info
+
+    return max((p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"), default=0)
