@@ -312,7 +312,7 @@ def plan(prepared: PreparedRun, config: ProcessConfig) -> SessionPlan:
 
 
 def backgrounds(
-    prepared: PreparedRun, plan: SessionPlan, config: ProcessConfig, read_method: str
+    prepared: PreparedRun, planned: SessionPlan, config: ProcessConfig, read_method: str
 ) -> list[BackgroundModel | None]:
     """Each camera's background model (None per camera where capture uses the segmenter alone).
 
@@ -322,12 +322,14 @@ def backgrounds(
     if config.capture.method == "person":
         return [None] * len(prepared.session.cameras)
     median = not config.capture.uses_segmenter
-    return list(background_models(prepared.session, plan.report, method=read_method, median=median))
+    return list(
+        background_models(prepared.session, planned.report, method=read_method, median=median)
+    )
 
 
 def segment(
     prepared: PreparedRun,
-    plan: SessionPlan,
+    planned: SessionPlan,
     models: Sequence[BackgroundModel | None],
     frames: Sequence[int],
     config: ProcessConfig,
@@ -338,7 +340,7 @@ def segment(
     Parameters
     ----------
     prepared : PreparedRun
-    plan : SessionPlan
+    planned : SessionPlan
     models : sequence of (BackgroundModel or None)
         :func:`backgrounds`, camera order.
     frames : sequence of int
@@ -361,7 +363,7 @@ def segment(
             prepared.session,
             config=config.capture,
             cameras=prepared.calibrated,
-            report=plan.report,
+            report=planned.report,
             models=models,
             frames=list(frames),
             read_method=read_method,
