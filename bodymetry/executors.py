@@ -119,7 +119,30 @@ def die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
 
 
-class LocalExecutor:
+class _SharedSteps:
+    """What both executors do the same way, on top of their own ``submit``."""
+
+    def __init__(self) -> None:
+        self._shared: dict[str, Any] = {}
+        self._lock = threading.Lock()
+
+    def submit(self, fn: Callable, *args: Any) -> Any:
+        raise NotImplementedError
+
+    def shared(self, key: str, fn: Callable, *args: Any) -> Any:
+        """The future of ``fn(*args)``, submitted by the first call with ``key`` only
+        (thread-safe: batch's sessions ask from their threads)."""
+        with self._lock:
+            if key not in self._shared:
+                self._shared[key] = self.submit(fn, *args)
+            return self._shared[key]
+
+    def item(self, future: Any, index: int) -> Any:
+        """A future of ``future.result()[index]``."""
+        return self.submit(operator.getitem, future, index)
+
+
+class LocalExecutor(_SharedSteps):
     """This process for the session's steps, a fork pool of ``workers`` for the fits.
 
     Parameters
@@ -133,9 +156,9 @@ class LocalExecutor:
     remote = False
 
     def __init__(self, workers: int) -> None:
+        super().__init__()
         self.workers = workers
         self._pool: ProcessPoolExecutor | None = None
-        self._shared: dict[str, Future] = {}
         self._warming: Future | None = None
 
     def __enter__(self) -> LocalExecutor:
@@ -180,14 +203,6 @@ class LocalExecutor:
 
         return run
 
-    def shared(self, key: str, fn: Callable, *args: Any) -> Future:
-        if key not in self._shared:
-            self._shared[key] = self.submit(fn, *args)
-        return self._shared[key]
-
-    def item(self, future: Future, index: int) -> Future:
-        return self.submit(operator.getitem, future, index)
-
     def frame_chunks(self, frames: Sequence[int]) -> list[tuple[int, ...]]:
         # One sequential pass over the videos (decoding is the cost; a thread prefetches).
         return [tuple(frames)] if frames else []
@@ -208,7 +223,7 @@ class LocalExecutor:
             self._warming.result()
 
 
-class DaskExecutor:
+class DaskExecutor(_SharedSteps):
     """Every step a task on the Dask cluster of ``client``.
 
     Task keys carry a token unique to this executor, so a long-lived scheduler
@@ -220,10 +235,9 @@ class DaskExecutor:
     remote = True
 
     def __init__(self, client: Any) -> None:
+        super().__init__()
         self.client = client
         self.token = uuid.uuid4().hex[:8]
-        self._shared: dict[str, Any] = {}
-        self._lock = threading.Lock()
 
     def submit(self, fn: Callable, *args: Any) -> Any:
         key = f"{fn.__name__}-{uuid.uuid4().hex[:8]}-{self.token}"
@@ -236,15 +250,6 @@ class DaskExecutor:
         """The rescue's rounds, one job after another inside its task (the few frames
         below the gate; the task cannot submit to the cluster)."""
         return run_serially
-
-    def shared(self, key: str, fn: Callable, *args: Any) -> Any:
-        with self._lock:
-            if key not in self._shared:
-                self._shared[key] = self.submit(fn, *args)
-            return self._shared[key]
-
-    def item(self, future: Any, index: int) -> Any:
-        return self.submit(operator.getitem, future, index)
 
     def frame_chunks(self, frames: Sequence[int]) -> list[tuple[int, ...]]:
         # A frame a task, read by seeking: the cluster balances them.
