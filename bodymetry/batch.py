@@ -201,10 +201,8 @@ def run_batch(
     """Process every session on the Dask cluster of ``client`` into ``study/<name>/``.
 
     Each session runs the step graph of ``bodymetry process``
-    (:func:`bodymetry.pipeline.run_session`) on one shared
-    :class:`~bodymetry.executors.DaskExecutor`, all sessions at once (a thread
-    each here, their steps on the cluster); sessions on one rig share one
-    training task.
+    (:func:`bodymetry.pipeline.run_session`) on one shared ``DaskExecutor``, all
+    at once (a thread each here, their steps on the cluster).
 
     Parameters
     ----------
@@ -263,6 +261,18 @@ def run_batch(
                 entries[name] = StudySession(name, str(path), "done", "", run.rig)
                 log.info("%s: %s", name, "done" if run.ran else "already finished")
             tally.finished(name)
+    study_results = StudyResults(
+        sessions=tuple(entries[n] for n in names),
+        rigs=_rigs(names, runs),
+        timing_seconds={"total": round(time.perf_counter() - t0, 1)},
+    )
+    write_json_atomic(study / STUDY_FILE, study_results.to_json())
+    write_cohort(study)
+    return BatchResult(study_results, {n: r.results for n, r in runs.items() if r.ran})
+
+
+def _rigs(names: Sequence[str], runs: dict[str, SessionRun]) -> dict[str, RigEntry]:
+    """Per rig of the finished sessions: its sessions, and whether this call trained it."""
     rigs: dict[str, RigEntry] = {}
     for rig in dict.fromkeys(r.rig for r in runs.values()):
         on_rig = [n for n in names if n in runs and runs[n].rig == rig]
@@ -272,14 +282,7 @@ def run_batch(
             None if models is None else not models.reused,
             None if models is None else round(models.seconds, 1),
         )
-    study_results = StudyResults(
-        sessions=tuple(entries[n] for n in names),
-        rigs=rigs,
-        timing_seconds={"total": round(time.perf_counter() - t0, 1)},
-    )
-    write_json_atomic(study / STUDY_FILE, study_results.to_json())
-    write_cohort(study)
-    return BatchResult(study_results, {n: r.results for n, r in runs.items() if r.ran})
+    return rigs
 
 
 class _Tally:

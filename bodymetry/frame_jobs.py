@@ -314,76 +314,98 @@ def rescue_poor_frames(
     poor = [r.frame for r in gated if r.fitted and not r.ok and r.frame not in tried]
     if not poor or not accepted or neighbours < 1:
         return records
-    log.info(
-        "%s: %d frame(s) below the quality gate %.2f; fitting them again from their neighbours",
-        layout.folder,
-        len(poor),
-        gate.threshold,
-    )
+    msg = "%s: %d frame(s) below the quality gate %.2f; fitting them again from their neighbours"
+    log.info(msg, layout.folder, len(poor), gate.threshold)
     out = dict(records)
     proposed: dict[int, tuple[int, ...]] = {}
     if progress:
         progress("rescue", 0, len(poor))
-    while True:
-        # This round: every frame still below the gate whose nearest accepted
-        # frames are not the ones it was last tried from.
-        # (None rescued in a round: no neighbour changes, and the next round is empty.)
-        near_of = {
-            frame: tuple(_neighbours(frame, accepted, neighbours))
-            for frame in poor
-            if out[frame].mean_iou < gate.threshold
-        }
-        todo = [(frame, near) for frame, near in near_of.items() if proposed.get(frame) != near]
-        if not todo:
-            break
-        # Refinement from the neighbours first; a whole fit for what it leaves below the gate.
-        best = {
-            frame: ("refinement", fit)
-            for (frame, _), fit in zip(
-                todo,
-                run_jobs(
-                    [
-                        _rescue_job(layout, out, frame, near, cameras, models_path, config, True)
-                        for frame, near in todo
-                    ]
-                ),
-                strict=True,
-            )
-        }
-        again = [(frame, near) for frame, near in todo if not _passes(best[frame][1], gate)]
-        jobs = [
-            _rescue_job(layout, out, frame, near, cameras, models_path, config, False)
-            for frame, near in again
-        ]
-        for (frame, _), fit in zip(again, run_jobs(jobs) if jobs else [], strict=True):
-            first = best[frame][1].record
-            if fit.record.fitted and (not first.fitted or fit.record.mean_iou > first.mean_iou):
-                best[frame] = ("annealing", fit)
+    while todo := _this_round(poor, out, accepted, neighbours, gate, proposed):
+        best = _best_fits(
+            todo,
+            lambda frame, near, refine: _rescue_job(
+                layout, out, frame, near, cameras, models_path, config, refine
+            ),
+            run_jobs,
+            gate,
+        )
         for frame, near in todo:
-            method, fit = best[frame]
             proposed[frame] = near
-            old = out[frame]
-            kept = fit.record.fitted and fit.record.mean_iou > old.mean_iou
-            if kept:
-                out[frame] = write_frame(layout, fit)
-                if out[frame].mean_iou >= gate.threshold:  # it proposes in the next round
-                    bisect.insort(accepted, frame)
-            outcome = RescueOutcome(frame, near, old.mean_iou, fit.record.mean_iou, kept, method)
-            log.info(
-                "%s: frame %d: IoU %.3f -> %.3f by %s from frames %s (%s)",
-                layout.folder,
-                frame,
-                outcome.iou_before,
-                outcome.iou_after,
-                method,
-                ", ".join(map(str, near)),
-                "kept" if kept else "first fit kept",
-            )
-            tried[frame] = outcome
+            tried[frame] = _keep_better(layout, out, frame, near, *best[frame], gate, accepted)
             write_rescue(layout, tried)
         if progress:
             progress("rescue", len(proposed), len(poor))
     return out
+
+
+def _this_round(
+    poor: Sequence[int],
+    records: dict[int, FrameRecord],
+    accepted: list[int],
+    neighbours: int,
+    gate: SessionGate,
+    proposed: dict[int, tuple[int, ...]],
+) -> list[tuple[int, tuple[int, ...]]]:
+    """A rescue round's frames with their neighbours: every frame still below the gate
+    whose nearest accepted frames are not the ones it was last tried from (none
+    rescued in a round: no neighbour changes, and the next round is empty)."""
+    near_of = {
+        frame: tuple(_neighbours(frame, accepted, neighbours))
+        for frame in poor
+        if records[frame].mean_iou < gate.threshold
+    }
+    return [(frame, near) for frame, near in near_of.items() if proposed.get(frame) != near]
+
+
+def _best_fits(
+    todo: Sequence[tuple[int, tuple[int, ...]]],
+    make_job: Callable[[int, tuple[int, ...], bool], FitJob],
+    run_jobs: Callable[[Sequence[FitJob]], list[FrameFit]],
+    gate: SessionGate,
+) -> dict[int, tuple[str, FrameFit]]:
+    """A round's best fit of each frame and how it was found: refinement from the
+    neighbours first, a whole fit for what that leaves below the gate."""
+    refined = run_jobs([make_job(frame, near, True) for frame, near in todo])
+    best = {frame: ("refinement", fit) for (frame, _), fit in zip(todo, refined, strict=True)}
+    again = [(frame, near) for frame, near in todo if not _passes(best[frame][1], gate)]
+    jobs = [make_job(frame, near, False) for frame, near in again]
+    for (frame, _), fit in zip(again, run_jobs(jobs) if jobs else [], strict=True):
+        first = best[frame][1].record
+        if fit.record.fitted and (not first.fitted or fit.record.mean_iou > first.mean_iou):
+            best[frame] = ("annealing", fit)
+    return best
+
+
+def _keep_better(
+    layout: RunLayout,
+    records: dict[int, FrameRecord],
+    frame: int,
+    near: tuple[int, ...],
+    method: str,
+    fit: FrameFit,
+    gate: SessionGate,
+    accepted: list[int],
+) -> RescueOutcome:
+    """Write the rescue's fit of ``frame`` over its first when it fits better (updating
+    ``records``, and ``accepted`` when it now passes the gate); the outcome, logged."""
+    old = records[frame]
+    kept = fit.record.fitted and fit.record.mean_iou > old.mean_iou
+    if kept:
+        records[frame] = write_frame(layout, fit)
+        if records[frame].mean_iou >= gate.threshold:  # it proposes in the next round
+            bisect.insort(accepted, frame)
+    outcome = RescueOutcome(frame, near, old.mean_iou, fit.record.mean_iou, kept, method)
+    log.info(
+        "%s: frame %d: IoU %.3f -> %.3f by %s from frames %s (%s)",
+        layout.folder,
+        frame,
+        outcome.iou_before,
+        outcome.iou_after,
+        method,
+        ", ".join(map(str, near)),
+        "kept" if kept else "first fit kept",
+    )
+    return outcome
 
 
 def _passes(fit: FrameFit, gate: SessionGate) -> bool:

@@ -719,9 +719,8 @@ def run_session(
     executor : LocalExecutor or DaskExecutor
         Where the steps run (:mod:`bodymetry.executors`).
     progress : callable, optional
-        ``progress(label, done, total)``: ``frames``, ``rescue``, ``training: ...``
-        and the session stage's. Steps on a remote executor report no progress of
-        their own.
+        ``progress(label, done, total)`` (``frames``; on a local executor also the
+        steps' own: ``rescue``, ``training: ...``, the session stage's).
     restart : bool
         Replace a run of another session or other settings in ``out``.
 
@@ -750,15 +749,14 @@ def run_session(
     if frames:
         bg_f = ex.submit(backgrounds, prep_f, plan_f, config, ex.read_method)
         chunks = ex.frame_chunks(frames)
-        chunk_fs = [
-            ex.submit(segment, prep_f, plan_f, bg_f, chunk, config, ex.read_method)
-            for chunk in chunks
-        ]
-        segmented = {
-            frame: ex.item(chunk_f, i)
-            for chunk_f, chunk in zip(chunk_fs, chunks, strict=True)
-            for i, frame in enumerate(chunk)
-        }
+        segmented = _per_frame(
+            ex,
+            chunks,
+            [
+                ex.submit(segment, prep_f, plan_f, bg_f, chunk, config, ex.read_method)
+                for chunk in chunks
+            ],
+        )
     if every:
         prep_f = ex.submit(check_calibration, prep_f, list(segmented.values()), config)
         prepared = prep_f.result()
@@ -767,26 +765,42 @@ def run_session(
     rig = rig_of(prepared, config)
     models_f = ex.shared(rig, train, prep_f, config, local)
     models: RigModels = models_f.result()
-    done = dict(planned.done)
-    if progress:
-        progress("frames", len(done), len(planned.kept))
     t1 = time.perf_counter()
     fits = ex.submit_many(fit, [(prep_f, models_f, segmented[f], config) for f in planned.pending])
-    new: list[FrameRecord] = []
-    for future in ex.as_completed(fits):
-        record = future.result()
-        new.append(record)
-        done[record.frame] = record
-        if progress:
-            progress("frames", len(done), len(planned.kept))
+    done, new = _gathered(ex, fits, planned, progress)
     done = ex.submit(rescue, prep_f, models_f, done, config, ex.job_runner(), local).result()
-    timing = {
-        "training": models.seconds,
-        "fitting_cpu": sum(r.seconds.get("total", 0.0) for r in new),
-    }
+    cpu = sum(r.seconds.get("total", 0.0) for r in new)
+    timing = {"training": models.seconds, "fitting_cpu": cpu}
     if not ex.remote:  # wall times of this session's own work (on Dask, steps interleave)
         timing |= {"silhouettes": t_sil, "fitting": time.perf_counter() - t1}
     timing["total"] = time.perf_counter() - t0
     results = ex.submit(finish, prep_f, config, models_f, done, timing, local).result()
     ex.submit(review, prep_f, config, local).result()
     return SessionRun(results, rig, models)
+
+
+def _per_frame(ex: Executor, chunks: Sequence[tuple[int, ...]], chunk_fs: Sequence) -> dict:
+    """Per frame, a future of its :class:`SegmentedFrame` from its chunk's list."""
+    return {
+        frame: ex.item(chunk_f, i)
+        for chunk_f, chunk in zip(chunk_fs, chunks, strict=True)
+        for i, frame in enumerate(chunk)
+    }
+
+
+def _gathered(
+    ex: Executor, fits: Sequence, planned: SessionPlan, progress: Progress | None
+) -> tuple[dict[int, FrameRecord], list[FrameRecord]]:
+    """Every kept frame's record once the fits are in (recorded before, and new), and
+    the new ones; ``progress("frames", ...)`` as each fit ends."""
+    done = dict(planned.done)
+    new: list[FrameRecord] = []
+    if progress:
+        progress("frames", len(done), len(planned.kept))
+    for future in ex.as_completed(fits):
+        record = future.result()
+        new.append(record)
+        done[record.frame] = record
+        if progress:
+            progress("frames", len(done), len(planned.kept))
+    return done, new

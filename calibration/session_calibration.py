@@ -4,7 +4,8 @@
 the board in every camera's clip (cameras in parallel threads; OpenCV releases
 the GIL), solves the cameras (:func:`calibration.solve.calibrate_cameras`) and
 returns a :class:`~calibration.solve.CalibrationResult`;
-``write_calibration`` writes ``calibration.yaml`` and ``calibration-report.json``.
+``write_calibration`` writes ``calibration.yaml`` and ``calibration-report.json``
+(:class:`CalibrationReport`, the one reader and writer of that file).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,10 +29,11 @@ from bodymetry.calibration.charuco import (
 from bodymetry.calibration.io import save_calibration
 from bodymetry.calibration.solve import CalibrationOptions, CalibrationResult, calibrate_cameras
 from bodymetry.errors import InputError
-from bodymetry.fileio import write_json_atomic
+from bodymetry.fileio import read_json_object, write_json_atomic
 
 __all__ = [
     "REPORT_FILE",
+    "CalibrationReport",
     "auto_step",
     "calibrate_session",
     "calibration_clip_lengths",
@@ -41,6 +44,87 @@ __all__ = [
 
 #: Name of the report written beside calibration.yaml.
 REPORT_FILE = "calibration-report.json"
+
+
+@dataclass(frozen=True)
+class CalibrationReport:
+    """``calibration-report.json``: how a calibration was solved and how good it is.
+
+    Attributes
+    ----------
+    calibration : str
+        The ``calibration.yaml`` it describes.
+    rms_px : float
+        Final reprojection RMS over every camera (pixels).
+    frames_used, observations, outliers_rejected : int
+    cameras : dict of str to dict
+        Per camera its figures (``frames_read``, ``boards_detected``,
+        ``corners_used``, ``rms_px``, intrinsics notes, ...).
+    world : dict
+        How the world frame was set (floor board, axes).
+    solver : dict
+        The solver's settings and convergence.
+    session : str or None
+        The session folder, when it was calibrated from its clips by ``bodymetry calibrate``.
+    """
+
+    calibration: str
+    rms_px: float
+    frames_used: int
+    observations: int
+    outliers_rejected: int
+    cameras: dict[str, dict[str, Any]]
+    world: dict[str, Any] = field(default_factory=dict)
+    solver: dict[str, Any] = field(default_factory=dict)
+    session: str | None = None
+
+    @classmethod
+    def of(
+        cls, result: CalibrationResult, calibration: Path, session: str | None = None
+    ) -> CalibrationReport:
+        return cls.from_json(
+            {"calibration": str(calibration), **result.report(), "session": session}
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "calibration": self.calibration,
+            "rms_px": self.rms_px,
+            "frames_used": self.frames_used,
+            "observations": self.observations,
+            "outliers_rejected": self.outliers_rejected,
+            "world": self.world,
+            "solver": self.solver,
+            "cameras": self.cameras,
+        }
+        if self.session is not None:
+            out["session"] = self.session
+        return out
+
+    @classmethod
+    def from_json(cls, data: Any, where: str = REPORT_FILE) -> CalibrationReport:
+        try:
+            return cls(
+                calibration=str(data["calibration"]),
+                rms_px=float(data["rms_px"]),
+                frames_used=int(data["frames_used"]),
+                observations=int(data["observations"]),
+                outliers_rejected=int(data["outliers_rejected"]),
+                cameras={str(k): dict(v) for k, v in dict(data["cameras"]).items()},
+                world=dict(data.get("world") or {}),
+                solver=dict(data.get("solver") or {}),
+                session=None if data.get("session") is None else str(data["session"]),
+            )
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise InputError(f"{where}: not a calibration report of bodymetry ({exc})") from exc
+
+    @classmethod
+    def read(cls, path: Path) -> CalibrationReport:
+        return cls.from_json(read_json_object(path, what="calibration report"), str(path))
+
+    def write(self, path: Path) -> None:
+        write_json_atomic(path, self.to_json())
+
 
 #: Detection aims at about this many sampled frames per clip by default.
 TARGET_SAMPLES = 300
@@ -191,9 +275,10 @@ def write_calibration(
     out: Path,
     *,
     overwrite: bool = False,
-    extra: dict[str, Any] | None = None,
+    session: str | None = None,
 ) -> Path:
-    """Write ``out`` (calibration.yaml) and ``calibration-report.json`` beside it.
+    """Write ``out`` (calibration.yaml) and ``calibration-report.json`` beside it
+    (naming ``session`` when given).
 
     Refuses to replace an existing ``out`` unless ``overwrite``. Returns the
     report path.
@@ -204,7 +289,6 @@ def write_calibration(
             f"{out} exists; pass --overwrite to replace it or --out to write elsewhere"
         )
     report_path = out.with_name(REPORT_FILE)
-    report = {"calibration": str(out), **result.report(), **(extra or {})}
     save_calibration(out, result.cameras, {"world": result.world, "quality": result.quality()})
-    write_json_atomic(report_path, report)
+    CalibrationReport.of(result, out, session).write(report_path)
     return report_path

@@ -26,7 +26,7 @@ from bodymetry.estimation.records import CORE_MEASUREMENTS, FRAME_STAGES, Stat
 from bodymetry.estimation.run_files import GT_STAGE, Evaluation, RunLayout
 from bodymetry.fileio import load_npz
 from bodymetry.log import Progress
-from bodymetry.review.run_data import load_frame_arrays, load_run
+from bodymetry.review.run_data import RunData, load_frame_arrays, load_run
 
 #: Spread of the GT + Generative start around the true pose (τ m, θ rad, ν).
 GT_START_STD = (0.01, 0.02, 0.3)
@@ -50,6 +50,39 @@ def _gt_generative(
     bio = measure(body, state.nu, density=config.density)[0].to_dict()
     joints = body.pose(state).joints[0].tolist()
     return frame, bio, joints
+
+
+def _gt_generative_fits(
+    data: RunData, states: dict[str, np.ndarray], workers: int | None, progress: Progress | None
+) -> dict[int, tuple[dict[str, float], list]]:
+    """Per ok frame, the measurements and joints of the generative fit started at the
+    true pose (:func:`_gt_generative`), on the frame's recorded silhouettes, in a pool.
+
+    Raises
+    ------
+    InputError
+        When a frame's recorded silhouettes are missing.
+    """
+    layout, names, config = data.layout, data.camera_names, data.results.config.fit
+    jobs = []
+    for record in data.ok_frames:
+        arrays = load_frame_arrays(layout.folder, record.frame)
+        if arrays is None or set(arrays.observed) != set(names):
+            raise InputError(
+                f"{layout.frame_arrays(record.frame)}: the frame's recorded silhouettes are "
+                "missing; run `bodymetry process` again"
+            )
+        masks = [arrays.observed[n] for n in names]
+        f = record.frame
+        jobs.append((f, masks, data.cameras, states["tau"][f], states["theta"][f], config))
+    gt_gen: dict[int, tuple[dict, list]] = {}
+    ctx = mp.get_context("fork")
+    with ProcessPoolExecutor(max(1, workers or mp.cpu_count() or 1), mp_context=ctx) as pool:
+        for frame, bio, joints in pool.map(_gt_generative, jobs):
+            gt_gen[frame] = (bio, joints)
+            if progress:
+                progress("GT + generative", len(gt_gen), len(jobs))
+    return gt_gen
 
 
 def evaluate_run(
@@ -80,26 +113,7 @@ def evaluate_run(
         raise InputError(f"{layout.results}: no frame was fitted")
     if not data.cameras:
         raise InputError(f"{layout.calibration}: the run has no recorded cameras")
-    config = data.results.config.fit
-    names = data.camera_names
-    jobs = []
-    for record in ok:
-        arrays = load_frame_arrays(layout.folder, record.frame)
-        if arrays is None or set(arrays.observed) != set(names):
-            raise InputError(
-                f"{layout.frame_arrays(record.frame)}: the frame's recorded silhouettes are "
-                "missing; run `bodymetry process` again"
-            )
-        masks = [arrays.observed[n] for n in names]
-        f = record.frame
-        jobs.append((f, masks, data.cameras, states["tau"][f], states["theta"][f], config))
-    gt_gen: dict[int, tuple[dict, list]] = {}
-    ctx = mp.get_context("fork")
-    with ProcessPoolExecutor(max(1, workers or mp.cpu_count() or 1), mp_context=ctx) as pool:
-        for frame, bio, joints in pool.map(_gt_generative, jobs):
-            gt_gen[frame] = (bio, joints)
-            if progress:
-                progress("GT + generative", len(gt_gen), len(jobs))
+    gt_gen = _gt_generative_fits(data, states, workers, progress)
 
     body = shared_body_model()
 

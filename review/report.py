@@ -320,10 +320,10 @@ def calibration_summary(run: RunData) -> dict[str, Any]:
     per_camera = {}
     if report is not None:
         out["solved"] = True
-        out["rms_px"] = report.get("rms_px")
-        out["frames_used"] = report.get("frames_used")
-        out["outliers_rejected"] = report.get("outliers_rejected")
-        per_camera = report.get("cameras", {}) or {}
+        out["rms_px"] = report.rms_px
+        out["frames_used"] = report.frames_used
+        out["outliers_rejected"] = report.outliers_rejected
+        per_camera = report.cameras
     elif quality:
         out["rms_px"] = quality.get("overall", {}).get("rms_px")
         per_camera = {k: v for k, v in quality.items() if k != "overall" and isinstance(v, dict)}

@@ -29,6 +29,7 @@ import numpy as np
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.calibration.io import read_calibration
+from bodymetry.calibration.session_calibration import CalibrationReport
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.capture.ingest import read_frame_sets
 from bodymetry.capture.session import load_session
@@ -37,7 +38,6 @@ from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.body_model.skeleton import PART_PARENT
 from bodymetry.estimation.records import FrameArrays, FrameRecord
 from bodymetry.estimation.run_files import Evaluation, RunLayout, RunResults
-from bodymetry.fileio import read_json_object
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ class RunData:
         The same cameras at their own resolution (the run's ``calibration.yaml``).
     calibration_source : str
         Where the run's cameras came from (a file path), or why there are none.
-    calibration_report : dict or None
+    calibration_report : CalibrationReport or None
         ``calibration-report.json`` of the calibration, when there is one.
     calibration_quality : dict or None
         The ``quality:`` block of the calibration file, when it has one.
@@ -76,7 +76,7 @@ class RunData:
     cameras: list[Camera] = field(default_factory=list)
     calibrated_cameras: list[Camera] = field(default_factory=list)
     calibration_source: str = ""
-    calibration_report: dict[str, Any] | None = None
+    calibration_report: CalibrationReport | None = None
     calibration_quality: dict[str, Any] | None = None
     evaluation: Evaluation | None = None
     session_folder: Path | None = None
@@ -187,7 +187,7 @@ def load_run(folder: str | Path) -> RunData:
         cameras=cameras,
         calibrated_cameras=calibrated,
         calibration_source=source,
-        calibration_report=_optional(read_json_object, layout.calibration_report),
+        calibration_report=_optional(CalibrationReport.read, layout.calibration_report),
         calibration_quality=quality,
         evaluation=_optional(Evaluation.read, layout.evaluation),
         session_folder=session_folder,

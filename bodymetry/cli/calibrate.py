@@ -68,7 +68,7 @@ def calibrate(
     with console.status("solving (intrinsics, camera graph, bundle adjustment)"):
         result, _ = calibrate_session(session, floor_frames=floor, detections=detections)
     report_path = write_calibration(
-        result, out, overwrite=overwrite, extra={"session": str(session.folder)}
+        result, out, overwrite=overwrite, session=str(session.folder)
     )
     table = Table(title=f"calibration of {session.name}: RMS {result.rms_px:.3f} px")
     for col in ("camera", "frames read", "boards detected", "corners used", "RMS px"):

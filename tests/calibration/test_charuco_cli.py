@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.charuco import board_geometry, detect_clip, detect_image, make_detector
 from bodymetry.calibration.io import load_calibration
+from bodymetry.calibration.session_calibration import CalibrationReport
 from bodymetry.capture.session import BoardSpec, Session, SessionCamera, save_session
 from bodymetry.cli import main
 from bodymetry.errors import InputError
@@ -160,6 +161,8 @@ def test_calibrate_command_end_to_end(tiny_session) -> None:
         assert np.linalg.norm(cam.center - true.center) < 0.02
         assert abs(cam.K[0, 0] / true.K[0, 0] - 1) < 0.01
     report = json.loads((folder / "calibration-report.json").read_text())
+    typed = CalibrationReport.read(folder / "calibration-report.json")
+    assert typed.to_json() == report and typed.session == str(folder)
     assert report["rms_px"] < 0.5
     assert set(report["cameras"]) == set(rig.names)
     for fig in report["cameras"].values():
