@@ -41,7 +41,7 @@ from bodymetry.errors import InputError
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RigEntry, RunResults, StudyResults, StudySession
 from bodymetry.executors import DaskExecutor
-from bodymetry.fileio import read_text_limited, write_json_atomic
+from bodymetry.fileio import read_text_limited
 from bodymetry.log import Progress
 from bodymetry.pipeline import SessionRun, run_session
 from bodymetry.review.cohort import write_cohort
@@ -266,7 +266,7 @@ def run_batch(
         rigs=_rigs(names, runs),
         timing_seconds={"total": round(time.perf_counter() - t0, 1)},
     )
-    write_json_atomic(study / STUDY_FILE, study_results.to_json())
+    study_results.write(study / STUDY_FILE)
     write_cohort(study)
     return BatchResult(study_results, {n: r.results for n, r in runs.items() if r.ran})
 

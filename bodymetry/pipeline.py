@@ -77,7 +77,6 @@ from bodymetry.estimation.run_files import RunLayout, RunResults, SessionInfo
 from bodymetry.estimation.session_shape import fit_session_shape, session_frame
 from bodymetry.estimation.training import cached_models_path, load_or_train, rig_key
 from bodymetry.executors import Executor
-from bodymetry.fileio import write_json_atomic
 from bodymetry.frame_jobs import (
     FitJob,
     read_done_frames,
@@ -640,7 +639,7 @@ def finish(
         quality_gate=gate,
         session_shape=shape,
     )
-    write_json_atomic(prepared.layout.results, results.to_json())
+    results.write(prepared.layout)
     return results
 
 

@@ -381,6 +381,10 @@ class RunResults:
     def read(cls, path: Path) -> RunResults:
         return cls.from_json(read_json_object(path), str(path))
 
+    def write(self, layout: RunLayout) -> None:
+        """Write ``results.json`` (atomically: a reader never sees half a file)."""
+        write_json_atomic(layout.results, self.to_json())
+
 
 #: Version of ``study.json`` written by ``bodymetry batch``.
 STUDY_FORMAT = 1
@@ -489,6 +493,10 @@ class StudyResults:
             "rigs": {k: r.to_json() for k, r in self.rigs.items()},
             "timing_seconds": self.timing_seconds,
         }
+
+    def write(self, path: Path) -> None:
+        """Write ``STUDY/study.json`` (atomically)."""
+        write_json_atomic(path, self.to_json())
 
     @classmethod
     def read(cls, path: Path) -> StudyResults:
