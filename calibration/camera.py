@@ -440,19 +440,6 @@ class CameraGroup:
         """
         return CameraGroup([self[int(c)] for c in views])
 
-    def replaced(self, cameras: Sequence[Camera]) -> CameraGroup:
-        """The group with each of ``cameras`` in place of its namesake (order kept).
-
-        Raises
-        ------
-        KeyError
-            If a camera's name is not in the group.
-        """
-        out = list(self._cameras)
-        for cam in cameras:
-            out[self.index(cam.name)] = cam
-        return CameraGroup(out)
-
     def check_masks(self, masks: Sequence[np.ndarray] | np.ndarray) -> list[np.ndarray]:
         """Check per-camera masks against the cameras' image sizes.
 
