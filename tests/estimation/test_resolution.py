@@ -29,7 +29,7 @@ from bodymetry.estimation.run_files import RunResults, SessionInfo
 
 def test_the_demo_rig_keeps_full_resolution():
     """The bundled 640x480 demo (people of ~300-320 px) is not scaled: its figures stay."""
-    cameras = list(load_session(DEMO_SESSION).calibration())
+    cameras = load_session(DEMO_SESSION).calibration()
     heights = [person_height_px(c) for c in cameras]
     assert all(280 < h < 2 * DEFAULT_WORKING_PERSON_PX for h in heights)
     resolution = WorkingResolution.choose(cameras, DEFAULT_WORKING_PERSON_PX)
@@ -128,9 +128,7 @@ def test_downscaled_silhouette_matches_the_working_camera_render():
     ).vertices[0]
     full = project_silhouettes(verts, model.faces(lod=True), cameras)
     direct = project_silhouettes(verts, model.faces(lod=True), working)
-    for small, render in zip(
-        resolution.downscale(cameras.names, full), direct, strict=True
-    ):
+    for small, render in zip(resolution.downscale(cameras.names, full), direct, strict=True):
         assert small.shape == render.shape
         iou = (small & render).sum() / (small | render).sum()
         assert iou > 0.97, iou
