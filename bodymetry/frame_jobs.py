@@ -411,7 +411,7 @@ def _rescue_job(
     """
     arrays = FrameArrays.load(layout.frame_arrays(frame))
     try:
-        masks = [arrays.observed[c.name] for c in cameras]
+        masks = [arrays.observed[n] for n in cameras.names]
     except KeyError as exc:
         raise InputError(
             f"{layout.frame_arrays(frame)}: no observed silhouette of camera {exc}"
@@ -420,7 +420,7 @@ def _rescue_job(
     return FitJob(
         frame,
         masks,
-        [list(old.flags.get(c.name, ())) for c in cameras],
+        [list(old.flags.get(n, ())) for n in cameras.names],
         cameras,
         models_path,
         config,

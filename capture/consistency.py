@@ -192,7 +192,7 @@ class VisualHull:
 
     def _floor_extent(self) -> tuple[np.ndarray, np.ndarray]:
         """The (x, y) box of the floor region that ``min_views`` cameras see at waist height."""
-        centers = np.array([c.center for c in self.cameras])
+        centers = self.cameras.centers
         mid = centers[:, :2].mean(axis=0)
         reach = np.linalg.norm(centers[:, :2] - mid, axis=1).max() + 1.0
         step = reach / 100

@@ -94,7 +94,7 @@ def board_trajectory(
     if n_move <= 0 or not cameras:
         out[n_floor:] = floor
         return out
-    centers = np.stack([cam.center for cam in cameras])
+    centers = cameras.centers
     order = np.argsort(np.arctan2(centers[:, 1], centers[:, 0]))
     segments = shared_view_segments(centers, order, rng)
     for i in range(len(cameras)):

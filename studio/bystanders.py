@@ -329,7 +329,7 @@ def place_bystanders(
         footprints=subject_footprints(cameras, subject_vertices, placement.clearance_px),
         lo=lo,
         hi=hi,
-        cam_xy=np.stack([cam.center[:2] for cam in cameras]),
+        cam_xy=cameras.centers[:, :2],
         placement=placement,
     )
     placed: list[Bystander] = []
