@@ -98,7 +98,7 @@ def quality(folders: list[Path]) -> dict:
         session = load_session(folder)
         report = check_sync(session)
         models = background_models(session, report)
-        cameras = list(load_calibration(folder / "calibration.yaml"))
+        cameras = load_calibration(folder / "calibration.yaml")
         gt = GroundTruth(session)  # one per session: the true shadows are rendered once
         for name, (config, method) in variants.items():
             scores = SilhouetteScores(gt)
@@ -196,7 +196,7 @@ def part_recall(folder: Path = DEMO) -> dict:
     if not (truth / "states.npz").is_file():
         return {"skipped": f"{folder} has no ground truth"}
     session = load_session(folder)
-    cameras = list(load_calibration(folder / "calibration.yaml"))
+    cameras = load_calibration(folder / "calibration.yaml")
     states = load_npz(truth / "states.npz")
     if "nu" not in states:
         return {"skipped": f"{folder}: the subject is not our body model (no true shape)"}

@@ -67,7 +67,7 @@ PORTRAIT_CALIBRATION = (
 
 def train_cold(cameras) -> tuple:
     """Train a rig at its working resolution (as ``bodymetry process``) from an empty cache."""
-    working = list(WorkingResolution.choose(cameras, DEFAULT_WORKING_PERSON_PX).apply(cameras))
+    working = WorkingResolution.choose(cameras, DEFAULT_WORKING_PERSON_PX).apply(cameras)
     with tempfile.TemporaryDirectory() as cache:
         t0 = time.perf_counter()
         models, _ = load_or_train(working, TrainConfig(), Path(cache))
@@ -83,9 +83,9 @@ def train_cold(cameras) -> tuple:
 
 
 def run() -> dict:
-    cameras = list(load_session(DEMO_SESSION).calibration())
+    cameras = load_session(DEMO_SESSION).calibration()
     models, working, demo = train_cold(cameras)
-    portrait = train_cold(list(read_qca(PORTRAIT_CALIBRATION).cameras))[2]
+    portrait = train_cold(read_qca(PORTRAIT_CALIBRATION).cameras)[2]
     return {
         "rig": str(DEMO_SESSION),
         **demo,

@@ -144,7 +144,7 @@ def run() -> dict:
     # Spread the frames over the recording (standing, walking, arms raised).
     step = max(1, len(kept) // n_frames)
     frames = kept[::step][:n_frames]
-    names = [c.name for c in cameras]
+    names = cameras.names
     jobs = [
         FitJob(
             sil.frame,

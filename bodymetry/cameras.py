@@ -15,7 +15,7 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.calibration.io import load_calibration
 from bodymetry.calibration.session_calibration import (
     REPORT_FILE,
@@ -42,13 +42,13 @@ class ResolvedCameras:
 
     Attributes
     ----------
-    cameras : list of Camera
-        Session camera order.
+    cameras : CameraGroup
+        The rig, in session camera order.
     source : str
         The calibration file the session gave, or :data:`SOLVED`.
     """
 
-    cameras: list[Camera]
+    cameras: CameraGroup
     source: str
 
 
@@ -76,7 +76,7 @@ def resolve_cameras(
     layout.folder.mkdir(parents=True, exist_ok=True)
     given = session.calibration_path
     if given is not None and given.is_file():
-        cameras = list(session.calibration())
+        cameras = session.calibration()
         # The run keeps a byte copy: it stays readable if the session moves.
         write_bytes_atomic(layout.calibration, given.read_bytes())
         report = given.with_name(REPORT_FILE)
@@ -87,7 +87,7 @@ def resolve_cameras(
         return ResolvedCameras(cameras, str(given))
     if layout.calibration.is_file() and layout.calibration_report.is_file():
         return ResolvedCameras(
-            list(load_calibration(layout.calibration).subset(session.camera_names)), SOLVED
+            load_calibration(layout.calibration).subset(session.camera_names), SOLVED
         )
     if session.calibration_clips and session.board is not None:
         log.info("%s: no calibration.yaml; solving it from the ChArUco clips", session.folder)
@@ -98,7 +98,7 @@ def resolve_cameras(
             else None,
         )
         write_calibration(result, layout.calibration, overwrite=True)
-        return ResolvedCameras(list(result.cameras.subset(session.camera_names)), SOLVED)
+        return ResolvedCameras(result.cameras.subset(session.camera_names), SOLVED)
     raise InputError(
         f"{session.folder}: no calibration.yaml and no ChArUco clips to solve one from "
         "(see docs/session-format.md)"

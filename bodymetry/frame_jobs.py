@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import (
     FitConfig,
@@ -78,8 +78,8 @@ class FitJob:
     masks : list of (h_c, w_c) bool
         Observed silhouettes at the working resolution, camera order.
     flags : list of list of str
-    cameras : list of Camera
-        The working cameras.
+    cameras : CameraGroup
+        The working rig.
     models_path : Path
         The rig's cached discriminative models.
     fit : FitConfig
@@ -96,7 +96,7 @@ class FitJob:
     frame: int
     masks: list[np.ndarray]
     flags: list[list[str]]
-    cameras: list[Camera]
+    cameras: CameraGroup
     models_path: Path
     fit: FitConfig
     landmarks: np.ndarray | None = None
@@ -260,7 +260,7 @@ def write_rescue(layout: RunLayout, tried: dict[int, RescueOutcome]) -> None:
 def rescue_poor_frames(
     layout: RunLayout,
     records: dict[int, FrameRecord],
-    cameras: list[Camera],
+    cameras: CameraGroup,
     models_path: Path,
     config: FitConfig,
     neighbours: int = 2,
@@ -290,8 +290,8 @@ def rescue_poor_frames(
         arrays (``frames/FFFFFF.npz``), at the working resolution.
     records : dict of int to FrameRecord
         Every kept frame's record (:func:`read_done_frames` after the first pass).
-    cameras : list of Camera
-        The working cameras the frames were fitted with.
+    cameras : CameraGroup
+        The working rig the frames were fitted with.
     models_path : Path
         The rig's discriminative models.
     config : FitConfig
@@ -418,7 +418,7 @@ def _rescue_job(
     records: dict[int, FrameRecord],
     frame: int,
     near: tuple[int, ...],
-    cameras: list[Camera],
+    cameras: CameraGroup,
     models_path: Path,
     config: FitConfig,
     refine: bool,
@@ -433,7 +433,7 @@ def _rescue_job(
     """
     arrays = FrameArrays.load(layout.frame_arrays(frame))
     try:
-        masks = [arrays.observed[c.name] for c in cameras]
+        masks = [arrays.observed[n] for n in cameras.names]
     except KeyError as exc:
         raise InputError(
             f"{layout.frame_arrays(frame)}: no observed silhouette of camera {exc}"
@@ -442,7 +442,7 @@ def _rescue_job(
     return FitJob(
         frame,
         masks,
-        [list(old.flags.get(c.name, ())) for c in cameras],
+        [list(old.flags.get(n, ())) for n in cameras.names],
         cameras,
         models_path,
         config,

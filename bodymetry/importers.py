@@ -638,12 +638,11 @@ def import_recording(
     )
     group, quality = _read_calibration(rec, units)
     pairs = _match_videos(rec, group)
-    cameras, fps, frames, warnings = _fit_cameras(rec, group, pairs)
+    group_out, fps, frames, warnings = _fit_cameras(rec, group, pairs)
     rate = _common_rate(rec, fps, warnings)
     shortest = min(frames)
     if frame_step is None:
         frame_step = _default_step_logged(shortest)
-    group_out = CameraGroup(cameras)
     up = _world_up_warning(group_out, rec.calibration)
     if up:
         warnings.append(up)
@@ -704,7 +703,7 @@ def _match_videos(rec: Recording, group: CameraGroup) -> dict[str, str]:
 
 def _fit_cameras(
     rec: Recording, group: CameraGroup, pairs: dict[str, str]
-) -> tuple[list[Camera], list[tuple[str, float]], list[int], list[str]]:
+) -> tuple[CameraGroup, list[tuple[str, float]], list[int], list[str]]:
     """Each video's camera, renamed after the video and fitted to its decoded size.
 
     Parameters
@@ -713,8 +712,8 @@ def _fit_cameras(
 
     Returns
     -------
-    cameras : list of Camera
-        In video order.
+    cameras : CameraGroup
+        The rig, in video order.
     fps : list of (name, float)
         Each video's frame rate.
     frames : list of int
@@ -737,7 +736,7 @@ def _fit_cameras(
             warnings.append(warning)
         cameras.append(cam)
         log.info("camera %r: %s <-> calibration camera %r", name, video.name, pairs[name])
-    return cameras, fps, frames, warnings
+    return CameraGroup(cameras), fps, frames, warnings
 
 
 def _common_rate(rec: Recording, fps: list[tuple[str, float]], warnings: list[str]) -> float:

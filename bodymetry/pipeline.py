@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.calibration.io import save_calibration
 from bodymetry.cameras import resolve_cameras
 from bodymetry.capture.background import BackgroundModel
@@ -123,13 +123,13 @@ class PreparedRun:
     ----------
     session : Session
     layout : RunLayout
-    cameras : list of Camera
-        The working cameras (session order): the calibration's cameras at
+    cameras : CameraGroup
+        The working rig (session order): the calibration's cameras at
         their working resolution, what training and the fit use.
     calibration_source : str
     resolution : WorkingResolution
         Each camera's working resolution (recorded in ``results.json``).
-    calibrated : list of Camera
+    calibrated : CameraGroup
         The calibration's cameras at the videos' resolution: what capture
         uses (its silhouettes and landmarks are at that resolution).
     warnings : tuple of str
@@ -141,10 +141,10 @@ class PreparedRun:
 
     session: Session
     layout: RunLayout
-    cameras: list[Camera]
+    cameras: CameraGroup
     calibration_source: str
     resolution: WorkingResolution
-    calibrated: list[Camera]
+    calibrated: CameraGroup
     warnings: tuple[str, ...] = ()
     landmark_config: LandmarkConfig | None = None
 
@@ -279,7 +279,7 @@ def prepare(
         resolution.apply(resolved.cameras),
         resolved.source,
         resolution,
-        list(resolved.cameras),
+        resolved.cameras,
         tuple(str(w) for w in report.warnings),
     )
 
@@ -348,7 +348,7 @@ def segment(
     config : ProcessConfig
     read_method : {"sequential", "seek"}
     """
-    names = [c.name for c in prepared.cameras]
+    names = prepared.cameras.names
     return [
         SegmentedFrame(
             frame=sil.frame,
@@ -407,7 +407,7 @@ def check_calibration(
     )
     for text in warnings:
         log.warning("%s", text)
-    save_calibration(prepared.layout.calibration, CameraGroup(cameras))
+    save_calibration(prepared.layout.calibration, cameras)
     return replace(
         prepared,
         calibrated=cameras,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import overload
 
 import numpy as np
 
@@ -374,6 +375,16 @@ class CameraGroup:
         """Camera names, in order."""
         return tuple(cam.name for cam in self._cameras)
 
+    @property
+    def sizes(self) -> tuple[tuple[int, int], ...]:
+        """Image ``(width, height)`` of every camera, in order."""
+        return tuple(cam.size for cam in self._cameras)
+
+    @property
+    def same_size(self) -> bool:
+        """True when every camera has one image size."""
+        return len(set(self.sizes)) <= 1
+
     def __len__(self) -> int:
         return len(self._cameras)
 
@@ -383,7 +394,16 @@ class CameraGroup:
     def __contains__(self, name: object) -> bool:
         return name in self._index
 
-    def __getitem__(self, key: int | str) -> Camera:
+    @overload
+    def __getitem__(self, key: int | str) -> Camera: ...
+
+    @overload
+    def __getitem__(self, key: slice) -> CameraGroup: ...
+
+    def __getitem__(self, key: int | str | slice) -> Camera | CameraGroup:
+        """The camera at a position or of a name; a slice gives a sub-group."""
+        if isinstance(key, slice):
+            return CameraGroup(self._cameras[key])
         if isinstance(key, str):
             return self._cameras[self.index(key)]
         if isinstance(key, (int, np.integer)) and not isinstance(key, bool):
@@ -391,7 +411,7 @@ class CameraGroup:
             if not -n <= key < n:
                 raise IndexError(f"camera index {key} out of range for {n} cameras")
             return self._cameras[key]
-        raise TypeError(f"camera key must be an int or a name, got {type(key).__name__}")
+        raise TypeError(f"camera key must be an int, a name or a slice, got {type(key).__name__}")
 
     def index(self, name: str) -> int:
         """Position of the camera called ``name``."""
@@ -408,6 +428,51 @@ class CameraGroup:
         if missing:
             raise KeyError(f"no cameras named {missing}; cameras are {list(self.names)}")
         return CameraGroup([self._cameras[self._index[n]] for n in names])
+
+    def select(self, views: Sequence[int] | np.ndarray) -> CameraGroup:
+        """A new group with the cameras at positions ``views``, in that order
+        (e.g. the views of a frame with a usable silhouette).
+
+        Parameters
+        ----------
+        views : sequence of int or (C',) int array
+            Camera positions; at least one.
+        """
+        return CameraGroup([self[int(c)] for c in views])
+
+    def check_masks(self, masks: Sequence[np.ndarray] | np.ndarray) -> list[np.ndarray]:
+        """Check per-camera masks against the cameras' image sizes.
+
+        Parameters
+        ----------
+        masks : (C, H, W) array or sequence of C (H_c, W_c) arrays
+            One mask per camera, in camera order, each at its camera's size
+            ``(width, height) = camera.size``.
+
+        Returns
+        -------
+        list of C (H_c, W_c) bool
+            The masks as bool arrays (no copy when already bool).
+
+        Raises
+        ------
+        ValueError
+            If the counts differ or a mask's shape is not its camera's size (the
+            message names the camera and both sizes).
+        """
+        if len(masks) != len(self):
+            raise ValueError(f"expected one mask per camera ({len(self)}), got {len(masks)}")
+        out = []
+        for cam, mask in zip(self._cameras, masks, strict=True):
+            m = np.asarray(mask, dtype=bool)
+            w, h = cam.size
+            if m.shape != (h, w):
+                got = f"{m.shape[1]}x{m.shape[0]}" if m.ndim == 2 else f"of shape {m.shape}"
+                raise ValueError(
+                    f"camera {cam.name}: mask is {got} (width x height), camera image is {w}x{h}"
+                )
+            out.append(m)
+        return out
 
     def scaled(self, factors: float | Sequence[float]) -> CameraGroup:
         """The group with every camera at ``factors`` times its resolution.

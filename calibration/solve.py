@@ -490,7 +490,7 @@ def calibrate_cameras(
     out_cams, per_camera = _solved_cameras(cams, fit, floor, opts)
     _check_converged(fit, opts)
     return CalibrationResult(
-        cameras=CameraGroup(out_cams),
+        cameras=out_cams,
         rms_px=fit.rms,
         per_camera=per_camera,
         frames_used=len(frames),
@@ -793,7 +793,7 @@ def _bundle_adjust(pb: BundleProblem, x0: np.ndarray, opts: CalibrationOptions) 
 
 def _solved_cameras(
     cams: list[_CamData], fit: _BundleFit, floor: _FloorBoard, opts: CalibrationOptions
-) -> tuple[list[Camera], dict[str, dict[str, Any]]]:
+) -> tuple[CameraGroup, dict[str, dict[str, Any]]]:
     """The solved cameras and each one's quality figures; raises for a camera whose
     principal point left the image or whose RMS is not trustworthy."""
     cam_params, _ = unpack_parameters(fit.x, len(cams), fit.problem.n_poses)
@@ -829,7 +829,7 @@ def _solved_cameras(
                 f"solution (reprojection RMS {crms:.2f} px > {opts.max_rms_px} px); check that "
                 "the clips are synchronized and the board description is right"
             )
-    return out_cams, per_camera
+    return CameraGroup(out_cams), per_camera
 
 
 def _camera_quality(

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -121,7 +121,7 @@ def _in_view(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return pix, ok
 
 
-def _rig_key(cameras: Sequence[Camera]) -> tuple:
+def _rig_key(cameras: CameraGroup) -> tuple:
     """A hashable fingerprint of a rig (every parameter that moves a pixel)."""
     return tuple(
         (c.name, c.size, c.K.tobytes(), c.dist.tobytes(), c.R.tobytes(), c.t.tobytes())
@@ -132,7 +132,7 @@ def _rig_key(cameras: Sequence[Camera]) -> tuple:
 _hulls: dict[tuple, VisualHull] = {}
 
 
-def visual_hull(cameras: Sequence[Camera], config: HullConfig | None = None) -> VisualHull:
+def visual_hull(cameras: CameraGroup, config: HullConfig | None = None) -> VisualHull:
     """The :class:`VisualHull` of a rig, built once per process, rig and config (a
     batch segments frame by frame, every task asking for the same rig's hull)."""
     config = config or HullConfig()
@@ -149,7 +149,7 @@ class VisualHull:
 
     Parameters
     ----------
-    cameras : sequence of Camera
+    cameras : CameraGroup
         The rig (at least ``config.min_views`` cameras).
     config : HullConfig, optional
 
@@ -160,9 +160,9 @@ class VisualHull:
         by ``min_views`` cameras (the check cannot run; the message says so).
     """
 
-    def __init__(self, cameras: Sequence[Camera], config: HullConfig | None = None) -> None:
+    def __init__(self, cameras: CameraGroup, config: HullConfig | None = None) -> None:
         self.config = cfg = config or HullConfig()
-        self.cameras = tuple(cameras)
+        self.cameras = cameras
         if len(self.cameras) < cfg.min_views:
             raise InputError(
                 f"multi-view check: needs at least {cfg.min_views} cameras, got {len(cameras)}"
@@ -192,7 +192,7 @@ class VisualHull:
 
     def _floor_extent(self) -> tuple[np.ndarray, np.ndarray]:
         """The (x, y) box of the floor region that ``min_views`` cameras see at waist height."""
-        centers = np.array([c.center for c in self.cameras])
+        centers = self.cameras.centers
         mid = centers[:, :2].mean(axis=0)
         reach = np.linalg.norm(centers[:, :2] - mid, axis=1).max() + 1.0
         step = reach / 100

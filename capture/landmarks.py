@@ -84,7 +84,7 @@ class LandmarkConfig:
 
 
 def triangulate_landmarks(
-    cameras: Sequence[Camera],
+    cameras: CameraGroup,
     landmarks: Sequence[np.ndarray | None],
     config: LandmarkConfig | None = None,
 ) -> np.ndarray:
@@ -92,7 +92,8 @@ def triangulate_landmarks(
 
     Parameters
     ----------
-    cameras : sequence of C Camera
+    cameras : CameraGroup
+        C cameras.
     landmarks : sequence of C ((33, 3) float or None)
         Per camera: pixel x, pixel y, visibility (:class:`capture.person.Person`);
         None where the view has none (nobody found, unreadable, inconsistent).
@@ -109,7 +110,7 @@ def triangulate_landmarks(
 
 
 def _detections(
-    cameras: Sequence[Camera], landmarks: Sequence[np.ndarray | None], cfg: LandmarkConfig
+    cameras: CameraGroup, landmarks: Sequence[np.ndarray | None], cfg: LandmarkConfig
 ) -> np.ndarray:
     """(C, 33, 2) pixels of the landmarks seen well enough per view; NaN otherwise."""
     if len(landmarks) != len(cameras):
@@ -129,7 +130,7 @@ def _detections(
     return pixels
 
 
-def _triangulate(cameras: Sequence[Camera], pixels: np.ndarray, cfg: LandmarkConfig) -> np.ndarray:
+def _triangulate(cameras: CameraGroup, pixels: np.ndarray, cfg: LandmarkConfig) -> np.ndarray:
     """(N, 3) world points of detections (C, N, 2), each triangulated on its own.
 
     A point whose worst view reprojects further than ``cfg.max_error`` of the
@@ -139,15 +140,14 @@ def _triangulate(cameras: Sequence[Camera], pixels: np.ndarray, cfg: LandmarkCon
     """
     pixels = pixels.copy()
     n = pixels.shape[1]
-    group = CameraGroup(cameras)
-    limit = cfg.max_error * np.array([c.size[1] for c in cameras], float)[:, None]  # (C, 1)
+    limit = cfg.max_error * np.array(cameras.sizes, float)[:, 1:]  # (C, 1): image heights
     points = np.full((n, 3), np.nan)
     todo = np.arange(n)
     while todo.size:
         px = pixels[:, todo]
-        X = group.triangulate(px, refine=True)
+        X = cameras.triangulate(px, refine=True)
         with np.errstate(invalid="ignore"):
-            err = np.linalg.norm(group.project(X) - px, axis=-1) / limit  # (C, k)
+            err = np.linalg.norm(cameras.project(X) - px, axis=-1) / limit  # (C, k)
         err = np.where(np.isfinite(px[..., 0]), err, -np.inf)
         worst = np.argmax(err, axis=0)
         bad = err[worst, np.arange(todo.size)] > 1.0
@@ -200,7 +200,7 @@ def shifted_camera(camera: Camera, dx: float, dy: float) -> Camera:
 
 
 def _joint_offsets(
-    cameras: Sequence[Camera],
+    cameras: CameraGroup,
     frames: Sequence[Sequence[np.ndarray | None]],
     cfg: LandmarkConfig,
     iterations: int = 8,
@@ -211,7 +211,7 @@ def _joint_offsets(
     n_cam = len(cameras)
     total = np.zeros((n_cam, 2))
     counts = np.zeros(n_cam, int)
-    current = list(cameras)
+    current = cameras
     # Every frame's landmarks in one stack: the triangulation of each point is
     # its own, and one call for all frames is far cheaper than one per frame.
     pixels = np.concatenate([_detections(cameras, views, cfg) for views in frames], axis=1)
@@ -225,13 +225,13 @@ def _joint_offsets(
                 r = pixels[c, ok] - current[c].project(X[ok])
                 counts[c], step[c] = len(r), np.median(r, axis=0)
         total += step
-        current = [shifted_camera(cam, *total[c]) for c, cam in enumerate(cameras)]
+        current = CameraGroup([shifted_camera(cam, *total[c]) for c, cam in enumerate(cameras)])
         if np.abs(step).max() < 0.05:
             break
     return total, counts, np.nanmean(X, axis=0)
 
 
-def _sparsest(cameras: Sequence[Camera], offsets: np.ndarray, centre: np.ndarray) -> np.ndarray:
+def _sparsest(cameras: CameraGroup, offsets: np.ndarray, centre: np.ndarray) -> np.ndarray:
     """Among the offsets that explain the detections equally well, the sparsest.
 
     Moving the triangulated points by t moves every camera's projections by
@@ -257,11 +257,11 @@ def _sparsest(cameras: Sequence[Camera], offsets: np.ndarray, centre: np.ndarray
 
 
 def principal_point_offsets(
-    cameras: Sequence[Camera],
+    cameras: CameraGroup,
     frames: Sequence[Sequence[np.ndarray | None]],
     config: LandmarkConfig | None = None,
     max_frames: int = 30,
-) -> tuple[list[Camera], list[CameraOffset]]:
+) -> tuple[CameraGroup, list[CameraOffset]]:
     """Shift the principal points of the cameras that the subject's landmarks show off.
 
     The median reprojection residual of each camera's detections, iterated with
@@ -273,8 +273,8 @@ def principal_point_offsets(
 
     Parameters
     ----------
-    cameras : sequence of C Camera
-        As calibrated, at the resolution of the landmarks' pixels.
+    cameras : CameraGroup
+        C cameras as calibrated, at the resolution of the landmarks' pixels.
     frames : sequence of (sequence of C ((33, 3) float or None))
         Per kept frame, the per-camera landmarks
         (:attr:`SilhouetteFrame.view_landmarks`).
@@ -284,8 +284,8 @@ def principal_point_offsets(
 
     Returns
     -------
-    cameras : list of Camera
-        The cameras with the applied offsets (the others are the same objects).
+    cameras : CameraGroup
+        The rig with the applied offsets (the others are the same objects).
     offsets : list of CameraOffset
         Per camera, applied or not.
     """
@@ -294,12 +294,14 @@ def principal_point_offsets(
     if len(frames) > max_frames:
         frames = [frames[i] for i in np.linspace(0, len(frames) - 1, max_frames).astype(int)]
     if not frames:
-        return list(cameras), [CameraOffset(c.name, 0.0, 0.0, 0, False) for c in cameras]
+        return cameras, [CameraOffset(c.name, 0.0, 0.0, 0, False) for c in cameras]
     joint, counts, centre = _joint_offsets(cameras, frames, cfg)
     sparse = _sparsest(cameras, joint, centre)
-    limit = cfg.min_shift * np.array([c.size[1] for c in cameras], float)
+    limit = cfg.min_shift * np.array(cameras.sizes, float)[:, 1]  # image heights
     applied = (np.hypot(sparse[:, 0], sparse[:, 1]) >= limit) & (counts >= cfg.min_observations)
-    out = [shifted_camera(cam, *sparse[c]) if applied[c] else cam for c, cam in enumerate(cameras)]
+    out = CameraGroup(
+        [shifted_camera(cam, *sparse[c]) if applied[c] else cam for c, cam in enumerate(cameras)]
+    )
     offsets = [
         CameraOffset(
             cam.name, float(sparse[c, 0]), float(sparse[c, 1]), int(counts[c]), bool(applied[c])

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
 from bodymetry.capture.consistency import HullConfig, visual_hull
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
@@ -302,13 +302,13 @@ class _Views:
         config: CaptureConfig,
         subtraction: SubtractionConfig | None,
         cleanup: CleanupConfig | None,
-        cameras: Sequence[Camera] | None,
+        cameras: CameraGroup | None,
     ) -> None:
         self.models = list(models)
         self.sizes = list(sizes)
         self.cleanup = cleanup
         self.config = config
-        self.cameras = None if cameras is None else list(cameras)
+        self.cameras = cameras
         self.subtractors = [None if m is None else Subtractor(m, subtraction) for m in models]
         self.segmenter = PersonSegmenter(config.person) if config.uses_segmenter else None
         self.hull = None
@@ -378,7 +378,7 @@ def segment_session(
     session: Session,
     *,
     config: CaptureConfig | None = None,
-    cameras: Sequence[Camera] | None = None,
+    cameras: CameraGroup | None = None,
     subtraction: SubtractionConfig | None = None,
     cleanup: CleanupConfig | None = None,
     report: SyncReport | None = None,
@@ -396,7 +396,7 @@ def segment_session(
     config : CaptureConfig, optional
         Which segmentation (background subtraction, the learned segmenter or
         both) and the multi-view check.
-    cameras : sequence of Camera, optional
+    cameras : CameraGroup, optional
         The calibrated rig (session order), for the multi-view check (skipped
         without it).
     subtraction, cleanup : configs (defaults: Horprasert shadow suppression)

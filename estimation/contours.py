@@ -16,7 +16,7 @@ deterministic (no random choices).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from types import ModuleType
 
 import cv2
@@ -24,9 +24,9 @@ import numpy as np
 from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.estimation.generative import compiled_likelihood
-from bodymetry.estimation.projection import camera_arrays, fill_silhouette, per_camera_masks
+from bodymetry.estimation.projection import camera_arrays, fill_silhouette
 
 __all__ = [
     "ContourObservation",
@@ -106,7 +106,7 @@ class ContourObservation:
 
     Attributes
     ----------
-    cameras : list of Camera
+    cameras : CameraGroup
         Scaled to the working resolution.
     centers : (C, 3) float
         Camera centres (world, metres).
@@ -115,16 +115,16 @@ class ContourObservation:
     normals : list of (P_c, 2) float
         Outward unit normals of the observed outline at those points.
     trees : list of cKDTree or None
-    originals : list of Camera
-        The cameras at their own resolution.
+    originals : CameraGroup or None
+        The rig at its own resolution (None: ``cameras``).
     """
 
-    cameras: list[Camera]
+    cameras: CameraGroup
     centers: np.ndarray
     points: list[np.ndarray]
     normals: list[np.ndarray]
     trees: list[cKDTree | None]
-    originals: list[Camera] = field(default_factory=list)
+    originals: CameraGroup | None = None
 
     @property
     def valid(self) -> np.ndarray:
@@ -132,7 +132,7 @@ class ContourObservation:
 
 
 def prepare_contours(
-    cameras: Sequence[Camera],
+    cameras: CameraGroup,
     masks: Sequence[np.ndarray] | np.ndarray,
     scale: float,
     max_points: int = 400,
@@ -144,7 +144,7 @@ def prepare_contours(
 
     Parameters
     ----------
-    cameras : sequence of Camera
+    cameras : CameraGroup
     masks : sequence of C (H_c, W_c) bool, or (C, H, W) bool
         Observed silhouettes, each at its camera's resolution; an all-False
         mask leaves the view out.
@@ -157,8 +157,8 @@ def prepare_contours(
     ValueError
         If the masks do not match the cameras in number or size.
     """
-    masks = per_camera_masks(cameras, masks)
-    small = [c.scaled(scale) for c in cameras]
+    masks = cameras.check_masks(masks)
+    small = cameras.scaled(scale)
     points, normals, trees = [], [], []
     for mask in masks:
         p = outline_samples(mask, max_points)
@@ -166,8 +166,7 @@ def prepare_contours(
         # Pixel centres map as x' = (x + 0.5) s - 0.5 (see Camera.scaled).
         points.append((p + 0.5) * scale - 0.5)
         trees.append(cKDTree(points[-1]) if len(p) >= 10 else None)
-    centers = np.stack([c.center for c in cameras])
-    return ContourObservation(small, centers, points, normals, trees, list(cameras))
+    return ContourObservation(small, cameras.centers, points, normals, trees, cameras)
 
 
 def outline_samples(mask: np.ndarray, max_points: int) -> np.ndarray:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, Biometrics, measure
 from bodymetry.estimation.body_model.model import (
     NU,
@@ -163,7 +163,7 @@ def shared_body_model() -> BodyModel:
     return shipped_model()
 
 
-def preload(cameras: Sequence[Camera], refinement: RefineConfig | None = None) -> None:
+def preload(cameras: CameraGroup, refinement: RefineConfig | None = None) -> None:
     """Load, in this process, what every frame's fit and the session stage both use.
 
     The body model with its factorizations and skeleton anchors at both
@@ -176,7 +176,7 @@ def preload(cameras: Sequence[Camera], refinement: RefineConfig | None = None) -
 
     Parameters
     ----------
-    cameras : sequence of Camera
+    cameras : CameraGroup
         The working cameras.
     refinement : RefineConfig, optional
         The run's contour alignment (one step of it runs on the rest body).
@@ -186,7 +186,7 @@ def preload(cameras: Sequence[Camera], refinement: RefineConfig | None = None) -
     body.pose(rest)  # the full mesh's anchors and factorization
     lod = body.pose(rest, lod=True).vertices[0]
     faces = body.faces(lod=True)
-    masks = project_silhouettes(lod, faces, list(cameras))
+    masks = project_silhouettes(lod, faces, cameras)
     chamfer_costs(prepare_observation(cameras, masks, AnnealingConfig().image_scale), lod, faces)
     seen = [m for m in masks if m.any()]
     if seen:
@@ -337,7 +337,7 @@ def fit_frame(
     frame: int,
     masks: Sequence[np.ndarray] | np.ndarray,
     flags: list[list[str]],
-    cameras: list[Camera],
+    cameras: CameraGroup,
     models: DiscriminativeModels,
     config: FitConfig,
     landmarks: np.ndarray | None = None,
@@ -355,7 +355,7 @@ def fit_frame(
         ``"fit failed: ..."`` record naming the camera).
     flags : list of list of str
         Silhouette flags per camera.
-    cameras : list of Camera
+    cameras : CameraGroup
     models : DiscriminativeModels
         Trained for these cameras.
     config : FitConfig
@@ -371,7 +371,7 @@ def fit_frame(
     t0 = time.perf_counter()
     body = shared_body_model()
     rng = np.random.default_rng([config.seed, frame])
-    names = [c.name for c in cameras]
+    names = cameras.names
     pixels = {n: int(np.count_nonzero(m)) for n, m in zip(names, masks, strict=True)}
     flag_map = {n: tuple(f) for n, f in zip(names, flags, strict=True)}
     valid = _usable_views(names, pixels, flag_map)
@@ -484,7 +484,7 @@ def _discriminative(
 
 def _search_starts(
     body: BodyModel,
-    cameras: Sequence[Camera],
+    cameras: CameraGroup,
     valid: np.ndarray,
     points: list[np.ndarray],
     particles: np.ndarray,
@@ -545,7 +545,7 @@ def _finish(
     refined: RefineResult,
     biometrics: Biometrics,
     start: str,
-    cameras: list[Camera],
+    cameras: CameraGroup,
     valid: np.ndarray,
     config: FitConfig,
     t0: float,
@@ -554,7 +554,7 @@ def _finish(
     silhouettes and their IoU, the gate status and the total time, added to
     ``record`` (its other fields as the caller set them) and ``arrays``."""
     state = refined.state
-    names = [c.name for c in cameras]
+    names = cameras.names
     masks = [arrays.observed[n] for n in names]
     model_masks = project_silhouettes(
         body.pose(state, lod=True).vertices[0], body.faces(lod=True), cameras
@@ -577,7 +577,7 @@ def _finish(
 
 
 def refit_frame(
-    previous: FrameFit, cameras: list[Camera], config: FitConfig, proposals: dict[str, np.ndarray]
+    previous: FrameFit, cameras: CameraGroup, config: FitConfig, proposals: dict[str, np.ndarray]
 ) -> FrameFit:
     """Fit a frame again by contour refinement alone, from other poses (a cheap rescue).
 
@@ -592,7 +592,7 @@ def refit_frame(
     previous : FrameFit
         The frame's fit: its record and arrays (observed silhouettes at the
         working resolution, last annealing layer).
-    cameras : list of Camera
+    cameras : CameraGroup
         The working cameras it was fitted with.
     config : FitConfig
     proposals : name -> (40 + n_shape,) float
@@ -610,7 +610,7 @@ def refit_frame(
     first = record.estimate("generative")
     if first is None or not first.finite:
         return previous
-    names = [c.name for c in cameras]
+    names = cameras.names
     masks = [previous.arrays.observed[n] for n in names]
     valid = _usable_views(names, record.person_pixels, record.flags)
     observed = _blank_unusable(masks, valid)
@@ -706,7 +706,7 @@ class GenerativeFit:
 
 def generative_fit(
     body: BodyModel,
-    cameras: list[Camera],
+    cameras: CameraGroup,
     masks: Sequence[np.ndarray] | np.ndarray,
     initial: np.ndarray,
     config: FitConfig,
@@ -719,7 +719,7 @@ def generative_fit(
     Parameters
     ----------
     body : BodyModel
-    cameras : list of Camera
+    cameras : CameraGroup
     masks : sequence of C (H_c, W_c) bool, or (C, H, W) bool
         Observed silhouettes, each at its camera's size; all-False views are
         left out.

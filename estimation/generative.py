@@ -34,11 +34,11 @@ from types import ModuleType
 import cv2
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.estimation.backends import default_backend, module_kernels
 from bodymetry.estimation.body_model.model import THETA, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import N_POSE, YAW
-from bodymetry.estimation.projection import camera_arrays, per_camera_masks
+from bodymetry.estimation.projection import camera_arrays
 from bodymetry.estimation.raster import INSIDE_EPS, coverage_views
 
 _BACKENDS = ("numba", "numpy")
@@ -120,8 +120,8 @@ class Observation:
 
     Attributes
     ----------
-    cameras : list of Camera
-        Scaled to the comparison resolution.
+    cameras : CameraGroup
+        The rig scaled to the comparison resolution.
     masks : list of (h_c, w_c) bool
         Per view, at that view's comparison size (views may differ in size).
     dist_outside : list of (h_c, w_c) float32
@@ -135,7 +135,7 @@ class Observation:
         silhouette at the comparison scale.
     """
 
-    cameras: list[Camera]
+    cameras: CameraGroup
     masks: list[np.ndarray]
     dist_outside: list[np.ndarray]
     area: np.ndarray
@@ -158,7 +158,9 @@ class Observation:
         """
         if self._packed is None:
             views = np.flatnonzero(self.valid)
-            sizes = np.array([self.cameras[c].size for c in views], np.int64).reshape(-1, 2)
+            # The usable views as a sub-rig (a group is never empty: none is no cameras).
+            usable = self.cameras.select(views) if len(views) else ()
+            sizes = np.array([cam.size for cam in usable], np.int64).reshape(-1, 2)
             w, h = (int(v) for v in sizes.max(axis=0)) if len(views) else (1, 1)
             observed = np.zeros((len(views), h, w), bool)
             dist = np.zeros((len(views), h, w), np.float32)
@@ -168,7 +170,7 @@ class Observation:
                 dist[k, :mh, :mw] = self.dist_outside[c]
             self._packed = {
                 "views": views,
-                "cameras": camera_arrays([self.cameras[c] for c in views]),
+                "cameras": camera_arrays(usable),
                 "sizes": sizes,
                 "observed": observed,
                 "dist": dist,
@@ -179,13 +181,13 @@ class Observation:
 
 
 def prepare_observation(
-    cameras: Sequence[Camera], masks: Sequence[np.ndarray] | np.ndarray, scale: float
+    cameras: CameraGroup, masks: Sequence[np.ndarray] | np.ndarray, scale: float
 ) -> Observation:
     """Downscale the observed silhouettes and precompute their distance maps.
 
     Parameters
     ----------
-    cameras : sequence of Camera
+    cameras : CameraGroup
     masks : sequence of C (H_c, W_c) bool, or (C, H, W) bool
         Observed silhouettes, each at its camera's resolution (sizes may differ
         between cameras); an all-False mask marks a view without a usable
@@ -197,8 +199,8 @@ def prepare_observation(
     ValueError
         If the masks do not match the cameras in number or size.
     """
-    masks = per_camera_masks(cameras, masks)
-    small_cams = [c.scaled(scale) for c in cameras]
+    masks = cameras.check_masks(masks)
+    small_cams = cameras.scaled(scale)
     small, dist, area, valid, boxes = [], [], [], [], []
     for cam, mask in zip(small_cams, masks, strict=True):
         w, h = cam.size
@@ -254,7 +256,7 @@ def chamfer_costs(obs: Observation, vertices: np.ndarray, faces: np.ndarray) -> 
         return costs[0] if single else costs
     # Views of different sizes share one pass on a padded canvas (exact, see
     # coverage_views); one size is the plain stacked pass.
-    sizes = [obs.cameras[c].size for c in views]
+    sizes = [obs.cameras.sizes[c] for c in views]
     # (B, C', V, 2): every body in every usable view, projected camera by camera.
     pixels = np.stack([obs.cameras[c].project(verts) for c in views], axis=1)
     for b in range(len(verts)):

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.contours import prepare_contours
@@ -110,7 +110,7 @@ def crown_vertices(body: BodyModel, lod: bool) -> np.ndarray:
 
 def frame_offsets(
     body: BodyModel,
-    cameras: Sequence[Camera],
+    cameras: CameraGroup,
     masks: Sequence[np.ndarray],
     state: np.ndarray,
     refinement: RefineConfig,
@@ -120,7 +120,7 @@ def frame_offsets(
 
     Parameters
     ----------
-    cameras : sequence of C Camera
+    cameras : CameraGroup
         The working cameras.
     masks : sequence of C (H_c, W_c) bool
         Observed silhouettes (all-False: view left out).
@@ -169,7 +169,7 @@ def frame_offsets(
 
 def check_outline(
     body: BodyModel,
-    cameras: Sequence[Camera],
+    cameras: CameraGroup,
     frames: Sequence[tuple[Sequence[np.ndarray], np.ndarray]],
     refinement: RefineConfig | None = None,
     config: OutlineConfig | None = None,
@@ -180,7 +180,7 @@ def check_outline(
     Parameters
     ----------
     body : BodyModel
-    cameras : sequence of Camera
+    cameras : CameraGroup
         The working cameras.
     frames : sequence of (masks, state)
         Each accepted frame's observed silhouettes and fitted state (see

@@ -10,8 +10,9 @@ drawn: the same pixels at 1.6x (quarter resolution) to 2.8x (full resolution)
 the speed, measured on the level of detail.
 
 Cameras of one rig may differ in image size: each silhouette is at its own
-camera's size, and :func:`per_camera_masks` checks observed masks against
-their cameras for the stages that take them.
+camera's size, and :meth:`CameraGroup.check_masks
+<bodymetry.calibration.camera.CameraGroup.check_masks>` checks observed masks
+against their cameras for the stages that take them.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera, tilt_matrix
+from bodymetry.calibration.camera import Camera, CameraGroup, tilt_matrix
 from bodymetry.estimation.raster import coverage
 
 
@@ -51,7 +52,7 @@ def fill_silhouette(
 
 
 def project_silhouettes(
-    vertices: np.ndarray, faces: np.ndarray, cameras: Sequence[Camera]
+    vertices: np.ndarray, faces: np.ndarray, cameras: CameraGroup | Sequence[Camera]
 ) -> np.ndarray | list[np.ndarray]:
     """Silhouettes of one mesh in every camera, each at its camera's own size.
 
@@ -60,7 +61,7 @@ def project_silhouettes(
     vertices : (V, 3) float
         World coordinates, metres.
     faces : (T, 3) int
-    cameras : sequence of Camera
+    cameras : CameraGroup (or any sequence of Camera)
         Their image sizes may differ.
 
     Returns
@@ -77,7 +78,7 @@ def project_silhouettes(
 
 
 def view_ious(
-    cameras: Sequence[Camera],
+    cameras: CameraGroup,
     model: Sequence[np.ndarray],
     observed: Sequence[np.ndarray],
     used: Sequence[bool],
@@ -86,7 +87,8 @@ def view_ious(
 
     Parameters
     ----------
-    cameras : sequence of C Camera
+    cameras : CameraGroup
+        C cameras.
     model, observed : sequences of C (H_c, W_c) bool
     used : sequence of C bool
         The views to score (the others are left out).
@@ -99,55 +101,12 @@ def view_ious(
     return out
 
 
-def same_size(cameras: Sequence[Camera]) -> bool:
-    """True when every camera has one image size (an empty rig counts as one size)."""
-    return len({tuple(cam.size) for cam in cameras}) <= 1
-
-
-def per_camera_masks(
-    cameras: Sequence[Camera], masks: Sequence[np.ndarray] | np.ndarray
-) -> list[np.ndarray]:
-    """Check per-camera masks against their cameras' image sizes.
-
-    Parameters
-    ----------
-    cameras : sequence of Camera
-    masks : (C, H, W) array or sequence of (H_c, W_c) arrays
-        One mask per camera, in camera order, each at its camera's size
-        ``(width, height) = camera.size``.
-
-    Returns
-    -------
-    list of (H_c, W_c) bool
-        The masks as bool arrays (no copy when already bool).
-
-    Raises
-    ------
-    ValueError
-        If the counts differ or a mask's shape is not its camera's size (the
-        message names the camera and both sizes).
-    """
-    if len(masks) != len(cameras):
-        raise ValueError(f"expected one mask per camera ({len(cameras)}), got {len(masks)}")
-    out = []
-    for cam, mask in zip(cameras, masks, strict=True):
-        m = np.asarray(mask, dtype=bool)
-        w, h = cam.size
-        if m.shape != (h, w):
-            got = f"{m.shape[1]}x{m.shape[0]}" if m.ndim == 2 else f"of shape {m.shape}"
-            raise ValueError(
-                f"camera {cam.name}: mask is {got} (width x height), camera image is {w}x{h}"
-            )
-        out.append(m)
-    return out
-
-
-def camera_arrays(cameras: Sequence[Camera]) -> tuple[np.ndarray, ...]:
+def camera_arrays(cameras: CameraGroup | Sequence[Camera]) -> tuple[np.ndarray, ...]:
     """The cameras' parameters as the compiled projection kernel takes them.
 
     Parameters
     ----------
-    cameras : sequence of C Camera
+    cameras : CameraGroup (or any sequence of C Camera)
 
     Returns
     -------

@@ -251,13 +251,13 @@ class ContourCost:
         self.edges, self.edge_faces = _edges(model, lod=not full)
         self.map = full_from_lod(model) if full else None
         self._last: tuple[bytes, np.ndarray] | None = None
-        originals = obs.originals or obs.cameras
+        originals = obs.cameras if obs.originals is None else obs.originals
         # The views with an observed outline (fixed for the frame) at their own size:
         # where the model's own silhouettes are drawn (outline_offsets).
         self._own_views = [c for c, tree in enumerate(obs.trees) if tree is not None]
-        self._own_cameras = [originals[c] for c in self._own_views]
+        self._own_cameras = originals.select(self._own_views) if self._own_views else None
         self._own_arrays = camera_arrays(self._own_cameras) if self._own_views else None
-        self.visibility = [c.scaled(config.visibility_scale) for c in originals]
+        self.visibility = originals.scaled(config.visibility_scale)
         self._cam_arrays = [camera_arrays([cam]) for cam in obs.cameras]
         self._vis_arrays = [camera_arrays([cam]) for cam in self.visibility]
         # The residual mesh's topology, checked once for the contour kernel.
@@ -416,7 +416,7 @@ class ContourCost:
         else:
             planes = np.moveaxis(np.stack([cam.project(V) for cam in cams]), -1, 0)[:, None]
         pixels = np.moveaxis(planes, 0, -1)  # (1, C, V, 2)
-        masks = coverage_views(pixels[0], self.faces, [cam.size for cam in cams], closed=True)
+        masks = coverage_views(pixels[0], self.faces, list(cams.sizes), closed=True)
         out = {}
         for k, (c, cam) in enumerate(zip(views, cams, strict=True)):
             xs, ys = planes[0, 0, k], planes[1, 0, k]

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -212,7 +212,7 @@ class WorkingResolution:
     scales: dict[str, CameraScale]
 
     @classmethod
-    def choose(cls, cameras: Sequence[Camera], target_px: float | None) -> WorkingResolution:
+    def choose(cls, cameras: CameraGroup, target_px: float | None) -> WorkingResolution:
         """The rule (module docstring): each camera's factor from its person height.
 
         Logs one info line per camera that is downscaled.
@@ -236,7 +236,7 @@ class WorkingResolution:
         return cls(target_px, scales)
 
     @classmethod
-    def full(cls, cameras: Sequence[Camera]) -> WorkingResolution:
+    def full(cls, cameras: CameraGroup) -> WorkingResolution:
         """Every camera at its own resolution (runs recorded before working resolutions)."""
         return cls(None, {c.name: CameraScale(1, c.size, c.size) for c in cameras})
 
@@ -249,8 +249,8 @@ class WorkingResolution:
         """Whether any camera works below its resolution."""
         return any(s.factor > 1 for s in self.scales.values())
 
-    def apply(self, cameras: Sequence[Camera]) -> list[Camera]:
-        """The working cameras: each camera scaled by ``1/k`` (itself when k = 1).
+    def apply(self, cameras: CameraGroup) -> CameraGroup:
+        """The working rig: each camera scaled by ``1/k`` (itself when k = 1).
 
         Raises
         ------
@@ -279,7 +279,7 @@ class WorkingResolution:
                     f"recorded {tuple(scale.size)}"
                 )
             out.append(working)
-        return out
+        return CameraGroup(out)
 
     def downscale(self, names: Sequence[str], masks: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Camera-resolution silhouettes -> working-resolution silhouettes.

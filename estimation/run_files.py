@@ -20,12 +20,12 @@ older or foreign file gets a clear error naming it, not a ``KeyError``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.errors import InputError
 from bodymetry.estimation.records import (
@@ -260,8 +260,8 @@ class RunResults:
         """The session stage's outline check (None without the stage or the check)."""
         return None if self.session_shape is None else self.session_shape.outline
 
-    def working_cameras(self, cameras: Sequence[Camera]) -> list[Camera]:
-        """The cameras the run was trained and fitted with, from its calibrated ones.
+    def working_cameras(self, cameras: CameraGroup) -> CameraGroup:
+        """The rig the run was trained and fitted with, from its calibrated one.
 
         The one place a reader of a run turns the run's ``calibration.yaml``
         into the cameras of its recorded silhouettes.

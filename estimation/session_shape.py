@@ -62,7 +62,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
 from bodymetry.estimation.body_model.model import NU, POSE_DIM, BodyModel, BodyState
 from bodymetry.estimation.contours import prepare_contours
@@ -184,9 +184,7 @@ class SessionFrame:
     iou: float
 
 
-def session_frame(
-    record: FrameRecord, arrays: FrameArrays, cameras: Sequence[Camera]
-) -> SessionFrame:
+def session_frame(record: FrameRecord, arrays: FrameArrays, cameras: CameraGroup) -> SessionFrame:
     """A fitted frame's :class:`SessionFrame` from its record and arrays.
 
     The views its fit used are those its record has an IoU for (the others had
@@ -210,7 +208,7 @@ def session_frame(
 
 
 def silhouette_iou(
-    body: BodyModel, state: BodyState, cameras: Sequence[Camera], masks: Sequence[np.ndarray]
+    body: BodyModel, state: BodyState, cameras: CameraGroup, masks: Sequence[np.ndarray]
 ) -> dict[str, float]:
     """IoU of a state's level-of-detail silhouette with the observed one, per used view.
 
@@ -394,7 +392,7 @@ def _jittered(
 
 def fit_session_shape(
     body: BodyModel,
-    cameras: Sequence[Camera],
+    cameras: CameraGroup,
     frames: Sequence[SessionFrame],
     refinement: RefineConfig | None = None,
     config: SessionShapeConfig | None = None,
@@ -406,7 +404,7 @@ def fit_session_shape(
     Parameters
     ----------
     body : BodyModel
-    cameras : sequence of Camera
+    cameras : CameraGroup
         The working cameras the frames were fitted with.
     frames : sequence of SessionFrame
         The session's accepted frames.
@@ -470,7 +468,7 @@ class _Stage:
     finite-difference steps, the frames used and the start times."""
 
     body: BodyModel
-    cameras: Sequence[Camera]
+    cameras: CameraGroup
     frames: Sequence[SessionFrame]
     costs: list[ContourCost]
     config: SessionShapeConfig
@@ -574,7 +572,7 @@ def _give_up(
 
 def _frame_costs(
     body: BodyModel,
-    cameras: Sequence[Camera],
+    cameras: CameraGroup,
     frames: Sequence[SessionFrame],
     refinement: RefineConfig,
 ) -> list[ContourCost]:

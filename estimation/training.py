@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import (
     ANCHOR_CLEARANCE,
@@ -155,7 +155,7 @@ def _file_digest(path: str, size: int, mtime_ns: int) -> bytes:
 
 
 def rig_key(
-    cameras: list[Camera], config: TrainConfig, model_path: Path = DEFAULT_MODEL_PATH
+    cameras: CameraGroup, config: TrainConfig, model_path: Path = DEFAULT_MODEL_PATH
 ) -> str:
     """Hash of everything a trained model depends on (hex, 16 characters)."""
     h = hashlib.sha256()
@@ -297,7 +297,7 @@ def _render_features(args) -> tuple:
 
 def _parallel_features(
     bodies: tuple[BodyState, np.ndarray],
-    cameras: list[Camera],
+    cameras: CameraGroup,
     codebook,
     seed: int,
     workers: int,
@@ -407,14 +407,13 @@ def _inputs(name: str, rdf: np.ndarray, codes: np.ndarray) -> np.ndarray:
 
 
 def train(
-    cameras: list[Camera] | CameraGroup,
+    cameras: CameraGroup,
     config: TrainConfig | None = None,
     workers: int | None = None,
     progress: Progress | None = None,
 ) -> DiscriminativeModels:
     """Render the training and test sets, fit and evaluate the mixtures."""
     config = config or TrainConfig()
-    cameras = list(cameras)
     workers = workers or os.cpu_count() or 1
     t0 = time.perf_counter()
     # Loaded (and factorized) here, once per process and shared with the fit: the
@@ -457,7 +456,7 @@ def train(
     t_fit = time.perf_counter() - t_fit
     log.info("mixtures of experts: %d fitted in %.1f s", len(cameras) * len(MODEL_NAMES), t_fit)
     t_eval = time.perf_counter()
-    trained = DiscriminativeModels(tuple(c.name for c in cameras), codebook, models)
+    trained = DiscriminativeModels(cameras.names, codebook, models)
     metrics = evaluate(trained, model, test_states, rdf_te, sc_te, ok_te)
     metrics["chosen"] = {k: {"M": v["n_experts"], "lambda": v["ridge"]} for k, v in chosen.items()}
     metrics["selection"] = {k: v["table"] for k, v in chosen.items()}
@@ -482,7 +481,7 @@ def train(
 def _encoded_sets(
     train_rest: tuple[BodyState, np.ndarray],
     test: tuple[BodyState, np.ndarray],
-    cameras: list[Camera],
+    cameras: CameraGroup,
     codebook: Codebook,
     config: TrainConfig,
     workers: int,
@@ -548,7 +547,7 @@ def _progress_step(progress: Progress | None, label: str, total: int) -> Callabl
 def _codebook_set(
     bodies: tuple[BodyState, np.ndarray],
     n_cb: int,
-    cameras: list[Camera],
+    cameras: CameraGroup,
     config: TrainConfig,
     workers: int,
     progress: Progress | None,
@@ -618,7 +617,7 @@ def _fit_job(args: tuple) -> MixtureOfExperts:
 
 
 def _fit_models(
-    cameras: list[Camera],
+    cameras: CameraGroup,
     rdf: np.ndarray,
     codes: np.ndarray,
     valid: np.ndarray,
@@ -789,7 +788,7 @@ def evaluate(
 
 
 def load_or_train(
-    cameras: list[Camera] | CameraGroup,
+    cameras: CameraGroup,
     config: TrainConfig | None = None,
     cache_dir: Path | None = None,
     workers: int | None = None,
@@ -802,7 +801,6 @@ def load_or_train(
     (models, reused) : reused is True when the cache already had them.
     """
     config = config or TrainConfig()
-    cameras = list(cameras)
     key = rig_key(cameras, config)
     path = cached_models_path(key, cache_dir)
     if path.exists():

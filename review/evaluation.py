@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.ground_truth import GROUND_TRUTH_STATES
 from bodymetry.capture.session import load_session
 from bodymetry.errors import InputError
@@ -35,7 +35,7 @@ __all__ = ["GT_START_STD", "evaluate_run"]
 
 
 def _gt_generative(
-    args: tuple[int, list[np.ndarray], list[Camera], np.ndarray, np.ndarray, FitConfig],
+    args: tuple[int, list[np.ndarray], CameraGroup, np.ndarray, np.ndarray, FitConfig],
 ) -> tuple[int, dict[str, float], list]:
     frame, masks, cameras, tau, theta, config = args
     body = shared_body_model()  # loaded once per worker process
@@ -111,7 +111,7 @@ def evaluate_run(
     ok = data.ok_frames
     if not ok:
         raise InputError(f"{layout.results}: no frame was fitted")
-    if not data.cameras:
+    if data.cameras is None:
         raise InputError(f"{layout.calibration}: the run has no recorded cameras")
     gt_gen = _gt_generative_fits(data, states, workers, progress)
 

@@ -122,7 +122,7 @@ class McapWriter:
         self.run = run
         self._ctx = foxglove.Context()
         self._writer = foxglove.open_mcap(self.path, allow_overwrite=True, context=self._ctx)
-        names = [c.name for c in run.cameras]
+        names = () if run.cameras is None else run.cameras.names
         topic = "/cameras/{}/{}".format
         self._image = {
             n: ch.CompressedImageChannel(topic(n, "image"), context=self._ctx) for n in names
@@ -165,7 +165,7 @@ class McapWriter:
         stamp = _timestamp(seconds)
         self._frames += 1
         transforms = []
-        for c, cam in enumerate(self.run.cameras):
+        for c, cam in enumerate(self.run.cameras or ()):
             rot, centre = camera_to_world(cam)
             x, y, z, w = _quaternion(rot)
             transforms.append(

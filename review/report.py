@@ -120,7 +120,7 @@ def overlay_row(run: RunData, view: FrameView) -> OverlayRow | None:
     if not view.images and not view.observed:
         return None
     tiles, names = [], []
-    for c, cam in enumerate(run.cameras):
+    for c, cam in enumerate(run.cameras or ()):
         image = view.images[c] if c < len(view.images) else None
         observed = view.observed[c] if c < len(view.observed) else None
         model = view.model[c] if view.model is not None else None
@@ -329,7 +329,7 @@ def calibration_summary(run: RunData) -> dict[str, Any]:
         per_camera = {k: v for k, v in quality.items() if k != "overall" and isinstance(v, dict)}
     # The calibration's own cameras (its pixels), with the working size beside
     # the image size when the run worked below it.
-    for cam, work in zip(run.calibrated_cameras, run.cameras, strict=True):
+    for cam, work in zip(run.calibrated_cameras or (), run.cameras or (), strict=True):
         fig = per_camera.get(cam.name, {})
         out["cameras"].append(
             {
@@ -481,7 +481,7 @@ def _session_facts(run: RunData) -> dict[str, Any]:
             ", ".join(
                 dict.fromkeys(
                     _size_text(c, w)
-                    for c, w in zip(run.calibrated_cameras, run.cameras, strict=True)
+                    for c, w in zip(run.calibrated_cameras or (), run.cameras or (), strict=True)
                 )
             )
             or "?"

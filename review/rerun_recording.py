@@ -174,7 +174,7 @@ class RerunWriter:
         self.path = Path(path)
         self.run = run
         self._rec = rr.RecordingStream("bodymetry", recording_id=f"bodymetry-{run.name}")
-        names = [c.name for c in run.cameras]
+        names = [] if run.cameras is None else list(run.cameras.names)
         fitted = run.fitted_frames
         present = fitted[0].estimates["generative"].biometrics if fitted else {}
         self.biometrics = [k for k in MEASUREMENTS if k in present]
@@ -182,7 +182,7 @@ class RerunWriter:
         if run.cameras:
             # Between the first two cameras, a little farther out and higher than
             # they are, looking at the middle of the rig at hip height.
-            centres = np.array([c.center for c in run.cameras])
+            centres = run.cameras.centers
             target = np.r_[centres[:, :2].mean(axis=0), 0.9]
             side = centres[:2, :2].mean(axis=0) - target[:2]
             if np.linalg.norm(side) < 1e-6:
@@ -210,7 +210,7 @@ class RerunWriter:
             ),
             static=True,
         )
-        for cam in self.run.cameras:
+        for cam in self.run.cameras or ():
             rot, centre = camera_to_world(cam)
             base = f"/world/rig/{cam.name}"
             rec.log(base, rr.Transform3D(translation=centre, mat3x3=rot), static=True)

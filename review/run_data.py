@@ -27,7 +27,7 @@ from typing import Any, TypeVar
 import cv2
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import read_calibration
 from bodymetry.calibration.session_calibration import CalibrationReport
 from bodymetry.capture.ground_truth import SubjectTruth
@@ -54,11 +54,11 @@ class RunData:
         The run folder.
     results : RunResults
         ``results.json``.
-    cameras : list of Camera
-        The cameras the run was fitted with, at their working resolution
-        (empty when the run has none recorded).
-    calibrated_cameras : list of Camera
-        The same cameras at their own resolution (the run's ``calibration.yaml``).
+    cameras : CameraGroup or None
+        The rig the run was fitted with, at its working resolution (None when
+        the run has no cameras recorded).
+    calibrated_cameras : CameraGroup or None
+        The same rig at its own resolution (the run's ``calibration.yaml``).
     calibration_source : str
         Where the run's cameras came from (a file path), or why there are none.
     calibration_report : CalibrationReport or None
@@ -73,8 +73,8 @@ class RunData:
 
     folder: Path
     results: RunResults
-    cameras: list[Camera] = field(default_factory=list)
-    calibrated_cameras: list[Camera] = field(default_factory=list)
+    cameras: CameraGroup | None = None
+    calibrated_cameras: CameraGroup | None = None
     calibration_source: str = ""
     calibration_report: CalibrationReport | None = None
     calibration_quality: dict[str, Any] | None = None
@@ -109,7 +109,9 @@ class RunData:
     @property
     def camera_names(self) -> list[str]:
         names = self.results.session.cameras
-        return list(names) if names else [c.name for c in self.cameras]
+        if names:
+            return list(names)
+        return [] if self.cameras is None else list(self.cameras.names)
 
     @property
     def ground_truth(self) -> SubjectTruth | None:
@@ -164,20 +166,20 @@ def load_run(folder: str | Path) -> RunData:
             layout.results,
             session_path,
         )
-    cameras: list[Camera] = []
-    calibrated: list[Camera] = []
+    cameras: CameraGroup | None = None
+    calibrated: CameraGroup | None = None
     quality = None
     source = "no calibration recorded in the run"
     if layout.calibration.is_file():
         try:
             calib = read_calibration(layout.calibration)
             names = results.session.cameras
-            group = calib.cameras.subset(names) if names else calib.cameras
-            calibrated, quality = list(group), calib.quality
+            calibrated = calib.cameras.subset(names) if names else calib.cameras
+            quality = calib.quality
             cameras = results.working_cameras(calibrated)
             source = results.calibration_source or str(layout.calibration)
         except InputError as exc:
-            cameras, calibrated = [], []
+            cameras, calibrated = None, None
             log.warning("%s; the review has no cameras", exc)
     else:
         log.warning("%s: no calibration.yaml; the review has no camera views", layout.folder)
@@ -357,7 +359,7 @@ def _images(run: RunData, frames: Sequence[int]) -> Iterator[list[np.ndarray | N
             frame_set, sets = None, iter(())
         if frame_set is None:
             yield []
-        elif run.cameras:
+        elif run.cameras is not None:
             yield [
                 _working_image(image, cam)
                 for image, cam in zip(frame_set.images, run.cameras, strict=True)

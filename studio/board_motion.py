@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.capture.session import BoardSpec
 
 #: Where the close sweep puts the board centre in each camera's image, in units of the
@@ -38,7 +38,7 @@ def board_trajectory(
     fps: float,
     rng: np.random.Generator,
     board: BoardSpec,
-    cameras: list[Camera],
+    cameras: CameraGroup,
     *,
     sweep_reach: float = 0.7,
     sweep_depth_m: tuple[float, float] = (1.5, 2.3),
@@ -69,7 +69,7 @@ def board_trajectory(
 
     Parameters
     ----------
-    cameras : list of Camera
+    cameras : CameraGroup
         The rig (the operator watches each camera's live image to aim the board).
     sweep_reach, sweep_depth_m, tilt_deg : close-sweep geometry (see above).
     height_m : (float, float)
@@ -94,7 +94,7 @@ def board_trajectory(
     if n_move <= 0 or not cameras:
         out[n_floor:] = floor
         return out
-    centers = np.stack([cam.center for cam in cameras])
+    centers = cameras.centers
     order = np.argsort(np.arctan2(centers[:, 1], centers[:, 0]))
     segments = shared_view_segments(centers, order, rng)
     for i in range(len(cameras)):

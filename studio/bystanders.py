@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.body_model.motion.ik import (
@@ -210,13 +210,13 @@ def _standing_pose(
 
 
 def subject_footprints(
-    cameras: list[Camera], vertices: np.ndarray, clearance_px: float = 0.0
+    cameras: CameraGroup, vertices: np.ndarray, clearance_px: float = 0.0
 ) -> dict[str, np.ndarray]:
     """Where the subject can appear in each camera over the clip.
 
     Parameters
     ----------
-    cameras : list of Camera
+    cameras : CameraGroup
     vertices : (F, N, 3) float
         The subject's vertices (any subset, e.g. every 7th) in the frames to cover.
     clearance_px : float
@@ -248,7 +248,7 @@ def subject_footprints(
 
 
 def _views(
-    cameras: list[Camera],
+    cameras: CameraGroup,
     r_limits: list[float],
     points: np.ndarray,
     footprints: dict[str, np.ndarray],
@@ -275,7 +275,7 @@ def _views(
 
 def place_bystanders(
     model: BodyModel,
-    cameras: list[Camera],
+    cameras: CameraGroup,
     subject_vertices: np.ndarray,
     n: int,
     seed: int,
@@ -289,7 +289,7 @@ def place_bystanders(
     Parameters
     ----------
     model : BodyModel
-    cameras : list of Camera
+    cameras : CameraGroup
         The rig.
     subject_vertices : (F, N, 3) float
         The subject's vertices (a subset is enough) over the clip, for its footprints.
@@ -329,7 +329,7 @@ def place_bystanders(
         footprints=subject_footprints(cameras, subject_vertices, placement.clearance_px),
         lo=lo,
         hi=hi,
-        cam_xy=np.stack([cam.center[:2] for cam in cameras]),
+        cam_xy=cameras.centers[:, :2],
         placement=placement,
     )
     placed: list[Bystander] = []
@@ -360,7 +360,7 @@ class _Site:
 
     Attributes
     ----------
-    cameras : list of Camera
+    cameras : CameraGroup
     r_limits : list of float
         Each camera's lens radius limit.
     footprints : dict of camera name -> (H, W) bool
@@ -372,7 +372,7 @@ class _Site:
     placement : BystanderPlacement
     """
 
-    cameras: list[Camera]
+    cameras: CameraGroup
     r_limits: list[float]
     footprints: dict[str, np.ndarray]
     lo: np.ndarray

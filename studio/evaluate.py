@@ -124,7 +124,7 @@ class GroundTruth:
             shadows=shadows,
             light=Light(direction=Light.direction_from_angles(azimuth_deg=0.0, elevation_deg=50.0)),
         )
-        self._cameras = {cam.name: cam for cam in self.session.calibration()}
+        self._cameras = self.session.calibration()  # indexed by camera name
 
     def shadow(self, camera: str, frame: int) -> np.ndarray | None:
         """(H, W) bool true cast-shadow pixels (not person), or None without states."""

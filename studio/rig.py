@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import Camera, CameraGroup
 
 
 def look_at(
@@ -43,7 +43,7 @@ def studio_rig(
     radius: float = 3.6,
     seed: int = 0,
     target: tuple[float, float, float] = (0.0, 0.0, 0.95),
-) -> list[Camera]:
+) -> CameraGroup:
     """Cameras evenly spread around a ~3 x 3 m volume (like HumanEva-II's rig).
 
     Each camera stands at a corner-like azimuth (45° + k·360°/n, jittered),
@@ -54,7 +54,8 @@ def studio_rig(
 
     Returns
     -------
-    list of Camera, named ``cam_00`` ...
+    CameraGroup
+        The rig, cameras named ``cam_00`` ...
     """
     if n_cameras < 1:
         raise ValueError(f"n_cameras: expected at least 1, got {n_cameras}")
@@ -87,4 +88,4 @@ def studio_rig(
             ]
         )
         cameras.append(Camera(f"cam_{k:02d}", (w, h), K, dist, R, t))
-    return cameras
+    return CameraGroup(cameras)

@@ -342,7 +342,6 @@ def synthesize(
     subject = _SubjectMotion.draw(model, config)
     rig_seed = config.seed if config.rig_seed is None else config.rig_seed
     cameras = studio_rig(config.cameras, config.size, seed=rig_seed)
-    group = CameraGroup(cameras)
     board_poses = board_trajectory(
         config.calibration_frames,
         config.fps,
@@ -366,7 +365,7 @@ def synthesize(
     )
     del sparse_vertices
     _write_ground_truth(out, config, subject, joints, board_poses, bio)
-    _write_true_calibration(out, group)
+    _write_true_calibration(out, cameras)
 
     # The studio dresses the subject in the default Appearance; bystanders wear their own.
     independent = config.subject.independent
@@ -598,7 +597,7 @@ def _render_cameras(
     return results
 
 
-def _session_record(out: Path, config: SynthConfig, cameras: list[Camera]) -> Session:
+def _session_record(out: Path, config: SynthConfig, cameras: CameraGroup) -> Session:
     """The rendered folder's session description (``session.yaml``)."""
     return Session(
         folder=out,

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bodymetry.calibration.camera import Camera
+from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.capture.session import Session
 from bodymetry.studio.rig import look_at
 from bodymetry.studio.synth import synthesize
@@ -50,7 +50,7 @@ def tiny_train_overrides() -> list[str]:
     ]
 
 
-def portrait_rig(person_px: float = 960.0, distance: float = 3.5) -> list[Camera]:
+def portrait_rig(person_px: float = 960.0, distance: float = 3.5) -> CameraGroup:
     """Four portrait cameras like the Pose2Sim demo's: 1080x1920 and 1088x1920 alternating.
 
     Each stands ``distance`` metres from the world origin (azimuths 45°, 135°, ...,
@@ -70,4 +70,4 @@ def portrait_rig(person_px: float = 960.0, distance: float = 3.5) -> list[Camera
         f = 1000.0 * person_px / np.linalg.norm(ends[1] - ends[0])
         K[:2, :2] *= f / 1000.0
         cameras.append(Camera(probe.name, (w, h), K, dist, R, t))
-    return cameras
+    return CameraGroup(cameras)

@@ -64,7 +64,7 @@ def train(
     config = TrainConfig(n_train=n_train, n_test=n_test, seed=seed)
     cache = cache_dir or default_cache_dir()
     if retrain:
-        stale = cache / "discriminative" / f"{rig_key(list(cameras), config)}.npz"
+        stale = cache / "discriminative" / f"{rig_key(cameras, config)}.npz"
         stale.unlink(missing_ok=True)
     with labelled_progress() as update:
         models, reused = load_or_train(cameras, config, cache, workers=workers, progress=update)

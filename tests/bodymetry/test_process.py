@@ -16,6 +16,7 @@ import bodymetry.cameras as cameras_module
 import bodymetry.frame_jobs as frame_jobs
 import bodymetry.pipeline as pipeline
 import bodymetry.process as process_module
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.segmentation import segment_session
 from bodymetry.capture.session import load_session
 from bodymetry.capture.video import H264Writer
@@ -139,7 +140,7 @@ def test_resume_does_not_refit(run, monkeypatch, tmp_path):
 
 def test_frame_without_silhouette_is_marked_and_excluded(run):
     session, _, results, base = run
-    cams = list(session.calibration())
+    cams = session.calibration()
     empty = np.zeros((2, 180, 240), bool)
     fit = fit_frame(7, empty, [["empty"], ["empty"]], cams, _models(base), FitConfig.preset("fast"))
     assert fit.record.status == "no silhouette in any camera"
@@ -153,7 +154,7 @@ def test_poor_fit_is_marked_kept_and_excluded(run):
     """Below the IoU gate a frame keeps its numbers but leaves the summary."""
     session, _, results, base = run
     sil = next(iter(segment_session(session, keep_images=False)))
-    cams = list(session.calibration())
+    cams = session.calibration()
     flags = [list(f) for f in sil.flags]
     strict = fit_frame(
         sil.frame, sil.stack(), flags, cams, _models(base), FitConfig.preset("fast", min_iou=1.0)
@@ -217,7 +218,7 @@ def test_session_without_calibration_is_calibrated_from_its_clips(run, tmp_path,
     monkeypatch.setattr(cameras_module, "calibrate_session", fake_calibrate)
     resolved = cameras_module.resolve_cameras(uncalibrated, tmp_path)
     cams = resolved.cameras
-    assert [c.name for c in cams] == list(session.camera_names) and len(calls) == 1
+    assert list(cams.names) == list(session.camera_names) and len(calls) == 1
     assert resolved.source == cameras_module.SOLVED
     assert (tmp_path / "calibration.yaml").is_file()
     assert (tmp_path / "calibration-report.json").is_file()
@@ -302,11 +303,11 @@ def _poor_copy(run, tmp_path, *frames: int):
     return layout, {f: FrameRecord.read(layout.frame_record(f)) for f in layout.recorded_frames()}
 
 
-def _rescue_inputs(run) -> tuple[list, Path, FitConfig]:
+def _rescue_inputs(run) -> tuple[CameraGroup, Path, FitConfig]:
     """The working cameras, the models and the fit settings of the tiny run."""
     session, _, _, base = run
     model_path = next((base / "cache" / "discriminative").glob("*.npz"))
-    return list(session.calibration()), model_path, _config(base).fit
+    return session.calibration(), model_path, _config(base).fit
 
 
 def test_rescue_refines_a_poor_frame_again_from_its_neighbours(run, tmp_path, monkeypatch):
@@ -390,7 +391,7 @@ def test_rescue_rounds_run_together_and_a_rescued_frame_proposes_next(run, tmp_p
         return frame_jobs.run_serially(jobs)
 
     model_path = next((base / "cache" / "discriminative").glob("*.npz"))
-    cams = list(session.calibration())
+    cams = session.calibration()
     out = rescue_poor_frames(
         layout, records, cams, model_path, _config(base).fit, run_jobs=run_jobs
     )
@@ -411,7 +412,7 @@ def test_rescue_keeps_the_first_fit_when_the_second_is_no_better(run, tmp_path, 
     monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: FrameFit(worse, FrameArrays()))
     monkeypatch.setattr(frame_jobs, "refit_frame", lambda *a: FrameFit(worse, FrameArrays()))
     model_path = next((base / "cache" / "discriminative").glob("*.npz"))
-    cams = list(session.calibration())
+    cams = session.calibration()
     out = rescue_poor_frames(layout, records, cams, model_path, _config(base).fit)
     assert all(out[f] is records[f] for f in records)
     assert FrameRecord.read(layout.frame_record(4)).to_json() == records[4].to_json()
@@ -431,7 +432,7 @@ def test_rescue_off_and_nothing_to_rescue(run, tmp_path, monkeypatch):
     session, out, results, base = run
     monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: pytest.fail("nothing to rescue"))
     monkeypatch.setattr(frame_jobs, "refit_frame", lambda *a: pytest.fail("nothing to rescue"))
-    cams = list(session.calibration())
+    cams = session.calibration()
     model_path = next((base / "cache" / "discriminative").glob("*.npz"))
     records = {r.frame: r for r in results.frames}
     config = _config(base).fit

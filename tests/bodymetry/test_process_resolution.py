@@ -69,7 +69,7 @@ def hires(tmp_path_factory):
 
 def test_the_rule_picks_a_third_and_logs_it(hires):
     session, _, results, _, lines = hires
-    cameras = list(session.calibration())
+    cameras = session.calibration()
     expected = {c.name: math.floor(person_height_px(c) / TARGET_PX) for c in cameras}
     assert expected == {"cam_00": 3, "cam_01": 3}
     assert results.working_resolution.factors == expected
@@ -94,7 +94,7 @@ def test_results_json_records_the_working_sizes_and_target(hires):
 
 def test_training_is_at_the_working_size(hires):
     session, out, results, config, _ = hires
-    cameras = list(session.calibration())
+    cameras = session.calibration()
     working = load_run(out).cameras
     assert [c.size for c in working] == [WORKING_SIZE] * 2
     assert results.models == rig_key(working, config.training)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pickle
+
 import cv2
 import numpy as np
 import pytest
@@ -250,3 +252,34 @@ def test_group_scaled_per_camera_and_one_factor() -> None:
     assert [c.size for c in mixed] == [(640, 480), (320, 240), (160, 120)]
     with pytest.raises(ValueError, match="expected one factor or 3, got 2"):
         group.scaled([1.0, 0.5])
+
+
+def test_group_sizes_select_and_slices() -> None:
+    group = make_rig(4).scaled([1.0, 0.5, 1.0, 0.25])
+    assert group.sizes == ((640, 480), (320, 240), (640, 480), (160, 120))
+    assert not group.same_size and make_rig(3).same_size
+    usable = group.select(np.flatnonzero([True, False, True, True]))
+    assert usable.names == ("cam_00", "cam_02", "cam_03") and usable[1] is group[2]
+    assert isinstance(group[1:3], CameraGroup) and group[1:3].names == ("cam_01", "cam_02")
+    with pytest.raises(IndexError):
+        group.select([4])
+
+
+def test_group_check_masks_names_the_camera() -> None:
+    group = make_rig(2).scaled([1.0, 0.5])
+    masks = group.check_masks([np.zeros((480, 640), np.uint8), np.ones((240, 320), bool)])
+    assert [m.dtype for m in masks] == [bool, bool] and masks[1].all()
+    with pytest.raises(ValueError, match=r"expected one mask per camera \(2\), got 1"):
+        group.check_masks([np.zeros((480, 640), bool)])
+    with pytest.raises(ValueError, match=r"cam_01: mask is 640x480 .* image is 320x240"):
+        group.check_masks([np.zeros((480, 640), bool)] * 2)
+
+
+def test_group_pickles() -> None:
+    """A rig travels to pool and Dask workers by pickle."""
+    group = make_rig(3)
+    back = pickle.loads(pickle.dumps(group))
+    assert isinstance(back, CameraGroup) and back.names == group.names
+    assert back.index("cam_02") == 2 and back["cam_01"] is back[1]
+    X = _volume_points(5, 1)
+    np.testing.assert_array_equal(back.project(X), group.project(X))

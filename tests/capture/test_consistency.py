@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.consistency import HullConfig, VisualHull, visual_hull
 from bodymetry.errors import InputError
 from bodymetry.studio.rig import studio_rig
@@ -125,18 +126,24 @@ def test_config_and_rig_validation(rig):
     with pytest.raises(InputError, match="at least 3 cameras"):
         VisualHull(rig[:2])
     # Cameras that share no floor: a clear error, not an empty capture volume.
-    apart = [  # each camera moved 50 m further along x than the one before
-        type(c)(c.name, c.size, c.K, c.dist, c.R, c.t - c.R @ np.array([50.0 * k, 0, 0]))
-        for k, c in enumerate(rig)
-    ]
+    apart = CameraGroup(
+        [  # each camera moved 50 m further along x than the one before
+            type(c)(c.name, c.size, c.K, c.dist, c.R, c.t - c.R @ np.array([50.0 * k, 0, 0]))
+            for k, c in enumerate(rig)
+        ]
+    )
     with pytest.raises(InputError, match="no part of the room"):
         VisualHull(apart)
 
 
 def test_a_rigs_hull_is_built_once_per_process(rig):
-    copy = [type(c)(c.name, c.size, c.K.copy(), c.dist.copy(), c.R.copy(), c.t.copy()) for c in rig]
+    copy = CameraGroup(
+        [type(c)(c.name, c.size, c.K.copy(), c.dist.copy(), c.R.copy(), c.t.copy()) for c in rig]
+    )
     first = visual_hull(rig)
     assert visual_hull(copy) is first  # the same rig, other objects
     assert visual_hull(rig, HullConfig(max_voxels=100_000)) is not first
-    moved = [*copy[:3], type(copy[3])(copy[3].name, copy[3].size, copy[3].K, t=copy[3].t + 0.01)]
+    moved = CameraGroup(
+        [*copy[:3], type(copy[3])(copy[3].name, copy[3].size, copy[3].K, t=copy[3].t + 0.01)]
+    )
     assert visual_hull(moved) is not first

@@ -92,7 +92,7 @@ def test_segments_the_subject_of_a_real_frame():
 @needs_segmenter
 def test_real_session_silhouettes_are_the_subject_in_every_view(real_session):
     session = load_session(real_session)
-    cameras = list(load_calibration(real_session / "calibration.yaml"))
+    cameras = load_calibration(real_session / "calibration.yaml")
     frames = list(segment_session(session, cameras=cameras, keep_images=False))
     assert len(frames) == 4
     for sf in frames:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from tiny_run import TINY_TRAIN
 
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.estimation.body_model.model import NU, THETA, BodyModel, BodyState
 from bodymetry.estimation.contours import prepare_contours
 from bodymetry.estimation.fit import FitConfig, fit_frame
@@ -32,14 +33,14 @@ from bodymetry.estimation.training import load_or_train
 from bodymetry.studio.rig import studio_rig
 
 
-def mixed_rig(size: tuple[int, int] = (160, 120), seed: int = 4, n: int = 3) -> list:
+def mixed_rig(size: tuple[int, int] = (160, 120), seed: int = 4, n: int = 3) -> CameraGroup:
     """``n`` (2 or 3) studio cameras of different image sizes (see the module docstring)."""
-    cams = studio_rig(n, size, seed=seed)
+    cams = list(studio_rig(n, size, seed=seed))  # a list: cameras are swapped in below
     cams[1] = cams[1].scaled(1.25)
     if n > 2:
         w, h = cams[2].size
         cams[2] = dataclasses.replace(cams[2], size=(w, h + 8))
-    return cams
+    return CameraGroup(cams)
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +108,9 @@ def test_chamfer_costs_per_camera_equal_each_camera_alone(scene, scale):
     costs = chamfer_costs(obs, verts, faces)
     assert costs.shape == (4, 3) and np.all(costs[:, 2] == 0.0)
     for c in (0, 1):
-        alone = chamfer_costs(prepare_observation([cameras[c]], [masks[c]], scale), verts, faces)
+        alone = chamfer_costs(
+            prepare_observation(cameras[c : c + 1], [masks[c]], scale), verts, faces
+        )
         np.testing.assert_array_equal(costs[:, c], alone[:, 0])
 
 
@@ -151,7 +154,7 @@ def test_contours_per_camera_equal_each_camera_alone(scene):
     together = ContourCost(model, obs, config).evaluate(y)[0]
     alone = 0.0
     for c, cam in enumerate(cameras):
-        single = prepare_contours([cam], [masks[c]], 0.5, max_points=200)
+        single = prepare_contours(CameraGroup([cam]), [masks[c]], 0.5, max_points=200)
         np.testing.assert_array_equal(single.points[0], obs.points[c])
         np.testing.assert_array_equal(single.normals[0], obs.normals[c])
         assert single.cameras[0].size == obs.cameras[c].size
@@ -228,5 +231,5 @@ def test_view_ious_score_each_used_view_at_its_own_size():
     model[0][10:20, 0:20] = True
     observed[0][10:20, 10:30] = True
     model[1][5:50, 5:70] = observed[1][5:50, 5:70] = True
-    got = view_ious(cams, model, observed, [True, True, False])
+    got = view_ious(CameraGroup(cams), model, observed, [True, True, False])
     assert got == {"a": pytest.approx(1 / 3), "b": 1.0}

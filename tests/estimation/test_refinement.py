@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.session import load_session
 from bodymetry.estimation import generative
 from bodymetry.estimation.body_model.biometrics import measure
@@ -139,7 +140,7 @@ def test_contour_sampling_bias_on_the_demo_frames():
     each edge's residual with its own rendered outline's removes both. Measured:
     +0.33, +0.74 kg without; -0.0001, -0.0013 kg with."""
     session = load_session(DEMO)
-    cameras = list(session.calibration())
+    cameras = session.calibration()
     states = load_npz(DEMO / "ground_truth" / "states.npz")
     nu = np.array(json.loads((DEMO / "ground_truth" / "subject.json").read_text())["nu"])
     model = BodyModel.load()
@@ -222,7 +223,7 @@ def test_own_silhouettes_leave_out_views_behind_the_body(scene):
     flip = np.diag([-1.0, 1.0, -1.0])
     far[1] = replace(cameras[1], R=flip @ cameras[1].R, t=flip @ cameras[1].t)
     masks = [m if c != 2 else np.zeros_like(m) for c, m in enumerate(masks)]
-    obs = prepare_contours(far, masks, 0.5)
+    obs = prepare_contours(CameraGroup(far), masks, 0.5)
     cost = ContourCost(model, obs, RefineConfig())
     owns = cost._own_silhouettes(cost.vertices(truth.vector()[0])[0])
     assert sorted(owns) == [0, 3]

@@ -29,7 +29,7 @@ from bodymetry.estimation.run_files import RunResults, SessionInfo
 
 def test_the_demo_rig_keeps_full_resolution():
     """The bundled 640x480 demo (people of ~300-320 px) is not scaled: its figures stay."""
-    cameras = list(load_session(DEMO_SESSION).calibration())
+    cameras = load_session(DEMO_SESSION).calibration()
     heights = [person_height_px(c) for c in cameras]
     assert all(280 < h < 2 * DEFAULT_WORKING_PERSON_PX for h in heights)
     resolution = WorkingResolution.choose(cameras, DEFAULT_WORKING_PERSON_PX)
@@ -128,9 +128,7 @@ def test_downscaled_silhouette_matches_the_working_camera_render():
     ).vertices[0]
     full = project_silhouettes(verts, model.faces(lod=True), cameras)
     direct = project_silhouettes(verts, model.faces(lod=True), working)
-    for small, render in zip(
-        resolution.downscale([c.name for c in cameras], full), direct, strict=True
-    ):
+    for small, render in zip(resolution.downscale(cameras.names, full), direct, strict=True):
         assert small.shape == render.shape
         iou = (small & render).sum() / (small | render).sum()
         assert iou > 0.97, iou
@@ -165,11 +163,11 @@ def test_record_round_trip_and_checks():
 def test_run_results_give_the_working_cameras():
     cameras = portrait_rig()
     resolution = WorkingResolution.choose(cameras, DEFAULT_WORKING_PERSON_PX)
-    info = SessionInfo("/s", "s", tuple(c.name for c in cameras), 30.0, 1)
+    info = SessionInfo("/s", "s", cameras.names, 30.0, 1)
     results = RunResults(info, ProcessConfig(), (), {}, working_resolution=resolution)
     back = RunResults.from_json(results.to_json())
     assert [c.size for c in back.working_cameras(cameras)][:2] == [(360, 640), (363, 640)]
     # A run recorded before working resolutions worked at full resolution.
     old = results.to_json()
     del old["working_resolution"]
-    assert RunResults.from_json(old).working_cameras(cameras) == list(cameras)
+    assert list(RunResults.from_json(old).working_cameras(cameras)) == list(cameras)

@@ -86,7 +86,7 @@ def test_sampled_states_stand_on_the_floor_and_split_shapes():
 def test_training_produces_finite_figures(trained, cameras):
     models, _, reused = trained
     assert not reused
-    assert models.camera_names == tuple(c.name for c in cameras)
+    assert models.camera_names == cameras.names
     m = models.metrics
     for key in HEADLINE_METRICS:
         assert np.isfinite(m[key]), key
