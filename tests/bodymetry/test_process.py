@@ -17,6 +17,7 @@ import bodymetry.frame_jobs as frame_jobs
 import bodymetry.pipeline as pipeline
 import bodymetry.process as process_module
 from bodymetry.calibration.camera import CameraGroup
+from bodymetry.calibration.solve import CalibrationResult
 from bodymetry.capture.segmentation import segment_session
 from bodymetry.capture.session import load_session
 from bodymetry.capture.video import H264Writer
@@ -199,21 +200,19 @@ def test_session_without_calibration_is_calibrated_from_its_clips(run, tmp_path,
     uncalibrated = dataclasses.replace(session, calibration_file=None)
     calls = []
 
-    class Solved:
-        cameras = truth
-
-        def __init__(self):
-            self.world = {"frame": "floor board"}
-
-        def report(self):
-            return {"rms_px": 0.2}
-
-        def quality(self):
-            return {}
+    solved = CalibrationResult(
+        cameras=truth,
+        rms_px=0.2,
+        per_camera={},
+        frames_used=12,
+        observations=480,
+        outliers=0,
+        world={"frame": "floor board"},
+    )
 
     def fake_calibrate(sess, **kwargs):
         calls.append(sess.folder)
-        return Solved(), []
+        return solved, []
 
     monkeypatch.setattr(cameras_module, "calibrate_session", fake_calibrate)
     resolved = cameras_module.resolve_cameras(uncalibrated, tmp_path)
