@@ -183,9 +183,8 @@ class LocalExecutor(_SharedSteps):
         if not jobs:
             return []
         if self._pool is None:
-            if self._warming is not None:
-                # Before anything else poses the body model: the workers inherit what it loaded.
-                self._warming.result()
+            # Before anything else poses the body model: the workers inherit what it loaded.
+            self.wait_warm()
             # fork: workers inherit the loaded modules (the spawn start method re-imports).
             self._pool = ProcessPoolExecutor(
                 self.workers,
