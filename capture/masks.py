@@ -43,6 +43,11 @@ Flags per camera and frame (:data:`FLAGS`):
     where the other calibrated cameras see the subject (or the view found
     nobody where they do), even after looking again in the subject's box; only
     the part the other views confirm is kept.
+``unreliable``
+    the view's silhouette disagrees with the frame's other evidence (the
+    hull of the other views and the segmenter) beyond a bound
+    (:attr:`bodymetry.capture.segmentation.SilhouetteFrame.agreement`): the
+    fit leaves the view out for that frame.
 
 The capture stage that produces the raw masks and applies this clean-up is
 :mod:`bodymetry.capture.segmentation`.
@@ -64,7 +69,15 @@ __all__ = [
     "refine_edges",
 ]
 
-FLAGS = ("empty", "border", "multiple", "unreadable", "scene_change", "inconsistent")
+FLAGS = (
+    "empty",
+    "border",
+    "multiple",
+    "unreadable",
+    "scene_change",
+    "inconsistent",
+    "unreliable",
+)
 
 
 @dataclass(frozen=True)

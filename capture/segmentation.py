@@ -143,6 +143,12 @@ class SilhouetteFrame:
         Per camera the segmenter's landmarks (pixel x, pixel y, visibility);
         None where the view found nobody or was inconsistent (empty tuple
         without the segmenter).
+    agreement : tuple of (float or None), length C
+        Per camera, how well the view's silhouette agrees with the other
+        evidence of the frame (the other views' hull and the segmenter), as an
+        IoU in [0, 1]; None where it could not be judged (empty tuple when
+        nothing was judged). A view below the bound is flagged ``unreliable``
+        and left out of the fit for that frame.
     """
 
     frame: int
@@ -153,6 +159,7 @@ class SilhouetteFrame:
     shadows: tuple[np.ndarray, ...] = field(default=(), repr=False)
     landmarks: np.ndarray | None = field(default=None, repr=False)
     view_landmarks: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
+    agreement: tuple[float | None, ...] = ()
 
     def stack(self) -> np.ndarray:
         """(C, H, W) bool masks, for rigs whose cameras all have one image size.
