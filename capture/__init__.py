@@ -20,6 +20,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
             "background_models",
             "segment_session",
         ],
+        "fusion": ["FusionConfig", "FusionWeights", "fuse", "view_features"],
         "overlays": ["overlay", "save_silhouette_frame"],
         "person": ["PersonConfig", "PersonSegmenter", "segmenter_available"],
         "consistency": ["HullConfig", "visual_hull"],

@@ -299,17 +299,22 @@ class Subtractor:
         dist2 = ii - 2.0 * ie + ee
         return alpha, cd2, dist2
 
-    def labels(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def labels(self, image: np.ndarray, distances: bool = False) -> tuple[np.ndarray, ...]:
         """Person and shadow masks of one image.
 
         Parameters
         ----------
         image : (H, W, 3) uint8 BGR, the camera's size
+        distances : bool
+            Also return the squared colour distance to the background.
 
         Returns
         -------
         person, shadow : (H, W) bool
             Raw (before clean-up) person pixels and suppressed shadow pixels.
+        dist2 : (H, W) float32
+            With ``distances``: ``|(I - E) / sigma|^2``, noise units squared
+            (for MOG2, the Horprasert distance all the same).
         """
         if image.shape != self.model.median.shape:
             raise InputError(
@@ -319,15 +324,18 @@ class Subtractor:
         cfg = self.config
         if self._mog2 is not None:
             out = self._mog2.apply(image, learningRate=0)
-            return out == 255, out == 127
+            labels = (out == 255, out == 127)
+            return (*labels, self._distortions(image)[2]) if distances else labels
         alpha, cd2, dist2 = self._distortions(image)
         changed = dist2 > cfg.fg_sigma**2
         if cfg.method == "none":
-            return changed, np.zeros_like(changed)
-        same_chroma = cd2 <= cfg.shadow_cd**2
-        shadow = changed & same_chroma & (alpha >= cfg.shadow_alpha_min) & (alpha < 1.0)
-        highlight = changed & same_chroma & (alpha >= 1.0) & (alpha <= cfg.highlight_alpha_max)
-        return changed & ~shadow & ~highlight, shadow
+            labels = (changed, np.zeros_like(changed))
+        else:
+            same_chroma = cd2 <= cfg.shadow_cd**2
+            shadow = changed & same_chroma & (alpha >= cfg.shadow_alpha_min) & (alpha < 1.0)
+            highlight = changed & same_chroma & (alpha >= 1.0) & (alpha <= cfg.highlight_alpha_max)
+            labels = (changed & ~shadow & ~highlight, shadow)
+        return (*labels, dist2) if distances else labels
 
 
 def subtract(

@@ -271,6 +271,19 @@ class VisualHull:
         out = cv2.dilate(out, cv2.getStructuringElement(cv2.MORPH_RECT, (2 * r + 1, 2 * r + 1)))
         return out.astype(bool)
 
+    def leave_one_out(self, masks: Sequence[np.ndarray], c: int) -> np.ndarray | None:
+        """(H, W) bool: where the hull of every view but ``c`` projects in camera ``c``
+        (None when the other views agree on nothing).
+
+        Parameters
+        ----------
+        masks : sequence of (H_c, W_c) bool, camera order
+        c : int
+        """
+        others = [np.zeros_like(m) if k == c else m for k, m in enumerate(masks)]
+        occupied = self.occupied(others)
+        return self.support(occupied, c) if occupied.any() else None
+
     def check(self, masks: Sequence[np.ndarray]) -> HullCheck:
         """Remove from each silhouette what the other views do not confirm.
 

@@ -26,11 +26,20 @@ import numpy as np
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
 from bodymetry.capture.consistency import HullConfig, visual_hull
+from bodymetry.capture.fusion import (
+    FusionConfig,
+    change_evidence,
+    fuse,
+    segmenter_evidence,
+    view_agreement,
+    view_features,
+)
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.masks import CleanupConfig, clean_mask
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
+    Person,
     PersonConfig,
     PersonSegmenter,
     segmenter_available,
@@ -43,7 +52,9 @@ log = logging.getLogger(__name__)
 __all__ = [
     "CAPTURE_METHODS",
     "CaptureConfig",
+    "FrameSegmenter",
     "SilhouetteFrame",
+    "ViewEvidence",
     "background_models",
     "segment_session",
 ]
@@ -74,6 +85,10 @@ class CaptureConfig:
     hull : HullConfig
     landmarks : LandmarkConfig
         Triangulation of the segmenter's body landmarks.
+    fusion : FusionConfig
+        How background change, shadow label, segmenter and hull are fused per
+        pixel (:mod:`bodymetry.capture.fusion`), and the agreement below which a
+        view is ``unreliable``.
     """
 
     method: str = "auto"
@@ -81,6 +96,7 @@ class CaptureConfig:
     person: PersonConfig = field(default_factory=PersonConfig)
     hull: HullConfig = field(default_factory=HullConfig)
     landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
 
     def __post_init__(self) -> None:
         if self.method not in CAPTURE_METHODS:
@@ -298,9 +314,57 @@ class _View:
     landmarks: np.ndarray | None = None
 
 
-class _Views:
-    """Segments the views of one frame: the per-camera silhouette, then the
-    multi-view check and the landmarks in 3D (module docstring, "Segmentation")."""
+@dataclass
+class ViewEvidence:
+    """What each source says about one view (:mod:`bodymetry.capture.fusion`).
+
+    Attributes
+    ----------
+    raw : (H, W) bool or None
+        Background subtraction's person label (None without a background).
+    shadow : (H, W) bool
+        Its cast-shadow label (all False without a background).
+    change : (H, W) float32 or None
+        The change term (:func:`~bodymetry.capture.fusion.change_evidence`).
+    person : Person or None
+        The segmenter's person (None without the segmenter, or nobody found).
+    """
+
+    raw: np.ndarray | None
+    shadow: np.ndarray
+    change: np.ndarray | None
+    person: Person | None
+
+    @property
+    def found(self) -> np.ndarray | None:
+        """(H, W) bool: the segmenter's person mask, or None."""
+        return None if self.person is None else self.person.mask(0.5)
+
+    def candidate(self) -> np.ndarray:
+        """(H, W) bool: every pixel some source may call person (for the hull)."""
+        out = self.shadow.copy()
+        for part in (self.raw, self.found):
+            if part is not None:
+                out |= part
+        return out
+
+
+class FrameSegmenter:
+    """Segments the views of one frame: the evidence per camera, its fusion with
+    the multi-view hull, then the multi-view check, each view's agreement and the
+    landmarks in 3D (module docstring, "Segmentation").
+
+    Parameters
+    ----------
+    models : sequence of (BackgroundModel or None)
+        Per camera (None: no background, the segmenter alone).
+    sizes : sequence of (width, height)
+    config : CaptureConfig
+    subtraction : SubtractionConfig or None
+    cleanup : CleanupConfig or None
+    cameras : CameraGroup or None
+        The calibrated rig (no hull without it).
+    """
 
     def __init__(
         self,
@@ -325,32 +389,96 @@ class _Views:
             except InputError as exc:
                 log.warning("%s; silhouettes are not checked across views", exc)
 
-    def _one(
-        self, c: int, image: np.ndarray | None, roi: tuple[int, int, int, int] | None = None
+    def evidence(
+        self, c: int, image: np.ndarray, roi: tuple[int, int, int, int] | None = None
+    ) -> ViewEvidence:
+        """Every source's evidence of camera ``c``'s image (the segmenter in ``roi``)."""
+        w, h = self.sizes[c]
+        person = None if self.segmenter is None else self.segmenter.detect(image, roi)
+        sub = self.subtractors[c]
+        if sub is None:
+            return ViewEvidence(None, np.zeros((h, w), bool), None, person)
+        raw, shadow, dist2 = sub.labels(image, distances=True)
+        return ViewEvidence(raw, shadow, change_evidence(dist2, sub.config.fg_sigma), person)
+
+    def hull_terms(
+        self, evidence: Sequence[ViewEvidence | None]
+    ) -> list[tuple[np.ndarray, np.ndarray] | None]:
+        """Per camera the hull's support above the floor band and anywhere (None
+        without a hull or fusion, or where the candidates agree on nothing)."""
+        none: list[tuple[np.ndarray, np.ndarray] | None] = [None] * len(evidence)
+        if self.hull is None or not self.config.fusion.enabled:
+            return none
+        candidates = [
+            np.zeros((h, w), bool) if ev is None else ev.candidate()
+            for ev, (w, h) in zip(evidence, self.sizes, strict=True)
+        ]
+        occupied = self.hull.occupied(candidates)
+        if not occupied.any():
+            return none
+        body = occupied & (self.hull.points[:, 2] >= self.config.fusion.floor_band)
+        return [
+            (self.hull.support(body, c), self.hull.support(occupied, c))
+            for c in range(len(evidence))
+        ]
+
+    def features(
+        self, c: int, ev: ViewEvidence, terms: tuple[np.ndarray, np.ndarray] | None
+    ) -> tuple[np.ndarray, str]:
+        """Camera ``c``'s fusion features (H, W, 5) float32 and their sources key
+        (:func:`bodymetry.capture.fusion.view_features`)."""
+        w, h = self.sizes[c]
+        return view_features(
+            (h, w),
+            ev.change,
+            None if ev.raw is None else ev.shadow,
+            None if ev.person is None else segmenter_evidence(ev.person.probability),
+            None if terms is None else terms[0],
+            None if terms is None else terms[1],
+        )
+
+    def _view(
+        self,
+        c: int,
+        image: np.ndarray | None,
+        ev: ViewEvidence | None,
+        terms: tuple[np.ndarray, np.ndarray] | None,
     ) -> _View:
+        """Camera ``c``'s cleaned silhouette from its evidence (fused when enabled)."""
         w, h = self.sizes[c]
         none = np.zeros((h, w), bool)
-        if image is None:
+        if image is None or ev is None:
             return _View(none, ("unreadable",), none)
-        person = None if self.segmenter is None else self.segmenter.detect(image, roi)
-        found = None if person is None else person.mask(self.config.person.threshold)
-        landmarks = None if person is None else person.landmarks
-        model = self.models[c]
-        if model is None:  # no background: the segmenter's person is the silhouette
+        landmarks = None if ev.person is None else ev.person.landmarks
+        found = None if ev.person is None else ev.person.mask(self.config.person.threshold)
+        fusion = self.config.fusion
+        if ev.raw is None and (terms is None or not fusion.enabled):
+            # No background: the segmenter's person is the silhouette.
             if found is None:
                 return _View(none, ("empty",), none)
             mask, flags = clean_mask(found, self.cleanup)
             return _View(mask, flags, none, landmarks)
-        raw, shadow = self.subtractors[c].labels(image)
-        mask, flags = clean_mask(raw, self.cleanup, image, model.median, shadow, found)
+        raw, shadow = ev.raw, ev.shadow
+        if fusion.enabled:
+            features, key = self.features(c, ev, terms)
+            raw = fuse(features, fusion.weights_for(key)) > 0
+            # Shadow labels the fusion overruled (a grey shirt's shaded side) are person.
+            shadow = shadow & ~raw
+        if ev.raw is None:
+            mask, flags = clean_mask(raw, self.cleanup, person=found)
+            return _View(mask, flags, none, landmarks)
+        mask, flags = clean_mask(raw, self.cleanup, image, self.models[c].median, shadow, found)
         return _View(mask, flags, shadow, landmarks)
 
     def __call__(
         self, images: Sequence[np.ndarray | None]
-    ) -> tuple[list[_View], np.ndarray | None]:
-        """Per camera the view, and the (33, 3) world landmarks (None without a segmenter
-        or cameras)."""
-        views = [self._one(c, image) for c, image in enumerate(images)]
+    ) -> tuple[list[_View], np.ndarray | None, list[float | None]]:
+        """Per camera the view, the (33, 3) world landmarks (None without a segmenter
+        or cameras) and the view's agreement (None where not judged)."""
+        evidence = [None if im is None else self.evidence(c, im) for c, im in enumerate(images)]
+        terms = self.hull_terms(evidence)
+        views = [self._view(c, im, evidence[c], terms[c]) for c, im in enumerate(images)]
+        agreement: list[float | None] = [None] * len(views)
         if self.hull is not None:
             check = self.hull.check([v.mask for v in views])
             if self.segmenter is not None and any(check.inconsistent):
@@ -361,7 +489,8 @@ class _Views:
                     if bad and check.rois[c] is not None and images[c] is not None
                 ]  # fmt: skip
                 for c in retry:
-                    views[c] = self._one(c, images[c], check.rois[c])
+                    evidence[c] = self.evidence(c, images[c], check.rois[c])
+                    views[c] = self._view(c, images[c], evidence[c], terms[c])
                 if retry:
                     check = self.hull.check([v.mask for v in views])
             for view, mask, bad in zip(views, check.masks, check.inconsistent, strict=True):
@@ -369,12 +498,27 @@ class _Views:
                 if bad:
                     view.flags = (*view.flags, "inconsistent")
                     view.landmarks = None
+            agreement = self._agreement(views, evidence)
         landmarks = None
         if self.cameras is not None and sum(v.landmarks is not None for v in views) >= 2:
             landmarks = triangulate_landmarks(
                 self.cameras, [v.landmarks for v in views], self.config.landmarks
             )
-        return views, landmarks
+        return views, landmarks, agreement
+
+    def _agreement(
+        self, views: list[_View], evidence: Sequence[ViewEvidence | None]
+    ) -> list[float | None]:
+        """Each view's agreement with the other views' hull and its segmenter; a view
+        below ``fusion.min_agreement`` is flagged ``unreliable`` (in place)."""
+        masks = [v.mask for v in views]
+        others = [self.hull.leave_one_out(masks, c) for c in range(len(views))]
+        segmenter = [None if ev is None else ev.found for ev in evidence]
+        agreement = view_agreement(masks, others, segmenter)
+        for view, score in zip(views, agreement, strict=True):
+            if score is not None and score < self.config.fusion.min_agreement:
+                view.flags = (*view.flags, "unreliable")
+        return agreement
 
     def close(self) -> None:
         if self.segmenter is not None:
@@ -429,10 +573,12 @@ def segment_session(
         raise InputError(f"expected {len(session.cameras)} background models, got {len(models)}")
     if config.method == "background" and any(m is None for m in models):
         raise InputError("capture.method 'background' needs a background model for every camera")
-    views = _Views(models, [v.size for v in report.videos], config, subtraction, cleanup, cameras)
+    views = FrameSegmenter(
+        models, [v.size for v in report.videos], config, subtraction, cleanup, cameras
+    )
     try:
         for fs in _prefetch(read_frame_sets(session, report, frames=frames, method=read_method)):
-            per_view, landmarks = views(fs.images)
+            per_view, landmarks, agreement = views(fs.images)
             out = SilhouetteFrame(
                 frame=fs.frame,
                 cameras=fs.cameras,
@@ -444,6 +590,7 @@ def segment_session(
                 view_landmarks=tuple(v.landmarks for v in per_view)
                 if views.segmenter is not None
                 else (),
+                agreement=tuple(agreement) if any(a is not None for a in agreement) else (),
             )
             if on_frame is not None:
                 on_frame(out)

@@ -1,0 +1,252 @@
+"""Evidence fusion: one person probability per pixel from every source the frame has.
+
+Background subtraction, its shadow label, the learned segmenter and the
+multi-view hull each see the person differently, and each fails differently: a
+grey shirt in front of a grey wall barely changes the image, and its shaded
+side has the wall's chromaticity (the colour test calls it cast shadow); the
+segmenter finds the shirt but blurs the outline and sometimes picks a
+bystander; the hull knows where the cameras agree in 3D but is coarse. So
+instead of choosing one, every pixel gets the sum of their log-odds
+(naive-Bayes fusion, i.e. a logistic model over the per-pixel evidence):
+
+.. math::
+
+    \\log\\frac{p}{1-p} = b + w_c\\,c + w_s\\,s + w_p\\,\\ell + w_h\\,h_{body} + w_a\\,h_{any}
+
+with
+
+``c`` (*change*)
+    ``clip(log(d / fg_sigma), -2, 2)``: the colour distance ``d`` to the
+    background in noise units, relative to the change threshold (0 at the
+    threshold, positive above).
+``s`` (*shadow*)
+    1 where the colour test labels the pixel cast shadow (darker, same
+    chromaticity: :mod:`bodymetry.capture.background`), else 0.
+``l`` (*segmenter*)
+    ``clip(logit(p), -4, 4)`` of the segmenter's probability ``p``.
+``h_body`` (*hull above the floor*)
+    1 where the hull's voxels higher than ``floor_band`` above the floor
+    project. A cast shadow lies on the floor: the cameras' cones through it
+    meet at floor level only, so this term is what tells an achromatic
+    garment's shaded side (which stands in the room) from a shadow (which lies
+    on the floor) without colour.
+``h_any`` (*any hull*)
+    1 where any occupied voxel projects (the feet and their floor band too);
+    a pixel outside every projection is claimed by this view alone.
+
+The hull here is built from generous candidates (every changed pixel, shadow
+included, and the segmenter's person), so a part one source lost in a view is
+still in 3D when the other sources or views see it.
+
+A source a frame lacks (no background clip, no segmenter, no calibrated rig,
+or the segmenter found nobody in a view) is left out, and the weights fitted
+without it are used: :data:`WEIGHTS` holds one set per combination of sources,
+fitted by logistic regression on studio sessions whose appearance spans
+saturated, white, grey, black and wall-coloured clothing in textured and plain
+rooms under hard and soft light (``python -m benchmarks fusion_fit``, which
+prints this table; docs/capture.md, "Evidence fusion"). With the segmenter
+alone the weights are ``l`` with unit weight and no bias: the fused mask is
+the segmenter's own at its threshold of 0.5.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from bodymetry.errors import InputError
+
+__all__ = [
+    "FEATURES",
+    "WEIGHTS",
+    "FusionConfig",
+    "FusionWeights",
+    "change_evidence",
+    "fuse",
+    "segmenter_evidence",
+    "sources_key",
+    "view_features",
+]
+
+#: The evidence terms, in the order of :attr:`FusionWeights.weights` and :func:`view_features`.
+FEATURES = ("change", "shadow", "segmenter", "hull_body", "hull_any")
+
+#: Clip of the change term (log units).
+CHANGE_CLIP = 2.0
+#: Clip of the segmenter's logit (a confident segmenter must not overrule a hull and a
+#: background that both disagree).
+LOGIT_CLIP = 4.0
+
+
+@dataclass(frozen=True)
+class FusionWeights:
+    """The log-odds weights of one combination of sources.
+
+    Attributes
+    ----------
+    bias : float
+    weights : tuple of float
+        One per :data:`FEATURES` (0 for a source the combination lacks).
+    """
+
+    bias: float
+    weights: tuple[float, float, float, float, float]
+
+    def __post_init__(self) -> None:
+        if len(self.weights) != len(FEATURES):
+            raise InputError(
+                f"fusion weights: expected {len(FEATURES)} ({', '.join(FEATURES)}), "
+                f"got {len(self.weights)}"
+            )
+
+
+def sources_key(background: bool, segmenter: bool, hull: bool) -> str:
+    """The :data:`WEIGHTS` key of a combination of sources, e.g. ``"background+segmenter+hull"``."""
+    names = [n for n, on in (("background", background), ("segmenter", segmenter),
+                             ("hull", hull)) if on]  # fmt: skip
+    return "+".join(names) or "none"
+
+
+#: Fitted weights per combination of sources (``python -m benchmarks fusion_fit``).
+WEIGHTS: dict[str, FusionWeights] = {
+    "background+segmenter+hull": FusionWeights(-2.0, (2.0, 1.0, 1.0, 2.0, 1.0)),
+    "background+segmenter": FusionWeights(-1.0, (2.0, 0.0, 1.0, 0.0, 0.0)),
+    "background+hull": FusionWeights(-2.0, (2.0, 1.0, 0.0, 2.0, 1.0)),
+    "background": FusionWeights(0.0, (2.0, -4.0, 0.0, 0.0, 0.0)),
+    "segmenter+hull": FusionWeights(0.0, (0.0, 0.0, 1.0, 0.0, 0.0)),
+    "segmenter": FusionWeights(0.0, (0.0, 0.0, 1.0, 0.0, 0.0)),
+}
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """How the capture stage fuses its evidence.
+
+    Attributes
+    ----------
+    enabled : bool
+        Off: today's choice instead of a fusion (background subtraction's
+        mask, the segmenter only choosing among its blobs).
+    floor_band : float
+        Hull voxels lower than this (metres above the floor) may be cast
+        shadow; only higher ones give ``h_body``.
+    min_agreement : float
+        A view whose silhouette agrees with neither the other views' hull nor
+        its segmenter better than this IoU is ``unreliable``.
+    """
+
+    enabled: bool = True
+    floor_band: float = 0.15
+    min_agreement: float = 0.6
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.floor_band < 1.0:
+            raise InputError(f"fusion.floor_band: expected 0 <= band < 1 m, got {self.floor_band}")
+        if not 0.0 <= self.min_agreement < 1.0:
+            raise InputError(f"fusion.min_agreement: expected 0 <= a < 1, got {self.min_agreement}")
+
+    def weights_for(self, key: str) -> FusionWeights:
+        """The weights of the sources ``key`` (:func:`sources_key`)."""
+        if key not in WEIGHTS:
+            raise InputError(f"fusion: no weights for the sources {key!r}")
+        return WEIGHTS[key]
+
+
+def change_evidence(dist2: np.ndarray, fg_sigma: float) -> np.ndarray:
+    """(H, W) float32 change term ``clip(log(d / fg_sigma), ±CHANGE_CLIP)`` from the
+    squared colour distance ``dist2`` (H, W), noise units squared."""
+    ratio = np.maximum(np.asarray(dist2, np.float32), 1e-6) / np.float32(fg_sigma**2)
+    return np.clip(0.5 * np.log(ratio), -CHANGE_CLIP, CHANGE_CLIP).astype(np.float32)
+
+
+def segmenter_evidence(probability: np.ndarray) -> np.ndarray:
+    """(H, W) float32 ``clip(logit(p), ±LOGIT_CLIP)`` of a probability map (H, W)."""
+    p = np.clip(np.asarray(probability, np.float32), 1e-4, 1 - 1e-4)
+    return np.clip(np.log(p / (1 - p)), -LOGIT_CLIP, LOGIT_CLIP).astype(np.float32)
+
+
+def view_features(
+    shape: tuple[int, int],
+    change: np.ndarray | None = None,
+    shadow: np.ndarray | None = None,
+    segmenter: np.ndarray | None = None,
+    hull_body: np.ndarray | None = None,
+    hull_any: np.ndarray | None = None,
+) -> tuple[np.ndarray, str]:
+    """The evidence of one view as a (H, W, 5) float32 stack and its sources key.
+
+    Parameters
+    ----------
+    shape : (H, W)
+    change : (H, W) float32, optional
+        :func:`change_evidence` (with ``shadow``: both or neither).
+    shadow : (H, W) bool, optional
+    segmenter : (H, W) float32, optional
+        :func:`segmenter_evidence`.
+    hull_body, hull_any : (H, W) bool, optional
+        Hull support above the floor band and anywhere (both or neither).
+
+    Returns
+    -------
+    features : (H, W, 5) float32
+        Per :data:`FEATURES`; 0 where a source is absent.
+    key : str
+        :func:`sources_key` of the sources present.
+    """
+    if (change is None) != (shadow is None) or (hull_body is None) != (hull_any is None):
+        raise InputError("view_features: change and shadow, hull_body and hull_any come in pairs")
+    out = np.zeros((*shape, len(FEATURES)), np.float32)
+    for k, term in enumerate((change, shadow, segmenter, hull_body, hull_any)):
+        if term is not None:
+            if np.shape(term) != tuple(shape):
+                raise InputError(
+                    f"view_features: {FEATURES[k]} is {np.shape(term)}, expected {tuple(shape)}"
+                )
+            out[..., k] = term
+    key = sources_key(change is not None, segmenter is not None, hull_body is not None)
+    return out, key
+
+
+def fuse(features: np.ndarray, weights: FusionWeights) -> np.ndarray:
+    """(H, W) float32 log-odds that each pixel shows the person.
+
+    Parameters
+    ----------
+    features : (H, W, 5) float32
+        :func:`view_features`.
+    weights : FusionWeights
+    """
+    w = np.asarray(weights.weights, np.float32)
+    return (features.reshape(-1, len(FEATURES)) @ w).reshape(features.shape[:2]) + np.float32(
+        weights.bias
+    )
+
+
+def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two (H, W) bool masks (0 when both are empty)."""
+    union = np.count_nonzero(a | b)
+    return float(np.count_nonzero(a & b) / union) if union else 0.0
+
+
+def view_agreement(
+    masks: Sequence[np.ndarray],
+    others_support: Sequence[np.ndarray | None],
+    segmenter_masks: Sequence[np.ndarray | None],
+) -> list[float | None]:
+    """Per view, the better IoU of its silhouette with the other views' hull and
+    with its segmenter's person (None where neither can judge or the view is empty).
+
+    Parameters
+    ----------
+    masks : sequence of (H_c, W_c) bool
+    others_support : sequence of ((H_c, W_c) bool or None)
+        Where the hull of the *other* views projects in this view.
+    segmenter_masks : sequence of ((H_c, W_c) bool or None)
+    """
+    out: list[float | None] = []
+    for mask, support, seg in zip(masks, others_support, segmenter_masks, strict=True):
+        scores = [mask_iou(mask, ref) for ref in (support, seg) if ref is not None and ref.any()]
+        out.append(max(scores) if scores and mask.any() else None)
+    return out
