@@ -111,10 +111,10 @@ def sources_key(background: bool, segmenter: bool, hull: bool) -> str:
 
 #: Fitted weights per combination of sources (``python -m benchmarks fusion_fit``).
 WEIGHTS: dict[str, FusionWeights] = {
-    "background+segmenter+hull": FusionWeights(-2.0, (2.0, 1.0, 1.0, 2.0, 1.0)),
-    "background+segmenter": FusionWeights(-1.0, (2.0, 0.0, 1.0, 0.0, 0.0)),
-    "background+hull": FusionWeights(-2.0, (2.0, 1.0, 0.0, 2.0, 1.0)),
-    "background": FusionWeights(0.0, (2.0, -4.0, 0.0, 0.0, 0.0)),
+    "background+segmenter+hull": FusionWeights(-0.584, (0.505, -0.122, 1.978, 0.228, 0.075)),
+    "background+segmenter": FusionWeights(-0.307, (0.501, -0.122, 2.0, 0.0, 0.0)),
+    "background+hull": FusionWeights(-4.091, (1.502, -1.691, 0.0, 3.015, 1.299)),
+    "background": FusionWeights(-1.006, (2.029, -1.96, 0.0, 0.0, 0.0)),
     "segmenter+hull": FusionWeights(0.0, (0.0, 0.0, 1.0, 0.0, 0.0)),
     "segmenter": FusionWeights(0.0, (0.0, 0.0, 1.0, 0.0, 0.0)),
 }
