@@ -6,9 +6,11 @@ import json
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from bodymetry.calibration.camera import Camera
 from bodymetry.capture.ground_truth import StudioRecord
+from bodymetry.cli import main
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.studio.independent import IndependentSpec, IndependentSubject
@@ -236,3 +238,18 @@ def test_soft_light_gives_a_weaker_wider_shadow_at_the_same_brightness():
     # Roughly the same overall brightness of the lit floor (within 2 %).
     ratio = empty_soft.mean() / empty_hard.mean()
     assert abs(ratio - 1.0) < 0.02, ratio
+
+
+# --- the command line ---------------------------------------------------------------------
+
+
+def test_cli_lists_the_choices_and_refuses_a_bad_look(tmp_path):
+    runner = CliRunner()
+    assert "clothing=saturated|white|light_grey|black|wall" in " ".join(
+        runner.invoke(main, ["synth", "--help"], terminal_width=200).output.split()
+    )
+    out = tmp_path / "s"
+    result = runner.invoke(main, ["synth", str(out), "--look", "clothing=white,light=dim"])
+    assert result.exit_code == 2, result.output
+    assert "light='dim', expected one of hard, soft" in result.stderr
+    assert not out.exists()
