@@ -139,6 +139,18 @@ class StudioRecord:
         """Whether the studio cast shadows (the shadow scores mean something)."""
         return bool(self.config.get("shadows", True))
 
+    @property
+    def look(self) -> dict[str, str]:
+        """The studio's look as recorded (``config.look``: ``clothing``, ``room``,
+        ``light``; ``bodymetry.studio.looks.Look.from_json`` reads it); empty for a
+        session rendered before looks existed, which had the default look."""
+        look = self.config.get("look") or {}
+        if not isinstance(look, dict) or not all(isinstance(v, str) for v in look.values()):
+            raise InputError(
+                f"{GROUND_TRUTH_STUDIO}: config.look must be an object of strings, got {look!r}"
+            )
+        return {str(k): v for k, v in look.items()}
+
     def to_json(self) -> dict[str, Any]:
         return {
             "config": self.config,

@@ -11,5 +11,6 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     submod_attrs={
         "synth": ["SubjectSpec", "SynthConfig", "describe", "synthesize"],
         "evaluate": ["segment_and_score"],
+        "looks": ["Look", "recorded_look"],
     },
 )

@@ -5,8 +5,9 @@
 - ``shadow_false_positive``: the fraction of true cast-shadow pixels labelled
   person. The studio does not store shadow masks, so they are recomputed: the
   session's state (``ground_truth/states.npz``) is posed and rendered again
-  through the true cameras with the studio's key light, without noise (the
-  shadow geometry does not depend on the noise). An independent subject
+  through the true cameras with the session's light and room (its look,
+  ``ground_truth/studio.json``), without noise (the shadow geometry does not
+  depend on the noise). An independent subject
   (``ground_truth/subject.json`` names it; its states have no ν) is rebuilt from
   the committed bank and skinned, clothed as it was rendered.
 
@@ -48,8 +49,8 @@ from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.fileio import load_npz, write_json_atomic
 from bodymetry.log import Progress
 from bodymetry.studio.independent import IndependentSpec, IndependentSubject
+from bodymetry.studio.looks import Look, recorded_look
 from bodymetry.studio.render import Studio
-from bodymetry.studio.scene import Light
 
 __all__ = [
     "SILHOUETTES_JSON",
@@ -107,22 +108,31 @@ class GroundTruth:
             raise InputError(f"{path}: not a readable PNG mask")
         return mask > 0
 
+    @property
+    def look(self) -> Look:
+        """The look the session was rendered with (the default without a studio record)."""
+        gt = self.session.ground_truth_path
+        return Look() if gt is None else recorded_look(gt)
+
     def _setup(self) -> None:
         gt = self.session.ground_truth_path
         self._states = load_npz(gt / GROUND_TRUTH_STATES)
         studio = StudioRecord.read(gt)
         shadows = studio.shadows if studio is not None else True
+        look = self.look
         self._independent = None
         if "nu" in self._states:
             self._model = BodyModel.load(n_shape=len(self._states["nu"]))
         else:
             self._model = BodyModel.load()
             self._independent = IndependentSubject(independent_spec(gt), model=self._model)
-        # The light of studio/synth.py (_render_camera).
+        # The light of studio/synth.py (_render_camera): a soft light's shadow is wider
+        # and its "more than half of the full shadow" region different from a hard one's.
         self._studio = Studio.from_model(
             self._model,
             shadows=shadows,
-            light=Light(direction=Light.direction_from_angles(azimuth_deg=0.0, elevation_deg=50.0)),
+            light=look.build_light(),
+            room=look.build_room(),
         )
         self._cameras = self.session.calibration()  # indexed by camera name
 

@@ -184,6 +184,10 @@ def _default_panels() -> tuple[WallPanel, ...]:
 class Room:
     """A box-shaped lab room with a tiled floor and painted walls.
 
+    The defaults are the studio's textured lab; the texture amplitudes below set
+    to zero (and no panels, no baseboard) give a plain room of flat paint and
+    linoleum (:mod:`bodymetry.studio.looks`).
+
     Attributes
     ----------
     size : (2,) float
@@ -204,6 +208,16 @@ class Room:
         Their radiance, in units of albedo x irradiance (> 1 saturates).
     seed : int
         Seed of the per-tile colour variation and the surface noise.
+    tile_tone, tile_hue : float
+        Peak-to-peak relative brightness and blue-red tint variation from tile to tile.
+    grout_depth : float
+        How much the 6 mm grout lines between tiles darken the floor (0: no grout).
+    floor_cloud, floor_speckle : float
+        Amplitudes of the floor's coarse (0.35 m) and fine (12 mm) relative noise.
+    wall_mottle : float
+        Amplitude of the walls' low-frequency (0.6 m) relative paint noise.
+    baseboard_height : float
+        Height of the dark baseboard along the walls, metres (0: none).
     """
 
     size: tuple[float, float] = (6.0, 6.0)
@@ -223,11 +237,33 @@ class Room:
     )
     ceiling_light_radiance: float = 1.4
     seed: int = 7
+    tile_tone: float = 0.10
+    tile_hue: float = 0.04
+    grout_depth: float = 0.45
+    floor_cloud: float = 0.10
+    floor_speckle: float = 0.10
+    wall_mottle: float = 0.06
+    baseboard_height: float = 0.10
 
     def __post_init__(self) -> None:
         if len(self.size) != 2 or min(self.size) <= 0 or self.height <= 0:
             raise ValueError(
                 f"Room: size and height must be positive, got {self.size}, {self.height}"
+            )
+        amplitudes = {
+            "tile_tone": self.tile_tone,
+            "tile_hue": self.tile_hue,
+            "grout_depth": self.grout_depth,
+            "floor_cloud": self.floor_cloud,
+            "floor_speckle": self.floor_speckle,
+            "wall_mottle": self.wall_mottle,
+        }
+        bad = {k: v for k, v in amplitudes.items() if not 0.0 <= v <= 1.0}
+        if bad:
+            raise ValueError(f"Room: texture amplitudes must be in [0, 1], got {bad}")
+        if not 0.0 <= self.baseboard_height < self.height:
+            raise ValueError(
+                f"Room: baseboard_height must be in [0, {self.height}), got {self.baseboard_height}"
             )
 
     @property
@@ -316,17 +352,17 @@ class Room:
             p, f = points[m], fp[m]
             u, v = p[:, 0] / self.tile, p[:, 1] / self.tile
             iu, iv = np.floor(u), np.floor(v)
-            tone = 1.0 + 0.10 * (_hash01(iu, iv, seed=seed) - 0.5)
-            hue = 0.04 * (_hash01(iu, iv, seed=seed + 1) - 0.5)
+            tone = 1.0 + self.tile_tone * (_hash01(iu, iv, seed=seed) - 0.5)
+            hue = self.tile_hue * (_hash01(iu, iv, seed=seed + 1) - 0.5)
             col = np.asarray(self.floor_color) * tone[:, None]
             col = col * (1.0 + np.stack([hue, 0 * hue, -hue], axis=1))
             cloud = fractal_noise(p[:, 0] / 0.35, p[:, 1] / 0.35, f / 0.35, 3, seed + 2)
             speck = fractal_noise(p[:, 0] / 0.012, p[:, 1] / 0.012, f / 0.012, 2, seed + 3)
-            col = col * (1.0 + 0.10 * cloud + 0.10 * speck)[:, None]
+            col = col * (1.0 + self.floor_cloud * cloud + self.floor_speckle * speck)[:, None]
             du = np.abs(u - np.round(u)) * self.tile
             dv = np.abs(v - np.round(v)) * self.tile
             grout = np.maximum(_coverage(du, 0.003, f), _coverage(dv, 0.003, f))
-            col = col * (1.0 - 0.45 * grout)[:, None]
+            col = col * (1.0 - self.grout_depth * grout)[:, None]
             out[m] = col
 
         # Ceiling: plain, slightly mottled.
@@ -343,9 +379,11 @@ class Room:
             u = self._wall_uv(p, s)
             z = p[:, 2]
             n = fractal_noise(u / 0.6 + 17.0 * s, z / 0.6, f / 0.6, 4, seed + 5)
-            col = np.asarray(self.wall_color) * (1.0 + 0.06 * n)[:, None]
-            base = _coverage(np.abs(z - 0.05), 0.05, f)
-            col = col * (1 - base[:, None]) + np.asarray(self.baseboard_color) * base[:, None]
+            col = np.asarray(self.wall_color) * (1.0 + self.wall_mottle * n)[:, None]
+            if self.baseboard_height > 0:
+                half = 0.5 * self.baseboard_height
+                base = _coverage(np.abs(z - half), half, f)
+                col = col * (1 - base[:, None]) + np.asarray(self.baseboard_color) * base[:, None]
             for panel in self.panels:
                 on = s == panel.wall
                 if not np.any(on):

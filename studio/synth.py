@@ -12,7 +12,9 @@ ground-truth silhouettes, and ``ground_truth/studio.json`` describes them.
 The subject is a body of our model (a shape ν) or, with
 ``--subject independent:...``, a body the model was not built from
 (:mod:`bodymetry.studio.independent`, skinned, optionally clothed), whose
-ground truth has no ν.
+ground truth has no ν. The session's :class:`~bodymetry.studio.looks.Look`
+(``--look``) sets the subject's clothing colours, the room and the light of
+every clip; bystanders keep their own clothes in that room and light.
 
 Cameras render in parallel worker processes (one camera per task); every random
 draw comes from the configuration's seed, so the same configuration gives the
@@ -64,9 +66,10 @@ from bodymetry.studio.bystanders import (
     place_bystanders,
 )
 from bodymetry.studio.independent import IndependentSpec, IndependentSubject
+from bodymetry.studio.looks import Look, recorded_look
 from bodymetry.studio.render import Body, Effects, Studio
 from bodymetry.studio.rig import studio_rig
-from bodymetry.studio.scene import Appearance, BoardPose, BoardTexture, Light
+from bodymetry.studio.scene import Appearance, BoardPose, BoardTexture
 
 log = logging.getLogger(__name__)
 
@@ -186,6 +189,10 @@ class SynthConfig:
         (0..``MAX_BYSTANDERS``), drawn and placed from ``seed``.
     bystander_placement : BystanderPlacement
         Where bystanders may stand.
+    look : Look
+        The subject's clothing colours, the room and the light
+        (:mod:`bodymetry.studio.looks`); the default is the saturated clothes in the
+        textured lab under the hard key light.
     """
 
     frames: int = 200
@@ -204,8 +211,11 @@ class SynthConfig:
     background_clip: bool = True
     bystanders: int = 0
     bystander_placement: BystanderPlacement = field(default_factory=BystanderPlacement)
+    look: Look = field(default_factory=Look)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.look, Look):
+            raise InputError(f"SynthConfig.look: expected a Look, got {type(self.look).__name__}")
         if self.frames < 1:
             raise InputError(f"--frames: expected at least 1, got {self.frames}")
         if not self.fps > 0:
@@ -264,13 +274,14 @@ def _render_camera(job: _CameraJob, progress) -> dict:
     else:
         model = BodyModel.load(n_shape=len(job.nu))
         subject = None
+    base = subject.appearance() if subject is not None else Appearance()
     studio = Studio.from_model(
         model,
-        appearance=subject.appearance() if subject is not None else None,
+        appearance=cfg.look.appearance(base),
         shadows=cfg.shadows,
         effects=Effects(seed=cfg.seed),
-        # Key light from between two cameras, so every camera sees the cast shadow.
-        light=Light(direction=Light.direction_from_angles(azimuth_deg=0.0, elevation_deg=50.0)),
+        room=cfg.look.build_room(),
+        light=cfg.look.build_light(),
     )
     rng = np.random.default_rng([cfg.seed, job.index, 1])
     shadow_fraction = []
@@ -362,12 +373,13 @@ def synthesize(
             [subject.info["heldout_index"]] if "heldout_index" in subject.info else []
         ),
         placement=config.bystander_placement,
+        room=config.look.build_room(),
     )
     del sparse_vertices
     _write_ground_truth(out, config, subject, joints, board_poses, bio)
     _write_true_calibration(out, cameras)
 
-    # The studio dresses the subject in the default Appearance; bystanders wear their own.
+    # The look dresses the subject (_render_camera); bystanders wear their own clothes.
     independent = config.subject.independent
     others = tuple(Body(b.vertices(model), b.appearance(Appearance())) for b in bystanders)
     jobs = [
@@ -637,6 +649,9 @@ def describe(session: Session) -> str:
         extras.append(f"{len(bystanders)} bystander(s) ({seen})")
     if all(cam.background is None for cam in session.cameras):
         extras.append("no background clip")
+    look = recorded_look(session.folder / "ground_truth")
+    if not look.is_default:
+        extras.append(f"look {look.label} ({look.appearance_class})")
     return (
         f"{session.folder}: {len(session.cameras)} cameras, {studio.config['frames']} frames at "
         f"{session.fps:g} fps, subject {gt.measurements['height_mm']:.0f} mm / "

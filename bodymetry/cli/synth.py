@@ -8,6 +8,7 @@ import click
 
 from bodymetry.cli.common import console, friendly_errors, labelled_progress
 from bodymetry.errors import InputError
+from bodymetry.studio.looks import Look, look_usage
 from bodymetry.studio.synth import SubjectSpec, SynthConfig, describe, synthesize
 
 __all__ = ["synth"]
@@ -72,6 +73,12 @@ def _parse_size(text: str) -> tuple[int, int]:
     help="People standing still in the room, each seen by one or two cameras.",
 )
 @click.option(
+    "--look",
+    default=None,
+    help="The subject's clothing, the room and the light as KEY=VALUE,... (any subset): "
+    f"{look_usage()} (default: saturated, textured, hard; docs/studio.md, 'Looks').",
+)
+@click.option(
     "--crf", default=20, show_default=True, type=int, help="H.264 quality (lower: better, bigger)."
 )
 @click.option("--workers", default=None, type=int, help="Worker processes (default: all cores).")
@@ -93,6 +100,7 @@ def synth(
     background_frames: int,
     no_background_clip: bool,
     bystanders: int,
+    look: str | None,
     crf: int,
     workers: int | None,
     overwrite: bool,
@@ -114,6 +122,7 @@ def synth(
         crf=crf,
         background_clip=not no_background_clip,
         bystanders=bystanders,
+        look=Look.parse(look),
     )
     with labelled_progress() as progress:
 
