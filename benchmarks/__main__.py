@@ -28,6 +28,7 @@ BENCHMARKS = (
 #: Reports that are not timed benchmarks (run only when named).
 REPORTS = {
     "codebase": "benchmarks.codebase",
+    "fusion_fit": "benchmarks.fusion_fit",
     "imports": "benchmarks.imports",
     "profile": "benchmarks.bench_profile",
     "session_bias": "benchmarks.bench_session_bias",

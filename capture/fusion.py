@@ -22,6 +22,9 @@ with
 ``s`` (*shadow*)
     1 where the colour test labels the pixel cast shadow (darker, same
     chromaticity: :mod:`bodymetry.capture.background`), else 0.
+``s (1 - h_body)`` (*floor shadow*)
+    1 where the colour test says shadow and no hull voxel above the floor band
+    projects: a shadow where the geometry agrees it can be one.
 ``l`` (*segmenter*)
     ``clip(logit(p), -4, 4)`` of the segmenter's probability ``p``.
 ``h_body`` (*hull above the floor*)
@@ -65,13 +68,15 @@ __all__ = [
     "FusionWeights",
     "change_evidence",
     "fuse",
+    "mask_iou",
     "segmenter_evidence",
     "sources_key",
+    "view_agreement",
     "view_features",
 ]
 
 #: The evidence terms, in the order of :attr:`FusionWeights.weights` and :func:`view_features`.
-FEATURES = ("change", "shadow", "segmenter", "hull_body", "hull_any")
+FEATURES = ("change", "shadow", "floor_shadow", "segmenter", "hull_body", "hull_any")
 
 #: Clip of the change term (log units).
 CHANGE_CLIP = 2.0
@@ -92,7 +97,7 @@ class FusionWeights:
     """
 
     bias: float
-    weights: tuple[float, float, float, float, float]
+    weights: tuple[float, ...]
 
     def __post_init__(self) -> None:
         if len(self.weights) != len(FEATURES):
@@ -111,12 +116,12 @@ def sources_key(background: bool, segmenter: bool, hull: bool) -> str:
 
 #: Fitted weights per combination of sources (``python -m benchmarks fusion_fit``).
 WEIGHTS: dict[str, FusionWeights] = {
-    "background+segmenter+hull": FusionWeights(-0.584, (0.505, -0.122, 1.978, 0.228, 0.075)),
-    "background+segmenter": FusionWeights(-0.307, (0.501, -0.122, 2.0, 0.0, 0.0)),
-    "background+hull": FusionWeights(-4.091, (1.502, -1.691, 0.0, 3.015, 1.299)),
-    "background": FusionWeights(-1.006, (2.029, -1.96, 0.0, 0.0, 0.0)),
-    "segmenter+hull": FusionWeights(0.0, (0.0, 0.0, 1.0, 0.0, 0.0)),
-    "segmenter": FusionWeights(0.0, (0.0, 0.0, 1.0, 0.0, 0.0)),
+    "background+segmenter+hull": FusionWeights(-0.584, (0.505, -0.122, 0.0, 1.978, 0.228, 0.075)),
+    "background+segmenter": FusionWeights(-0.307, (0.501, -0.122, 0.0, 2.0, 0.0, 0.0)),
+    "background+hull": FusionWeights(-4.091, (1.502, -1.691, 0.0, 0.0, 3.015, 1.299)),
+    "background": FusionWeights(-1.006, (2.029, -1.96, 0.0, 0.0, 0.0, 0.0)),
+    "segmenter+hull": FusionWeights(0.0, (0.0, 0.0, 0.0, 1.0, 0.0, 0.0)),
+    "segmenter": FusionWeights(0.0, (0.0, 0.0, 0.0, 1.0, 0.0, 0.0)),
 }
 
 
@@ -175,7 +180,7 @@ def view_features(
     hull_body: np.ndarray | None = None,
     hull_any: np.ndarray | None = None,
 ) -> tuple[np.ndarray, str]:
-    """The evidence of one view as a (H, W, 5) float32 stack and its sources key.
+    """The evidence of one view as a (H, W, F) float32 stack and its sources key.
 
     Parameters
     ----------
@@ -190,15 +195,16 @@ def view_features(
 
     Returns
     -------
-    features : (H, W, 5) float32
-        Per :data:`FEATURES`; 0 where a source is absent.
+    features : (H, W, F) float32
+        Per :data:`FEATURES` (F = 6); 0 where a source is absent.
     key : str
         :func:`sources_key` of the sources present.
     """
     if (change is None) != (shadow is None) or (hull_body is None) != (hull_any is None):
         raise InputError("view_features: change and shadow, hull_body and hull_any come in pairs")
     out = np.zeros((*shape, len(FEATURES)), np.float32)
-    for k, term in enumerate((change, shadow, segmenter, hull_body, hull_any)):
+    floor_shadow = None if shadow is None or hull_body is None else shadow & ~hull_body
+    for k, term in enumerate((change, shadow, floor_shadow, segmenter, hull_body, hull_any)):
         if term is not None:
             if np.shape(term) != tuple(shape):
                 raise InputError(
@@ -214,7 +220,7 @@ def fuse(features: np.ndarray, weights: FusionWeights) -> np.ndarray:
 
     Parameters
     ----------
-    features : (H, W, 5) float32
+    features : (H, W, F) float32
         :func:`view_features`.
     weights : FusionWeights
     """

@@ -425,7 +425,7 @@ class FrameSegmenter:
     def features(
         self, c: int, ev: ViewEvidence, terms: tuple[np.ndarray, np.ndarray] | None
     ) -> tuple[np.ndarray, str]:
-        """Camera ``c``'s fusion features (H, W, 5) float32 and their sources key
+        """Camera ``c``'s fusion features (H, W, F) float32 and their sources key
         (:func:`bodymetry.capture.fusion.view_features`)."""
         w, h = self.sizes[c]
         return view_features(
