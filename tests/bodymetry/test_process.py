@@ -356,14 +356,17 @@ def test_rescue_fits_whole_when_the_refinement_stays_below_the_gate(run, tmp_pat
     seen = {}
     real_fit = frame_jobs.fit_frame
 
-    def spy(frame, *args):
+    def spy(frame, *args, **kwargs):
         seen[frame] = args[-1]  # the proposals
-        return real_fit(frame, *args)
+        return real_fit(frame, *args, **kwargs)
 
     monkeypatch.setattr(frame_jobs, "fit_frame", spy)
+    # Capture's verdicts on the views travel with the frame into its new record.
+    records[2] = dataclasses.replace(records[2], view_agreement={"cam_00": 0.97, "cam_01": 0.9})
     out = rescue_poor_frames(layout, records, cams, model_path, config)
     assert set(seen[2]) == {"frame 0", "frame 4"}
     assert out[2].mean_iou > 0.5 and out[2].status == "ok"
+    assert out[2].view_agreement == {"cam_00": 0.97, "cam_01": 0.9}
     tried = json.loads((layout.frames_dir / RESCUE_FILE).read_text())
     assert tried["2"]["kept"] and tried["2"]["method"] == "annealing"
 
@@ -377,7 +380,7 @@ def test_rescue_rounds_run_together_and_a_rescued_frame_proposes_next(run, tmp_p
         k: 0.95 for k in records[f].silhouette_iou}) for f in (2, 4)}  # fmt: skip
     calls = []
 
-    def fake(frame, *args):
+    def fake(frame, *args, **kwargs):
         calls.append((frame, sorted(args[-1])))
         fails = frame == 4 and "frame 2" not in args[-1]  # frame 4 needs frame 2's fit
         return FrameFit(records[frame] if fails else good[frame], FrameArrays())
@@ -409,7 +412,7 @@ def test_rescue_keeps_the_first_fit_when_the_second_is_no_better(run, tmp_path, 
     worse = dataclasses.replace(
         records[4], silhouette_iou={k: 0.1 for k in records[4].silhouette_iou}
     )
-    monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: FrameFit(worse, FrameArrays()))
+    monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a, **k: FrameFit(worse, FrameArrays()))
     monkeypatch.setattr(frame_jobs, "refit_frame", lambda *a: FrameFit(worse, FrameArrays()))
     model_path = next((base / "cache" / "discriminative").glob("*.npz"))
     cams = session.calibration()
