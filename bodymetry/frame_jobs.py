@@ -21,7 +21,7 @@ import functools
 import logging
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -78,6 +78,8 @@ class FitJob:
     masks : list of (h_c, w_c) bool
         Observed silhouettes at the working resolution, camera order.
     flags : list of list of str
+        Capture's flags per camera (``unreadable`` and ``unreliable`` views are
+        left out of the fit).
     cameras : CameraGroup
         The working rig.
     models_path : Path
@@ -91,6 +93,9 @@ class FitJob:
     previous : FrameFit, optional
         The frame's fit so far: the job then only refines it and the proposals
         (:func:`~bodymetry.estimation.fit.refit_frame`, the rescue's first try).
+    agreement : dict of str to float
+        Capture's agreement of each judged view with the frame's other evidence,
+        by camera name (the record's ``view_agreement``).
     """
 
     frame: int
@@ -102,6 +107,7 @@ class FitJob:
     landmarks: np.ndarray | None = None
     proposals: dict[str, np.ndarray] | None = None
     previous: FrameFit | None = None
+    agreement: dict[str, float] = field(default_factory=dict)
 
 
 def run_fit_job(job: FitJob) -> FrameFit:
@@ -110,7 +116,15 @@ def run_fit_job(job: FitJob) -> FrameFit:
         return refit_frame(job.previous, job.cameras, job.fit, job.proposals or {})
     models = _discriminative(job.models_path)
     return fit_frame(
-        job.frame, job.masks, job.flags, job.cameras, models, job.fit, job.landmarks, job.proposals
+        job.frame,
+        job.masks,
+        job.flags,
+        job.cameras,
+        models,
+        job.fit,
+        job.landmarks,
+        job.proposals,
+        agreement=job.agreement,
     )
 
 
@@ -449,4 +463,6 @@ def _rescue_job(
         arrays.landmarks,
         {f"frame {n}": records[n].estimate().vector() for n in near},
         FrameFit(old, arrays) if refine else None,
+        # A whole fit again writes a new record: it keeps capture's verdicts.
+        dict(old.view_agreement),
     )

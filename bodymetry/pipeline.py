@@ -43,7 +43,7 @@ import logging
 import multiprocessing as mp
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -63,7 +63,6 @@ from bodymetry.capture.segmentation import background_models, segment_session
 from bodymetry.capture.session import Session, load_session
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import (
-    MIN_PIXELS,
     FrameFit,
     preload,
     session_gate,
@@ -76,6 +75,11 @@ from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunLayout, RunResults, SessionInfo
 from bodymetry.estimation.session_shape import fit_session_shape, session_frame
 from bodymetry.estimation.training import cached_models_path, load_or_train, rig_key
+from bodymetry.estimation.view_selection import (
+    MIN_PIXELS,
+    left_out_views,
+    usable_camera_frames,
+)
 from bodymetry.executors import Executor
 from bodymetry.frame_jobs import (
     FitJob,
@@ -103,6 +107,7 @@ __all__ = [
     "check_calibration",
     "finish",
     "fit",
+    "judged_agreement",
     "plan",
     "prepare",
     "rescue",
@@ -201,11 +206,15 @@ class SegmentedFrame:
         Observed silhouettes at the working resolution, camera order
         (:meth:`WorkingResolution.downscale` of capture's full-size masks).
     flags : tuple of tuple of str
-        Capture's flags per camera.
+        Capture's flags per camera (a view flagged ``unreliable`` is left out
+        of the fit: :mod:`bodymetry.estimation.view_selection`).
     landmarks : (33, 3) float or None
         The subject's landmarks triangulated through the calibrated cameras.
     view_landmarks : tuple
         Each camera's 2D landmarks (empty without the learned segmenter).
+    agreement : dict of str to float
+        Capture's agreement of each judged view with the frame's other
+        evidence (an IoU; views not judged are absent), by camera name.
     """
 
     frame: int
@@ -213,6 +222,7 @@ class SegmentedFrame:
     flags: tuple[tuple[str, ...], ...]
     landmarks: np.ndarray | None
     view_landmarks: tuple
+    agreement: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -357,6 +367,7 @@ def segment(
             flags=tuple(tuple(f) for f in sil.flags),
             landmarks=sil.landmarks,
             view_landmarks=tuple(sil.view_landmarks),
+            agreement=judged_agreement(names, sil.agreement, sil.frame),
         )
         for sil in segment_session(
             prepared.session,
@@ -369,6 +380,33 @@ def segment(
             keep_images=False,
         )
     ]
+
+
+def judged_agreement(
+    names: Sequence[str], agreement: Sequence[float | None], frame: int
+) -> dict[str, float]:
+    """Capture's per-camera agreement (:attr:`SilhouetteFrame.agreement
+    <bodymetry.capture.segmentation.SilhouetteFrame.agreement>`) by camera name, the
+    views it did not judge (None) left out; empty when capture judged nothing.
+
+    Raises
+    ------
+    ValueError
+        When ``agreement`` has neither one entry per camera nor none, or a value
+        is not in [0, 1].
+    """
+    if not agreement:
+        return {}
+    if len(agreement) != len(names):
+        raise ValueError(
+            f"frame {frame}: capture's agreement has {len(agreement)} values for "
+            f"{len(names)} cameras"
+        )
+    out = {n: float(a) for n, a in zip(names, agreement, strict=True) if a is not None}
+    bad = {n: a for n, a in out.items() if not 0.0 <= a <= 1.0}
+    if bad:
+        raise ValueError(f"frame {frame}: capture's agreement outside [0, 1]: {bad}")
+    return out
 
 
 def needs_every_frame(config: ProcessConfig) -> bool:
@@ -462,6 +500,7 @@ def fit_job_of(
         models.path,
         config.fit,
         prepared.landmarks(seg.view_landmarks, seg.landmarks),
+        agreement=seg.agreement,
     )
 
 
@@ -569,14 +608,22 @@ def session_stage(
     return replace(shape.summary, outline=outline), out
 
 
-def camera_warnings(camera_frames: dict[str, int], n_kept: int) -> list[str]:
-    """Warnings for cameras that saw no usable silhouette in any kept frame."""
-    return [
+def camera_warnings(
+    records: Sequence[FrameRecord], names: Sequence[str], bound: float | None = None
+) -> list[str]:
+    """The run's warnings about its cameras: one per camera that saw no person in any
+    kept frame, and one per camera whose view was left out as ``unreliable`` in some
+    (:meth:`~bodymetry.estimation.view_selection.LeftOutView.describe`, quoting ``bound``,
+    capture's agreement bound, when given)."""
+    n_kept = len(records)
+    seen = {n: sum(r.person_pixels.get(n, 0) >= MIN_PIXELS for r in records) for n in names}
+    out = [
         f"camera {name!r} saw no person in any of the {n_kept} kept frames (covered, black "
         "or pointing away?); it contributed nothing to the measurements"
-        for name, n in camera_frames.items()
+        for name, n in seen.items()
         if n == 0 and n_kept > 0
     ]
+    return out + [view.describe(bound) for view in left_out_views(records, names)]
 
 
 def finish(
@@ -604,11 +651,9 @@ def finish(
             gate.reference,
             gate.min_iou,
         )
-    camera_frames = {
-        name: sum(r.person_pixels.get(name, 0) >= MIN_PIXELS for r in ordered)
-        for name in session.camera_names
-    }
-    warnings = camera_warnings(camera_frames, len(ordered))
+    # A view left out of a frame (too few pixels, unreadable, unreliable) does not count.
+    camera_frames = usable_camera_frames(ordered, session.camera_names)
+    warnings = camera_warnings(ordered, session.camera_names)
     if not any(r.ok for r in ordered):
         warnings.append(f"no frame of the {len(ordered)} kept frames was measured")
     if shape is not None and shape.outline is not None:

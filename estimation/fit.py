@@ -50,6 +50,7 @@ from bodymetry.estimation.refinement import RefineConfig, RefineResult, refine
 from bodymetry.estimation.shape_context import ShapeContextConfig
 from bodymetry.estimation.training import DiscriminativeModels, targets_to_theta
 from bodymetry.estimation.view_features import silhouette_features
+from bodymetry.estimation.view_selection import MIN_PIXELS, usable_views
 
 __all__ = [
     "MIN_PIXELS",
@@ -64,9 +65,6 @@ __all__ = [
     "refit_frame",
     "shared_body_model",
 ]
-
-#: Views with fewer person pixels than this are treated as having no silhouette.
-MIN_PIXELS = 400
 
 #: The quality presets: the one table of what ``--quality`` means.
 PRESETS: dict[str, tuple[AnnealingConfig, RefineConfig]] = {
@@ -342,6 +340,7 @@ def fit_frame(
     config: FitConfig,
     landmarks: np.ndarray | None = None,
     proposals: dict[str, np.ndarray] | None = None,
+    agreement: dict[str, float] | None = None,
 ) -> FrameFit:
     """Fit one frame (never raises for bad data: the record says what went wrong).
 
@@ -354,7 +353,8 @@ def fit_frame(
         size (cameras may differ in size; a mask of the wrong size gives a
         ``"fit failed: ..."`` record naming the camera).
     flags : list of list of str
-        Silhouette flags per camera.
+        Silhouette flags per camera; a view flagged ``unreadable`` or
+        ``unreliable`` is left out (:func:`~bodymetry.estimation.view_selection.usable_views`).
     cameras : CameraGroup
     models : DiscriminativeModels
         Trained for these cameras.
@@ -367,6 +367,9 @@ def fit_frame(
         (:func:`bodymetry.frame_jobs.rescue_poor_frames`): half of the
         mixtures' particles are drawn around them, and each is a start of the
         refinement under its name.
+    agreement : camera name -> float, optional
+        Capture's agreement of each judged view with the frame's other
+        evidence; recorded as the record's ``view_agreement``.
     """
     t0 = time.perf_counter()
     body = shared_body_model()
@@ -374,7 +377,8 @@ def fit_frame(
     names = cameras.names
     pixels = {n: int(np.count_nonzero(m)) for n, m in zip(names, masks, strict=True)}
     flag_map = {n: tuple(f) for n, f in zip(names, flags, strict=True)}
-    valid = _usable_views(names, pixels, flag_map)
+    valid = usable_views(names, pixels, flag_map)
+    views = _ViewFacts(flag_map, pixels, {n: float(v) for n, v in (agreement or {}).items()})
     observed_arrays = FrameArrays(
         observed={n: np.asarray(m, bool) for n, m in zip(names, masks, strict=True)},
         landmarks=landmarks,
@@ -382,7 +386,14 @@ def fit_frame(
 
     def failed(status: str) -> FrameFit:
         return FrameFit(
-            FrameRecord(int(frame), status, flag_map, person_pixels=pixels), observed_arrays
+            FrameRecord(
+                int(frame),
+                status,
+                flag_map,
+                person_pixels=pixels,
+                view_agreement=views.agreement,
+            ),
+            observed_arrays,
         )
 
     if valid.sum() == 0:
@@ -408,28 +419,38 @@ def fit_frame(
         return failed("likelihood collapse (non-finite estimate)")
     bios = measure(body, np.vstack([disc_state.nu, refined.state.nu]), density=config.density)
     record = _fitted_record(
-        frame, flag_map, pixels, StageEstimate(disc_state, bios[0].to_dict()), fit, t_disc, t_gen
+        frame, views, StageEstimate(disc_state, bios[0].to_dict()), fit, t_disc, t_gen
     )
     arrays = replace(observed_arrays, particles=result.particles, weights=result.weights)
     return _finish(body, record, arrays, refined, bios[1], fit.start, cameras, valid, config, t0)
 
 
+@dataclass(frozen=True)
+class _ViewFacts:
+    """What a frame's record says about its views: capture's flags, the person
+    pixels and capture's agreement, by camera name."""
+
+    flags: dict[str, tuple[str, ...]]
+    pixels: dict[str, int]
+    agreement: dict[str, float]
+
+
 def _fitted_record(
     frame: int,
-    flags: dict[str, tuple[str, ...]],
-    pixels: dict[str, int],
+    views: _ViewFacts,
     discriminative: StageEstimate,
     fit: GenerativeFit,
     t_disc: float,
     t_gen: float,
 ) -> FrameRecord:
-    """The record of a fitted frame before :func:`_finish`: its flags, the
+    """The record of a fitted frame before :func:`_finish`: its views' facts, the
     discriminative estimate, the annealing's trace and the stages' seconds."""
     return FrameRecord(
         frame=int(frame),
         status="",
-        flags=flags,
-        person_pixels=pixels,
+        flags=views.flags,
+        person_pixels=views.pixels,
+        view_agreement=views.agreement,
         estimates={"discriminative": discriminative},
         annealing=AnnealingTrace(
             tuple(fit.annealing.layer_log_likelihood.tolist()),
@@ -524,15 +545,6 @@ def _search_starts(
     return particles, starts
 
 
-def _usable_views(
-    names: Sequence[str], pixels: dict[str, int], flags: dict[str, Sequence[str]]
-) -> np.ndarray:
-    """(C,) bool: the views with a person silhouette to fit (enough pixels, readable)."""
-    return np.array(
-        [pixels.get(n, 0) >= MIN_PIXELS and "unreadable" not in flags.get(n, ()) for n in names]
-    )
-
-
 def _blank_unusable(masks: Sequence[np.ndarray], valid: np.ndarray) -> list[np.ndarray]:
     """The masks with the unusable views emptied (each at its own size): left out downstream."""
     return [m if ok else np.zeros_like(m) for m, ok in zip(masks, valid, strict=True)]
@@ -612,7 +624,7 @@ def refit_frame(
         return previous
     names = cameras.names
     masks = [previous.arrays.observed[n] for n in names]
-    valid = _usable_views(names, record.person_pixels, record.flags)
+    valid = usable_views(names, record.person_pixels, record.flags)
     observed = _blank_unusable(masks, valid)
     try:
         contours = prepare_contours(

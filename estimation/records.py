@@ -244,6 +244,11 @@ class FrameRecord:
         IoU of the fitted body's silhouette with the observed one, per camera.
     person_pixels : dict of str to int
         Pixels of the observed silhouette per camera (0: the camera saw no one).
+    view_agreement : dict of str to float
+        Capture's agreement of each judged view's silhouette with the frame's
+        other evidence (an IoU in [0, 1]; views not judged are absent). A view
+        flagged ``unreliable`` was left out of the fit
+        (:mod:`bodymetry.estimation.view_selection`).
     annealing : AnnealingTrace or None
     refinement : RefinementTrace or None
     seconds : dict of str to float
@@ -256,6 +261,7 @@ class FrameRecord:
     estimates: dict[str, StageEstimate] = field(default_factory=dict)
     silhouette_iou: dict[str, float] = field(default_factory=dict)
     person_pixels: dict[str, int] = field(default_factory=dict)
+    view_agreement: dict[str, float] = field(default_factory=dict)
     annealing: AnnealingTrace | None = None
     refinement: RefinementTrace | None = None
     seconds: dict[str, float] = field(default_factory=dict)
@@ -294,6 +300,10 @@ class FrameRecord:
             }
         if self.person_pixels:
             out["person_pixels"] = {k: int(v) for k, v in self.person_pixels.items()}
+        if self.view_agreement:
+            out["view_agreement"] = {
+                k: _finite_or_none(v, 4) for k, v in self.view_agreement.items()
+            }
         if self.annealing is not None:
             out["annealing"] = self.annealing.to_json()
         if self.refinement is not None:
@@ -323,6 +333,11 @@ class FrameRecord:
                     for k, v in data.get("silhouette_iou", {}).items()
                 },
                 person_pixels={k: int(v) for k, v in data.get("person_pixels", {}).items()},
+                # Runs before issue 32 recorded no agreement: none judged.
+                view_agreement={
+                    k: float("nan") if v is None else float(v)
+                    for k, v in data.get("view_agreement", {}).items()
+                },
                 annealing=AnnealingTrace.from_json(data["annealing"])
                 if "annealing" in data
                 else None,

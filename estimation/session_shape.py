@@ -76,6 +76,7 @@ from bodymetry.estimation.refinement import (
     RefineConfig,
     difference_steps,
 )
+from bodymetry.estimation.view_selection import usable_views
 from bodymetry.log import Progress
 
 log = logging.getLogger(__name__)
@@ -187,8 +188,10 @@ class SessionFrame:
 def session_frame(record: FrameRecord, arrays: FrameArrays, cameras: CameraGroup) -> SessionFrame:
     """A fitted frame's :class:`SessionFrame` from its record and arrays.
 
-    The views its fit used are those its record has an IoU for (the others had
-    too few person pixels or were unreadable).
+    The views its fit used are the usable ones of its record
+    (:func:`~bodymetry.estimation.view_selection.usable_views`: enough person
+    pixels, not flagged ``unreadable`` or ``unreliable``); the others are
+    all-False, so the stage and its outline check leave them out too.
 
     Raises
     ------
@@ -198,12 +201,13 @@ def session_frame(record: FrameRecord, arrays: FrameArrays, cameras: CameraGroup
     est = record.estimate("generative")
     if est is None:
         raise ValueError(f"frame {record.frame}: no generative estimate")
+    used = usable_views(cameras.names, record.person_pixels, record.flags)
     masks = []
-    for cam in cameras:
+    for cam, use in zip(cameras, used, strict=True):
         if cam.name not in arrays.observed:
             raise ValueError(f"frame {record.frame}: no observed silhouette of {cam.name!r}")
         m = np.asarray(arrays.observed[cam.name], bool)
-        masks.append(m if cam.name in record.silhouette_iou else np.zeros_like(m))
+        masks.append(m if use else np.zeros_like(m))
     return SessionFrame(record.frame, est.vector(), masks, record.mean_iou)
 
 

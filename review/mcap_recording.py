@@ -56,6 +56,7 @@ MEASUREMENTS_SCHEMA = {
         "generative": {"type": "object"},
         "session": {"type": "object"},
         "silhouette_iou": {"type": "object"},
+        "view_agreement": {"type": "object"},
         "annealing": {"type": "object"},
     },
 }

@@ -50,6 +50,7 @@ from bodymetry.estimation.run_files import (
     REPORT_PDF,
     RunResults,
 )
+from bodymetry.estimation.view_selection import left_out_views
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
 from bodymetry.review.accuracy import SESSION_ACCURACY
@@ -467,6 +468,22 @@ def per_frame_rows(run: RunData) -> list[dict[str, Any]]:
     return rows
 
 
+def left_out_rows(run: RunData) -> list[dict[str, str]]:
+    """The "Views left out" list: per camera whose view capture flagged ``unreliable``
+    in some kept frames (left out of those frames' fits), its ``camera``, ``frames``
+    (how many and which) and ``agreement`` (the range of capture's agreement, "" when
+    none was recorded); empty when no view was left out."""
+    return [
+        {
+            "camera": view.camera,
+            "frames": f"{len(view.frames)} of {view.kept} kept frames "
+            f"({', '.join(map(str, view.frames))})",
+            "agreement": view.agreement_text,
+        }
+        for view in left_out_views(run.frames, run.camera_names)
+    ]
+
+
 def _session_facts(run: RunData) -> dict[str, Any]:
     """The session's folder, cameras, image sizes, frame rate and step."""
     session = run.results.session
@@ -549,6 +566,7 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
         "frames": _frame_counts(run),
         **_recorded_settings(results),
         "failed": [r for r in run.frames if not r.ok],
+        "left_out": left_out_rows(run),
         "timing": results.timing_seconds,
         "truth": truth,
         "truth_source": truth.source if truth else None,
@@ -790,6 +808,7 @@ def _summary_lines(ctx: dict[str, Any]) -> list[str]:
         f"{f['ok']} of {f['kept']} kept frames in the measurements ({f['failed']} left out); "
         f"quality {c['quality']}, {c['particles']} particles x {c['layers']} layers, "
         f"seed {c['seed']}, density {c['density']} kg/m³.",
+        *_left_out_lines(ctx),
         *_headline_lines(ctx),
         f"Calibration: {ctx['calibration']['source']}.",
         f"Generated {ctx['generated']} by bodymetry {ctx['version']}.",
@@ -807,6 +826,18 @@ def _summary_lines(ctx: dict[str, Any]) -> list[str]:
         )
         lines.append(f"{ctx['accuracy_source']}.")
     return [part for line in lines for part in textwrap.wrap(line, SUMMARY_LINE_CHARS)]
+
+
+def _left_out_lines(ctx: dict[str, Any]) -> list[str]:
+    """The views left out as unreliable, in one line (none when no view was)."""
+    if not ctx["left_out"]:
+        return []
+    views = "; ".join(
+        f"{v['camera']} in {v['frames']}"
+        + (f", agreement {v['agreement']}" if v["agreement"] else "")
+        for v in ctx["left_out"]
+    )
+    return [f"Views left out of the fit as unreliable (capture's silhouette check): {views}."]
 
 
 def _figure3_table(fig: Any, ctx: dict[str, Any]) -> None:

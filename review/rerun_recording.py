@@ -32,6 +32,10 @@ the start of the recording):
     log-likelihood of the estimate after each annealing layer.
 ``/metrics/silhouette_iou/cam_NN``, ``/metrics/particle_std/tau_{x,y,z}_mm``
     fit quality and the particle cloud's spread.
+``/metrics/views/cam_NN/agreement``
+    capture's agreement of the view's silhouette with the frame's other
+    evidence (the record's ``view_agreement``), per judged view and frame; a
+    view flagged ``unreliable`` was left out of that frame's fit.
 
 The blueprint opens with the 3D view beside the camera grid and the plots below.
 """
@@ -110,7 +114,10 @@ def vertex_colors(body: BodyModel) -> np.ndarray:
 
 
 def blueprint(
-    camera_names: list[str], biometrics: list[str], eye: tuple[np.ndarray, np.ndarray] | None = None
+    camera_names: list[str],
+    biometrics: list[str],
+    eye: tuple[np.ndarray, np.ndarray] | None = None,
+    agreement: bool = False,
 ) -> Any:
     """3D view beside the camera grid, the time series below.
 
@@ -121,6 +128,9 @@ def blueprint(
         Measurement keys with series under ``/metrics/biometrics``.
     eye : ((3,) float, (3,) float), optional
         Initial 3D eye position and look target (world, metres).
+    agreement : bool
+        Whether the run recorded capture's view agreement (a tab of its
+        ``/metrics/views`` series).
     """
     cams = [rrb.Spatial2DView(origin=f"/world/rig/{name}", name=name) for name in camera_names]
     plots = [
@@ -128,9 +138,11 @@ def blueprint(
         for key in MAIN_PLOTS
         if key in biometrics
     ]
+    views = [rrb.TimeSeriesView(origin="/metrics/views", name="view agreement")]
     more = [
         rrb.TimeSeriesView(origin="/metrics/likelihood", name="log-likelihood per layer"),
         rrb.TimeSeriesView(origin="/metrics/silhouette_iou", name="silhouette IoU"),
+        *(views if agreement else []),
         rrb.TimeSeriesView(origin="/metrics/particle_std", name="particle spread (mm)"),
         *(
             rrb.TimeSeriesView(origin=f"/metrics/biometrics/{key}", name=key)
@@ -190,7 +202,10 @@ class RerunWriter:
             radius = np.linalg.norm(centres[:, :2] - target[:2], axis=1).mean()
             horizontal = side / np.linalg.norm(side) * radius * 1.1
             eye = (target + np.r_[horizontal, centres[:, 2].mean() + 0.6], target)
-        self._rec.save(self.path, default_blueprint=blueprint(names, self.biometrics, eye))
+        agreement = any(r.view_agreement for r in run.frames)
+        self._rec.save(
+            self.path, default_blueprint=blueprint(names, self.biometrics, eye, agreement)
+        )
         self._frames = 0
         self._log_static(body)
 
@@ -316,7 +331,11 @@ class RerunWriter:
 
     def _log_metrics(self, record: FrameRecord) -> None:
         rec = self._rec
-        if record.estimate() is None:  # no fit: nothing to plot
+        # Capture's verdict on each view stands whether or not the frame was fitted.
+        for name, value in record.view_agreement.items():
+            if np.isfinite(value):
+                rec.log(f"/metrics/views/{name}/agreement", rr.Scalars(float(value)))
+        if record.estimate() is None:  # no fit: nothing else to plot
             return
         for key in self.biometrics:
             for stage in STAGES:

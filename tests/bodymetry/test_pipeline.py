@@ -5,8 +5,11 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 import bodymetry
 from bodymetry import pipeline
+from bodymetry.estimation.records import FrameRecord
 from bodymetry.executors import DaskExecutor, Executor, LocalExecutor
 
 APP = Path(bodymetry.__file__).parent
@@ -70,3 +73,41 @@ def test_the_local_executor_holds_a_step_error_until_its_result_is_read():
         assert ex.frame_chunks([0, 25, 50]) == [(0, 25, 50)]
         first = ex.shared("rig", lambda: object())
         assert ex.shared("rig", lambda: object()) is first
+
+
+def test_capture_agreement_is_keyed_by_camera_without_the_views_not_judged():
+    names = ("cam_00", "cam_01", "cam_02")
+    assert pipeline.judged_agreement(names, (0.9, None, 0.61), 25) == {
+        "cam_00": 0.9,
+        "cam_02": 0.61,
+    }
+    assert pipeline.judged_agreement(names, (), 25) == {}  # capture judged nothing
+    with pytest.raises(ValueError, match="frame 25: capture's agreement has 2 values for 3"):
+        pipeline.judged_agreement(names, (0.9, 0.8), 25)
+    for bad in (1.2, -0.1, float("nan")):
+        with pytest.raises(ValueError, match=r"outside \[0, 1\]"):
+            pipeline.judged_agreement(names, (0.9, bad, None), 25)
+
+
+def test_camera_warnings_name_an_unreliable_camera_once_and_not_as_unseen():
+    """A camera left out as unreliable in every frame saw the person: it is named by the
+    unreliable warning (with capture's bound when known), not as a covered camera."""
+    names = ("cam_00", "cam_01", "cam_02")
+
+    def record(frame: int) -> FrameRecord:
+        return FrameRecord(
+            frame,
+            "ok",
+            flags={"cam_01": ("unreliable",)},
+            person_pixels={"cam_00": 5000, "cam_01": 5000, "cam_02": 0},
+            view_agreement={"cam_00": 0.95, "cam_01": 0.5 + frame / 100},
+        )
+
+    warnings = pipeline.camera_warnings([record(0), record(25)], names, bound=0.8)
+    assert warnings == [
+        "camera 'cam_02' saw no person in any of the 2 kept frames (covered, black or "
+        "pointing away?); it contributed nothing to the measurements",
+        "cam_01: silhouette unreliable in 2 of 2 kept frames (agreement 0.50-0.75 < 0.80), "
+        "left out of those frames' fits",
+    ]
+    assert pipeline.camera_warnings([], names) == []

@@ -32,6 +32,7 @@ from bodymetry.estimation.records import (
 )
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import EVALUATION_FORMAT, Evaluation, RunLayout, RunResults
+from bodymetry.estimation.session_shape import session_frame
 from bodymetry.estimation.training import DiscriminativeModels
 from bodymetry.frame_jobs import RESCUE_FILE, rescue_poor_frames
 from bodymetry.review.evaluation import evaluate_run
@@ -355,14 +356,17 @@ def test_rescue_fits_whole_when_the_refinement_stays_below_the_gate(run, tmp_pat
     seen = {}
     real_fit = frame_jobs.fit_frame
 
-    def spy(frame, *args):
+    def spy(frame, *args, **kwargs):
         seen[frame] = args[-1]  # the proposals
-        return real_fit(frame, *args)
+        return real_fit(frame, *args, **kwargs)
 
     monkeypatch.setattr(frame_jobs, "fit_frame", spy)
+    # Capture's verdicts on the views travel with the frame into its new record.
+    records[2] = dataclasses.replace(records[2], view_agreement={"cam_00": 0.97, "cam_01": 0.9})
     out = rescue_poor_frames(layout, records, cams, model_path, config)
     assert set(seen[2]) == {"frame 0", "frame 4"}
     assert out[2].mean_iou > 0.5 and out[2].status == "ok"
+    assert out[2].view_agreement == {"cam_00": 0.97, "cam_01": 0.9}
     tried = json.loads((layout.frames_dir / RESCUE_FILE).read_text())
     assert tried["2"]["kept"] and tried["2"]["method"] == "annealing"
 
@@ -376,7 +380,7 @@ def test_rescue_rounds_run_together_and_a_rescued_frame_proposes_next(run, tmp_p
         k: 0.95 for k in records[f].silhouette_iou}) for f in (2, 4)}  # fmt: skip
     calls = []
 
-    def fake(frame, *args):
+    def fake(frame, *args, **kwargs):
         calls.append((frame, sorted(args[-1])))
         fails = frame == 4 and "frame 2" not in args[-1]  # frame 4 needs frame 2's fit
         return FrameFit(records[frame] if fails else good[frame], FrameArrays())
@@ -408,7 +412,7 @@ def test_rescue_keeps_the_first_fit_when_the_second_is_no_better(run, tmp_path, 
     worse = dataclasses.replace(
         records[4], silhouette_iou={k: 0.1 for k in records[4].silhouette_iou}
     )
-    monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a: FrameFit(worse, FrameArrays()))
+    monkeypatch.setattr(frame_jobs, "fit_frame", lambda *a, **k: FrameFit(worse, FrameArrays()))
     monkeypatch.setattr(frame_jobs, "refit_frame", lambda *a: FrameFit(worse, FrameArrays()))
     model_path = next((base / "cache" / "discriminative").glob("*.npz"))
     cams = session.calibration()
@@ -439,3 +443,50 @@ def test_rescue_off_and_nothing_to_rescue(run, tmp_path, monkeypatch):
     layout, poor = _poor_copy(run, tmp_path, 2)
     assert rescue_poor_frames(layout, poor, cams, model_path, config, neighbours=0) is poor
     assert not (layout.frames_dir / RESCUE_FILE).exists()
+
+
+def test_an_unreliable_view_is_left_out_of_the_fit_and_named(run, tmp_path, monkeypatch):
+    """Capture flags cam_01 ``unreliable`` in the first kept frame: that frame is fitted
+    with cam_00 alone, the session stage sees cam_01 blank, camera_frames does not count
+    it, a warning names it, and capture's agreement survives the record's round trip."""
+    session, out, results, base = run
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy)
+    config = _config(base)
+    real_segment = pipeline.segment_session
+
+    def judged(*args, **kwargs):
+        for sil in real_segment(*args, **kwargs):
+            flags = (sil.flags[0], (*sil.flags[1], "unreliable"))
+            yield dataclasses.replace(sil, flags=flags, agreement=(0.97, 0.58))
+
+    monkeypatch.setattr(pipeline, "segment_session", judged)
+    prepared = pipeline.prepare(session.folder, copy, config)
+    planned = pipeline.plan(prepared, config)
+    first = planned.kept[0]
+    models = pipeline.backgrounds(prepared, planned, config, "seek")
+    (seg,) = pipeline.segment(prepared, planned, models, [first], config, "seek")
+    assert seg.agreement == {"cam_00": 0.97, "cam_01": 0.58}
+    rig = pipeline.RigModels(results.models, _rescue_inputs(run)[1], True, 0.0)
+    record = pipeline.fit(prepared, rig, seg, config)
+    assert record.fitted and set(record.silhouette_iou) == {"cam_00"}
+    assert record.view_agreement == {"cam_00": 0.97, "cam_01": 0.58}
+    assert record.person_pixels["cam_01"] > 400  # left out for its flag, not its size
+    layout = RunLayout(copy)
+    done = frame_jobs.read_done_frames(layout)
+    assert done[first].to_json() == record.to_json()  # a resumed run reads the same verdict
+    arrays = FrameArrays.load(layout.frame_arrays(first))
+    assert arrays.observed["cam_01"].any()  # kept for review, as capture found it
+    sf = session_frame(record, arrays, prepared.cameras)
+    assert sf.masks[0].any() and not sf.masks[1].any()
+    no_stage = dataclasses.replace(
+        config, session_shape=dataclasses.replace(config.session_shape, enabled=False)
+    )
+    finished = pipeline.finish(prepared, no_stage, rig, done, {})
+    n = len(planned.kept)
+    assert finished.camera_frames == {"cam_00": n, "cam_01": n - 1}
+    assert (
+        f"cam_01: silhouette unreliable in 1 of {n} kept frames (agreement 0.58), "
+        "left out of those frames' fits"
+    ) in finished.warnings
+    assert RunResults.read(layout.results).frames[0].view_agreement == record.view_agreement

@@ -19,16 +19,19 @@ from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.records import FrameRecord
 from bodymetry.estimation.run_files import EVALUATION_FORMAT, RunResults, SessionInfo
 from bodymetry.review import plots
+from bodymetry.review import report as report_module
 from bodymetry.review.accuracy import SESSION_ACCURACY
 from bodymetry.review.accuracy import SOURCE as ACCURACY_SOURCE
 from bodymetry.review.build import build_review
 from bodymetry.review.report import (
+    _left_out_lines,
     body_renders,
     breakable,
     build_report,
     csv_columns,
     figure3_rows,
     headline_cards,
+    left_out_rows,
     measurement_rows,
     ordinal,
     select_overlay_frames,
@@ -420,3 +423,28 @@ def test_filters_of_the_report_pages():
     ]  # fmt: skip
     assert ordinal(2.5) == "2.5"
     assert headline_cards(_empty_run()) == []
+
+
+def test_the_views_left_out_as_unreliable_are_listed_only_when_there_are_any(
+    review_run, bare_run, monkeypatch
+):
+    # The plots are another test's: without them the report renders in a fraction of the time.
+    monkeypatch.setattr(report_module, "_figures", lambda run, body: ({}, {}))
+    html = (review_run.folder / "report.html").read_text()
+    assert "Views left out" not in html  # capture left no view out of this run
+    data = json.loads((bare_run / "results.json").read_text())
+    frames = data["frames"]
+    for frame, value in ((frames[0], 0.61), (frames[2], 0.7449)):
+        frame["flags"]["cam_01"] = ["unreliable"]
+        frame["view_agreement"] = {"cam_00": 0.97, "cam_01": value}
+    (bare_run / "results.json").write_text(json.dumps(data))
+    html = build_report(bare_run).html.read_text()
+    section = html[html.index('id="views-left-out"') :]
+    items = re.findall(r"<li>(.*?)</li>", section[: section.index("</ul>")])
+    kept = len(frames)
+    listed = f"{frames[0]['frame']}, {frames[2]['frame']}"
+    assert items == [f"cam_01: 2 of {kept} kept frames ({listed}), agreement 0.61-0.74"]
+    # The frames table still lists the flag per frame; the PDF's summary says it in a line.
+    assert "cam_01: unreliable" in html[html.index('id="frames"') :]
+    (line,) = _left_out_lines({"left_out": left_out_rows(load_run(bare_run))})
+    assert line.endswith(f"cam_01 in 2 of {kept} kept frames ({listed}), agreement 0.61-0.74.")

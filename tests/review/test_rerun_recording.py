@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -12,7 +13,9 @@ import numpy as np
 import pytest
 import rerun.chunk as rc
 
-from bodymetry.review.rerun_recording import camera_to_world
+from bodymetry.estimation.fit import shared_body_model
+from bodymetry.review.rerun_recording import RerunWriter, camera_to_world
+from bodymetry.review.run_data import FrameView, load_run
 
 
 @pytest.fixture(scope="module")
@@ -119,3 +122,34 @@ def test_improper_camera_rotation_is_refused():
     cam = SimpleNamespace(name="cam_x", R=flip, center=np.zeros(3))
     with pytest.raises(ValueError, match="det"):
         camera_to_world(cam)
+
+
+def test_capture_view_agreement_is_a_metric_per_view(review_run, tmp_path):
+    """Each judged view's agreement is plotted under /metrics/views/<cam>/agreement, also
+    for a frame without a fit (capture's verdict does not depend on the fit)."""
+    folder = tmp_path / "run"
+    folder.mkdir()
+    for name in ("results.json", "calibration.yaml"):
+        shutil.copy(review_run.folder / name, folder / name)
+    data = json.loads((folder / "results.json").read_text())
+    first = data["frames"][0]
+    first.update(status="no silhouette in any camera", view_agreement={"cam_01": 0.58})
+    for stage in ("discriminative", "generative", "session"):
+        first.pop(stage, None)
+    (folder / "results.json").write_text(json.dumps(data))
+    run = load_run(folder)
+    path = tmp_path / "agreement.rrd"
+    writer = RerunWriter(path, run, shared_body_model())
+    writer.add(FrameView(run.frames[0]))
+    writer.close()
+    store = rc.RrdReader(path).store()
+    paths = set(store.schema().entity_paths())
+    assert "/metrics/views/cam_01/agreement" in paths
+    assert "/metrics/views/cam_00/agreement" not in paths  # not judged: no point
+    values = [
+        v
+        for chunk in store.stream().to_chunks()
+        if chunk.entity_path == "/metrics/views/cam_01/agreement"
+        for v in chunk.to_record_batch().column("Scalars:scalars").to_pylist()
+    ]
+    assert np.ravel(values).tolist() == pytest.approx([0.58])

@@ -1,0 +1,126 @@
+"""Which views of a frame the fit uses, and the views left out as unreliable.
+
+One decision, made here for every consumer of a frame's per-view silhouettes
+(the per-frame fit and its rescue, the session stage and its outline check,
+``camera_frames`` in ``results.json``, the evaluation's fits): a view is
+usable when its silhouette has at least :data:`MIN_PIXELS` person pixels and
+capture did not flag it with one of :data:`LEAVE_OUT_FLAGS`.
+
+``unreliable`` is capture's verdict that a view's silhouette disagrees with
+the frame's other evidence (the other views' hull and the learned segmenter;
+:attr:`bodymetry.capture.segmentation.SilhouetteFrame.agreement`). Capture
+keeps such a mask as it found it, for review; the fit leaves the view out of
+that frame. :func:`left_out_views` gathers those views over a run, and
+:meth:`LeftOutView.describe` is the run's warning about each camera (the
+report lists the same).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from bodymetry.estimation.records import FrameRecord
+
+__all__ = [
+    "LEAVE_OUT_FLAGS",
+    "MIN_PIXELS",
+    "LeftOutView",
+    "left_out_views",
+    "usable_camera_frames",
+    "usable_view",
+    "usable_views",
+]
+
+#: Views with fewer person pixels than this are treated as having no silhouette.
+MIN_PIXELS = 400
+
+#: Capture's view flags that leave a view out of the frame's fit: no image
+#: (``unreadable``), or a silhouette the frame's other evidence contradicts
+#: (``unreliable``).
+LEAVE_OUT_FLAGS = ("unreadable", "unreliable")
+
+
+def usable_view(pixels: int, flags: Sequence[str]) -> bool:
+    """Whether one view has a person silhouette to fit: enough pixels, not left out by a flag."""
+    return pixels >= MIN_PIXELS and not any(f in LEAVE_OUT_FLAGS for f in flags)
+
+
+def usable_views(
+    names: Sequence[str], pixels: Mapping[str, int], flags: Mapping[str, Sequence[str]]
+) -> np.ndarray:
+    """(C,) bool: per camera of ``names``, :func:`usable_view` of its pixels and flags
+    (a camera missing from ``pixels`` has none)."""
+    return np.array([usable_view(pixels.get(n, 0), flags.get(n, ())) for n in names], bool)
+
+
+def usable_camera_frames(records: Sequence[FrameRecord], names: Sequence[str]) -> dict[str, int]:
+    """Per camera, the frames of ``records`` in which its view was usable
+    (``camera_frames`` of ``results.json``)."""
+    return {
+        n: sum(usable_view(r.person_pixels.get(n, 0), r.flags.get(n, ())) for r in records)
+        for n in names
+    }
+
+
+@dataclass(frozen=True)
+class LeftOutView:
+    """A camera whose view was left out as ``unreliable`` in some kept frames.
+
+    Attributes
+    ----------
+    camera : str
+    frames : tuple of int
+        The kept frames in which it was left out, in order.
+    agreement : tuple of float
+        Capture's agreement (IoU with the frame's other evidence) in those of
+        ``frames`` that recorded one, in frame order.
+    kept : int
+        The run's kept frames.
+    """
+
+    camera: str
+    frames: tuple[int, ...]
+    agreement: tuple[float, ...]
+    kept: int
+
+    @property
+    def agreement_text(self) -> str:
+        """``"0.61"`` or ``"0.61-0.74"`` (empty when no frame recorded one)."""
+        if not self.agreement:
+            return ""
+        lo, hi = min(self.agreement), max(self.agreement)
+        return f"{lo:.2f}" if f"{lo:.2f}" == f"{hi:.2f}" else f"{lo:.2f}-{hi:.2f}"
+
+    def describe(self, bound: float | None = None) -> str:
+        """The run's warning about this camera, e.g. ``"cam02: silhouette unreliable in 3
+        of 9 kept frames (agreement 0.61-0.74 < 0.80), left out of those frames' fits"``.
+
+        ``bound`` is the agreement below which capture flags a view (quoted when given).
+        """
+        detail = ""
+        if self.agreement:
+            below = f" < {bound:.2f}" if bound is not None else ""
+            detail = f" (agreement {self.agreement_text}{below})"
+        return (
+            f"{self.camera}: silhouette unreliable in {len(self.frames)} of {self.kept} kept "
+            f"frames{detail}, left out of those frames' fits"
+        )
+
+
+def left_out_views(records: Sequence[FrameRecord], names: Sequence[str]) -> list[LeftOutView]:
+    """The cameras of ``names`` flagged ``unreliable`` in any of ``records`` (the run's
+    kept frames), in camera order; empty when no view was left out so."""
+    out = []
+    ordered = sorted(records, key=lambda r: r.frame)
+    for name in names:
+        hit = [r for r in ordered if "unreliable" in r.flags.get(name, ())]
+        if not hit:
+            continue
+        values = [r.view_agreement.get(name) for r in hit]
+        agreement = tuple(float(v) for v in values if v is not None and math.isfinite(v))
+        out.append(LeftOutView(name, tuple(r.frame for r in hit), agreement, len(records)))
+    return out
