@@ -113,7 +113,7 @@ def collect(folder: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
             shadows = [truth.shadow(cam.name, fs.frame) for cam in session.cameras]
             for with_segmenter, seg in segmenters.items():
                 evidence = [seg.evidence(c, im) for c, im in enumerate(fs.images)]
-                terms = seg.hull_terms(evidence)
+                terms = seg.geometry(evidence)
                 for c, ev in enumerate(evidence):
                     if true_masks[c] is None or not true_masks[c].any():
                         continue

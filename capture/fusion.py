@@ -22,9 +22,11 @@ with
 ``s`` (*shadow*)
     1 where the colour test labels the pixel cast shadow (darker, same
     chromaticity: :mod:`bodymetry.capture.background`), else 0.
-``s (1 - h_body)`` (*floor shadow*)
-    1 where the colour test says shadow and no hull voxel above the floor band
-    projects: a shadow where the geometry agrees it can be one.
+``f`` (*floor shadow*)
+    1 where the colour test says shadow and the geometry agrees it can be a
+    shadow on the floor: no other camera sees the pixel's floor point as lit
+    background (:mod:`bodymetry.capture.shadows`). A shadow label the geometry
+    refutes (``s`` without ``f``) is an achromatic garment's shaded side.
 ``l`` (*segmenter*)
     ``clip(logit(p), -4, 4)`` of the segmenter's probability ``p``.
 ``h_body`` (*hull above the floor*)
@@ -66,6 +68,7 @@ __all__ = [
     "WEIGHTS",
     "FusionConfig",
     "FusionWeights",
+    "GeometryTerms",
     "change_evidence",
     "fuse",
     "mask_iou",
@@ -83,6 +86,31 @@ CHANGE_CLIP = 2.0
 #: Clip of the segmenter's logit (a confident segmenter must not overrule a hull and a
 #: background that both disagree).
 LOGIT_CLIP = 4.0
+
+
+#: A pixel plainly shows the unchanged background (for the floor-shadow test) when its
+#: change term is below this: a colour distance under half the change threshold.
+LIT_CHANGE = float(np.log(0.5))
+
+
+@dataclass(frozen=True)
+class GeometryTerms:
+    """What the calibrated rig says about one view (:meth:`FrameSegmenter.geometry`).
+
+    Attributes
+    ----------
+    hull_body : (H, W) bool
+        Where the hull's voxels above the floor band project.
+    hull_any : (H, W) bool
+        Where any occupied voxel projects.
+    floor_shadow : (H, W) bool or None
+        Shadow labels the other views confirm on the floor
+        (:func:`bodymetry.capture.shadows.floor_shadows`; None without a background).
+    """
+
+    hull_body: np.ndarray
+    hull_any: np.ndarray
+    floor_shadow: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -116,10 +144,12 @@ def sources_key(background: bool, segmenter: bool, hull: bool) -> str:
 
 #: Fitted weights per combination of sources (``python -m benchmarks fusion_fit``).
 WEIGHTS: dict[str, FusionWeights] = {
-    "background+segmenter+hull": FusionWeights(-0.584, (0.505, -0.122, 0.0, 1.978, 0.228, 0.075)),
-    "background+segmenter": FusionWeights(-0.307, (0.501, -0.122, 0.0, 2.0, 0.0, 0.0)),
-    "background+hull": FusionWeights(-4.091, (1.502, -1.691, 0.0, 0.0, 3.015, 1.299)),
-    "background": FusionWeights(-1.006, (2.029, -1.96, 0.0, 0.0, 0.0, 0.0)),
+    "background+segmenter+hull": FusionWeights(
+        -0.694, (0.432, -0.246, -0.474, 1.954, 0.178, 0.081)
+    ),
+    "background+segmenter": FusionWeights(-0.52, (0.368, -0.306, 0.0, 2.011, 0.0, 0.0)),
+    "background+hull": FusionWeights(-2.948, (1.98, -1.296, -4.821, 0.0, 1.955, 1.192)),
+    "background": FusionWeights(-1.096, (2.216, -4.325, 0.0, 0.0, 0.0, 0.0)),
     "segmenter+hull": FusionWeights(0.0, (0.0, 0.0, 0.0, 1.0, 0.0, 0.0)),
     "segmenter": FusionWeights(0.0, (0.0, 0.0, 0.0, 1.0, 0.0, 0.0)),
 }
@@ -177,8 +207,7 @@ def view_features(
     change: np.ndarray | None = None,
     shadow: np.ndarray | None = None,
     segmenter: np.ndarray | None = None,
-    hull_body: np.ndarray | None = None,
-    hull_any: np.ndarray | None = None,
+    geometry: GeometryTerms | None = None,
 ) -> tuple[np.ndarray, str]:
     """The evidence of one view as a (H, W, F) float32 stack and its sources key.
 
@@ -190,8 +219,8 @@ def view_features(
     shadow : (H, W) bool, optional
     segmenter : (H, W) float32, optional
         :func:`segmenter_evidence`.
-    hull_body, hull_any : (H, W) bool, optional
-        Hull support above the floor band and anywhere (both or neither).
+    geometry : GeometryTerms, optional
+        The hull's support and the floor-shadow test.
 
     Returns
     -------
@@ -200,10 +229,13 @@ def view_features(
     key : str
         :func:`sources_key` of the sources present.
     """
-    if (change is None) != (shadow is None) or (hull_body is None) != (hull_any is None):
-        raise InputError("view_features: change and shadow, hull_body and hull_any come in pairs")
+    if (change is None) != (shadow is None):
+        raise InputError("view_features: change and shadow come in pairs")
     out = np.zeros((*shape, len(FEATURES)), np.float32)
-    floor_shadow = None if shadow is None or hull_body is None else shadow & ~hull_body
+    hull_body = hull_any = floor_shadow = None
+    if geometry is not None:
+        hull_body, hull_any = geometry.hull_body, geometry.hull_any
+        floor_shadow = None if shadow is None else geometry.floor_shadow
     for k, term in enumerate((change, shadow, floor_shadow, segmenter, hull_body, hull_any)):
         if term is not None:
             if np.shape(term) != tuple(shape):
@@ -211,7 +243,7 @@ def view_features(
                     f"view_features: {FEATURES[k]} is {np.shape(term)}, expected {tuple(shape)}"
                 )
             out[..., k] = term
-    key = sources_key(change is not None, segmenter is not None, hull_body is not None)
+    key = sources_key(change is not None, segmenter is not None, geometry is not None)
     return out, key
 
 

@@ -355,30 +355,41 @@ def refine_edges(
     inside = mask[y0:y1, x0:x1]
     m = inside.astype(np.uint8)
     img = image[y0:y1, x0:x1].astype(np.float32)
-    d_background = ((img - background[y0:y1, x0:x1]) ** 2).sum(axis=2)
+    bg = background[y0:y1, x0:x1].astype(np.float32)
+    d_background = ((img - bg) ** 2).sum(axis=2)
     disc = _disc(radius)
     band = (cv2.dilate(m, disc) > 0) & ~(cv2.erode(m, disc) > 0)
     allowed = True if shadow is None else ~(shadow[y0:y1, x0:x1] & ~inside)
-    first, has_interior = _nearer_person(img, d_background, inside, window)
-    first &= has_interior & allowed
-    second, has_interior = _nearer_person(img, d_background, np.where(band, first, inside), window)
+    first, has_interior, contrast = _nearer_person(img, bg, d_background, inside, window)
+    first = np.where(contrast, first & has_interior & allowed, inside)
+    second, has_interior, contrast = _nearer_person(
+        img, bg, d_background, np.where(band, first, inside), window
+    )
     # Where the refined interior leaves no pixel in the window (a hand, a wrist),
-    # the first answer stands.
+    # the first answer stands; where the person's colour is too near the
+    # background's for colour to decide (a grey shirt before a grey wall), the mask does.
     second = np.where(has_interior, second & allowed, first)
+    second = np.where(contrast, second, inside)
     out = mask.copy()
     out[y0:y1, x0:x1] = np.where(band, second, inside)
     return out
 
 
+#: Colour distance (DN) between the person's local colour and the background below
+#: which edge refinement leaves a pixel as the mask has it.
+MIN_EDGE_CONTRAST = 20.0
+
+
 def _nearer_person(
-    img: np.ndarray, d_background: np.ndarray, person: np.ndarray, window: int
-) -> tuple[np.ndarray, np.ndarray]:
+    img: np.ndarray, bg: np.ndarray, d_background: np.ndarray, person: np.ndarray, window: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixels whose colour is nearer the mean of ``person``'s interior (its pixels a
     pixel from its outline or deeper) in a ``window`` square than the background.
 
     Parameters
     ----------
-    img : (h, w, 3) float32
+    img, bg : (h, w, 3) float32
+        Image and background colour.
     d_background : (h, w) float
         Squared colour distance of each pixel to the background.
     person : (h, w) bool
@@ -389,13 +400,17 @@ def _nearer_person(
     nearer : (h, w) bool
     has_interior : (h, w) bool
         The window holds an interior pixel (``nearer`` means nothing elsewhere).
+    contrast : (h, w) bool
+        The person's local colour differs from the background by at least
+        :data:`MIN_EDGE_CONTRAST` (elsewhere colour cannot place the outline).
     """
     inner = cv2.erode(person.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
     weight = cv2.boxFilter(inner, -1, (window, window), normalize=False)
     local = cv2.boxFilter(img * inner[..., None], -1, (window, window), normalize=False)
     local /= np.maximum(weight, 1e-6)[..., None]
     d_person = ((img - local) ** 2).sum(axis=2)
-    return d_person < d_background, weight > 0
+    contrast = ((local - bg) ** 2).sum(axis=2) >= MIN_EDGE_CONTRAST**2
+    return d_person < d_background, weight > 0, contrast
 
 
 def _overlaps(a: np.ndarray, b: np.ndarray) -> bool:

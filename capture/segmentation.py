@@ -27,7 +27,10 @@ from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
 from bodymetry.capture.consistency import HullConfig, visual_hull
 from bodymetry.capture.fusion import (
+    FEATURES,
+    LIT_CHANGE,
     FusionConfig,
+    GeometryTerms,
     change_evidence,
     fuse,
     segmenter_evidence,
@@ -45,6 +48,7 @@ from bodymetry.capture.person import (
     segmenter_available,
 )
 from bodymetry.capture.session import Session
+from bodymetry.capture.shadows import floor_shadows
 from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -401,12 +405,11 @@ class FrameSegmenter:
         raw, shadow, dist2 = sub.labels(image, distances=True)
         return ViewEvidence(raw, shadow, change_evidence(dist2, sub.config.fg_sigma), person)
 
-    def hull_terms(
-        self, evidence: Sequence[ViewEvidence | None]
-    ) -> list[tuple[np.ndarray, np.ndarray] | None]:
-        """Per camera the hull's support above the floor band and anywhere (None
-        without a hull or fusion, or where the candidates agree on nothing)."""
-        none: list[tuple[np.ndarray, np.ndarray] | None] = [None] * len(evidence)
+    def geometry(self, evidence: Sequence[ViewEvidence | None]) -> list[GeometryTerms | None]:
+        """Per camera what the rig says (:class:`~bodymetry.capture.fusion.GeometryTerms`):
+        the hull's support above the floor band and anywhere, and the floor-shadow
+        test; None without a hull or fusion, or where the candidates agree on nothing."""
+        none: list[GeometryTerms | None] = [None] * len(evidence)
         if self.hull is None or not self.config.fusion.enabled:
             return none
         candidates = [
@@ -417,13 +420,28 @@ class FrameSegmenter:
         if not occupied.any():
             return none
         body = occupied & (self.hull.points[:, 2] >= self.config.fusion.floor_band)
+        floor = floor_shadows(
+            self.hull.cameras,
+            [None if ev is None or ev.raw is None else ev.shadow for ev in evidence],
+            [
+                None if ev is None or ev.change is None else ev.change < LIT_CHANGE
+                for ev in evidence
+            ],
+        )
+        # A pixel where the body above the legs projects shows the body, not the floor
+        # behind it (the hull is fat, so near the feet this cannot be told).
+        upper = occupied & (self.hull.points[:, 2] >= 0.5)
         return [
-            (self.hull.support(body, c), self.hull.support(occupied, c))
+            GeometryTerms(
+                self.hull.support(body, c),
+                self.hull.support(occupied, c),
+                None if floor[c] is None else floor[c] & ~self.hull.support(upper, c),
+            )
             for c in range(len(evidence))
         ]
 
     def features(
-        self, c: int, ev: ViewEvidence, terms: tuple[np.ndarray, np.ndarray] | None
+        self, c: int, ev: ViewEvidence, terms: GeometryTerms | None
     ) -> tuple[np.ndarray, str]:
         """Camera ``c``'s fusion features (H, W, F) float32 and their sources key
         (:func:`bodymetry.capture.fusion.view_features`)."""
@@ -433,8 +451,7 @@ class FrameSegmenter:
             ev.change,
             None if ev.raw is None else ev.shadow,
             None if ev.person is None else segmenter_evidence(ev.person.probability),
-            None if terms is None else terms[0],
-            None if terms is None else terms[1],
+            terms,
         )
 
     def _view(
@@ -442,7 +459,7 @@ class FrameSegmenter:
         c: int,
         image: np.ndarray | None,
         ev: ViewEvidence | None,
-        terms: tuple[np.ndarray, np.ndarray] | None,
+        terms: GeometryTerms | None,
     ) -> _View:
         """Camera ``c``'s cleaned silhouette from its evidence (fused when enabled)."""
         w, h = self.sizes[c]
@@ -462,6 +479,11 @@ class FrameSegmenter:
         if fusion.enabled:
             features, key = self.features(c, ev, terms)
             raw = fuse(features, fusion.weights_for(key)) > 0
+            if terms is not None and terms.floor_shadow is not None:
+                # A shadow the other views confirm on the floor is never person (the
+                # segmenter's soft outline spreads over the shadow at the feet).
+                seg = features[..., FEATURES.index("segmenter")]
+                raw &= ~(terms.floor_shadow & (seg < 2.2))
             # Shadow labels the fusion overruled (a grey shirt's shaded side) are person.
             shadow = shadow & ~raw
         if ev.raw is None:
@@ -476,7 +498,7 @@ class FrameSegmenter:
         """Per camera the view, the (33, 3) world landmarks (None without a segmenter
         or cameras) and the view's agreement (None where not judged)."""
         evidence = [None if im is None else self.evidence(c, im) for c, im in enumerate(images)]
-        terms = self.hull_terms(evidence)
+        terms = self.geometry(evidence)
         views = [self._view(c, im, evidence[c], terms[c]) for c, im in enumerate(images)]
         agreement: list[float | None] = [None] * len(views)
         if self.hull is not None:

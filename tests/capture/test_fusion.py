@@ -12,6 +12,7 @@ from bodymetry.capture.fusion import (
     WEIGHTS,
     FusionConfig,
     FusionWeights,
+    GeometryTerms,
     change_evidence,
     fuse,
     mask_iou,
@@ -49,13 +50,17 @@ def test_features_stack_the_present_sources_and_name_them():
     shadow = rng.random(shape) < 0.3
     body = rng.random(shape) < 0.5
     anywhere = body | (rng.random(shape) < 0.3)
-    feats, key = view_features(shape, change, shadow, None, body, anywhere)
+    floor = shadow & (rng.random(shape) < 0.5)
+    feats, key = view_features(shape, change, shadow, None, GeometryTerms(body, anywhere, floor))
     assert key == "background+hull" and feats.shape == (*shape, len(FEATURES))
     np.testing.assert_array_equal(feats[..., FEATURES.index("change")], change)
-    np.testing.assert_array_equal(feats[..., FEATURES.index("floor_shadow")], shadow & ~body)
+    np.testing.assert_array_equal(feats[..., FEATURES.index("floor_shadow")], floor)
+    np.testing.assert_array_equal(feats[..., FEATURES.index("hull_body")], body)
     assert not feats[..., FEATURES.index("segmenter")].any()
     _, key = view_features(shape, segmenter=change)
     assert key == "segmenter"
+    _, key = view_features(shape, segmenter=change, geometry=GeometryTerms(body, anywhere))
+    assert key == "segmenter+hull"
     with pytest.raises(InputError, match="pairs"):
         view_features(shape, change=change)
     with pytest.raises(InputError, match="expected"):
@@ -91,16 +96,18 @@ def test_every_combination_of_sources_has_weights():
 
 
 def test_weights_trust_the_hull_over_the_shadow_label():
-    # An achromatic garment's shaded side: labelled shadow, little change, but the
-    # hull above the floor projects on it; a floor shadow has no hull above the floor.
+    # An achromatic garment's shaded side: labelled shadow, twice the change
+    # threshold, inside the hull's projection, but the other views see its floor
+    # point lit; a floor shadow beside the feet: the same, but confirmed on the floor.
     w = WEIGHTS["background+hull"]
     shape = (1, 2)
-    change = np.full(shape, 0.7, np.float32)  # twice the threshold
+    change = np.full(shape, 0.7, np.float32)
     shadow = np.ones(shape, bool)
-    body = np.array([[True, False]])
-    feats, _ = view_features(shape, change, shadow, None, body, np.ones(shape, bool))
-    garment, floor = fuse(feats, w)[0]
-    assert garment > 0 > floor
+    inside = np.ones(shape, bool)
+    floor = np.array([[False, True]])
+    feats, _ = view_features(shape, change, shadow, None, GeometryTerms(inside, inside, floor))
+    garment, cast = fuse(feats, w)[0]
+    assert garment > 0 > cast
 
 
 def test_agreement_is_the_better_iou_and_none_without_a_reference():

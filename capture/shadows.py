@@ -1,0 +1,148 @@
+"""Shadows without colour: a cast shadow lies on the floor, and every camera agrees.
+
+The colour test of background subtraction calls a pixel *shadow* when it is
+darker than the background with the same chromaticity
+(:mod:`bodymetry.capture.background`). In a grey room the shaded side of a
+white, grey or black garment passes that test too. Geometry tells them apart:
+
+A cast shadow is a patch of the floor. Follow a shadow-labelled pixel's viewing
+ray to the floor plane (z = 0) and look at that floor point from the other
+calibrated cameras: if it is a shadow, every camera that sees it sees it dark
+(or has the person in front of it), and the cameras around the person see it
+(a cast shadow lies beside the feet, in the capture volume). If any other
+camera sees it as plainly lit background, or none sees it dark, the floor
+there is not a shadow all cameras agree on, so what the first camera saw was
+not the floor: it was something standing in the room, darker than the wall
+behind it, i.e. the person's shaded side (whose floor point, far behind the
+person, is lit, or outside the other cameras' views).
+
+:func:`floor_shadows` keeps the shadow labels that pass (the *floor shadows*);
+the others are left for the evidence fusion (:mod:`bodymetry.capture.fusion`)
+to weigh as person. "Plainly lit" is strict on purpose (well below the change
+threshold, and a pixel from any changed pixel) so that a soft shadow's faint
+penumbra, labelled shadow in one view and just below the threshold in another,
+does not count as lit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+from bodymetry.calibration.camera import CameraGroup
+from bodymetry.errors import InputError
+
+__all__ = ["floor_points", "floor_shadows"]
+
+
+def floor_points(camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the viewing rays of ``pixels`` meet the floor plane z = 0.
+
+    Parameters
+    ----------
+    camera : Camera
+    pixels : (N, 2) float
+        Observed (distorted) pixel coordinates.
+
+    Returns
+    -------
+    points : (N, 3) float
+        The floor points (NaN where the ray does not go down to the floor).
+    valid : (N,) bool
+    """
+    d = camera.ray(np.asarray(pixels, float))
+    c = camera.center
+    with np.errstate(invalid="ignore", divide="ignore"):
+        valid = np.isfinite(d).all(axis=1) & (d[:, 2] < -1e-6)
+        t = np.where(valid, -c[2] / d[:, 2], np.nan)
+    return c + t[:, None] * d, valid
+
+
+def floor_shadows(
+    cameras: CameraGroup,
+    shadows: Sequence[np.ndarray | None],
+    lit: Sequence[np.ndarray | None],
+    margin: int = 1,
+) -> list[np.ndarray | None]:
+    """Per view, the shadow-labelled pixels that can be a shadow on the floor.
+
+    Parameters
+    ----------
+    cameras : CameraGroup
+        The calibrated rig (world z up, floor z = 0).
+    shadows : sequence of ((H_c, W_c) bool or None)
+        Per camera the colour test's shadow label (None: no background).
+    lit : sequence of ((H_c, W_c) bool or None)
+        Per camera the pixels that plainly show the unchanged background.
+    margin : int
+        A lit pixel counts only when every pixel within ``margin`` is lit too.
+
+    Returns
+    -------
+    list of ((H_c, W_c) bool or None)
+        The shadow pixels whose floor point another camera sees dark (labelled
+        shadow, within ``margin``) and no other camera sees lit (None where
+        ``shadows`` is None).
+    """
+    if not len(cameras) == len(shadows) == len(lit):
+        raise InputError(
+            f"floor_shadows: {len(cameras)} cameras, {len(shadows)} shadow masks, "
+            f"{len(lit)} lit masks"
+        )
+    kernel = np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)
+    plain = [None if m is None else cv2.erode(m.astype(np.uint8), kernel).astype(bool) for m in lit]
+    dark = [
+        None if m is None else cv2.dilate(m.astype(np.uint8), kernel).astype(bool)
+        for m in shadows
+    ]
+    out: list[np.ndarray | None] = []
+    for c, shadow in enumerate(shadows):
+        if shadow is None:
+            out.append(None)
+            continue
+        ys, xs = np.nonzero(shadow)
+        floor = np.zeros(shadow.shape, bool)
+        if ys.size:
+            lit_elsewhere, dark_elsewhere = _seen_from_others(
+                cameras, c, np.column_stack([xs, ys]), plain, dark
+            )
+            floor[ys, xs] = dark_elsewhere & ~lit_elsewhere
+        out.append(floor)
+    return out
+
+
+def _seen_from_others(
+    cameras: CameraGroup,
+    c: int,
+    pixels: np.ndarray,
+    plain: Sequence[np.ndarray | None],
+    dark: Sequence[np.ndarray | None],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Whether another camera sees the floor point of camera ``c``'s ``pixels``
+    (N, 2) as plainly lit background, and whether one sees it dark.
+
+    Returns
+    -------
+    lit, dark : (N,) bool
+        A ray that misses the floor counts as lit (it cannot be a floor shadow).
+    """
+    points, valid = floor_points(cameras[c], pixels.astype(float))
+    lit = ~valid
+    seen_dark = np.zeros(len(pixels), bool)
+    for k, cam in enumerate(cameras):
+        if k == c or plain[k] is None or not valid.any():
+            continue
+        w, h = cam.size
+        q = cam.project(points[valid])
+        with np.errstate(invalid="ignore"):
+            inside = np.isfinite(q).all(axis=1)
+            u = np.where(inside, np.round(q[:, 0]), -1).astype(int)
+            v = np.where(inside, np.round(q[:, 1]), -1).astype(int)
+        inside &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        for seen, masks in ((lit, plain), (seen_dark, dark)):
+            hit = np.zeros(len(q), bool)
+            hit[inside] = masks[k][v[inside], u[inside]]
+            seen[valid] |= hit
+    return lit, seen_dark

@@ -1,0 +1,83 @@
+"""The floor-shadow test (capture/shadows.py): a cast shadow on the floor is confirmed
+by the other cameras; a dark patch standing in the room is not."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from bodymetry.capture.shadows import floor_points, floor_shadows
+from bodymetry.errors import InputError
+from bodymetry.studio.rig import studio_rig
+
+SIZE = (320, 240)
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return studio_rig(4, SIZE, seed=3)
+
+
+def _fill(camera, corners: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the projection of a planar quad (4, 3), filled."""
+    px = camera.project(corners).astype(np.float32)
+    mask = np.zeros((camera.size[1], camera.size[0]), np.uint8)
+    cv2.fillConvexPoly(mask, np.round(px).astype(np.int32), 1)
+    return mask.astype(bool)
+
+
+# A 0.6 x 0.3 m cast shadow on the floor, and a 0.4 x 0.5 m dark panel standing
+# 1.0-1.5 m above it (the shaded side of a grey shirt).
+SHADOW = np.array([[0.1, -0.15, 0.0], [0.7, -0.15, 0.0], [0.7, 0.15, 0.0], [0.1, 0.15, 0.0]])
+PANEL = np.array([[-0.2, 0.0, 1.0], [0.2, 0.0, 1.0], [0.2, 0.0, 1.5], [-0.2, 0.0, 1.5]])
+
+
+def test_floor_points_lie_on_the_floor_and_project_back(rig):
+    cam = rig[0]
+    px = np.array([[160.0, 200.0], [100.0, 220.0]])
+    pts, valid = floor_points(cam, px)
+    assert valid.all()
+    np.testing.assert_allclose(pts[:, 2], 0.0, atol=1e-9)
+    np.testing.assert_allclose(cam.project(pts), px, atol=1e-6)
+    # A ray above the horizon never meets the floor.
+    up = cam.center + np.array([0.0, 0.0, 5.0])
+    _, valid = floor_points(cam, cam.project(up[None]))
+    assert not valid.any()
+
+
+def test_a_cast_shadow_is_confirmed_and_a_standing_dark_patch_is_not(rig):
+    shadow = [_fill(c, SHADOW) for c in rig]
+    panel = [_fill(c, PANEL) for c in rig]
+    # Every view labels the floor shadow; view 0 also takes the panel for shadow.
+    labels = [
+        s | (p if k == 0 else False) for k, (s, p) in enumerate(zip(shadow, panel, strict=True))
+    ]
+    lit = [~(s | p) for s, p in zip(shadow, panel, strict=True)]
+    floor = floor_shadows(rig, labels, lit)
+    for k in range(len(rig)):
+        true_shadow = shadow[k] & ~panel[k]
+        assert floor[k][true_shadow].mean() > 0.95, k
+        assert not (floor[k] & ~labels[k]).any()  # only shadow labels are kept
+    garment = panel[0] & ~shadow[0]
+    assert garment.sum() > 200
+    assert floor[0][garment].mean() < 0.05
+
+
+def test_no_confirming_view_means_no_floor_shadow(rig):
+    # A shadow label that only camera 0 has: the others see its floor point lit.
+    shadow = [_fill(c, SHADOW) for c in rig]
+    labels = [shadow[0]] + [np.zeros_like(s) for s in shadow[1:]]
+    lit = [np.ones_like(s) for s in shadow]
+    lit[0] = ~shadow[0]
+    floor = floor_shadows(rig, labels, lit)
+    assert not floor[0].any()
+    assert all(not f.any() for f in floor[1:])
+
+
+def test_views_without_a_background_are_skipped_and_counts_checked(rig):
+    shadow = [_fill(c, SHADOW) for c in rig]
+    floor = floor_shadows(rig, [None, *shadow[1:]], [None, *(~s for s in shadow[1:])])
+    assert floor[0] is None and floor[1].any()
+    with pytest.raises(InputError, match="4 cameras"):
+        floor_shadows(rig, shadow[:2], shadow[:2])
