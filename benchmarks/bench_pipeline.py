@@ -22,6 +22,8 @@ from every setting chosen on the independent six; ``--heavy`` renders
 :data:`HEAVY_SESSIONS`, three more tight-clothed ones on the heaviest bank bodies
 no other set uses; ``--fresh`` renders :data:`FRESH_SESSIONS`, three more
 tight-clothed ones rendered after the last change chosen on the sets above;
+``--looks`` renders :data:`LOOK_SESSIONS` (issue 32: neutral and wall-coloured
+clothing in a plain grey room);
 ``--held-out`` renders
 :data:`HELD_OUT_SESSIONS`, a replication of the four same-model sessions with new
 subjects.
@@ -55,6 +57,7 @@ from bodymetry.estimation.run_files import RunLayout
 from bodymetry.frame_jobs import read_rescue
 from bodymetry.process import process_session
 from bodymetry.review.evaluation import evaluate_run
+from bodymetry.studio.looks import Look
 from bodymetry.studio.synth import SubjectSpec, SynthConfig, synthesize
 
 #: The extra studio sessions: (seed, motion, other SynthConfig fields). Rig of the demo
@@ -120,6 +123,20 @@ FRESH_SESSIONS = (
     (91, "arm_raises", "independent:91"),
     (92, "reach", "independent:92"),
     (96, "mixed", "independent:96"),
+)
+#: Issue 32: independent tight-clothed subjects in white, light grey, black and
+#: wall-coloured clothing, in the plain grey room (one in the textured lab), hard and
+#: soft light; seeds never used before, rendered after the evidence fusion's weights
+#: were fitted (on other seeds). ``python -m benchmarks pipeline --looks``: each
+#: session's share of kept frames in the summary must reach :data:`MIN_FRAME_SHARE`
+#: and its session stage issue 15's targets.
+LOOK_SESSIONS = (
+    (311, "arm_raises", "independent:311", "clothing=white,room=plain,light=hard"),
+    (312, "reach", "independent:312", "clothing=light_grey,room=plain,light=soft"),
+    (313, "mixed", "independent:313", "clothing=black,room=plain,light=hard"),
+    (314, "arm_raises", "independent:314", "clothing=wall,room=plain,light=soft"),
+    (315, "walk_turn", "independent:315", "clothing=white,room=plain,light=soft"),
+    (316, "reach", "independent:316", "clothing=wall,room=textured,light=hard"),
 )
 DEMO_RIG_SEED = 5
 FRAMES = 400  # 16 kept frames each
@@ -323,6 +340,7 @@ def run(
     held_out: bool = False,
     heavy: bool = False,
     fresh: bool = False,
+    looks: bool = False,
 ) -> dict:
     reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
     same_model = HELD_OUT_SESSIONS if held_out else SESSIONS
@@ -341,6 +359,17 @@ def run(
         tmp = Path(tmp)
         if reuse:
             folders = [Path(p) for p in reuse.split(":") if p]
+        elif looks:
+            folders = [
+                _render(
+                    tmp / f"seed{seed}_{motion}_{Look.parse(look).label.replace('/', '_')}",
+                    seed,
+                    motion,
+                    {"look": Look.parse(look)},
+                    subject,
+                )
+                for seed, motion, subject, look in LOOK_SESSIONS
+            ]
         elif independent:
             folders = [
                 _render(tmp / f"seed{seed}_{motion}_{_outfit(subject)}", seed, motion, {}, subject)
@@ -355,9 +384,11 @@ def run(
         skip_demo = bool(os.environ.get("BODYMETRY_BENCH_SKIP_DEMO"))
         out = [] if skip_demo else [evaluate_session(Path(DEMO_SESSION), tmp / "run_demo", cache)]
         out += [evaluate_session(f, tmp / f"run_{f.name}", cache) for f in folders]
-    listed = subjects if independent else same_model
+    listed = LOOK_SESSIONS if looks else subjects if independent else same_model
     described = (
-        [f.name for f in folders] if reuse else [s[::2] if independent else s[:2] for s in listed]
+        [f.name for f in folders]
+        if reuse or looks
+        else [s[::2] if independent else s[:2] for s in listed]
     )
     return {
         "setup": (

@@ -169,12 +169,12 @@ class FusionConfig:
         shadow; only higher ones give ``h_body``.
     min_agreement : float
         A view whose silhouette agrees with neither the other views' hull nor
-        its segmenter better than this IoU is ``unreliable``.
+        its segmenter better than this (:func:`view_agreement`) is ``unreliable``.
     """
 
     enabled: bool = True
     floor_band: float = 0.15
-    min_agreement: float = 0.6
+    min_agreement: float = 0.8
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.floor_band < 1.0:
@@ -273,18 +273,33 @@ def view_agreement(
     others_support: Sequence[np.ndarray | None],
     segmenter_masks: Sequence[np.ndarray | None],
 ) -> list[float | None]:
-    """Per view, the better IoU of its silhouette with the other views' hull and
-    with its segmenter's person (None where neither can judge or the view is empty).
+    """Per view, how well its silhouette agrees with the frame's other evidence.
+
+    The better of two scores, each in [0, 1]: the share of the silhouette that
+    the *other* views' hull confirms (the hull is larger than the body, so a
+    right silhouette lies inside its projection, while a region this view adds
+    alone, or a view that looks elsewhere, does not), and the IoU with the
+    view's own segmenter. A view scores low only when both disagree.
 
     Parameters
     ----------
     masks : sequence of (H_c, W_c) bool
     others_support : sequence of ((H_c, W_c) bool or None)
-        Where the hull of the *other* views projects in this view.
+        Where the hull of the other views projects in this view.
     segmenter_masks : sequence of ((H_c, W_c) bool or None)
+
+    Returns
+    -------
+    list of (float or None)
+        None where neither can judge or the view is empty.
     """
     out: list[float | None] = []
     for mask, support, seg in zip(masks, others_support, segmenter_masks, strict=True):
-        scores = [mask_iou(mask, ref) for ref in (support, seg) if ref is not None and ref.any()]
-        out.append(max(scores) if scores and mask.any() else None)
+        area = np.count_nonzero(mask)
+        scores = []
+        if support is not None and support.any() and area:
+            scores.append(np.count_nonzero(mask & support) / area)
+        if seg is not None and seg.any() and area:
+            scores.append(mask_iou(mask, seg))
+        out.append(float(max(scores)) if scores else None)
     return out

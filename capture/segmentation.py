@@ -428,15 +428,8 @@ class FrameSegmenter:
                 for ev in evidence
             ],
         )
-        # A pixel where the body above the legs projects shows the body, not the floor
-        # behind it (the hull is fat, so near the feet this cannot be told).
-        upper = occupied & (self.hull.points[:, 2] >= 0.5)
         return [
-            GeometryTerms(
-                self.hull.support(body, c),
-                self.hull.support(occupied, c),
-                None if floor[c] is None else floor[c] & ~self.hull.support(upper, c),
-            )
+            GeometryTerms(self.hull.support(body, c), self.hull.support(occupied, c), floor[c])
             for c in range(len(evidence))
         ]
 

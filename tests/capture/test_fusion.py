@@ -110,17 +110,22 @@ def test_weights_trust_the_hull_over_the_shadow_label():
     assert garment > 0 > cast
 
 
-def test_agreement_is_the_better_iou_and_none_without_a_reference():
+def test_agreement_is_the_better_of_hull_confirmation_and_segmenter_iou():
     a = np.zeros((10, 10), bool)
     a[2:8, 2:8] = True
     shifted = np.roll(a, 3, axis=1)
+    fat = np.zeros_like(a)
+    fat[1:9, 1:9] = True  # the other views' hull: larger than the body
     assert mask_iou(a, a) == 1.0 and mask_iou(a, np.zeros_like(a)) == 0.0
     scores = view_agreement(
-        [a, a, a, np.zeros_like(a)], [shifted, None, None, a], [a, shifted, None, a]
+        [a, a, a, np.zeros_like(a), shifted],
+        [fat, None, None, a, fat],
+        [shifted, shifted, None, a, None],
     )
-    assert scores[0] == 1.0
+    assert scores[0] == 1.0  # inside the hull: confirmed, whatever the segmenter says
     assert scores[1] == pytest.approx(mask_iou(a, shifted))
     assert scores[2] is None and scores[3] is None
+    assert scores[4] == pytest.approx(np.count_nonzero(shifted & fat) / shifted.sum())
 
 
 def test_config_validation():
