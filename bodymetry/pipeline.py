@@ -653,7 +653,9 @@ def finish(
         )
     # A view left out of a frame (too few pixels, unreadable, unreliable) does not count.
     camera_frames = usable_camera_frames(ordered, session.camera_names)
-    warnings = camera_warnings(ordered, session.camera_names)
+    warnings = camera_warnings(
+        ordered, session.camera_names, bound=config.capture.fusion.min_agreement
+    )
     if not any(r.ok for r in ordered):
         warnings.append(f"no frame of the {len(ordered)} kept frames was measured")
     if shape is not None and shape.outline is not None:
