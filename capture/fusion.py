@@ -43,15 +43,16 @@ The hull here is built from generous candidates (every changed pixel, shadow
 included, and the segmenter's person), so a part one source lost in a view is
 still in 3D when the other sources or views see it.
 
-A source a frame lacks (no background clip, no segmenter, no calibrated rig,
-or the segmenter found nobody in a view) is left out, and the weights fitted
-without it are used: :data:`WEIGHTS` holds one set per combination of sources,
+A source a frame lacks (no segmenter, no calibrated rig, or the segmenter
+found nobody in a view) is left out, and the weights fitted without it are
+used: :data:`WEIGHTS` holds one set per combination of sources,
 fitted by logistic regression on studio sessions whose appearance spans
 saturated, white, grey, black and wall-coloured clothing in textured and plain
 rooms under hard and soft light (``python -m benchmarks fusion_fit``, which
-prints this table; docs/capture.md, "Evidence fusion"). With the segmenter
-alone the weights are ``l`` with unit weight and no bias: the fused mask is
-the segmenter's own at its threshold of 0.5.
+prints this table; docs/capture.md, "Evidence fusion"). A camera without a
+background clip has no change or shadow evidence: its silhouette is the
+segmenter's mask (checked against the hull by the multi-view check), as it was
+validated on real footage without empty-scene clips.
 """
 
 from __future__ import annotations
@@ -150,8 +151,6 @@ WEIGHTS: dict[str, FusionWeights] = {
     "background+segmenter": FusionWeights(-0.52, (0.368, -0.306, 0.0, 2.011, 0.0, 0.0)),
     "background+hull": FusionWeights(-2.948, (1.98, -1.296, -4.821, 0.0, 1.955, 1.192)),
     "background": FusionWeights(-1.096, (2.216, -4.325, 0.0, 0.0, 0.0, 0.0)),
-    "segmenter+hull": FusionWeights(0.0, (0.0, 0.0, 0.0, 1.0, 0.0, 0.0)),
-    "segmenter": FusionWeights(0.0, (0.0, 0.0, 0.0, 1.0, 0.0, 0.0)),
 }
 
 

@@ -462,8 +462,9 @@ class FrameSegmenter:
         landmarks = None if ev.person is None else ev.person.landmarks
         found = None if ev.person is None else ev.person.mask(self.config.person.threshold)
         fusion = self.config.fusion
-        if ev.raw is None and (terms is None or not fusion.enabled):
-            # No background: the segmenter's person is the silhouette.
+        if ev.raw is None:
+            # No background: the segmenter's person is the silhouette (nothing to fuse
+            # it with but the hull, which the multi-view check applies below).
             if found is None:
                 return _View(none, ("empty",), none)
             mask, flags = clean_mask(found, self.cleanup)
@@ -479,9 +480,6 @@ class FrameSegmenter:
                 raw &= ~(terms.floor_shadow & (seg < 2.2))
             # Shadow labels the fusion overruled (a grey shirt's shaded side) are person.
             shadow = shadow & ~raw
-        if ev.raw is None:
-            mask, flags = clean_mask(raw, self.cleanup, person=found)
-            return _View(mask, flags, none, landmarks)
         mask, flags = clean_mask(raw, self.cleanup, image, self.models[c].median, shadow, found)
         return _View(mask, flags, shadow, landmarks)
 

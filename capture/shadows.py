@@ -94,8 +94,7 @@ def floor_shadows(
     kernel = np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)
     plain = [None if m is None else cv2.erode(m.astype(np.uint8), kernel).astype(bool) for m in lit]
     dark = [
-        None if m is None else cv2.dilate(m.astype(np.uint8), kernel).astype(bool)
-        for m in shadows
+        None if m is None else cv2.dilate(m.astype(np.uint8), kernel).astype(bool) for m in shadows
     ]
     out: list[np.ndarray | None] = []
     for c, shadow in enumerate(shadows):

@@ -81,22 +81,15 @@ def test_fuse_is_the_weighted_sum_plus_bias():
         FusionWeights(0.0, (1.0, 2.0))
 
 
-def test_with_the_segmenter_alone_the_fused_mask_is_the_segmenters_own():
-    # No background: the learned segmenter's mask at 0.5, as before the fusion.
-    p = np.random.default_rng(2).random((20, 30)).astype(np.float32)
-    feats, key = view_features(p.shape, segmenter=segmenter_evidence(p))
-    np.testing.assert_array_equal(fuse(feats, WEIGHTS[key]) > 0, p > 0.5)
-
-
 def test_every_combination_of_sources_has_weights():
+    # Fusion runs where a camera has a background clip; without one the segmenter's
+    # mask is the silhouette.
     config = FusionConfig()
-    for background in (True, False):
+    for segmenter in (True, False):
         for hull in (True, False):
-            config.weights_for(sources_key(background, True, hull))
-            if background:
-                config.weights_for(sources_key(background, False, hull))
+            config.weights_for(sources_key(True, segmenter, hull))
     with pytest.raises(InputError, match="no weights"):
-        config.weights_for("none")
+        config.weights_for(sources_key(False, True, True))
 
 
 def test_weights_trust_the_hull_over_the_shadow_label():
@@ -234,4 +227,7 @@ def test_a_view_that_disagrees_with_the_others_is_unreliable(grey_room):
     )
     views, _, agreement = frame([*images[:2], img, images[3]])
     assert "unreliable" in views[2].flags, agreement
-    assert all("unreliable" not in v.flags for k, v in enumerate(views) if k != 2), (agreement, [v.flags for v in views])
+    assert all("unreliable" not in v.flags for k, v in enumerate(views) if k != 2), (
+        agreement,
+        [v.flags for v in views],
+    )
