@@ -414,7 +414,8 @@ def _save_and_score(
     -------
     flags : dict camera -> flag -> list of frame
     per_frame : list of dict
-        ``{"frame": int, "flags": {camera: [flag, ...]}}`` per frame.
+        ``{"frame": int, "flags": {camera: [flag, ...]}, "agreement": {camera:
+        float or None}}`` per frame (``agreement`` where capture judged the views).
     """
     if progress is not None:
         progress("silhouettes", 0, total)
@@ -427,9 +428,16 @@ def _save_and_score(
         for name, f in zip(sf.cameras, sf.flags, strict=True):
             for flag in f:
                 flags[name].setdefault(flag, []).append(sf.frame)
-        per_frame.append(
-            {"frame": sf.frame, "flags": dict(zip(sf.cameras, map(list, sf.flags), strict=True))}
-        )
+        entry: dict[str, Any] = {
+            "frame": sf.frame,
+            "flags": dict(zip(sf.cameras, map(list, sf.flags), strict=True)),
+        }
+        if sf.agreement:
+            entry["agreement"] = {
+                n: None if a is None else round(a, 4)
+                for n, a in zip(sf.cameras, sf.agreement, strict=True)
+            }
+        per_frame.append(entry)
         if progress is not None:
             progress("silhouettes", len(per_frame), total)
     return flags, per_frame
