@@ -32,7 +32,7 @@ from bodymetry.estimation.records import (
 )
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import EVALUATION_FORMAT, Evaluation, RunLayout, RunResults
-from bodymetry.estimation.session_shape import session_frame
+from bodymetry.estimation.session_shape import SessionShapeConfig, session_frame
 from bodymetry.estimation.training import DiscriminativeModels
 from bodymetry.frame_jobs import RESCUE_FILE, rescue_poor_frames
 from bodymetry.review.evaluation import evaluate_run
@@ -53,6 +53,9 @@ def _config(base, **fit) -> ProcessConfig:
         "fast",
         fit=FitConfig.preset("fast", min_iou=0.5, **fit),
         training=TINY_TRAIN,
+        # One descent of one step: the session stage's accuracy has its own
+        # tests (tests/estimation/test_session_shape.py); here it is plumbing.
+        session_shape=SessionShapeConfig(descents=1, iterations=1),
         workers=1,
         cache_dir=base / "cache",
         review=False,

@@ -27,6 +27,7 @@ from bodymetry.estimation.fit import FitConfig, shared_body_model
 from bodymetry.estimation.records import FrameArrays
 from bodymetry.estimation.resolution import downscale_mask, person_height_px
 from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.session_shape import SessionShapeConfig
 from bodymetry.estimation.training import rig_key
 from bodymetry.process import process_session
 from bodymetry.review.evaluation import evaluate_run
@@ -49,6 +50,8 @@ def hires(tmp_path_factory):
         fit=FitConfig.preset("fast", min_iou=0.5),
         training=TINY_TRAIN,
         working_person_px=TARGET_PX,
+        # The session stage is not what these tests check: one descent of one step.
+        session_shape=SessionShapeConfig(descents=1, iterations=1),
         workers=1,
         cache_dir=base / "cache",
     )
