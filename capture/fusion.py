@@ -89,6 +89,9 @@ CHANGE_CLIP = 2.0
 LOGIT_CLIP = 4.0
 
 
+#: The segmenter is sure of a pixel above this logit (p > 0.9).
+SURE_LOGIT = float(np.log(9.0))
+
 #: A pixel plainly shows the unchanged background (for the floor-shadow test) when its
 #: change term is below this: a colour distance under half the change threshold.
 LIT_CHANGE = float(np.log(0.5))
@@ -107,11 +110,15 @@ class GeometryTerms:
     floor_shadow : (H, W) bool or None
         Shadow labels the other views confirm on the floor
         (:func:`bodymetry.capture.shadows.floor_shadows`; None without a background).
+    shadow_at_feet : (H, W) bool or None
+        The floor shadows that touch the feet
+        (:func:`bodymetry.capture.shadows.at_feet`): never person.
     """
 
     hull_body: np.ndarray
     hull_any: np.ndarray
     floor_shadow: np.ndarray | None = None
+    shadow_at_feet: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -169,15 +176,21 @@ class FusionConfig:
     min_agreement : float
         A view whose silhouette agrees with neither the other views' hull nor
         its segmenter better than this (:func:`view_agreement`) is ``unreliable``.
+    feet_reach : float
+        A confirmed floor shadow whose floor point lies within this (metres) of
+        the body's footprint touches the feet and is never person.
     """
 
     enabled: bool = True
     floor_band: float = 0.15
     min_agreement: float = 0.8
+    feet_reach: float = 0.3
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.floor_band < 1.0:
             raise InputError(f"fusion.floor_band: expected 0 <= band < 1 m, got {self.floor_band}")
+        if not self.feet_reach >= 0.0:
+            raise InputError(f"fusion.feet_reach: expected >= 0 m, got {self.feet_reach}")
         if not 0.0 <= self.min_agreement < 1.0:
             raise InputError(f"fusion.min_agreement: expected 0 <= a < 1, got {self.min_agreement}")
 

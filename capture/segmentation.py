@@ -29,6 +29,7 @@ from bodymetry.capture.consistency import HullConfig, visual_hull
 from bodymetry.capture.fusion import (
     FEATURES,
     LIT_CHANGE,
+    SURE_LOGIT,
     FusionConfig,
     GeometryTerms,
     change_evidence,
@@ -48,10 +49,13 @@ from bodymetry.capture.person import (
     segmenter_available,
 )
 from bodymetry.capture.session import Session
-from bodymetry.capture.shadows import floor_shadows
+from bodymetry.capture.shadows import at_feet, floor_shadows
 from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)
+
+#: Height above the floor (metres) from which the hull's voxels give the body's footprint.
+KNEE_HEIGHT = 0.5
 
 __all__ = [
     "CAPTURE_METHODS",
@@ -428,8 +432,16 @@ class FrameSegmenter:
                 for ev in evidence
             ],
         )
+        # The body's footprint from its voxels above the knees: lower down the hull
+        # also holds ghosts over the cast shadow (every view sees it dark there).
+        legs = occupied & (self.hull.points[:, 2] >= KNEE_HEIGHT)
+        feet = at_feet(
+            self.hull.cameras, floor, self.hull.points[legs, :2], self.config.fusion.feet_reach
+        )
         return [
-            GeometryTerms(self.hull.support(body, c), self.hull.support(occupied, c), floor[c])
+            GeometryTerms(
+                self.hull.support(body, c), self.hull.support(occupied, c), floor[c], feet[c]
+            )
             for c in range(len(evidence))
         ]
 
@@ -473,11 +485,12 @@ class FrameSegmenter:
         if fusion.enabled:
             features, key = self.features(c, ev, terms)
             raw = fuse(features, fusion.weights_for(key)) > 0
-            if terms is not None and terms.floor_shadow is not None:
-                # A shadow the other views confirm on the floor is never person (the
-                # segmenter's soft outline spreads over the shadow at the feet).
+            if terms is not None and terms.shadow_at_feet is not None:
+                # A shadow the other views confirm on the floor at the feet is not
+                # person where the segmenter is unsure (its soft outline spreads over
+                # the shadow there; a shoe or a trouser hem it is sure of stays).
                 seg = features[..., FEATURES.index("segmenter")]
-                raw &= ~(terms.floor_shadow & (seg < 2.2))
+                raw &= ~(terms.shadow_at_feet & (seg < SURE_LOGIT))
             # Shadow labels the fusion overruled (a grey shirt's shaded side) are person.
             shadow = shadow & ~raw
         mask, flags = clean_mask(raw, self.cleanup, image, self.models[c].median, shadow, found)

@@ -18,7 +18,11 @@ person, is lit, or outside the other cameras' views).
 
 :func:`floor_shadows` keeps the shadow labels that pass (the *floor shadows*);
 the others are left for the evidence fusion (:mod:`bodymetry.capture.fusion`)
-to weigh as person. "Plainly lit" is strict on purpose (well below the change
+to weigh as person. The segmenter's soft outline spreads over the shadow where
+it touches the feet: there (:func:`at_feet`: the floor point within reach of
+the body's footprint) the capture stage keeps a confirmed floor shadow out of
+the silhouette where the segmenter is unsure. "Plainly lit" is strict on
+purpose (well below the change
 threshold, and a pixel from any changed pixel) so that a soft shadow's faint
 penumbra, labelled shadow in one view and just below the threshold in another,
 does not count as lit.
@@ -30,11 +34,12 @@ from collections.abc import Sequence
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.errors import InputError
 
-__all__ = ["floor_points", "floor_shadows"]
+__all__ = ["at_feet", "floor_points", "floor_shadows"]
 
 
 def floor_points(camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -145,3 +150,46 @@ def _seen_from_others(
             hit[inside] = masks[k][v[inside], u[inside]]
             seen[valid] |= hit
     return lit, seen_dark
+
+
+def at_feet(
+    cameras: CameraGroup,
+    masks: Sequence[np.ndarray | None],
+    footprint: np.ndarray,
+    reach: float,
+) -> list[np.ndarray | None]:
+    """Per view, the pixels of ``masks`` whose floor point lies within ``reach`` of the
+    body's footprint: the part of a cast shadow that touches the feet.
+
+    Parameters
+    ----------
+    cameras : CameraGroup
+    masks : sequence of ((H_c, W_c) bool or None)
+    footprint : (M, 2) float
+        Floor-plane (x, y) of the body (e.g. its hull voxels), metres.
+    reach : float
+        Metres.
+
+    Returns
+    -------
+    list of ((H_c, W_c) bool or None)
+    """
+    if len(cameras) != len(masks):
+        raise InputError(f"at_feet: {len(cameras)} cameras, {len(masks)} masks")
+    footprint = np.asarray(footprint, float).reshape(-1, 2)
+    tree = cKDTree(footprint) if len(footprint) else None
+    out: list[np.ndarray | None] = []
+    for cam, mask in zip(cameras, masks, strict=True):
+        if mask is None:
+            out.append(None)
+            continue
+        near = np.zeros(mask.shape, bool)
+        ys, xs = np.nonzero(mask)
+        if ys.size and tree is not None:
+            points, valid = floor_points(cam, np.column_stack([xs, ys]).astype(float))
+            close = np.zeros(len(points), bool)
+            if valid.any():
+                close[valid] = tree.query(points[valid, :2], distance_upper_bound=reach)[0] <= reach
+            near[ys[close], xs[close]] = True
+        out.append(near)
+    return out

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from bodymetry.capture.shadows import floor_points, floor_shadows
+from bodymetry.capture.shadows import at_feet, floor_points, floor_shadows
 from bodymetry.errors import InputError
 from bodymetry.studio.rig import studio_rig
 
@@ -81,3 +81,21 @@ def test_views_without_a_background_are_skipped_and_counts_checked(rig):
     assert floor[0] is None and floor[1].any()
     with pytest.raises(InputError, match="4 cameras"):
         floor_shadows(rig, shadow[:2], shadow[:2])
+
+
+def test_at_feet_keeps_the_floor_points_near_the_footprint(rig):
+    # The floor shadow quad starts 0.1 m from a footprint at the origin and runs to 0.7 m.
+    shadow = [_fill(c, SHADOW) for c in rig]
+    near = at_feet(rig, [shadow[0], None, None, None], np.zeros((1, 2)), reach=0.3)
+    assert near[1] is None
+    ys, xs = np.nonzero(shadow[0])
+    points, _ = floor_points(rig[0], np.column_stack([xs, ys]).astype(float))
+    distance = np.linalg.norm(points[:, :2], axis=1)
+    got = near[0][ys, xs]
+    # Known answer away from the boundary (pixel centres vs the quad's edges).
+    assert got[distance < 0.28].all() and not got[distance > 0.32].any()
+    assert got.any() and not got.all()
+    empty = at_feet(rig, shadow, np.zeros((0, 2)), reach=0.3)
+    assert not any(m.any() for m in empty)
+    with pytest.raises(InputError, match="4 cameras, 1 masks"):
+        at_feet(rig, shadow[:1], np.zeros((1, 2)), reach=0.3)
