@@ -67,9 +67,7 @@ def calibrate(
         detections = detect_session(session, step=step, workers=workers, on_progress=update)
     with console.status("solving (intrinsics, camera graph, bundle adjustment)"):
         result, _ = calibrate_session(session, floor_frames=floor, detections=detections)
-    report_path = write_calibration(
-        result, out, overwrite=overwrite, session=str(session.folder)
-    )
+    report_path = write_calibration(result, out, overwrite=overwrite, session=str(session.folder))
     table = Table(title=f"calibration of {session.name}: RMS {result.rms_px:.3f} px")
     for col in ("camera", "frames read", "boards detected", "corners used", "RMS px"):
         table.add_column(col, justify="left" if col == "camera" else "right")

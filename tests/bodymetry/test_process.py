@@ -489,7 +489,7 @@ def test_an_unreliable_view_is_left_out_of_the_fit_and_named(run, tmp_path, monk
     n = len(planned.kept)
     assert finished.camera_frames == {"cam_00": n, "cam_01": n - 1}
     assert (
-        f"cam_01: silhouette unreliable in 1 of {n} kept frames (agreement 0.58), "
+        f"cam_01: silhouette unreliable in 1 of {n} kept frames (agreement 0.58 < 0.80), "
         "left out of those frames' fits"
     ) in finished.warnings
     assert RunResults.read(layout.results).frames[0].view_agreement == record.view_agreement
