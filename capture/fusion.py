@@ -89,6 +89,10 @@ CHANGE_CLIP = 2.0
 LOGIT_CLIP = 4.0
 
 
+#: A strong change: the change term at or above this (a colour distance of e = 2.7 times
+#: the change threshold).
+STRONG_CHANGE = 1.0
+
 #: The segmenter is sure of a pixel above this logit (p > 0.9).
 SURE_LOGIT = float(np.log(9.0))
 

@@ -29,6 +29,7 @@ from bodymetry.capture.consistency import HullConfig, visual_hull
 from bodymetry.capture.fusion import (
     FEATURES,
     LIT_CHANGE,
+    STRONG_CHANGE,
     SURE_LOGIT,
     FusionConfig,
     GeometryTerms,
@@ -491,6 +492,11 @@ class FrameSegmenter:
                 # the shadow there; a shoe or a trouser hem it is sure of stays).
                 seg = features[..., FEATURES.index("segmenter")]
                 raw &= ~(terms.shadow_at_feet & (seg < SURE_LOGIT))
+            if terms is not None:
+                # A strong change of colour (not shadow-like) that the other views
+                # confirm is person whatever the segmenter says: it misses shoes and
+                # soft-edged parts that subtraction sees plainly.
+                raw |= ev.raw & (ev.change >= STRONG_CHANGE) & terms.hull_any
             # Shadow labels the fusion overruled (a grey shirt's shaded side) are person.
             shadow = shadow & ~raw
         mask, flags = clean_mask(raw, self.cleanup, image, self.models[c].median, shadow, found)
