@@ -102,8 +102,10 @@ TARGET_SECONDS = 10.0
 PART_RADIUS_PX = 4.0
 
 
-def _session(folder: Path, seed: int, look: str | None = None) -> Path:
-    out = folder / (f"studio_seed{seed}" if look is None else f"look_seed{seed}")
+def studio_session(folder: Path, seed: int, look: str | None = None, name: str = "") -> Path:
+    """Render (once) the 100-frame studio session of ``seed`` in ``look`` (a kept frame
+    every 10) into ``folder / name`` (default ``studio_seed<seed>`` or ``look_seed<seed>``)."""
+    out = folder / (name or (f"studio_seed{seed}" if look is None else f"look_seed{seed}"))
     if not (out / "session.yaml").is_file():
         synthesize(
             out,
@@ -326,8 +328,8 @@ def run() -> dict:
         folder = Path(keep) if keep else Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
-        sessions = [_session(folder, seed) for seed in SEEDS]
-        sessions += [_session(folder, seed, look) for seed, look in LOOK_SESSIONS]
+        sessions = [studio_session(folder, seed) for seed in SEEDS]
+        sessions += [studio_session(folder, seed, look) for seed, look in LOOK_SESSIONS]
         render_seconds = time.perf_counter() - t0
         result = {
             "sessions": "studio, cast shadows, 640x480, 4 cameras, 100 frames, "

@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 from scipy.optimize import minimize
 
+from benchmarks.bench_capture import studio_session
 from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.fusion import FEATURES, sources_key
 from bodymetry.capture.ingest import check_sync, read_frame_sets
@@ -34,8 +35,6 @@ from bodymetry.capture.person import segmenter_available
 from bodymetry.capture.segmentation import CaptureConfig, FrameSegmenter, background_models
 from bodymetry.capture.session import load_session
 from bodymetry.studio.evaluate import GroundTruth
-from bodymetry.studio.looks import Look
-from bodymetry.studio.synth import SynthConfig, synthesize
 
 #: (seed, look) of the training sessions: every clothing class, both rooms, both lights.
 TRAINING = (
@@ -57,25 +56,6 @@ SHADOW_WEIGHT = 4.0
 RIDGE = 1e-3
 #: Combinations fitted: (background, segmenter, hull).
 COMBINATIONS = ((True, True, True), (True, True, False), (True, False, True), (True, False, False))
-
-
-def training_session(folder: Path, seed: int, look: str) -> Path:
-    """Render (once) the training session of ``seed`` in ``look``."""
-    out = folder / f"fusion_seed{seed}"
-    if not (out / "session.yaml").is_file():
-        synthesize(
-            out,
-            SynthConfig(
-                frames=100,
-                frame_step=10,
-                seed=seed,
-                background_frames=30,
-                calibration_frames=30,
-                look=Look.parse(look),
-            ),
-            overwrite=True,
-        )
-    return out
 
 
 def _samples(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -164,7 +144,8 @@ def run() -> dict:
         folder.mkdir(parents=True, exist_ok=True)
         data: dict[str, list] = {}
         for seed, look in TRAINING:
-            for key, xy in collect(training_session(folder, seed, look)).items():
+            session = studio_session(folder, seed, look, f"fusion_seed{seed}")
+            for key, xy in collect(session).items():
                 data.setdefault(key, []).append(xy)
     result: dict = {"sessions": [f"seed {s}: {look}" for s, look in TRAINING], "weights": {}}
     for background, segmenter, hull in COMBINATIONS:
