@@ -337,17 +337,20 @@ class ViewEvidence:
         The change term (:func:`~bodymetry.capture.fusion.change_evidence`).
     person : Person or None
         The segmenter's person (None without the segmenter, or nobody found).
+    threshold : float
+        The segmenter's probability threshold (:attr:`PersonConfig.threshold`).
     """
 
     raw: np.ndarray | None
     shadow: np.ndarray
     change: np.ndarray | None
     person: Person | None
+    threshold: float = 0.5
 
     @property
     def found(self) -> np.ndarray | None:
         """(H, W) bool: the segmenter's person mask, or None."""
-        return None if self.person is None else self.person.mask(0.5)
+        return None if self.person is None else self.person.mask(self.threshold)
 
     def candidate(self) -> np.ndarray:
         """(H, W) bool: every pixel some source may call person (for the hull)."""
@@ -405,10 +408,12 @@ class FrameSegmenter:
         w, h = self.sizes[c]
         person = None if self.segmenter is None else self.segmenter.detect(image, roi)
         sub = self.subtractors[c]
+        threshold = self.config.person.threshold
         if sub is None:
-            return ViewEvidence(None, np.zeros((h, w), bool), None, person)
+            return ViewEvidence(None, np.zeros((h, w), bool), None, person, threshold)
         raw, shadow, dist2 = sub.labels(image, distances=True)
-        return ViewEvidence(raw, shadow, change_evidence(dist2, sub.config.fg_sigma), person)
+        change = change_evidence(dist2, sub.config.fg_sigma)
+        return ViewEvidence(raw, shadow, change, person, threshold)
 
     def geometry(self, evidence: Sequence[ViewEvidence | None]) -> list[GeometryTerms | None]:
         """Per camera what the rig says (:class:`~bodymetry.capture.fusion.GeometryTerms`):
@@ -473,7 +478,7 @@ class FrameSegmenter:
         if image is None or ev is None:
             return _View(none, ("unreadable",), none)
         landmarks = None if ev.person is None else ev.person.landmarks
-        found = None if ev.person is None else ev.person.mask(self.config.person.threshold)
+        found = ev.found
         fusion = self.config.fusion
         if ev.raw is None:
             # No background: the segmenter's person is the silhouette (nothing to fuse
