@@ -441,12 +441,13 @@ class FrameSegmenter:
         # The body's footprint from its voxels above the knees: lower down the hull
         # also holds ghosts over the cast shadow (every view sees it dark there).
         legs = occupied & (self.hull.points[:, 2] >= KNEE_HEIGHT)
-        feet = at_feet(
-            self.hull.cameras, floor, self.hull.points[legs, :2], self.config.fusion.feet_reach
-        )
+        feet = at_feet(floor, self.hull.points[legs, :2], self.config.fusion.feet_reach)
         return [
             GeometryTerms(
-                self.hull.support(body, c), self.hull.support(occupied, c), floor[c], feet[c]
+                self.hull.support(body, c),
+                self.hull.support(occupied, c),
+                None if floor[c] is None else floor[c].mask,
+                feet[c],
             )
             for c in range(len(evidence))
         ]

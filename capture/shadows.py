@@ -31,6 +31,7 @@ does not count as lit.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -39,7 +40,7 @@ from scipy.spatial import cKDTree
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.errors import InputError
 
-__all__ = ["at_feet", "floor_points", "floor_shadows"]
+__all__ = ["FloorShadow", "at_feet", "floor_points", "floor_shadows"]
 
 
 def floor_points(camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -65,12 +66,29 @@ def floor_points(camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c + t[:, None] * d, valid
 
 
+@dataclass(frozen=True)
+class FloorShadow:
+    """One view's confirmed floor shadow (:func:`floor_shadows`).
+
+    Attributes
+    ----------
+    mask : (H, W) bool
+        The shadow-labelled pixels the other views confirm on the floor.
+    points : (N, 3) float
+        Their floor points, in the order of ``np.nonzero(mask)`` (kept so that
+        :func:`at_feet` does not follow the rays again).
+    """
+
+    mask: np.ndarray
+    points: np.ndarray
+
+
 def floor_shadows(
     cameras: CameraGroup,
     shadows: Sequence[np.ndarray | None],
     lit: Sequence[np.ndarray | None],
     margin: int = 1,
-) -> list[np.ndarray | None]:
+) -> list[FloorShadow | None]:
     """Per view, the shadow-labelled pixels that can be a shadow on the floor.
 
     Parameters
@@ -86,10 +104,10 @@ def floor_shadows(
 
     Returns
     -------
-    list of ((H_c, W_c) bool or None)
-        The shadow pixels whose floor point another camera sees dark (labelled
-        shadow, within ``margin``) and no other camera sees lit (None where
-        ``shadows`` is None).
+    list of (FloorShadow or None)
+        Per camera the shadow pixels whose floor point another camera sees dark
+        (labelled shadow, within ``margin``) and no other camera sees lit, with
+        those floor points (None where ``shadows`` is None).
     """
     if not len(cameras) == len(shadows) == len(lit):
         raise InputError(
@@ -101,19 +119,22 @@ def floor_shadows(
     dark = [
         None if m is None else cv2.dilate(m.astype(np.uint8), kernel).astype(bool) for m in shadows
     ]
-    out: list[np.ndarray | None] = []
+    out: list[FloorShadow | None] = []
     for c, shadow in enumerate(shadows):
         if shadow is None:
             out.append(None)
             continue
         ys, xs = np.nonzero(shadow)
         floor = np.zeros(shadow.shape, bool)
+        points = np.zeros((0, 3))
         if ys.size:
-            lit_elsewhere, dark_elsewhere = _seen_from_others(
+            points, lit_elsewhere, dark_elsewhere = _seen_from_others(
                 cameras, c, np.column_stack([xs, ys]), plain, dark
             )
-            floor[ys, xs] = dark_elsewhere & ~lit_elsewhere
-        out.append(floor)
+            keep = dark_elsewhere & ~lit_elsewhere
+            floor[ys[keep], xs[keep]] = True
+            points = points[keep]  # row-major, as np.nonzero(floor) lists them
+        out.append(FloorShadow(floor, points))
     return out
 
 
@@ -124,11 +145,13 @@ def _seen_from_others(
     plain: Sequence[np.ndarray | None],
     dark: Sequence[np.ndarray | None],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Whether another camera sees the floor point of camera ``c``'s ``pixels``
-    (N, 2) as plainly lit background, and whether one sees it dark.
+    """The floor points of camera ``c``'s ``pixels`` (N, 2), whether another camera
+    sees them as plainly lit background, and whether one sees them dark.
 
     Returns
     -------
+    points : (N, 3) float
+        NaN where the ray misses the floor.
     lit, dark : (N,) bool
         A ray that misses the floor counts as lit (it cannot be a floor shadow).
     """
@@ -149,22 +172,19 @@ def _seen_from_others(
             hit = np.zeros(len(q), bool)
             hit[inside] = masks[k][v[inside], u[inside]]
             seen[valid] |= hit
-    return lit, seen_dark
+    return points, lit, seen_dark
 
 
 def at_feet(
-    cameras: CameraGroup,
-    masks: Sequence[np.ndarray | None],
-    footprint: np.ndarray,
-    reach: float,
+    floor: Sequence[FloorShadow | None], footprint: np.ndarray, reach: float
 ) -> list[np.ndarray | None]:
-    """Per view, the pixels of ``masks`` whose floor point lies within ``reach`` of the
-    body's footprint: the part of a cast shadow that touches the feet.
+    """Per view, the floor-shadow pixels whose floor point lies within ``reach`` of
+    the body's footprint: the part of a cast shadow that touches the feet.
 
     Parameters
     ----------
-    cameras : CameraGroup
-    masks : sequence of ((H_c, W_c) bool or None)
+    floor : sequence of (FloorShadow or None)
+        :func:`floor_shadows`.
     footprint : (M, 2) float
         Floor-plane (x, y) of the body (e.g. its hull voxels), metres.
     reach : float
@@ -174,22 +194,17 @@ def at_feet(
     -------
     list of ((H_c, W_c) bool or None)
     """
-    if len(cameras) != len(masks):
-        raise InputError(f"at_feet: {len(cameras)} cameras, {len(masks)} masks")
     footprint = np.asarray(footprint, float).reshape(-1, 2)
     tree = cKDTree(footprint) if len(footprint) else None
     out: list[np.ndarray | None] = []
-    for cam, mask in zip(cameras, masks, strict=True):
-        if mask is None:
+    for view in floor:
+        if view is None:
             out.append(None)
             continue
-        near = np.zeros(mask.shape, bool)
-        ys, xs = np.nonzero(mask)
-        if ys.size and tree is not None:
-            points, valid = floor_points(cam, np.column_stack([xs, ys]).astype(float))
-            close = np.zeros(len(points), bool)
-            if valid.any():
-                close[valid] = tree.query(points[valid, :2], distance_upper_bound=reach)[0] <= reach
+        near = np.zeros(view.mask.shape, bool)
+        if len(view.points) and tree is not None:
+            ys, xs = np.nonzero(view.mask)
+            close = tree.query(view.points[:, :2], distance_upper_bound=reach)[0] <= reach
             near[ys[close], xs[close]] = True
         out.append(near)
     return out

@@ -57,11 +57,11 @@ def test_a_cast_shadow_is_confirmed_and_a_standing_dark_patch_is_not(rig):
     floor = floor_shadows(rig, labels, lit)
     for k in range(len(rig)):
         true_shadow = shadow[k] & ~panel[k]
-        assert floor[k][true_shadow].mean() > 0.95, k
-        assert not (floor[k] & ~labels[k]).any()  # only shadow labels are kept
+        assert floor[k].mask[true_shadow].mean() > 0.95, k
+        assert not (floor[k].mask & ~labels[k]).any()  # only shadow labels are kept
     garment = panel[0] & ~shadow[0]
     assert garment.sum() > 200
-    assert floor[0][garment].mean() < 0.05
+    assert floor[0].mask[garment].mean() < 0.05
 
 
 def test_no_confirming_view_means_no_floor_shadow(rig):
@@ -71,14 +71,14 @@ def test_no_confirming_view_means_no_floor_shadow(rig):
     lit = [np.ones_like(s) for s in shadow]
     lit[0] = ~shadow[0]
     floor = floor_shadows(rig, labels, lit)
-    assert not floor[0].any()
-    assert all(not f.any() for f in floor[1:])
+    assert not floor[0].mask.any() and len(floor[0].points) == 0
+    assert all(not f.mask.any() for f in floor[1:])
 
 
 def test_views_without_a_background_are_skipped_and_counts_checked(rig):
     shadow = [_fill(c, SHADOW) for c in rig]
     floor = floor_shadows(rig, [None, *shadow[1:]], [None, *(~s for s in shadow[1:])])
-    assert floor[0] is None and floor[1].any()
+    assert floor[0] is None and floor[1].mask.any()
     with pytest.raises(InputError, match="4 cameras"):
         floor_shadows(rig, shadow[:2], shadow[:2])
 
@@ -86,16 +86,18 @@ def test_views_without_a_background_are_skipped_and_counts_checked(rig):
 def test_at_feet_keeps_the_floor_points_near_the_footprint(rig):
     # The floor shadow quad starts 0.1 m from a footprint at the origin and runs to 0.7 m.
     shadow = [_fill(c, SHADOW) for c in rig]
-    near = at_feet(rig, [shadow[0], None, None, None], np.zeros((1, 2)), reach=0.3)
-    assert near[1] is None
-    ys, xs = np.nonzero(shadow[0])
+    floor = floor_shadows(rig, shadow, [~s for s in shadow])
+    ys, xs = np.nonzero(floor[0].mask)
     points, _ = floor_points(rig[0], np.column_stack([xs, ys]).astype(float))
+    # The floor points travel with the mask, in np.nonzero's order.
+    np.testing.assert_allclose(floor[0].points, points, atol=1e-9)
+    near = at_feet([floor[0], None, None, None], np.zeros((1, 2)), reach=0.3)
+    assert near[1] is None
     distance = np.linalg.norm(points[:, :2], axis=1)
     got = near[0][ys, xs]
     # Known answer away from the boundary (pixel centres vs the quad's edges).
     assert got[distance < 0.28].all() and not got[distance > 0.32].any()
     assert got.any() and not got.all()
-    empty = at_feet(rig, shadow, np.zeros((0, 2)), reach=0.3)
+    assert not (near[0] & ~floor[0].mask).any()
+    empty = at_feet(floor, np.zeros((0, 2)), reach=0.3)
     assert not any(m.any() for m in empty)
-    with pytest.raises(InputError, match="4 cameras, 1 masks"):
-        at_feet(rig, shadow[:1], np.zeros((1, 2)), reach=0.3)
