@@ -170,10 +170,11 @@ class SilhouetteFrame:
         without the segmenter).
     agreement : tuple of (float or None), length C
         Per camera, how well the view's silhouette agrees with the other
-        evidence of the frame (the other views' hull and the segmenter), as an
-        IoU in [0, 1]; None where it could not be judged (empty tuple when
-        nothing was judged). A view below the bound is flagged ``unreliable``
-        and left out of the fit for that frame.
+        evidence of the frame, in [0, 1]: the better of the share the other
+        views' hull confirms and the IoU with the view's segmenter
+        (:func:`bodymetry.capture.fusion.view_agreement`); None where it could
+        not be judged (empty tuple when nothing was judged). A view below the
+        bound is flagged ``unreliable`` and left out of the fit for that frame.
     """
 
     frame: int

@@ -246,8 +246,8 @@ class FrameRecord:
         Pixels of the observed silhouette per camera (0: the camera saw no one).
     view_agreement : dict of str to float
         Capture's agreement of each judged view's silhouette with the frame's
-        other evidence (an IoU in [0, 1]; views not judged are absent). A view
-        flagged ``unreliable`` was left out of the fit
+        other evidence (in [0, 1], :func:`bodymetry.capture.fusion.view_agreement`;
+        views not judged are absent). A view flagged ``unreliable`` was left out of the fit
         (:mod:`bodymetry.estimation.view_selection`).
     annealing : AnnealingTrace or None
     refinement : RefinementTrace or None
