@@ -214,7 +214,8 @@ class SegmentedFrame:
         Each camera's 2D landmarks (empty without the learned segmenter).
     agreement : dict of str to float
         Capture's agreement of each judged view with the frame's other
-        evidence (an IoU; views not judged are absent), by camera name.
+        evidence (:func:`bodymetry.capture.fusion.view_agreement`; views not
+        judged are absent), by camera name.
     """
 
     frame: int

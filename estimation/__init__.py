@@ -32,6 +32,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
             "LEAVE_OUT_FLAGS",
             "MIN_PIXELS",
             "LeftOutView",
+            "blank_unusable",
             "left_out_views",
             "usable_camera_frames",
             "usable_view",

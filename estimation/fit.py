@@ -50,7 +50,7 @@ from bodymetry.estimation.refinement import RefineConfig, RefineResult, refine
 from bodymetry.estimation.shape_context import ShapeContextConfig
 from bodymetry.estimation.training import DiscriminativeModels, targets_to_theta
 from bodymetry.estimation.view_features import silhouette_features
-from bodymetry.estimation.view_selection import MIN_PIXELS, usable_views
+from bodymetry.estimation.view_selection import MIN_PIXELS, blank_unusable, usable_views
 
 __all__ = [
     "MIN_PIXELS",
@@ -401,7 +401,7 @@ def fit_frame(
     try:
         # Unusable views become empty masks of their own size (left out downstream).
         # Prepared first: it checks every mask against its camera's size.
-        observed = _blank_unusable(masks, valid)
+        observed = blank_unusable(masks, valid)
         obs = prepare_observation(cameras, observed, config.annealing.image_scale)
         particles, points, disc_state = _discriminative(
             body, models, masks, valid, obs, config, rng
@@ -545,11 +545,6 @@ def _search_starts(
     return particles, starts
 
 
-def _blank_unusable(masks: Sequence[np.ndarray], valid: np.ndarray) -> list[np.ndarray]:
-    """The masks with the unusable views emptied (each at its own size): left out downstream."""
-    return [m if ok else np.zeros_like(m) for m, ok in zip(masks, valid, strict=True)]
-
-
 def _finish(
     body: BodyModel,
     record: FrameRecord,
@@ -625,7 +620,7 @@ def refit_frame(
     names = cameras.names
     masks = [previous.arrays.observed[n] for n in names]
     valid = usable_views(names, record.person_pixels, record.flags)
-    observed = _blank_unusable(masks, valid)
+    observed = blank_unusable(masks, valid)
     try:
         contours = prepare_contours(
             cameras, observed, config.refinement.image_scale, config.refinement.max_points

@@ -76,7 +76,7 @@ from bodymetry.estimation.refinement import (
     RefineConfig,
     difference_steps,
 )
-from bodymetry.estimation.view_selection import usable_views
+from bodymetry.estimation.view_selection import blank_unusable, usable_views
 from bodymetry.log import Progress
 
 log = logging.getLogger(__name__)
@@ -201,13 +201,13 @@ def session_frame(record: FrameRecord, arrays: FrameArrays, cameras: CameraGroup
     est = record.estimate("generative")
     if est is None:
         raise ValueError(f"frame {record.frame}: no generative estimate")
-    used = usable_views(cameras.names, record.person_pixels, record.flags)
-    masks = []
-    for cam, use in zip(cameras, used, strict=True):
-        if cam.name not in arrays.observed:
-            raise ValueError(f"frame {record.frame}: no observed silhouette of {cam.name!r}")
-        m = np.asarray(arrays.observed[cam.name], bool)
-        masks.append(m if use else np.zeros_like(m))
+    missing = [n for n in cameras.names if n not in arrays.observed]
+    if missing:
+        raise ValueError(f"frame {record.frame}: no observed silhouette of {missing[0]!r}")
+    masks = blank_unusable(
+        [np.asarray(arrays.observed[n], bool) for n in cameras.names],
+        usable_views(cameras.names, record.person_pixels, record.flags),
+    )
     return SessionFrame(record.frame, est.vector(), masks, record.mean_iou)
 
 

@@ -29,6 +29,7 @@ __all__ = [
     "LEAVE_OUT_FLAGS",
     "MIN_PIXELS",
     "LeftOutView",
+    "blank_unusable",
     "left_out_views",
     "usable_camera_frames",
     "usable_view",
@@ -55,6 +56,12 @@ def usable_views(
     """(C,) bool: per camera of ``names``, :func:`usable_view` of its pixels and flags
     (a camera missing from ``pixels`` has none)."""
     return np.array([usable_view(pixels.get(n, 0), flags.get(n, ())) for n in names], bool)
+
+
+def blank_unusable(masks: Sequence[np.ndarray], usable: Sequence[bool]) -> list[np.ndarray]:
+    """The (H_c, W_c) ``masks`` with the views not ``usable`` (:func:`usable_views`)
+    emptied, each at its own size: an empty view is left out downstream."""
+    return [m if ok else np.zeros_like(m) for m, ok in zip(masks, usable, strict=True)]
 
 
 def usable_camera_frames(records: Sequence[FrameRecord], names: Sequence[str]) -> dict[str, int]:

@@ -24,7 +24,7 @@ from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.fit import FitConfig, generative_fit, shared_body_model
 from bodymetry.estimation.records import CORE_MEASUREMENTS, FRAME_STAGES, Stat
 from bodymetry.estimation.run_files import GT_STAGE, Evaluation, RunLayout
-from bodymetry.estimation.view_selection import usable_views
+from bodymetry.estimation.view_selection import blank_unusable, usable_views
 from bodymetry.fileio import load_npz
 from bodymetry.log import Progress
 from bodymetry.review.run_data import RunData, load_frame_arrays, load_run
@@ -74,11 +74,10 @@ def _gt_generative_fits(
                 "missing; run `bodymetry process` again"
             )
         # The views the frame's own fit left out (unreliable, too small) stay out.
-        used = usable_views(names, record.person_pixels, record.flags)
-        masks = [
-            m if u else np.zeros_like(m)
-            for m, u in zip((arrays.observed[n] for n in names), used, strict=True)
-        ]
+        masks = blank_unusable(
+            [arrays.observed[n] for n in names],
+            usable_views(names, record.person_pixels, record.flags),
+        )
         f = record.frame
         jobs.append((f, masks, data.cameras, states["tau"][f], states["theta"][f], config))
     gt_gen: dict[int, tuple[dict, list]] = {}
