@@ -20,6 +20,7 @@ import queue
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -348,9 +349,10 @@ class ViewEvidence:
     person: Person | None
     threshold: float = 0.5
 
-    @property
+    @cached_property
     def found(self) -> np.ndarray | None:
-        """(H, W) bool: the segmenter's person mask, or None."""
+        """(H, W) bool: the segmenter's person mask, or None (computed once: the hull's
+        candidates, the silhouette and the agreement all use it)."""
         return None if self.person is None else self.person.mask(self.threshold)
 
     def candidate(self) -> np.ndarray:
