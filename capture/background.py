@@ -299,7 +299,9 @@ class Subtractor:
         dist2 = ii - 2.0 * ie + ee
         return alpha, cd2, dist2
 
-    def labels(self, image: np.ndarray, distances: bool = False) -> tuple[np.ndarray, ...]:
+    def labels(
+        self, image: np.ndarray, distances: bool = False, brightness: bool = False
+    ) -> tuple[np.ndarray, ...]:
         """Person and shadow masks of one image.
 
         Parameters
@@ -307,6 +309,8 @@ class Subtractor:
         image : (H, W, 3) uint8 BGR, the camera's size
         distances : bool
             Also return the squared colour distance to the background.
+        brightness : bool
+            Also return the log brightness ratio to the background.
 
         Returns
         -------
@@ -315,6 +319,10 @@ class Subtractor:
         dist2 : (H, W) float32
             With ``distances``: ``|(I - E) / sigma|^2``, noise units squared
             (for MOG2, the Horprasert distance all the same).
+        log_alpha : (H, W) float32
+            With ``brightness``: ``log`` of the brightness distortion ``alpha``
+            (clipped at ``alpha = 1e-3``), e.g. for
+            :func:`bodymetry.capture.shadows.floor_shadows`.
         """
         if image.shape != self.model.median.shape:
             raise InputError(
@@ -322,20 +330,22 @@ class Subtractor:
                 f"its background model {self.model.size[0]}x{self.model.size[1]}"
             )
         cfg = self.config
+        alpha, cd2, dist2 = self._distortions(image)
         if self._mog2 is not None:
             out = self._mog2.apply(image, learningRate=0)
             labels = (out == 255, out == 127)
-            return (*labels, self._distortions(image)[2]) if distances else labels
-        alpha, cd2, dist2 = self._distortions(image)
-        changed = dist2 > cfg.fg_sigma**2
-        if cfg.method == "none":
-            labels = (changed, np.zeros_like(changed))
+        elif cfg.method == "none":
+            labels = (dist2 > cfg.fg_sigma**2, np.zeros(dist2.shape, bool))
         else:
+            changed = dist2 > cfg.fg_sigma**2
             same_chroma = cd2 <= cfg.shadow_cd**2
             shadow = changed & same_chroma & (alpha >= cfg.shadow_alpha_min) & (alpha < 1.0)
             highlight = changed & same_chroma & (alpha >= 1.0) & (alpha <= cfg.highlight_alpha_max)
             labels = (changed & ~shadow & ~highlight, shadow)
-        return (*labels, dist2) if distances else labels
+        extra = (dist2,) if distances else ()
+        if brightness:
+            extra += (np.log(np.maximum(alpha, np.float32(1e-3))),)
+        return (*labels, *extra)
 
 
 def subtract(

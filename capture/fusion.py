@@ -24,8 +24,9 @@ with
     chromaticity: :mod:`bodymetry.capture.background`), else 0.
 ``f`` (*floor shadow*)
     1 where the colour test says shadow and the geometry agrees it can be a
-    shadow on the floor: no other camera sees the pixel's floor point as lit
-    background (:mod:`bodymetry.capture.shadows`). A shadow label the geometry
+    shadow on the floor: another camera sees the pixel's floor point as dark,
+    and as dim relative to the empty scene, and none sees it as lit background
+    (:mod:`bodymetry.capture.shadows`). A shadow label the geometry
     refutes (``s`` without ``f``) is an achromatic garment's shaded side.
 ``l`` (*segmenter*)
     ``clip(logit(p), -4, 4)`` of the segmenter's probability ``p``.
@@ -157,10 +158,10 @@ def sources_key(background: bool, segmenter: bool, hull: bool) -> str:
 #: Fitted weights per combination of sources (``python -m benchmarks fusion_fit``).
 WEIGHTS: dict[str, FusionWeights] = {
     "background+segmenter+hull": FusionWeights(
-        -0.694, (0.432, -0.246, -0.474, 1.954, 0.178, 0.081)
+        -0.696, (0.431, -0.248, -0.481, 1.953, 0.178, 0.081)
     ),
     "background+segmenter": FusionWeights(-0.52, (0.368, -0.306, 0.0, 2.011, 0.0, 0.0)),
-    "background+hull": FusionWeights(-2.948, (1.98, -1.296, -4.821, 0.0, 1.955, 1.192)),
+    "background+hull": FusionWeights(-2.956, (1.974, -1.344, -4.809, 0.0, 1.961, 1.189)),
     "background": FusionWeights(-1.096, (2.216, -4.325, 0.0, 0.0, 0.0, 0.0)),
 }
 

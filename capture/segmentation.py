@@ -337,6 +337,8 @@ class ViewEvidence:
         Its cast-shadow label (all False without a background).
     change : (H, W) float32 or None
         The change term (:func:`~bodymetry.capture.fusion.change_evidence`).
+    brightness : (H, W) float32 or None
+        The log brightness ratio to the empty scene (for the floor-shadow test).
     person : Person or None
         The segmenter's person (None without the segmenter, or nobody found).
     threshold : float
@@ -346,6 +348,7 @@ class ViewEvidence:
     raw: np.ndarray | None
     shadow: np.ndarray
     change: np.ndarray | None
+    brightness: np.ndarray | None
     person: Person | None
     threshold: float = 0.5
 
@@ -413,10 +416,10 @@ class FrameSegmenter:
         sub = self.subtractors[c]
         threshold = self.config.person.threshold
         if sub is None:
-            return ViewEvidence(None, np.zeros((h, w), bool), None, person, threshold)
-        raw, shadow, dist2 = sub.labels(image, distances=True)
+            return ViewEvidence(None, np.zeros((h, w), bool), None, None, person, threshold)
+        raw, shadow, dist2, brightness = sub.labels(image, distances=True, brightness=True)
         change = change_evidence(dist2, sub.config.fg_sigma)
-        return ViewEvidence(raw, shadow, change, person, threshold)
+        return ViewEvidence(raw, shadow, change, brightness, person, threshold)
 
     def geometry(self, evidence: Sequence[ViewEvidence | None]) -> list[GeometryTerms | None]:
         """Per camera what the rig says (:class:`~bodymetry.capture.fusion.GeometryTerms`):
@@ -440,6 +443,7 @@ class FrameSegmenter:
                 None if ev is None or ev.change is None else ev.change < LIT_CHANGE
                 for ev in evidence
             ],
+            brightness=[None if ev is None else ev.brightness for ev in evidence],
         )
         # The body's footprint from its voxels above the knees: lower down the hull
         # also holds ghosts over the cast shadow (every view sees it dark there).

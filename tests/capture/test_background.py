@@ -39,6 +39,22 @@ def _scene_image(bg: np.ndarray, seed: int = 1) -> tuple[np.ndarray, np.ndarray,
     return np.clip(img, 0, 255).round().astype(np.uint8), shadow, obj
 
 
+def test_brightness_is_the_log_ratio_to_the_background() -> None:
+    # The shadow patch is the background times 0.55 (plus noise): log 0.55 = -0.60.
+    model, bg = _model()
+    image, shadow, obj = _scene_image(bg)
+    person, labelled, dist2, log_alpha = Subtractor(model).labels(
+        image, distances=True, brightness=True
+    )
+    assert log_alpha.shape == dist2.shape == person.shape and log_alpha.dtype == np.float32
+    np.testing.assert_allclose(np.median(log_alpha[shadow]), np.log(0.55), atol=0.03)
+    np.testing.assert_allclose(np.median(log_alpha[~(shadow | obj)]), 0.0, atol=0.03)
+    # The labels are the same with or without the extra outputs.
+    plain = Subtractor(model).labels(image)
+    assert (plain[0] == person).all() and (plain[1] == labelled).all()
+    assert len(Subtractor(model).labels(image, brightness=True)) == 3
+
+
 def test_model_statistics_are_robust() -> None:
     bg = toy_background(SCENE, 0)
     rng = np.random.default_rng(0)

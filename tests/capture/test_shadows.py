@@ -101,3 +101,35 @@ def test_at_feet_keeps_the_floor_points_near_the_footprint(rig):
     assert not (near[0] & ~floor[0].mask).any()
     empty = at_feet(floor, np.zeros((0, 2)), reach=0.3)
     assert not any(m.any() for m in empty)
+
+
+def test_a_garment_in_front_of_a_real_shadow_fails_the_brightness_test(rig):
+    # Soft light: the floor really is in shadow behind the calf, so the plain test
+    # confirms the calf's shaded side as floor shadow. A shadow dims the floor by the
+    # same ratio in every view; the calf has its own brightness.
+    shadow = [_fill(c, SHADOW) for c in rig]
+    half = SHADOW.copy()
+    half[1:3, 0] = 0.4  # the panel covers the shadow's first half, seen from view 0,
+    toward = rig[0].center[None] - half
+    panel = _fill(rig[0], half + 0.1 * toward)  # floating 10 % of the way to camera 0
+    assert (panel & shadow[0]).sum() > 200 and (shadow[0] & ~panel).sum() > 200
+    dim, garment = -0.5, -1.2  # log brightness ratios
+    brightness = [np.where(s, dim, 0.0).astype(np.float32) for s in shadow]
+    brightness[0][panel] = garment
+    labels = [shadow[0] | panel, *shadow[1:]]
+    lit = [~s for s in labels]
+    plain = floor_shadows(rig, labels, lit)
+    photo = floor_shadows(rig, labels, lit, brightness=brightness)
+    inner = cv2.erode(panel.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    assert plain[0].mask[inner].mean() > 0.95  # without photometry: taken for floor shadow
+    assert photo[0].mask[inner].mean() < 0.02
+    rest = cv2.erode((shadow[0] & ~panel).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    assert photo[0].mask[rest].mean() > 0.95  # the shadow beside it is still confirmed
+    for k in range(1, len(rig)):  # the others confirm each other
+        assert photo[k].mask[shadow[k]].mean() > 0.9, k
+    # The points travel with the mask.
+    assert len(photo[0].points) == photo[0].mask.sum()
+    with pytest.raises(InputError, match="brightness maps"):
+        floor_shadows(rig, labels, lit, brightness=brightness[:2])
+    with pytest.raises(InputError, match="brightness_tol"):
+        floor_shadows(rig, labels, lit, brightness=brightness, brightness_tol=0.0)
