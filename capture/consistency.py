@@ -20,6 +20,10 @@ one thing every camera sees at one place in the room. So:
 
 A region that all cameras see at one place is kept: the check rejects what is
 inconsistent, not a second person standing in the capture volume in full view.
+The hull's connected bodies tall and large enough to be a person are counted
+(:meth:`VisualHull.bodies`, :attr:`HullBodies.persons`): bodymetry measures one
+subject, the largest body, and a frame with a second person in full view says
+so (docs/capture.md, "Several people in the capture volume").
 """
 
 from __future__ import annotations
@@ -37,7 +41,23 @@ from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HullCheck", "HullConfig", "VisualHull", "visual_hull"]
+__all__ = [
+    "PERSON_MIN_HEIGHT",
+    "PERSON_MIN_VOLUME",
+    "HullBodies",
+    "HullCheck",
+    "HullConfig",
+    "VisualHull",
+    "visual_hull",
+]
+
+#: A hull body counts as a person when it is at least this tall (metres): a child of
+#: five stands about 1.1 m, a crouching adult about 0.9 m; the hull's ghosts over cast
+#: shadows and floor marks are a few voxels high.
+PERSON_MIN_HEIGHT = 0.8
+#: ... and at least this large (cubic metres; the hull is larger than the body, a child
+#: of 20 kg has a volume of 0.02 m^3).
+PERSON_MIN_VOLUME = 0.02
 
 
 @dataclass(frozen=True)
@@ -100,6 +120,43 @@ class HullCheck:
     inconsistent: tuple[bool, ...]
     rois: tuple[tuple[int, int, int, int] | None, ...]
     voxels: int
+
+
+@dataclass(frozen=True)
+class HullBodies:
+    """The connected bodies of one frame's hull (:meth:`VisualHull.bodies`).
+
+    Attributes
+    ----------
+    labels : (N,) int
+        Per capture-volume voxel its body (0: not occupied; 1..K).
+    voxels : (K + 1,) int
+        Voxels per body (index 0 unused, 0).
+    heights : (K + 1,) float
+        Vertical extent of each body, metres (voxel centres plus one voxel).
+    voxel : float
+        Voxel side, metres.
+    """
+
+    labels: np.ndarray
+    voxels: np.ndarray
+    heights: np.ndarray
+    voxel: float
+
+    @property
+    def largest(self) -> np.ndarray:
+        """(N,) bool: the voxels of the largest body (all False when none)."""
+        if len(self.voxels) <= 1:
+            return np.zeros(len(self.labels), bool)
+        return self.labels == int(np.argmax(self.voxels))
+
+    @property
+    def persons(self) -> int:
+        """How many bodies are person-sized (:data:`PERSON_MIN_HEIGHT`,
+        :data:`PERSON_MIN_VOLUME`). Two people who touch form one body."""
+        volume = self.voxels[1:] * self.voxel**3
+        return int(np.count_nonzero((self.heights[1:] >= PERSON_MIN_HEIGHT)
+                                    & (volume >= PERSON_MIN_VOLUME)))  # fmt: skip
 
 
 def _in_view(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -212,7 +269,21 @@ class VisualHull:
         return inside.min(axis=0) - step, inside.max(axis=0) + step
 
     def occupied(self, masks: Sequence[np.ndarray]) -> np.ndarray:
-        """Voxels inside the silhouettes of their cameras, ``misses`` disagreements allowed.
+        """The subject's voxels: the largest connected body of :meth:`bodies`.
+
+        Parameters
+        ----------
+        masks : sequence of (H_c, W_c) bool, camera order
+
+        Returns
+        -------
+        (N,) bool
+        """
+        return self.bodies(masks).largest
+
+    def bodies(self, masks: Sequence[np.ndarray]) -> HullBodies:
+        """Voxels inside the silhouettes of their cameras, ``misses`` disagreements allowed,
+        as connected bodies.
 
         Cameras with an empty silhouette abstain (a view with nobody found, or
         unreadable, cannot vote against the others). At least ``min_views``
@@ -224,7 +295,10 @@ class VisualHull:
 
         Returns
         -------
-        (N,) bool
+        HullBodies
+            The subject is the largest body; smaller ones are ghosts (a blob in
+            one view whose cone crosses the subject's cones in others) or other
+            people (:attr:`HullBodies.persons`).
         """
         if len(masks) != len(self.cameras):
             raise InputError(f"expected {len(self.cameras)} masks, got {len(masks)}")
@@ -249,16 +323,23 @@ class VisualHull:
         need = np.maximum(votes - self.config.misses, self.config.min_views)
         occupied = hits >= need
         if not occupied.any():
-            return occupied
-        # The subject is the largest connected body of agreement; smaller ones are
-        # ghosts (a blob in one view whose cone crosses the subject's cones in others).
+            none = np.zeros(1)
+            return HullBodies(
+                np.zeros(len(self.points), np.int32), none.astype(int), none, self.voxel
+            )
         grid = np.zeros(int(np.prod(self._shape)), bool)
         grid[self._index[occupied]] = True
-        labels, _ = ndimage.label(grid.reshape(self._shape), structure=np.ones((3, 3, 3)))
+        labels, n = ndimage.label(grid.reshape(self._shape), structure=np.ones((3, 3, 3)))
         labels = labels.reshape(-1)[self._index]
-        sizes = np.bincount(labels[occupied])
-        sizes[0] = 0
-        return labels == int(np.argmax(sizes))
+        voxels = np.bincount(labels[occupied], minlength=n + 1)
+        voxels[0] = 0
+        z = self.points[occupied, 2]
+        top = np.full(n + 1, -np.inf)
+        bottom = np.full(n + 1, np.inf)
+        np.maximum.at(top, labels[occupied], z)
+        np.minimum.at(bottom, labels[occupied], z)
+        heights = np.where(voxels > 0, top - bottom + self.voxel, 0.0)
+        return HullBodies(labels, voxels, heights, self.voxel)
 
     def support(self, occupied: np.ndarray, c: int) -> np.ndarray:
         """(H, W) bool: where the occupied voxels project in camera ``c``."""

@@ -21,12 +21,13 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.background import BackgroundModel, SubtractionConfig, Subtractor, read_clip
-from bodymetry.capture.consistency import HullConfig, visual_hull
+from bodymetry.capture.consistency import HullBodies, HullConfig, visual_hull
 from bodymetry.capture.fusion import (
     FEATURES,
     LIT_CHANGE,
@@ -176,6 +177,13 @@ class SilhouetteFrame:
         (:func:`bodymetry.capture.fusion.view_agreement`); None where it could
         not be judged (empty tuple when nothing was judged). A view below the
         bound is flagged ``unreliable`` and left out of the fit for that frame.
+    persons : int or None
+        Person-sized bodies in the capture volume
+        (:attr:`bodymetry.capture.consistency.HullBodies.persons`, from every
+        pixel some source calls person); None where it cannot be counted (no
+        calibrated rig, or no empty-scene clip: a segmenter finds one person per
+        image). More than one: the frame's silhouettes are the largest body's,
+        and the run says that other people were in view.
     """
 
     frame: int
@@ -187,6 +195,7 @@ class SilhouetteFrame:
     landmarks: np.ndarray | None = field(default=None, repr=False)
     view_landmarks: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
     agreement: tuple[float | None, ...] = ()
+    persons: int | None = None
 
     def stack(self) -> np.ndarray:
         """(C, H, W) bool masks, for rigs whose cameras all have one image size.
@@ -367,6 +376,27 @@ class ViewEvidence:
         return out
 
 
+class _FrameViews(NamedTuple):
+    """One frame as :class:`FrameSegmenter` segments it.
+
+    Attributes
+    ----------
+    views : list of _View
+        Per camera.
+    landmarks : (33, 3) float or None
+        World landmarks (None without a segmenter or cameras).
+    agreement : list of (float or None)
+        Per camera (None where not judged).
+    persons : int or None
+        :attr:`SilhouetteFrame.persons`.
+    """
+
+    views: list[_View]
+    landmarks: np.ndarray | None
+    agreement: list[float | None]
+    persons: int | None
+
+
 class FrameSegmenter:
     """Segments the views of one frame: the evidence per camera, its fusion with
     the multi-view hull, then the multi-view check, each view's agreement and the
@@ -421,18 +451,29 @@ class FrameSegmenter:
         change = change_evidence(dist2, sub.config.fg_sigma)
         return ViewEvidence(raw, shadow, change, brightness, person, threshold)
 
-    def geometry(self, evidence: Sequence[ViewEvidence | None]) -> list[GeometryTerms | None]:
-        """Per camera what the rig says (:class:`~bodymetry.capture.fusion.GeometryTerms`):
-        the hull's support above the floor band and anywhere, and the floor-shadow
-        test; None without a hull or fusion, or where the candidates agree on nothing."""
-        none: list[GeometryTerms | None] = [None] * len(evidence)
-        if self.hull is None or not self.config.fusion.enabled:
-            return none
+    def bodies(self, evidence: Sequence[ViewEvidence | None]) -> HullBodies | None:
+        """The hull's bodies of every pixel some source calls person (the fusion's
+        candidates); None without a hull."""
+        if self.hull is None:
+            return None
         candidates = [
             np.zeros((h, w), bool) if ev is None else ev.candidate()
             for ev, (w, h) in zip(evidence, self.sizes, strict=True)
         ]
-        occupied = self.hull.occupied(candidates)
+        return self.hull.bodies(candidates)
+
+    def geometry(
+        self, evidence: Sequence[ViewEvidence | None], bodies: HullBodies | None = None
+    ) -> list[GeometryTerms | None]:
+        """Per camera what the rig says (:class:`~bodymetry.capture.fusion.GeometryTerms`):
+        the hull's support above the floor band and anywhere, and the floor-shadow
+        test; None without a hull or fusion, or where the candidates agree on nothing.
+        ``bodies``: :meth:`bodies` of the same evidence, when already computed."""
+        none: list[GeometryTerms | None] = [None] * len(evidence)
+        if self.hull is None or not self.config.fusion.enabled:
+            return none
+        bodies = bodies or self.bodies(evidence)
+        occupied = bodies.largest
         if not occupied.any():
             return none
         body = occupied & (self.hull.points[:, 2] >= self.config.fusion.floor_band)
@@ -515,13 +556,11 @@ class FrameSegmenter:
         mask, flags = clean_mask(raw, self.cleanup, image, self.models[c].median, shadow, found)
         return _View(mask, flags, shadow, landmarks)
 
-    def __call__(
-        self, images: Sequence[np.ndarray | None]
-    ) -> tuple[list[_View], np.ndarray | None, list[float | None]]:
-        """Per camera the view, the (33, 3) world landmarks (None without a segmenter
-        or cameras) and the view's agreement (None where not judged)."""
+    def __call__(self, images: Sequence[np.ndarray | None]) -> _FrameViews:
+        """Segment one frame's images (None: unreadable): :class:`_FrameViews`."""
         evidence = [None if im is None else self.evidence(c, im) for c, im in enumerate(images)]
-        terms = self.geometry(evidence)
+        bodies = self.bodies(evidence)
+        terms = self.geometry(evidence, bodies)
         views = [self._view(c, im, evidence[c], terms[c]) for c, im in enumerate(images)]
         agreement: list[float | None] = [None] * len(views)
         if self.hull is not None:
@@ -549,7 +588,11 @@ class FrameSegmenter:
             landmarks = triangulate_landmarks(
                 self.cameras, [v.landmarks for v in views], self.config.landmarks
             )
-        return views, landmarks, agreement
+        # Only background subtraction sees everyone: a segmenter returns one person
+        # per image, so without a background clip the count says nothing.
+        counted = bodies is not None and any(ev is not None and ev.raw is not None
+                                             for ev in evidence)  # fmt: skip
+        return _FrameViews(views, landmarks, agreement, bodies.persons if counted else None)
 
     def _agreement(
         self, views: list[_View], evidence: Sequence[ViewEvidence | None]
@@ -623,7 +666,7 @@ def segment_session(
     )
     try:
         for fs in _prefetch(read_frame_sets(session, report, frames=frames, method=read_method)):
-            per_view, landmarks, agreement = views(fs.images)
+            per_view, landmarks, agreement, persons = views(fs.images)
             out = SilhouetteFrame(
                 frame=fs.frame,
                 cameras=fs.cameras,
@@ -636,6 +679,7 @@ def segment_session(
                 if views.segmenter is not None
                 else (),
                 agreement=tuple(agreement) if any(a is not None for a in agreement) else (),
+                persons=persons,
             )
             if on_frame is not None:
                 on_frame(out)

@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 from bodymetry.calibration.camera import CameraGroup
-from bodymetry.capture.consistency import HullConfig, VisualHull, visual_hull
+from bodymetry.capture.consistency import (
+    PERSON_MIN_HEIGHT,
+    PERSON_MIN_VOLUME,
+    HullBodies,
+    HullConfig,
+    VisualHull,
+    visual_hull,
+)
 from bodymetry.errors import InputError
 from bodymetry.studio.rig import studio_rig
 
@@ -147,3 +154,17 @@ def test_a_rigs_hull_is_built_once_per_process(rig):
         [*copy[:3], type(copy[3])(copy[3].name, copy[3].size, copy[3].K, t=copy[3].t + 0.01)]
     )
     assert visual_hull(moved) is not first
+
+
+def test_hull_bodies_count_person_sized_bodies_only():
+    voxel = 0.05
+    labels = np.array([0, 1, 1, 2, 3, 4])
+    # Body 1: a person; 2: a stool (too low); 3: a thin pole (too small); 4: a child.
+    voxels = np.array([0, 2000, 2000, 50, 200])
+    heights = np.array([0.0, 1.7, 0.45, 1.2, 1.1])
+    assert voxels[4] * voxel**3 >= PERSON_MIN_VOLUME and heights[2] < PERSON_MIN_HEIGHT
+    bodies = HullBodies(labels, voxels, heights, voxel)
+    assert bodies.persons == 2
+    np.testing.assert_array_equal(bodies.largest, labels == 1)  # the first of the largest
+    empty = HullBodies(np.zeros(6, np.int32), np.zeros(1, int), np.zeros(1), voxel)
+    assert empty.persons == 0 and not empty.largest.any()
