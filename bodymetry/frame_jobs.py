@@ -96,6 +96,8 @@ class FitJob:
     agreement : dict of str to float
         Capture's agreement of each judged view with the frame's other evidence,
         by camera name (the record's ``view_agreement``).
+    persons : int or None
+        Person-sized bodies capture counted (the record's ``persons``).
     """
 
     frame: int
@@ -108,6 +110,7 @@ class FitJob:
     proposals: dict[str, np.ndarray] | None = None
     previous: FrameFit | None = None
     agreement: dict[str, float] = field(default_factory=dict)
+    persons: int | None = None
 
 
 def run_fit_job(job: FitJob) -> FrameFit:
@@ -125,6 +128,7 @@ def run_fit_job(job: FitJob) -> FrameFit:
         job.landmarks,
         job.proposals,
         agreement=job.agreement,
+        persons=job.persons,
     )
 
 
@@ -465,4 +469,5 @@ def _rescue_job(
         FrameFit(old, arrays) if refine else None,
         # A whole fit again writes a new record: it keeps capture's verdicts.
         dict(old.view_agreement),
+        old.persons,
     )

@@ -216,6 +216,9 @@ class SegmentedFrame:
         Capture's agreement of each judged view with the frame's other
         evidence (:func:`bodymetry.capture.fusion.view_agreement`; views not
         judged are absent), by camera name.
+    persons : int or None
+        Person-sized bodies in the capture volume
+        (:attr:`bodymetry.capture.segmentation.SilhouetteFrame.persons`).
     """
 
     frame: int
@@ -224,6 +227,7 @@ class SegmentedFrame:
     landmarks: np.ndarray | None
     view_landmarks: tuple
     agreement: dict[str, float] = field(default_factory=dict)
+    persons: int | None = None
 
 
 @dataclass(frozen=True)
@@ -369,6 +373,7 @@ def segment(
             landmarks=sil.landmarks,
             view_landmarks=tuple(sil.view_landmarks),
             agreement=judged_agreement(names, sil.agreement, sil.frame),
+            persons=sil.persons,
         )
         for sil in segment_session(
             prepared.session,
@@ -502,6 +507,7 @@ def fit_job_of(
         config.fit,
         prepared.landmarks(seg.view_landmarks, seg.landmarks),
         agreement=seg.agreement,
+        persons=seg.persons,
     )
 
 

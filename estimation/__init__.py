@@ -27,6 +27,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "run_config": ["ProcessConfig"],
         "records": ["STAGES", "FrameArrays", "FrameRecord", "SessionGate", "SessionShape", "Stat"],
         "run_files": ["Evaluation", "RunLayout", "RunManifest", "RunResults", "StudyResults"],
+        "caveats": ["CAVEAT_CODES", "Caveat", "run_caveats"],
         "view_features": ["silhouette_features"],
         "view_selection": [
             "LEAVE_OUT_FLAGS",

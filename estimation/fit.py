@@ -341,6 +341,7 @@ def fit_frame(
     landmarks: np.ndarray | None = None,
     proposals: dict[str, np.ndarray] | None = None,
     agreement: dict[str, float] | None = None,
+    persons: int | None = None,
 ) -> FrameFit:
     """Fit one frame (never raises for bad data: the record says what went wrong).
 
@@ -370,6 +371,9 @@ def fit_frame(
     agreement : camera name -> float, optional
         Capture's agreement of each judged view with the frame's other
         evidence; recorded as the record's ``view_agreement``.
+    persons : int, optional
+        Person-sized bodies capture counted in the capture volume; recorded as the
+        record's ``persons`` (None: not counted).
     """
     t0 = time.perf_counter()
     body = shared_body_model()
@@ -378,7 +382,9 @@ def fit_frame(
     pixels = {n: int(np.count_nonzero(m)) for n, m in zip(names, masks, strict=True)}
     flag_map = {n: tuple(f) for n, f in zip(names, flags, strict=True)}
     valid = usable_views(names, pixels, flag_map)
-    views = _ViewFacts(flag_map, pixels, {n: float(v) for n, v in (agreement or {}).items()})
+    views = _ViewFacts(
+        flag_map, pixels, {n: float(v) for n, v in (agreement or {}).items()}, persons
+    )
     observed_arrays = FrameArrays(
         observed={n: np.asarray(m, bool) for n, m in zip(names, masks, strict=True)},
         landmarks=landmarks,
@@ -392,6 +398,7 @@ def fit_frame(
                 flag_map,
                 person_pixels=pixels,
                 view_agreement=views.agreement,
+                persons=views.persons,
             ),
             observed_arrays,
         )
@@ -428,11 +435,12 @@ def fit_frame(
 @dataclass(frozen=True)
 class _ViewFacts:
     """What a frame's record says about its views: capture's flags, the person
-    pixels and capture's agreement, by camera name."""
+    pixels and capture's agreement, by camera name, and capture's person count."""
 
     flags: dict[str, tuple[str, ...]]
     pixels: dict[str, int]
     agreement: dict[str, float]
+    persons: int | None = None
 
 
 def _fitted_record(
@@ -451,6 +459,7 @@ def _fitted_record(
         flags=views.flags,
         person_pixels=views.pixels,
         view_agreement=views.agreement,
+        persons=views.persons,
         estimates={"discriminative": discriminative},
         annealing=AnnealingTrace(
             tuple(fit.annealing.layer_log_likelihood.tolist()),

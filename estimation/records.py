@@ -249,6 +249,12 @@ class FrameRecord:
         other evidence (in [0, 1], :func:`bodymetry.capture.fusion.view_agreement`;
         views not judged are absent). A view flagged ``unreliable`` was left out of the fit
         (:mod:`bodymetry.estimation.view_selection`).
+    persons : int or None
+        Person-sized bodies capture counted in the capture volume
+        (:attr:`bodymetry.capture.segmentation.SilhouetteFrame.persons`); more than
+        one: the silhouettes are the largest body's and may be another person's.
+        None: not counted (no empty-scene clip, no calibrated rig, or a run
+        before the count).
     annealing : AnnealingTrace or None
     refinement : RefinementTrace or None
     seconds : dict of str to float
@@ -262,6 +268,7 @@ class FrameRecord:
     silhouette_iou: dict[str, float] = field(default_factory=dict)
     person_pixels: dict[str, int] = field(default_factory=dict)
     view_agreement: dict[str, float] = field(default_factory=dict)
+    persons: int | None = None
     annealing: AnnealingTrace | None = None
     refinement: RefinementTrace | None = None
     seconds: dict[str, float] = field(default_factory=dict)
@@ -304,6 +311,8 @@ class FrameRecord:
             out["view_agreement"] = {
                 k: _finite_or_none(v, 4) for k, v in self.view_agreement.items()
             }
+        if self.persons is not None:
+            out["persons"] = int(self.persons)
         if self.annealing is not None:
             out["annealing"] = self.annealing.to_json()
         if self.refinement is not None:
@@ -338,6 +347,7 @@ class FrameRecord:
                     k: float("nan") if v is None else float(v)
                     for k, v in data.get("view_agreement", {}).items()
                 },
+                persons=None if data.get("persons") is None else int(data["persons"]),
                 annealing=AnnealingTrace.from_json(data["annealing"])
                 if "annealing" in data
                 else None,

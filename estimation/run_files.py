@@ -28,6 +28,7 @@ from typing import Any
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.errors import InputError
+from bodymetry.estimation.caveats import Caveat, run_caveats
 from bodymetry.estimation.records import (
     STAGES,
     FrameRecord,
@@ -260,6 +261,16 @@ class RunResults:
         """The session stage's outline check (None without the stage or the check)."""
         return None if self.session_shape is None else self.session_shape.outline
 
+    @property
+    def caveats(self) -> tuple[Caveat, ...]:
+        """Why the numbers deserve less trust than they look
+        (:func:`bodymetry.estimation.caveats.run_caveats`; derived from the records,
+        so an older ``results.json`` gets them too)."""
+        outline = self.outline
+        return run_caveats(
+            self.frames, self.session.cameras, () if outline is None else outline.warnings
+        )
+
     def working_cameras(self, cameras: CameraGroup) -> CameraGroup:
         """The rig the run was trained and fitted with, from its calibrated one.
 
@@ -296,6 +307,9 @@ class RunResults:
             "timing_seconds": self.timing_seconds,
             "camera_frames": self.camera_frames,
             "warnings": list(self.warnings),
+            # Derived from the records (read back by recomputing): for scripts and
+            # viewers that read the file without bodymetry.
+            "caveats": [c.to_json() for c in self.caveats],
         }
         if self.working_resolution is not None:
             out["working_resolution"] = self.working_resolution.to_json()

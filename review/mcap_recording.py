@@ -57,6 +57,7 @@ MEASUREMENTS_SCHEMA = {
         "session": {"type": "object"},
         "silhouette_iou": {"type": "object"},
         "view_agreement": {"type": "object"},
+        "persons": {"type": "integer"},
         "annealing": {"type": "object"},
     },
 }

@@ -578,6 +578,7 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
         "session_shape": results.session_shape,
         "outline": results.outline,
         "warnings": list(results.warnings),
+        "caveats": list(results.caveats),
         "has_evaluation": run.evaluation is not None,
         "measurements": measurement_rows(run),
         "core_labels": [plots.label(k) for k in CORE_MEASUREMENTS],

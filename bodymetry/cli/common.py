@@ -36,6 +36,7 @@ from bodymetry.log import PROGRESS_LOGGER, console, setup_logging
 
 __all__ = [
     "DEMO_SESSION",
+    "EXIT_CAVEATS",
     "EXIT_INPUT",
     "EXIT_INTERNAL",
     "EXIT_NO_FRAMES",
@@ -60,6 +61,9 @@ EXIT_INTERNAL = 1
 EXIT_INPUT = 2
 #: Exit status of ``process`` when no frame of the run could be measured.
 EXIT_NO_FRAMES = 3
+#: Exit status of ``process`` when the run measured, with caveats: thin or ambiguous
+#: evidence (:mod:`bodymetry.estimation.caveats`).
+EXIT_CAVEATS = 5
 
 
 def _one_line(text: str) -> str:

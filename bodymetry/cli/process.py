@@ -12,6 +12,7 @@ from rich.table import Table
 
 from bodymetry.cli.common import (
     DEMO_SESSION,
+    EXIT_CAVEATS,
     EXIT_NO_FRAMES,
     cache_option,
     console,
@@ -141,6 +142,17 @@ def process(
             soft_wrap=True,
         )
         sys.exit(EXIT_NO_FRAMES)
+    caveats = results.caveats
+    if caveats:
+        # Measured, but the numbers stand on thin or ambiguous evidence: say so, and
+        # let a script tell it from a clean run.
+        for caveat in caveats:
+            console.print(
+                f"[bold yellow]caveat ({caveat.code}):[/] {rich.markup.escape(caveat.message)}",
+                highlight=False,
+                soft_wrap=True,
+            )
+        sys.exit(EXIT_CAVEATS)
 
 
 def no_frames_message(results: RunResults, run: Path) -> str:

@@ -589,3 +589,23 @@ def test_numeric_warnings_go_to_the_debug_log(caplog, capsys) -> None:
     warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert debug[0].startswith("RuntimeWarning: Mean of empty slice")
     assert warned == ["FutureWarning: old option"]
+
+
+def test_process_with_caveats_exits_5_and_says_why(monkeypatch, toy: Path, tmp_path: Path) -> None:
+    """Measured, but on thin and ambiguous evidence: two people in view in frame 10, and
+    one frame of five measured. The run's numbers are written; the status says 5."""
+    import dataclasses
+
+    import bodymetry.cli.process as cli_process
+
+    base = _failed_results({f: "no silhouette in any camera" for f in (0, 10, 20, 30, 40)})
+    frames = list(base.frames)
+    frames[1] = dataclasses.replace(frames[1], status="ok", persons=2)
+    results = dataclasses.replace(base, frames=tuple(frames))
+    monkeypatch.setattr(cli_process, "process_session", lambda *a, **k: results)
+    result = _run("process", str(toy), "--out", str(tmp_path / "run"), "--no-review")
+    assert result.exit_code == 5, (result.exit_code, result.output, result.exception)
+    assert "Traceback" not in result.output
+    text = " ".join(result.output.split())
+    assert "caveat (several_persons): 2 people in the capture volume in 1 of 5 kept frames" in text
+    assert "caveat (thin_evidence): only 1 of 5 kept frames measured (frame 10)" in text

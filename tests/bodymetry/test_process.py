@@ -493,3 +493,43 @@ def test_an_unreliable_view_is_left_out_of_the_fit_and_named(run, tmp_path, monk
         "left out of those frames' fits"
     ) in finished.warnings
     assert RunResults.read(layout.results).frames[0].view_agreement == record.view_agreement
+
+
+def test_a_second_person_in_view_is_recorded_and_becomes_a_caveat(run, tmp_path, monkeypatch):
+    """Capture counts two people in the first kept frame: the count travels through the
+    fit into the record, survives a resume, and the finished run carries the caveat
+    (in results.json too)."""
+    session, out, results, base = run
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy)
+    config = _config(base)
+    real_segment = pipeline.segment_session
+
+    def crowded(*args, **kwargs):
+        for sil in real_segment(*args, **kwargs):
+            yield dataclasses.replace(sil, persons=2)
+
+    monkeypatch.setattr(pipeline, "segment_session", crowded)
+    prepared = pipeline.prepare(session.folder, copy, config)
+    planned = pipeline.plan(prepared, config)
+    first = planned.kept[0]
+    models = pipeline.backgrounds(prepared, planned, config, "seek")
+    (seg,) = pipeline.segment(prepared, planned, models, [first], config, "seek")
+    assert seg.persons == 2
+    rig = pipeline.RigModels(results.models, _rescue_inputs(run)[1], True, 0.0)
+    record = pipeline.fit(prepared, rig, seg, config)
+    assert record.persons == 2
+    layout = RunLayout(copy)
+    done = frame_jobs.read_done_frames(layout)
+    assert done[first].persons == 2
+    no_stage = dataclasses.replace(
+        config, session_shape=dataclasses.replace(config.session_shape, enabled=False)
+    )
+    finished = pipeline.finish(prepared, no_stage, rig, done, {})
+    codes = [c.code for c in finished.caveats]
+    assert record.ok and "several_persons" in codes
+    (crowd,) = [c for c in finished.caveats if c.code == "several_persons"]
+    assert crowd.frames == (first,)
+    written = json.loads(layout.results.read_text())
+    assert [c["code"] for c in written["caveats"]] == codes
+    assert RunResults.read(layout.results).caveats == finished.caveats

@@ -448,3 +448,18 @@ def test_the_views_left_out_as_unreliable_are_listed_only_when_there_are_any(
     assert "cam_01: unreliable" in html[html.index('id="frames"') :]
     (line,) = _left_out_lines({"left_out": left_out_rows(load_run(bare_run))})
     assert line.endswith(f"cam_01 in 2 of {kept} kept frames ({listed}), agreement 0.61-0.74.")
+
+
+def test_caveats_head_the_report_only_when_there_are_any(review_run, bare_run, monkeypatch):
+    monkeypatch.setattr(report_module, "_figures", lambda run, body: ({}, {}))
+    assert 'id="caveats"' not in (review_run.folder / "report.html").read_text()
+    data = json.loads((bare_run / "results.json").read_text())
+    frames = data["frames"]
+    frames[0]["persons"] = 2
+    (bare_run / "results.json").write_text(json.dumps(data))
+    html = build_report(bare_run).html.read_text()
+    box = html[html.index('id="caveats"') :]
+    box = box[: box.index("</div>")]
+    # Above the headline cards, naming the code and the frame.
+    assert html.index('id="caveats"') < html.index('class="cards"')
+    assert "several_persons" in box and f"frame {frames[0]['frame']}" in box

@@ -1,0 +1,154 @@
+"""Caveats: when a run's numbers stand on thin or ambiguous evidence, say so.
+
+A run that measured something can still deserve less trust than its numbers
+suggest. Each :class:`Caveat` names one such condition, found from the run's
+own records (so a finished run, and an old ``results.json``, gives the same
+list), and says why in a sentence a user can act on:
+
+``several_persons``
+    Capture counted more than one person-sized body in the capture volume in
+    some kept frames (:attr:`FrameRecord.persons`). bodymetry measures one
+    subject per session, the largest body of each frame: its numbers may mix
+    people (issue 29 is to measure each).
+``thin_evidence``
+    Fewer than :data:`MIN_MEASURED_FRAMES` frames, or fewer than
+    :data:`MIN_MEASURED_SHARE` of the kept frames, were measured.
+``view_left_out``
+    A camera's view was left out as ``unreliable`` in at least
+    :data:`MAX_LEFT_OUT_SHARE` of the kept frames: the measurements rest on the
+    other views, and whatever made that view disagree (a reflection, a moved
+    camera, a second person) may be in them too.
+``clothing``
+    The session stage's outline check found the observed outline wider than
+    the body's around the trunk or above the head (loose clothing or hair):
+    height, girths and weight may be inflated.
+
+The command line prints the caveats and exits with status 5
+(:data:`bodymetry.cli.common.EXIT_CAVEATS`); the report lists them first;
+``results.json`` carries them as ``caveats``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from bodymetry.estimation.records import FrameRecord
+from bodymetry.estimation.view_selection import left_out_views
+
+__all__ = [
+    "CAVEAT_CODES",
+    "MAX_LEFT_OUT_SHARE",
+    "MIN_MEASURED_FRAMES",
+    "MIN_MEASURED_SHARE",
+    "Caveat",
+    "run_caveats",
+]
+
+#: Fewer measured frames than this is thin evidence (a session's spread and the
+#: session stage need several poses).
+MIN_MEASURED_FRAMES = 3
+#: ... and so is measuring less than this share of the kept frames.
+MIN_MEASURED_SHARE = 0.5
+#: A camera left out of at least this share of the kept frames is a caveat.
+MAX_LEFT_OUT_SHARE = 0.5
+
+#: Every caveat code, in the order they are listed.
+CAVEAT_CODES = ("several_persons", "thin_evidence", "view_left_out", "clothing")
+
+
+@dataclass(frozen=True)
+class Caveat:
+    """One reason to trust a run's numbers less than they look.
+
+    Attributes
+    ----------
+    code : str
+        One of :data:`CAVEAT_CODES`.
+    message : str
+        What was found and what it means, one sentence.
+    frames : tuple of int
+        The kept frames it concerns (empty: the whole run).
+    """
+
+    code: str
+    message: str
+    frames: tuple[int, ...] = ()
+
+    def to_json(self) -> dict:
+        out: dict = {"code": self.code, "message": self.message}
+        if self.frames:
+            out["frames"] = list(self.frames)
+        return out
+
+
+def _frame_list(frames: Sequence[int], limit: int = 6) -> str:
+    """``"frames 0, 25, 50"`` (the first ``limit``, then ``...``)."""
+    shown = ", ".join(str(f) for f in frames[:limit])
+    return f"frame{'s' if len(frames) > 1 else ''} {shown}{', ...' if len(frames) > limit else ''}"
+
+
+def run_caveats(
+    records: Sequence[FrameRecord],
+    cameras: Sequence[str],
+    outline_warnings: Sequence[str] = (),
+) -> tuple[Caveat, ...]:
+    """The caveats of a run (module docstring), in :data:`CAVEAT_CODES` order.
+
+    Parameters
+    ----------
+    records : sequence of FrameRecord
+        The run's kept frames.
+    cameras : sequence of str
+        The session's camera names.
+    outline_warnings : sequence of str
+        The session stage's outline-check warnings (loose clothing, hair).
+
+    Returns
+    -------
+    tuple of Caveat
+        Empty when the run measured nothing (that is an error, not a caveat) or
+        nothing questions its numbers.
+    """
+    ordered = sorted(records, key=lambda r: r.frame)
+    kept = len(ordered)
+    measured = [r.frame for r in ordered if r.ok]
+    if not measured:
+        return ()
+    out = []
+    crowded = [r for r in ordered if r.persons is not None and r.persons > 1]
+    if crowded:
+        most = max(r.persons for r in crowded)
+        out.append(
+            Caveat(
+                "several_persons",
+                f"{most} people in the capture volume in {len(crowded)} of {kept} kept frames "
+                f"({_frame_list([r.frame for r in crowded])}): bodymetry measures one subject, "
+                "the largest body of each frame, so these measurements may mix people",
+                tuple(r.frame for r in crowded),
+            )
+        )
+    need = max(MIN_MEASURED_FRAMES, math.ceil(MIN_MEASURED_SHARE * kept))
+    if len(measured) < need:
+        out.append(
+            Caveat(
+                "thin_evidence",
+                f"only {len(measured)} of {kept} kept frames measured ({_frame_list(measured)}): "
+                f"the measurements rest on thin evidence (at least {need} wanted; each "
+                "frame's status in results.json says why it was not measured)",
+                tuple(measured),
+            )
+        )
+    for view in left_out_views(ordered, cameras):
+        if len(view.frames) >= MAX_LEFT_OUT_SHARE * kept:
+            out.append(
+                Caveat(
+                    "view_left_out",
+                    f"{view.describe()}: the measurements rest on the other views",
+                    view.frames,
+                )
+            )
+    if outline_warnings:  # each already says what is likely overstated
+        out.append(Caveat("clothing", "; ".join(outline_warnings)))
+    return tuple(out)

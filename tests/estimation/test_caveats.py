@@ -1,0 +1,77 @@
+"""Caveats of a run (estimation/caveats.py): thin or ambiguous evidence is named."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from bodymetry.estimation.caveats import (
+    CAVEAT_CODES,
+    MIN_MEASURED_FRAMES,
+    run_caveats,
+)
+from bodymetry.estimation.records import FrameRecord
+
+NAMES = ("cam_00", "cam_01", "cam_02")
+
+
+def _records(n: int, ok: int, **kwargs) -> list[FrameRecord]:
+    """``n`` kept frames (0, 25, ...), the first ``ok`` measured."""
+    return [
+        FrameRecord(25 * k, "ok" if k < ok else "poor fit: mean silhouette IoU 0.41 < 0.90",
+                    **kwargs)
+        for k in range(n)
+    ]  # fmt: skip
+
+
+def test_a_clean_run_has_no_caveat_and_an_unmeasured_one_none_either():
+    assert run_caveats(_records(9, 9, persons=1), NAMES) == ()
+    assert run_caveats(_records(9, 9), NAMES) == ()  # persons not counted: no claim
+    assert run_caveats(_records(9, 0, persons=3), NAMES) == ()  # exit 3's business
+
+
+def test_a_second_person_in_some_frames_is_named_with_the_frames():
+    records = _records(9, 9, persons=1)
+    for k in (2, 5):
+        records[k] = dataclasses.replace(records[k], persons=2)
+    (caveat,) = run_caveats(records, NAMES)
+    assert caveat.code == "several_persons" and caveat.frames == (50, 125)
+    assert caveat.message.startswith("2 people in the capture volume in 2 of 9 kept frames")
+    assert "frames 50, 125" in caveat.message
+    assert caveat.to_json() == {"code": caveat.code, "message": caveat.message, "frames": [50, 125]}
+
+
+def test_thin_evidence_counts_frames_and_share():
+    # One of nine measured: thin. Five of nine: enough. Two of two: fewer than the minimum.
+    (caveat,) = run_caveats(_records(9, 1), NAMES)
+    assert caveat.code == "thin_evidence" and caveat.frames == (0,)
+    assert caveat.message.startswith("only 1 of 9 kept frames measured (frame 0)")
+    assert run_caveats(_records(9, 5), NAMES) == ()
+    assert run_caveats(_records(9, 4), NAMES)[0].code == "thin_evidence"
+    assert run_caveats(_records(2, 2), NAMES)[0].code == "thin_evidence"
+    assert run_caveats(_records(MIN_MEASURED_FRAMES, MIN_MEASURED_FRAMES), NAMES) == ()
+
+
+def test_a_view_left_out_of_half_the_frames_and_clothing_are_caveats_in_order():
+    records = _records(6, 6, persons=2)
+    for k in range(3):
+        flags = {"cam_01": ("unreliable",)}
+        records[k] = dataclasses.replace(records[k], flags=flags, view_agreement={"cam_01": 0.6})
+    hair = "hair or headwear likely: ...; the height is probably overstated"
+    caveats = run_caveats(records, NAMES, outline_warnings=(hair,))
+    assert [c.code for c in caveats] == ["several_persons", "view_left_out", "clothing"]
+    assert [c.code for c in caveats] == [c for c in CAVEAT_CODES if c in {x.code for x in caveats}]
+    assert caveats[1].message.startswith("cam_01: silhouette unreliable in 3 of 6 kept frames")
+    assert caveats[2].message == hair
+    # Left out of 2 of 6: named in the warnings, not a caveat.
+    records[2] = dataclasses.replace(records[2], flags={})
+    assert "view_left_out" not in [c.code for c in run_caveats(records, NAMES)]
+
+
+def test_the_person_count_round_trips_and_old_records_read_without_it():
+    record = FrameRecord(10, "ok", persons=2)
+    data = record.to_json()
+    assert data["persons"] == 2
+    assert FrameRecord.from_json(data).persons == 2
+    del data["persons"]
+    assert FrameRecord.from_json(data).persons is None
+    assert "persons" not in FrameRecord(10, "ok").to_json()
