@@ -102,6 +102,9 @@ class CohortRow:
         used frames (``results.json`` summary; empty without one).
     iou_mean : float or None
         Mean silhouette IoU over the used frames (mean over cameras, then frames).
+    caveats : str
+        The codes of the run's caveats (:mod:`bodymetry.estimation.caveats`),
+        joined with ``"; "``: read its numbers with care.
     warnings : str
         The run's warnings, joined with ``"; "``.
     link : str or None
@@ -119,6 +122,7 @@ class CohortRow:
     fraction_used: float | None = None
     stats: Mapping[str, Mapping[str, Stat]] = field(default_factory=dict)
     iou_mean: float | None = None
+    caveats: str = ""
     warnings: str = ""
     link: str | None = None
 
@@ -201,6 +205,7 @@ def _row(study_dir: Path, session: Any) -> CohortRow:
         stats={stage: dict(stats) for stage, stats in results.summary.items()},
         # Plain mean of a non-empty list: numpy would warn on an empty one.
         iou_mean=float(sum(ious) / len(ious)) if ious else None,
+        caveats="; ".join(c.code for c in results.caveats),
         warnings="; ".join(_one_line(w) for w in results.warnings),
     )
 
@@ -237,7 +242,7 @@ def cohort_columns(keys: Sequence[str]) -> list[str]:
     cols += [
         f"{stage}_{key}_{what}" for stage in STAGES for key in keys for what in ("mean", "std")
     ]
-    cols += ["warnings", "report", "session_path", "rig"]
+    cols += ["caveats", "warnings", "report", "session_path", "rig"]
     return cols
 
 
@@ -270,6 +275,7 @@ def _record(row: CohortRow, keys: Sequence[str]) -> dict[str, Any]:
             out[f"{stage}_{key}_std"] = _rounded(s.std if s else None, _digits(key))
     out.update(
         {
+            "caveats": row.caveats,
             "warnings": row.warnings,
             "report": row.link,
             "session_path": row.session_path,
@@ -438,6 +444,7 @@ def _html_context(
                 "iou": r.iou_mean,
                 "core": [_pm(r.stat("generative", k), _digits(k)) for k in CORE_MEASUREMENTS],
                 "all": [_pm(r.stat("generative", k), _digits(k)) for k in keys],
+                "caveats": r.caveats,
                 "warnings": r.warnings,
                 # Quoted: a folder name with spaces or '#' is still one link.
                 "link": urllib.parse.quote(r.link) if r.link else None,

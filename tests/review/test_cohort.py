@@ -142,6 +142,12 @@ def test_rows_carry_iou_warnings_and_the_link(study, review_run):
         assert row.iou_mean == pytest.approx(sum(r.mean_iou for r in ok) / len(ok))
         assert row.fraction_used == len(ok) / len(review_run.results.frames)
     assert alice.warnings == "a warning"
+    # Bob's run measured 2 frames: thin evidence, and the row says so.
+    assert "thin_evidence" in bob.caveats.split("; ")
+    for row in (alice, bob):
+        caveats = RunResults.read(study / row.name / "results.json").caveats
+        assert row.caveats == "; ".join(c.code for c in caveats)
+    assert carol.caveats == ""
     assert list(alice.stats) == list(STAGES)
     # Every measurement of the runs, the core ones first.
     keys = measurement_keys(rows)
