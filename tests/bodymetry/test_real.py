@@ -45,7 +45,9 @@ def real_run(tmp_path_factory):
 
 def test_import_then_process_measures_every_frame(real_run):
     base, result = real_run
-    assert result.exit_code in (0, 3), result.output  # 3: some frame failed the gate
+    # Tiny models: 3 when no frame passes the gate, 5 when few do (thin evidence).
+    assert result.exit_code in (0, 3, 5), result.output
+    assert (result.exit_code == 5) == ("caveat (" in result.output), result.output
     results = RunResults.read(base / "run" / "results.json")
     assert results.session.frame_step == 1  # --frame-step is recorded
     assert [r.frame for r in results.frames] == [0, 1, 2, 3]
