@@ -559,7 +559,10 @@ class FrameSegmenter:
     def __call__(self, images: Sequence[np.ndarray | None]) -> _FrameViews:
         """Segment one frame's images (None: unreadable): :class:`_FrameViews`."""
         evidence = [None if im is None else self.evidence(c, im) for c, im in enumerate(images)]
-        bodies = self.bodies(evidence)
+        # Only background subtraction sees everyone: a segmenter returns one person
+        # per image, so without a background clip there is nobody else to count.
+        sees_all = any(ev is not None and ev.raw is not None for ev in evidence)
+        bodies = self.bodies(evidence) if sees_all else None
         terms = self.geometry(evidence, bodies)
         views = [self._view(c, im, evidence[c], terms[c]) for c, im in enumerate(images)]
         agreement: list[float | None] = [None] * len(views)
@@ -588,11 +591,7 @@ class FrameSegmenter:
             landmarks = triangulate_landmarks(
                 self.cameras, [v.landmarks for v in views], self.config.landmarks
             )
-        # Only background subtraction sees everyone: a segmenter returns one person
-        # per image, so without a background clip the count says nothing.
-        counted = bodies is not None and any(ev is not None and ev.raw is not None
-                                             for ev in evidence)  # fmt: skip
-        return _FrameViews(views, landmarks, agreement, bodies.persons if counted else None)
+        return _FrameViews(views, landmarks, agreement, None if bodies is None else bodies.persons)
 
     def _agreement(
         self, views: list[_View], evidence: Sequence[ViewEvidence | None]
