@@ -25,8 +25,10 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import socket
 import threading
 import time
+import urllib.parse
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures import as_completed as futures_completed
@@ -129,6 +131,35 @@ def dashboard_link(client: Client) -> str | None:
     return client.dashboard_link if "dashboard" in services else None
 
 
+#: Dask's scheduler port when an address names none.
+DEFAULT_SCHEDULER_PORT = 8786
+
+
+def scheduler_unreachable(address: str, timeout: float = 5.0) -> str | None:
+    """Why nothing answers at a scheduler's TCP address (None: something does, or the
+    address is not TCP, e.g. ``inproc://``, and only Dask can tell).
+
+    Parameters
+    ----------
+    address : str
+        ``tcp://host:port``, ``tls://host:port`` or ``host:port``.
+    timeout : float
+        Seconds to wait for the connection.
+    """
+    parts = urllib.parse.urlsplit(address if "://" in address else f"tcp://{address}")
+    if parts.scheme not in ("tcp", "tls") or not parts.hostname:
+        return None
+    try:
+        port = parts.port or DEFAULT_SCHEDULER_PORT
+    except ValueError as exc:  # a port that is not a number
+        return str(exc)
+    try:
+        with socket.create_connection((parts.hostname, port), timeout=timeout):
+            return None
+    except OSError as exc:
+        return exc.strerror or str(exc)
+
+
 @contextlib.contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Client]:
     """A Dask client: of the cluster at ``scheduler``, or of a local cluster of ``workers``.
@@ -138,6 +169,11 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     start processes of their own (training renders in parallel).
     """
     if scheduler:
+        # A refused port or an unknown host fails at once here; Dask's client would
+        # retry until its timeout (20 s, for a busy cluster's slow answer).
+        unreachable = scheduler_unreachable(scheduler)
+        if unreachable:
+            raise InputError(f"--scheduler {scheduler}: cannot connect ({unreachable})")
         try:
             client = Client(scheduler, timeout="20s")
         except (OSError, TimeoutError) as exc:

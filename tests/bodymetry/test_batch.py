@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import csv
 import shutil
+import socket
+import time
 
 import pytest
 from click.testing import CliRunner
@@ -140,10 +142,27 @@ def test_the_command_on_a_running_scheduler(study, monkeypatch):
     text = " ".join(res.output.split())
     assert "4 session(s)" in text and "failed" in text and "cohort.csv" in text
     assert "Traceback" not in res.output
-    # Nothing listens there. The client retries until its timeout (20 s): 1 s
-    # here, the error is the same.
+    # Nothing listens there: refused at once, without waiting for Dask's timeout.
+    start = time.perf_counter()
+    with pytest.raises(InputError, match="cannot connect"), dask_client("tcp://127.0.0.1:1"):
+        pass
+    assert time.perf_counter() - start < 5.0
+    # Past the TCP check (something answers), Dask's own error is reported the same way.
+    monkeypatch.setattr(batch_module, "scheduler_unreachable", lambda address: None)
     monkeypatch.setattr(
         batch_module, "Client", lambda address, timeout: Client(address, timeout="1s")
     )
     with pytest.raises(InputError, match="cannot connect"), dask_client("tcp://127.0.0.1:1"):
         pass
+
+
+def test_scheduler_unreachable_reads_the_address_forms():
+    from bodymetry.batch import scheduler_unreachable
+
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        port = server.getsockname()[1]
+        assert scheduler_unreachable(f"tcp://127.0.0.1:{port}") is None
+        assert scheduler_unreachable(f"127.0.0.1:{port}") is None
+    assert scheduler_unreachable(f"tcp://127.0.0.1:{port}")  # closed now: refused
+    assert scheduler_unreachable("tcp://127.0.0.1:notaport")
+    assert scheduler_unreachable("inproc://somewhere") is None  # only Dask can tell
