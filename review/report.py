@@ -455,8 +455,9 @@ def per_frame_rows(run: RunData) -> list[dict[str, Any]]:
             {
                 "frame": r.frame,
                 "status": r.status,
-                "flags": ", ".join(
-                    f"{cam}: {', '.join(fl)}" for cam, fl in sorted(r.flags.items()) if fl
+                "flags": "; ".join(
+                    [f"{cam}: {', '.join(fl)}" for cam, fl in sorted(r.flags.items()) if fl]
+                    + ([f"{r.persons} people in view"] if (r.persons or 0) > 1 else [])
                 ),
                 "values": [
                     None if gen is None else gen.biometrics.get(k) for k in CORE_MEASUREMENTS

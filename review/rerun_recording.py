@@ -118,6 +118,7 @@ def blueprint(
     biometrics: list[str],
     eye: tuple[np.ndarray, np.ndarray] | None = None,
     agreement: bool = False,
+    persons: bool = False,
 ) -> Any:
     """3D view beside the camera grid, the time series below.
 
@@ -131,6 +132,9 @@ def blueprint(
     agreement : bool
         Whether the run recorded capture's view agreement (a tab of its
         ``/metrics/views`` series).
+    persons : bool
+        Whether capture saw more than one person in some frame (a tab of the
+        ``/metrics/persons`` series: people in the capture volume per frame).
     """
     cams = [rrb.Spatial2DView(origin=f"/world/rig/{name}", name=name) for name in camera_names]
     plots = [
@@ -139,7 +143,9 @@ def blueprint(
         if key in biometrics
     ]
     views = [rrb.TimeSeriesView(origin="/metrics/views", name="view agreement")]
+    people = [rrb.TimeSeriesView(origin="/metrics/persons", name="people in view")]
     more = [
+        *(people if persons else []),
         rrb.TimeSeriesView(origin="/metrics/likelihood", name="log-likelihood per layer"),
         rrb.TimeSeriesView(origin="/metrics/silhouette_iou", name="silhouette IoU"),
         *(views if agreement else []),
@@ -203,8 +209,10 @@ class RerunWriter:
             horizontal = side / np.linalg.norm(side) * radius * 1.1
             eye = (target + np.r_[horizontal, centres[:, 2].mean() + 0.6], target)
         agreement = any(r.view_agreement for r in run.frames)
+        crowded = any((r.persons or 0) > 1 for r in run.frames)
         self._rec.save(
-            self.path, default_blueprint=blueprint(names, self.biometrics, eye, agreement)
+            self.path,
+            default_blueprint=blueprint(names, self.biometrics, eye, agreement, crowded),
         )
         self._frames = 0
         self._log_static(body)
@@ -335,6 +343,8 @@ class RerunWriter:
         for name, value in record.view_agreement.items():
             if np.isfinite(value):
                 rec.log(f"/metrics/views/{name}/agreement", rr.Scalars(float(value)))
+        if record.persons is not None:
+            rec.log("/metrics/persons", rr.Scalars(float(record.persons)))
         if record.estimate() is None:  # no fit: nothing else to plot
             return
         for key in self.biometrics:

@@ -463,3 +463,5 @@ def test_caveats_head_the_report_only_when_there_are_any(review_run, bare_run, m
     # Above the headline cards, naming the code and the frame.
     assert html.index('id="caveats"') < html.index('class="cards"')
     assert "several_persons" in box and f"frame {frames[0]['frame']}" in box
+    # The frames table says it on that frame's row.
+    assert "2 people in view" in html[html.index('id="frames"') :]

@@ -133,7 +133,7 @@ def test_capture_view_agreement_is_a_metric_per_view(review_run, tmp_path):
         shutil.copy(review_run.folder / name, folder / name)
     data = json.loads((folder / "results.json").read_text())
     first = data["frames"][0]
-    first.update(status="no silhouette in any camera", view_agreement={"cam_01": 0.58})
+    first.update(status="no silhouette in any camera", view_agreement={"cam_01": 0.58}, persons=2)
     for stage in ("discriminative", "generative", "session"):
         first.pop(stage, None)
     (folder / "results.json").write_text(json.dumps(data))
@@ -153,3 +153,11 @@ def test_capture_view_agreement_is_a_metric_per_view(review_run, tmp_path):
         for v in chunk.to_record_batch().column("Scalars:scalars").to_pylist()
     ]
     assert np.ravel(values).tolist() == pytest.approx([0.58])
+    # Capture's person count is a series of its own.
+    people = [
+        v
+        for chunk in store.stream().to_chunks()
+        if chunk.entity_path == "/metrics/persons"
+        for v in chunk.to_record_batch().column("Scalars:scalars").to_pylist()
+    ]
+    assert np.ravel(people).tolist() == [2.0]
