@@ -18,6 +18,7 @@ from bodymetry.cli.common import (
 )
 from bodymetry.estimation.records import CORE_MEASUREMENTS
 from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.review.cohort import cohort_rows
 
 __all__ = ["EXIT_SESSIONS_FAILED", "batch"]
 
@@ -99,9 +100,19 @@ def _print_study(study, folder: Path) -> None:
     table = Table(title=f"study {folder}")
     for col in ("session", "status", "rig", "detail"):
         table.add_column(col)
+    # A done session whose numbers stand on thin or ambiguous evidence says so.
+    caveats = {row.name: row.caveats for row in cohort_rows(folder, study)}
     for entry in study.sessions:
-        table.add_row(entry.name, entry.status, entry.rig[:8], entry.reason)
+        found = caveats.get(entry.name)
+        detail = entry.reason or (f"caveats: {found}" if found else "")
+        table.add_row(entry.name, entry.status, entry.rig[:8], detail)
     console.print(table)
+    with_caveats = sum(1 for text in caveats.values() if text)
+    if with_caveats:
+        console.print(
+            f"{with_caveats} session(s) measured with caveats: read their reports "
+            "(the cohort's 'caveats' column)"
+        )
     trained = sum(1 for r in study.rigs.values() if r.trained)
     console.print(
         f"{len(study.rigs)} rig(s), {trained} trained now; cohort: {folder / 'cohort.csv'}, "

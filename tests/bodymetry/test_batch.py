@@ -142,6 +142,13 @@ def test_the_command_on_a_running_scheduler(study, monkeypatch):
     text = " ".join(res.output.split())
     assert "4 session(s)" in text and "failed" in text and "cohort.csv" in text
     assert "Traceback" not in res.output
+    # Sessions measured on thin or ambiguous evidence are counted and named.
+    with open(base / "study" / "cohort.csv", newline="", encoding="utf-8") as f:
+        flagged = [r for r in csv.DictReader(f) if r["caveats"]]
+    line = f"{len(flagged)} session(s) measured with caveats"
+    assert (line in text) == bool(flagged), text
+    for row in flagged:
+        assert f"caveats: {row['caveats']}" in text
     # Nothing listens there: refused at once, without waiting for Dask's timeout.
     start = time.perf_counter()
     with pytest.raises(InputError, match="cannot connect"), dask_client("tcp://127.0.0.1:1"):
