@@ -351,8 +351,7 @@ def main(argv: list[str] | None = None) -> None:
     report = bake_edge(args.wheel, args.out)
     for r in report["bodies"]:
         log.info(
-            "%-18s %-6s %4.0f y  %-10s h %6.0f mm (p%05.2f)  w %5.1f kg (p%05.2f)  "
-            "shape9 %.1f mm",
+            "%-18s %-6s %4.0f y  %-10s h %6.0f mm (p%05.2f)  w %5.1f kg (p%05.2f)  shape9 %.1f mm",
             r["key"],
             r["sex"],
             r["age_years"],
