@@ -33,6 +33,7 @@ REPORTS = {
     "profile": "benchmarks.bench_profile",
     "session_bias": "benchmarks.bench_session_bias",
     "session_spread": "benchmarks.bench_session_spread",
+    "shape_space": "benchmarks.bench_shape_space",
     "standing_shape": "benchmarks.bench_standing_shape",
 }
 

@@ -23,7 +23,9 @@ from every setting chosen on the independent six; ``--heavy`` renders
 no other set uses; ``--fresh`` renders :data:`FRESH_SESSIONS`, three more
 tight-clothed ones rendered after the last change chosen on the sets above;
 ``--looks`` renders :data:`LOOK_SESSIONS` (issue 32: neutral and wall-coloured
-clothing in a plain grey room);
+clothing in a plain grey room); ``--edge`` renders :data:`EDGE_SESSIONS` (issue 33:
+the studio's edge bodies, by percentile of height, weight and age, children included,
+tight clothing in the saturated colours) and adds :func:`edge_summary`;
 ``--held-out`` renders
 :data:`HELD_OUT_SESSIONS`, a replication of the four same-model sessions with new
 subjects.
@@ -34,6 +36,9 @@ models are trained into a fresh cache, so the demo's run is a cold start
 (training included) and the other sessions, on the same rig, reuse them;
 ``BODYMETRY_BENCH_WARM=1`` uses the user's cache instead; ``BODYMETRY_BENCH_SKIP_DEMO=1``
 leaves the demo out (e.g. for ``--independent`` after a run of the default set).
+``BODYMETRY_BENCH_WORKERS=N`` processes with N workers instead of all cores, and
+``BODYMETRY_BENCH_FRAMES=N`` renders N frames per studio session instead of
+:data:`FRAMES` (both are recorded in the result's ``setup``).
 
 With the session stage on (the default), each biometric's check also gives the session
 stage's error, its standard error, whether it is at least as accurate as the per-frame
@@ -51,6 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.cli import DEMO_SESSION
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunLayout
@@ -141,6 +147,31 @@ LOOK_SESSIONS = (
 DEMO_RIG_SEED = 5
 FRAMES = 400  # 16 kept frames each
 
+#: Issue 33: the edge set, one session per edge body of the studio
+#: (``--subject independent:SEED,edge=KEY``, docs/studio.md): the 1st and 99th
+#: percentile of height and of weight for women and for men (aged 18-65), a woman of
+#: 80 and children of 6, 10 and 14 years, all in tight clothing of the saturated
+#: colours (the default look, so that silhouettes are not the problem), seeds never used
+#: before, motions in turn. ``python -m benchmarks pipeline --edge``.
+EDGE_SESSIONS = (
+    (331, "arm_raises", "independent:331,edge=female_height_p01"),
+    (332, "reach", "independent:332,edge=female_height_p99"),
+    (333, "mixed", "independent:333,edge=female_weight_p01"),
+    (334, "walk_turn", "independent:334,edge=female_weight_p99"),
+    (335, "arm_raises", "independent:335,edge=male_height_p01"),
+    (336, "reach", "independent:336,edge=male_height_p99"),
+    (337, "mixed", "independent:337,edge=male_weight_p01"),
+    (338, "walk_turn", "independent:338,edge=male_weight_p99"),
+    (339, "arm_raises", "independent:339,edge=female_age80"),
+    (340, "reach", "independent:340,edge=girl_age6"),
+    (341, "mixed", "independent:341,edge=boy_age10"),
+    (342, "arm_raises", "independent:342,edge=girl_age14"),
+)
+#: Issue 33: a child's weight target is this share of the true weight (not 1.5 kg).
+CHILD_WEIGHT_SHARE = 0.03
+#: Issue 33: below this age (years) a subject is a child for the weight target.
+ADULT_AGE = 18.0
+
 TARGETS = {
     "height_mm": {"mean_error": 15.0, "std": 25.0},
     "arm_span_mm": {"mean_error": 20.0, "std": 25.0},
@@ -160,11 +191,21 @@ def _outfit(subject: str) -> str:
     return "loose" if "clothing=loose" in subject or subject.endswith("_loose") else "tight"
 
 
+def _workers() -> int:
+    """Worker processes: ``BODYMETRY_BENCH_WORKERS`` or all cores."""
+    return int(os.environ.get("BODYMETRY_BENCH_WORKERS") or os.cpu_count() or 1)
+
+
+def _frames() -> int:
+    """Frames per studio session: ``BODYMETRY_BENCH_FRAMES`` or :data:`FRAMES`."""
+    return int(os.environ.get("BODYMETRY_BENCH_FRAMES") or FRAMES)
+
+
 def _render(
     folder: Path, seed: int, motion: str, options: dict, subject: str | None = None
 ) -> Path:
     config = SynthConfig(
-        frames=FRAMES,
+        frames=_frames(),
         seed=seed,
         rig_seed=DEMO_RIG_SEED,
         motion=motion,
@@ -172,7 +213,7 @@ def _render(
         calibration_frames=30,  # the true calibration.yaml is written; no clip is solved
         **options,
     )
-    synthesize(folder, config)
+    synthesize(folder, config, workers=_workers())
     return folder
 
 
@@ -182,7 +223,7 @@ def _rescue_log(run: Path) -> dict:
 
 def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) -> dict:
     """Process and evaluate one session; the figures of this benchmark."""
-    workers = os.cpu_count() or 1
+    workers = _workers()
     t0 = time.perf_counter()
     results = process_session(session, run, ProcessConfig(workers=workers, cache_dir=cache_dir))
     t_process = time.perf_counter() - t0
@@ -217,8 +258,13 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
                 session_within_issue_15=abs(s_err) <= SESSION_TARGETS[key],
             )
     fitting = results.timing_seconds["fitting"]
+    truth = SubjectTruth.read(Path(session) / "ground_truth")
+    details = {} if truth is None else truth.details
     return {
         "session": str(session),
+        "subject": details.get("subject"),
+        "age_years": details.get("age_years"),
+        "edge": details.get("edge"),
         "kept_frames": len(frames),
         "frames_in_summary": ev["frames"],
         "frame_share": round(ev["frames"] / max(len(frames), 1), 3),
@@ -334,6 +380,68 @@ def stage_comparison(sessions: list[dict]) -> dict:
     return out
 
 
+def edge_summary(sessions: list[dict]) -> dict:
+    """Issue 33: the edge set's table and the discriminative stage's height error.
+
+    Parameters
+    ----------
+    sessions : list of dict
+        :func:`evaluate_session` results of edge-body sessions (others are skipped).
+
+    Returns
+    -------
+    dict
+        ``subjects``: per session its edge key, age, true height and weight, the
+        session stage's errors (height mm, arm span mm, weight kg), the weight target
+        (1.5 kg, or :data:`CHILD_WEIGHT_SHARE` of the true weight for a child), the
+        share of kept frames measured, the discriminative stage's height error and
+        whether the session is within issue 33's targets; ``discriminative_height``:
+        the mean absolute (and largest) discriminative height error over the set;
+        ``all_within``: every subject within the targets with >= 90 % of kept frames.
+    """
+    rows = []
+    for s in sessions:
+        edge = s.get("edge")
+        if not edge:
+            continue
+        table, checks = s["figure3"], s["checks"]
+        actual_weight = table["weight_kg"]["actual"]
+        child = float(s.get("age_years") or edge["age_years"]) < ADULT_AGE
+        weight_target = (
+            CHILD_WEIGHT_SHARE * actual_weight if child else SESSION_TARGETS["weight_kg"]
+        )
+        targets = {**SESSION_TARGETS, "weight_kg": weight_target}
+        errors = {k: checks[k].get("session_error") for k in SESSION_TARGETS}
+        within = {k: errors[k] is not None and abs(errors[k]) <= targets[k] for k in targets}
+        rows.append(
+            {
+                "edge": edge["key"],
+                "target": edge["target"],
+                "age_years": edge["age_years"],
+                "height_mm": round(table["height_mm"]["actual"], 1),
+                "weight_kg": round(actual_weight, 2),
+                "session_error": errors,
+                "weight_target_kg": round(weight_target, 2),
+                "frame_share": s["frame_share"],
+                "discriminative_height_error_mm": checks["height_mm"]["discriminative_error"],
+                "within_issue_33": all(within.values()) and s["frame_share_pass"],
+                "within": within,
+            }
+        )
+    if not rows:
+        return {}
+    disc = np.abs([r["discriminative_height_error_mm"] for r in rows])
+    return {
+        "subjects": rows,
+        "discriminative_height": {
+            "mean_absolute_error_mm": round(float(disc.mean()), 1),
+            "max_absolute_error_mm": round(float(disc.max()), 1),
+        },
+        "within_issue_33": f"{sum(r['within_issue_33'] for r in rows)}/{len(rows)}",
+        "all_within": all(r["within_issue_33"] for r in rows),
+    }
+
+
 def run(
     independent: bool = False,
     validation: bool = False,
@@ -341,6 +449,7 @@ def run(
     heavy: bool = False,
     fresh: bool = False,
     looks: bool = False,
+    edge: bool = False,
 ) -> dict:
     reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
     same_model = HELD_OUT_SESSIONS if held_out else SESSIONS
@@ -370,6 +479,17 @@ def run(
                 )
                 for seed, motion, subject, look in LOOK_SESSIONS
             ]
+        elif edge:
+            folders = [
+                _render(
+                    tmp / f"seed{seed}_{motion}_{subject.rpartition('=')[2]}",
+                    seed,
+                    motion,
+                    {},
+                    subject,
+                )
+                for seed, motion, subject in EDGE_SESSIONS
+            ]
         elif independent:
             folders = [
                 _render(tmp / f"seed{seed}_{motion}_{_outfit(subject)}", seed, motion, {}, subject)
@@ -387,17 +507,19 @@ def run(
     listed = LOOK_SESSIONS if looks else subjects if independent else same_model
     described = (
         [f.name for f in folders]
-        if reuse or looks
+        if reuse or looks or edge
         else [s[::2] if independent else s[:2] for s in listed]
     )
+    workers = _workers()
     return {
         "setup": (
             f"{'' if skip_demo else 'demo + '}{len(folders)} studio sessions "
-            f"({FRAMES} frames, every 25th kept; "
+            f"({_frames()} frames, every 25th kept; "
             f"{described}; the demo's rig), "
-            "default preset, all cores"
+            f"default preset, {workers} worker{'s' if workers > 1 else ''}"
         ),
         "sessions": out,
+        **({"edge_summary": edge_summary(out)} if edge else {}),
         # Loose clothing biases both stages alike: the stages are compared on the rest.
         "stage_comparison": stage_comparison(
             [s for s in out if _outfit(Path(s["session"]).name) != "loose"]

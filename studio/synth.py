@@ -103,7 +103,7 @@ class SubjectSpec:
     @classmethod
     def parse(cls, text: str | None, default_seed: int) -> SubjectSpec:
         """``None`` | ``"seed:N"`` | ``"heldout:N"`` | ``"nu:v1,v2,..."`` |
-        ``"independent:SEED[,body=K][,clothing=tight|loose][,hair=0|1]"``."""
+        ``"independent:SEED[,body=K|edge=KEY][,clothing=tight|loose][,hair=0|1]"``."""
         if text is None:
             return cls(seed=default_seed)
         kind, _, value = text.partition(":")
@@ -123,7 +123,7 @@ class SubjectSpec:
             raise InputError(f"--subject {text!r}: could not read the value ({exc})") from exc
         raise InputError(
             f"--subject {text!r}: expected seed:N, heldout:N, nu:v1,v2,... or "
-            "independent:SEED[,clothing=loose][,hair=1]"
+            "independent:SEED[,body=K|edge=KEY][,clothing=loose][,hair=1]"
         )
 
     def resolve(self, model) -> tuple[np.ndarray, dict]:

@@ -27,8 +27,10 @@ def _parse_size(text: str) -> tuple[int, int]:
 @click.option(
     "--subject",
     default=None,
-    help="seed:N | heldout:N | nu:v1,v2,... | independent:SEED[,body=K][,clothing=tight|loose]"
-    "[,hair=0|1] (a body our model was not built from, docs/studio.md; default: from --seed).",
+    help="seed:N | heldout:N | nu:v1,v2,... | independent:SEED[,body=K|edge=KEY]"
+    "[,clothing=tight|loose][,hair=0|1] (a body our model was not built from; edge=KEY picks "
+    "one by percentile, e.g. female_height_p01 or girl_age6, docs/studio.md; "
+    "default: from --seed).",
 )
 @click.option("--motion", default="mixed", show_default=True, help="Motion library name.")
 @click.option("--frames", default=200, show_default=True, type=int, help="Frames to record.")

@@ -5,7 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks.bench_pipeline import SIGNIFICANT_Z, stage_comparison
+from benchmarks.bench_pipeline import (
+    MIN_FRAME_SHARE,
+    SIGNIFICANT_Z,
+    edge_summary,
+    stage_comparison,
+)
 
 
 def _session(name: str, errors: dict[str, tuple[float, float, float, float]]) -> dict:
@@ -77,10 +82,12 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
     """The held-out, heavy and fresh sets are only held out if no other set used their seeds
     or, for subjects the model was not built from, their bank bodies."""
     from benchmarks.bench_pipeline import (
+        EDGE_SESSIONS,
         FRESH_SESSIONS,
         HEAVY_SESSIONS,
         HELD_OUT_SESSIONS,
         INDEPENDENT_SESSIONS,
+        LOOK_SESSIONS,
         SESSIONS,
         VALIDATION_SESSIONS,
     )
@@ -93,6 +100,8 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
         VALIDATION_SESSIONS,
         HEAVY_SESSIONS,
         FRESH_SESSIONS,
+        LOOK_SESSIONS,
+        EDGE_SESSIONS,
     )
     seeds = [s[0] for group in sets for s in group]
     assert len(seeds) == len(set(seeds))
@@ -107,3 +116,68 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
     )
     assert not independent & validation and not heavy & (independent | validation)
     assert not fresh & (independent | validation | heavy) and len(fresh) == len(FRESH_SESSIONS)
+
+
+def _edge_session(key: str, age: float, weight: float, errors: dict, share: float) -> dict:
+    """An edge session result: session-stage errors per biometric, the discriminative
+    stage's height error ``errors["disc"]`` and the share of kept frames measured."""
+    table = {
+        "height_mm": {"actual": 1500.0},
+        "arm_span_mm": {"actual": 1400.0},
+        "weight_kg": {"actual": weight},
+    }
+    checks = {k: {"session_error": errors[k], "discriminative_error": 0.0} for k in table}
+    checks["height_mm"]["discriminative_error"] = errors["disc"]
+    return {
+        "session": f"/somewhere/{key}",
+        "age_years": age,
+        "edge": {"key": key, "target": "median", "age_years": age},
+        "figure3": table,
+        "checks": checks,
+        "frame_share": share,
+        "frame_share_pass": share >= MIN_FRAME_SHARE,
+    }
+
+
+def test_edge_summary_uses_a_childs_weight_share_and_averages_the_discriminative_error():
+    ok = {"height_mm": -9.0, "arm_span_mm": 14.0, "disc": -120.0}
+    sessions = [
+        # A 21 kg child: 3 % is 0.63 kg, so 0.6 kg passes and 0.7 kg fails.
+        _edge_session("girl_age6", 6.0, 21.0, {**ok, "weight_kg": 0.6}, 1.0),
+        _edge_session("boy_age6", 6.0, 21.0, {**ok, "weight_kg": -0.7, "disc": 60.0}, 1.0),
+        # An adult keeps 1.5 kg; a share of kept frames below 90 % fails.
+        _edge_session("male_p50", 45.0, 70.0, {**ok, "weight_kg": 1.4, "disc": 30.0}, 0.85),
+        {"session": "/somewhere/plain", "edge": None},  # not an edge session: left out
+    ]
+    out = edge_summary(sessions)
+    rows = {r["edge"]: r for r in out["subjects"]}
+    assert list(rows) == ["girl_age6", "boy_age6", "male_p50"]
+    assert rows["girl_age6"]["weight_target_kg"] == pytest.approx(0.63)
+    assert rows["girl_age6"]["within_issue_33"] is True
+    assert rows["boy_age6"]["within"]["weight_kg"] is False
+    assert rows["male_p50"]["within"] == {"height_mm": True, "arm_span_mm": True, "weight_kg": True}
+    assert rows["male_p50"]["within_issue_33"] is False  # 85 % of kept frames
+    assert out["discriminative_height"] == {
+        "mean_absolute_error_mm": 70.0,
+        "max_absolute_error_mm": 120.0,
+    }
+    assert out["within_issue_33"] == "1/3" and out["all_within"] is False
+    assert edge_summary([{"session": "x", "edge": None}]) == {}
+
+
+def test_edge_set_has_every_required_edge_body_once():
+    """Issue 33: >= 10 subjects: 1st/99th percentile height and weight for women and
+    men, an elderly subject and children of 6, 10 and 14, tight clothing."""
+    from benchmarks.bench_pipeline import EDGE_SESSIONS
+    from bodymetry.studio.independent import IndependentSpec
+
+    specs = [IndependentSpec.parse(s[2].split(":", 1)[1]) for s in EDGE_SESSIONS]
+    keys = [spec.edge for spec in specs]
+    assert len(keys) >= 10 and len(set(keys)) == len(keys)
+    for sex in ("female", "male"):
+        for measure in ("height", "weight"):
+            assert {f"{sex}_{measure}_p01", f"{sex}_{measure}_p99"} <= set(keys)
+    assert any(k.endswith("_age80") for k in keys)
+    for age in (6, 10, 14):
+        assert any(k.endswith(f"_age{age}") for k in keys)
+    assert all(spec.clothing == "tight" and not spec.hair for spec in specs)

