@@ -7,7 +7,7 @@ other persons'), wears its own shirt and trousers (from the bystanders' palette,
 :data:`~bodymetry.studio.bystanders.SHIRTS` / :data:`~.bystanders.TROUSERS`,
 away from the subject's colours), performs its own library motion (another seed)
 standing on the floor, and walks a straight line past the subject while doing
-it: the line runs ``side_m`` = 0.6-1.0 m beside the subject's mean root
+it: the line runs ``side_m`` = 0.55-0.85 m beside the subject's mean root
 position, so that in one or two cameras one person passes in front of the other
 for part of the clip (a *crossing*). The studio's cameras frame a standing
 person at the volume centre with little room to spare, so a body a metre
@@ -56,15 +56,15 @@ MAX_PEOPLE = 3
 #: a few centimetres more), metres.
 MIN_GAP_M = 0.08
 #: Sideways distance of a person's path from the subject, metres.
-SIDE_RANGE_M = (0.6, 1.0)
+SIDE_RANGE_M = (0.55, 0.85)
 #: Length of a person's path over the clip, metres.
-LENGTH_RANGE_M = (0.8, 1.2)
+LENGTH_RANGE_M = (0.6, 1.0)
 #: Colours closer than this (BGR albedo distance) to the subject's or another
 #: person's are not worn.
 MIN_COLOUR_DISTANCE = 0.25
 #: Fraction of a person's posed vertices every camera must see, every frame (a hand may
-#: leave the image, a head or the feet may not): the subject and person 1.
-MIN_IN_VIEW = 0.98
+#: leave the image, or the toes for a moment, not a head or a leg): the subject and person 1.
+MIN_IN_VIEW = 0.95
 #: The same for a third person: the rig's framing leaves no room for three bodies that
 #: keep clear of each other, so its head or feet may leave an image for a while.
 MIN_IN_VIEW_THIRD = 0.85
@@ -152,6 +152,18 @@ class Person:
     @property
     def spec(self) -> IndependentSpec:
         return self.subject.spec
+
+    def truth(self, batch: int = 32) -> tuple[dict, np.ndarray, np.ndarray]:
+        """The person's true biometrics, joints (F, 15, 3) and every
+        :data:`VERTEX_STRIDE`-th posed vertex (F, N, 3) of the rendered surface."""
+        tau, theta = self.motion.tau, self.motion.theta
+        joints, sparse = [], []
+        for s in range(0, len(tau), batch):
+            v, j = self.subject.pose(tau[s : s + batch], theta[s : s + batch])
+            joints.append(j)
+            sparse.append(v[:, ::VERTEX_STRIDE])
+        bio = self.subject.biometrics().to_dict()
+        return bio, np.concatenate(joints), np.concatenate(sparse)
 
     def appearance(self, base: Appearance | None = None) -> Appearance:
         """``base`` (default :class:`Appearance`) in this person's shirt and trousers."""

@@ -178,9 +178,9 @@ def _downsample_bodies(
         by0, by1 = int(py.min()) // s, int(py.max()) // s + 1
         bx0, bx1 = int(px.min()) // s, int(px.max()) // s + 1
         sub_depth = depth[by0 * s : by1 * s, bx0 * s : bx1 * s]
-        near.reshape(h, w)[by0:by1, bx0:bx1] = sub_depth.reshape(
-            by1 - by0, s, bx1 - bx0, s
-        ).min(axis=(1, 3))
+        near.reshape(h, w)[by0:by1, bx0:bx1] = sub_depth.reshape(by1 - by0, s, bx1 - bx0, s).min(
+            axis=(1, 3)
+        )
     tracked_cov[:] = mean[:, 4:].T
     return mean[:, 0].copy(), tracked_cov, mean[:, 1:4].copy(), near
 
