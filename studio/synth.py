@@ -794,6 +794,13 @@ def describe(session: Session) -> str:
             for b in bystanders
         )
         extras.append(f"{len(bystanders)} bystander(s) ({seen})")
+    if studio.people > 1:
+        crossing = "; ".join(
+            f"person {p['index']} crosses in " + (", ".join(p.get("crossings", {})) or "none")
+            for p in studio.persons
+            if p.get("index", 0) > 0
+        )
+        extras.append(f"{studio.people} people ({crossing})")
     if all(cam.background is None for cam in session.cameras):
         extras.append("no background clip")
     look = recorded_look(session.folder / "ground_truth")
