@@ -305,6 +305,37 @@ class _CameraJob:
         return model.pose(BodyState(self.tau[frames], self.theta[frames], self.nu[None])).vertices
 
 
+def _scene(
+    studio: Studio, job: _CameraJob, vertices: np.ndarray, people: list[Body], rng
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """One recording frame of the job's camera.
+
+    Returns
+    -------
+    image : (H, W, 3) uint8
+    shadow : (H, W) bool
+    masks : (P, H, W) bool
+        Every person's visible pixels, the subject first.
+    occluded, full : (P, H, W) bool or None
+        Every person's hidden pixels and whole projection (None for one person).
+    """
+    if not people:
+        image, person, shadow = studio.render_frame(
+            job.camera, vertices, rng, others=job.bystanders
+        )
+        return image, shadow, person[None], None, None
+    out = studio.render_people(job.camera, vertices, rng, people=people, others=job.bystanders)
+    return out.image, out.shadow_mask, out.masks, out.occluded, out.full
+
+
+def _write_masks(
+    folders: list[Path], kind: str, camera: str, frame: int, masks: np.ndarray
+) -> None:
+    """Write each person's mask (P, H, W) as ``<folder>/<kind>/<camera>/<frame>.png``."""
+    for folder, mask in zip(folders, masks, strict=True):
+        write_bytes_atomic(folder / kind / camera / f"{frame:06d}.png", _png(mask))
+
+
 def _render_camera(job: _CameraJob, progress) -> dict:
     """Render one camera's recording (with the bystanders), background and calibration
     clips and masks."""
@@ -341,35 +372,15 @@ def _render_camera(job: _CameraJob, progress) -> dict:
                 for w, p in zip(walkers, job.people, strict=True)
             ]
             for k, frame in enumerate(range(start, stop)):
-                if job.people:
-                    people = [
-                        Body(v[k], p.appearance) for v, p in zip(others, job.people, strict=True)
-                    ]
-                    out = studio.render_people(
-                        cam, verts[k], rng, people=people, others=job.bystanders
-                    )
-                    image, masks, shadow = out.image, out.masks, out.shadow_mask
-                else:
-                    image, person, shadow = studio.render_frame(
-                        cam, verts[k], rng, others=job.bystanders
-                    )
-                    masks = person[None]
+                people = [Body(v[k], p.appearance) for v, p in zip(others, job.people, strict=True)]
+                image, shadow, masks, hidden, full = _scene(studio, job, verts[k], people, rng)
                 writer.write(image)
                 if frame in kept:
-                    for folder, mask in zip(folders, masks, strict=True):
-                        write_bytes_atomic(
-                            folder / GROUND_TRUTH_SILHOUETTES / cam.name / f"{frame:06d}.png",
-                            _png(mask),
-                        )
-                    if job.people:
-                        hidden = out.occluded
-                        for folder, mask in zip(folders, hidden, strict=True):
-                            write_bytes_atomic(
-                                folder / GROUND_TRUTH_OCCLUDED / cam.name / f"{frame:06d}.png",
-                                _png(mask),
-                            )
+                    _write_masks(folders, GROUND_TRUTH_SILHOUETTES, cam.name, frame, masks)
+                    if hidden is not None:
+                        _write_masks(folders, GROUND_TRUTH_OCCLUDED, cam.name, frame, hidden)
                         occluded += hidden.sum(axis=(1, 2))
-                        whole += out.full.sum(axis=(1, 2))
+                        whole += full.sum(axis=(1, 2))
                     if masks[0].any():
                         shadow_fraction.append(float(shadow.sum() / masks[0].sum()))
                 progress.put(1)
