@@ -450,7 +450,7 @@ def synthesize(
 
     # Ground truth that does not need rendering.
     bio, joints, sparse_vertices = subject.truth(model, config.frames)
-    people, subject, joints, sparse_vertices = _draw_people(
+    people, truths, subject, joints, sparse_vertices = _draw_people(
         model, cameras, config, subject, joints, sparse_vertices
     )
     bystanders = place_bystanders(
@@ -467,8 +467,8 @@ def synthesize(
     )
     del sparse_vertices
     _write_ground_truth(out, config, subject, joints, board_poses, bio)
-    for person in people:
-        _write_person_truth(out, config, person)
+    for person, (person_bio, person_joints, _) in zip(people, truths, strict=True):
+        _write_person_truth(out, config, person, person_bio, person_joints)
     _write_true_calibration(out, cameras)
 
     # The look dresses the subject (_render_camera); bystanders wear their own clothes.
@@ -496,12 +496,13 @@ def _draw_people(
     subject: _SubjectMotion,
     joints: np.ndarray,
     sparse_vertices: np.ndarray,
-) -> tuple[list[Person], _SubjectMotion, np.ndarray, np.ndarray]:
-    """The persons besides the subject (none unless ``config.people`` > 1), the subject
-    moved to make room for them, its joints (F, 15, 3) and the sparse vertices of
-    everyone (F, N, 3), for the bystanders to keep clear of."""
+) -> tuple[list[Person], list[tuple], _SubjectMotion, np.ndarray, np.ndarray]:
+    """The persons besides the subject (none unless ``config.people`` > 1), their
+    :meth:`Person.truth`, the subject moved to make room for them, its joints
+    (F, 15, 3) and the sparse vertices of everyone (F, N, 3), for the bystanders to
+    keep clear of."""
     if config.people == 1:
-        return [], subject, joints, sparse_vertices
+        return [], [], subject, joints, sparse_vertices
     base = subject.independent.appearance() if subject.independent is not None else Appearance()
     exclude = () if subject.independent is None else (subject.independent.index,)
     people, offset = draw_people(
@@ -521,13 +522,16 @@ def _draw_people(
     moved = dataclasses.replace(
         subject, motion=Motion(motion.theta, motion.tau + shift, motion.fps, motion.name)
     )
-    everyone = [sparse_vertices + shift] + [p.truth()[2] for p in people]
-    return people, moved, joints + shift, np.concatenate(everyone, axis=1)
+    truths = [p.truth() for p in people]
+    everyone = [sparse_vertices + shift] + [t[2] for t in truths]
+    return people, truths, moved, joints + shift, np.concatenate(everyone, axis=1)
 
 
-def _write_person_truth(out: Path, config: SynthConfig, person: Person) -> None:
-    """Write ``ground_truth/persons/<k>/``'s states and ``subject.json`` of a person."""
-    bio, joints, _ = person.truth()
+def _write_person_truth(
+    out: Path, config: SynthConfig, person: Person, bio: dict, joints: np.ndarray
+) -> None:
+    """Write ``ground_truth/persons/<k>/``'s states and ``subject.json`` of a person
+    (its biometrics and joints (F, 15, 3), :meth:`Person.truth`)."""
     folder = person_folder(out / "ground_truth", person.index)
     states = {
         "frame": np.arange(config.frames),

@@ -18,11 +18,11 @@ from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.studio.bystanders import SHIRTS, TROUSERS
 from bodymetry.studio.evaluate import GroundTruth
 from bodymetry.studio.independent import IndependentSpec, IndependentSubject
-from bodymetry.studio.people import MAX_PEOPLE, dressed
+from bodymetry.studio.people import MAX_PEOPLE, MIN_GAP_M, draw_people, dressed
 from bodymetry.studio.render import Body, Studio
-from bodymetry.studio.rig import look_at
+from bodymetry.studio.rig import look_at, studio_rig
 from bodymetry.studio.scene import Appearance
-from bodymetry.studio.synth import SynthConfig, synthesize
+from bodymetry.studio.synth import SynthConfig, _SubjectMotion, synthesize
 
 SIZE = (160, 120)
 #: Two persons' posed surfaces never come closer than this (the placement keeps 8 cm
@@ -203,3 +203,34 @@ def test_subject_reader_is_unchanged(two):
     np.testing.assert_array_equal(truth.person("cam_00", 4), truth.person("cam_00", 4, index=0))
     assert truth.person("cam_00", 5, index=1) is None  # not a kept frame
     assert truth.person("cam_00", 4, index=2) is None  # no such person
+
+
+def test_three_people_keep_clear_in_view_and_cross_the_subject():
+    """draw_people on a short clip: distinct bodies and clothes, everyone clear of
+    everyone, the subject and person 1 centred on the volume, each crossing the
+    subject in some camera; the same seed gives the same people."""
+    model = BodyModel.load()
+    config = SynthConfig(**{**CONFIG, "people": 3})
+    subject = _SubjectMotion.draw(model, config)
+    _, _, sparse = subject.truth(model, config.frames)
+    cameras = studio_rig(4, SIZE, seed=0)
+    args = (model, cameras, subject.motion.tau, sparse, Appearance(), 2, 0)
+    people, offset = draw_people(*args, motion="mixed", fps=60.0)
+    assert [p.index for p in people] == [1, 2]
+    assert people[0].subject.index != people[1].subject.index
+    assert (people[0].shirt, people[0].trousers) != (people[1].shirt, people[1].trousers)
+    assert all(p.crossings for p in people)
+    # Subject and person 1 on either side of the volume centre.
+    middle = 0.5 * (
+        subject.motion.tau[:, :2].mean(0) + offset + people[0].motion.tau[:, :2].mean(0)
+    )
+    assert np.linalg.norm(middle) < 0.15
+    vertices = [sparse + np.r_[offset, 0.0]] + [p.truth()[2] for p in people]
+    for a in range(3):
+        for b in range(a + 1, 3):
+            for f in range(config.frames):
+                gap, _ = cKDTree(vertices[a][f]).query(vertices[b][f], k=1)
+                assert gap.min() >= MIN_GAP_M, (a, b, f)
+    again, offset_again = draw_people(*args, motion="mixed", fps=60.0)
+    np.testing.assert_array_equal(offset, offset_again)
+    np.testing.assert_array_equal(people[1].motion.tau, again[1].motion.tau)
