@@ -6,6 +6,12 @@ subject, its shape ν when it is a body of our model, and how it was made),
 ``studio.json`` (:class:`StudioRecord`: how the studio rendered the session),
 ``states.npz`` and the true silhouettes. The studio writes them; ``process``,
 the review and the studio's evaluation read them, through these classes only.
+
+A session with several people (``bodymetry synth --people N``) keeps the
+subject's (person 0's) files where they are and adds, for each other person
+``k``, the same files in ``ground_truth/persons/<k>/`` (:func:`person_folder`);
+every person's folder also has ``occluded/<camera>/<frame>.png``, the pixels of
+its whole projection that another person hides.
 """
 
 from __future__ import annotations
@@ -19,6 +25,8 @@ from bodymetry.errors import InputError
 from bodymetry.fileio import read_json_object, write_json_atomic
 
 __all__ = [
+    "GROUND_TRUTH_OCCLUDED",
+    "GROUND_TRUTH_PERSONS",
     "GROUND_TRUTH_SILHOUETTES",
     "GROUND_TRUTH_STATES",
     "GROUND_TRUTH_STUDIO",
@@ -26,6 +34,7 @@ __all__ = [
     "MEASUREMENT_SUFFIXES",
     "StudioRecord",
     "SubjectTruth",
+    "person_folder",
 ]
 
 #: The subject's true measurements and description, in ``ground_truth/``.
@@ -36,12 +45,31 @@ GROUND_TRUTH_STUDIO = "studio.json"
 GROUND_TRUTH_STATES = "states.npz"
 #: The true silhouettes, ``ground_truth/silhouettes/<camera>/<frame>.png``.
 GROUND_TRUTH_SILHOUETTES = "silhouettes"
+#: Where another person hides a person, ``<person folder>/occluded/<camera>/<frame>.png``.
+GROUND_TRUTH_OCCLUDED = "occluded"
+#: The other persons' folders, ``ground_truth/persons/<k>/`` (k >= 1).
+GROUND_TRUTH_PERSONS = "persons"
 #: Keys of ``subject.json`` that are measurements (by their unit), besides ``bmi``.
 MEASUREMENT_SUFFIXES = ("_mm", "_kg", "_l")
 
 
 def _is_measurement(key: str, value: Any) -> bool:
     return (key == "bmi" or key.endswith(MEASUREMENT_SUFFIXES)) and isinstance(value, int | float)
+
+
+def person_folder(ground_truth: Path, index: int) -> Path:
+    """The folder of person ``index``'s ground truth: ``ground_truth`` itself for the
+    subject (0), ``ground_truth/persons/<index>`` for the others.
+
+    Raises
+    ------
+    InputError
+        ``index`` is negative or not an integer.
+    """
+    if isinstance(index, bool) or not isinstance(index, int) or index < 0:
+        raise InputError(f"person index: expected an integer >= 0, got {index!r}")
+    ground_truth = Path(ground_truth)
+    return ground_truth if index == 0 else ground_truth / GROUND_TRUTH_PERSONS / str(index)
 
 
 @dataclass(frozen=True)
@@ -126,6 +154,10 @@ class StudioRecord:
     render_seconds : float
     shadow_to_person_area_mean : dict of str to float
         Per camera, the cast shadow's area over the person's.
+    persons : list of dict
+        With several people, each person's description (``index``; for the
+        others their body, clothes, motion, path and crossings; every person's
+        ``occluded_fraction`` per camera); empty for one person.
     """
 
     config: dict[str, Any]
@@ -133,6 +165,12 @@ class StudioRecord:
     bystanders: list[dict[str, Any]] = field(default_factory=list)
     render_seconds: float = 0.0
     shadow_to_person_area_mean: dict[str, float] = field(default_factory=dict)
+    persons: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def people(self) -> int:
+        """Persons recorded (the subject included; 1 for sessions made before people)."""
+        return int(self.config.get("people", 1))
 
     @property
     def shadows(self) -> bool:
@@ -158,6 +196,7 @@ class StudioRecord:
             "bystanders": self.bystanders,
             "render_seconds": self.render_seconds,
             "shadow_to_person_area_mean": self.shadow_to_person_area_mean,
+            **({"persons": self.persons} if self.persons else {}),
         }
 
     @classmethod
@@ -177,6 +216,7 @@ class StudioRecord:
                     str(k): float(v)
                     for k, v in dict(data.get("shadow_to_person_area_mean", {})).items()
                 },
+                persons=[dict(p) for p in data.get("persons", [])],
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{path}: not a studio.json of `bodymetry synth` ({exc})") from exc

@@ -10,7 +10,9 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={
         "synth": ["SubjectSpec", "SynthConfig", "describe", "synthesize"],
-        "evaluate": ["segment_and_score"],
+        "evaluate": ["GroundTruth", "segment_and_score"],
+        "people": ["MAX_PEOPLE", "Person", "draw_people"],
+        "render": ["PeopleFrame"],
         "looks": ["Look", "recorded_look"],
     },
 )

@@ -31,10 +31,13 @@ import numpy as np
 
 from bodymetry.capture.background import SubtractionConfig
 from bodymetry.capture.ground_truth import (
+    GROUND_TRUTH_OCCLUDED,
+    GROUND_TRUTH_SILHOUETTES,
     GROUND_TRUTH_STATES,
     GROUND_TRUTH_SUBJECT,
     StudioRecord,
     SubjectTruth,
+    person_folder,
 )
 from bodymetry.capture.ingest import check_sync
 from bodymetry.capture.overlays import save_silhouette_frame
@@ -96,17 +99,47 @@ class GroundTruth:
         gt = self.session.ground_truth_path
         return gt is not None and (gt / GROUND_TRUTH_STATES).is_file()
 
-    def person(self, camera: str, frame: int) -> np.ndarray | None:
-        """(H, W) bool true silhouette, or None when the session has none for that frame."""
+    def person(self, camera: str, frame: int, index: int = 0) -> np.ndarray | None:
+        """(H, W) bool true silhouette (the visible pixels) of person ``index`` (0: the
+        subject), or None when the session has none for that frame or person."""
         if self.session.ground_truth is None:
             return None
-        path = self.session.ground_truth_silhouette_path(camera, frame)
-        if not path.is_file():
+        if index == 0:
+            return _read_mask(self.session.ground_truth_silhouette_path(camera, frame))
+        return self._person_mask(GROUND_TRUTH_SILHOUETTES, camera, frame, index)
+
+    def occluded(self, camera: str, frame: int, index: int = 0) -> np.ndarray | None:
+        """(H, W) bool pixels of person ``index``'s whole projection that another person
+        hides, or None when the session has no such mask (a one-person session)."""
+        if self.session.ground_truth is None:
             return None
-        mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if mask is None:
-            raise InputError(f"{path}: not a readable PNG mask")
-        return mask > 0
+        return self._person_mask(GROUND_TRUTH_OCCLUDED, camera, frame, index)
+
+    def persons(self) -> int:
+        """Persons the studio recorded (1 without a studio record or before people)."""
+        gt = self.session.ground_truth_path
+        studio = None if gt is None else StudioRecord.read(gt)
+        return 1 if studio is None else studio.people
+
+    def person_truth(self, index: int = 0) -> SubjectTruth | None:
+        """Person ``index``'s ``subject.json`` (biometrics and description), or None."""
+        gt = self.session.ground_truth_path
+        return None if gt is None else SubjectTruth.read(person_folder(gt, index))
+
+    def person_states(self, index: int = 0) -> dict[str, np.ndarray] | None:
+        """Person ``index``'s true states (``frame``, ``tau``, ``theta``, ``joints``;
+        the subject's also ``nu`` and ``board_poses``), or None."""
+        gt = self.session.ground_truth_path
+        if gt is None:
+            return None
+        path = person_folder(gt, index) / GROUND_TRUTH_STATES
+        return load_npz(path) if path.is_file() else None
+
+    def _person_mask(self, kind: str, camera: str, frame: int, index: int) -> np.ndarray | None:
+        """A ``silhouettes`` or ``occluded`` mask of a person's folder, or None."""
+        self.session.camera(camera)  # an unknown camera is an error, not a missing mask
+        folder = person_folder(self.session.ground_truth_path, index)
+        return _read_mask(folder / kind / camera / f"{int(frame):06d}.png")
 
     @property
     def look(self) -> Look:
@@ -160,6 +193,16 @@ class GroundTruth:
             vertices = self._model.pose(state).vertices[0]
         out = self._studio.render_frame(self._cameras[camera], vertices, effects=False)
         return out.shadow_mask & ~out.person_mask
+
+
+def _read_mask(path: Path) -> np.ndarray | None:
+    """(H, W) bool mask of a PNG (non-zero pixels), or None when there is no file."""
+    if not path.is_file():
+        return None
+    mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if mask is None:
+        raise InputError(f"{path}: not a readable PNG mask")
+    return mask > 0
 
 
 def independent_spec(ground_truth: Path) -> IndependentSpec:

@@ -7,8 +7,11 @@ Pipeline of :meth:`Studio.render_frame` for one camera:
    loop). Body triangles are small (a few pixels), so drawing them with
    straight edges between distorted vertices is exact to far below a pixel;
    no image is resampled, and the person mask is exactly the raster. Other
-   bodies (bystanders, :class:`Body`) go through the same raster and shading
-   into the same z-buffer; the person mask keeps the person's visible pixels.
+   bodies (:class:`Body`: bystanders, and the other people of a multi-person
+   session, posed anew each frame) go through the same raster and shading into
+   the same z-buffer; the person mask keeps the person's visible pixels, and
+   :meth:`Studio.render_people` gives every person's visible pixels and whole
+   projection (:class:`PeopleFrame`).
 2. Room (floor, walls, ceiling) and calibration board are computed analytically
    per output pixel by intersecting the pixel's *undistorted* ray (cached per
    camera) with their planes, with box-filtered procedural textures.
@@ -75,11 +78,46 @@ def _camera_key(camera: Camera) -> tuple:
     )
 
 
+def _bbox_mean(
+    flags: np.ndarray, py: np.ndarray, px: np.ndarray, s: int, w: int, h: int
+) -> np.ndarray:
+    """Average values on covered sub-pixels into output pixels, within their bounding box.
+
+    Parameters
+    ----------
+    flags : (N,) or (N, C) float32
+        Value of each covered sub-pixel (uncovered sub-pixels count as 0).
+    py, px : (N,) int
+        Sub-pixel rows and columns on the ``(H*s, W*s)`` grid.
+    s, w, h : int
+        Supersampling factor and output image size.
+
+    Returns
+    -------
+    (H*W,) or (H*W, C) float32
+    """
+    extra = flags.shape[1:]
+    out = np.zeros((h * w, *extra), np.float32)
+    if py.size == 0:
+        return out
+    by0, by1 = int(py.min()) // s, int(py.max()) // s + 1
+    bx0, bx1 = int(px.min()) // s, int(px.max()) // s + 1
+    bh, bw = by1 - by0, bx1 - bx0
+    local = (py - by0 * s) * (bw * s) + (px - bx0 * s)
+    grid = np.zeros((bh * s * bw * s, *extra), np.float32)
+    grid[local] = flags
+    out.reshape(h, w, *extra)[by0:by1, bx0:bx1] = grid.reshape(bh, s, bw, s, *extra).mean(
+        axis=(1, 3)
+    )
+    return out
+
+
 def _downsample_bodies(
     pixels: np.ndarray,
     depth: np.ndarray,
     rad: np.ndarray,
-    subject: np.ndarray,
+    owner: np.ndarray,
+    n_tracked: int,
     s: int,
     w: int,
     h: int,
@@ -95,8 +133,11 @@ def _downsample_bodies(
         Nearest body depth per sub-pixel (inf: none).
     rad : (N, 3) float32
         Radiance of each covered sub-pixel.
-    subject : (N,) bool
-        The sub-pixel shows the subject (not a bystander).
+    owner : (N,) int
+        The body each covered sub-pixel shows (index into the rendered bodies).
+    n_tracked : int
+        Bodies ``0 .. n_tracked - 1`` get their own coverage (the people whose
+        masks are wanted; bystanders after them do not).
     s, w, h : int
         Supersampling factor and output image size.
 
@@ -104,42 +145,55 @@ def _downsample_bodies(
     -------
     cov : (H*W,) float32
         Coverage by any body.
-    subject_cov : (H*W,) float32
-        Coverage by the subject.
+    tracked_cov : (n_tracked, H*W) float32
+        Coverage by each tracked body (its visible part).
     out : (H*W, 3) float32
         Coverage-weighted radiance.
     near : (H*W,) float32
         Nearest depth (inf where no body).
     """
-    cov = np.zeros(h * w, np.float32)
-    subject_cov = np.zeros(h * w, np.float32)
-    out = np.zeros((h * w, 3), np.float32)
-    near = np.full(h * w, np.inf, np.float32)
-    if pixels.size == 0:
-        return cov, subject_cov, out, near
+    tracked_cov = np.zeros((n_tracked, h * w), np.float32)
     if s == 1:
+        cov = np.zeros(h * w, np.float32)
+        out = np.zeros((h * w, 3), np.float32)
         cov[pixels] = 1.0
-        subject_cov[pixels[subject]] = 1.0
         out[pixels] = rad
-        return cov, subject_cov, out, depth.reshape(-1)
+        for k in range(n_tracked):
+            tracked_cov[k, pixels[owner == k]] = 1.0
+        return cov, tracked_cov, out, depth.reshape(-1)
     ws = w * s
     py, px = pixels // ws, pixels % ws
-    by0, by1 = int(py.min()) // s, int(py.max()) // s + 1
-    bx0, bx1 = int(px.min()) // s, int(px.max()) // s + 1
-    bh, bw = by1 - by0, bx1 - bx0
-    local = (py - by0 * s) * (bw * s) + (px - bx0 * s)
-    c = np.zeros(bh * s * bw * s, np.float32)
-    c[local] = 1.0
-    cs = np.zeros(bh * s * bw * s, np.float32)
-    cs[local[subject]] = 1.0
-    v = np.zeros((bh * s * bw * s, 3), np.float32)
-    v[local] = rad
-    sub_depth = depth[by0 * s : by1 * s, bx0 * s : bx1 * s]
-    cov.reshape(h, w)[by0:by1, bx0:bx1] = c.reshape(bh, s, bw, s).mean(axis=(1, 3))
-    subject_cov.reshape(h, w)[by0:by1, bx0:bx1] = cs.reshape(bh, s, bw, s).mean(axis=(1, 3))
-    out.reshape(h, w, 3)[by0:by1, bx0:bx1] = v.reshape(bh, s, bw, s, 3).mean(axis=(1, 3))
-    near.reshape(h, w)[by0:by1, bx0:bx1] = sub_depth.reshape(bh, s, bw, s).min(axis=(1, 3))
-    return cov, subject_cov, out, near
+    # One pass over the box: coverage, radiance and each tracked body's coverage.
+    flags = np.concatenate(
+        [
+            np.ones((pixels.size, 1), np.float32),
+            rad.astype(np.float32),
+            (owner[:, None] == np.arange(n_tracked)[None]).astype(np.float32),
+        ],
+        axis=1,
+    )
+    mean = _bbox_mean(flags, py, px, s, w, h)
+    near = np.full(h * w, np.inf, np.float32)
+    if pixels.size:
+        by0, by1 = int(py.min()) // s, int(py.max()) // s + 1
+        bx0, bx1 = int(px.min()) // s, int(px.max()) // s + 1
+        sub_depth = depth[by0 * s : by1 * s, bx0 * s : bx1 * s]
+        near.reshape(h, w)[by0:by1, bx0:bx1] = sub_depth.reshape(by1 - by0, s, bx1 - bx0, s).min(
+            axis=(1, 3)
+        )
+    tracked_cov[:] = mean[:, 4:].T
+    return mean[:, 0].copy(), tracked_cov, mean[:, 1:4].copy(), near
+
+
+def _coverage(pixels: np.ndarray, s: int, w: int, h: int) -> np.ndarray:
+    """(H*W,) float32 coverage of output pixels by sub-pixels ``pixels`` of the
+    ``(H*s, W*s)`` grid."""
+    if s == 1:
+        cov = np.zeros(h * w, np.float32)
+        cov[pixels] = 1.0
+        return cov
+    ws = w * s
+    return _bbox_mean(np.ones(pixels.size, np.float32), pixels // ws, pixels % ws, s, w, h)
 
 
 # =============================================================================
@@ -205,8 +259,10 @@ class Frame(NamedTuple):
 
 
 class Body(NamedTuple):
-    """Another person in the room (a bystander): rendered, shaded and shadowed like
-    the subject, z-buffered against it, but never part of the person mask.
+    """Another person in the room: rendered, shaded and shadowed like the subject and
+    z-buffered against it. As one of ``others`` (a bystander) it is never part of a
+    mask; as one of ``people`` (:meth:`Studio.render_people`) it gets its own. The
+    caller passes each frame's vertices, so a body may move from frame to frame.
 
     Attributes
     ----------
@@ -221,6 +277,38 @@ class Body(NamedTuple):
     appearance: Appearance | None = None
 
 
+class PeopleFrame(NamedTuple):
+    """One rendered camera image of several people with each one's ground truth.
+
+    Person 0 is the subject (``masks[0]`` equals :attr:`Frame.person_mask` of the
+    same scene); persons 1.. are the ``people`` of :meth:`Studio.render_people`.
+
+    Attributes
+    ----------
+    image : (H, W, 3) uint8
+        BGR image.
+    masks : (P, H, W) bool
+        Each person's visible pixels; no pixel belongs to two persons.
+    full : (P, H, W) bool
+        Each person's whole projection, as if alone in the room (``masks[k]`` is
+        inside ``full[k]``).
+    shadow_mask : (H, W) bool
+        As :attr:`Frame.shadow_mask` (no body's pixels).
+    """
+
+    image: np.ndarray
+    masks: np.ndarray
+    full: np.ndarray
+    shadow_mask: np.ndarray
+
+    @property
+    def occluded(self) -> np.ndarray:
+        """(P, H, W) bool: pixels of each person's whole projection that another
+        person's visible pixels cover (where that person is hidden by someone)."""
+        union = self.masks.any(axis=0)
+        return self.full & union[None] & ~self.masks
+
+
 class BoardFrame(NamedTuple):
     """:class:`Frame` plus the pixels where the calibration board is visible."""
 
@@ -228,6 +316,29 @@ class BoardFrame(NamedTuple):
     person_mask: np.ndarray
     shadow_mask: np.ndarray
     board_mask: np.ndarray
+
+
+class _Rendered(NamedTuple):
+    """What :meth:`Studio._render` makes of one camera image.
+
+    Attributes
+    ----------
+    image : (H, W, 3) uint8
+    person, shadow, board : (H, W) bool
+        Where the subject is, where a shadow falls on the scene (not on a body),
+        where the board is.
+    visible : (P, H, W) bool
+        Each tracked person's visible pixels (the subject first; P = 0 without one).
+    full : (P, H, W) bool or None
+        Each tracked person's whole projection (None unless asked for).
+    """
+
+    image: np.ndarray
+    person: np.ndarray
+    shadow: np.ndarray
+    board: np.ndarray
+    visible: np.ndarray
+    full: np.ndarray | None
 
 
 @dataclass
@@ -254,8 +365,12 @@ class _Layers:
 
     Attributes
     ----------
-    body_cov, person_cov : (H*W,) float32
-        Coverage by any body and by the person alone.
+    body_cov : (H*W,) float32
+        Coverage by any body.
+    tracked_cov : (P, H*W) float32
+        Visible coverage of each tracked person (the subject first).
+    full_cov : (P, H*W) float32
+        Coverage of each tracked person's own raster (as if alone; only when asked).
     person_rad : (H*W, 3) float32
         Radiance x coverage of the bodies.
     person_depth : (H*W,) float32
@@ -271,7 +386,8 @@ class _Layers:
     """
 
     body_cov: np.ndarray | None = None
-    person_cov: np.ndarray | None = None
+    tracked_cov: np.ndarray | None = None
+    full_cov: np.ndarray | None = None
     person_rad: np.ndarray | None = None
     person_depth: np.ndarray | None = None
     board_px: np.ndarray | None = None
@@ -408,8 +524,49 @@ class Studio:
         -------
         Frame
         """
-        img, person, shadow, _ = self._render(camera, vertices, None, rng, effects, others)
-        return Frame(img, person, shadow)
+        out = self._render(camera, vertices, None, rng, effects, others)
+        return Frame(out.image, out.person, out.shadow)
+
+    def render_people(
+        self,
+        camera: Camera,
+        vertices: np.ndarray,
+        rng: np.random.Generator | int | None = None,
+        *,
+        people: Sequence[Body] = (),
+        effects: bool = True,
+        others: Sequence[Body] = (),
+    ) -> PeopleFrame:
+        """Render the subject and other people, with each one's visible and whole masks.
+
+        Everyone goes through the same raster, z-buffer, shading and shadow map as
+        :meth:`render_frame`; with no ``people`` the image and ``masks[0]`` are
+        those of :meth:`render_frame`.
+
+        Parameters
+        ----------
+        camera : Camera
+        vertices : (V, 3) float
+            The subject's posed vertices (person 0).
+        rng : Generator or int
+            As :meth:`render_frame`.
+        people : sequence of Body
+            Persons 1.. at this frame (their own clothes).
+        effects : bool
+            As :meth:`render_frame`.
+        others : sequence of Body
+            Bystanders: drawn, in no person's mask.
+
+        Returns
+        -------
+        PeopleFrame
+        """
+        if vertices is None:
+            raise ValueError("render_people: the subject's vertices are required")
+        out = self._render(
+            camera, vertices, None, rng, effects, [*people, *others], len(people), True
+        )
+        return PeopleFrame(out.image, out.visible, out.full, out.shadow)
 
     def render_background(
         self,
@@ -419,7 +576,7 @@ class Studio:
         effects: bool = True,
     ) -> np.ndarray:
         """(H, W, 3) uint8 BGR image of the empty room (same light, camera, noise model)."""
-        return self._render(camera, None, None, rng, effects)[0]
+        return self._render(camera, None, None, rng, effects).image
 
     def render_board(
         self,
@@ -440,10 +597,10 @@ class Studio:
             raise ValueError(f"render_board: board must be a BoardTexture, got {type(board)}")
         if not isinstance(pose, BoardPose):
             raise ValueError(f"render_board: pose must be a BoardPose, got {type(pose)}")
-        img, person, shadow, bmask = self._render(
+        out = self._render(
             camera, vertices, BoardSheet(board, pose, self._mips(board)), rng, effects
         )
-        return BoardFrame(img, person, shadow, bmask)
+        return BoardFrame(out.image, out.person, out.shadow, out.board)
 
     def person_raster(self, camera: Camera, vertices: np.ndarray) -> Raster:
         """The body's raster in ``camera`` (distorted image, no supersampling)."""
@@ -585,15 +742,19 @@ class Studio:
         rng: np.random.Generator | int | None,
         effects: bool,
         others: Sequence[Body] = (),
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        n_people: int = 0,
+        full: bool = False,
+    ) -> _Rendered:
         """One image: the bodies, the board, their shadows, composited, then the camera.
 
-        Returns
-        -------
-        image : (H, W, 3) uint8
-        person, shadow, board : (H, W) bool
-            Where the person is, where a shadow falls on the scene (not on a
-            body), where the board is.
+        Parameters
+        ----------
+        others : sequence of Body
+            Bodies besides the subject; the first ``n_people`` are tracked persons
+            (they get masks), the rest bystanders.
+        n_people : int
+        full : bool
+            Also each tracked person's whole (unoccluded) projection.
         """
         if not isinstance(camera, Camera):
             raise ValueError(
@@ -609,12 +770,18 @@ class Studio:
 
         # --- bodies (the person, then bystanders): one z-buffer, shading -------------------
         bodies = self._bodies(vertices, others)
+        # Tracked bodies come first in `bodies`: the subject, then the people.
+        n_tracked = 0 if vertices is None else 1 + int(n_people)
         layers = _Layers()
         if bodies:
-            pixels, depth, rad, subject = self._raster_bodies(camera, cache, bodies, vertices)
-            layers.body_cov, layers.person_cov, layers.person_rad, layers.person_depth = (
-                _downsample_bodies(pixels, depth, rad, subject, s, w, h)
+            pixels, depth, rad, owner, alone = self._raster_bodies(
+                camera, cache, bodies, n_tracked if full else 0
             )
+            layers.body_cov, layers.tracked_cov, layers.person_rad, layers.person_depth = (
+                _downsample_bodies(pixels, depth, rad, owner, n_tracked, s, w, h)
+            )
+            if full:
+                layers.full_cov = np.stack([_coverage(a, s, w, h) for a in alone])
 
         # --- board: analytic ray-plane intersection --------------------------------------
         if board is not None:
@@ -623,19 +790,29 @@ class Studio:
             )
 
         shade_bg, shade_board = self._shadows(cache, w * h, bodies, board, layers)
-        rad, person_mask, body_mask, board_mask, shadow_amount = self._composite(
+        rad, visible, body_mask, board_mask, shadow_amount = self._composite(
             cache, w * h, layers, shade_bg, shade_board
         )
+        person_mask = visible[0] if n_tracked else np.zeros(w * h, bool)
         shadow_mask = (shadow_amount > 0.5) & ~person_mask & ~body_mask
         img = rad.reshape(h, w, 3) * cache.camera_gain
         if effects:
             img = self._camera_effects(img, rng)
         out = np.clip(img + 0.5, 0, 255).astype(np.uint8)
-        return (
+        whole = None
+        if full:
+            whole = (
+                (layers.full_cov >= 0.5).reshape(-1, h, w)
+                if layers.full_cov is not None
+                else np.zeros((n_tracked, h, w), bool)
+            )
+        return _Rendered(
             out,
             person_mask.reshape(h, w),
             shadow_mask.reshape(h, w),
             board_mask.reshape(h, w),
+            visible.reshape(-1, h, w),
+            whole,
         )
 
     def _shadows(
@@ -699,13 +876,16 @@ class Studio:
         -------
         rad : (H*W, 3) float
             Radiance of every pixel.
-        person_mask, body_mask, board_mask : (H*W,) bool
+        visible : (P, H*W) bool
+            Each tracked person's visible pixels (coverage >= 0.5; a pixel two
+            persons cover by half each goes to the first, so no pixel is shared).
+        body_mask, board_mask : (H*W,) bool
         shadow_amount : (H*W,) float32
             Shadow on the room and the board (before the bodies cover it).
         """
         col = np.asarray(self.light.color, dtype=np.float32)
         board_px = layers.board_px
-        body_cov, person_cov, person_rad = layers.body_cov, layers.person_cov, layers.person_rad
+        body_cov, tracked_cov, person_rad = layers.body_cov, layers.tracked_cov, layers.person_rad
         rad = cache.bg_ambient + cache.bg_direct * (1.0 - shade_bg)[:, None]
         shadow_amount = shade_bg.copy()
         board_mask = np.zeros(npx, bool)
@@ -715,7 +895,8 @@ class Studio:
             rad[board_px] = layers.board_rad * (amb_b + dir_b * (1.0 - sb))[:, None] * col
             shadow_amount[board_px] = sb
             board_mask[board_px] = True
-        person_mask = np.zeros(npx, bool)
+        n_tracked = 0 if tracked_cov is None else tracked_cov.shape[0]
+        visible = np.zeros((n_tracked, npx), bool)
         body_mask = np.zeros(npx, bool)
         if body_cov is not None:
             if board_px is not None and board_px.size:
@@ -723,12 +904,15 @@ class Studio:
                 front = np.zeros(npx, bool)
                 front[board_px] = True
                 body_cov = np.where(front, 0.0, body_cov).astype(np.float32)
-                person_cov = np.where(front, 0.0, person_cov).astype(np.float32)
+                tracked_cov = np.where(front[None], 0.0, tracked_cov).astype(np.float32)
                 person_rad = np.where(front[:, None], 0.0, person_rad).astype(np.float32)
             rad = rad * (1.0 - body_cov)[:, None] + person_rad * col
-            person_mask = person_cov >= 0.5
+            taken = np.zeros(npx, bool)
+            for k in range(n_tracked):
+                visible[k] = (tracked_cov[k] >= 0.5) & ~taken
+                taken |= visible[k]
             body_mask = body_cov >= 0.5
-        return rad, person_mask, body_mask, board_mask, shadow_amount
+        return rad, visible, body_mask, board_mask, shadow_amount
 
     def _camera_effects(self, img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The camera's blur, flicker and noise on an image (H, W, 3) of camera values."""
@@ -768,9 +952,14 @@ class Studio:
         camera: Camera,
         cache: _CameraCache,
         bodies: list[tuple[np.ndarray, np.ndarray]],
-        vertices: np.ndarray | None,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        n_alone: int = 0,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
         """Rasterize and shade every body on the supersampled grid and keep the nearest.
+
+        Parameters
+        ----------
+        n_alone : int
+            Also return the own raster's sub-pixels of the first ``n_alone`` bodies.
 
         Returns
         -------
@@ -780,17 +969,22 @@ class Studio:
             Nearest body depth (inf where none).
         rad : (N, 3) float32
             Radiance (without the light's colour) of the nearest body per sub-pixel.
-        subject : (N,) bool
-            The nearest body is the person (the first body when ``vertices`` is given).
+        owner : (N,) int32
+            The nearest body (index into ``bodies``).
+        alone : list of (M,) int64
+            Sub-pixels each of the first ``n_alone`` bodies covers on its own.
         """
         w, h = camera.size
         s = self.supersample
         depth = None
         owner = None
         rad_full = None
+        alone = []
         for k, (v, albedo) in enumerate(bodies):
             xy, z, valid = project_for_raster(camera, v, s, cache.r_limit)
             r = rasterize(xy, z, self.faces, (w * s, h * s), cull="back", valid=valid)
+            if k < n_alone:
+                alone.append(np.asarray(r.pixels, np.int64))
             rad = self._shade_person(v, r, albedo)
             if depth is None:
                 depth = r.depth.copy()
@@ -806,8 +1000,7 @@ class Studio:
             owner[win] = k
             rad_full[win] = rad[nearer]
         pixels = np.flatnonzero(owner >= 0)
-        subject = owner[pixels] == 0 if vertices is not None else np.zeros(pixels.size, bool)
-        return pixels, depth, rad_full[pixels], subject
+        return pixels, depth, rad_full[pixels], owner[pixels], alone
 
     def _shade_person(
         self, v: np.ndarray, r: Raster, face_albedo: np.ndarray | None = None

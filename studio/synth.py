@@ -9,6 +9,10 @@ Optionally, bystanders (:mod:`bodymetry.studio.bystanders`) stand still in the
 room during the recording, each seen by one or two cameras; they are absent from
 the background and calibration clips (recorded before they came in) and from the
 ground-truth silhouettes, and ``ground_truth/studio.json`` describes them.
+With ``--people N`` (:mod:`bodymetry.studio.people`), ``N - 1`` other persons
+walk past the subject, crossing it in some cameras; each has its own ground
+truth in ``ground_truth/persons/<k>/`` (the subject's stays where it was), and
+every person's hidden pixels are written as ``occluded/`` masks.
 The subject is a body of our model (a shape ν) or, with
 ``--subject independent:...``, a body the model was not built from
 (:mod:`bodymetry.studio.independent`, skinned, optionally clothed), whose
@@ -24,12 +28,13 @@ same session.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import multiprocessing as mp
 import queue as queue_module
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -40,10 +45,12 @@ import numpy as np
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import save_calibration
 from bodymetry.capture.ground_truth import (
+    GROUND_TRUTH_OCCLUDED,
     GROUND_TRUTH_SILHOUETTES,
     GROUND_TRUTH_STATES,
     StudioRecord,
     SubjectTruth,
+    person_folder,
 )
 from bodymetry.capture.session import BoardSpec, Session, SessionCamera, save_session
 from bodymetry.capture.video import H264Writer
@@ -67,6 +74,7 @@ from bodymetry.studio.bystanders import (
 )
 from bodymetry.studio.independent import IndependentSpec, IndependentSubject
 from bodymetry.studio.looks import Look, recorded_look
+from bodymetry.studio.people import MAX_PEOPLE, Person, draw_people
 from bodymetry.studio.render import Body, Effects, Studio
 from bodymetry.studio.rig import studio_rig
 from bodymetry.studio.scene import Appearance, BoardPose, BoardTexture
@@ -193,6 +201,9 @@ class SynthConfig:
         The subject's clothing colours, the room and the light
         (:mod:`bodymetry.studio.looks`); the default is the saturated clothes in the
         textured lab under the hard key light.
+    people : int
+        Persons recorded (1..``MAX_PEOPLE``): the subject and ``people - 1`` others
+        walking past it (:mod:`bodymetry.studio.people`), drawn from ``seed``.
     """
 
     frames: int = 200
@@ -212,6 +223,7 @@ class SynthConfig:
     bystanders: int = 0
     bystander_placement: BystanderPlacement = field(default_factory=BystanderPlacement)
     look: Look = field(default_factory=Look)
+    people: int = 1
 
     def __post_init__(self) -> None:
         if not isinstance(self.look, Look):
@@ -235,6 +247,8 @@ class SynthConfig:
             raise InputError("background clips need >= 1 frame and calibration clips >= 30 frames")
         if not 0 <= self.bystanders <= MAX_BYSTANDERS:
             raise InputError(f"--bystanders: expected 0..{MAX_BYSTANDERS}, got {self.bystanders}")
+        if isinstance(self.people, bool) or not 1 <= self.people <= MAX_PEOPLE:
+            raise InputError(f"--people: expected 1..{MAX_PEOPLE}, got {self.people}")
 
 
 def _png(mask: np.ndarray) -> bytes:
@@ -242,6 +256,32 @@ def _png(mask: np.ndarray) -> bytes:
     if not ok:  # pragma: no cover - OpenCV failure
         raise RuntimeError("PNG encoding failed")
     return buf.tobytes()
+
+
+@dataclass(frozen=True)
+class _PersonTrack:
+    """What a camera job renders of a person besides the subject.
+
+    Attributes
+    ----------
+    index : int
+        1.. (its ``ground_truth/persons/<index>/``).
+    spec : IndependentSpec
+    tau : (F, 3) float
+    theta : (F, 37) float
+    appearance : Appearance
+    """
+
+    index: int
+    spec: IndependentSpec
+    tau: np.ndarray
+    theta: np.ndarray
+    appearance: Appearance
+
+    @classmethod
+    def of(cls, person: Person) -> _PersonTrack:
+        m = person.motion
+        return cls(person.index, person.spec, m.tau, m.theta, person.appearance())
 
 
 @dataclass(frozen=True)
@@ -256,12 +296,44 @@ class _CameraJob:
     board_poses: np.ndarray
     bystanders: tuple[Body, ...] = ()
     independent: IndependentSpec | None = None
+    people: tuple[_PersonTrack, ...] = ()
 
     def pose(self, model: BodyModel, subject: IndependentSubject | None, frames: slice):
         """Rendered vertices (B, V, 3) of the subject at ``frames``."""
         if subject is not None:
             return subject.pose(self.tau[frames], self.theta[frames])[0]
         return model.pose(BodyState(self.tau[frames], self.theta[frames], self.nu[None])).vertices
+
+
+def _scene(
+    studio: Studio, job: _CameraJob, vertices: np.ndarray, people: list[Body], rng
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """One recording frame of the job's camera.
+
+    Returns
+    -------
+    image : (H, W, 3) uint8
+    shadow : (H, W) bool
+    masks : (P, H, W) bool
+        Every person's visible pixels, the subject first.
+    occluded, full : (P, H, W) bool or None
+        Every person's hidden pixels and whole projection (None for one person).
+    """
+    if not people:
+        image, person, shadow = studio.render_frame(
+            job.camera, vertices, rng, others=job.bystanders
+        )
+        return image, shadow, person[None], None, None
+    out = studio.render_people(job.camera, vertices, rng, people=people, others=job.bystanders)
+    return out.image, out.shadow_mask, out.masks, out.occluded, out.full
+
+
+def _write_masks(
+    folders: list[Path], kind: str, camera: str, frame: int, masks: np.ndarray
+) -> None:
+    """Write each person's mask (P, H, W) as ``<folder>/<kind>/<camera>/<frame>.png``."""
+    for folder, mask in zip(folders, masks, strict=True):
+        write_bytes_atomic(folder / kind / camera / f"{frame:06d}.png", _png(mask))
 
 
 def _render_camera(job: _CameraJob, progress) -> dict:
@@ -285,21 +357,32 @@ def _render_camera(job: _CameraJob, progress) -> dict:
     )
     rng = np.random.default_rng([cfg.seed, job.index, 1])
     shadow_fraction = []
+    occluded = np.zeros(1 + len(job.people))  # hidden over whole-projection pixels, summed
+    whole = np.zeros(1 + len(job.people))
     kept = set(range(0, cfg.frames, cfg.frame_step))
-    sil_dir = job.out / "ground_truth" / GROUND_TRUTH_SILHOUETTES / cam.name
+    gt = job.out / "ground_truth"
+    folders = [gt] + [person_folder(gt, p.index) for p in job.people]
+    walkers = [IndependentSubject(p.spec, model=model) for p in job.people]
     with H264Writer(job.out / "videos" / f"{cam.name}.mp4", cfg.fps, cfg.size, cfg.crf) as writer:
         for start in range(0, cfg.frames, 16):
             stop = min(cfg.frames, start + 16)
             verts = job.pose(model, subject, slice(start, stop))
+            others = [
+                w.pose(p.tau[start:stop], p.theta[start:stop])[0]
+                for w, p in zip(walkers, job.people, strict=True)
+            ]
             for k, frame in enumerate(range(start, stop)):
-                image, person, shadow = studio.render_frame(
-                    cam, verts[k], rng, others=job.bystanders
-                )
+                people = [Body(v[k], p.appearance) for v, p in zip(others, job.people, strict=True)]
+                image, shadow, masks, hidden, full = _scene(studio, job, verts[k], people, rng)
                 writer.write(image)
                 if frame in kept:
-                    write_bytes_atomic(sil_dir / f"{frame:06d}.png", _png(person))
-                    if person.any():
-                        shadow_fraction.append(float(shadow.sum() / person.sum()))
+                    _write_masks(folders, GROUND_TRUTH_SILHOUETTES, cam.name, frame, masks)
+                    if hidden is not None:
+                        _write_masks(folders, GROUND_TRUTH_OCCLUDED, cam.name, frame, hidden)
+                        occluded += hidden.sum(axis=(1, 2))
+                        whole += full.sum(axis=(1, 2))
+                    if masks[0].any():
+                        shadow_fraction.append(float(shadow.sum() / masks[0].sum()))
                 progress.put(1)
     if cfg.background_clip:
         with H264Writer(
@@ -317,7 +400,11 @@ def _render_camera(job: _CameraJob, progress) -> dict:
             frame = studio.render_board(cam, texture, BoardPose(T[:3, :3], T[:3, 3]), rng)
             writer.write(frame.image)
             progress.put(1)
-    return {"camera": cam.name, "shadow_to_person_area": shadow_fraction}
+    return {
+        "camera": cam.name,
+        "shadow_to_person_area": shadow_fraction,
+        "occluded_fraction": (occluded / np.maximum(whole, 1)).tolist(),
+    }
 
 
 def synthesize(
@@ -363,6 +450,9 @@ def synthesize(
 
     # Ground truth that does not need rendering.
     bio, joints, sparse_vertices = subject.truth(model, config.frames)
+    people, truths, subject, joints, sparse_vertices = _draw_people(
+        model, cameras, config, subject, joints, sparse_vertices
+    )
     bystanders = place_bystanders(
         model,
         cameras,
@@ -377,21 +467,82 @@ def synthesize(
     )
     del sparse_vertices
     _write_ground_truth(out, config, subject, joints, board_poses, bio)
+    for person, (person_bio, person_joints, _) in zip(people, truths, strict=True):
+        _write_person_truth(out, config, person, person_bio, person_joints)
     _write_true_calibration(out, cameras)
 
     # The look dresses the subject (_render_camera); bystanders wear their own clothes.
     independent = config.subject.independent
     others = tuple(Body(b.vertices(model), b.appearance(Appearance())) for b in bystanders)
+    tracks = tuple(_PersonTrack.of(p) for p in people)
     jobs = [
-        _CameraJob(i, cam, config, out, *subject.rendered(), board_poses, others, independent)
+        _CameraJob(
+            i, cam, config, out, *subject.rendered(), board_poses, others, independent, tracks
+        )
         for i, cam in enumerate(cameras)
     ]
     results = _render_cameras(jobs, workers, _frame_total(config), on_progress)
     session = _session_record(out, config, cameras)
     save_session(session, out)
-    _write_studio_record(out, config, subject, bystanders, results, t0)
+    _write_studio_record(out, config, subject, bystanders, results, t0, people)
     log.info("rendered %s in %.1f s", out, time.perf_counter() - t0)
     return session
+
+
+def _draw_people(
+    model: BodyModel,
+    cameras: CameraGroup,
+    config: SynthConfig,
+    subject: _SubjectMotion,
+    joints: np.ndarray,
+    sparse_vertices: np.ndarray,
+) -> tuple[list[Person], list[tuple], _SubjectMotion, np.ndarray, np.ndarray]:
+    """The persons besides the subject (none unless ``config.people`` > 1), their
+    :meth:`Person.truth`, the subject moved to make room for them, its joints
+    (F, 15, 3) and the sparse vertices of everyone (F, N, 3), for the bystanders to
+    keep clear of."""
+    if config.people == 1:
+        return [], [], subject, joints, sparse_vertices
+    base = subject.independent.appearance() if subject.independent is not None else Appearance()
+    exclude = () if subject.independent is None else (subject.independent.index,)
+    people, offset = draw_people(
+        model,
+        cameras,
+        subject.motion.tau,
+        sparse_vertices,
+        config.look.appearance(base),
+        config.people - 1,
+        config.seed,
+        motion=config.motion,
+        fps=config.fps,
+        exclude_bodies=exclude,
+    )
+    shift = np.r_[offset, 0.0]
+    motion = subject.motion
+    moved = dataclasses.replace(
+        subject, motion=Motion(motion.theta, motion.tau + shift, motion.fps, motion.name)
+    )
+    truths = [p.truth() for p in people]
+    everyone = [sparse_vertices + shift] + [t[2] for t in truths]
+    return people, truths, moved, joints + shift, np.concatenate(everyone, axis=1)
+
+
+def _write_person_truth(
+    out: Path, config: SynthConfig, person: Person, bio: dict, joints: np.ndarray
+) -> None:
+    """Write ``ground_truth/persons/<k>/``'s states and ``subject.json`` of a person
+    (its biometrics and joints (F, 15, 3), :meth:`Person.truth`)."""
+    folder = person_folder(out / "ground_truth", person.index)
+    states = {
+        "frame": np.arange(config.frames),
+        "tau": person.motion.tau,
+        "theta": person.motion.theta,
+        "joints": joints,
+    }
+    save_npz(folder / GROUND_TRUTH_STATES, states)
+    SubjectTruth.from_json(
+        {**{k: round(v, 3) for k, v in bio.items()}, **person.subject.describe()}
+    ).write(folder)
 
 
 def _write_true_calibration(out: Path, group: CameraGroup) -> None:
@@ -421,17 +572,28 @@ def _write_studio_record(
     bystanders: list,
     results: list[dict],
     t0: float,
+    people: Sequence[Person] = (),
 ) -> None:
     """Write ``ground_truth/studio.json``: the configuration, motion seed, bystanders,
-    render time (since ``t0``, ``time.perf_counter``) and each camera's mean
-    shadow-to-person area."""
+    persons (with each camera's fraction of their whole projection that another
+    person hides, over the kept frames), render time (since ``t0``,
+    ``time.perf_counter``) and each camera's mean shadow-to-person area."""
     shadow = {r["camera"]: float(np.mean(r["shadow_to_person_area"] or [0.0])) for r in results}
+    persons = []
+    if people:
+        persons.append({"index": 0, "subject": "the subject (ground_truth/subject.json)"})
+        persons += [p.to_json() for p in people]
+        for k, entry in enumerate(persons):
+            entry["occluded_fraction"] = {
+                r["camera"]: round(r["occluded_fraction"][k], 4) for r in results
+            }
     StudioRecord(
         config={**asdict(config), "subject": asdict(config.subject)},
         motion_seed=subject.motion_seed,
         bystanders=[b.to_json() for b in bystanders],
         render_seconds=round(time.perf_counter() - t0, 2),
         shadow_to_person_area_mean=shadow,
+        persons=persons,
     ).write(out / "ground_truth")
 
 
@@ -647,6 +809,13 @@ def describe(session: Session) -> str:
             for b in bystanders
         )
         extras.append(f"{len(bystanders)} bystander(s) ({seen})")
+    if studio.people > 1:
+        crossing = "; ".join(
+            f"person {p['index']} crosses in " + (", ".join(p.get("crossings", {})) or "none")
+            for p in studio.persons
+            if p.get("index", 0) > 0
+        )
+        extras.append(f"{studio.people} people ({crossing})")
     if all(cam.background is None for cam in session.cameras):
         extras.append("no background clip")
     look = recorded_look(session.folder / "ground_truth")

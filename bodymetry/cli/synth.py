@@ -75,6 +75,15 @@ def _parse_size(text: str) -> tuple[int, int]:
     help="People standing still in the room, each seen by one or two cameras.",
 )
 @click.option(
+    "--people",
+    default=1,
+    show_default=True,
+    type=int,
+    help="Persons recorded, 1-3: the subject and others who walk past it, crossing it in "
+    "some cameras; each has its own ground truth (ground_truth/persons/<k>/, "
+    "docs/studio.md, 'People').",
+)
+@click.option(
     "--look",
     default=None,
     help="The subject's clothing, the room and the light as KEY=VALUE,... (any subset): "
@@ -102,6 +111,7 @@ def synth(
     background_frames: int,
     no_background_clip: bool,
     bystanders: int,
+    people: int,
     look: str | None,
     crf: int,
     workers: int | None,
@@ -124,6 +134,7 @@ def synth(
         crf=crf,
         background_clip=not no_background_clip,
         bystanders=bystanders,
+        people=people,
         look=Look.parse(look),
     )
     with labelled_progress() as progress:
