@@ -20,17 +20,19 @@ one thing every camera sees at one place in the room. So:
 
 A region that all cameras see at one place is kept: the check rejects what is
 inconsistent, not a second person standing in the capture volume in full view.
-The hull's connected bodies tall and large enough to be a person are counted
-(:meth:`VisualHull.bodies`, :attr:`HullBodies.persons`): bodymetry measures one
-subject, the largest body, and a frame with a second person in full view says
-so (docs/capture.md, "Several people in the capture volume").
+People in the capture volume are counted (:meth:`VisualHull.bodies`,
+:attr:`HullBodies.persons`, :func:`count_persons`): the tops of the hull's
+person-sized bodies, seen from above, that stand out as separate heads.
+bodymetry measures one subject, the largest body, and a frame with a second
+person in full view says so (docs/capture.md, "Several people in the capture
+volume").
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -43,11 +45,17 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "PERSON_MIN_HEIGHT",
+    "PERSON_MIN_TOP",
     "PERSON_MIN_VOLUME",
+    "PERSON_PROMINENCE",
+    "PERSON_REACH",
+    "PERSON_SOLIDITY",
+    "PERSON_SPACING",
     "HullBodies",
     "HullCheck",
     "HullConfig",
     "VisualHull",
+    "count_persons",
     "visual_hull",
 ]
 
@@ -58,6 +66,24 @@ PERSON_MIN_HEIGHT = 0.8
 #: ... and at least this large (cubic metres; the hull is larger than the body, a child
 #: of 20 kg has a volume of 0.02 m^3).
 PERSON_MIN_VOLUME = 0.02
+#: A person's top (the head, seen from above) is at least this high (metres): a child
+#: of five stands 1.1 m; the hull's low bumps next to a person (a ghost over the cast
+#: shadow, a bag) are not people. A crouching second person is not counted.
+PERSON_MIN_TOP = 1.0
+#: ... and stands at least this much (metres)
+#: above the lowest pass to any higher top: two people side by side, even when their
+#: hulls touch, have the gap between them; a head between raised arms, or a hand held
+#: out at shoulder height, does not stand out that much.
+PERSON_PROMINENCE = 0.25
+#: ... and lies at least this far (metres, on the floor) from a higher one: raised
+#: hands stay within it of their own head.
+PERSON_SPACING = 0.45
+#: ... and stands on a body: over at least this share of the height below it, the
+#: hull is occupied within :data:`PERSON_REACH` of the top's floor position (a hand
+#: raised in a wide V has nothing under it from the shoulder down).
+PERSON_SOLIDITY = 0.7
+#: Metres: the legs of a standing person lie within this of the head's floor position.
+PERSON_REACH = 0.12
 
 
 @dataclass(frozen=True)
@@ -136,12 +162,17 @@ class HullBodies:
         Vertical extent of each body, metres (voxel centres plus one voxel).
     voxel : float
         Voxel side, metres.
+    persons : int
+        People among the bodies (:func:`count_persons` of the person-sized ones:
+        at least :data:`PERSON_MIN_HEIGHT` tall and :data:`PERSON_MIN_VOLUME`
+        large; a stool, a bag or a cast shadow's ghost is none).
     """
 
     labels: np.ndarray
     voxels: np.ndarray
     heights: np.ndarray
     voxel: float
+    persons: int = 0
 
     @property
     def largest(self) -> np.ndarray:
@@ -151,12 +182,69 @@ class HullBodies:
         return self.labels == int(np.argmax(self.voxels))
 
     @property
-    def persons(self) -> int:
-        """How many bodies are person-sized (:data:`PERSON_MIN_HEIGHT`,
-        :data:`PERSON_MIN_VOLUME`). Two people who touch form one body."""
-        volume = self.voxels[1:] * self.voxel**3
-        return int(np.count_nonzero((self.heights[1:] >= PERSON_MIN_HEIGHT)
-                                    & (volume >= PERSON_MIN_VOLUME)))  # fmt: skip
+    def person_sized(self) -> np.ndarray:
+        """(K + 1,) bool: the bodies tall and large enough to be a person."""
+        sized = (self.heights >= PERSON_MIN_HEIGHT) & (
+            self.voxels * self.voxel**3 >= PERSON_MIN_VOLUME
+        )
+        sized[:1] = False
+        return sized
+
+
+def count_persons(occupied: np.ndarray, cell: float) -> int:
+    """People standing in a voxel grid (floor cells by height levels).
+
+    Each separate top counts: a local maximum of the top heights (seen from
+    above) at least :data:`PERSON_MIN_TOP` high, whose dynamic (its height
+    above the highest pass to a higher top) is at least
+    :data:`PERSON_PROMINENCE`, which stands on a body (:data:`PERSON_SOLIDITY`)
+    and lies :data:`PERSON_SPACING` or more from every higher counted top. Two
+    people whose hulls merge still have two heads; the visual hull's phantoms
+    (where one person's cone in some views crosses the other's in others) can
+    add a top of their own, so a count above one is "more than one", not exact.
+
+    Parameters
+    ----------
+    occupied : (X, Y, Z) bool
+        The voxels of person-sized bodies; level k spans heights
+        ``[k cell, (k + 1) cell)`` above the floor.
+    cell : float
+        Voxel side, metres.
+    """
+    occupied = np.asarray(occupied, bool)
+    levels = (np.arange(occupied.shape[2], dtype=np.float32) + 1) * np.float32(cell)
+    top = np.where(occupied, levels, np.float32(0)).max(axis=2)
+    if not (top >= PERSON_MIN_TOP).any():
+        return 0
+    # Morphological reconstruction by dilation of (top - h) under top: a top whose
+    # dynamic is at least h keeps a gap of h there (the h-maxima transform).
+    h = np.float32(PERSON_PROMINENCE)
+    rec = np.maximum(top - h, 0)
+    kernel = np.ones((3, 3), np.uint8)
+    while True:
+        grown = np.minimum(cv2.dilate(rec, kernel), top)
+        if np.array_equal(grown, rec):
+            break
+        rec = grown
+    peaks = (top - rec >= h - 1e-4) & (top >= PERSON_MIN_TOP)
+    labels, n = ndimage.label(peaks, structure=np.ones((3, 3)))
+    if n == 0:
+        return 0
+    index = np.arange(1, n + 1)
+    centres = np.array(ndimage.center_of_mass(peaks, labels, index))
+    heights = np.asarray(ndimage.maximum(top, labels, index))
+    # What stands under each top: any voxel within reach, per height level.
+    reach = max(round(PERSON_REACH / cell), 1)
+    near = ndimage.maximum_filter(occupied, size=(2 * reach + 1, 2 * reach + 1, 1))
+    kept: list[int] = []
+    for i in np.argsort(-heights, kind="stable"):
+        x, y = np.clip(np.round(centres[i]).astype(int), 0, np.array(top.shape) - 1)
+        below = levels <= heights[i]
+        if near[x, y, below].mean() < PERSON_SOLIDITY:
+            continue
+        if all(np.linalg.norm(centres[i] - centres[j]) * cell >= PERSON_SPACING for j in kept):
+            kept.append(int(i))
+    return len(kept)
 
 
 def _in_view(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -339,7 +427,16 @@ class VisualHull:
         np.maximum.at(top, labels[occupied], z)
         np.minimum.at(bottom, labels[occupied], z)
         heights = np.where(voxels > 0, top - bottom + self.voxel, 0.0)
-        return HullBodies(labels, voxels, heights, self.voxel)
+        bodies = HullBodies(labels, voxels, heights, self.voxel)
+        people = occupied & bodies.person_sized[labels]
+        if not people.any():
+            return bodies
+        grid = np.zeros(int(np.prod(self._shape)), bool)
+        grid[self._index[people]] = True
+        # Separate bodies are separate people whatever their tops say (a raised hand
+        # can be a body's only top, and it stands on nothing).
+        heads = count_persons(grid.reshape(self._shape), self.voxel)
+        return replace(bodies, persons=max(heads, int(bodies.person_sized.sum())))
 
     def support(self, occupied: np.ndarray, c: int) -> np.ndarray:
         """(H, W) bool: where the occupied voxels project in camera ``c``."""

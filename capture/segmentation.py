@@ -178,7 +178,7 @@ class SilhouetteFrame:
         not be judged (empty tuple when nothing was judged). A view below the
         bound is flagged ``unreliable`` and left out of the fit for that frame.
     persons : int or None
-        Person-sized bodies in the capture volume
+        People in the capture volume
         (:attr:`bodymetry.capture.consistency.HullBodies.persons`, from every
         pixel some source calls person); None where it cannot be counted (no
         calibrated rig, or no empty-scene clip: a segmenter finds one person per

@@ -119,13 +119,13 @@ def run_caveats(
     out = []
     crowded = [r for r in ordered if r.persons is not None and r.persons > 1]
     if crowded:
-        most = max(r.persons for r in crowded)
+        # A count above one is "more than one": the hull's phantoms can add to it.
         out.append(
             Caveat(
                 "several_persons",
-                f"{most} people in the capture volume in {len(crowded)} of {kept} kept frames "
-                f"({_frame_list([r.frame for r in crowded])}): bodymetry measures one subject, "
-                "the largest body of each frame, so these measurements may mix people",
+                f"more than one person in the capture volume in {len(crowded)} of {kept} kept "
+                f"frames ({_frame_list([r.frame for r in crowded])}): bodymetry measures one "
+                "subject, the largest body of each frame, so these measurements may mix people",
                 tuple(r.frame for r in crowded),
             )
         )

@@ -250,9 +250,10 @@ class FrameRecord:
         views not judged are absent). A view flagged ``unreliable`` was left out of the fit
         (:mod:`bodymetry.estimation.view_selection`).
     persons : int or None
-        Person-sized bodies capture counted in the capture volume
+        People capture counted in the capture volume
         (:attr:`bodymetry.capture.segmentation.SilhouetteFrame.persons`); more than
-        one: the silhouettes are the largest body's and may be another person's.
+        one (a count above one means "more than one", not an exact number): the
+        silhouettes are the largest body's and may be another person's.
         None: not counted (no empty-scene clip, no calibrated rig, or a run
         before the count).
     annealing : AnnealingTrace or None

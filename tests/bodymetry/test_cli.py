@@ -607,5 +607,8 @@ def test_process_with_caveats_exits_5_and_says_why(monkeypatch, toy: Path, tmp_p
     assert result.exit_code == 5, (result.exit_code, result.output, result.exception)
     assert "Traceback" not in result.output
     text = " ".join(result.output.split())
-    assert "caveat (several_persons): 2 people in the capture volume in 1 of 5 kept frames" in text
+    assert (
+        "caveat (several_persons): more than one person in the capture volume in 1 of 5 "
+        "kept frames (frame 10)" in text
+    )
     assert "caveat (thin_evidence): only 1 of 5 kept frames measured (frame 10)" in text

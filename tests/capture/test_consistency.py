@@ -14,6 +14,7 @@ from bodymetry.capture.consistency import (
     HullBodies,
     HullConfig,
     VisualHull,
+    count_persons,
     visual_hull,
 )
 from bodymetry.errors import InputError
@@ -156,7 +157,7 @@ def test_a_rigs_hull_is_built_once_per_process(rig):
     assert visual_hull(moved) is not first
 
 
-def test_hull_bodies_count_person_sized_bodies_only():
+def test_hull_bodies_person_sized_bodies_only():
     voxel = 0.05
     labels = np.array([0, 1, 1, 2, 3, 4])
     # Body 1: a person; 2: a stool (too low); 3: a thin pole (too small); 4: a child.
@@ -164,7 +165,55 @@ def test_hull_bodies_count_person_sized_bodies_only():
     heights = np.array([0.0, 1.7, 0.45, 1.2, 1.1])
     assert voxels[4] * voxel**3 >= PERSON_MIN_VOLUME and heights[2] < PERSON_MIN_HEIGHT
     bodies = HullBodies(labels, voxels, heights, voxel)
-    assert bodies.persons == 2
+    assert bodies.person_sized.tolist() == [False, True, False, False, True]
     np.testing.assert_array_equal(bodies.largest, labels == 1)  # the first of the largest
     empty = HullBodies(np.zeros(6, np.int32), np.zeros(1, int), np.zeros(1), voxel)
     assert empty.persons == 0 and not empty.largest.any()
+
+
+CELL = 0.05
+GRID = np.stack(
+    np.meshgrid(*(np.arange(n) * CELL + CELL / 2 for n in (60, 60, 46)), indexing="ij"), -1
+)
+
+
+def _limb(grid, a, b, radius):
+    """Fill the voxels of ``grid`` (X, Y, Z) within ``radius`` of the segment a-b."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    t = np.clip(((GRID - a) @ (b - a)) / ((b - a) @ (b - a)), 0, 1)
+    grid |= np.linalg.norm(GRID - (a + t[..., None] * (b - a)), axis=-1) <= radius
+
+
+def _person(grid, x, y, height=1.75):
+    """A standing person at floor position (x, y): legs, trunk, head."""
+    k = height / 1.75
+    for side in (-0.1, 0.1):
+        _limb(grid, (x, y + side, 0.0), (x, y + side, 0.8 * k), 0.07)
+    _limb(grid, (x, y, 0.8 * k), (x, y, 1.4 * k), 0.17)
+    _limb(grid, (x, y, 1.45 * k), (x, y, height - 0.1), 0.1)
+
+
+def test_count_persons_counts_separate_heads_not_arms():
+    one = np.zeros(GRID.shape[:3], bool)
+    _person(one, 1.5, 1.5)
+    assert count_persons(one, CELL) == 1
+    # A second, shorter person beside the first, their hulls joined by a low bridge
+    # (hands, or the hull's excess between them).
+    two = one.copy()
+    _person(two, 1.5, 2.1, height=1.6)
+    _limb(two, (1.5, 1.5, 0.9), (1.5, 2.1, 0.9), 0.08)
+    assert count_persons(two, CELL) == 2
+    # One person, arms raised in a wide V: the hands stand higher than the head and
+    # far from it, but nothing stands under them.
+    arms = one.copy()
+    for side in (-1, 1):
+        _limb(arms, (1.5, 1.5 + side * 0.2, 1.4), (1.5, 1.5 + side * 0.5, 2.05), 0.05)
+    assert count_persons(arms, CELL) == 1
+    # ... or held out at shoulder height: a ridge, no top of its own.
+    tpose = one.copy()
+    _limb(tpose, (1.5, 0.7, 1.4), (1.5, 2.3, 1.4), 0.05)
+    assert count_persons(tpose, CELL) == 1
+    # A low body (a stool) and nothing at all.
+    low = np.zeros(GRID.shape[:3], bool)
+    _limb(low, (1.0, 1.0, 0.0), (1.0, 1.0, 0.45), 0.2)
+    assert count_persons(low, CELL) == 0 and count_persons(np.zeros((5, 5, 5), bool), CELL) == 0

@@ -35,7 +35,9 @@ def test_a_second_person_in_some_frames_is_named_with_the_frames():
         records[k] = dataclasses.replace(records[k], persons=2)
     (caveat,) = run_caveats(records, NAMES)
     assert caveat.code == "several_persons" and caveat.frames == (50, 125)
-    assert caveat.message.startswith("2 people in the capture volume in 2 of 9 kept frames")
+    assert caveat.message.startswith(
+        "more than one person in the capture volume in 2 of 9 kept frames"
+    )
     assert "frames 50, 125" in caveat.message
     assert caveat.to_json() == {"code": caveat.code, "message": caveat.message, "frames": [50, 125]}
 
