@@ -448,10 +448,11 @@ def test_rescue_off_and_nothing_to_rescue(run, tmp_path, monkeypatch):
     assert not (layout.frames_dir / RESCUE_FILE).exists()
 
 
-def test_an_unreliable_view_is_left_out_of_the_fit_and_named(run, tmp_path, monkeypatch):
-    """Capture flags cam_01 ``unreliable`` in the first kept frame: that frame is fitted
-    with cam_00 alone, the session stage sees cam_01 blank, camera_frames does not count
-    it, a warning names it, and capture's agreement survives the record's round trip."""
+def _first_frame_as_captured(run, tmp_path, monkeypatch, verdict):
+    """A copy of the run whose capture stage passes every silhouette frame through
+    ``verdict`` (SilhouetteFrame -> SilhouetteFrame); its first kept frame segmented
+    and fitted again. Returns the prepared and planned run, that frame's segment, its
+    written record, the run's models and the settings without the session stage."""
     session, out, results, base = run
     copy = tmp_path / "run"
     shutil.copytree(out, copy)
@@ -459,33 +460,46 @@ def test_an_unreliable_view_is_left_out_of_the_fit_and_named(run, tmp_path, monk
     real_segment = pipeline.segment_session
 
     def judged(*args, **kwargs):
-        for sil in real_segment(*args, **kwargs):
-            flags = (sil.flags[0], (*sil.flags[1], "unreliable"))
-            yield dataclasses.replace(sil, flags=flags, agreement=(0.97, 0.58))
+        yield from map(verdict, real_segment(*args, **kwargs))
 
     monkeypatch.setattr(pipeline, "segment_session", judged)
     prepared = pipeline.prepare(session.folder, copy, config)
     planned = pipeline.plan(prepared, config)
-    first = planned.kept[0]
     models = pipeline.backgrounds(prepared, planned, config, "seek")
-    (seg,) = pipeline.segment(prepared, planned, models, [first], config, "seek")
-    assert seg.agreement == {"cam_00": 0.97, "cam_01": 0.58}
+    (seg,) = pipeline.segment(prepared, planned, models, [planned.kept[0]], config, "seek")
     rig = pipeline.RigModels(results.models, _rescue_inputs(run)[1], True, 0.0)
     record = pipeline.fit(prepared, rig, seg, config)
+    no_stage = dataclasses.replace(
+        config, session_shape=dataclasses.replace(config.session_shape, enabled=False)
+    )
+    return prepared, planned, seg, record, rig, no_stage
+
+
+def test_an_unreliable_view_is_left_out_of_the_fit_and_named(run, tmp_path, monkeypatch):
+    """Capture flags cam_01 ``unreliable`` in the first kept frame: that frame is fitted
+    with cam_00 alone, the session stage sees cam_01 blank, camera_frames does not count
+    it, a warning names it, and capture's agreement survives the record's round trip."""
+
+    def unreliable(sil):
+        flags = (sil.flags[0], (*sil.flags[1], "unreliable"))
+        return dataclasses.replace(sil, flags=flags, agreement=(0.97, 0.58))
+
+    prepared, planned, seg, record, rig, config = _first_frame_as_captured(
+        run, tmp_path, monkeypatch, unreliable
+    )
+    first = planned.kept[0]
+    assert seg.agreement == {"cam_00": 0.97, "cam_01": 0.58}
     assert record.fitted and set(record.silhouette_iou) == {"cam_00"}
     assert record.view_agreement == {"cam_00": 0.97, "cam_01": 0.58}
     assert record.person_pixels["cam_01"] > 400  # left out for its flag, not its size
-    layout = RunLayout(copy)
+    layout = prepared.layout
     done = frame_jobs.read_done_frames(layout)
     assert done[first].to_json() == record.to_json()  # a resumed run reads the same verdict
     arrays = FrameArrays.load(layout.frame_arrays(first))
     assert arrays.observed["cam_01"].any()  # kept for review, as capture found it
     sf = session_frame(record, arrays, prepared.cameras)
     assert sf.masks[0].any() and not sf.masks[1].any()
-    no_stage = dataclasses.replace(
-        config, session_shape=dataclasses.replace(config.session_shape, enabled=False)
-    )
-    finished = pipeline.finish(prepared, no_stage, rig, done, {})
+    finished = pipeline.finish(prepared, config, rig, done, {})
     n = len(planned.kept)
     assert finished.camera_frames == {"cam_00": n, "cam_01": n - 1}
     assert (
@@ -499,33 +513,15 @@ def test_a_second_person_in_view_is_recorded_and_becomes_a_caveat(run, tmp_path,
     """Capture counts two people in the first kept frame: the count travels through the
     fit into the record, survives a resume, and the finished run carries the caveat
     (in results.json too)."""
-    session, out, results, base = run
-    copy = tmp_path / "run"
-    shutil.copytree(out, copy)
-    config = _config(base)
-    real_segment = pipeline.segment_session
-
-    def crowded(*args, **kwargs):
-        for sil in real_segment(*args, **kwargs):
-            yield dataclasses.replace(sil, persons=2)
-
-    monkeypatch.setattr(pipeline, "segment_session", crowded)
-    prepared = pipeline.prepare(session.folder, copy, config)
-    planned = pipeline.plan(prepared, config)
+    prepared, planned, seg, record, rig, config = _first_frame_as_captured(
+        run, tmp_path, monkeypatch, lambda sil: dataclasses.replace(sil, persons=2)
+    )
     first = planned.kept[0]
-    models = pipeline.backgrounds(prepared, planned, config, "seek")
-    (seg,) = pipeline.segment(prepared, planned, models, [first], config, "seek")
-    assert seg.persons == 2
-    rig = pipeline.RigModels(results.models, _rescue_inputs(run)[1], True, 0.0)
-    record = pipeline.fit(prepared, rig, seg, config)
-    assert record.persons == 2
-    layout = RunLayout(copy)
+    assert seg.persons == 2 and record.persons == 2
+    layout = prepared.layout
     done = frame_jobs.read_done_frames(layout)
     assert done[first].persons == 2
-    no_stage = dataclasses.replace(
-        config, session_shape=dataclasses.replace(config.session_shape, enabled=False)
-    )
-    finished = pipeline.finish(prepared, no_stage, rig, done, {})
+    finished = pipeline.finish(prepared, config, rig, done, {})
     codes = [c.code for c in finished.caveats]
     assert record.ok and "several_persons" in codes
     (crowd,) = [c for c in finished.caveats if c.code == "several_persons"]
