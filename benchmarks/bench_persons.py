@@ -1,0 +1,117 @@
+"""People in the capture volume: ``python -m benchmarks persons``.
+
+Capture counts the people in view per kept frame
+(:func:`bodymetry.capture.consistency.count_persons`; docs/capture.md, "Several
+people in the capture volume"), and a run with more than one gets the caveat
+``several_persons`` and exit status 5. A count that says two where one person
+stands would give a false caveat; one that says one where two stand hides the
+mix of two people in one subject's numbers. This report counts, per kept frame:
+
+- single-person sessions: the capture benchmark's studio and look sessions
+  (``bench_capture``: saturated, white, light grey, black and wall-coloured
+  clothing, plain and textured rooms, hard and soft light) and the demo, where
+  every frame must count one;
+- two-person sessions (``bodymetry synth --people 2``, seeds
+  :data:`TWO_PERSON_SEEDS`, the demo's rig): the subject and a second person
+  walking past it 0.55-0.85 m away, crossing it in some cameras, where every
+  frame must count more than one.
+
+``BODYMETRY_BENCH_CAPTURE_DIR`` keeps the rendered sessions for reuse (the same
+folder as ``python -m benchmarks capture``).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+from benchmarks.bench_capture import LOOK_SESSIONS, SEEDS, studio_session
+from bodymetry.calibration.io import load_calibration
+from bodymetry.capture.segmentation import segment_session
+from bodymetry.capture.session import load_session
+from bodymetry.cli import DEMO_SESSION
+from bodymetry.studio.synth import SubjectSpec, SynthConfig, synthesize
+
+#: Two-person sessions: (seed, motion, subject).
+TWO_PERSON_SEEDS = (
+    (7, "walk_turn", "independent:72"),
+    (8, "arm_raises", "independent:73"),
+    (9, "reach", "independent:74"),
+)
+#: The demo's rig (``bench_pipeline.DEMO_RIG_SEED``).
+DEMO_RIG_SEED = 5
+
+
+def _two_person_session(folder: Path, seed: int, motion: str, subject: str) -> Path:
+    out = folder / f"people2_seed{seed}"
+    if not (out / "session.yaml").is_file():
+        config = SynthConfig(
+            frames=200,
+            seed=seed,
+            rig_seed=DEMO_RIG_SEED,
+            motion=motion,
+            people=2,
+            subject=SubjectSpec.parse(subject, seed),
+            calibration_frames=30,
+        )
+        synthesize(out, config, overwrite=True)
+    return out
+
+
+def count_session(folder: Path) -> dict:
+    """Per kept frame the people capture counts in ``folder``'s session."""
+    session = load_session(folder)
+    cameras = load_calibration(folder / "calibration.yaml")
+    counts = {
+        sf.frame: sf.persons for sf in segment_session(session, cameras=cameras, keep_images=False)
+    }
+    histogram = Counter(counts.values())
+    return {
+        "frames": len(counts),
+        "counts": {str(k): v for k, v in sorted(histogram.items(), key=lambda kv: str(kv[0]))},
+        "per_frame": counts,
+    }
+
+
+def run() -> dict:
+    keep = os.environ.get("BODYMETRY_BENCH_CAPTURE_DIR")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(keep) if keep else Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        single = [Path(DEMO_SESSION)]
+        single += [studio_session(folder, seed) for seed in SEEDS]
+        single += [studio_session(folder, seed, look) for seed, look in LOOK_SESSIONS]
+        two = [_two_person_session(folder, *spec) for spec in TWO_PERSON_SEEDS]
+        singles = {p.name: count_session(p) for p in single}
+        pairs = {p.name: count_session(p) for p in two}
+    one_frames = sum(s["frames"] for s in singles.values())
+    one_right = sum(sum(1 for n in s["per_frame"].values() if n == 1) for s in singles.values())
+    two_frames = sum(s["frames"] for s in pairs.values())
+    two_right = sum(
+        sum(1 for n in s["per_frame"].values() if n is not None and n > 1) for s in pairs.values()
+    )
+    return {
+        "setup": (
+            f"{len(single)} single-person sessions (the demo, bench_capture's studio and "
+            f"look sessions) and {len(two)} two-person sessions (synth --people 2, seeds "
+            f"{[s for s, *_ in TWO_PERSON_SEEDS]}, the demo's rig, 200 frames, every 25th "
+            "kept)"
+        ),
+        "single_person": {
+            "frames": one_frames,
+            "counted_one": one_right,
+            "share": round(one_right / max(one_frames, 1), 4),
+        },
+        "two_persons": {
+            "frames": two_frames,
+            "counted_more_than_one": two_right,
+            "share": round(two_right / max(two_frames, 1), 4),
+        },
+        "sessions": {
+            name: {k: v for k, v in s.items() if k != "per_frame"}
+            for name, s in {**singles, **pairs}.items()
+        },
+        "two_person_frames": {name: s["per_frame"] for name, s in pairs.items()},
+    }
