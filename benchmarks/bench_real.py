@@ -44,12 +44,18 @@ from bodymetry.review.run_data import load_run
 
 WHEEL = "pose2sim==0.10.49"
 DEMO = "Pose2Sim/Demo_SinglePerson"
+#: The same lab, calibration and man with a woman beside him (issue 29).
+MULTI_DEMO = "Pose2Sim/Demo_MultiPerson"
 ROOT = Path(__file__).resolve().parent.parent
 FIXTURE = ROOT / "tests" / "data" / "pose2sim"
 OVERLAY = ROOT / "docs" / "images" / "real-pose2sim-overlay.jpg"
 #: Frames of the fixture (of the demo's 100).
 FIXTURE_FRAMES = (0, 30, 60, 90)
 FIXTURE_BINNING = 4
+#: The two-person fixture (tests/data/pose2sim_multi) and its frames: both people in
+#: view (at 4x binning the segmenter finds both in these frames).
+MULTI_FIXTURE = ROOT / "tests" / "data" / "pose2sim_multi"
+MULTI_FIXTURE_FRAMES = (0, 30)
 
 TARGETS = {
     "minutes": 10.0,
@@ -64,10 +70,10 @@ def _work_dir() -> Path:
     return Path(os.environ.get("BODYMETRY_BENCH_REAL_DIR", default))
 
 
-def demo_source() -> Path:
-    """The unzipped ``Demo_SinglePerson`` folder (downloads the wheel once)."""
+def demo_source(folder: str = DEMO) -> Path:
+    """The unzipped demo ``folder`` of the wheel (downloads the wheel once)."""
     work = _work_dir()
-    demo = work / "Demo_SinglePerson"
+    demo = work / folder.rsplit("/", 1)[-1]
     if (demo / "Config.toml").is_file():
         return demo
     work.mkdir(parents=True, exist_ok=True)
@@ -79,17 +85,20 @@ def demo_source() -> Path:
         )
         wheels = sorted(work.glob("pose2sim-*.whl"))
     with zipfile.ZipFile(wheels[-1]) as zf:
-        for name in zf.namelist():
-            if name.startswith(DEMO + "/") and not name.endswith("/"):
-                target = demo / name[len(DEMO) + 1 :]
+        for entry in zf.namelist():
+            if entry.startswith(folder + "/") and not entry.endswith("/"):
+                target = demo / entry[len(folder) + 1 :]
                 target.parent.mkdir(parents=True, exist_ok=True)
-                target.write_bytes(zf.read(name))
+                target.write_bytes(zf.read(entry))
     return demo
 
 
-def make_fixture(out: Path = FIXTURE) -> None:
-    """Write the test fixture: the demo's calibration, its videos binned 4x, 4 frames each."""
-    demo = demo_source()
+def make_fixture(
+    out: Path = FIXTURE, folder: str = DEMO, keep: tuple[int, ...] = FIXTURE_FRAMES
+) -> None:
+    """Write a test fixture: the demo ``folder``'s calibration, its videos binned 4x,
+    the frames ``keep`` of each."""
+    demo = demo_source(folder)
     (out / "calibration").mkdir(parents=True, exist_ok=True)
     shutil.copyfile(demo / "calibration" / "Calib.qca.txt", out / "calibration" / "Calib.qca.txt")
     (out / "Config.toml").write_text(
@@ -105,7 +114,7 @@ def make_fixture(out: Path = FIXTURE) -> None:
             ok, image = cap.read()
             if not ok:
                 break
-            if i in FIXTURE_FRAMES:
+            if i in keep:
                 h, w = image.shape[:2]
                 size = (w // FIXTURE_BINNING, h // FIXTURE_BINNING)
                 frames.append(cv2.resize(image, size, interpolation=cv2.INTER_AREA))
@@ -206,6 +215,7 @@ def run() -> dict:
 if __name__ == "__main__":  # pragma: no cover
     if sys.argv[1:] == ["fixture"]:
         make_fixture()
-        print(f"wrote {FIXTURE}")
+        make_fixture(MULTI_FIXTURE, MULTI_DEMO, MULTI_FIXTURE_FRAMES)
+        print(f"wrote {FIXTURE} and {MULTI_FIXTURE}")
     else:
         print(json.dumps(run(), indent=2))

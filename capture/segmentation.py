@@ -41,6 +41,7 @@ from bodymetry.capture.fusion import (
     view_agreement,
     view_features,
 )
+from bodymetry.capture.headcount import count_people
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.masks import CleanupConfig, clean_mask
@@ -180,10 +181,12 @@ class SilhouetteFrame:
     persons : int or None
         People in the capture volume
         (:attr:`bodymetry.capture.consistency.HullBodies.persons`, from every
-        pixel some source calls person); None where it cannot be counted (no
-        calibrated rig, or no empty-scene clip: a segmenter finds one person per
-        image). More than one: the frame's silhouettes are the largest body's,
-        and the run says that other people were in view.
+        pixel some source calls person; without an empty-scene clip, from the
+        skeletons of every person the segmenter finds in each view,
+        :func:`bodymetry.capture.headcount.count_people`); None where it cannot
+        be counted (no calibrated rig, or neither a background nor the
+        segmenter). More than one: the frame's silhouettes are the largest
+        body's, and the run says that other people were in view.
     """
 
     frame: int
@@ -462,6 +465,30 @@ class FrameSegmenter:
         ]
         return self.hull.bodies(candidates)
 
+    def count_people(
+        self, images: Sequence[np.ndarray | None], evidence: Sequence[ViewEvidence | None]
+    ) -> int | None:
+        """People in the capture volume without a background: every person the
+        segmenter finds in each view, grouped by matching skeletons across views
+        (:func:`bodymetry.capture.headcount.count_people`); None without a hull
+        (a calibrated rig) or the segmenter.
+
+        Background subtraction sees everyone; the segmenter returns one person
+        per call, so each view is asked again with the people found hidden
+        (:meth:`~bodymetry.capture.person.PersonSegmenter.detect_others`).
+        """
+        if self.hull is None or self.segmenter is None:
+            return None
+        people: list[list[np.ndarray]] = []
+        for ev, image in zip(evidence, images, strict=True):
+            found = [] if ev is None or ev.person is None or image is None else [ev.person]
+            if found:
+                found += self.segmenter.detect_others(image, ev.person)
+            people.append([p.landmarks for p in found])
+        return count_people(
+            self.hull.cameras, people, self.hull.floor_box, self.hull.config.min_views
+        )
+
     def geometry(
         self, evidence: Sequence[ViewEvidence | None], bodies: HullBodies | None = None
     ) -> list[GeometryTerms | None]:
@@ -559,11 +586,17 @@ class FrameSegmenter:
     def __call__(self, images: Sequence[np.ndarray | None]) -> _FrameViews:
         """Segment one frame's images (None: unreadable): :class:`_FrameViews`."""
         evidence = [None if im is None else self.evidence(c, im) for c, im in enumerate(images)]
-        # Only background subtraction sees everyone: a segmenter returns one person
-        # per image, so without a background clip there is nobody else to count.
+        # Background subtraction sees everyone; without a background clip the
+        # segmenter is asked for everyone (for the count only: the silhouettes stay
+        # the most prominent person's, checked across views as before).
         sees_all = any(ev is not None and ev.raw is not None for ev in evidence)
         bodies = self.bodies(evidence) if sees_all else None
         terms = self.geometry(evidence, bodies)
+        persons = (
+            (None if bodies is None else bodies.persons)
+            if sees_all
+            else self.count_people(images, evidence)
+        )
         views = [self._view(c, im, evidence[c], terms[c]) for c, im in enumerate(images)]
         agreement: list[float | None] = [None] * len(views)
         if self.hull is not None:
@@ -591,7 +624,7 @@ class FrameSegmenter:
             landmarks = triangulate_landmarks(
                 self.cameras, [v.landmarks for v in views], self.config.landmarks
             )
-        return _FrameViews(views, landmarks, agreement, None if bodies is None else bodies.persons)
+        return _FrameViews(views, landmarks, agreement, persons)
 
     def _agreement(
         self, views: list[_View], evidence: Sequence[ViewEvidence | None]

@@ -5,12 +5,17 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import bodymetry
 from bodymetry import pipeline
 from bodymetry.estimation.records import FrameRecord
+from bodymetry.estimation.resolution import WorkingResolution
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunLayout
 from bodymetry.executors import DaskExecutor, Executor, LocalExecutor
+from bodymetry.studio.rig import studio_rig
 
 APP = Path(bodymetry.__file__).parent
 
@@ -111,3 +116,44 @@ def test_camera_warnings_name_an_unreliable_camera_once_and_not_as_unseen():
         "left out of those frames' fits",
     ]
     assert pipeline.camera_warnings([], names) == []
+
+
+def _landmark_frames(rig, persons: int, n_frames: int = 6) -> list[pipeline.SegmentedFrame]:
+    """Kept frames whose per-camera landmarks show camera 1 off by (8, -3) px, with
+    ``persons`` people counted in view."""
+    rng = np.random.default_rng(1)
+    frames = []
+    for k in range(n_frames):
+        points = rng.uniform([-0.4, -0.4, 0.1], [0.4, 0.4, 1.8], (33, 3))
+        views = [np.column_stack([c.project(points), np.ones(33)]) for c in rig]
+        views[1][:, :2] += (8.0, -3.0)
+        frames.append(pipeline.SegmentedFrame(25 * k, (), (), None, tuple(views), persons=persons))
+    return frames
+
+
+def test_the_calibration_check_leaves_out_frames_with_more_than_one_person(tmp_path):
+    rig = studio_rig(4, (640, 480), seed=5)
+    prepared = pipeline.PreparedRun(
+        session=None,
+        layout=RunLayout(tmp_path),
+        cameras=rig,
+        calibration_source="test",
+        resolution=WorkingResolution.full(rig),
+        calibrated=rig,
+    )
+    config = ProcessConfig()
+    alone = pipeline.check_calibration(prepared, _landmark_frames(rig, 1), config)
+    assert alone.calibrated[1] is not rig[1] and alone.calibrated[0] is rig[0]
+    # Two people in every frame: each view's landmarks may be another person's, so
+    # the cameras are not judged by them, and the run says so.
+    crowded = pipeline.check_calibration(prepared, _landmark_frames(rig, 2), config)
+    assert crowded.calibrated is rig
+    assert crowded.warnings == (
+        "calibration check: 6 of 6 kept frames have more than one person in view, whose "
+        "landmarks may be different people in different cameras; the calibration was not "
+        "checked and is used as given",
+    )
+    mixed = _landmark_frames(rig, 1) + _landmark_frames(rig, 2, n_frames=2)
+    partly = pipeline.check_calibration(prepared, mixed, config)
+    assert partly.calibrated[1] is not rig[1]
+    assert "2 of 8 kept frames" in partly.warnings[0] and "left out" in partly.warnings[0]

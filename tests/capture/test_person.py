@@ -22,20 +22,32 @@ from bodymetry.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURE = ROOT / "tests" / "data" / "pose2sim"
+#: Two people on the same rig (Pose2Sim's Demo_MultiPerson, binned 4x).
+MULTI_FIXTURE = ROOT / "tests" / "data" / "pose2sim_multi"
 
 needs_segmenter = pytest.mark.skipif(
     not segmenter_available(), reason=f"segmenter not installed ({SEGMENTER_REQUIREMENT})"
 )
 
 
-@pytest.fixture(scope="module")
-def real_session(tmp_path_factory):
-    """The fixture imported as a bodymetry session (every frame kept)."""
+def _imported(source: Path, tmp_path_factory) -> Path:
     from bodymetry.importers import import_recording
 
     out = tmp_path_factory.mktemp("real") / "session"
-    import_recording(FIXTURE, out, frame_step=1)
+    import_recording(source, out, frame_step=1)
     return out
+
+
+@pytest.fixture(scope="module")
+def real_session(tmp_path_factory):
+    """The fixture imported as a bodymetry session (every frame kept)."""
+    return _imported(FIXTURE, tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def two_person_session(tmp_path_factory):
+    """The two-person fixture imported as a bodymetry session (every frame kept)."""
+    return _imported(MULTI_FIXTURE, tmp_path_factory)
 
 
 def test_requirement_is_pinned_once():
@@ -45,7 +57,13 @@ def test_requirement_is_pinned_once():
 
 
 def test_config_validation():
-    for bad in ({"threshold": 1.0}, {"min_detection_confidence": 0.0}, {"crop_margin": -0.1}):
+    for bad in (
+        {"threshold": 1.0},
+        {"min_detection_confidence": 0.0},
+        {"crop_margin": -0.1},
+        {"max_persons": 0},
+        {"hide_margin": 0.5},
+    ):
         with pytest.raises(InputError, match="person\\."):
             PersonConfig(**bad)
     with pytest.raises(InputError, match=r"capture\.method"):
@@ -104,6 +122,37 @@ def test_real_session_silhouettes_are_the_subject_in_every_view(real_session):
             assert mask.shape == (cam.size[1], cam.size[0])
             # One person of 240-300 px in a 480 px tall image: 3-10 % of it.
             assert 0.03 < mask.mean() < 0.12, (sf.frame, cam.name, mask.mean())
+
+
+@needs_segmenter
+def test_finds_both_people_of_a_real_frame():
+    image = read_clip(MULTI_FIXTURE / "videos" / "cam01.mp4", "cam01", 1)[0]
+    with PersonSegmenter() as seg:
+        first = seg.detect(image)
+        others = seg.detect_others(image, first)
+        assert len(others) == 1
+        a, b = first.mask(0.5), others[0].mask(0.5)
+        # Known answer from the picture: the man stands at the back on the left
+        # (x < 136 of 270), the woman in front on the right, both 150-300 px tall.
+        centres = sorted(np.nonzero(m)[1].mean() for m in (a, b))
+        assert centres[0] < 135 < centres[1]
+        for m in (a, b):
+            rows = np.flatnonzero(m.any(axis=1))
+            assert 150 < rows[-1] - rows[0] < 300
+        assert (a & b).sum() < 0.02 * min(a.sum(), b.sum())
+        # One person only: nobody else to find.
+        assert seg.detect_others(image, None) == []
+    with PersonSegmenter(PersonConfig(max_persons=1)) as seg:
+        assert seg.detect_others(image, seg.detect(image)) == []
+
+
+@needs_segmenter
+def test_counts_the_people_of_real_sessions_without_a_background(real_session, two_person_session):
+    for folder, expected in ((real_session, 1), (two_person_session, 2)):
+        session = load_session(folder)
+        cameras = load_calibration(folder / "calibration.yaml")
+        counts = [sf.persons for sf in segment_session(session, cameras=cameras, keep_images=False)]
+        assert counts == [expected] * len(counts), (folder, counts)
 
 
 def test_without_the_segmenter_a_clipless_session_falls_back_to_the_median(

@@ -1,0 +1,145 @@
+"""People in the capture volume, counted from the persons each view's segmenter finds.
+
+Without an empty-scene clip capture has no source that sees everyone: the
+learned segmenter returns one person per call, so it is asked again with the
+people found hidden (:meth:`bodymetry.capture.person.PersonSegmenter.detect_others`).
+Counting those detections through the visual hull does not work: where two
+people stand apart, the cone of one in some views crosses the cone of the
+other in the others, and the hull holds phantom bodies between them (on the
+real two-person Pose2Sim recording the hull of all detections had 1 to 4
+person-sized bodies in frames with two people). Nor does the floor under the
+feet: in a lunge the back heel leaves the floor, and its ray meets the floor
+up to a metre away, differently in every camera.
+
+The skeletons do not have phantoms. Two detections in two cameras are the
+same person when their body landmarks (shoulders to ankles), triangulated from
+the two views, reproject onto both within :data:`MATCH_ERROR` of the image
+height, inside the capture volume. A person is a group of detections, at most
+one per camera, every two of which match (complete linkage), that
+``min_views`` cameras agree on: a bystander seen by one or two cameras, or
+standing outside the volume, is nobody's count.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.cluster.hierarchy import fcluster, linkage
+
+from bodymetry.calibration.camera import CameraGroup
+from bodymetry.capture.person import LANDMARKS
+from bodymetry.errors import InputError
+
+__all__ = ["BODY_LANDMARKS", "MATCH_ERROR", "count_people", "match_error"]
+
+#: The landmarks compared between views (the face is small and the hands often hidden).
+BODY_LANDMARKS = (
+    "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist",
+    "right_wrist", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle",
+    "right_ankle",
+)  # fmt: skip
+_BODY = [LANDMARKS.index(n) for n in BODY_LANDMARKS]
+
+#: A landmark counts where the landmark model's visibility is at least this.
+MIN_VISIBILITY = 0.5
+#: Two detections are compared on at least this many landmarks both show.
+MIN_SHARED = 4
+#: Two detections are one person when the median reprojection error of their shared
+#: landmarks, triangulated from the two views, is below this fraction of the image
+#: height (measured on the real Pose2Sim rig: see docs/capture.md).
+MATCH_ERROR = 0.03
+#: Height range (metres) of the capture volume for the triangulated landmarks.
+_Z_RANGE = (-0.3, 2.6)
+#: Stand-in error of two detections that cannot be one person.
+_APART = 1e6
+
+
+def match_error(
+    cameras: CameraGroup, a: np.ndarray, b: np.ndarray, floor_box: tuple | None = None
+) -> float:
+    """How far two cameras' detections are from being one person.
+
+    Parameters
+    ----------
+    cameras : CameraGroup
+        The two cameras.
+    a, b : (33, 3) float
+        Their landmarks (:attr:`bodymetry.capture.person.Person.landmarks`).
+    floor_box : ((2,) float, (2,) float), optional
+        The capture volume's floor (x, y) box.
+
+    Returns
+    -------
+    float
+        The median reprojection error of their shared body landmarks, as a
+        fraction of the image height (the larger of the two cameras'); inf with
+        fewer than :data:`MIN_SHARED` shared landmarks or when the triangulated
+        body lies outside the capture volume.
+    """
+    pair = np.stack([np.asarray(a, float), np.asarray(b, float)])[:, _BODY]  # (2, L, 3)
+    shared = (np.isfinite(pair).all(axis=2) & (pair[..., 2] >= MIN_VISIBILITY)).all(axis=0)
+    if shared.sum() < MIN_SHARED:
+        return np.inf
+    pixels = pair[:, shared, :2]
+    points = cameras.triangulate(pixels)
+    if not np.isfinite(points).all():
+        return np.inf
+    centre = np.median(points, axis=0)
+    if not _Z_RANGE[0] <= centre[2] <= _Z_RANGE[1]:
+        return np.inf
+    if floor_box is not None:
+        lo, hi = (np.asarray(v, float) for v in floor_box)
+        if not ((centre[:2] >= lo) & (centre[:2] <= hi)).all():
+            return np.inf
+    # Behind a camera the DLT still returns a point; its projection is meaningless.
+    if any((cam.to_camera(points)[:, 2] <= 0).any() for cam in cameras):
+        return np.inf
+    error = np.linalg.norm(cameras.project(points) - pixels, axis=2)  # (2, S)
+    height = max(size[1] for size in cameras.sizes)
+    return float(np.median(error) / height)
+
+
+def count_people(
+    cameras: CameraGroup,
+    people: Sequence[Sequence[np.ndarray]],
+    floor_box: tuple | None = None,
+    min_views: int = 3,
+    match: float = MATCH_ERROR,
+) -> int:
+    """People that ``min_views`` cameras agree on (module docstring).
+
+    Parameters
+    ----------
+    cameras : CameraGroup
+        C cameras, at the resolution of the landmarks' pixels.
+    people : sequence of C sequences of (33, 3) float
+        Per camera, the landmarks of each person detected in its image.
+    floor_box : ((2,) float, (2,) float), optional
+        The capture volume's floor (x, y) box.
+    min_views : int
+    match : float
+        :data:`MATCH_ERROR`.
+
+    Returns
+    -------
+    int
+    """
+    if len(people) != len(cameras):
+        raise InputError(f"expected detections for {len(cameras)} cameras, got {len(people)}")
+    nodes = [(c, np.asarray(lm, float)) for c, found in enumerate(people) for lm in found]
+    if len({c for c, _ in nodes}) < min_views:
+        return 0
+    n = len(nodes)
+    distance = np.full((n, n), _APART)
+    np.fill_diagonal(distance, 0.0)
+    for i in range(n):
+        for j in range(i + 1, n):
+            (ci, a), (cj, b) = nodes[i], nodes[j]
+            if ci != cj:
+                error = match_error(cameras.select([ci, cj]), a, b, floor_box)
+                distance[i, j] = distance[j, i] = min(error, _APART)
+    condensed = distance[np.triu_indices(n, k=1)]
+    groups = fcluster(linkage(condensed, method="complete"), t=match, criterion="distance")
+    views = np.array([c for c, _ in nodes])
+    return int(sum(len(np.unique(views[groups == g])) >= min_views for g in np.unique(groups)))
