@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 from bodymetry.capture.video import H264Writer
+from bodymetry.cli.common import EXIT_CAVEATS
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.run_files import RunResults
 from bodymetry.review.report import compute_overlays
@@ -170,10 +171,12 @@ def run() -> dict:
         result["import_seconds"] = round(t1 - t0, 1)
         result["process_seconds"] = round(t2 - t1, 1)
         result["process_rc"] = processed.returncode
-        if processed.returncode not in (0, 3):
+        # 5: the run measured, with caveats (the subject's cap reads as hair).
+        if processed.returncode not in (0, 3, EXIT_CAVEATS):
             result["stderr"] = processed.stderr.strip()[-4000:]
             return result
         results = RunResults.read(run_dir / "results.json")
+        result["caveats"] = [c.code for c in results.caveats]
         ok = [r for r in results.frames if r.ok]
         ious = [r.mean_iou for r in results.fitted_frames]
         heights = [r.estimates["generative"].biometrics["height_mm"] for r in ok]
