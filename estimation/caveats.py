@@ -8,8 +8,9 @@ list), and says why in a sentence a user can act on:
 ``several_persons``
     Capture counted more than one person-sized body in the capture volume in
     some kept frames (:attr:`FrameRecord.persons`). bodymetry measures one
-    subject per session, the largest body of each frame: its numbers may mix
-    people (issue 29 is to measure each).
+    subject per session, the largest body of each frame (the most prominent
+    person without an empty-scene clip): its numbers may mix people (issue 29
+    is to measure each).
 ``thin_evidence``
     Fewer than :data:`MIN_MEASURED_FRAMES` frames, or fewer than
     :data:`MIN_MEASURED_SHARE` of the kept frames, were measured.
@@ -125,7 +126,8 @@ def run_caveats(
                 "several_persons",
                 f"more than one person in the capture volume in {len(crowded)} of {kept} kept "
                 f"frames ({_frame_list([r.frame for r in crowded])}): bodymetry measures one "
-                "subject, the largest body of each frame, so these measurements may mix people",
+                "subject per frame (the largest body, or the most prominent person where there "
+                "is no empty-scene clip), so these measurements may mix people",
                 tuple(r.frame for r in crowded),
             )
         )
