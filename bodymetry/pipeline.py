@@ -59,8 +59,10 @@ from bodymetry.capture.landmarks import (
     principal_point_offsets,
     triangulate_landmarks,
 )
+from bodymetry.capture.people import Sighting
 from bodymetry.capture.segmentation import background_models, segment_session
 from bodymetry.capture.session import Session, load_session
+from bodymetry.capture.tracks import track
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import (
     FrameFit,
@@ -105,6 +107,7 @@ __all__ = [
     "backgrounds",
     "camera_warnings",
     "check_calibration",
+    "choose_person",
     "finish",
     "fit",
     "judged_agreement",
@@ -219,6 +222,11 @@ class SegmentedFrame:
     persons : int or None
         Person-sized bodies in the capture volume
         (:attr:`bodymetry.capture.segmentation.SilhouetteFrame.persons`).
+    people : tuple of Sighting
+        Each person found, with their masks at the working resolution
+        (:attr:`bodymetry.capture.segmentation.SilhouetteFrame.sightings`; empty
+        where capture does not tell people apart); :func:`choose_person` turns
+        the frame into one person's.
     """
 
     frame: int
@@ -228,6 +236,7 @@ class SegmentedFrame:
     view_landmarks: tuple
     agreement: dict[str, float] = field(default_factory=dict)
     persons: int | None = None
+    people: tuple[Sighting, ...] = field(default=(), repr=False)
 
 
 @dataclass(frozen=True)
@@ -374,6 +383,7 @@ def segment(
             view_landmarks=tuple(sil.view_landmarks),
             agreement=judged_agreement(names, sil.agreement, sil.frame),
             persons=sil.persons,
+            people=tuple(_working(prepared.resolution, names, p, sil.masks) for p in sil.sightings),
         )
         for sil in segment_session(
             prepared.session,
@@ -386,6 +396,19 @@ def segment(
             keep_images=False,
         )
     ]
+
+
+def _working(
+    resolution: WorkingResolution, names: Sequence[str], seen: Sighting, full: Sequence[np.ndarray]
+) -> Sighting:
+    """``seen`` with its masks at the working resolution (None stays None); ``full``:
+    the frame's masks at the cameras' own size."""
+    masks = resolution.downscale(
+        names, [np.zeros_like(f) if m is None else m for m, f in zip(seen.masks, full, strict=True)]
+    )
+    return replace(
+        seen, masks=tuple(None if m is None else w for m, w in zip(seen.masks, masks, strict=True))
+    )
 
 
 def judged_agreement(
@@ -416,9 +439,12 @@ def judged_agreement(
 
 
 def needs_every_frame(config: ProcessConfig) -> bool:
-    """Whether the calibration check runs, and so needs every kept frame segmented
-    (its landmarks) before any frame is fitted; otherwise only the pending frames are."""
-    return config.capture.landmarks.refine_calibration and config.capture.uses_segmenter
+    """Whether every kept frame is segmented before any frame is fitted: for the
+    calibration check (its landmarks) or to follow a chosen person through the
+    frames (:func:`choose_person`); otherwise only the pending frames are."""
+    return config.person is not None or (
+        config.capture.landmarks.refine_calibration and config.capture.uses_segmenter
+    )
 
 
 def check_calibration(
@@ -482,6 +508,78 @@ def check_calibration(
         warnings=(*prepared.warnings, *warnings),
         landmark_config=cfg,
     )
+
+
+def choose_person(
+    prepared: PreparedRun, segmented: Sequence[SegmentedFrame], config: ProcessConfig
+) -> list[SegmentedFrame]:
+    """Every kept frame as person ``config.person`` of the capture sees it
+    (``process --person N``).
+
+    The people capture found in each frame are given identities across the
+    frames (:func:`bodymetry.capture.tracks.track`), and each frame's
+    silhouettes, flags and landmarks become those of the chosen person: a view
+    where someone nearer touches them is flagged ``occluded`` (left out of that
+    frame's fit), one where they were not found ``empty``, and a frame without
+    them has no silhouette (its record says so).
+
+    Raises
+    ------
+    InputError
+        When capture told no people apart, or the recording has no person ``N``.
+    """
+    chosen = config.person
+    ordered = sorted(segmented, key=lambda s: s.frame)
+    if not any(s.people for s in ordered):
+        raise InputError(
+            f"--person {chosen}: capture told no people apart in this recording (one person "
+            "in view, no calibrated rig, or a session with an empty-scene clip, where people "
+            "are not told apart yet); run without --person to measure the subject"
+        )
+    ids = track([[p.position for p in s.people] for s in ordered])
+    known = 1 + max((i for frame in ids for i in frame), default=-1)
+    if chosen >= known:
+        raise InputError(
+            f"--person {chosen}: capture followed {known} people through this recording "
+            f"(0 to {known - 1})"
+        )
+    names = prepared.cameras.names
+    out = []
+    for seg, frame_ids in zip(ordered, ids, strict=True):
+        if chosen not in frame_ids:
+            masks = tuple(np.zeros_like(m) for m in seg.masks)
+            out.append(
+                replace(
+                    seg, masks=masks, flags=(("empty",),) * len(names), landmarks=None,
+                    view_landmarks=(), agreement={}, people=(),
+                )
+            )  # fmt: skip
+            continue
+        person = seg.people[frame_ids.index(chosen)]
+        masks = tuple(
+            np.zeros_like(m) if mine is None else mine
+            for m, mine in zip(seg.masks, person.masks, strict=True)
+        )
+        flags = tuple(
+            ("empty",) if mine is None else ("occluded",) if hidden else ()
+            for mine, hidden in zip(person.masks, person.occluded, strict=True)
+        )
+        views = list(person.landmarks)
+        landmarks = (
+            triangulate_landmarks(prepared.calibrated, views, config.capture.landmarks)
+            if sum(v is not None for v in views) >= 2
+            else None
+        )
+        out.append(
+            replace(
+                seg, masks=masks, flags=flags, landmarks=landmarks,
+                view_landmarks=tuple(views), agreement={}, people=(),
+            )
+        )  # fmt: skip
+    log.info(
+        "person %d: in %d of %d kept frames", chosen, sum(chosen in f for f in ids), len(ordered)
+    )
+    return out
 
 
 def rig_of(prepared: PreparedRun, config: ProcessConfig) -> str:
@@ -740,6 +838,7 @@ STEPS: tuple[Callable, ...] = (
     backgrounds,
     segment,
     check_calibration,
+    choose_person,
     train,
     fit,
     rescue,
@@ -836,6 +935,9 @@ def run_session(
     if every:
         prep_f = ex.submit(check_calibration, prep_f, list(segmented.values()), config)
         prepared = prep_f.result()
+    if config.person is not None:
+        chosen_f = ex.submit(choose_person, prep_f, list(segmented.values()), config)
+        segmented = {f: ex.item(chosen_f, i) for i, f in enumerate(sorted(segmented))}
     t_sil = time.perf_counter() - t0
     ex.wait_warm()  # before training poses the body model here
     rig = rig_of(prepared, config)

@@ -73,6 +73,8 @@ def config_fingerprint(config: ProcessConfig) -> str:
     relevant = {
         k: data[k] for k in ("quality", "fit", "training", "frame_step", "working_person_px")
     }
+    if config.person is not None:  # absent otherwise: runs of one subject keep their hash
+        relevant["person"] = config.person
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
 
 

@@ -23,6 +23,7 @@ standing outside the volume, is nobody's count.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
@@ -31,7 +32,14 @@ from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.person import LANDMARKS
 from bodymetry.errors import InputError
 
-__all__ = ["BODY_LANDMARKS", "MATCH_ERROR", "count_people", "match_error"]
+__all__ = [
+    "BODY_LANDMARKS",
+    "MATCH_ERROR",
+    "PersonGroup",
+    "count_people",
+    "group_people",
+    "match_error",
+]
 
 #: The landmarks compared between views (the face is small and the hands often hidden).
 BODY_LANDMARKS = (
@@ -100,14 +108,38 @@ def match_error(
     return float(np.median(error) / height)
 
 
-def count_people(
+@dataclass(frozen=True)
+class PersonGroup:
+    """One person as the cameras' detections agree on them (:func:`group_people`).
+
+    Attributes
+    ----------
+    detections : tuple of (int or None)
+        Per camera, the index of their detection in that camera's list, or
+        None where the camera did not find them (hidden, or missed).
+    position : (3,) float
+        World point, metres: the median of their body landmarks triangulated
+        from every camera that found them.
+    """
+
+    detections: tuple[int | None, ...]
+    position: np.ndarray
+
+    @property
+    def views(self) -> int:
+        """Cameras that found them."""
+        return sum(d is not None for d in self.detections)
+
+
+def group_people(
     cameras: CameraGroup,
     people: Sequence[Sequence[np.ndarray]],
     floor_box: tuple | None = None,
     min_views: int = 3,
     match: float = MATCH_ERROR,
-) -> int:
-    """People that ``min_views`` cameras agree on (module docstring).
+) -> list[PersonGroup]:
+    """The people that ``min_views`` cameras agree on (module docstring), most
+    cameras first, then from left to right along the world x axis.
 
     Parameters
     ----------
@@ -123,23 +155,53 @@ def count_people(
 
     Returns
     -------
-    int
+    list of PersonGroup
     """
     if len(people) != len(cameras):
         raise InputError(f"expected detections for {len(cameras)} cameras, got {len(people)}")
-    nodes = [(c, np.asarray(lm, float)) for c, found in enumerate(people) for lm in found]
-    if len({c for c, _ in nodes}) < min_views:
-        return 0
+    nodes = [
+        (c, k, np.asarray(lm, float))
+        for c, found in enumerate(people)
+        for k, lm in enumerate(found)
+    ]
+    if len({c for c, _, _ in nodes}) < min_views:
+        return []
     n = len(nodes)
     distance = np.full((n, n), _APART)
     np.fill_diagonal(distance, 0.0)
     for i in range(n):
         for j in range(i + 1, n):
-            (ci, a), (cj, b) = nodes[i], nodes[j]
+            (ci, _, a), (cj, _, b) = nodes[i], nodes[j]
             if ci != cj:
                 error = match_error(cameras.select([ci, cj]), a, b, floor_box)
                 distance[i, j] = distance[j, i] = min(error, _APART)
     condensed = distance[np.triu_indices(n, k=1)]
-    groups = fcluster(linkage(condensed, method="complete"), t=match, criterion="distance")
-    views = np.array([c for c, _ in nodes])
-    return int(sum(len(np.unique(views[groups == g])) >= min_views for g in np.unique(groups)))
+    labels = fcluster(linkage(condensed, method="complete"), t=match, criterion="distance")
+    out = []
+    for g in np.unique(labels):
+        members = [nodes[i] for i in np.flatnonzero(labels == g)]
+        if len({c for c, _, _ in members}) < min_views:
+            continue
+        detections: list[int | None] = [None] * len(cameras)
+        pixels = np.full((len(cameras), len(_BODY), 2), np.nan)
+        for c, k, lm in members:
+            detections[c] = k
+            body = lm[_BODY]
+            seen = np.isfinite(body).all(axis=1) & (body[:, 2] >= MIN_VISIBILITY)
+            pixels[c, seen] = body[seen, :2]
+        points = cameras.triangulate(pixels)
+        position = np.nanmedian(points, axis=0) if np.isfinite(points).any() else np.full(3, np.nan)
+        out.append(PersonGroup(tuple(detections), position))
+    out.sort(key=lambda p: (-p.views, float(np.nan_to_num(p.position[0]))))
+    return out
+
+
+def count_people(
+    cameras: CameraGroup,
+    people: Sequence[Sequence[np.ndarray]],
+    floor_box: tuple | None = None,
+    min_views: int = 3,
+    match: float = MATCH_ERROR,
+) -> int:
+    """How many people ``min_views`` cameras agree on (:func:`group_people`)."""
+    return len(group_people(cameras, people, floor_box, min_views, match))

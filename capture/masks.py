@@ -48,6 +48,11 @@ Flags per camera and frame (:data:`FLAGS`):
     hull of the other views and the segmenter) beyond a bound
     (:attr:`bodymetry.capture.segmentation.SilhouetteFrame.agreement`): the
     fit leaves the view out for that frame.
+``occluded``
+    (a chosen person of several, ``process --person N``) someone nearer to
+    the camera touches this person's silhouette, so part of them may be
+    hidden, which is unknown, not background: the fit leaves the view out for
+    that frame (:mod:`bodymetry.capture.people`).
 
 The capture stage that produces the raw masks and applies this clean-up is
 :mod:`bodymetry.capture.segmentation`.
@@ -66,6 +71,7 @@ __all__ = [
     "FLAGS",
     "CleanupConfig",
     "clean_mask",
+    "grown_mask",
     "refine_edges",
 ]
 
@@ -77,7 +83,18 @@ FLAGS = (
     "scene_change",
     "inconsistent",
     "unreliable",
+    "occluded",
 )
+
+
+def grown_mask(mask: np.ndarray, margin: float) -> np.ndarray:
+    """(H, W) bool ``mask`` dilated by ``margin`` of its height (at least one pixel)."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    if rows.size == 0:
+        return mask
+    r = max(1, round(margin * (rows[-1] - rows[0] + 1)))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    return cv2.dilate(mask.astype(np.uint8), kernel) > 0
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from bodymetry.capture.masks import grown_mask
 from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -297,7 +298,7 @@ class PersonSegmenter:
         cfg = self.config
         people, grown = [found], []
         while len(people) < cfg.max_persons:
-            grown.append(_grown_mask(people[-1].mask(cfg.threshold), cfg.hide_margin))
+            grown.append(grown_mask(people[-1].mask(cfg.threshold), cfg.hide_margin))
             hidden |= grown[-1]
             work[hidden] = fill
             person = self.detect(work)
@@ -363,16 +364,6 @@ def _native_stderr_silenced():
     finally:
         os.dup2(saved, 2)
         os.close(saved)
-
-
-def _grown_mask(mask: np.ndarray, margin: float) -> np.ndarray:
-    """(H, W) bool ``mask`` dilated by ``margin`` of its height (at least one pixel)."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    if rows.size == 0:
-        return mask
-    r = max(1, round(margin * (rows[-1] - rows[0] + 1)))
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    return cv2.dilate(mask.astype(np.uint8), kernel) > 0
 
 
 def _grown(

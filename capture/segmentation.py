@@ -41,10 +41,10 @@ from bodymetry.capture.fusion import (
     view_agreement,
     view_features,
 )
-from bodymetry.capture.headcount import count_people
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.masks import CleanupConfig, clean_mask
+from bodymetry.capture.people import Sighting, sightings
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
     Person,
@@ -187,6 +187,11 @@ class SilhouetteFrame:
         be counted (no calibrated rig, or neither a background nor the
         segmenter). More than one: the frame's silhouettes are the largest
         body's, and the run says that other people were in view.
+    sightings : tuple of Sighting
+        Without an empty-scene clip, each person counted, with their pixels per
+        camera (:mod:`bodymetry.capture.people`; the masks at the camera's
+        size), for measuring a chosen person (``process --person N``); empty
+        where people are not told apart (with a background clip, or no rig).
     """
 
     frame: int
@@ -199,6 +204,7 @@ class SilhouetteFrame:
     view_landmarks: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
     agreement: tuple[float | None, ...] = ()
     persons: int | None = None
+    sightings: tuple[Sighting, ...] = field(default=(), repr=False)
 
     def stack(self) -> np.ndarray:
         """(C, H, W) bool masks, for rigs whose cameras all have one image size.
@@ -392,12 +398,15 @@ class _FrameViews(NamedTuple):
         Per camera (None where not judged).
     persons : int or None
         :attr:`SilhouetteFrame.persons`.
+    sightings : tuple of Sighting
+        :attr:`SilhouetteFrame.sightings`.
     """
 
     views: list[_View]
     landmarks: np.ndarray | None
     agreement: list[float | None]
     persons: int | None
+    sightings: tuple[Sighting, ...] = ()
 
 
 class FrameSegmenter:
@@ -465,13 +474,12 @@ class FrameSegmenter:
         ]
         return self.hull.bodies(candidates)
 
-    def count_people(
+    def people(
         self, images: Sequence[np.ndarray | None], evidence: Sequence[ViewEvidence | None]
-    ) -> int | None:
-        """People in the capture volume without a background: every person the
-        segmenter finds in each view, grouped by matching skeletons across views
-        (:func:`bodymetry.capture.headcount.count_people`); None without a hull
-        (a calibrated rig) or the segmenter.
+    ) -> list[Sighting] | None:
+        """Every person in the capture volume without a background, with their
+        pixels in each camera (:func:`bodymetry.capture.people.sightings`); None
+        without a hull (a calibrated rig) or the segmenter.
 
         Background subtraction sees everyone; the segmenter returns one person
         per call, so each view is asked again with the people found hidden
@@ -479,14 +487,20 @@ class FrameSegmenter:
         """
         if self.hull is None or self.segmenter is None:
             return None
-        people: list[list[np.ndarray]] = []
+        detections: list[list[Person]] = []
         for ev, image in zip(evidence, images, strict=True):
             found = [] if ev is None or ev.person is None or image is None else [ev.person]
             if found:
                 found += self.segmenter.detect_others(image, ev.person)
-            people.append([p.landmarks for p in found])
-        return count_people(
-            self.hull.cameras, people, self.hull.floor_box, self.hull.config.min_views
+            detections.append(found)
+        cfg = self.config.person
+        return sightings(
+            self.hull.cameras,
+            detections,
+            cfg.threshold,
+            cfg.hide_margin,
+            self.hull.floor_box,
+            self.hull.config.min_views,
         )
 
     def geometry(
@@ -592,10 +606,11 @@ class FrameSegmenter:
         sees_all = any(ev is not None and ev.raw is not None for ev in evidence)
         bodies = self.bodies(evidence) if sees_all else None
         terms = self.geometry(evidence, bodies)
+        people = None if sees_all else self.people(images, evidence)
         persons = (
             (None if bodies is None else bodies.persons)
             if sees_all
-            else self.count_people(images, evidence)
+            else (None if people is None else len(people))
         )
         views = [self._view(c, im, evidence[c], terms[c]) for c, im in enumerate(images)]
         agreement: list[float | None] = [None] * len(views)
@@ -624,7 +639,7 @@ class FrameSegmenter:
             landmarks = triangulate_landmarks(
                 self.cameras, [v.landmarks for v in views], self.config.landmarks
             )
-        return _FrameViews(views, landmarks, agreement, persons)
+        return _FrameViews(views, landmarks, agreement, persons, tuple(people or ()))
 
     def _agreement(
         self, views: list[_View], evidence: Sequence[ViewEvidence | None]
@@ -698,7 +713,7 @@ def segment_session(
     )
     try:
         for fs in _prefetch(read_frame_sets(session, report, frames=frames, method=read_method)):
-            per_view, landmarks, agreement, persons = views(fs.images)
+            per_view, landmarks, agreement, persons, people = views(fs.images)
             out = SilhouetteFrame(
                 frame=fs.frame,
                 cameras=fs.cameras,
@@ -712,6 +727,7 @@ def segment_session(
                 else (),
                 agreement=tuple(agreement) if any(a is not None for a in agreement) else (),
                 persons=persons,
+                sightings=people,
             )
             if on_frame is not None:
                 on_frame(out)

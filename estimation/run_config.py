@@ -69,6 +69,12 @@ class ProcessConfig:
         Write the review outputs (recording, MCAP, report) after the results.
     pdf : bool
         Also write ``report.pdf``.
+    person : int or None
+        Measure this person of a multi-person recording (``--person N``; the
+        identities capture follows through the frames, numbered from 0 in the
+        order they are first seen: :mod:`bodymetry.capture.tracks`). None: one
+        subject per frame, the largest body (a run with several people in view
+        says so).
     """
 
     quality: str = "default"
@@ -82,6 +88,7 @@ class ProcessConfig:
     cache_dir: Path | None = None
     review: bool = True
     pdf: bool = False
+    person: int | None = None
 
     def __post_init__(self) -> None:
         if self.quality not in PRESETS:
@@ -95,6 +102,8 @@ class ProcessConfig:
             )
         if self.workers is not None and self.workers < 1:
             raise InputError(f"workers: expected >= 1, got {self.workers}")
+        if self.person is not None and self.person < 0:
+            raise InputError(f"person: expected a person number >= 0, got {self.person}")
         if self.pdf and not self.review:
             raise InputError("pdf: a PDF report needs the review outputs (review=true)")
 

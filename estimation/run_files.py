@@ -268,7 +268,10 @@ class RunResults:
         so an older ``results.json`` gets them too)."""
         outline = self.outline
         return run_caveats(
-            self.frames, self.session.cameras, () if outline is None else outline.warnings
+            self.frames,
+            self.session.cameras,
+            () if outline is None else outline.warnings,
+            chosen_person=self.config.person,
         )
 
     def working_cameras(self, cameras: CameraGroup) -> CameraGroup:

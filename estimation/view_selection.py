@@ -40,9 +40,10 @@ __all__ = [
 MIN_PIXELS = 400
 
 #: Capture's view flags that leave a view out of the frame's fit: no image
-#: (``unreadable``), or a silhouette the frame's other evidence contradicts
-#: (``unreliable``).
-LEAVE_OUT_FLAGS = ("unreadable", "unreliable")
+#: (``unreadable``), a silhouette the frame's other evidence contradicts
+#: (``unreliable``), or a chosen person whom someone nearer may hide in part
+#: (``occluded``: hidden pixels are unknown, not background).
+LEAVE_OUT_FLAGS = ("unreadable", "unreliable", "occluded")
 
 
 def usable_view(pixels: int, flags: Sequence[str]) -> bool:

@@ -58,6 +58,13 @@ __all__ = ["process"]
 )
 @click.option("--seed", default=0, show_default=True, type=int, help="Seeds the particle filter.")
 @click.option(
+    "--person",
+    default=None,
+    type=click.IntRange(0),
+    help="Measure person N of a recording with several people (numbered from 0 in the "
+    "order capture first sees them; docs/capture.md). Default: one subject, the largest.",
+)
+@click.option(
     "--min-iou",
     default=0.9,
     show_default=True,
@@ -100,6 +107,7 @@ def process(
     workers: int | None,
     frame_step: int | None,
     seed: int,
+    person: int | None,
     min_iou: float,
     cache_dir: Path | None,
     no_review: bool,
@@ -121,6 +129,7 @@ def process(
         review=not no_review,
         pdf=pdf,
         frame_step=frame_step,
+        person=person,
     ).with_overrides(overrides)
     if show_config:
         click.echo(json.dumps(config.to_json(), indent=2))

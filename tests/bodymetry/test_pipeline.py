@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -10,11 +11,14 @@ import pytest
 
 import bodymetry
 from bodymetry import pipeline
+from bodymetry.capture.people import Sighting
+from bodymetry.errors import InputError
 from bodymetry.estimation.records import FrameRecord
 from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunLayout
 from bodymetry.executors import DaskExecutor, Executor, LocalExecutor
+from bodymetry.run_folder import config_fingerprint
 from bodymetry.studio.rig import studio_rig
 
 APP = Path(bodymetry.__file__).parent
@@ -157,3 +161,63 @@ def test_the_calibration_check_leaves_out_frames_with_more_than_one_person(tmp_p
     partly = pipeline.check_calibration(prepared, mixed, config)
     assert partly.calibrated[1] is not rig[1]
     assert "2 of 8 kept frames" in partly.warnings[0] and "left out" in partly.warnings[0]
+
+
+def _sighting(x: float, masks, occluded=None) -> Sighting:
+    c = len(masks)
+    return Sighting(
+        np.array([x, 0.0, 1.0]), tuple(masks), (None,) * c, tuple(occluded or (False,) * c)
+    )
+
+
+def test_choose_person_follows_one_person_through_the_frames(tmp_path):
+    rig = studio_rig(3, (64, 48), seed=5)
+    prepared = pipeline.PreparedRun(
+        None, RunLayout(tmp_path), rig, "test", WorkingResolution.full(rig), rig
+    )
+    blank = np.zeros((48, 64), bool)
+
+    def mask(k: int) -> np.ndarray:
+        m = blank.copy()
+        m[10:30, 5 * k : 5 * k + 4] = True
+        return m
+
+    # Person 0 stands at x=0, person 1 at x=1.5; frame 25 lists them the other way
+    # round, frame 50 has person 1 only, and person 1 is hidden in camera 2 at frame 0.
+    seg = [
+        pipeline.SegmentedFrame(0, (blank,) * 3, ((),) * 3, None, (), persons=2, people=(
+            _sighting(0.0, [mask(1), mask(2), mask(3)]),
+            _sighting(1.5, [mask(4), mask(5), mask(6)], (False, False, True)),
+        )),
+        pipeline.SegmentedFrame(25, (blank,) * 3, ((),) * 3, None, (), persons=2, people=(
+            _sighting(1.4, [mask(7), None, mask(8)]),
+            _sighting(0.1, [mask(9), mask(10), mask(11)]),
+        )),
+        pipeline.SegmentedFrame(50, (blank,) * 3, ((),) * 3, None, (), persons=1, people=(
+            _sighting(1.3, [mask(1), mask(1), mask(1)]),
+        )),
+    ]  # fmt: skip
+    zero = pipeline.choose_person(prepared, seg, ProcessConfig(person=0))
+    assert [f.frame for f in zero] == [0, 25, 50]
+    assert all(np.array_equal(a, mask(k)) for a, k in zip(zero[1].masks, (9, 10, 11), strict=True))
+    assert zero[2].flags == (("empty",),) * 3 and not any(m.any() for m in zero[2].masks)
+    one = pipeline.choose_person(prepared, seg, ProcessConfig(person=1))
+    assert one[0].flags == ((), (), ("occluded",))
+    assert one[1].flags == ((), ("empty",), ()) and not one[1].masks[1].any()
+    assert np.array_equal(one[2].masks[0], mask(1)) and one[2].people == ()
+    with pytest.raises(InputError, match=r"followed 2 people.*0 to 1"):
+        pipeline.choose_person(prepared, seg, ProcessConfig(person=2))
+    nobody = [replace(s, people=()) for s in seg]
+    with pytest.raises(InputError, match="told no people apart"):
+        pipeline.choose_person(prepared, nobody, ProcessConfig(person=0))
+
+
+def test_the_chosen_person_is_a_setting_of_the_run():
+    with pytest.raises(InputError, match="person"):
+        ProcessConfig(person=-1)
+    base = config_fingerprint(ProcessConfig())
+    assert config_fingerprint(ProcessConfig(person=0)) != base
+    assert config_fingerprint(ProcessConfig(person=1)) != config_fingerprint(
+        ProcessConfig(person=0)
+    )
+    assert pipeline.needs_every_frame(ProcessConfig(person=0))

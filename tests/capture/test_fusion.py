@@ -190,7 +190,7 @@ def test_a_second_person_in_the_capture_volume_is_counted(grey_room):
     config = CaptureConfig(method="background", fusion=FusionConfig(enabled=True))
     frame = FrameSegmenter(models, rig.sizes, config, None, None, rig)
     try:
-        views, _, _, persons = frame(images)
+        views, _, _, persons, _ = frame(images)
         assert persons == 2
         # The silhouettes stay the largest body's: the second person is removed in
         # every view where the two are apart in the image (where they overlap, the
@@ -242,7 +242,7 @@ def _segment(grey_room, enabled: bool):
 
 def test_the_fusion_keeps_a_shaded_grey_side_and_drops_the_cast_shadow(grey_room):
     _, _, _, truth, shaded, cast = grey_room
-    views, _, agreement, persons = _segment(grey_room, enabled=True)
+    views, _, agreement, persons, _ = _segment(grey_room, enabled=True)
     for view, true, dark, floor in zip(views, truth, shaded, cast, strict=True):
         assert mask_iou(view.mask, true) > 0.9
         assert view.mask[dark].mean() > 0.8  # the shaded side is person
@@ -267,7 +267,7 @@ def test_a_view_that_disagrees_with_the_others_is_unreliable(grey_room):
     frame = FrameSegmenter(
         models, rig.sizes, CaptureConfig(method="background", consistency=True), None, None, rig
     )
-    views, _, agreement, _ = frame([*images[:2], img, images[3]])
+    views, _, agreement, *_ = frame([*images[:2], img, images[3]])
     assert "unreliable" in views[2].flags, agreement
     assert all("unreliable" not in v.flags for k, v in enumerate(views) if k != 2), (
         agreement,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from skeletons import detection
 
 from bodymetry.capture.consistency import VisualHull
 from bodymetry.capture.headcount import MATCH_ERROR, count_people, match_error
@@ -13,16 +14,6 @@ from bodymetry.errors import InputError
 from bodymetry.studio.rig import studio_rig
 
 SIZE = (640, 480)
-
-#: A standing person's body landmarks, metres: (name, x offset, height).
-SKELETON = {
-    "left_shoulder": (0.2, 1.45), "right_shoulder": (-0.2, 1.45),
-    "left_elbow": (0.27, 1.15), "right_elbow": (-0.27, 1.15),
-    "left_wrist": (0.3, 0.85), "right_wrist": (-0.3, 0.85),
-    "left_hip": (0.1, 0.95), "right_hip": (-0.1, 0.95),
-    "left_knee": (0.1, 0.5), "right_knee": (-0.1, 0.5),
-    "left_ankle": (0.1, 0.08), "right_ankle": (-0.1, 0.08),
-}  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -35,34 +26,20 @@ def floor_box(rig):
     return VisualHull(rig).floor_box
 
 
-def _detection(camera, at, noise: float = 0.0, rng=None) -> np.ndarray:
-    """(33, 3) landmarks of a person standing at floor point ``at`` as ``camera`` sees
-    them (x, y, visibility 1; NaN for the landmarks the skeleton lacks)."""
-    out = np.full((len(LANDMARKS), 3), np.nan)
-    names = list(SKELETON)
-    points = np.array([[at[0] + SKELETON[n][0], at[1], SKELETON[n][1]] for n in names])
-    pixels = camera.project(points)
-    if noise:
-        pixels = pixels + rng.normal(0.0, noise, pixels.shape)
-    for name, px in zip(names, pixels, strict=True):
-        out[LANDMARKS.index(name)] = (*px, 1.0)
-    return out
-
-
 def _views(rig, people, noise=0.0, seed=0):
     rng = np.random.default_rng(seed)
-    return [[_detection(cam, at, noise, rng) for at in people] for cam in rig]
+    return [[detection(cam, at, noise, rng) for at in people] for cam in rig]
 
 
 def test_one_skeleton_seen_twice_matches_exactly(rig):
-    a, b = (_detection(cam, (0.1, -0.2)) for cam in rig.select([0, 1]))
+    a, b = (detection(cam, (0.1, -0.2)) for cam in rig.select([0, 1]))
     assert match_error(rig.select([0, 1]), a, b) < 1e-6
     # Another person 0.8 m away: two views alone can be fooled (a shift along their
     # epipolar lines costs nothing), so a person needs three cameras that all agree;
     # most pairs of cameras tell the two apart.
-    a = _detection(rig[0], (0.1, -0.2))
+    a = detection(rig[0], (0.1, -0.2))
     apart = [
-        match_error(rig.select([0, k]), a, _detection(rig[k], (0.9, -0.2))) > MATCH_ERROR
+        match_error(rig.select([0, k]), a, detection(rig[k], (0.9, -0.2))) > MATCH_ERROR
         for k in (1, 2, 3)
     ]
     assert sum(apart) >= 2
@@ -85,14 +62,14 @@ def test_a_person_hidden_in_one_view_still_counts(rig, floor_box):
 def test_a_bystander_seen_by_two_cameras_is_nobody(rig, floor_box):
     views = _views(rig, [(0.0, 0.0)])
     for c in (0, 1):
-        views[c].append(_detection(rig[c], (0.9, 0.6)))
+        views[c].append(detection(rig[c], (0.9, 0.6)))
     assert count_people(rig, views, floor_box) == 1
 
 
 def test_outside_the_capture_volume_is_nobody(rig, floor_box):
     hi = floor_box[1]
     far = (hi[0] + 3.0, hi[1] + 3.0)
-    views = [[_detection(cam, far)] if cam.to_camera(np.array([[*far, 1.0]]))[0, 2] > 0 else []
+    views = [[detection(cam, far)] if cam.to_camera(np.array([[*far, 1.0]]))[0, 2] > 0 else []
              for cam in rig]  # fmt: skip
     assert count_people(rig, views, floor_box) == 0
 

@@ -1,0 +1,134 @@
+"""Every person of a kept frame, with the pixels that are theirs in each camera.
+
+Capture measures one subject per frame by default. To measure a chosen person
+of a multi-person recording (``bodymetry process --person N``), each person's
+silhouette in each camera is needed, with the cameras in which someone else
+hides part of them.
+
+Without an empty-scene clip the people are the learned segmenter's
+detections: the most prominent person of each image and the others found with
+the first ones hidden (:meth:`bodymetry.capture.person.PersonSegmenter.detect_others`),
+grouped across cameras by their skeletons (:func:`bodymetry.capture.headcount.group_people`).
+A person's silhouette in a camera is their detection's mask. Where another
+person's mask touches theirs and that person stands nearer to the camera, part
+of them may be hidden: the view is ``occluded`` for them, and the fit leaves it
+out (a hidden part is unknown, not background). Where no detection of a camera
+is theirs, the camera did not see them.
+
+Identities across kept frames are given by :mod:`bodymetry.capture.tracks`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from bodymetry.calibration.camera import CameraGroup
+from bodymetry.capture.headcount import group_people
+from bodymetry.capture.masks import grown_mask
+from bodymetry.capture.person import Person
+
+__all__ = ["Sighting", "sightings"]
+
+
+@dataclass(frozen=True)
+class Sighting:
+    """One person found in one kept frame.
+
+    Attributes
+    ----------
+    position : (3,) float
+        World point, metres: the middle of their triangulated body landmarks.
+    masks : tuple of ((H_c, W_c) bool or None), length C
+        Per camera, the pixels that are theirs; None where the camera did not
+        find them.
+    landmarks : tuple of ((33, 3) float or None), length C
+        Per camera, their landmarks (:attr:`Person.landmarks`), None as ``masks``.
+    occluded : tuple of bool, length C
+        Per camera, whether someone nearer to it touches their silhouette
+        (part of them may be hidden: the view is left out of their fit).
+    """
+
+    position: np.ndarray
+    masks: tuple[np.ndarray | None, ...]
+    landmarks: tuple[np.ndarray | None, ...]
+    occluded: tuple[bool, ...]
+
+    @property
+    def views(self) -> int:
+        """Cameras that found them."""
+        return sum(m is not None for m in self.masks)
+
+
+def sightings(
+    cameras: CameraGroup,
+    detections: Sequence[Sequence[Person]],
+    threshold: float,
+    hide_margin: float,
+    floor_box: tuple | None = None,
+    min_views: int = 3,
+) -> list[Sighting]:
+    """The people of one frame that ``min_views`` cameras agree on.
+
+    Parameters
+    ----------
+    cameras : CameraGroup
+        C cameras, at the resolution of the detections.
+    detections : sequence of C sequences of Person
+        Per camera, every person its segmenter found, most prominent first.
+    threshold : float
+        The segmenter's probability threshold (:attr:`PersonConfig.threshold`).
+    hide_margin : float
+        Two people's masks, each grown by this fraction of its height, that
+        overlap touch (:attr:`PersonConfig.hide_margin`).
+    floor_box : ((2,) float, (2,) float), optional
+        The capture volume's floor (x, y) box.
+    min_views : int
+
+    Returns
+    -------
+    list of Sighting
+        In :func:`~bodymetry.capture.headcount.group_people`'s order.
+    """
+    groups = group_people(
+        cameras, [[p.landmarks for p in found] for found in detections], floor_box, min_views
+    )
+    masks = [[p.mask(threshold) for p in found] for found in detections]
+    grown = [[grown_mask(m, hide_margin) for m in view] for view in masks]
+    out = []
+    for g in groups:
+        occluded = []
+        for c, k in enumerate(g.detections):
+            if k is None:
+                occluded.append(False)
+                continue
+            mine = _distance(cameras[c], g.position)
+            occluded.append(
+                any(
+                    other.detections[c] is not None
+                    and other.detections[c] != k
+                    and _distance(cameras[c], other.position) < mine
+                    and (grown[c][k] & grown[c][other.detections[c]]).any()
+                    for other in groups
+                )
+            )
+        out.append(
+            Sighting(
+                position=g.position,
+                masks=tuple(None if k is None else masks[c][k] for c, k in enumerate(g.detections)),
+                landmarks=tuple(
+                    None if k is None else detections[c][k].landmarks
+                    for c, k in enumerate(g.detections)
+                ),
+                occluded=tuple(occluded),
+            )
+        )
+    return out
+
+
+def _distance(camera, point: np.ndarray) -> float:
+    """Distance (metres) from ``camera``'s centre to ``point`` (inf when unknown)."""
+    d = float(np.linalg.norm(np.asarray(point, float) - camera.center))
+    return d if np.isfinite(d) else np.inf
