@@ -457,9 +457,11 @@ def check_calibration(
     A shifted camera is written to the run's ``calibration.yaml`` (the session's
     file is never modified) and named in a warning (``results.json``). Without
     landmarks (no segmenter) or with ``capture.landmarks.refine_calibration``
-    off, the run keeps the calibration as given. Frames with more than one
-    person in view are left out (a warning says so), and with no other frame
-    the calibration is kept as given.
+    off, the run keeps the calibration as given. In frames with more than one
+    person in view, each person's own landmarks are used where capture told
+    them apart (:attr:`SegmentedFrame.people`); other such frames are left out
+    (a warning says so), and with no other frame the calibration is kept as
+    given.
     """
     cfg = config.capture.landmarks
     if not cfg.refine_calibration:
@@ -467,15 +469,22 @@ def check_calibration(
     # Each view's landmarks are its most prominent person's: with two people in the
     # capture volume they may be different people in different views, and their
     # residuals say nothing about the cameras (on the real two-person Pose2Sim
-    # recording they shifted a camera by 30 px).
-    crowded = [s.frame for s in segmented if s.view_landmarks and (s.persons or 0) > 1]
-    frames = [s.view_landmarks for s in segmented if s.view_landmarks and (s.persons or 0) <= 1]
-    notes: tuple[str, ...] = ()
+    # recording they shifted a camera by 30 px). Where capture told the people
+    # apart, each person's own landmarks are used instead.
+    frames: list = []
+    crowded = []
+    for s in segmented:
+        if (s.persons or 0) <= 1:
+            if s.view_landmarks:
+                frames.append(s.view_landmarks)
+        elif s.people:
+            frames.extend(p.landmarks for p in s.people)
+        else:
+            crowded.append(s.frame)
     if crowded:
         notes = (
-            f"calibration check: {len(crowded)} of {len(crowded) + len(frames)} kept frames "
-            "have more than one person in view, whose landmarks may be different people in "
-            "different cameras; "
+            f"calibration check: {len(crowded)} kept frames have more than one person in "
+            "view, whose landmarks may be different people in different cameras; "
             + (
                 "they were left out of the check"
                 if frames

@@ -153,14 +153,22 @@ def test_the_calibration_check_leaves_out_frames_with_more_than_one_person(tmp_p
     crowded = pipeline.check_calibration(prepared, _landmark_frames(rig, 2), config)
     assert crowded.calibrated is rig
     assert crowded.warnings == (
-        "calibration check: 6 of 6 kept frames have more than one person in view, whose "
+        "calibration check: 6 kept frames have more than one person in view, whose "
         "landmarks may be different people in different cameras; the calibration was not "
         "checked and is used as given",
     )
     mixed = _landmark_frames(rig, 1) + _landmark_frames(rig, 2, n_frames=2)
     partly = pipeline.check_calibration(prepared, mixed, config)
     assert partly.calibrated[1] is not rig[1]
-    assert "2 of 8 kept frames" in partly.warnings[0] and "left out" in partly.warnings[0]
+    assert "2 kept frames" in partly.warnings[0] and "left out" in partly.warnings[0]
+    # Where capture told the people apart, each person's own landmarks count.
+    told = [
+        replace(s, people=(Sighting(np.zeros(3), (None,) * 4, s.view_landmarks, (False,) * 4),))
+        for s in _landmark_frames(rig, 2)
+    ]
+    apart = pipeline.check_calibration(prepared, told, config)
+    assert apart.calibrated[1] is not rig[1]
+    assert len(apart.warnings) == 1 and "cam_01" in apart.warnings[0]  # the shift, nothing else
 
 
 def _sighting(x: float, masks, occluded=None) -> Sighting:
