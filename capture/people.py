@@ -9,7 +9,10 @@ Without an empty-scene clip the people are the learned segmenter's
 detections: the most prominent person of each image and the others found with
 the first ones hidden (:meth:`bodymetry.capture.person.PersonSegmenter.detect_others`),
 grouped across cameras by their skeletons (:func:`bodymetry.capture.headcount.group_people`).
-A person's silhouette in a camera is their detection's mask. Where another
+A person's silhouette in a camera is the part of the camera's person pixels
+(the union of its detections' masks) nearer to their skeleton than to anyone
+else's (:func:`partition`): the segmenter marks every person inside the crop
+it looks at, so one detection's mask can hold another's head. Where another
 person's mask touches theirs and that person stands nearer to the camera, part
 of them may be hidden: the view is ``occluded`` for them, and the fit leaves it
 out (a hidden part is unknown, not background). Where no detection of a camera
@@ -23,14 +26,34 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.headcount import group_people
 from bodymetry.capture.masks import grown_mask
-from bodymetry.capture.person import Person
+from bodymetry.capture.person import LANDMARKS, Person
 
-__all__ = ["Sighting", "sightings"]
+__all__ = ["BONES", "Sighting", "partition", "sightings"]
+
+#: The skeleton drawn for :func:`partition`: pairs of landmarks (the face as a chain
+#: from ear to ear, so a head is claimed by its own face).
+BONES = tuple(
+    (LANDMARKS.index(a), LANDMARKS.index(b))
+    for a, b in (
+        ("left_ear", "left_eye"), ("left_eye", "nose"), ("nose", "right_eye"),
+        ("right_eye", "right_ear"), ("nose", "left_shoulder"), ("nose", "right_shoulder"),
+        ("left_shoulder", "right_shoulder"), ("left_shoulder", "left_elbow"),
+        ("left_elbow", "left_wrist"), ("right_shoulder", "right_elbow"),
+        ("right_elbow", "right_wrist"), ("left_shoulder", "left_hip"),
+        ("right_shoulder", "right_hip"), ("left_hip", "right_hip"), ("left_hip", "left_knee"),
+        ("left_knee", "left_ankle"), ("right_hip", "right_knee"), ("right_knee", "right_ankle"),
+        ("left_ankle", "left_heel"), ("left_heel", "left_foot_index"),
+        ("right_ankle", "right_heel"), ("right_heel", "right_foot_index"),
+    )
+)  # fmt: skip
+#: Landmarks less visible than this are not drawn.
+BONE_VISIBILITY = 0.3
 
 
 @dataclass(frozen=True)
@@ -95,7 +118,7 @@ def sightings(
     groups = group_people(
         cameras, [[p.landmarks for p in found] for found in detections], floor_box, min_views
     )
-    masks = [[p.mask(threshold) for p in found] for found in detections]
+    masks = [partition(found, threshold) for found in detections]
     grown = [[grown_mask(m, hide_margin) for m in view] for view in masks]
     out = []
     for g in groups:
@@ -126,6 +149,48 @@ def sightings(
             )
         )
     return out
+
+
+def partition(found: Sequence[Person], threshold: float) -> list[np.ndarray]:
+    """Each detected person's pixels in one image: the union of the detections'
+    masks, each pixel to the person whose skeleton (:data:`BONES`) is nearest.
+
+    Parameters
+    ----------
+    found : sequence of Person
+        The image's detections.
+    threshold : float
+        The segmenter's probability threshold.
+
+    Returns
+    -------
+    list of (H, W) bool
+        One per detection, disjoint; a detection without a drawable skeleton
+        claims its own mask.
+    """
+    if len(found) < 2:
+        return [p.mask(threshold) for p in found]
+    masks = [p.mask(threshold) for p in found]
+    union = np.logical_or.reduce(masks)
+    h, w = union.shape
+    distance = np.empty((len(found), h, w), np.float32)
+    for k, person in enumerate(found):
+        canvas = np.full((h, w), 255, np.uint8)
+        lm = np.asarray(person.landmarks, float)
+        drawn = False
+        for a, b in BONES:
+            if (np.isfinite(lm[[a, b]]).all() and lm[a, 2] >= BONE_VISIBILITY
+                    and lm[b, 2] >= BONE_VISIBILITY):  # fmt: skip
+                pa, pb = (tuple(round(v) for v in lm[i, :2]) for i in (a, b))
+                cv2.line(canvas, pa, pb, 0, 3)
+                drawn = True
+        if drawn:
+            distance[k] = cv2.distanceTransform(canvas, cv2.DIST_L2, 3)
+        else:
+            # No skeleton to measure from: the person claims their own mask only.
+            distance[k] = np.where(masks[k], 0.0, np.inf)
+    owner = np.argmin(distance, axis=0)
+    return [union & (owner == k) for k in range(len(found))]
 
 
 def _distance(camera, point: np.ndarray) -> float:

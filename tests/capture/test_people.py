@@ -8,7 +8,7 @@ import numpy as np
 from skeletons import detection
 
 from bodymetry.capture.consistency import VisualHull
-from bodymetry.capture.people import sightings
+from bodymetry.capture.people import partition, sightings
 from bodymetry.capture.person import Person
 from bodymetry.studio.rig import studio_rig
 
@@ -63,3 +63,24 @@ def test_a_person_one_camera_misses_has_no_mask_there():
     (seen,) = sightings(RIG, detections, 0.5, 0.04)
     assert seen.views == 3 and seen.masks[2] is None and seen.landmarks[2] is None
     assert seen.occluded == (False,) * 4
+
+
+def test_pixels_another_detection_holds_go_to_the_nearest_skeleton():
+    cam = RIG[0]
+    a, b = _person(cam, (-0.35, 0.0)), _person(cam, (0.35, 0.0))
+    mask_a, mask_b = a.mask(0.5), b.mask(0.5)
+    # The segmenter left A's upper third out of A's mask and put it in B's (it marks
+    # everyone inside the crop it looks at).
+    rows = np.flatnonzero(mask_a.any(axis=1))
+    top = np.zeros_like(mask_a)
+    top[rows[0] : rows[0] + (rows[-1] - rows[0]) // 3] = True
+    leaked_a = Person((mask_a & ~top).astype(np.float32), a.landmarks)
+    leaked_b = Person((mask_b | (mask_a & top)).astype(np.float32), b.landmarks)
+    got_a, got_b = partition([leaked_a, leaked_b], 0.5)
+    assert not (got_a & got_b).any()
+    assert (got_a | got_b).sum() == (mask_a | mask_b).sum()
+    only_a, only_b = mask_a & ~mask_b, mask_b & ~mask_a
+    assert got_a[only_a].mean() > 0.95 and got_b[only_b].mean() > 0.95
+    # One detection: its own mask.
+    (alone,) = partition([a], 0.5)
+    assert np.array_equal(alone, mask_a)
