@@ -12,11 +12,11 @@ grouped across cameras by their skeletons (:func:`bodymetry.capture.headcount.gr
 A person's silhouette in a camera is the part of the camera's person pixels
 (the union of its detections' masks) nearer to their skeleton than to anyone
 else's (:func:`partition`): the segmenter marks every person inside the crop
-it looks at, so one detection's mask can hold another's head. Where another
-person's mask touches theirs and that person stands nearer to the camera, part
-of them may be hidden: the view is ``occluded`` for them, and the fit leaves it
-out (a hidden part is unknown, not background). Where no detection of a camera
-is theirs, the camera did not see them.
+it looks at, so one detection's mask can hold another's head. Where someone
+nearer to a camera covers part of a person's skeleton (the landmark model
+places hidden limbs too), part of them is hidden: the view is ``occluded`` for
+them, and the fit leaves it out (a hidden part is unknown, not background).
+Where no detection of a camera is theirs, the camera did not see them.
 
 Identities across kept frames are given by :mod:`bodymetry.capture.tracks`.
 """
@@ -31,10 +31,9 @@ import numpy as np
 
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.headcount import group_people
-from bodymetry.capture.masks import grown_mask
 from bodymetry.capture.person import LANDMARKS, Person
 
-__all__ = ["BONES", "Sighting", "partition", "sightings"]
+__all__ = ["BONES", "Sighting", "partition", "sightings", "skeleton_mask"]
 
 #: The skeleton drawn for :func:`partition`: pairs of landmarks (the face as a chain
 #: from ear to ear, so a head is claimed by its own face).
@@ -54,6 +53,14 @@ BONES = tuple(
 )  # fmt: skip
 #: Landmarks less visible than this are not drawn.
 BONE_VISIBILITY = 0.3
+#: A person's pixels lie within this fraction of their skeleton's height of a bone (the
+#: torso is about a fifth of a person's height wide, the bones run down its middle).
+REACH = 0.2
+#: A person is ``occluded`` in a camera when someone nearer to it covers more than
+#: this share of their skeleton there, drawn :data:`BONE_WIDTH` of the image height
+#: wide (the landmark model places hidden limbs too).
+OCCLUDED_SHARE = 0.02
+BONE_WIDTH = 0.01
 
 
 @dataclass(frozen=True)
@@ -89,7 +96,6 @@ def sightings(
     cameras: CameraGroup,
     detections: Sequence[Sequence[Person]],
     threshold: float,
-    hide_margin: float,
     floor_box: tuple | None = None,
     min_views: int = 3,
 ) -> list[Sighting]:
@@ -103,9 +109,6 @@ def sightings(
         Per camera, every person its segmenter found, most prominent first.
     threshold : float
         The segmenter's probability threshold (:attr:`PersonConfig.threshold`).
-    hide_margin : float
-        Two people's masks, each grown by this fraction of its height, that
-        overlap touch (:attr:`PersonConfig.hide_margin`).
     floor_box : ((2,) float, (2,) float), optional
         The capture volume's floor (x, y) box.
     min_views : int
@@ -119,24 +122,26 @@ def sightings(
         cameras, [[p.landmarks for p in found] for found in detections], floor_box, min_views
     )
     masks = [partition(found, threshold) for found in detections]
-    grown = [[grown_mask(m, hide_margin) for m in view] for view in masks]
     out = []
     for g in groups:
         occluded = []
         for c, k in enumerate(g.detections):
-            if k is None:
-                occluded.append(False)
-                continue
-            mine = _distance(cameras[c], g.position)
-            occluded.append(
-                any(
-                    other.detections[c] is not None
-                    and other.detections[c] != k
-                    and _distance(cameras[c], other.position) < mine
-                    and (grown[c][k] & grown[c][other.detections[c]]).any()
-                    for other in groups
+            hidden = False
+            if k is not None:
+                h = masks[c][k].shape[0]
+                bones = skeleton_mask(
+                    detections[c][k].landmarks, masks[c][k].shape, round(BONE_WIDTH * h)
                 )
-            )
+                mine = _distance(cameras[c], g.position)
+                nearer = np.zeros_like(masks[c][k])
+                for other in groups:
+                    j = other.detections[c]
+                    if j is not None and j != k and _distance(cameras[c], other.position) < mine:
+                        nearer |= masks[c][j]
+                hidden = bones is not None and (
+                    np.count_nonzero(bones & nearer) > OCCLUDED_SHARE * np.count_nonzero(bones)
+                )
+            occluded.append(hidden)
         out.append(
             Sighting(
                 position=g.position,
@@ -149,6 +154,24 @@ def sightings(
             )
         )
     return out
+
+
+def skeleton_mask(
+    landmarks: np.ndarray, shape: tuple[int, int], width: int = 3
+) -> np.ndarray | None:
+    """(H, W) bool: the :data:`BONES` of ``landmarks`` (33, 3) drawn ``width`` pixels
+    wide (bones with a landmark less visible than :data:`BONE_VISIBILITY` left
+    out); None when no bone can be drawn."""
+    canvas = np.zeros(shape, np.uint8)
+    lm = np.asarray(landmarks, float)
+    drawn = False
+    for a, b in BONES:
+        if (np.isfinite(lm[[a, b]]).all() and lm[a, 2] >= BONE_VISIBILITY
+                and lm[b, 2] >= BONE_VISIBILITY):  # fmt: skip
+            pa, pb = (tuple(round(v) for v in lm[i, :2]) for i in (a, b))
+            cv2.line(canvas, pa, pb, 1, max(int(width), 1))
+            drawn = True
+    return canvas > 0 if drawn else None
 
 
 def partition(found: Sequence[Person], threshold: float) -> list[np.ndarray]:
@@ -165,7 +188,8 @@ def partition(found: Sequence[Person], threshold: float) -> list[np.ndarray]:
     Returns
     -------
     list of (H, W) bool
-        One per detection, disjoint; a detection without a drawable skeleton
+        One per detection, disjoint; pixels further than :data:`REACH` from
+        every skeleton are nobody's; a detection without a drawable skeleton
         claims its own mask.
     """
     if len(found) < 2:
@@ -175,22 +199,19 @@ def partition(found: Sequence[Person], threshold: float) -> list[np.ndarray]:
     h, w = union.shape
     distance = np.empty((len(found), h, w), np.float32)
     for k, person in enumerate(found):
-        canvas = np.full((h, w), 255, np.uint8)
-        lm = np.asarray(person.landmarks, float)
-        drawn = False
-        for a, b in BONES:
-            if (np.isfinite(lm[[a, b]]).all() and lm[a, 2] >= BONE_VISIBILITY
-                    and lm[b, 2] >= BONE_VISIBILITY):  # fmt: skip
-                pa, pb = (tuple(round(v) for v in lm[i, :2]) for i in (a, b))
-                cv2.line(canvas, pa, pb, 0, 3)
-                drawn = True
-        if drawn:
-            distance[k] = cv2.distanceTransform(canvas, cv2.DIST_L2, 3)
+        bones = skeleton_mask(person.landmarks, (h, w))
+        if bones is not None:
+            distance[k] = cv2.distanceTransform((~bones).astype(np.uint8), cv2.DIST_L2, 3)
+            # Pixels far from every bone are nobody's (a bystander the segmenter
+            # marked in the crop but did not detect).
+            rows = np.flatnonzero(bones.any(axis=1))
+            distance[k][distance[k] > REACH * (rows[-1] - rows[0] + 1)] = np.inf
         else:
             # No skeleton to measure from: the person claims their own mask only.
             distance[k] = np.where(masks[k], 0.0, np.inf)
     owner = np.argmin(distance, axis=0)
-    return [union & (owner == k) for k in range(len(found))]
+    claimed = np.isfinite(distance.min(axis=0))
+    return [union & claimed & (owner == k) for k in range(len(found))]
 
 
 def _distance(camera, point: np.ndarray) -> float:

@@ -498,7 +498,6 @@ class FrameSegmenter:
             self.hull.cameras,
             detections,
             cfg.threshold,
-            cfg.hide_margin,
             self.hull.floor_box,
             self.hull.config.min_views,
         )

@@ -27,40 +27,51 @@ def _person(camera, at) -> Person:
     return Person(prob.astype(np.float32), landmarks)
 
 
-def test_each_person_gets_their_own_pixels_and_the_nearer_one_hides_the_other():
-    places = [(-0.35, 0.0), (0.35, 0.0)]
-    detections = []
-    for c, cam in enumerate(RIG):
-        found = [_person(cam, at) for at in places]
-        # Masks as detect_others leaves them: a later person's probability is zero
-        # where an earlier one was found.
-        found[1] = Person(np.where(found[0].probability > 0, 0, found[1].probability).astype(
-            np.float32), found[1].landmarks)  # fmt: skip
-        detections.append(found if c % 2 == 0 else found[::-1])
-    people = sightings(RIG, detections, 0.5, 0.04, VisualHull(RIG).floor_box)
+def _detections(places):
+    """Per camera, the detections of people standing at ``places`` as the segmenter
+    leaves them (nearest first; a later person's probability is zero where an
+    earlier one was found)."""
+    out = []
+    for cam in RIG:
+        order = sorted(places, key=lambda at: np.linalg.norm([*at, 1.0] - cam.center))
+        found = []
+        for at in order:
+            person = _person(cam, at)
+            taken = np.logical_or.reduce([p.mask(0.5) for p in found]) if found else None
+            if taken is not None:
+                person = Person(np.where(taken, 0, person.probability).astype(np.float32),
+                                person.landmarks)  # fmt: skip
+            found.append(person)
+        out.append(found)
+    return out
+
+
+def test_each_person_gets_their_own_pixels_and_one_behind_another_is_occluded():
+    # B stands 0.6 m behind A as camera 0 sees them: hidden there, in full view elsewhere.
+    a = np.array([0.0, 0.0])
+    away = a - RIG[0].center[:2]
+    b = a + 0.6 * away / np.linalg.norm(away)
+    people = sightings(RIG, _detections([tuple(a), tuple(b)]), 0.5, VisualHull(RIG).floor_box)
     assert len(people) == 2
-    # Ordered along x, found by all four cameras, at their places.
-    for seen, at in zip(people, places, strict=True):
+    by_place = sorted(people, key=lambda p: np.linalg.norm(p.position[:2] - a))
+    for seen, at in zip(by_place, (a, b), strict=True):
         assert seen.views == 4
         np.testing.assert_allclose(seen.position[:2], at, atol=0.05)
-    for c, cam in enumerate(RIG):
-        a, b = (p.masks[c] for p in people)
-        assert not (a & b).any()
-        near = [np.linalg.norm(p.position - cam.center) for p in people]
-        touching = (cv2.dilate(a.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0) & b
-        if touching.any():
-            # The farther one may be hidden in part; the nearer one is not.
-            far = int(np.argmax(near))
-            assert people[far].occluded[c] and not people[1 - far].occluded[c]
-        else:
-            assert not people[0].occluded[c] and not people[1].occluded[c]
-    assert any(p.occluded[c] for p in people for c in range(4))  # they do touch somewhere
+    front, back = by_place
+    assert back.occluded[0] and not front.occluded[0]
+    for c in range(4):
+        assert not (front.masks[c] & back.masks[c]).any()
+    # Side by side, 1 m apart across camera 0's line of sight: nobody hides anybody
+    # there.
+    side = np.array([-away[1], away[0]]) / np.linalg.norm(away)
+    apart = sightings(RIG, _detections([tuple(a - 0.5 * side), tuple(a + 0.5 * side)]), 0.5)
+    assert len(apart) == 2 and not any(p.occluded[0] for p in apart)
 
 
 def test_a_person_one_camera_misses_has_no_mask_there():
     detections = [[_person(cam, (0.0, 0.0))] for cam in RIG]
     detections[2] = []
-    (seen,) = sightings(RIG, detections, 0.5, 0.04)
+    (seen,) = sightings(RIG, detections, 0.5)
     assert seen.views == 3 and seen.masks[2] is None and seen.landmarks[2] is None
     assert seen.occluded == (False,) * 4
 
