@@ -16,7 +16,10 @@ it looks at, so one detection's mask can hold another's head. Where someone
 nearer to a camera covers part of a person's skeleton (the landmark model
 places hidden limbs too), part of them is hidden: the view is ``occluded`` for
 them, and the fit leaves it out (a hidden part is unknown, not background).
-Where no detection of a camera is theirs, the camera did not see them.
+A camera that did not detect someone the others agree on may still show part
+of them behind another person (whose mask then holds those pixels): their
+skeleton, triangulated from the other cameras, claims those pixels, and the
+view is theirs only as an occluded one.
 
 Identities across kept frames are given by :mod:`bodymetry.capture.tracks`.
 """
@@ -72,10 +75,11 @@ class Sighting:
     position : (3,) float
         World point, metres: the middle of their triangulated body landmarks.
     masks : tuple of ((H_c, W_c) bool or None), length C
-        Per camera, the pixels that are theirs; None where the camera did not
-        find them.
+        Per camera, the pixels that are theirs; None where the camera shows
+        nothing of them.
     landmarks : tuple of ((33, 3) float or None), length C
-        Per camera, their landmarks (:attr:`Person.landmarks`), None as ``masks``.
+        Per camera, their detection's landmarks (:attr:`Person.landmarks`);
+        None where the camera did not detect them.
     occluded : tuple of bool, length C
         Per camera, whether someone nearer to it touches their silhouette
         (part of them may be hidden: the view is left out of their fit).
@@ -121,31 +125,60 @@ def sightings(
     groups = group_people(
         cameras, [[p.landmarks for p in found] for found in detections], floor_box, min_views
     )
-    masks = [partition(found, threshold) for found in detections]
-    out = []
-    for g in groups:
-        occluded = []
-        for c, k in enumerate(g.detections):
-            hidden = False
+    # A person a camera did not find may still be there, hidden behind someone whose
+    # mask then holds their visible bits: their skeleton, triangulated from the
+    # cameras that found them, claims those pixels in the partition below.
+    found = [list(view) for view in detections]
+    index = [list(g.detections) for g in groups]
+    for g, ids in zip(groups, index, strict=True):
+        skeleton = None
+        for c, k in enumerate(ids):
             if k is not None:
-                h = masks[c][k].shape[0]
-                bones = skeleton_mask(
-                    detections[c][k].landmarks, masks[c][k].shape, round(BONE_WIDTH * h)
-                )
+                continue
+            if skeleton is None:
+                skeleton = _triangulated(cameras, [
+                    None if j is None else detections[v][j].landmarks
+                    for v, j in enumerate(g.detections)
+                ])  # fmt: skip
+            projected = _projected(cameras[c], skeleton)
+            if projected is not None:
+                shape = (cameras[c].size[1], cameras[c].size[0])
+                found[c].append(Person(np.zeros(shape, np.float32), projected))
+                ids[c] = len(found[c]) - 1
+    masks = [partition(view, threshold) for view in found]
+    out = []
+    for g, ids in zip(groups, index, strict=True):
+        occluded, mine_masks = [], []
+        for c, k in enumerate(ids):
+            hidden, mask = False, None
+            if k is not None:
+                mask = masks[c][k]
+                h = mask.shape[0]
+                bones = skeleton_mask(found[c][k].landmarks, mask.shape, round(BONE_WIDTH * h))
                 mine = _distance(cameras[c], g.position)
-                nearer = np.zeros_like(masks[c][k])
-                for other in groups:
-                    j = other.detections[c]
-                    if j is not None and j != k and _distance(cameras[c], other.position) < mine:
+                nearer = np.zeros_like(mask)
+                for other, others in zip(groups, index, strict=True):
+                    j = others[c]
+                    if (
+                        other is not g
+                        and j is not None
+                        and (_distance(cameras[c], other.position) < mine)
+                    ):
                         nearer |= masks[c][j]
                 hidden = bones is not None and (
                     np.count_nonzero(bones & nearer) > OCCLUDED_SHARE * np.count_nonzero(bones)
                 )
-            occluded.append(hidden)
+                if g.detections[c] is None:
+                    # Not found there: what is left of them is what others did not
+                    # hide, so the view is theirs only as an occluded one.
+                    hidden = True
+                    mask = mask if mask.any() else None
+            occluded.append(hidden and mask is not None)
+            mine_masks.append(mask)
         out.append(
             Sighting(
                 position=g.position,
-                masks=tuple(None if k is None else masks[c][k] for c, k in enumerate(g.detections)),
+                masks=tuple(mine_masks),
                 landmarks=tuple(
                     None if k is None else detections[c][k].landmarks
                     for c, k in enumerate(g.detections)
@@ -153,6 +186,38 @@ def sightings(
                 occluded=tuple(occluded),
             )
         )
+    return out
+
+
+def _triangulated(cameras: CameraGroup, views: Sequence[np.ndarray | None]) -> np.ndarray:
+    """(33, 3) world landmarks from the cameras' (33, 3) detections (None: not seen);
+    NaN where fewer than two cameras saw a landmark well enough."""
+    pixels = np.full((len(cameras), len(LANDMARKS), 2), np.nan)
+    for c, lm in enumerate(views):
+        if lm is not None:
+            lm = np.asarray(lm, float)
+            seen = np.isfinite(lm).all(axis=1) & (lm[:, 2] >= BONE_VISIBILITY)
+            pixels[c, seen] = lm[seen, :2]
+    return cameras.triangulate(pixels)
+
+
+def _projected(camera, points: np.ndarray) -> np.ndarray | None:
+    """(33, 3) landmarks (x, y, visibility 1) of world ``points`` (33, 3) as ``camera``
+    sees them; None when most of them fall behind it or outside its image."""
+    known = np.isfinite(points).all(axis=1)
+    if known.sum() < len(BONES) // 2:
+        return None
+    out = np.full((len(points), 3), np.nan)
+    depth = camera.to_camera(points[known])[:, 2]
+    pixels = camera.project(points[known])
+    w, h = camera.size
+    inside = (depth > 0) & (pixels[:, 0] >= 0) & (pixels[:, 0] < w) & (pixels[:, 1] >= 0)
+    inside &= pixels[:, 1] < h
+    if inside.mean() < 0.5:
+        return None
+    rows = np.flatnonzero(known)[inside]
+    out[rows, :2] = pixels[inside]
+    out[rows, 2] = 1.0
     return out
 
 

@@ -95,3 +95,23 @@ def test_pixels_another_detection_holds_go_to_the_nearest_skeleton():
     # One detection: its own mask.
     (alone,) = partition([a], 0.5)
     assert np.array_equal(alone, mask_a)
+
+
+def test_someone_a_camera_missed_behind_another_keeps_their_visible_pixels():
+    a = np.array([0.0, 0.0])
+    away = a - RIG[0].center[:2]
+    side = np.array([-away[1], away[0]]) / np.linalg.norm(away)
+    # B stands behind A as camera 0 sees them, a little to the side: half visible.
+    b = a + 0.6 * away / np.linalg.norm(away) + 0.3 * side
+    detections = _detections([tuple(a), tuple(b)])
+    front, back = detections[0]
+    both = front.mask(0.5) | back.mask(0.5)
+    # Camera 0's segmenter found only A, and marked B's visible part as A's too.
+    detections[0] = [Person(both.astype(np.float32), front.landmarks)]
+    people = sightings(RIG, detections, 0.5, VisualHull(RIG).floor_box)
+    seen_a, seen_b = sorted(people, key=lambda p: np.linalg.norm(p.position[:2] - a))
+    assert seen_b.masks[0] is not None and seen_b.occluded[0] and seen_b.landmarks[0] is None
+    only_b = back.mask(0.5) & ~_person(RIG[0], tuple(a)).mask(0.5)
+    assert only_b.any()
+    assert seen_b.masks[0][only_b].mean() > 0.8 and not seen_a.masks[0][only_b].mean() > 0.2
+    assert not seen_a.occluded[0]
