@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
+from scipy.optimize import linear_sum_assignment
 
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.person import LANDMARKS
@@ -178,21 +179,88 @@ def group_people(
     condensed = distance[np.triu_indices(n, k=1)]
     labels = fcluster(linkage(condensed, method="complete"), t=match, criterion="distance")
     out = []
+    found = [[np.asarray(lm, float) for lm in view] for view in people]
+    groups: list[list[int | None]] = []
     for g in np.unique(labels):
         members = [nodes[i] for i in np.flatnonzero(labels == g)]
         if len({c for c, _, _ in members}) < min_views:
             continue
         detections: list[int | None] = [None] * len(cameras)
-        pixels = np.full((len(cameras), len(_BODY), 2), np.nan)
-        for c, k, lm in members:
+        for c, k, _ in members:
             detections[c] = k
-            body = lm[_BODY]
-            seen = np.isfinite(body).all(axis=1) & (body[:, 2] >= MIN_VISIBILITY)
-            pixels[c, seen] = body[seen, :2]
-        points = cameras.triangulate(pixels)
+        groups.append(detections)
+    groups = _reassigned(cameras, found, groups, match)
+    out = []
+    for detections in groups:
+        if sum(k is not None for k in detections) < min_views:
+            continue
+        points = cameras.triangulate(_body_pixels(found, detections))
         position = np.nanmedian(points, axis=0) if np.isfinite(points).any() else np.full(3, np.nan)
         out.append(PersonGroup(tuple(detections), position))
     out.sort(key=lambda p: (-p.views, float(np.nan_to_num(p.position[0]))))
+    return out
+
+
+def _body_pixels(
+    found: Sequence[Sequence[np.ndarray]], detections: Sequence[int | None]
+) -> np.ndarray:
+    """(C, L, 2) pixels of a group's body landmarks (NaN: not seen well enough)."""
+    pixels = np.full((len(detections), len(_BODY), 2), np.nan)
+    for c, k in enumerate(detections):
+        if k is not None:
+            body = found[c][k][_BODY]
+            seen = np.isfinite(body).all(axis=1) & (body[:, 2] >= MIN_VISIBILITY)
+            pixels[c, seen] = body[seen, :2]
+    return pixels
+
+
+def _reassigned(
+    cameras: CameraGroup,
+    found: Sequence[Sequence[np.ndarray]],
+    groups: list[list[int | None]],
+    match: float,
+) -> list[list[int | None]]:
+    """Each camera's detections given again to the groups, by how well each matches
+    the group's skeleton triangulated from the group's *other* cameras.
+
+    Two views can be fooled (a shift along their epipolar lines costs nothing),
+    and complete linkage judges pairs: with one person hidden behind another in a
+    camera, that camera's one detection can join the hidden person's group. Three
+    or more other views pin a skeleton down; an optimal assignment per camera
+    (:func:`scipy.optimize.linear_sum_assignment`) then gives each detection to
+    the skeleton it lies on, within ``match`` of the image height.
+    """
+    if len(groups) < 2:
+        return groups
+    out = [list(g) for g in groups]
+    height = max(size[1] for size in cameras.sizes)
+    for c, camera in enumerate(cameras):
+        if not found[c]:
+            continue
+        cost = np.full((len(groups), len(found[c])), np.inf)
+        for g, detections in enumerate(groups):
+            others = [None if v == c else k for v, k in enumerate(detections)]
+            if sum(k is not None for k in others) < 2:
+                continue
+            points = cameras.triangulate(_body_pixels(found, others))
+            for k, lm in enumerate(found[c]):
+                body = lm[_BODY]
+                seen = (np.isfinite(body).all(axis=1) & (body[:, 2] >= MIN_VISIBILITY)
+                        & np.isfinite(points).all(axis=1))  # fmt: skip
+                if seen.sum() < MIN_SHARED:
+                    continue
+                error = np.linalg.norm(camera.project(points[seen]) - body[seen, :2], axis=1)
+                cost[g, k] = np.median(error) / height
+        if not np.isfinite(cost).any():
+            continue
+        rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e6))
+        for g in range(len(groups)):
+            out[g][c] = None
+        for g, k in zip(rows, cols, strict=True):
+            if cost[g, k] <= match:
+                out[g][c] = int(k)
+            elif groups[g][c] == k:
+                out[g][c] = int(k)  # no better skeleton: the clustering's choice stands
     return out
 
 

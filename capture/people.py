@@ -16,10 +16,10 @@ it looks at, so one detection's mask can hold another's head. Where someone
 nearer to a camera covers part of a person's skeleton (the landmark model
 places hidden limbs too), part of them is hidden: the view is ``occluded`` for
 them, and the fit leaves it out (a hidden part is unknown, not background).
-A camera that did not detect someone the others agree on may still show part
-of them behind another person (whose mask then holds those pixels): their
-skeleton, triangulated from the other cameras, claims those pixels, and the
-view is theirs only as an occluded one.
+A camera that did not detect someone the others agree on may still show them,
+in part behind another person or in full (whose pixels another detection's
+mask then holds): their skeleton, triangulated from the other cameras and
+projected, claims those pixels, and the same occlusion test applies.
 
 Identities across kept frames are given by :mod:`bodymetry.capture.tracks`.
 """
@@ -168,11 +168,8 @@ def sightings(
                 hidden = bones is not None and (
                     np.count_nonzero(bones & nearer) > OCCLUDED_SHARE * np.count_nonzero(bones)
                 )
-                if g.detections[c] is None:
-                    # Not found there: what is left of them is what others did not
-                    # hide, so the view is theirs only as an occluded one.
-                    hidden = True
-                    mask = mask if mask.any() else None
+                if g.detections[c] is None and not mask.any():
+                    mask = None  # nothing of them is left in that camera
             occluded.append(hidden and mask is not None)
             mine_masks.append(mask)
         out.append(
