@@ -59,6 +59,9 @@ BONE_VISIBILITY = 0.3
 #: A person's pixels lie within this fraction of their skeleton's height of a bone (the
 #: torso is about a fifth of a person's height wide, the bones run down its middle).
 REACH = 0.2
+#: A pixel within this fraction of a person's skeleton height of their bones lies on
+#: their body (limbs are about a tenth of a person's height thick).
+CORE = 0.05
 #: A person is ``occluded`` in a camera when someone nearer to it covers more than
 #: this share of their skeleton there, drawn :data:`BONE_WIDTH` of the image height
 #: wide (the landmark model places hidden limbs too).
@@ -145,7 +148,12 @@ def sightings(
                 shape = (cameras[c].size[1], cameras[c].size[0])
                 found[c].append(Person(np.zeros(shape, np.float32), projected))
                 ids[c] = len(found[c]) - 1
-    masks = [partition(view, threshold) for view in found]
+    depths = [[np.inf] * len(view) for view in found]
+    for g, ids in zip(groups, index, strict=True):
+        for c, k in enumerate(ids):
+            if k is not None:
+                depths[c][k] = _distance(cameras[c], g.position)
+    masks = [partition(view, threshold, d) for view, d in zip(found, depths, strict=True)]
     out = []
     for g, ids in zip(groups, index, strict=True):
         occluded, mine_masks = [], []
@@ -236,9 +244,12 @@ def skeleton_mask(
     return canvas > 0 if drawn else None
 
 
-def partition(found: Sequence[Person], threshold: float) -> list[np.ndarray]:
+def partition(
+    found: Sequence[Person], threshold: float, depths: Sequence[float] | None = None
+) -> list[np.ndarray]:
     """Each detected person's pixels in one image: the union of the detections'
-    masks, each pixel to the person whose skeleton (:data:`BONES`) is nearest.
+    masks, each pixel to the person whose skeleton (:data:`BONES`) is nearest,
+    except where it lies on the body of someone nearer to the camera.
 
     Parameters
     ----------
@@ -246,6 +257,11 @@ def partition(found: Sequence[Person], threshold: float) -> list[np.ndarray]:
         The image's detections.
     threshold : float
         The segmenter's probability threshold.
+    depths : sequence of float, optional
+        Each detection's distance from the camera (metres; inf: unknown). A
+        pixel within :data:`CORE` of the skeleton height of a nearer person's
+        bone is theirs: where two people overlap in the image, the nearer one
+        is the one seen.
 
     Returns
     -------
@@ -260,18 +276,30 @@ def partition(found: Sequence[Person], threshold: float) -> list[np.ndarray]:
     union = np.logical_or.reduce(masks)
     h, w = union.shape
     distance = np.empty((len(found), h, w), np.float32)
+    core = np.zeros((len(found), h, w), bool)
     for k, person in enumerate(found):
         bones = skeleton_mask(person.landmarks, (h, w))
         if bones is not None:
             distance[k] = cv2.distanceTransform((~bones).astype(np.uint8), cv2.DIST_L2, 3)
+            rows = np.flatnonzero(bones.any(axis=1))
+            tall = rows[-1] - rows[0] + 1
+            core[k] = distance[k] <= CORE * tall
             # Pixels far from every bone are nobody's (a bystander the segmenter
             # marked in the crop but did not detect).
-            rows = np.flatnonzero(bones.any(axis=1))
-            distance[k][distance[k] > REACH * (rows[-1] - rows[0] + 1)] = np.inf
+            distance[k][distance[k] > REACH * tall] = np.inf
         else:
             # No skeleton to measure from: the person claims their own mask only.
             distance[k] = np.where(masks[k], 0.0, np.inf)
     owner = np.argmin(distance, axis=0)
+    if depths is not None:
+        # Front to back: the nearest person whose body covers a pixel owns it.
+        order = np.argsort(np.asarray(depths, float), kind="stable")
+        taken = np.zeros((h, w), bool)
+        for k in order:
+            if np.isfinite(depths[k]):
+                mine = core[k] & ~taken
+                owner[mine] = k
+                taken |= mine
     claimed = np.isfinite(distance.min(axis=0))
     return [union & claimed & (owner == k) for k in range(len(found))]
 
