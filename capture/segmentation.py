@@ -44,6 +44,7 @@ from bodymetry.capture.fusion import (
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.masks import CleanupConfig, clean_mask
+from bodymetry.capture.persons import PersonObservation, PersonTracker, observe_persons
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
     Person,
@@ -184,6 +185,11 @@ class SilhouetteFrame:
         calibrated rig, or no empty-scene clip: a segmenter finds one person per
         image). More than one: the frame's silhouettes are the largest body's,
         and the run says that other people were in view.
+    people : tuple of PersonObservation
+        Where more than one person is counted: every person of the frame, with
+        the pixels each explains and those another person hides in each view,
+        and their track identity across the session's kept frames
+        (:mod:`bodymetry.capture.persons`); empty otherwise.
     """
 
     frame: int
@@ -196,6 +202,7 @@ class SilhouetteFrame:
     view_landmarks: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
     agreement: tuple[float | None, ...] = ()
     persons: int | None = None
+    people: tuple[PersonObservation, ...] = field(default=(), repr=False)
 
     def stack(self) -> np.ndarray:
         """(C, H, W) bool masks, for rigs whose cameras all have one image size.
@@ -332,6 +339,9 @@ class _View:
     flags: tuple[str, ...]
     shadow: np.ndarray
     landmarks: np.ndarray | None = None
+    #: The silhouette before the multi-view check keeps the largest body's regions:
+    #: every person's pixels (None where not checked).
+    everyone: np.ndarray | None = None
 
 
 @dataclass
@@ -581,6 +591,7 @@ class FrameSegmenter:
                 if retry:
                     check = self.hull.check([v.mask for v in views])
             for view, mask, bad in zip(views, check.masks, check.inconsistent, strict=True):
+                view.everyone = view.mask
                 view.mask = mask
                 if bad:
                     view.flags = (*view.flags, "inconsistent")
@@ -592,6 +603,13 @@ class FrameSegmenter:
                 self.cameras, [v.landmarks for v in views], self.config.landmarks
             )
         return _FrameViews(views, landmarks, agreement, None if bodies is None else bodies.persons)
+
+    def people(self, views: Sequence[_View]) -> tuple[PersonObservation, ...]:
+        """The persons of a segmented frame (:func:`~bodymetry.capture.persons.observe_persons`
+        of every view's silhouette before the multi-view check); () without a hull."""
+        if self.hull is None or any(v.everyone is None for v in views):
+            return ()
+        return observe_persons(self.hull, [v.everyone for v in views])
 
     def _agreement(
         self, views: list[_View], evidence: Sequence[ViewEvidence | None]
@@ -663,9 +681,12 @@ def segment_session(
     views = FrameSegmenter(
         models, [v.size for v in report.videos], config, subtraction, cleanup, cameras
     )
+    tracker = PersonTracker()
     try:
         for fs in _prefetch(read_frame_sets(session, report, frames=frames, method=read_method)):
             per_view, landmarks, agreement, persons = views(fs.images)
+            # Only where several people are counted: a one-person session stays as it was.
+            people = tracker.update(views.people(per_view)) if (persons or 0) > 1 else ()
             out = SilhouetteFrame(
                 frame=fs.frame,
                 cameras=fs.cameras,
@@ -679,6 +700,7 @@ def segment_session(
                 else (),
                 agreement=tuple(agreement) if any(a is not None for a in agreement) else (),
                 persons=persons,
+                people=people,
             )
             if on_frame is not None:
                 on_frame(out)

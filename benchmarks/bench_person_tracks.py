@@ -1,0 +1,174 @@
+"""Persons in capture (issue 29, items 1-2 of the capture): split, masks, occlusion, tracks.
+
+Renders two-person studio sessions (``bodymetry synth OUT --people 2 --seed S
+--rig-seed 5``, seeds :data:`SEEDS`, 200 frames, a kept frame every 25: 8 per
+session; the other person walks past the subject and crosses it in some
+cameras), segments them as ``bodymetry process`` does (the default capture with
+the true calibration) and scores the persons of :attr:`SilhouetteFrame.people`
+against each person's truth (``ground_truth/persons/<k>/``):
+
+- per frame, observed persons are matched to true persons by the Hungarian
+  assignment on their mask IoU summed over the cameras; a true person with no
+  observation scores IoU 0 in that frame;
+- **mask IoU** per (frame, camera, person) of the pixels the person explains
+  against their true visible pixels (views where the person shows at least
+  :data:`MIN_VISIBLE` pixels);
+- **identity swaps**: per true person, the times their track id changes
+  between consecutive kept frames (target 0), and the ids used;
+- **occlusion**: of the true occluded pixels (a person's projection another
+  hides), the share marked ``occluded`` for that person (recall), the share
+  wrongly given to that person's mask, and of the pixels marked occluded the
+  share truly occluded (precision).
+
+Sessions are rendered once into ``BODYMETRY_BENCH_PERSONS_DIR`` (default a
+temporary folder; about 2 minutes each on 2 cores).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from bodymetry.calibration.io import load_calibration
+from bodymetry.capture.segmentation import segment_session
+from bodymetry.capture.session import load_session
+from bodymetry.studio.evaluate import GroundTruth
+from bodymetry.studio.synth import SynthConfig, synthesize
+
+SEEDS = (7, 8, 9)
+RIG_SEED = 5
+#: A view scores a person's mask where the person shows at least this many true pixels.
+MIN_VISIBLE = 200
+
+
+def session(folder: Path, seed: int) -> Path:
+    """Render (once) the two-person session of ``seed`` into ``folder/people2_seed<seed>``."""
+    out = folder / f"people2_seed{seed}"
+    if not (out / "session.yaml").is_file():
+        synthesize(
+            out,
+            SynthConfig(frames=200, frame_step=25, seed=seed, rig_seed=RIG_SEED, people=2),
+            workers=1,
+            overwrite=True,
+        )
+    return out
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    union = np.count_nonzero(a | b)
+    return float(np.count_nonzero(a & b) / union) if union else 1.0
+
+
+def score_session(folder: Path) -> dict:
+    """The persons of one session's kept frames against each person's truth."""
+    s = load_session(folder)
+    gt = GroundTruth(s)
+    n_true = gt.persons()
+    cameras = load_calibration(folder / "calibration.yaml")
+    ious: list[float] = []
+    occ = {"true": 0, "marked": 0, "marked_true": 0, "explained_true": 0}
+    ids: list[list[int | None]] = [[] for _ in range(n_true)]
+    counted, frames = [], 0
+    t0 = time.perf_counter()
+    for sf in segment_session(s, cameras=cameras, keep_images=False):
+        frames += 1
+        counted.append(sf.persons)
+        truth = [
+            [gt.person(c, sf.frame, k) for c in sf.cameras] for k in range(n_true)
+        ]  # fmt: skip
+        hidden = [[gt.occluded(c, sf.frame, k) for c in sf.cameras] for k in range(n_true)]
+        people = sf.people
+        # Observations to true persons: the pixels they share over the cameras.
+        score = np.zeros((n_true, len(people)))
+        for k in range(n_true):
+            for j, obs in enumerate(people):
+                inter = sum(
+                    np.count_nonzero(v.mask & t) for v, t in zip(obs.views, truth[k], strict=True)
+                )
+                union = sum(
+                    np.count_nonzero(v.mask | t) for v, t in zip(obs.views, truth[k], strict=True)
+                )
+                score[k, j] = inter / max(union, 1)
+        match = dict(zip(*linear_sum_assignment(-score), strict=True)) if people else {}
+        for k in range(n_true):
+            j = match.get(k)
+            obs = None if j is None else people[j]
+            ids[k].append(None if obs is None else obs.id)
+            for c in range(len(sf.cameras)):
+                t = truth[k][c]
+                if np.count_nonzero(t) >= MIN_VISIBLE:
+                    ious.append(0.0 if obs is None else _iou(obs.views[c].mask, t))
+                if obs is None:
+                    occ["true"] += int(np.count_nonzero(hidden[k][c]))
+                    continue
+                marked = obs.views[c].occluded
+                occ["true"] += int(np.count_nonzero(hidden[k][c]))
+                occ["marked"] += int(np.count_nonzero(marked))
+                occ["marked_true"] += int(np.count_nonzero(marked & hidden[k][c]))
+                occ["explained_true"] += int(np.count_nonzero(obs.views[c].mask & hidden[k][c]))
+    seconds = time.perf_counter() - t0
+    swaps = [
+        sum(
+            1
+            for a, b in zip(seq, seq[1:], strict=False)
+            if a is not None and b is not None and a != b
+        )
+        for seq in ids
+    ]
+    iou = np.array(ious)
+    return {
+        "kept_frames": frames,
+        "persons_counted": counted,
+        "frames_with_persons": sum(
+            1 for k in range(frames) if all(ids[p][k] is not None for p in range(n_true))
+        ),
+        "track_ids_per_person": ids,
+        "identity_swaps": int(sum(swaps)),
+        "mask_iou": {
+            "views": len(iou),
+            "mean": round(float(iou.mean()), 4) if len(iou) else None,
+            "median": round(float(np.median(iou)), 4) if len(iou) else None,
+            "min": round(float(iou.min()), 4) if len(iou) else None,
+        },
+        "occluded_pixels": occ["true"],
+        "occluded_marked_recall": round(occ["marked_true"] / max(occ["true"], 1), 4),
+        "occluded_marked_precision": round(occ["marked_true"] / max(occ["marked"], 1), 4),
+        "occluded_given_to_mask": round(occ["explained_true"] / max(occ["true"], 1), 4),
+        "capture_seconds": round(seconds, 1),
+    }
+
+
+def run(**_: bool) -> dict:
+    base = os.environ.get("BODYMETRY_BENCH_PERSONS_DIR")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(base) if base else Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        sessions = {f"seed{seed}": score_session(session(folder, seed)) for seed in SEEDS}
+    iou = [s["mask_iou"]["mean"] for s in sessions.values() if s["mask_iou"]["mean"] is not None]
+    true = sum(s["occluded_pixels"] for s in sessions.values())
+    return {
+        "sessions": sessions,
+        "summary": {
+            "identity_swaps": sum(s["identity_swaps"] for s in sessions.values()),
+            "mask_iou_mean_of_sessions": round(float(np.mean(iou)), 4) if iou else None,
+            "mask_iou_worst_view": min(
+                (
+                    s["mask_iou"]["min"]
+                    for s in sessions.values()
+                    if s["mask_iou"]["min"] is not None
+                ),
+                default=None,
+            ),
+            "occluded_marked_recall": round(
+                sum(s["occluded_marked_recall"] * s["occluded_pixels"] for s in sessions.values())
+                / max(true, 1),
+                4,
+            ),
+        },
+        "command": "python -m benchmarks person_tracks",
+    }
