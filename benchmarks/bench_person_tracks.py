@@ -26,6 +26,7 @@ temporary folder; about 2 minutes each on 2 cores).
 
 from __future__ import annotations
 
+import itertools
 import os
 import tempfile
 import time
@@ -113,11 +114,7 @@ def score_session(folder: Path) -> dict:
                 occ["explained_true"] += int(np.count_nonzero(obs.views[c].mask & hidden[k][c]))
     seconds = time.perf_counter() - t0
     swaps = [
-        sum(
-            1
-            for a, b in zip(seq, seq[1:], strict=False)
-            if a is not None and b is not None and a != b
-        )
+        sum(1 for a, b in itertools.pairwise(seq) if a is not None and b is not None and a != b)
         for seq in ids
     ]
     iou = np.array(ious)

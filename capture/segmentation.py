@@ -44,7 +44,6 @@ from bodymetry.capture.fusion import (
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.masks import CleanupConfig, clean_mask
-from bodymetry.capture.persons import PersonObservation, PersonTracker, observe_persons
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
     Person,
@@ -52,6 +51,7 @@ from bodymetry.capture.person import (
     PersonSegmenter,
     segmenter_available,
 )
+from bodymetry.capture.persons import PersonObservation, PersonTracker, observe_persons
 from bodymetry.capture.session import Session
 from bodymetry.capture.shadows import at_feet, floor_shadows
 from bodymetry.errors import InputError
