@@ -30,6 +30,7 @@ REPORTS = {
     "codebase": "benchmarks.codebase",
     "fusion_fit": "benchmarks.fusion_fit",
     "imports": "benchmarks.imports",
+    "person_tracks": "benchmarks.bench_person_tracks",
     "profile": "benchmarks.bench_profile",
     "session_bias": "benchmarks.bench_session_bias",
     "session_spread": "benchmarks.bench_session_spread",

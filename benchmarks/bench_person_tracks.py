@@ -12,7 +12,8 @@ against each person's truth (``ground_truth/persons/<k>/``):
   observation scores IoU 0 in that frame;
 - **mask IoU** per (frame, camera, person) of the pixels the person explains
   against their true visible pixels (views where the person shows at least
-  :data:`MIN_VISIBLE` pixels);
+  :data:`MIN_VISIBLE` pixels), also over the views where another person hides
+  under :data:`CLEAR_SHARE` of them (``mask_iou_unoccluded``);
 - **identity swaps**: per true person, the times their track id changes
   between consecutive kept frames (target 0), and the ids used;
 - **occlusion**: of the true occluded pixels (a person's projection another
@@ -42,6 +43,8 @@ from bodymetry.studio.evaluate import GroundTruth
 from bodymetry.studio.synth import SynthConfig, synthesize
 
 SEEDS = (7, 8, 9)
+#: A view is "unoccluded" for a person when another person hides under this share of them.
+CLEAR_SHARE = 0.1
 RIG_SEED = 5
 #: A view scores a person's mask where the person shows at least this many true pixels.
 MIN_VISIBLE = 200
@@ -72,6 +75,7 @@ def score_session(folder: Path) -> dict:
     n_true = gt.persons()
     cameras = load_calibration(folder / "calibration.yaml")
     ious: list[float] = []
+    clear: list[float] = []  # views where another person hides under 10 % of the person
     occ = {"true": 0, "marked": 0, "marked_true": 0, "explained_true": 0}
     ids: list[list[int | None]] = [[] for _ in range(n_true)]
     counted, frames = [], 0
@@ -104,6 +108,9 @@ def score_session(folder: Path) -> dict:
                 t = truth[k][c]
                 if np.count_nonzero(t) >= MIN_VISIBLE:
                     ious.append(0.0 if obs is None else _iou(obs.views[c].mask, t))
+                    hid = np.count_nonzero(hidden[k][c])
+                    if hid < CLEAR_SHARE * (hid + np.count_nonzero(t)):
+                        clear.append(ious[-1])
                 if obs is None:
                     occ["true"] += int(np.count_nonzero(hidden[k][c]))
                     continue
@@ -132,6 +139,11 @@ def score_session(folder: Path) -> dict:
             "median": round(float(np.median(iou)), 4) if len(iou) else None,
             "min": round(float(iou.min()), 4) if len(iou) else None,
         },
+        "mask_iou_unoccluded": {
+            "views": len(clear),
+            "mean": round(float(np.mean(clear)), 4) if clear else None,
+            "min": round(float(np.min(clear)), 4) if clear else None,
+        },
         "occluded_pixels": occ["true"],
         "occluded_marked_recall": round(occ["marked_true"] / max(occ["true"], 1), 4),
         "occluded_marked_precision": round(occ["marked_true"] / max(occ["marked"], 1), 4),
@@ -153,6 +165,18 @@ def run(**_: bool) -> dict:
         "summary": {
             "identity_swaps": sum(s["identity_swaps"] for s in sessions.values()),
             "mask_iou_mean_of_sessions": round(float(np.mean(iou)), 4) if iou else None,
+            "mask_iou_unoccluded_mean_of_sessions": round(
+                float(
+                    np.mean(
+                        [
+                            s["mask_iou_unoccluded"]["mean"]
+                            for s in sessions.values()
+                            if s["mask_iou_unoccluded"]["mean"] is not None
+                        ]
+                    )
+                ),
+                4,
+            ),
             "mask_iou_worst_view": min(
                 (
                     s["mask_iou"]["min"]

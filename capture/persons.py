@@ -22,12 +22,12 @@ which pixels are whose (docs/capture.md, "Persons and occlusion"):
    nearer person covers are *occluded*: unknown for that person, neither body
    nor background.
 3. **Tracking** (:class:`PersonTracker`, :func:`track_persons`): observations
-   of consecutive kept frames are associated by floor position (predicted with
-   the last step's motion) and height, by the Hungarian assignment with gates
-   (:data:`TRACK_GATE` metres on the floor, :data:`TRACK_HEIGHT_GATE` metres in
-   height). A track not seen in a frame is kept: a person who leaves and comes
-   back where they left, with the same height, keeps the identity; anyone else
-   gets a new one.
+   of consecutive kept frames are associated by floor position (the last one,
+   or moved on by the last step, whichever is nearer) and height, by the
+   Hungarian assignment with gates (:data:`TRACK_GATE` metres on the floor,
+   :data:`TRACK_HEIGHT_GATE` metres in height). A track not seen in a frame is
+   kept: a person who leaves and comes back where they left, with the same
+   height, keeps the identity; anyone else gets a new one.
 """
 
 from __future__ import annotations
@@ -64,6 +64,7 @@ __all__ = [
     "PersonTrack",
     "PersonTracker",
     "PersonView",
+    "everyone_silhouettes",
     "observe_persons",
     "person_views",
     "split_hull",
@@ -71,11 +72,12 @@ __all__ = [
 ]
 
 #: Metres on the floor: a person is the same as a track when their floor position lies
-#: within this of the track's predicted one (its last position moved by its last
-#: step). People walk 0.6 m between kept frames at 1.4 m/s and frame_step 25 at
-#: 60 fps; the prediction takes most of that, two people pass no closer than their
-#: bodies allow (about 0.4 m between floor centroids).
-TRACK_GATE = 0.6
+#: within this of the track's last position or of its predicted one (the last moved
+#: by its last step): people walk 0.6 m between kept frames at 1.4 m/s and
+#: frame_step 25 at 60 fps, and a hull position jumps by a few decimetres in a frame
+#: where the hull's phantoms join a person; two people pass no closer than their
+#: bodies allow, and the assignment gives each track the nearer one.
+TRACK_GATE = 0.8
 #: Metres: ... and their hull height within this of the track's last height (a hand
 #: raised over the head adds up to about 0.2 m; children and adults differ more).
 TRACK_HEIGHT_GATE = 0.25
@@ -348,6 +350,48 @@ def person_views(
     return [tuple(v) for v in out]
 
 
+def everyone_silhouettes(
+    hull: VisualHull,
+    bodies: HullBodies,
+    masks: Sequence[np.ndarray],
+    candidates: Sequence[np.ndarray | None],
+) -> list[np.ndarray]:
+    """Every person's pixels per view: the subject's silhouette, and the candidates
+    where the hull's person-sized bodies project.
+
+    The capture's silhouettes hold one person (the segmenter finds one per image and
+    the multi-view check keeps the largest body); the candidates (every pixel some
+    source calls person, background subtraction's change included) hold everyone,
+    and the hull of the candidates says where people are.
+
+    Parameters
+    ----------
+    hull : VisualHull
+    bodies : HullBodies
+        The hull's bodies of ``candidates``.
+    masks : sequence of (H_c, W_c) bool
+        The subject's silhouettes.
+    candidates : sequence of ((H_c, W_c) bool or None)
+        Per view every pixel some source calls person (None: unreadable).
+
+    Returns
+    -------
+    list of (H_c, W_c) bool
+    """
+    people = (bodies.labels > 0) & bodies.person_sized[bodies.labels]
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+    out = []
+    for c, (mask, candidate) in enumerate(zip(masks, candidates, strict=True)):
+        mask = np.asarray(mask, bool)
+        if candidate is None or not people.any():
+            out.append(mask)
+            continue
+        # An opening drops the sensor noise's single pixels.
+        candidate = cv2.morphologyEx(np.asarray(candidate, np.uint8), cv2.MORPH_OPEN, kernel) > 0
+        out.append(mask | (candidate & hull.support(people, c)))
+    return out
+
+
 def observe_persons(
     hull: VisualHull, masks: Sequence[np.ndarray], bodies: HullBodies | None = None
 ) -> tuple[PersonObservation, ...]:
@@ -456,11 +500,18 @@ class PersonTracker:
         if n and observations:
             cost = np.full((n, len(observations)), _FORBIDDEN)
             for i in range(n):
-                # A track seen in the previous update moves on by its last step; one
-                # lost longer is looked for where it was last.
-                predicted = self._position[i] + (self._step[i] if self._last[i] == t - 1 else 0)
+                # A track seen in the previous update moves on by its last step (or
+                # stops: a wrong step, from a frame with a phantom, must not lose it);
+                # one lost longer is looked for where it was last.
+                last = self._position[i]
+                step = self._step[i] if self._last[i] == t - 1 else np.zeros(2)
                 for j, obs in enumerate(observations):
-                    d = float(np.linalg.norm(np.asarray(obs.position) - predicted))
+                    d = float(
+                        min(
+                            np.linalg.norm(np.asarray(obs.position) - last - step),
+                            np.linalg.norm(np.asarray(obs.position) - last),
+                        )
+                    )
                     dh = abs(obs.height - self._height[i])
                     if d <= self.gate and dh <= self.height_gate:
                         cost[i, j] = d + dh

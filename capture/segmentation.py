@@ -51,7 +51,12 @@ from bodymetry.capture.person import (
     PersonSegmenter,
     segmenter_available,
 )
-from bodymetry.capture.persons import PersonObservation, PersonTracker, observe_persons
+from bodymetry.capture.persons import (
+    PersonObservation,
+    PersonTracker,
+    everyone_silhouettes,
+    observe_persons,
+)
 from bodymetry.capture.session import Session
 from bodymetry.capture.shadows import at_feet, floor_shadows
 from bodymetry.errors import InputError
@@ -339,8 +344,8 @@ class _View:
     flags: tuple[str, ...]
     shadow: np.ndarray
     landmarks: np.ndarray | None = None
-    #: The silhouette before the multi-view check keeps the largest body's regions:
-    #: every person's pixels (None where not checked).
+    #: Every person's pixels (:func:`~bodymetry.capture.persons.everyone_silhouettes`),
+    #: only where more than one person is counted (else None).
     everyone: np.ndarray | None = None
 
 
@@ -384,6 +389,12 @@ class ViewEvidence:
             if part is not None:
                 out |= part
         return out
+
+
+def _changed(ev: ViewEvidence) -> np.ndarray:
+    """(H, W) bool: background subtraction's person label, with the segmenter's person
+    (where the change is shadow-like: a grey shirt reads as the wall's shadow)."""
+    return ev.raw if ev.found is None else ev.raw | ev.found
 
 
 class _FrameViews(NamedTuple):
@@ -591,12 +602,20 @@ class FrameSegmenter:
                 if retry:
                     check = self.hull.check([v.mask for v in views])
             for view, mask, bad in zip(views, check.masks, check.inconsistent, strict=True):
-                view.everyone = view.mask
                 view.mask = mask
                 if bad:
                     view.flags = (*view.flags, "inconsistent")
                     view.landmarks = None
             agreement = self._agreement(views, evidence)
+            if bodies is not None and bodies.persons > 1:
+                everyone = everyone_silhouettes(
+                    self.hull,
+                    bodies,
+                    [v.mask for v in views],
+                    [None if ev is None or ev.raw is None else _changed(ev) for ev in evidence],
+                )
+                for view, mask in zip(views, everyone, strict=True):
+                    view.everyone = mask
         landmarks = None
         if self.cameras is not None and sum(v.landmarks is not None for v in views) >= 2:
             landmarks = triangulate_landmarks(
@@ -606,7 +625,8 @@ class FrameSegmenter:
 
     def people(self, views: Sequence[_View]) -> tuple[PersonObservation, ...]:
         """The persons of a segmented frame (:func:`~bodymetry.capture.persons.observe_persons`
-        of every view's silhouette before the multi-view check); () without a hull."""
+        of every person's silhouettes, :attr:`_View.everyone`); () without a hull or
+        where one person is counted."""
         if self.hull is None or any(v.everyone is None for v in views):
             return ()
         return observe_persons(self.hull, [v.everyone for v in views])
