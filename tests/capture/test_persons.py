@@ -13,6 +13,7 @@ from bodymetry.capture.persons import (
     TRACK_GATE,
     PersonObservation,
     PersonTracker,
+    everyone_silhouettes,
     observe_persons,
     person_views,
     split_hull,
@@ -200,3 +201,22 @@ def test_observe_persons_on_a_studio_rig():
         assert explained.sum() > 0.9 * masks[c].sum()
     one = observe_persons(hull, [_cylinder_mask(cam, (0.0, 0.0)) for cam in rig])
     assert len(one) == 1 and not any(v.occluded.any() for v in one[0].views)
+
+
+def test_everyone_silhouettes_add_the_other_persons_change_where_the_hull_stands():
+    rig = studio_rig(4, (320, 240), seed=3)
+    hull = VisualHull(rig, HullConfig(max_voxels=60_000))
+    subject = [_cylinder_mask(cam, (-0.6, 0.0)) for cam in rig]
+    other = [_cylinder_mask(cam, (0.6, 0.0), height=1.55) for cam in rig]
+    changes = []
+    for s, o in zip(subject, other, strict=True):
+        blob = np.zeros_like(s)
+        blob[2:30, 2:20] = True  # one camera's change nobody else sees (not a person)
+        changes.append(s | o | blob)
+    bodies = hull.bodies(changes)
+    everyone = everyone_silhouettes(hull, bodies, subject, [*changes[:3], None])
+    for c in range(3):
+        assert (everyone[c] & subject[c]).sum() == subject[c].sum()
+        assert (everyone[c] & other[c] & ~subject[c]).sum() > 0.95 * (other[c] & ~subject[c]).sum()
+        assert not everyone[c][2:30, 2:20].any()
+    assert np.array_equal(everyone[3], subject[3])  # an unreadable view: the subject's
