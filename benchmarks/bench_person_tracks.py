@@ -12,8 +12,9 @@ against each person's truth (``ground_truth/persons/<k>/``):
   observation scores IoU 0 in that frame;
 - **mask IoU** per (frame, camera, person) of the pixels the person explains
   against their true visible pixels (views where the person shows at least
-  :data:`MIN_VISIBLE` pixels), also over the views where another person hides
-  under :data:`CLEAR_SHARE` of them (``mask_iou_unoccluded``);
+  :data:`MIN_VISIBLE` pixels), also over the frames where the person was
+  observed (``mask_iou_observed``) and over the views where another person
+  hides under :data:`CLEAR_SHARE` of them (``mask_iou_unoccluded``);
 - **identity swaps**: per true person, the times their track id changes
   between consecutive kept frames (target 0), and the ids used;
 - **occlusion**: of the true occluded pixels (a person's projection another
@@ -76,6 +77,7 @@ def score_session(folder: Path) -> dict:
     cameras = load_calibration(folder / "calibration.yaml")
     ious: list[float] = []
     clear: list[float] = []  # views where another person hides under 10 % of the person
+    observed: list[float] = []  # views of frames where the person was observed
     occ = {"true": 0, "marked": 0, "marked_true": 0, "explained_true": 0}
     ids: list[list[int | None]] = [[] for _ in range(n_true)]
     counted, frames = [], 0
@@ -108,6 +110,8 @@ def score_session(folder: Path) -> dict:
                 t = truth[k][c]
                 if np.count_nonzero(t) >= MIN_VISIBLE:
                     ious.append(0.0 if obs is None else _iou(obs.views[c].mask, t))
+                    if obs is not None:
+                        observed.append(ious[-1])
                     hid = np.count_nonzero(hidden[k][c])
                     if hid < CLEAR_SHARE * (hid + np.count_nonzero(t)):
                         clear.append(ious[-1])
@@ -138,6 +142,11 @@ def score_session(folder: Path) -> dict:
             "mean": round(float(iou.mean()), 4) if len(iou) else None,
             "median": round(float(np.median(iou)), 4) if len(iou) else None,
             "min": round(float(iou.min()), 4) if len(iou) else None,
+        },
+        "mask_iou_observed": {
+            "views": len(observed),
+            "mean": round(float(np.mean(observed)), 4) if observed else None,
+            "median": round(float(np.median(observed)), 4) if observed else None,
         },
         "mask_iou_unoccluded": {
             "views": len(clear),

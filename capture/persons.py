@@ -405,7 +405,8 @@ def observe_persons(
         Every person's silhouette per view (before the multi-view check keeps
         the largest body only).
     bodies : HullBodies, optional
-        ``hull.bodies(masks)``, when already computed.
+        The hull's bodies to split (default ``hull.bodies(masks)``; the capture
+        passes those of the candidates, which counted the persons).
 
     Returns
     -------

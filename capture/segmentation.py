@@ -344,9 +344,6 @@ class _View:
     flags: tuple[str, ...]
     shadow: np.ndarray
     landmarks: np.ndarray | None = None
-    #: Every person's pixels (:func:`~bodymetry.capture.persons.everyone_silhouettes`),
-    #: only where more than one person is counted (else None).
-    everyone: np.ndarray | None = None
 
 
 @dataclass
@@ -452,6 +449,9 @@ class FrameSegmenter:
         self.subtractors = [None if m is None else Subtractor(m, subtraction) for m in models]
         self.segmenter = PersonSegmenter(config.person) if config.uses_segmenter else None
         self.hull = None
+        #: The persons of the last frame segmented, where it counted more than one
+        #: (:func:`~bodymetry.capture.persons.observe_persons`; untracked).
+        self.people: tuple[PersonObservation, ...] = ()
         if cameras is not None and config.consistency and len(cameras) >= config.hull.min_views:
             try:
                 self.hull = visual_hull(cameras, config.hull)
@@ -578,7 +578,9 @@ class FrameSegmenter:
         return _View(mask, flags, shadow, landmarks)
 
     def __call__(self, images: Sequence[np.ndarray | None]) -> _FrameViews:
-        """Segment one frame's images (None: unreadable): :class:`_FrameViews`."""
+        """Segment one frame's images (None: unreadable): :class:`_FrameViews`
+        (and :attr:`people`)."""
+        self.people = ()
         evidence = [None if im is None else self.evidence(c, im) for c, im in enumerate(images)]
         # Only background subtraction sees everyone: a segmenter returns one person
         # per image, so without a background clip there is nobody else to count.
@@ -614,22 +616,21 @@ class FrameSegmenter:
                     [v.mask for v in views],
                     [None if ev is None or ev.raw is None else _changed(ev) for ev in evidence],
                 )
-                for view, mask in zip(views, everyone, strict=True):
-                    view.everyone = mask
+                # The hull of every person's silhouettes is tighter than the
+                # candidates' (no shadows, no segmenter halo); where it holds fewer
+                # persons than the candidates' (a head lost in two views), the
+                # candidates' hull is split, the pixels still from the silhouettes.
+                self.people = observe_persons(self.hull, everyone)
+                if len(self.people) < bodies.persons:
+                    looser = observe_persons(self.hull, everyone, bodies)
+                    if len(looser) > len(self.people):
+                        self.people = looser
         landmarks = None
         if self.cameras is not None and sum(v.landmarks is not None for v in views) >= 2:
             landmarks = triangulate_landmarks(
                 self.cameras, [v.landmarks for v in views], self.config.landmarks
             )
         return _FrameViews(views, landmarks, agreement, None if bodies is None else bodies.persons)
-
-    def people(self, views: Sequence[_View]) -> tuple[PersonObservation, ...]:
-        """The persons of a segmented frame (:func:`~bodymetry.capture.persons.observe_persons`
-        of every person's silhouettes, :attr:`_View.everyone`); () without a hull or
-        where one person is counted."""
-        if self.hull is None or any(v.everyone is None for v in views):
-            return ()
-        return observe_persons(self.hull, [v.everyone for v in views])
 
     def _agreement(
         self, views: list[_View], evidence: Sequence[ViewEvidence | None]
@@ -706,7 +707,7 @@ def segment_session(
         for fs in _prefetch(read_frame_sets(session, report, frames=frames, method=read_method)):
             per_view, landmarks, agreement, persons = views(fs.images)
             # Only where several people are counted: a one-person session stays as it was.
-            people = tracker.update(views.people(per_view)) if (persons or 0) > 1 else ()
+            people = tracker.update(views.people) if (persons or 0) > 1 else ()
             out = SilhouetteFrame(
                 frame=fs.frame,
                 cameras=fs.cameras,
