@@ -402,8 +402,7 @@ def observe_persons(
     hull : VisualHull
         The rig's capture volume.
     masks : sequence of (H_c, W_c) bool, camera order
-        Every person's silhouette per view (before the multi-view check keeps
-        the largest body only).
+        Every person's silhouettes per view (:func:`everyone_silhouettes`).
     bodies : HullBodies, optional
         The hull's bodies to split (default ``hull.bodies(masks)``; the capture
         passes those of the candidates, which counted the persons).
@@ -421,6 +420,8 @@ def observe_persons(
     labels = grid[tuple(hull.cells.T)]
     points = [hull.points[labels == p] for p in range(1, len(axes) + 1)]
     real = _explaining(person_views(hull.cameras, points, masks, hull.splat))
+    if len(real) < len(points):
+        log.debug("%d of %d hull persons are phantoms", len(points) - len(real), len(points))
     points, axes = [points[k] for k in real], axes[real]
     views = person_views(hull.cameras, points, masks, hull.splat)
     out = []
