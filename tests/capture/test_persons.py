@@ -8,7 +8,9 @@ import pytest
 from scipy import ndimage
 
 from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.capture.background import BackgroundModel
 from bodymetry.capture.consistency import HullConfig, VisualHull
+from bodymetry.capture.fusion import FusionConfig
 from bodymetry.capture.persons import (
     TRACK_GATE,
     PersonObservation,
@@ -19,6 +21,7 @@ from bodymetry.capture.persons import (
     split_hull,
     track_persons,
 )
+from bodymetry.capture.segmentation import CaptureConfig, FrameSegmenter
 from bodymetry.errors import InputError
 from bodymetry.studio.rig import look_at, studio_rig
 
@@ -220,3 +223,39 @@ def test_everyone_silhouettes_add_the_other_persons_change_where_the_hull_stands
         assert (everyone[c] & other[c] & ~subject[c]).sum() > 0.95 * (other[c] & ~subject[c]).sum()
         assert not everyone[c][2:30, 2:20].any()
     assert np.array_equal(everyone[3], subject[3])  # an unreadable view: the subject's
+
+
+def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
+    # Two coloured people 1.2 m apart in a plain room, background subtraction only.
+    rig = studio_rig(4, (320, 240), seed=3)
+    rng = np.random.default_rng(5)
+    w, h = 320, 240
+    empty = np.full((h, w, 3), 120.0)
+    models = [
+        BackgroundModel.from_frames(
+            cam.name, np.clip(empty + rng.normal(0, 2, (8, h, w, 3)), 0, 255).astype(np.uint8)
+        )
+        for cam in rig
+    ]
+    config = CaptureConfig(method="background", fusion=FusionConfig(enabled=True))
+    frame = FrameSegmenter(models, rig.sizes, config, None, None, rig)
+
+    def images(places):
+        out = []
+        for cam in rig:
+            img = empty.copy()
+            for (centre, height), colour in zip(
+                places.items(), ((200, 90, 40), (40, 60, 200)), strict=False
+            ):
+                img[_cylinder_mask(cam, centre, height=height)] = colour
+            out.append(np.clip(img + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8))
+        return out
+
+    two = {(-0.6, 0.0): 1.75, (0.6, 0.0): 1.55}
+    _, _, _, persons = frame(images(two))
+    assert persons >= 2 and len(frame.people) == 2
+    for obs, (centre, height) in zip(frame.people, two.items(), strict=True):
+        assert np.linalg.norm(obs.position - np.array(centre)) < 0.1
+        assert obs.height == pytest.approx(height, abs=0.1)
+    _, _, _, persons = frame(images({(0.0, 0.0): 1.7}))
+    assert persons == 1 and frame.people == ()
