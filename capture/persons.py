@@ -356,23 +356,25 @@ def everyone_silhouettes(
     masks: Sequence[np.ndarray],
     candidates: Sequence[np.ndarray | None],
 ) -> list[np.ndarray]:
-    """Every person's pixels per view: the subject's silhouette, and the candidates
-    where the hull's person-sized bodies project.
+    """Every person's pixels per view: the subject's silhouette, and a label that sees
+    everyone where the hull's person-sized bodies project.
 
     The capture's silhouettes hold one person (the segmenter finds one per image and
-    the multi-view check keeps the largest body); the candidates (every pixel some
-    source calls person, background subtraction's change included) hold everyone,
-    and the hull of the candidates says where people are.
+    the multi-view check keeps the largest body); background subtraction sees
+    everyone, and the hull of the frame's candidates (every pixel some source calls
+    person) says where people are.
 
     Parameters
     ----------
     hull : VisualHull
     bodies : HullBodies
-        The hull's bodies of ``candidates``.
+        The hull's bodies of the frame's candidates.
     masks : sequence of (H_c, W_c) bool
         The subject's silhouettes.
     candidates : sequence of ((H_c, W_c) bool or None)
-        Per view every pixel some source calls person (None: unreadable).
+        Per view a person label that sees everyone (the capture passes background
+        subtraction's label with the segmenter's person; None: no background or
+        unreadable, the view keeps the subject's silhouette).
 
     Returns
     -------
