@@ -30,6 +30,7 @@ REPORTS = {
     "codebase": "benchmarks.codebase",
     "fusion_fit": "benchmarks.fusion_fit",
     "imports": "benchmarks.imports",
+    "person_tracks": "benchmarks.bench_person_tracks",
     "persons": "benchmarks.bench_persons",
     "profile": "benchmarks.bench_profile",
     "session_bias": "benchmarks.bench_session_bias",

@@ -60,9 +60,9 @@ from bodymetry.capture.landmarks import (
     triangulate_landmarks,
 )
 from bodymetry.capture.people import Sighting
+from bodymetry.capture.persons import track_ids
 from bodymetry.capture.segmentation import background_models, segment_session
 from bodymetry.capture.session import Session, load_session
-from bodymetry.capture.tracks import track
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import (
     FrameFit,
@@ -526,7 +526,7 @@ def choose_person(
     (``process --person N``).
 
     The people capture found in each frame are given identities across the
-    frames (:func:`bodymetry.capture.tracks.track`), and each frame's
+    frames (:func:`bodymetry.capture.persons.track_ids`), and each frame's
     silhouettes, flags and landmarks become those of the chosen person: a view
     where someone nearer touches them is flagged ``occluded`` (left out of that
     frame's fit), one where they were not found ``empty``, and a frame without
@@ -545,7 +545,7 @@ def choose_person(
             "in view, no calibrated rig, or a session with an empty-scene clip, where people "
             "are not told apart yet); run without --person to measure the subject"
         )
-    ids = track([[p.position for p in s.people] for s in ordered])
+    ids = track_ids([s.people for s in ordered])
     known = 1 + max((i for frame in ids for i in frame), default=-1)
     if chosen >= known:
         raise InputError(

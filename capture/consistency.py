@@ -56,6 +56,7 @@ __all__ = [
     "HullConfig",
     "VisualHull",
     "count_persons",
+    "person_tops",
     "visual_hull",
 ]
 
@@ -211,11 +212,33 @@ def count_persons(occupied: np.ndarray, cell: float) -> int:
     cell : float
         Voxel side, metres.
     """
+    return len(person_tops(occupied, cell)[1])
+
+
+def person_tops(occupied: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """The people's tops (heads) of a voxel grid, as :func:`count_persons` counts them.
+
+    Parameters
+    ----------
+    occupied : (X, Y, Z) bool
+        As for :func:`count_persons`.
+    cell : float
+        Voxel side, metres.
+
+    Returns
+    -------
+    centres : (K, 2) float
+        Each top's floor position in grid cells (fractional (x, y) indices),
+        highest top first.
+    heights : (K,) float
+        Each top's height above the floor, metres (the top of its highest voxel).
+    """
     occupied = np.asarray(occupied, bool)
+    none = np.zeros((0, 2)), np.zeros(0)
     levels = (np.arange(occupied.shape[2], dtype=np.float32) + 1) * np.float32(cell)
     top = np.where(occupied, levels, np.float32(0)).max(axis=2)
     if not (top >= PERSON_MIN_TOP).any():
-        return 0
+        return none
     # Morphological reconstruction by dilation of (top - h) under top: a top whose
     # dynamic is at least h keeps a gap of h there (the h-maxima transform).
     h = np.float32(PERSON_PROMINENCE)
@@ -229,7 +252,7 @@ def count_persons(occupied: np.ndarray, cell: float) -> int:
     peaks = (top - rec >= h - 1e-4) & (top >= PERSON_MIN_TOP)
     labels, n = ndimage.label(peaks, structure=np.ones((3, 3)))
     if n == 0:
-        return 0
+        return none
     index = np.arange(1, n + 1)
     centres = np.array(ndimage.center_of_mass(peaks, labels, index))
     heights = np.asarray(ndimage.maximum(top, labels, index))
@@ -244,7 +267,7 @@ def count_persons(occupied: np.ndarray, cell: float) -> int:
             continue
         if all(np.linalg.norm(centres[i] - centres[j]) * cell >= PERSON_SPACING for j in kept):
             kept.append(int(i))
-    return len(kept)
+    return centres[kept].reshape(-1, 2), heights[kept].astype(float)
 
 
 def _in_view(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -324,6 +347,8 @@ class VisualHull:
         seen = np.stack(seen)  # (C, N)
         keep = seen.sum(axis=0) >= cfg.min_views
         self._shape = tuple(len(a) for a in axes)
+        #: World position (3,) of the grid's first voxel centre (grid cell (0, 0, 0)).
+        self.origin = np.array([a[0] for a in axes])
         self._index = np.flatnonzero(keep)  # (N,) into the full grid
         self.points = grid[keep]  # (N, 3)
         self.seen = seen[:, keep]  # (C, N)
@@ -357,6 +382,19 @@ class VisualHull:
                 "cameras (are the cameras calibrated in one world frame, z up?)"
             )
         return inside.min(axis=0) - step, inside.max(axis=0) + step
+
+    def grid(self, voxels: np.ndarray) -> np.ndarray:
+        """(X, Y, Z) bool: capture-volume voxels ``voxels`` (N,) bool on the full grid
+        (cell ``(i, j, k)`` centred at ``origin + (i, j, k) * voxel``; level k spans
+        heights ``[k voxel, (k + 1) voxel)``)."""
+        grid = np.zeros(int(np.prod(self._shape)), bool)
+        grid[self._index[np.asarray(voxels, bool)]] = True
+        return grid.reshape(self._shape)
+
+    @property
+    def cells(self) -> np.ndarray:
+        """(N, 3) int: each capture-volume voxel's grid cell (see :meth:`grid`)."""
+        return np.column_stack(np.unravel_index(self._index, self._shape))
 
     def occupied(self, masks: Sequence[np.ndarray]) -> np.ndarray:
         """The subject's voxels: the largest connected body of :meth:`bodies`.
@@ -417,9 +455,7 @@ class VisualHull:
             return HullBodies(
                 np.zeros(len(self.points), np.int32), none.astype(int), none, self.voxel
             )
-        grid = np.zeros(int(np.prod(self._shape)), bool)
-        grid[self._index[occupied]] = True
-        labels, n = ndimage.label(grid.reshape(self._shape), structure=np.ones((3, 3, 3)))
+        labels, n = ndimage.label(self.grid(occupied), structure=np.ones((3, 3, 3)))
         labels = labels.reshape(-1)[self._index]
         voxels = np.bincount(labels[occupied], minlength=n + 1)
         voxels[0] = 0
@@ -433,11 +469,9 @@ class VisualHull:
         people = occupied & bodies.person_sized[labels]
         if not people.any():
             return bodies
-        grid = np.zeros(int(np.prod(self._shape)), bool)
-        grid[self._index[people]] = True
         # Separate bodies are separate people whatever their tops say (a raised hand
         # can be a body's only top, and it stands on nothing).
-        heads = count_persons(grid.reshape(self._shape), self.voxel)
+        heads = count_persons(self.grid(people), self.voxel)
         return replace(bodies, persons=max(heads, int(bodies.person_sized.sum())))
 
     def support(self, occupied: np.ndarray, c: int) -> np.ndarray:

@@ -35,8 +35,16 @@ import numpy as np
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.headcount import group_people
 from bodymetry.capture.person import LANDMARKS, Person
+from bodymetry.capture.persons import PersonObservation
 
-__all__ = ["BONES", "Sighting", "partition", "sightings", "skeleton_mask"]
+__all__ = [
+    "BONES",
+    "Sighting",
+    "partition",
+    "sighting_of",
+    "sightings",
+    "skeleton_mask",
+]
 
 #: The skeleton drawn for :func:`partition`: pairs of landmarks (the face as a chain
 #: from ear to ear, so a head is claimed by its own face).
@@ -59,6 +67,10 @@ BONE_VISIBILITY = 0.3
 #: A person's pixels lie within this fraction of their skeleton's height of a bone (the
 #: torso is about a fifth of a person's height wide, the bones run down its middle).
 REACH = 0.2
+#: A person of the hull's split is ``occluded`` in a camera where a nearer person covers
+#: more than this share of the silhouette pixels of their projection (the hull is
+#: fatter than the body, so its ``hidden`` pixels are 4-7 times the truly hidden ones).
+HIDDEN_SHARE = 0.1
 #: A pixel within this fraction of a person's skeleton height of their bones lies on
 #: their body (limbs are about a tenth of a person's height thick).
 CORE = 0.05
@@ -84,14 +96,24 @@ class Sighting:
         Per camera, their detection's landmarks (:attr:`Person.landmarks`);
         None where the camera did not detect them.
     occluded : tuple of bool, length C
-        Per camera, whether someone nearer to it touches their silhouette
-        (part of them may be hidden: the view is left out of their fit).
+        Per camera, whether someone nearer to it hides part of them (the view
+        is left out of their fit).
+    height : float
+        Their top above the floor, metres, where known (the hull's split);
+        NaN from the segmenter's detections (a lunge lowers the head, so the
+        tracking does not compare it).
+    hidden : tuple of ((H_c, W_c) bool or None)
+        Per camera, the pixels of theirs a nearer person covers (unknown, not
+        background), where known: the hull's split gives them; empty from the
+        segmenter's detections.
     """
 
     position: np.ndarray
     masks: tuple[np.ndarray | None, ...]
     landmarks: tuple[np.ndarray | None, ...]
     occluded: tuple[bool, ...]
+    height: float = float("nan")
+    hidden: tuple[np.ndarray | None, ...] = ()
 
     @property
     def views(self) -> int:
@@ -224,6 +246,33 @@ def _projected(camera, points: np.ndarray) -> np.ndarray | None:
     out[rows, :2] = pixels[inside]
     out[rows, 2] = 1.0
     return out
+
+
+def sighting_of(observed: PersonObservation, share: float = HIDDEN_SHARE) -> Sighting:
+    """A person of the hull's split (:func:`bodymetry.capture.persons.observe_persons`)
+    as a :class:`Sighting`: their explained pixels per camera (None where the
+    camera does not see them), ``occluded`` where a nearer person covers more
+    than ``share`` of their projection's silhouette pixels, no landmarks."""
+    masks, occluded, hidden = [], [], []
+    for view in observed.views:
+        if view.box is None:
+            masks.append(None)
+            occluded.append(False)
+            hidden.append(None)
+            continue
+        mine, covered = np.count_nonzero(view.explained), np.count_nonzero(view.hidden)
+        masks.append(view.mask if mine else None)
+        occluded.append(bool(mine) and covered > share * (mine + covered))
+        hidden.append(view.occluded if covered else None)
+    x, y = np.asarray(observed.position, float)[:2]
+    return Sighting(
+        position=np.array([x, y, observed.height / 2.0]),
+        masks=tuple(masks),
+        landmarks=(None,) * len(masks),
+        occluded=tuple(occluded),
+        height=float(observed.height),
+        hidden=tuple(hidden),
+    )
 
 
 def skeleton_mask(

@@ -44,7 +44,7 @@ from bodymetry.capture.fusion import (
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.masks import CleanupConfig, clean_mask
-from bodymetry.capture.people import Sighting, sightings
+from bodymetry.capture.people import Sighting, sighting_of, sightings
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
     Person,
@@ -52,6 +52,7 @@ from bodymetry.capture.person import (
     PersonSegmenter,
     segmenter_available,
 )
+from bodymetry.capture.persons import everyone_silhouettes, observe_persons
 from bodymetry.capture.session import Session
 from bodymetry.capture.shadows import at_feet, floor_shadows
 from bodymetry.errors import InputError
@@ -188,10 +189,14 @@ class SilhouetteFrame:
         segmenter). More than one: the frame's silhouettes are the largest
         body's, and the run says that other people were in view.
     sightings : tuple of Sighting
-        Without an empty-scene clip, each person counted, with their pixels per
-        camera (:mod:`bodymetry.capture.people`; the masks at the camera's
-        size), for measuring a chosen person (``process --person N``); empty
-        where people are not told apart (with a background clip, or no rig).
+        Where people are told apart, each person with their pixels per camera
+        (:class:`~bodymetry.capture.people.Sighting`, masks at the camera's
+        size), for measuring a chosen person (``process --person N``; their
+        identities across frames are given later, over all kept frames:
+        :func:`bodymetry.capture.persons.track_ids`): without an empty-scene
+        clip from the segmenter's detections (:mod:`bodymetry.capture.people`),
+        with one from the split of the hull where more than one person is
+        counted (:mod:`bodymetry.capture.persons`); empty otherwise.
     """
 
     frame: int
@@ -383,6 +388,12 @@ class ViewEvidence:
             if part is not None:
                 out |= part
         return out
+
+
+def _changed(ev: ViewEvidence) -> np.ndarray:
+    """(H, W) bool: background subtraction's person label, with the segmenter's person
+    (where the change is shadow-like: a grey shirt reads as the wall's shadow)."""
+    return ev.raw if ev.found is None else ev.raw | ev.found
 
 
 class _FrameViews(NamedTuple):
@@ -633,6 +644,23 @@ class FrameSegmenter:
                     view.flags = (*view.flags, "inconsistent")
                     view.landmarks = None
             agreement = self._agreement(views, evidence)
+            if bodies is not None and bodies.persons > 1:
+                everyone = everyone_silhouettes(
+                    self.hull,
+                    bodies,
+                    [v.mask for v in views],
+                    [None if ev is None or ev.raw is None else _changed(ev) for ev in evidence],
+                )
+                # The hull of every person's silhouettes is tighter than the
+                # candidates' (no shadows, no segmenter halo); where it holds fewer
+                # persons than the candidates' (a head lost in two views), the
+                # candidates' hull is split, the pixels still from the silhouettes.
+                observed = observe_persons(self.hull, everyone)
+                if len(observed) < bodies.persons:
+                    looser = observe_persons(self.hull, everyone, bodies)
+                    if len(looser) > len(observed):
+                        observed = looser
+                people = [sighting_of(o) for o in observed]
         landmarks = None
         if self.cameras is not None and sum(v.landmarks is not None for v in views) >= 2:
             landmarks = triangulate_landmarks(

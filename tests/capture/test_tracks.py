@@ -1,17 +1,24 @@
-"""Identities across kept frames (capture/tracks.py): known tracks through crossings,
+"""Identities across kept frames of people without a known height (capture/persons.py,
+``track_ids``, as ``process --person N`` uses it): known tracks through crossings,
 absences and re-entries."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
-from bodymetry.capture.tracks import TRACK_GATE, track
+from bodymetry.capture.persons import TRACK_GATE, track_ids
 from bodymetry.errors import InputError
 
 
-def _p(x: float, y: float = 0.0) -> np.ndarray:
-    return np.array([x, y, 1.0])
+def _p(x: float, y: float = 0.0, height: float = float("nan")) -> SimpleNamespace:
+    return SimpleNamespace(position=np.array([x, y, 1.0]), height=height)
+
+
+def track(frames, **kw):
+    return track_ids(frames, **kw)
 
 
 def test_two_people_walking_past_each_other_keep_their_numbers():
@@ -34,8 +41,13 @@ def test_a_person_who_leaves_and_comes_back_keeps_a_number_where_they_left():
 
 
 def test_new_people_and_unknown_positions_get_new_numbers():
-    nan = np.full(3, np.nan)
+    nan = SimpleNamespace(position=np.full(3, np.nan), height=float("nan"))
     assert track([[], [_p(0.0)], [_p(0.0), nan]]) == [[], [0], [0, 1]]
     assert track([]) == []
     with pytest.raises(InputError, match="gate"):
         track([[_p(0.0)]], gate=0.0)
+
+
+def test_a_known_height_tells_two_people_at_one_place_apart():
+    # A child comes where an adult stood: someone new.
+    assert track([[_p(0.0, height=1.8)], [_p(0.1, height=1.2)]]) == [[0], [1]]

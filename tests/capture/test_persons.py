@@ -1,0 +1,262 @@
+"""Persons in capture: a hull split into people, their masks with occlusion, and tracks."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from bodymetry.calibration.camera import Camera, CameraGroup
+from bodymetry.capture.background import BackgroundModel
+from bodymetry.capture.consistency import HullConfig, VisualHull
+from bodymetry.capture.fusion import FusionConfig
+from bodymetry.capture.persons import (
+    TRACK_GATE,
+    PersonObservation,
+    PersonTracker,
+    everyone_silhouettes,
+    observe_persons,
+    person_views,
+    split_hull,
+    track_persons,
+)
+from bodymetry.capture.segmentation import CaptureConfig, FrameSegmenter
+from bodymetry.errors import InputError
+from bodymetry.studio.rig import look_at, studio_rig
+
+CELL = 0.05
+GRID = np.stack(
+    np.meshgrid(*(np.arange(n) * CELL + CELL / 2 for n in (50, 50, 42)), indexing="ij"), -1
+)
+
+
+def _cylinder(x: float, y: float, radius: float, height: float) -> np.ndarray:
+    """(X, Y, Z) bool: an upright cylinder standing on the floor at (x, y)."""
+    d = np.hypot(GRID[..., 0] - x, GRID[..., 1] - y)
+    return (d <= radius) & (GRID[..., 2] <= height)
+
+
+def _person(x: float, y: float, height: float) -> np.ndarray:
+    """(X, Y, Z) bool: legs and trunk 0.25 m in radius up to the shoulders, a head of 0.1 m."""
+    shoulders = 0.82 * height
+    return _cylinder(x, y, 0.25, shoulders) | _cylinder(x, y, 0.1, height)
+
+
+def test_two_touching_people_split_into_two_with_their_sizes():
+    tall = _person(1.0, 1.2, 1.8)
+    short = _person(1.0, 1.68, 1.55)  # 0.48 m apart: shoulder to shoulder
+    joined = tall | short
+    assert ndimage.label(joined, np.ones((3, 3, 3)))[1] == 1  # one connected body
+    stool = _cylinder(0.5, 0.4, 0.15, 0.45)  # too short to be anyone
+    labels, axes = split_hull(joined | stool, CELL)
+    assert labels.max() == 2 and len(axes) == 2
+    assert not labels[stool].any()
+    # The axes stand under the heads: (1.0, 1.2) and (1.0, 1.68) m, in cells.
+    np.testing.assert_allclose(axes * CELL + CELL / 2, [[1.0, 1.2], [1.0, 1.68]], atol=0.03)
+    # Numbered by their tops, highest first; each gets its own body's voxels.
+    for person, body, other in ((1, tall, short), (2, short, tall)):
+        mine = labels == person
+        own = body & ~other
+        assert np.count_nonzero(mine & own) / np.count_nonzero(own) > 0.97
+        assert abs(int(mine.sum()) - int(body.sum())) / body.sum() < 0.1
+        top = (np.nonzero(mine)[2].max() + 1) * CELL
+        assert top == pytest.approx(GRID[..., 2][body].max() + CELL / 2, abs=1e-9)
+
+
+def test_people_joined_by_a_hand_split_at_the_hand():
+    # Two people 0.8 m apart holding hands at 0.9 m: a thin bridge between them.
+    left, right = _cylinder(1.0, 0.8, 0.17, 1.75), _cylinder(1.0, 1.6, 0.17, 1.7)
+    hand = (
+        (np.abs(GRID[..., 0] - 1.0) <= 0.05)
+        & (GRID[..., 1] >= 0.8) & (GRID[..., 1] <= 1.6)
+        & (np.abs(GRID[..., 2] - 0.9) <= 0.05)
+    )  # fmt: skip
+    labels, _ = split_hull(left | right | hand, CELL)
+    assert labels.max() == 2
+    assert (labels[left & ~hand] == 1).all() and (labels[right & ~hand] == 2).all()
+    # The bridge parts at its middle (geodesic distance to each person's axis).
+    y = GRID[..., 1][hand & (labels == 1)]
+    assert y.max() <= 1.2 + CELL
+
+
+def test_one_person_is_one_and_an_empty_grid_nobody():
+    one = _cylinder(1.2, 1.2, 0.2, 1.7)
+    labels, axes = split_hull(one, CELL)
+    assert labels.max() == 1 and axes.shape == (1, 2) and (labels[one] == 1).all()
+    assert split_hull(np.zeros((4, 4, 4), bool), CELL)[0].max() == 0
+    with pytest.raises(InputError, match="split_hull"):
+        split_hull(np.zeros((4, 4)), CELL)
+
+
+def _toy_rig() -> CameraGroup:
+    """Two cameras 4 m from the origin: cam_a looks along +y, cam_b along -x."""
+    K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
+    target = np.array([0.0, 0.0, 1.0])
+    cams = []
+    for name, centre in (("cam_a", (0.0, -4.0, 1.0)), ("cam_b", (4.0, 0.0, 1.0))):
+        R, t = look_at(np.array(centre), target)
+        cams.append(Camera(name, (320, 240), K, R=R, t=t))
+    return CameraGroup(cams)
+
+
+def _box(centre, half=(0.15, 0.15), height=1.6, step=0.03) -> np.ndarray:
+    axes = [np.arange(c - h, c + h + 1e-9, step) for c, h in zip(centre, half, strict=True)]
+    axes.append(np.arange(step / 2, height, step))
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+
+
+def test_a_person_behind_another_is_occluded_where_the_nearer_one_covers_them():
+    rig = _toy_rig()
+    front, back = _box((0.0, -0.5)), _box((0.1, 0.5), height=1.8)  # back: behind, in cam_a
+    everything = [np.ones((240, 320), bool)] * 2
+    (fa, fb), (ba, bb) = person_views(rig, [front, back], everything, [2, 2])
+    # cam_a: the front person hides the middle of the back one, never the reverse.
+    overlap = ba.occluded | ba.mask  # the back person's projection (all silhouette here)
+    assert not fa.occluded.any()
+    assert np.array_equal(ba.occluded, overlap & fa.mask)
+    assert ba.occluded.sum() > 0.4 * overlap.sum()
+    assert not (ba.mask & fa.mask).any()
+    assert ba.mask.any()  # the head above the front person's stays visible
+    # cam_b sees them side by side: nobody is occluded.
+    assert not fb.occluded.any() and not bb.occluded.any()
+    assert fb.mask.any() and bb.mask.any() and not (fb.mask & bb.mask).any()
+    # Background in the silhouette stays background: neither explained nor occluded.
+    holes = [np.ones((240, 320), bool), np.ones((240, 320), bool)]
+    holes[0][:, :160] = False
+    (fa2, _), (ba2, _) = person_views(rig, [front, back], holes, [2, 2])
+    assert not (fa2.mask | ba2.mask | ba2.occluded)[:, :160].any()
+    assert np.array_equal(ba2.occluded[:, 160:], ba.occluded[:, 160:])
+    with pytest.raises(InputError, match="2 cameras, 1 masks"):
+        person_views(rig, [front], everything[:1], [2, 2])
+
+
+def _observe(x, y, height) -> PersonObservation:
+    return PersonObservation(np.array([x, y]), height, 1000)
+
+
+def test_tracks_keep_identities_through_a_crossing():
+    # A walks +x, B walks -x 0.45 m to the side: they pass each other at frame 2.
+    frames = []
+    for f in range(5):
+        a = _observe(-1.0 + 0.5 * f, 0.0, 1.82)
+        b = _observe(1.0 - 0.5 * f, 0.45, 1.78)
+        frames.append([b, a] if f % 2 else [a, b])  # order in the frame says nothing
+    tracks = track_persons(frames)
+    assert len(tracks) == 2
+    for track in tracks:
+        assert track.frames == (0, 1, 2, 3, 4)
+        assert len({round(float(o.position[1]), 2) for o in track.observations}) == 1
+    assert track_persons(frames) == tracks  # deterministic
+
+
+def test_a_person_who_leaves_and_comes_back_keeps_the_id_others_get_new_ones():
+    tracker = PersonTracker()
+    a, b = _observe(0.0, 0.0, 1.8), _observe(1.5, 0.0, 1.6)
+    first = tracker.update([a, b])
+    assert [o.id for o in first] == [0, 1]
+    assert [o.id for o in tracker.update([b])] == [1]  # A left
+    assert [o.id for o in tracker.update([b])] == [1]
+    back = tracker.update([_observe(0.1, 0.05, 1.78), b])
+    assert [o.id for o in back] == [0, 1]  # A is back where it left, same height
+    # Someone at A's place, far taller, or far from anyone known: new persons.
+    taller = tracker.update([_observe(0.0, 0.0, 1.8 + 0.4), b])
+    assert taller[0].id == 2
+    far = tracker.update([_observe(-2.0, 1.0, 1.8), b])
+    assert far[0].id == 3 and far[1].id == 1
+    assert tracker.update([]) == ()
+    with pytest.raises(InputError, match="gates"):
+        PersonTracker(gate=0)
+    assert TRACK_GATE > 0.5  # a walking person's step between kept frames
+
+
+def _cylinder_mask(camera, center, radius=0.18, height=1.7) -> np.ndarray:
+    a = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    ring = np.column_stack([center[0] + radius * np.cos(a), center[1] + radius * np.sin(a)])
+    pts = np.vstack([np.column_stack([ring, np.full(len(a), z)]) for z in (0.0, height)])
+    px = camera.project(pts).astype(np.float32)
+    mask = np.zeros((camera.size[1], camera.size[0]), np.uint8)
+    cv2.fillConvexPoly(mask, cv2.convexHull(px).astype(np.int32), 1)
+    return mask.astype(bool)
+
+
+def test_observe_persons_on_a_studio_rig():
+    rig = studio_rig(4, (320, 240), seed=3)
+    hull = VisualHull(rig, HullConfig(max_voxels=60_000))
+    places = {(-0.6, 0.0): 1.75, (0.6, 0.0): 1.55}
+    masks = [
+        np.logical_or.reduce([_cylinder_mask(cam, c, height=h) for c, h in places.items()])
+        for cam in rig
+    ]
+    # Four cameras around two people: the hull has two phantoms between them, as
+    # large as people; they explain no pixel of their own and are nobody.
+    assert hull.bodies(masks).persons == 4
+    people = observe_persons(hull, masks)
+    assert len(people) == 2
+    for obs, (centre, height) in zip(people, places.items(), strict=True):
+        assert np.linalg.norm(obs.position - np.array(centre)) < 0.1
+        assert obs.height == pytest.approx(height, abs=0.1)
+        assert len(obs.views) == 4 and obs.id is None
+    for c in range(4):
+        # Together the persons explain most of the silhouette, and no pixel twice.
+        explained = people[0].views[c].mask | people[1].views[c].mask
+        assert not (people[0].views[c].mask & people[1].views[c].mask).any()
+        assert explained.sum() > 0.9 * masks[c].sum()
+    one = observe_persons(hull, [_cylinder_mask(cam, (0.0, 0.0)) for cam in rig])
+    assert len(one) == 1 and not any(v.occluded.any() for v in one[0].views)
+
+
+def test_everyone_silhouettes_add_the_other_persons_change_where_the_hull_stands():
+    rig = studio_rig(4, (320, 240), seed=3)
+    hull = VisualHull(rig, HullConfig(max_voxels=60_000))
+    subject = [_cylinder_mask(cam, (-0.6, 0.0)) for cam in rig]
+    other = [_cylinder_mask(cam, (0.6, 0.0), height=1.55) for cam in rig]
+    changes = []
+    for s, o in zip(subject, other, strict=True):
+        blob = np.zeros_like(s)
+        blob[2:30, 2:20] = True  # one camera's change nobody else sees (not a person)
+        changes.append(s | o | blob)
+    bodies = hull.bodies(changes)
+    everyone = everyone_silhouettes(hull, bodies, subject, [*changes[:3], None])
+    for c in range(3):
+        assert (everyone[c] & subject[c]).sum() == subject[c].sum()
+        assert (everyone[c] & other[c] & ~subject[c]).sum() > 0.95 * (other[c] & ~subject[c]).sum()
+        assert not everyone[c][2:30, 2:20].any()
+    assert np.array_equal(everyone[3], subject[3])  # an unreadable view: the subject's
+
+
+def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
+    # Two coloured people 1.2 m apart in a plain room, background subtraction only.
+    rig = studio_rig(4, (320, 240), seed=3)
+    rng = np.random.default_rng(5)
+    w, h = 320, 240
+    empty = np.full((h, w, 3), 120.0)
+    models = [
+        BackgroundModel.from_frames(
+            cam.name, np.clip(empty + rng.normal(0, 2, (8, h, w, 3)), 0, 255).astype(np.uint8)
+        )
+        for cam in rig
+    ]
+    config = CaptureConfig(method="background", fusion=FusionConfig(enabled=True))
+    frame = FrameSegmenter(models, rig.sizes, config, None, None, rig)
+
+    def images(places):
+        out = []
+        for cam in rig:
+            img = empty.copy()
+            for (centre, height), colour in zip(
+                places.items(), ((200, 90, 40), (40, 60, 200)), strict=False
+            ):
+                img[_cylinder_mask(cam, centre, height=height)] = colour
+            out.append(np.clip(img + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8))
+        return out
+
+    two = {(-0.6, 0.0): 1.75, (0.6, 0.0): 1.55}
+    _, _, _, persons, people = frame(images(two))
+    assert persons >= 2 and len(people) == 2
+    for seen, (centre, height) in zip(people, two.items(), strict=True):
+        assert np.linalg.norm(seen.position[:2] - np.array(centre)) < 0.1
+        assert seen.height == pytest.approx(height, abs=0.1)
+        assert seen.views == 4 and seen.landmarks == (None,) * 4
+    _, _, _, persons, people = frame(images({(0.0, 0.0): 1.7}))
+    assert persons == 1 and people == ()
