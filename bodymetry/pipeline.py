@@ -797,6 +797,16 @@ def finish(
         warnings.append(f"no frame of the {len(ordered)} kept frames was measured")
     if shape is not None and shape.outline is not None:
         warnings.extend(shape.outline.warnings)
+    truth = SubjectTruth.read(session.ground_truth_path) if session.ground_truth_path else None
+    if truth is not None and config.person is not None:
+        # The session's truth is its subject's; which tracked person that is, is not
+        # known yet (evaluating each person against their own truth is issue 29):
+        # no comparison rather than one with somebody else's numbers.
+        warnings.append(
+            f"the session's ground truth is its subject's, and person {config.person} "
+            "is not matched to it: the run is not compared with it"
+        )
+        truth = None
     for text in warnings:
         log.warning("%s: %s", session.folder, text)
     results = RunResults(
@@ -814,9 +824,7 @@ def finish(
         summary=summarize(ordered, shape),
         timing_seconds={k: round(v, 1) for k, v in timing.items()},
         calibration_source=prepared.calibration_source,
-        ground_truth=(
-            SubjectTruth.read(session.ground_truth_path) if session.ground_truth_path else None
-        ),
+        ground_truth=truth,
         camera_frames=camera_frames,
         warnings=(*prepared.warnings, *warnings),
         working_resolution=prepared.resolution,

@@ -101,10 +101,18 @@ def evaluate_run(
     ------
     InputError
         When the run is missing or unreadable, its session has no ground truth,
-        or no frame was fitted.
+        no frame was fitted, or it measured a chosen person (``--person``).
     """
     data = load_run(run)
     layout: RunLayout = data.layout
+    if data.results.config.person is not None:
+        # The session's truth is its subject's, and which tracked person that is
+        # is not known yet: no comparison with somebody else's numbers.
+        raise InputError(
+            f"{layout.results}: the run measured person {data.results.config.person} "
+            "(--person); evaluating a chosen person against their own truth is not "
+            "supported yet"
+        )
     truth = data.ground_truth
     session = load_session(data.results.session.path) if data.session_folder else None
     gt_dir = session.ground_truth_path if session is not None else None
