@@ -106,6 +106,10 @@ class Sighting:
         Per camera, the pixels of theirs a nearer person covers (unknown, not
         background), where known: the hull's split gives them; empty from the
         segmenter's detections.
+    source : {"segmenter", "hull"}
+        How they were told apart: the segmenter's detections matched across
+        cameras (:func:`sightings`), or the split of the multi-view hull
+        (:func:`sighting_of`).
     """
 
     position: np.ndarray
@@ -114,6 +118,7 @@ class Sighting:
     occluded: tuple[bool, ...]
     height: float = float("nan")
     hidden: tuple[np.ndarray | None, ...] = ()
+    source: str = "segmenter"
 
     @property
     def views(self) -> int:
@@ -272,6 +277,7 @@ def sighting_of(observed: PersonObservation, share: float = HIDDEN_SHARE) -> Sig
         occluded=tuple(occluded),
         height=float(observed.height),
         hidden=tuple(hidden),
+        source="hull",
     )
 
 

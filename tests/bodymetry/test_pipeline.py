@@ -218,6 +218,9 @@ def test_choose_person_follows_one_person_through_the_frames(tmp_path):
     nobody = [replace(s, people=()) for s in seg]
     with pytest.raises(InputError, match="told no people apart"):
         pipeline.choose_person(prepared, nobody, ProcessConfig(person=0))
+    hull = [replace(s, people=tuple(replace(p, source="hull") for p in s.people)) for s in seg]
+    with pytest.raises(InputError, match="splitting the multi-view hull"):
+        pipeline.choose_person(prepared, hull, ProcessConfig(person=0))
 
 
 def test_the_chosen_person_is_a_setting_of_the_run():

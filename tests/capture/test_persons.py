@@ -257,6 +257,6 @@ def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
     for seen, (centre, height) in zip(people, two.items(), strict=True):
         assert np.linalg.norm(seen.position[:2] - np.array(centre)) < 0.1
         assert seen.height == pytest.approx(height, abs=0.1)
-        assert seen.views == 4 and seen.landmarks == (None,) * 4
+        assert seen.views == 4 and seen.landmarks == (None,) * 4 and seen.source == "hull"
     _, _, _, persons, people = frame(images({(0.0, 0.0): 1.7}))
     assert persons == 1 and people == ()
