@@ -52,7 +52,7 @@ from bodymetry.calibration.camera import CameraGroup
 from bodymetry.calibration.io import save_calibration
 from bodymetry.cameras import resolve_cameras
 from bodymetry.capture.background import BackgroundModel
-from bodymetry.capture.ground_truth import SubjectTruth
+from bodymetry.capture.ground_truth import SubjectTruth, match_person, person_folder
 from bodymetry.capture.ingest import SyncReport, check_sync
 from bodymetry.capture.landmarks import (
     LandmarkConfig,
@@ -807,16 +807,7 @@ def finish(
         warnings.append(f"no frame of the {len(ordered)} kept frames was measured")
     if shape is not None and shape.outline is not None:
         warnings.extend(shape.outline.warnings)
-    truth = SubjectTruth.read(session.ground_truth_path) if session.ground_truth_path else None
-    if truth is not None and config.person is not None:
-        # The session's truth is its subject's; which tracked person that is, is not
-        # known yet (evaluating each person against their own truth is issue 29):
-        # no comparison rather than one with somebody else's numbers.
-        warnings.append(
-            f"the session's ground truth is its subject's, and person {config.person} "
-            "is not matched to it: the run is not compared with it"
-        )
-        truth = None
+    truth = _truth(session, config, ordered, warnings)
     for text in warnings:
         log.warning("%s: %s", session.folder, text)
     results = RunResults(
@@ -843,6 +834,32 @@ def finish(
     )
     results.write(prepared.layout)
     return results
+
+
+def _truth(
+    session: Session, config: ProcessConfig, records: Sequence[FrameRecord], warnings: list[str]
+) -> SubjectTruth | None:
+    """The run's ground truth: the session's subject's, or for ``--person N`` the
+    studio person whose root the tracked person's fits follow
+    (:func:`bodymetry.capture.ground_truth.match_person`); None (and a warning
+    in ``warnings``) where that is not clear: no comparison rather than one with
+    somebody else's numbers."""
+    folder = session.ground_truth_path
+    if folder is None:
+        return None
+    if config.person is None:
+        return SubjectTruth.read(folder)
+    positions = {r.frame: r.estimates["generative"].state.tau[0] for r in records if r.fitted}
+    index, distance = match_person(folder, positions)
+    if index is None:
+        warnings.append(
+            f"person {config.person} is matched to none of the studio's people (nearest "
+            f"root {distance:.2f} m away on average, or two about as near): the run is not "
+            "compared with the ground truth"
+        )
+        return None
+    log.info("person %d is the studio's person %d (%.2f m)", config.person, index, distance)
+    return SubjectTruth.read(person_folder(folder, index))
 
 
 def review(prepared: PreparedRun, config: ProcessConfig, progress: Progress | None = None) -> None:

@@ -21,8 +21,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bodymetry.errors import InputError
-from bodymetry.fileio import read_json_object, write_json_atomic
+from bodymetry.fileio import load_npz, read_json_object, write_json_atomic
 
 __all__ = [
     "GROUND_TRUTH_OCCLUDED",
@@ -34,6 +36,7 @@ __all__ = [
     "MEASUREMENT_SUFFIXES",
     "StudioRecord",
     "SubjectTruth",
+    "match_person",
     "person_folder",
 ]
 
@@ -223,3 +226,54 @@ class StudioRecord:
 
     def write(self, ground_truth: Path) -> None:
         write_json_atomic(Path(ground_truth) / GROUND_TRUTH_STUDIO, self.to_json())
+
+
+#: A tracked person is the studio's person whose root lies within this (metres, mean
+#: floor distance over the frames both have) and nearer than every other person's by
+#: :data:`MATCH_MARGIN` times.
+MATCH_DISTANCE = 0.3
+MATCH_MARGIN = 2.0
+
+
+def match_person(ground_truth: Path, positions: dict[int, np.ndarray]) -> tuple[int | None, float]:
+    """Which of the studio's people a tracked person is, by where they stood.
+
+    Parameters
+    ----------
+    ground_truth : Path
+        A session's ``ground_truth/`` folder (the subject's ``states.npz`` there,
+        the others' under ``persons/<k>/``).
+    positions : dict of int to (2,) or (3,) float
+        Per session frame, the tracked person's root position (world, metres;
+        the floor coordinates are compared).
+
+    Returns
+    -------
+    index : int or None
+        The studio person (0: the subject), or None when nobody is within
+        :data:`MATCH_DISTANCE` or two are about as near (:data:`MATCH_MARGIN`).
+    distance : float
+        The chosen (or nearest) person's mean floor distance, metres (inf
+        without common frames).
+    """
+    ground_truth = Path(ground_truth)
+    distances = []
+    index = 0
+    while (person_folder(ground_truth, index) / GROUND_TRUTH_STATES).is_file():
+        states = load_npz(person_folder(ground_truth, index) / GROUND_TRUTH_STATES)
+        rows = {int(f): k for k, f in enumerate(states["frame"])}
+        d = [
+            float(np.linalg.norm(np.asarray(p, float)[:2] - states["tau"][rows[f], :2]))
+            for f, p in positions.items()
+            if f in rows
+        ]
+        distances.append(float(np.mean(d)) if d else np.inf)
+        index += 1
+    if not distances:
+        return None, np.inf
+    order = np.argsort(distances)
+    best = float(distances[order[0]])
+    second = float(distances[order[1]]) if len(order) > 1 else np.inf
+    if best > MATCH_DISTANCE or second < MATCH_MARGIN * best:
+        return None, best
+    return int(order[0]), best
