@@ -340,6 +340,10 @@ def test_prior_population_spans_children_and_adults(model, split):
     assert abs(np.mean(female) - 0.5) <= SHARE_ATOL
     with pytest.raises(ValueError, match="split"):
         model.prior_ages("test")
+    # The provenance says how the population was drawn and where ν = 0 is.
+    assert "sample_population" in model.provenance["population"]
+    assert model.provenance["bake_config"]["age_bands"][0] == [low, 9.0]
+    assert str(int(ADULT_YEARS)) in model.provenance["shape_origin"]
     # Children are shorter than adults in the space itself, not only in the labels.
     height = np.ptp(model.canonical_vertices(model.prior_shapes(split))[..., 2], axis=1)
     assert np.median(height[ages < 9.0]) < 1.35 < np.median(height[ages >= 18.0])

@@ -607,6 +607,14 @@ def _provenance(wheel: Path, config: BakeConfig, shape: ShapeSpace) -> dict:
         # The overhead test poses only enter the validation report, not the model.
         "bake_config": {k: v for k, v in asdict(config).items() if k != "n_overhead_poses"},
         "licences": LICENCES,
+        "population": (
+            "anny's calibrated phenotype prior, drawn by phenotype.sample_population: "
+            "the age bands x 2 sexes with equal counts, age stratified in its band, "
+            "height and weight a Latin hypercube of the sex's age-conditional Betas; "
+            f"training {int((shape.sample.age_years[shape.train] < ADULT_YEARS).sum())} "
+            f"children of {config.n_train_bodies}"
+        ),
+        "shape_origin": f"mean of the training bodies aged >= {ADULT_YEARS:g} years",
         "shape_std": shape.std.tolist(),
         "shape_explained_variance": shape.explained.tolist(),
     }
