@@ -559,8 +559,8 @@ def choose_person(
     known = 1 + max((i for frame in ids for i in frame), default=-1)
     if chosen >= known:
         raise InputError(
-            f"--person {chosen}: capture followed {known} people through this recording "
-            f"(0 to {known - 1})"
+            f"--person {chosen}: capture followed {known} "
+            f"{'person' if known == 1 else 'people'} through this recording (0 to {known - 1})"
         )
     names = prepared.cameras.names
     out = []
@@ -981,6 +981,7 @@ def run_session(
         prepared = prep_f.result()
     if config.person is not None:
         chosen_f = ex.submit(choose_person, prep_f, list(segmented.values()), config)
+        chosen_f.result()  # an unknown person is bad input: say so before training
         segmented = {f: ex.item(chosen_f, i) for i, f in enumerate(sorted(segmented))}
     t_sil = time.perf_counter() - t0
     ex.wait_warm()  # before training poses the body model here
