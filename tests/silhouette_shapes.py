@@ -53,3 +53,15 @@ def shifted(mask, dx, dy):
     ]
     assert out.sum() == mask.sum()
     return out
+
+
+def cylinder_mask(camera, center=(0.0, 0.0), radius: float = 0.2, height: float = 1.7):
+    """(H, W) bool: the filled projection of an upright cylinder standing on the floor
+    at ``center`` (x, y) metres (a stand-in person for the multi-view tests)."""
+    a = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    ring = np.column_stack([center[0] + radius * np.cos(a), center[1] + radius * np.sin(a)])
+    pts = np.vstack([np.column_stack([ring, np.full(len(a), z)]) for z in (0.0, height)])
+    px = camera.project(pts).astype(np.float32)
+    mask = np.zeros((camera.size[1], camera.size[0]), np.uint8)
+    cv2.fillConvexPoly(mask, cv2.convexHull(px).astype(np.int32), 1)
+    return mask.astype(bool)

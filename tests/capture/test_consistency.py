@@ -6,6 +6,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from silhouette_shapes import cylinder_mask
 
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.consistency import (
@@ -35,13 +36,7 @@ def hull(rig):
 
 def _cylinder_mask(camera, center=(0.0, 0.0), radius=0.2, height=1.7) -> np.ndarray:
     """(H, W) bool: the filled projection of an upright cylinder (the 'subject')."""
-    a = np.linspace(0, 2 * np.pi, 48, endpoint=False)
-    ring = np.column_stack([center[0] + radius * np.cos(a), center[1] + radius * np.sin(a)])
-    pts = np.vstack([np.column_stack([ring, np.full(len(a), z)]) for z in (0.0, height)])
-    px = camera.project(pts).astype(np.float32)
-    mask = np.zeros((camera.size[1], camera.size[0]), np.uint8)
-    cv2.fillConvexPoly(mask, cv2.convexHull(px).astype(np.int32), 1)
-    return mask.astype(bool)
+    return cylinder_mask(camera, center, radius, height)
 
 
 def _blob(camera, avoid: np.ndarray) -> np.ndarray:

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 from scipy import ndimage
+from silhouette_shapes import cylinder_mask
 
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.capture.background import BackgroundModel
@@ -171,13 +171,7 @@ def test_a_person_who_leaves_and_comes_back_keeps_the_id_others_get_new_ones():
 
 
 def _cylinder_mask(camera, center, radius=0.18, height=1.7) -> np.ndarray:
-    a = np.linspace(0, 2 * np.pi, 48, endpoint=False)
-    ring = np.column_stack([center[0] + radius * np.cos(a), center[1] + radius * np.sin(a)])
-    pts = np.vstack([np.column_stack([ring, np.full(len(a), z)]) for z in (0.0, height)])
-    px = camera.project(pts).astype(np.float32)
-    mask = np.zeros((camera.size[1], camera.size[0]), np.uint8)
-    cv2.fillConvexPoly(mask, cv2.convexHull(px).astype(np.int32), 1)
-    return mask.astype(bool)
+    return cylinder_mask(camera, center, radius, height)
 
 
 def test_observe_persons_on_a_studio_rig():

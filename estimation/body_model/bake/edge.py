@@ -166,14 +166,9 @@ def sample_group(
     """
     low, high = age_years
     years = rng.uniform(low, high, size=n) if high > low else np.full(n, float(low))
-    gender = rng.uniform(0.5, 1.0, size=n) if female else rng.uniform(0.0, 0.5, size=n)
-    if female:
-        gender = np.maximum(gender, np.nextafter(0.5, 1.0))  # strictly above the split
-    anny_age = prior.morphological_to_anny_age(years)
-    table = prior.female if female else prior.male
-    values = {"gender": gender, "age": anny_age}
+    values, table = phenotype.sex_and_age(prior, years, female, rng)
     for name in _CONDITIONALS:
-        alpha, beta = table[name].params(anny_age)
+        alpha, beta = table[name].params(values["age"])
         values[name] = rng.beta(alpha, beta)
     phenotypes = np.stack([values[k] for k in phenotype.PHENOTYPE_LABELS], axis=1)
     return AdultSample(phenotypes, years, np.full(n, female))

@@ -749,6 +749,27 @@ POPULATION_AGE_BANDS: tuple[tuple[float, float], ...] = (
 )
 
 
+def sex_and_age(
+    prior: ShapePrior, years: np.ndarray, female: bool, rng: np.random.Generator
+) -> tuple[dict[str, np.ndarray], object]:
+    """The phenotype values that sex and age fix, for bodies of ``years`` (n,).
+
+    Returns
+    -------
+    values : dict
+        ``gender`` (n,): drawn on the sex's side of anny's 0.5 split (strictly
+        above it for women), and ``age`` (n,): anny's age of ``years``.
+    table
+        The sex's age-conditional Beta distributions (``prior.female`` or ``.male``).
+    """
+    n = len(years)
+    gender = rng.uniform(0.5, 1.0, size=n) if female else rng.uniform(0.0, 0.5, size=n)
+    if female:
+        gender = np.maximum(gender, np.nextafter(0.5, 1.0))  # strictly above the split
+    values = {"gender": gender, "age": prior.morphological_to_anny_age(years)}
+    return values, prior.female if female else prior.male
+
+
 def _strata(m: int, rng: np.random.Generator) -> np.ndarray:
     """(m,) uniforms on [0, 1), one in each of m equal strata, in random order."""
     return (rng.permutation(m) + rng.uniform(size=m)) / m
@@ -809,12 +830,8 @@ def sample_population(
         if m == 0:
             continue
         years = low + (high - low) * _strata(m, rng)
-        gender = rng.uniform(0.5, 1.0, size=m) if female else rng.uniform(0.0, 0.5, size=m)
-        if female:
-            gender = np.maximum(gender, np.nextafter(0.5, 1.0))  # strictly above the split
-        anny_age = prior.morphological_to_anny_age(years)
-        table = prior.female if female else prior.male
-        values = {"gender": gender, "age": anny_age}
+        values, table = sex_and_age(prior, years, female, rng)
+        anny_age = values["age"]
         for name in _CONDITIONALS:
             alpha, beta = table[name].params(anny_age)
             if name in ("height", "weight"):
