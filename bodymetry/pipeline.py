@@ -528,9 +528,9 @@ def choose_person(
     The people capture found in each frame are given identities across the
     frames (:func:`bodymetry.capture.persons.track_ids`), and each frame's
     silhouettes, flags and landmarks become those of the chosen person: a view
-    where someone nearer touches them is flagged ``occluded`` (left out of that
-    frame's fit), one where they were not found ``empty``, and a frame without
-    them has no silhouette (its record says so).
+    where someone nearer hides part of them is flagged ``occluded`` (left out of
+    that frame's fit), one that shows nothing of them ``empty``, and a frame
+    without them has no silhouette (its record says so).
 
     Raises
     ------

@@ -39,6 +39,7 @@ __all__ = [
     "PersonGroup",
     "count_people",
     "group_people",
+    "landmark_pixels",
     "match_error",
 ]
 
@@ -64,6 +65,27 @@ _Z_RANGE = (-0.3, 2.6)
 _APART = 1e6
 
 
+def _seen(landmarks: np.ndarray, visibility: float = MIN_VISIBILITY) -> np.ndarray:
+    """(..., L) bool: the landmarks (..., L, 3) that are known and at least ``visibility``
+    visible."""
+    return np.isfinite(landmarks).all(axis=-1) & (landmarks[..., 2] >= visibility)
+
+
+def landmark_pixels(
+    views: Sequence[np.ndarray | None], rows: Sequence[int], visibility: float = MIN_VISIBILITY
+) -> np.ndarray:
+    """(C, L, 2) pixels of the landmarks ``rows`` (L) of each camera's (33, 3)
+    detection (None: not seen), NaN where not seen well enough, for
+    :meth:`CameraGroup.triangulate`."""
+    pixels = np.full((len(views), len(rows), 2), np.nan)
+    for c, lm in enumerate(views):
+        if lm is not None:
+            body = np.asarray(lm, float)[rows]
+            seen = _seen(body, visibility)
+            pixels[c, seen] = body[seen, :2]
+    return pixels
+
+
 def match_error(
     cameras: CameraGroup, a: np.ndarray, b: np.ndarray, floor_box: tuple | None = None
 ) -> float:
@@ -87,7 +109,7 @@ def match_error(
         body lies outside the capture volume.
     """
     pair = np.stack([np.asarray(a, float), np.asarray(b, float)])[:, _BODY]  # (2, L, 3)
-    shared = (np.isfinite(pair).all(axis=2) & (pair[..., 2] >= MIN_VISIBILITY)).all(axis=0)
+    shared = _seen(pair).all(axis=0)
     if shared.sum() < MIN_SHARED:
         return np.inf
     pixels = pair[:, shared, :2]
@@ -160,11 +182,8 @@ def group_people(
     """
     if len(people) != len(cameras):
         raise InputError(f"expected detections for {len(cameras)} cameras, got {len(people)}")
-    nodes = [
-        (c, k, np.asarray(lm, float))
-        for c, found in enumerate(people)
-        for k, lm in enumerate(found)
-    ]
+    found = [[np.asarray(lm, float) for lm in view] for view in people]
+    nodes = [(c, k, lm) for c, view in enumerate(found) for k, lm in enumerate(view)]
     if len({c for c, _, _ in nodes}) < min_views:
         return []
     n = len(nodes)
@@ -178,8 +197,6 @@ def group_people(
                 distance[i, j] = distance[j, i] = min(error, _APART)
     condensed = distance[np.triu_indices(n, k=1)]
     labels = fcluster(linkage(condensed, method="complete"), t=match, criterion="distance")
-    out = []
-    found = [[np.asarray(lm, float) for lm in view] for view in people]
     groups: list[list[int | None]] = []
     for g in np.unique(labels):
         members = [nodes[i] for i in np.flatnonzero(labels == g)]
@@ -205,13 +222,9 @@ def _body_pixels(
     found: Sequence[Sequence[np.ndarray]], detections: Sequence[int | None]
 ) -> np.ndarray:
     """(C, L, 2) pixels of a group's body landmarks (NaN: not seen well enough)."""
-    pixels = np.full((len(detections), len(_BODY), 2), np.nan)
-    for c, k in enumerate(detections):
-        if k is not None:
-            body = found[c][k][_BODY]
-            seen = np.isfinite(body).all(axis=1) & (body[:, 2] >= MIN_VISIBILITY)
-            pixels[c, seen] = body[seen, :2]
-    return pixels
+    return landmark_pixels(
+        [None if k is None else found[c][k] for c, k in enumerate(detections)], _BODY
+    )
 
 
 def _reassigned(
@@ -245,8 +258,7 @@ def _reassigned(
             points = cameras.triangulate(_body_pixels(found, others))
             for k, lm in enumerate(found[c]):
                 body = lm[_BODY]
-                seen = (np.isfinite(body).all(axis=1) & (body[:, 2] >= MIN_VISIBILITY)
-                        & np.isfinite(points).all(axis=1))  # fmt: skip
+                seen = _seen(body) & np.isfinite(points).all(axis=1)
                 if seen.sum() < MIN_SHARED:
                     continue
                 error = np.linalg.norm(camera.project(points[seen]) - body[seen, :2], axis=1)

@@ -21,7 +21,8 @@ in part behind another person or in full (whose pixels another detection's
 mask then holds): their skeleton, triangulated from the other cameras and
 projected, claims those pixels, and the same occlusion test applies.
 
-Identities across kept frames are given by :mod:`bodymetry.capture.tracks`.
+Identities across kept frames are given over all of them by
+:func:`bodymetry.capture.persons.track_ids`.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import CameraGroup
-from bodymetry.capture.headcount import group_people
+from bodymetry.capture.headcount import group_people, landmark_pixels
 from bodymetry.capture.person import LANDMARKS, Person
 from bodymetry.capture.persons import PersonObservation
 
@@ -190,15 +191,10 @@ def sightings(
                 mask = masks[c][k]
                 h = mask.shape[0]
                 bones = skeleton_mask(found[c][k].landmarks, mask.shape, round(BONE_WIDTH * h))
-                mine = _distance(cameras[c], g.position)
                 nearer = np.zeros_like(mask)
                 for other, others in zip(groups, index, strict=True):
                     j = others[c]
-                    if (
-                        other is not g
-                        and j is not None
-                        and (_distance(cameras[c], other.position) < mine)
-                    ):
+                    if other is not g and j is not None and depths[c][j] < depths[c][k]:
                         nearer |= masks[c][j]
                 hidden = bones is not None and (
                     np.count_nonzero(bones & nearer) > OCCLUDED_SHARE * np.count_nonzero(bones)
@@ -224,13 +220,7 @@ def sightings(
 def _triangulated(cameras: CameraGroup, views: Sequence[np.ndarray | None]) -> np.ndarray:
     """(33, 3) world landmarks from the cameras' (33, 3) detections (None: not seen);
     NaN where fewer than two cameras saw a landmark well enough."""
-    pixels = np.full((len(cameras), len(LANDMARKS), 2), np.nan)
-    for c, lm in enumerate(views):
-        if lm is not None:
-            lm = np.asarray(lm, float)
-            seen = np.isfinite(lm).all(axis=1) & (lm[:, 2] >= BONE_VISIBILITY)
-            pixels[c, seen] = lm[seen, :2]
-    return cameras.triangulate(pixels)
+    return cameras.triangulate(landmark_pixels(views, range(len(LANDMARKS)), BONE_VISIBILITY))
 
 
 def _projected(camera, points: np.ndarray) -> np.ndarray | None:

@@ -302,7 +302,7 @@ class PersonSegmenter:
             hidden |= grown[-1]
             work[hidden] = fill
             person = self.detect(work)
-            mask = None if person is None else person.mask(self.config.threshold)
+            mask = None if person is None else person.mask(cfg.threshold)
             if mask is None or not mask.any():
                 break
             overlap = [np.count_nonzero(mask & g) for g in grown]

@@ -611,17 +611,18 @@ class FrameSegmenter:
         """Segment one frame's images (None: unreadable): :class:`_FrameViews`."""
         evidence = [None if im is None else self.evidence(c, im) for c, im in enumerate(images)]
         # Background subtraction sees everyone; without a background clip the
-        # segmenter is asked for everyone (for the count only: the silhouettes stay
-        # the most prominent person's, checked across views as before).
+        # segmenter is asked for everyone (to count them and tell them apart: the
+        # frame's silhouettes stay the most prominent person's, checked across
+        # views as before).
         sees_all = any(ev is not None and ev.raw is not None for ev in evidence)
         bodies = self.bodies(evidence) if sees_all else None
         terms = self.geometry(evidence, bodies)
-        people = None if sees_all else self.people(images, evidence)
-        persons = (
-            (None if bodies is None else bodies.persons)
-            if sees_all
-            else (None if people is None else len(people))
-        )
+        if sees_all:
+            people = None
+            persons = None if bodies is None else bodies.persons
+        else:
+            people = self.people(images, evidence)
+            persons = None if people is None else len(people)
         views = [self._view(c, im, evidence[c], terms[c]) for c, im in enumerate(images)]
         agreement: list[float | None] = [None] * len(views)
         if self.hull is not None:
