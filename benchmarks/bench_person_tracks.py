@@ -54,8 +54,10 @@ MIN_VISIBLE = 200
 
 
 def session(folder: Path, seed: int) -> Path:
-    """Render (once) the two-person session of ``seed`` into ``folder/people2_seed<seed>``."""
-    out = folder / f"people2_seed{seed}"
+    """Render (once) the two-person session of ``seed`` into ``folder/tracks_people2_seed<seed>``
+    (not ``people2_seed<seed>``: ``python -m benchmarks persons`` renders other subjects
+    and motions under that name, and a shared folder must not hand one the other's)."""
+    out = folder / f"tracks_people2_seed{seed}"
     if not (out / "session.yaml").is_file():
         synthesize(
             out,
