@@ -40,6 +40,7 @@ it in :func:`segment` before the fit and the record.
 from __future__ import annotations
 
 import logging
+import math
 import multiprocessing as mp
 import time
 from collections.abc import Callable, Sequence
@@ -74,7 +75,7 @@ from bodymetry.estimation.outline_check import check_outline
 from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape, summarize
 from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.run_config import ProcessConfig
-from bodymetry.estimation.run_files import RunLayout, RunResults, SessionInfo
+from bodymetry.estimation.run_files import PersonResults, RunLayout, RunResults, SessionInfo
 from bodymetry.estimation.session_shape import fit_session_shape, session_frame
 from bodymetry.estimation.training import cached_models_path, load_or_train, rig_key
 from bodymetry.estimation.view_selection import (
@@ -99,6 +100,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "STEPS",
+    "PersonPlan",
     "PreparedRun",
     "RigModels",
     "SegmentedFrame",
@@ -109,9 +111,11 @@ __all__ = [
     "check_calibration",
     "choose_person",
     "finish",
+    "finish_person",
     "fit",
     "judged_agreement",
     "plan",
+    "plan_persons",
     "prepare",
     "rescue",
     "review",
@@ -259,6 +263,43 @@ class RigModels:
     seconds: float
 
 
+#: A tracked person is measured when seen in at least this share of the kept frames
+#: (and in at least two): a crowd of one frame (a passer-by, a phantom of the
+#: association) is named in a warning, not measured on one frame.
+MIN_PERSON_SHARE = 0.3
+
+
+@dataclass(frozen=True)
+class PersonPlan:
+    """Whom a run measures (:func:`plan_persons`).
+
+    Attributes
+    ----------
+    ids : tuple of int
+        The persons measured, by tracked identity; ``(0,)`` for the one subject.
+    told_apart : bool
+        Capture told them apart: each is fitted to their own pixels and landmarks
+        (:func:`choose_person`). False: one subject per frame, as capture's
+        silhouettes have it (anyone else in view may mix in; the run says so).
+    warnings : tuple of str
+        People followed but not measured (seen in too few kept frames).
+    """
+
+    ids: tuple[int, ...] = (0,)
+    told_apart: bool = False
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def several(self) -> bool:
+        """Whether the run measures more than one person (each in ``persons/K/``)."""
+        return len(self.ids) > 1
+
+    def layout_person(self, ident: int) -> int | None:
+        """The :meth:`RunLayout.for_person` index of person ``ident``'s frame files
+        (None: the run's own ``frames/``, as a run of one person keeps them)."""
+        return ident if self.several else None
+
+
 # --- the steps ------------------------------------------------------------------------------------
 def prepare(
     session_path: str | Path,
@@ -319,15 +360,18 @@ def plan(prepared: PreparedRun, config: ProcessConfig) -> SessionPlan:
     kept = {int(f) for f in report.kept}
     layout = prepared.layout
     done = read_done_frames(layout)
-    if not (layout.results.is_file() and set(done) == kept):
+    if not layout.results.is_file():
         return SessionPlan(report, done)
     try:
         recorded = RunResults.read(layout.results)
     except InputError as exc:
         log.warning("%s; summarizing the run again", exc)
         return SessionPlan(report, done)
+    # A run of several persons keeps each one's frames in persons/K/.
+    layouts = [layout.for_person(p.id if recorded.several else None) for p in recorded.persons]
     finished = (
-        {r.frame for r in recorded.frames} == kept
+        all({r.frame for r in p.frames} == kept for p in recorded.persons)
+        and all(set(read_done_frames(each)) == kept for each in layouts)
         and replace(recorded.config, workers=None) == replace(config, workers=None)
         and (not config.review or all(p.is_file() for p in layout.review_files))
     )
@@ -440,10 +484,12 @@ def judged_agreement(
 
 def needs_every_frame(config: ProcessConfig) -> bool:
     """Whether every kept frame is segmented before any frame is fitted: for the
-    calibration check (its landmarks) or to follow a chosen person through the
-    frames (:func:`choose_person`); otherwise only the pending frames are."""
+    calibration check (its landmarks) or to follow people through the frames
+    (:func:`plan_persons`, where the segmenter tells them apart); otherwise only
+    the pending frames are."""
     return config.person is not None or (
-        config.capture.landmarks.refine_calibration and config.capture.uses_segmenter
+        config.capture.uses_segmenter
+        and (config.capture.landmarks.refine_calibration or not config.largest)
     )
 
 
@@ -519,33 +565,35 @@ def check_calibration(
     )
 
 
-def choose_person(
+def plan_persons(
     prepared: PreparedRun, segmented: Sequence[SegmentedFrame], config: ProcessConfig
-) -> list[SegmentedFrame]:
-    """Every kept frame as person ``config.person`` of the capture sees it
-    (``process --person N``).
+) -> PersonPlan:
+    """Whom the run measures: every person capture tells apart and follows through
+    enough kept frames, ``process --person N``'s one, or else the one subject.
 
-    The people capture found in each frame are given identities across the
-    frames (:func:`bodymetry.capture.persons.track_ids`), and each frame's
-    silhouettes, flags and landmarks become those of the chosen person: a view
-    where someone nearer hides part of them is flagged ``occluded`` (left out of
-    that frame's fit), one that shows nothing of them ``empty``, and a frame
-    without them has no silhouette (its record says so).
+    Identities are given over all kept frames
+    (:func:`bodymetry.capture.persons.track_ids`). Where capture tells no people
+    apart (one person in view, an empty-scene clip whose hull split is too coarse
+    to measure, ``--largest``), the run measures one subject per frame, as today.
 
     Raises
     ------
     InputError
-        When capture told no people apart, or the recording has no person ``N``.
+        For ``--person N`` when capture told no people apart, or the recording
+        has no person ``N``.
     """
     chosen = config.person
     ordered = sorted(segmented, key=lambda s: s.frame)
-    if not any(s.people for s in ordered):
+    from_segmenter = [[p for p in s.people if p.source != "hull"] for s in ordered]
+    if chosen is None and (config.largest or not any(from_segmenter)):
+        return PersonPlan()
+    if chosen is not None and not any(s.people for s in ordered):
         raise InputError(
             f"--person {chosen}: capture told no people apart in this recording (one person "
             "in view, no calibrated rig, or a session with an empty-scene clip, where people "
             "are not told apart yet); run without --person to measure the subject"
         )
-    if all(p.source == "hull" for s in ordered for p in s.people):
+    if chosen is not None and not any(from_segmenter):
         # Measured on two-person studio sessions, the hull's split gives each person
         # masks too coarse to measure (mean IoU 0.70 against their truth; the fits
         # failed the quality gate or read kilograms off): no numbers rather than
@@ -557,11 +605,48 @@ def choose_person(
         )
     ids = track_ids([s.people for s in ordered])
     known = 1 + max((i for frame in ids for i in frame), default=-1)
-    if chosen >= known:
-        raise InputError(
-            f"--person {chosen}: capture followed {known} "
-            f"{'person' if known == 1 else 'people'} through this recording (0 to {known - 1})"
-        )
+    if chosen is not None:
+        if chosen >= known:
+            raise InputError(
+                f"--person {chosen}: capture followed {known} "
+                f"{'person' if known == 1 else 'people'} through this recording (0 to {known - 1})"
+            )
+        return PersonPlan((chosen,), told_apart=True)
+    seen = {i: sum(i in frame for frame in ids) for i in range(known)}
+    need = max(2, math.ceil(MIN_PERSON_SHARE * len(ordered)))
+    measured = tuple(i for i, n in seen.items() if n >= need)
+    warnings = tuple(
+        f"person {i} was seen in only {n} of {len(ordered)} kept frames and is not measured "
+        f"(at least {need} wanted)"
+        for i, n in seen.items()
+        if n < need
+    )
+    if len(measured) < 2:
+        # One person followed through the recording: the one subject, measured as
+        # capture's silhouettes have them (a one-person run is unchanged).
+        return PersonPlan(warnings=warnings)
+    log.info("measuring %d people: %s", len(measured), ", ".join(map(str, measured)))
+    return PersonPlan(measured, told_apart=True, warnings=warnings)
+
+
+def choose_person(
+    prepared: PreparedRun,
+    segmented: Sequence[SegmentedFrame],
+    config: ProcessConfig,
+    chosen: int,
+) -> list[SegmentedFrame]:
+    """Every kept frame as person ``chosen`` of the capture sees it (in frame order).
+
+    The people capture found in each frame are given identities across the
+    frames (:func:`bodymetry.capture.persons.track_ids`, as in
+    :func:`plan_persons`), and each frame's silhouettes, flags and landmarks
+    become those of the chosen person: a view where someone nearer hides part
+    of them is flagged ``occluded`` (left out of that frame's fit), one that
+    shows nothing of them ``empty``, and a frame without them has no silhouette
+    (its record says so).
+    """
+    ordered = sorted(segmented, key=lambda s: s.frame)
+    ids = track_ids([s.people for s in ordered])
     names = prepared.cameras.names
     out = []
     for seg, frame_ids in zip(ordered, ids, strict=True):
@@ -652,14 +737,20 @@ def fit_job_of(
 
 
 def fit(
-    prepared: PreparedRun, models: RigModels, seg: SegmentedFrame, config: ProcessConfig
+    prepared: PreparedRun,
+    models: RigModels,
+    seg: SegmentedFrame,
+    config: ProcessConfig,
+    person: int | None = None,
 ) -> FrameRecord:
-    """Fit one frame and write it (:func:`bodymetry.frame_jobs.write_frame`).
+    """Fit one frame and write it (:func:`bodymetry.frame_jobs.write_frame`) into the
+    frame files of ``person`` (:meth:`PersonPlan.layout_person`; None: the run's own).
 
     Returns the record as written (rounded as in the file), so that a fresh
     run and a resumed one summarize exactly the same numbers.
     """
-    return write_frame(prepared.layout, run_fit_job(fit_job_of(prepared, models, seg, config)))
+    layout = prepared.layout.for_person(person)
+    return write_frame(layout, run_fit_job(fit_job_of(prepared, models, seg, config)))
 
 
 def rescue(
@@ -669,12 +760,13 @@ def rescue(
     config: ProcessConfig,
     run_jobs: Callable[[Sequence[FitJob]], list[FrameFit]],
     progress: Progress | None = None,
+    person: int | None = None,
 ) -> dict[int, FrameRecord]:
     """The frames below the session's quality gate, fitted again from their neighbours
     (:func:`bodymetry.frame_jobs.rescue_poor_frames`); ``run_jobs`` fits a round's jobs
-    on the executor's workers."""
+    on the executor's workers. ``person``: as in :func:`fit`."""
     return rescue_poor_frames(
-        prepared.layout,
+        prepared.layout.for_person(person),
         records,
         prepared.cameras,
         models.path,
@@ -690,13 +782,14 @@ def session_stage(
     config: ProcessConfig,
     records: Sequence[FrameRecord],
     progress: Progress | None = None,
+    person: int | None = None,
 ) -> tuple[SessionShape | None, list[FrameRecord]]:
     """One shape for the session (:mod:`bodymetry.estimation.session_shape`).
 
     Reads the accepted frames' silhouettes back from the run folder (the
-    ``frames/FFFFFF.npz`` written with their records), so it runs the same
-    after a resumed run. The frame records on disk are left as they are: the
-    ``session`` estimates live in ``results.json``.
+    ``frames/FFFFFF.npz`` written with their records; ``person``: as in
+    :func:`fit`), so it runs the same after a resumed run. The frame records on disk
+    are left as they are: the ``session`` estimates live in ``results.json``.
 
     Returns
     -------
@@ -709,12 +802,11 @@ def session_stage(
     if not config.session_shape.enabled:
         return None, list(records)
     ok = [r for r in records if r.ok]
+    layout = prepared.layout.for_person(person)
     log.info("%s: session shape from %d accepted frames", prepared.session.folder, len(ok))
     try:
         frames = [
-            session_frame(
-                r, FrameArrays.load(prepared.layout.frame_arrays(r.frame)), prepared.cameras
-            )
+            session_frame(r, FrameArrays.load(layout.frame_arrays(r.frame)), prepared.cameras)
             for r in ok
         ]
         shape = fit_session_shape(
@@ -773,33 +865,29 @@ def camera_warnings(
     return out + [view.describe(bound) for view in left_out_views(records, names)]
 
 
-def finish(
+def finish_person(
     prepared: PreparedRun,
     config: ProcessConfig,
-    models: RigModels,
     records: dict[int, FrameRecord],
-    timing: dict[str, float],
+    persons: PersonPlan,
+    ident: int,
     progress: Progress | None = None,
-) -> RunResults:
-    """Hold the recorded frames to the session's quality gate, fit the session's one
-    shape (:func:`session_stage`) and write ``results.json``."""
+) -> PersonResults:
+    """One person's results: their recorded frames held to their quality gate, their
+    session stage (:func:`session_stage`), warnings and ground truth."""
     session = prepared.session
+    name = f"{session.folder}" + (f" person {ident}" if persons.told_apart else "")
     gate, gated = session_gate([records[f] for f in sorted(records)], config.fit)
-    t0 = time.perf_counter()
-    shape, gated = session_stage(prepared, config, gated, progress)
-    if shape is not None:
-        timing = {**timing, "session_shape": time.perf_counter() - t0}
+    shape, gated = session_stage(prepared, config, gated, progress, persons.layout_person(ident))
     ordered = tuple(gated)
     if gate.threshold < gate.min_iou:
         log.info(
-            "%s: quality gate %.2f (the session's good frames score %.2f; min_iou %.2f)",
-            session.folder,
+            "%s: quality gate %.2f (the good frames score %.2f; min_iou %.2f)",
+            name,
             gate.threshold,
             gate.reference,
             gate.min_iou,
         )
-    # A view left out of a frame (too few pixels, unreadable, unreliable) does not count.
-    camera_frames = usable_camera_frames(ordered, session.camera_names)
     warnings = camera_warnings(
         ordered, session.camera_names, bound=config.capture.fusion.min_agreement
     )
@@ -807,9 +895,39 @@ def finish(
         warnings.append(f"no frame of the {len(ordered)} kept frames was measured")
     if shape is not None and shape.outline is not None:
         warnings.extend(shape.outline.warnings)
-    truth = _truth(session, config, ordered, warnings)
+    truth = _truth(session, ordered, warnings, ident if persons.told_apart else None)
+    for text in warnings:
+        log.warning("%s: %s", name, text)
+    return PersonResults(
+        id=ident,
+        frames=ordered,
+        summary=summarize(ordered, shape),
+        told_apart=persons.told_apart,
+        # A view left out of a frame (too few pixels, unreadable, unreliable) does not count.
+        camera_frames=usable_camera_frames(ordered, session.camera_names),
+        warnings=tuple(warnings),
+        ground_truth=truth,
+        quality_gate=gate,
+        session_shape=shape,
+    )
+
+
+def finish(
+    prepared: PreparedRun,
+    config: ProcessConfig,
+    models: RigModels,
+    persons: Sequence[PersonResults],
+    timing: dict[str, float],
+    warnings: Sequence[str] = (),
+) -> RunResults:
+    """Write ``results.json``: every person's results (:func:`finish_person`) and the
+    run's own (``warnings``: :attr:`PersonPlan.warnings`)."""
+    session = prepared.session
     for text in warnings:
         log.warning("%s: %s", session.folder, text)
+    shapes = [p.session_shape.seconds for p in persons if p.session_shape is not None]
+    if shapes:
+        timing = {**timing, "session_shape": sum(shapes)}
     results = RunResults(
         session=SessionInfo(
             path=str(session.folder.resolve()),
@@ -821,44 +939,39 @@ def finish(
         config=config,
         models=models.key,
         models_reused=models.reused,
-        frames=ordered,
-        summary=summarize(ordered, shape),
+        persons=tuple(persons),
         timing_seconds={k: round(v, 1) for k, v in timing.items()},
         calibration_source=prepared.calibration_source,
-        ground_truth=truth,
-        camera_frames=camera_frames,
         warnings=(*prepared.warnings, *warnings),
         working_resolution=prepared.resolution,
-        quality_gate=gate,
-        session_shape=shape,
     )
     results.write(prepared.layout)
     return results
 
 
 def _truth(
-    session: Session, config: ProcessConfig, records: Sequence[FrameRecord], warnings: list[str]
+    session: Session, records: Sequence[FrameRecord], warnings: list[str], person: int | None
 ) -> SubjectTruth | None:
-    """The run's ground truth: the session's subject's, or for ``--person N`` the
-    studio person whose root the tracked person's fits follow
+    """A person's ground truth: the session's subject's, or for a person capture told
+    apart (``person``) the studio person whose root their fits follow
     (:func:`bodymetry.capture.ground_truth.match_person`); None (and a warning
     in ``warnings``) where that is not clear: no comparison rather than one with
     somebody else's numbers."""
     folder = session.ground_truth_path
     if folder is None:
         return None
-    if config.person is None:
+    if person is None:
         return SubjectTruth.read(folder)
     positions = {r.frame: r.estimates["generative"].state.tau[0] for r in records if r.fitted}
     index, distance = match_person(folder, positions)
     if index is None:
         warnings.append(
-            f"person {config.person} is matched to none of the studio's people (nearest "
+            f"person {person} is matched to none of the studio's people (nearest "
             f"root {distance:.2f} m away on average, or two about as near): the run is not "
             "compared with the ground truth"
         )
         return None
-    log.info("person %d is the studio's person %d (%.2f m)", config.person, index, distance)
+    log.info("person %d is the studio's person %d (%.2f m)", person, index, distance)
     return SubjectTruth.read(person_folder(folder, index))
 
 
@@ -882,10 +995,12 @@ STEPS: tuple[Callable, ...] = (
     backgrounds,
     segment,
     check_calibration,
+    plan_persons,
     choose_person,
     train,
     fit,
     rescue,
+    finish_person,
     finish,
     review,
 )
@@ -979,25 +1094,56 @@ def run_session(
     if every:
         prep_f = ex.submit(check_calibration, prep_f, list(segmented.values()), config)
         prepared = prep_f.result()
-    if config.person is not None:
-        chosen_f = ex.submit(choose_person, prep_f, list(segmented.values()), config)
-        chosen_f.result()  # an unknown person is bad input: say so before training
-        segmented = {f: ex.item(chosen_f, i) for i, f in enumerate(sorted(segmented))}
+    # Whom to measure (an unknown --person is bad input: said before training).
+    persons = (
+        ex.submit(plan_persons, prep_f, list(segmented.values()), config).result()
+        if every
+        else PersonPlan()
+    )
+    # Per person, each kept frame's silhouettes as theirs and the frames left to fit.
+    frames_of: dict[int, dict] = {}
+    done: dict[int, dict[int, FrameRecord]] = {}
+    for ident in persons.ids:
+        layout_person = persons.layout_person(ident)
+        done[ident] = (
+            dict(planned.done)
+            if layout_person is None
+            else read_done_frames(prepared.layout.for_person(layout_person))
+        )
+        if persons.told_apart:
+            chosen_f = ex.submit(choose_person, prep_f, list(segmented.values()), config, ident)
+            frames_of[ident] = {f: ex.item(chosen_f, i) for i, f in enumerate(sorted(segmented))}
+        else:
+            frames_of[ident] = segmented
     t_sil = time.perf_counter() - t0
     ex.wait_warm()  # before training poses the body model here
     rig = rig_of(prepared, config)
     models_f = ex.shared(rig, train, prep_f, config, local)
     models: RigModels = models_f.result()
     t1 = time.perf_counter()
-    fits = ex.submit_many(fit, [(prep_f, models_f, segmented[f], config) for f in planned.pending])
-    done, new = _gathered(ex, fits, planned, progress)
-    done = ex.submit(rescue, prep_f, models_f, done, config, ex.job_runner(), local).result()
+    jobs = [
+        (ident, (prep_f, models_f, frames_of[ident][f], config, persons.layout_person(ident)))
+        for ident in persons.ids
+        for f in planned.kept
+        if f not in done[ident]
+    ]
+    fits = ex.submit_many(fit, [args for _, args in jobs])
+    new = _gathered(ex, fits, [ident for ident, _ in jobs], done, len(planned.kept), progress)
+    for ident in persons.ids:
+        done[ident] = ex.submit(
+            rescue, prep_f, models_f, done[ident], config, ex.job_runner(), local,
+            persons.layout_person(ident),
+        ).result()  # fmt: skip
     cpu = sum(r.seconds.get("total", 0.0) for r in new)
     timing = {"training": models.seconds, "fitting_cpu": cpu}
     if not ex.remote:  # wall times of this session's own work (on Dask, steps interleave)
         timing |= {"silhouettes": t_sil, "fitting": time.perf_counter() - t1}
+    people = [
+        ex.submit(finish_person, prep_f, config, done[ident], persons, ident, local).result()
+        for ident in persons.ids
+    ]
     timing["total"] = time.perf_counter() - t0
-    results = ex.submit(finish, prep_f, config, models_f, done, timing, local).result()
+    results = ex.submit(finish, prep_f, config, models_f, people, timing, persons.warnings).result()
     ex.submit(review, prep_f, config, local).result()
     return SessionRun(results, rig, models)
 
@@ -1012,18 +1158,28 @@ def _per_frame(ex: Executor, chunks: Sequence[tuple[int, ...]], chunk_fs: Sequen
 
 
 def _gathered(
-    ex: Executor, fits: Sequence, planned: SessionPlan, progress: Progress | None
-) -> tuple[dict[int, FrameRecord], list[FrameRecord]]:
-    """Every kept frame's record once the fits are in (recorded before, and new), and
-    the new ones; ``progress("frames", ...)`` as each fit ends."""
-    done = dict(planned.done)
+    ex: Executor,
+    fits: Sequence,
+    owners: Sequence[int],
+    done: dict[int, dict[int, FrameRecord]],
+    n_kept: int,
+    progress: Progress | None,
+) -> list[FrameRecord]:
+    """The new records once the fits are in, each added to its person's ``done``
+    (``owners``: the person of each fit); ``progress("frames", ...)`` as each fit ends,
+    over every person's kept frames."""
+    owner = dict(zip(fits, owners, strict=True))
     new: list[FrameRecord] = []
-    if progress:
-        progress("frames", len(done), len(planned.kept))
+    total = n_kept * len(done)
+
+    def report() -> None:
+        if progress:
+            progress("frames", sum(len(d) for d in done.values()), total)
+
+    report()
     for future in ex.as_completed(fits):
         record = future.result()
         new.append(record)
-        done[record.frame] = record
-        if progress:
-            progress("frames", len(done), len(planned.kept))
-    return done, new
+        done[owner[future]][record.frame] = record
+        report()
+    return new

@@ -75,6 +75,8 @@ def config_fingerprint(config: ProcessConfig) -> str:
     }
     if config.person is not None:  # absent otherwise: runs of one subject keep their hash
         relevant["person"] = config.person
+    if config.largest:
+        relevant["largest"] = True
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
 
 

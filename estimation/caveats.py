@@ -94,7 +94,7 @@ def run_caveats(
     records: Sequence[FrameRecord],
     cameras: Sequence[str],
     outline_warnings: Sequence[str] = (),
-    chosen_person: int | None = None,
+    told_apart: bool = False,
 ) -> tuple[Caveat, ...]:
     """The caveats of a run (module docstring), in :data:`CAVEAT_CODES` order.
 
@@ -106,9 +106,10 @@ def run_caveats(
         The session's camera names.
     outline_warnings : sequence of str
         The session stage's outline-check warnings (loose clothing, hair).
-    chosen_person : int or None
-        The person the run measured (``process --person N``): others in view
-        then do not mix into its numbers, and ``several_persons`` is not raised.
+    told_apart : bool
+        Capture told the measured person apart from the others in view (a run of
+        several persons, or ``process --person N``): others then do not mix into
+        the numbers, and ``several_persons`` is not raised.
 
     Returns
     -------
@@ -122,9 +123,7 @@ def run_caveats(
     if not measured:
         return ()
     out = []
-    crowded = [
-        r for r in ordered if chosen_person is None and r.persons is not None and r.persons > 1
-    ]
+    crowded = [r for r in ordered if not told_apart and r.persons is not None and r.persons > 1]
     if crowded:
         # A count above one is "more than one": the hull's phantoms can add to it.
         out.append(
@@ -134,7 +133,7 @@ def run_caveats(
                 f"frames ({_frame_list([r.frame for r in crowded])}): bodymetry measures one "
                 "subject per frame (the largest body, or the most prominent person where there "
                 "is no empty-scene clip), so these measurements may mix people; without an "
-                "empty-scene clip, --person N measures one of them",
+                "empty-scene clip, bodymetry measures each person (unless --largest)",
                 tuple(r.frame for r in crowded),
             )
         )

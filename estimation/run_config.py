@@ -72,9 +72,13 @@ class ProcessConfig:
     person : int or None
         Measure this person of a multi-person recording (``--person N``; the
         identities capture follows through the frames, numbered from 0 in the
-        order they are first seen: :mod:`bodymetry.capture.tracks`). None: one
-        subject per frame, the largest body (a run with several people in view
-        says so).
+        order they are first seen: :func:`bodymetry.capture.persons.track_ids`).
+        None: every person capture tells apart (each with their own fits,
+        session stage and summary), else the one subject.
+    largest : bool
+        Measure one subject per frame, the largest body (the most prominent
+        person without an empty-scene clip), even where capture tells people
+        apart (``--largest``; a run with several people in view says so).
     """
 
     quality: str = "default"
@@ -89,6 +93,7 @@ class ProcessConfig:
     review: bool = True
     pdf: bool = False
     person: int | None = None
+    largest: bool = False
 
     def __post_init__(self) -> None:
         if self.quality not in PRESETS:
@@ -104,6 +109,10 @@ class ProcessConfig:
             raise InputError(f"workers: expected >= 1, got {self.workers}")
         if self.person is not None and self.person < 0:
             raise InputError(f"person: expected a person number >= 0, got {self.person}")
+        if self.largest and self.person is not None:
+            raise InputError(
+                f"largest: measures one subject, person: measures person {self.person}; choose one"
+            )
         if self.pdf and not self.review:
             raise InputError("pdf: a PDF report needs the review outputs (review=true)")
 

@@ -21,7 +21,7 @@ older or foreign file gets a clear error naming it, not a ``KeyError``.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -46,13 +46,16 @@ __all__ = [
     "GT_STAGE",
     "MANIFEST_FORMAT",
     "MEASUREMENTS_CSV",
+    "PERSONS_DIR",
     "RECORDING_MCAP",
     "RECORDING_RRD",
     "REPORT_HTML",
     "REPORT_PDF",
     "RESULTS_FORMAT",
+    "RESULTS_FORMATS_READ",
     "STUDY_FORMAT",
     "Evaluation",
+    "PersonResults",
     "RigEntry",
     "RunLayout",
     "RunManifest",
@@ -62,8 +65,11 @@ __all__ = [
     "StudySession",
 ]
 
-#: Version of ``results.json`` written by this code (1: before the typed schema).
-RESULTS_FORMAT = 2
+#: Version of ``results.json`` written by this code (1: before the typed schema;
+#: 2: one subject, its ``frames`` and ``summary`` at the top level, still read).
+RESULTS_FORMAT = 3
+#: The results formats this code reads.
+RESULTS_FORMATS_READ = (2, 3)
 #: Version of ``run.json``.
 MANIFEST_FORMAT = 1
 #: Version of ``evaluation.json`` (1: the generative stage was ``disc_generative``).
@@ -74,6 +80,8 @@ RECORDING_MCAP = "recording.mcap"
 REPORT_HTML = "report.html"
 REPORT_PDF = "report.pdf"
 MEASUREMENTS_CSV = "measurements.csv"
+#: Where a run of several persons keeps each one's frame files (``persons/K/...``).
+PERSONS_DIR = "persons"
 #: The evaluation's extra stage: the generative fit started from the true pose
 #: (the paper's "GT + Generative"), beside the run's :data:`STAGES`.
 GT_STAGE = "gt_generative"
@@ -89,6 +97,16 @@ class RunLayout:
     """
 
     folder: Path
+    person: int | None = None
+
+    def for_person(self, person: int | None) -> RunLayout:
+        """The layout of one person's frame files (``persons/K/frames``, ``persons/K/meshes``);
+        ``None``: the run's subject (``frames``, ``meshes``), as a one-person run keeps them."""
+        return RunLayout(self.folder, person)
+
+    @property
+    def _person_root(self) -> Path:
+        return self.folder if self.person is None else self.folder / PERSONS_DIR / str(self.person)
 
     @property
     def manifest(self) -> Path:
@@ -101,11 +119,11 @@ class RunLayout:
 
     @property
     def frames_dir(self) -> Path:
-        return self.folder / "frames"
+        return self._person_root / "frames"
 
     @property
     def meshes_dir(self) -> Path:
-        return self.folder / "meshes"
+        return self._person_root / "meshes"
 
     @property
     def calibration(self) -> Path:
@@ -134,8 +152,9 @@ class RunLayout:
             self.manifest,
             self.results,
             self.evaluation,
-            self.frames_dir,
-            self.meshes_dir,
+            self.folder / "frames",
+            self.folder / "meshes",
+            self.folder / PERSONS_DIR,
             self.calibration,
             self.calibration_report,
             *self.review_files,
@@ -199,38 +218,139 @@ class SessionInfo:
 
 
 @dataclass(frozen=True)
+class PersonResults:
+    """One person of a run: their kept frames, summary and session stage.
+
+    Attributes
+    ----------
+    id : int
+        Their identity, tracked across the kept frames (0, 1, ...; docs/capture.md,
+        "Persons and occlusion"). A run of one subject has the one person 0.
+    frames : tuple of FrameRecord
+        Every kept frame, in frame order, as this person's fit recorded it.
+    summary : dict of str to dict of str to Stat
+        Per stage and measurement, over their ``ok`` frames.
+    told_apart : bool
+        Capture told this person apart from the others in view (their own pixels
+        and landmarks were fitted); False for the subject of a one-subject run,
+        where anyone else in view may have mixed into the numbers.
+    camera_frames : dict of str to int
+        Per camera, the kept frames in which it saw a usable silhouette of them.
+    warnings : tuple of str
+        What the user should know about this person's numbers.
+    ground_truth : SubjectTruth or None
+        The studio person's true measurements (matched by position for a run of
+        several persons), when the session has them.
+    quality_gate : SessionGate or None
+        The gate their frames' statuses were set by.
+    session_shape : SessionShape or None
+        Their session stage; None when it was disabled.
+    """
+
+    id: int
+    frames: tuple[FrameRecord, ...]
+    summary: dict[str, dict[str, Stat]]
+    told_apart: bool = False
+    camera_frames: dict[str, int] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    ground_truth: SubjectTruth | None = None
+    quality_gate: SessionGate | None = None
+    session_shape: SessionShape | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "id": self.id,
+            "told_apart": self.told_apart,
+            "frames": [r.to_json() for r in self.frames],
+            "summary": {
+                stage: {k: s.to_json() for k, s in stats.items()}
+                for stage, stats in self.summary.items()
+            },
+            "camera_frames": self.camera_frames,
+            "warnings": list(self.warnings),
+        }
+        if self.quality_gate is not None:
+            out["quality_gate"] = self.quality_gate.to_json()
+        if self.session_shape is not None:
+            out["session_shape"] = self.session_shape.to_json()
+        if self.ground_truth is not None:
+            out["ground_truth"] = self.ground_truth.to_json()
+        return out
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any], where: str, default_id: int = 0) -> PersonResults:
+        """One person's object (or, for format 2, the whole file's top level)."""
+        if not isinstance(data.get("frames"), list):
+            raise InputError(
+                f"{where}: no 'frames' list; not a results file of `bodymetry process`"
+            )
+        frames = tuple(
+            sorted(
+                (
+                    FrameRecord.from_json(f, f"{where}: frames[{i}]")
+                    for i, f in enumerate(data["frames"])
+                ),
+                key=lambda r: r.frame,
+            )
+        )
+        ident = data.get("id", default_id)
+        if isinstance(ident, bool) or not isinstance(ident, int) or ident < 0:
+            raise InputError(f"{where}: 'id' must be a whole number >= 0, got {ident!r}")
+        return cls(
+            id=ident,
+            frames=frames,
+            summary={
+                stage: {k: Stat.from_json(v) for k, v in stats.items()}
+                for stage, stats in data.get("summary", {}).items()
+            },
+            told_apart=bool(data.get("told_apart", False)),
+            camera_frames={k: int(v) for k, v in data.get("camera_frames", {}).items()},
+            warnings=tuple(str(w) for w in data.get("warnings", [])) if "id" in data else (),
+            ground_truth=(
+                SubjectTruth.from_json(data["ground_truth"], f"{where}: ground_truth")
+                if data.get("ground_truth") is not None
+                else None
+            ),
+            quality_gate=(
+                SessionGate.from_json(data["quality_gate"], f"{where}: quality_gate")
+                if data.get("quality_gate") is not None
+                else None
+            ),
+            session_shape=(
+                SessionShape.from_json(data["session_shape"], f"{where}: session_shape")
+                if data.get("session_shape") is not None
+                else None
+            ),
+        )
+
+
+@dataclass(frozen=True)
 class RunResults:
-    """``results.json``: a whole run.
+    """``results.json``: a whole run, one :class:`PersonResults` per person measured.
+
+    The per-person attributes (``frames``, ``summary``, ``ground_truth``,
+    ``camera_frames``, ``quality_gate``, ``session_shape``) read the run's first
+    person: a run of one subject is the case of one person, and
+    :meth:`for_person` gives the run as one of its persons sees it, so that every
+    reader of one person's numbers serves each person of a run.
 
     Attributes
     ----------
     session : SessionInfo
     config : ProcessConfig
         The settings the run used; read back by ``evaluate``.
-    frames : tuple of FrameRecord
-        Every kept frame, in frame order.
-    summary : dict of str to dict of str to Stat
-        Per stage and measurement, over the ``ok`` frames.
+    persons : tuple of PersonResults
+        Everyone the run measured, by id (at least one).
     timing_seconds : dict of str to float
     calibration_source : str
         Where the run's cameras came from (a file, or "solved from the clips").
-    ground_truth : SubjectTruth or None
-        The studio subject's true measurements, when the session has them.
-    camera_frames : dict of str to int
-        Per camera, the kept frames in which it saw a usable silhouette (a camera
-        with none contributed nothing: covered, black, or no person in view).
     warnings : tuple of str
-        What the user should know about the run (also logged).
+        What the user should know about the run (also logged); each person's
+        own warnings are in :attr:`PersonResults.warnings`.
     working_resolution : WorkingResolution or None
         The resolution each camera was trained and fitted at (the recorded
         silhouettes are at it); None for runs recorded before working
         resolutions, which worked at the cameras' own resolution.
-    quality_gate : SessionGate or None
-        The gate the frames' statuses were set by
-        (:func:`bodymetry.estimation.fit.session_gate`).
-    session_shape : SessionShape or None
-        The session stage (one shape for the session); None when it was
-        disabled or for runs recorded before it.
     models : str
         The discriminative models' cache key (recorded inside ``config`` in the file).
     models_reused : bool
@@ -239,18 +359,81 @@ class RunResults:
 
     session: SessionInfo
     config: ProcessConfig
-    frames: tuple[FrameRecord, ...]
-    summary: dict[str, dict[str, Stat]]
+    persons: tuple[PersonResults, ...]
     timing_seconds: dict[str, float] = field(default_factory=dict)
     calibration_source: str = ""
-    ground_truth: SubjectTruth | None = None
-    camera_frames: dict[str, int] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
     working_resolution: WorkingResolution | None = None
-    quality_gate: SessionGate | None = None
-    session_shape: SessionShape | None = None
     models: str = ""
     models_reused: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.persons:
+            raise ValueError("a run has at least one person")
+        ids = [p.id for p in self.persons]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"person ids repeat: {ids}")
+
+    @classmethod
+    def of_subject(cls, session: SessionInfo, config: ProcessConfig, **fields: Any) -> RunResults:
+        """A run of one subject (person 0) from the person's attributes (``frames``,
+        ``summary``, ...) and the run's, each as a keyword."""
+        person_keys = {f for f in PersonResults.__dataclass_fields__ if f != "id"} - {"warnings"}
+        mine = {k: fields.pop(k) for k in list(fields) if k in person_keys}
+        mine.setdefault("frames", ())
+        mine.setdefault("summary", {})
+        return cls(session, config, (PersonResults(0, **mine),), **fields)
+
+    @property
+    def person(self) -> PersonResults:
+        """The run's first person (the one person of a run of one subject)."""
+        return self.persons[0]
+
+    def for_person(self, ident: int) -> RunResults:
+        """The run with ``ident`` its only person (its warnings added to the run's).
+
+        Raises
+        ------
+        KeyError
+            When the run has no person ``ident``.
+        """
+        for p in self.persons:
+            if p.id == ident:
+                return replace(self, persons=(p,), warnings=(*self.warnings, *p.warnings))
+        raise KeyError(f"the run has no person {ident} (it has {[p.id for p in self.persons]})")
+
+    def with_person(self, **changes: Any) -> RunResults:
+        """The run with its first person's attributes changed (``frames=...``, ...)."""
+        return replace(self, persons=(replace(self.person, **changes), *self.persons[1:]))
+
+    @property
+    def several(self) -> bool:
+        """Whether the run measured more than one person."""
+        return len(self.persons) > 1
+
+    @property
+    def frames(self) -> tuple[FrameRecord, ...]:
+        return self.person.frames
+
+    @property
+    def summary(self) -> dict[str, dict[str, Stat]]:
+        return self.person.summary
+
+    @property
+    def ground_truth(self) -> SubjectTruth | None:
+        return self.person.ground_truth
+
+    @property
+    def camera_frames(self) -> dict[str, int]:
+        return self.person.camera_frames
+
+    @property
+    def quality_gate(self) -> SessionGate | None:
+        return self.person.quality_gate
+
+    @property
+    def session_shape(self) -> SessionShape | None:
+        return self.person.session_shape
 
     @property
     def ok_frames(self) -> list[FrameRecord]:
@@ -263,15 +446,15 @@ class RunResults:
 
     @property
     def caveats(self) -> tuple[Caveat, ...]:
-        """Why the numbers deserve less trust than they look
+        """Why the first person's numbers deserve less trust than they look
         (:func:`bodymetry.estimation.caveats.run_caveats`; derived from the records,
-        so an older ``results.json`` gets them too)."""
+        so an older ``results.json`` gets them too); :meth:`for_person` for another's."""
         outline = self.outline
         return run_caveats(
             self.frames,
             self.session.cameras,
             () if outline is None else outline.warnings,
-            chosen_person=self.config.person,
+            told_apart=self.person.told_apart or self.config.person is not None,
         )
 
     def working_cameras(self, cameras: CameraGroup) -> CameraGroup:
@@ -302,58 +485,56 @@ class RunResults:
                 "models_reused": self.models_reused,
             },
             "calibration_source": self.calibration_source,
-            "frames": [r.to_json() for r in self.frames],
-            "summary": {
-                stage: {k: s.to_json() for k, s in stats.items()}
-                for stage, stats in self.summary.items()
-            },
+            "persons": [
+                # Caveats are derived from the records (read back by recomputing):
+                # written for scripts and viewers that read the file without bodymetry.
+                {**p.to_json(), "caveats": [c.to_json() for c in self.for_person(p.id).caveats]}
+                for p in self.persons
+            ],
             "timing_seconds": self.timing_seconds,
-            "camera_frames": self.camera_frames,
             "warnings": list(self.warnings),
-            # Derived from the records (read back by recomputing): for scripts and
-            # viewers that read the file without bodymetry.
-            "caveats": [c.to_json() for c in self.caveats],
         }
         if self.working_resolution is not None:
             out["working_resolution"] = self.working_resolution.to_json()
-        if self.quality_gate is not None:
-            out["quality_gate"] = self.quality_gate.to_json()
-        if self.session_shape is not None:
-            out["session_shape"] = self.session_shape.to_json()
-        if self.ground_truth is not None:
-            out["ground_truth"] = self.ground_truth.to_json()
         return out
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any], where: str = "results.json") -> RunResults:
-        """Read ``results.json`` content; InputError naming ``where`` for old or foreign files."""
+        """Read ``results.json`` content; InputError naming ``where`` for old or foreign files.
+
+        A format-2 file (one subject, its frames at the top level) reads as a run of
+        one person 0."""
         fmt = data.get("format")
         if fmt is None:
             raise InputError(
                 f"{where}: written by an older bodymetry (no 'format' key); "
                 "run `bodymetry process` again to update it"
             )
-        if fmt != RESULTS_FORMAT:
+        if fmt not in RESULTS_FORMATS_READ:
             raise InputError(
-                f"{where}: results format {fmt!r}, this bodymetry reads format {RESULTS_FORMAT}"
+                f"{where}: results format {fmt!r}, this bodymetry reads formats "
+                f"{', '.join(map(str, RESULTS_FORMATS_READ))}"
             )
-        if not isinstance(data.get("frames"), list) or not isinstance(data.get("session"), Mapping):
+        if not isinstance(data.get("session"), Mapping):
             raise InputError(
-                f"{where}: no 'frames' list; not a results file of `bodymetry process`"
+                f"{where}: no 'session' object; not a results file of `bodymetry process`"
             )
-        frames = tuple(
-            sorted(
-                (
-                    FrameRecord.from_json(f, f"{where}: frames[{i}]")
-                    for i, f in enumerate(data["frames"])
-                ),
-                key=lambda r: r.frame,
+        if fmt == 2:
+            persons = (PersonResults.from_json(data, where),)
+        else:
+            raw = data.get("persons")
+            if not isinstance(raw, list) or not raw:
+                raise InputError(
+                    f"{where}: no 'persons' list; not a results file of `bodymetry process`"
+                )
+            persons = tuple(
+                PersonResults.from_json(
+                    p if isinstance(p, Mapping) else {}, f"{where}: persons[{i}]", i
+                )
+                for i, p in enumerate(raw)
             )
-        )
-        summary = {
-            stage: {k: Stat.from_json(v) for k, v in stats.items()}
-            for stage, stats in data.get("summary", {}).items()
-        }
+            if len({p.id for p in persons}) != len(persons):
+                raise InputError(f"{where}: person ids repeat: {[p.id for p in persons]}")
         config = data.get("config")
         if not isinstance(config, Mapping):
             raise InputError(
@@ -364,27 +545,10 @@ class RunResults:
             config=ProcessConfig.from_json(dict(config), f"{where}: config"),
             models=str(config.get("models", "")),
             models_reused=bool(config.get("models_reused", False)),
-            frames=frames,
-            summary=summary,
+            persons=persons,
             timing_seconds=dict(data.get("timing_seconds", {})),
             calibration_source=str(data.get("calibration_source", "")),
-            camera_frames={k: int(v) for k, v in data.get("camera_frames", {}).items()},
             warnings=tuple(str(w) for w in data.get("warnings", [])),
-            ground_truth=(
-                SubjectTruth.from_json(data["ground_truth"], f"{where}: ground_truth")
-                if data.get("ground_truth") is not None
-                else None
-            ),
-            quality_gate=(
-                SessionGate.from_json(data["quality_gate"], f"{where}: quality_gate")
-                if data.get("quality_gate") is not None
-                else None
-            ),
-            session_shape=(
-                SessionShape.from_json(data["session_shape"], f"{where}: session_shape")
-                if data.get("session_shape") is not None
-                else None
-            ),
             working_resolution=(
                 WorkingResolution.from_json(
                     data["working_resolution"], f"{where}: working_resolution"

@@ -61,8 +61,15 @@ __all__ = ["process"]
     "--person",
     default=None,
     type=click.IntRange(0),
-    help="Measure person N of a recording with several people (numbered from 0 in the "
-    "order capture first sees them; docs/capture.md). Default: one subject, the largest.",
+    help="Measure only person N of a recording with several people (numbered from 0 in "
+    "the order capture first sees them; docs/capture.md). Default: every person capture "
+    "tells apart, each with their own table, else the one subject.",
+)
+@click.option(
+    "--largest",
+    is_flag=True,
+    help="Measure one subject per frame, the largest body, even where capture tells "
+    "people apart (the run says so when several people are in view).",
 )
 @click.option(
     "--min-iou",
@@ -108,6 +115,7 @@ def process(
     frame_step: int | None,
     seed: int,
     person: int | None,
+    largest: bool,
     min_iou: float,
     cache_dir: Path | None,
     no_review: bool,
@@ -130,6 +138,7 @@ def process(
         pdf=pdf,
         frame_step=frame_step,
         person=person,
+        largest=largest,
     ).with_overrides(overrides)
     if show_config:
         click.echo(json.dumps(config.to_json(), indent=2))
@@ -138,29 +147,53 @@ def process(
     out = out or Path("runs") / session.resolve().name
     with labelled_progress() as update:
         results = process_session(session, out, config, progress=update, restart=restart)
-    _print_summary(results)
-    console.print(f"wrote {out / 'results.json'} and frames/ (per-frame records)")
+    views = [results.for_person(p.id) for p in results.persons]
+    for view in views:
+        _print_summary(view, results.several)
+    # The run's own warnings once, under the tables (each person's are under theirs).
+    for warning in results.warnings:
+        console.print(f"[bold yellow]warning:[/] {rich.markup.escape(warning)}")
+    console.print(
+        f"wrote {out / 'results.json'} and "
+        f"{'persons/*/frames/' if results.several else 'frames/'} (per-frame records)"
+    )
     if config.review:
         _print_review_files(out)
-    if not results.ok_frames:
+    if not any(view.ok_frames for view in views):
         # The run itself worked (results.json says why each frame failed), but
         # there is no measurement: a script must not mistake it for success.
-        console.print(
-            f"[bold red]error:[/] {rich.markup.escape(no_frames_message(results, out))}",
-            highlight=False,
-            soft_wrap=True,
-        )
-        sys.exit(EXIT_NO_FRAMES)
-    caveats = results.caveats
-    if caveats:
-        # Measured, but the numbers stand on thin or ambiguous evidence: say so, and
-        # let a script tell it from a clean run.
-        for caveat in caveats:
+        for view in views:
+            who = f"person {view.person.id}: " if results.several else ""
             console.print(
-                f"[bold yellow]caveat ({caveat.code}):[/] {rich.markup.escape(caveat.message)}",
+                f"[bold red]error:[/] {rich.markup.escape(who + no_frames_message(view, out))}",
                 highlight=False,
                 soft_wrap=True,
             )
+        sys.exit(EXIT_NO_FRAMES)
+    caveats = [
+        (f"person {view.person.id}: " if results.several else "", caveat)
+        for view in views
+        for caveat in view.caveats
+    ]
+    unmeasured = [view.person.id for view in views if not view.ok_frames]
+    for ident in unmeasured:
+        console.print(
+            f"[bold yellow]caveat (unmeasured):[/] person {ident}: "
+            f"{rich.markup.escape(no_frames_message(results.for_person(ident), out))}",
+            highlight=False,
+            soft_wrap=True,
+        )
+    if caveats:
+        # Measured, but the numbers stand on thin or ambiguous evidence: say so, and
+        # let a script tell it from a clean run.
+        for who, caveat in caveats:
+            console.print(
+                f"[bold yellow]caveat ({caveat.code}):[/] "
+                f"{rich.markup.escape(who + caveat.message)}",
+                highlight=False,
+                soft_wrap=True,
+            )
+    if caveats or unmeasured:
         sys.exit(EXIT_CAVEATS)
 
 
@@ -194,13 +227,16 @@ def _print_review_files(run: Path) -> None:
         console.print(f"review: {', '.join(written)} in {run}/ (open with `bodymetry view {run}`)")
 
 
-def _print_summary(results: RunResults) -> None:
+def _print_summary(results: RunResults, several: bool = False) -> None:
+    """The table of one person's measurements (``results``: the run as they see it,
+    :meth:`RunResults.for_person`), their warnings and their failed frames."""
     frames = results.frames
     failed = [f for f in frames if not f.ok]
     name = results.session.name
     n_ok = len(frames) - len(failed)
     share = f" ({100 * n_ok / len(frames):.0f} %)" if frames else ""
-    table = Table(title=f"{name}: {n_ok} of {len(frames)} kept frames measured{share}")
+    who = f" person {results.person.id}" if several else ""
+    table = Table(title=f"{name}{who}: {n_ok} of {len(frames)} kept frames measured{share}")
     table.add_column("measurement")
     truth = results.ground_truth
     if truth:
@@ -222,8 +258,8 @@ def _print_summary(results: RunResults) -> None:
     shape = results.session_shape
     if shape is not None and not shape.ok:
         console.print(f"session shape: {rich.markup.escape(shape.status)}")
-    # Every run warning (cameras, calibration, the outline check), under the table.
-    for warning in results.warnings:
+    # This person's warnings (cameras, the outline check), under their table.
+    for warning in results.person.warnings:
         console.print(f"[bold yellow]warning:[/] {rich.markup.escape(warning)}")
     for f in failed:
         console.print(f"frame {f.frame}: {f.status}")

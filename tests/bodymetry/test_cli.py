@@ -488,7 +488,7 @@ def test_click_usage_errors_keep_their_status() -> None:
 
 # --- process: no frame measured ---------------------------------------------------------------
 def _failed_results(statuses: dict[int, str]) -> RunResults:
-    return RunResults(
+    return RunResults.of_subject(
         session=SessionInfo("/s", "s", ("cam_00",), 25.0, 10),
         config=ProcessConfig(),
         frames=tuple(FrameRecord(f, s) for f, s in statuses.items()),
@@ -601,7 +601,7 @@ def test_process_with_caveats_exits_5_and_says_why(monkeypatch, toy: Path, tmp_p
     base = _failed_results({f: "no silhouette in any camera" for f in (0, 10, 20, 30, 40)})
     frames = list(base.frames)
     frames[1] = dataclasses.replace(frames[1], status="ok", persons=2)
-    results = dataclasses.replace(base, frames=tuple(frames))
+    results = base.with_person(frames=tuple(frames))
     monkeypatch.setattr(cli_process, "process_session", lambda *a, **k: results)
     result = _run("process", str(toy), "--out", str(tmp_path / "run"), "--no-review")
     assert result.exit_code == 5, (result.exit_code, result.output, result.exception)

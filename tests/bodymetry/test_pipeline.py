@@ -205,22 +205,57 @@ def test_choose_person_follows_one_person_through_the_frames(tmp_path):
             _sighting(1.3, [mask(1), mask(1), mask(1)]),
         )),
     ]  # fmt: skip
-    zero = pipeline.choose_person(prepared, seg, ProcessConfig(person=0))
+    plan = pipeline.plan_persons(prepared, seg, ProcessConfig())
+    assert plan.ids == (0, 1) and plan.told_apart and plan.several
+    assert (
+        pipeline.plan_persons(prepared, seg, ProcessConfig(largest=True)) == pipeline.PersonPlan()
+    )
+    zero = pipeline.choose_person(prepared, seg, ProcessConfig(), 0)
     assert [f.frame for f in zero] == [0, 25, 50]
     assert all(np.array_equal(a, mask(k)) for a, k in zip(zero[1].masks, (9, 10, 11), strict=True))
     assert zero[2].flags == (("empty",),) * 3 and not any(m.any() for m in zero[2].masks)
-    one = pipeline.choose_person(prepared, seg, ProcessConfig(person=1))
+    one = pipeline.choose_person(prepared, seg, ProcessConfig(), 1)
     assert one[0].flags == ((), (), ("occluded",))
     assert one[1].flags == ((), ("empty",), ()) and not one[1].masks[1].any()
     assert np.array_equal(one[2].masks[0], mask(1)) and one[2].people == ()
+    assert pipeline.plan_persons(prepared, seg, ProcessConfig(person=1)).ids == (1,)
     with pytest.raises(InputError, match=r"followed 2 people.*0 to 1"):
-        pipeline.choose_person(prepared, seg, ProcessConfig(person=2))
+        pipeline.plan_persons(prepared, seg, ProcessConfig(person=2))
     nobody = [replace(s, people=()) for s in seg]
     with pytest.raises(InputError, match="told no people apart"):
-        pipeline.choose_person(prepared, nobody, ProcessConfig(person=0))
+        pipeline.plan_persons(prepared, nobody, ProcessConfig(person=0))
+    assert pipeline.plan_persons(prepared, nobody, ProcessConfig()) == pipeline.PersonPlan()
     hull = [replace(s, people=tuple(replace(p, source="hull") for p in s.people)) for s in seg]
     with pytest.raises(InputError, match="splitting the multi-view hull"):
-        pipeline.choose_person(prepared, hull, ProcessConfig(person=0))
+        pipeline.plan_persons(prepared, hull, ProcessConfig(person=0))
+    # The hull's split is too coarse to measure: the run measures the one subject.
+    assert pipeline.plan_persons(prepared, hull, ProcessConfig()) == pipeline.PersonPlan()
+
+
+def test_a_person_seen_in_too_few_frames_is_named_not_measured():
+    rig = studio_rig(3, (64, 48), seed=5)
+    prepared = pipeline.PreparedRun(None, None, rig, "test", WorkingResolution.full(rig), rig)
+    blank = np.zeros((48, 64), bool)
+    masks = [blank] * 3
+    # Person 0 in all ten frames, a passer-by at x=2 in one of them.
+    seg = [
+        pipeline.SegmentedFrame(
+            f, (blank,) * 3, ((),) * 3, None, (),
+            people=(_sighting(0.0, masks),) + ((_sighting(2.0, masks),) if f == 30 else ()),
+        )
+        for f in range(0, 100, 10)
+    ]  # fmt: skip
+    plan = pipeline.plan_persons(prepared, seg, ProcessConfig())
+    assert plan.ids == (0,) and not plan.told_apart and not plan.several
+    (warning,) = plan.warnings
+    assert "person 1 was seen in only 1 of 10 kept frames" in warning
+    # With a second person in three of the ten frames, both are measured.
+    seg = [
+        replace(s, people=(*s.people[:1], _sighting(2.0, masks))) if s.frame in (30, 40, 50) else s
+        for s in seg
+    ]
+    plan = pipeline.plan_persons(prepared, seg, ProcessConfig())
+    assert plan.ids == (0, 1) and plan.warnings == () and plan.layout_person(1) == 1
 
 
 def test_the_chosen_person_is_a_setting_of_the_run():
@@ -232,3 +267,6 @@ def test_the_chosen_person_is_a_setting_of_the_run():
         ProcessConfig(person=0)
     )
     assert pipeline.needs_every_frame(ProcessConfig(person=0))
+    assert config_fingerprint(ProcessConfig(largest=True)) != base
+    with pytest.raises(InputError, match="choose one"):
+        ProcessConfig(person=0, largest=True)

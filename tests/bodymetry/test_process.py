@@ -75,7 +75,17 @@ def test_results_schema(run):
     on_disk = json.loads((out / "results.json").read_text())
     assert on_disk == results.to_json()
     assert RunResults.from_json(on_disk).to_json() == on_disk  # round trip
-    assert on_disk["format"] == 2
+    assert on_disk["format"] == 3
+    (person,) = on_disk["persons"]
+    assert person["id"] == 0 and not person["told_apart"] and "frames" not in on_disk
+    # A results.json of format 2 (one subject at the top level) still reads.
+    old = {k: v for k, v in on_disk.items() if k != "persons"}
+    old |= {k: v for k, v in person.items() if k not in ("id", "told_apart", "warnings")}
+    old |= {"format": 2, "warnings": on_disk["warnings"] + person["warnings"]}
+    back = RunResults.from_json(old)
+    assert back.to_json() == on_disk | {"warnings": old["warnings"]} | {
+        "persons": [person | {"warnings": []}]
+    }
     assert [f.frame for f in results.frames] == [0, 2, 4]
     for f in results.frames:
         assert f.status == "ok", f.status
@@ -274,7 +284,7 @@ def test_a_black_camera_is_named_and_the_results_stay_strict_json(run, tmp_path)
             writer.write(np.zeros((180, 240, 3), np.uint8))
     results = process_module.process_session(folder, tmp_path / "run", _config(base))
     assert results.camera_frames == {"cam_00": 3, "cam_01": 0}
-    assert any("camera 'cam_01' saw no person" in w for w in results.warnings)
+    assert any("camera 'cam_01' saw no person" in w for w in results.for_person(0).warnings)
     text = (tmp_path / "run" / "results.json").read_text()
     json.loads(text, parse_constant=lambda c: 1 / 0)  # strict JSON: no NaN or Infinity
 
@@ -499,14 +509,20 @@ def test_an_unreliable_view_is_left_out_of_the_fit_and_named(run, tmp_path, monk
     assert arrays.observed["cam_01"].any()  # kept for review, as capture found it
     sf = session_frame(record, arrays, prepared.cameras)
     assert sf.masks[0].any() and not sf.masks[1].any()
-    finished = pipeline.finish(prepared, config, rig, done, {})
+    finished = _finished(prepared, config, rig, done)
     n = len(planned.kept)
     assert finished.camera_frames == {"cam_00": n, "cam_01": n - 1}
     assert (
         f"cam_01: silhouette unreliable in 1 of {n} kept frames (agreement 0.58 < 0.80), "
         "left out of those frames' fits"
-    ) in finished.warnings
+    ) in finished.for_person(0).warnings
     assert RunResults.read(layout.results).frames[0].view_agreement == record.view_agreement
+
+
+def _finished(prepared, config, rig, done):
+    """The run of one subject finished from its recorded frames (the graph's last steps)."""
+    person = pipeline.finish_person(prepared, config, done, pipeline.PersonPlan(), 0)
+    return pipeline.finish(prepared, config, rig, [person], {})
 
 
 def test_a_second_person_in_view_is_recorded_and_becomes_a_caveat(run, tmp_path, monkeypatch):
@@ -521,11 +537,11 @@ def test_a_second_person_in_view_is_recorded_and_becomes_a_caveat(run, tmp_path,
     layout = prepared.layout
     done = frame_jobs.read_done_frames(layout)
     assert done[first].persons == 2
-    finished = pipeline.finish(prepared, config, rig, done, {})
+    finished = _finished(prepared, config, rig, done)
     codes = [c.code for c in finished.caveats]
     assert record.ok and "several_persons" in codes
     (crowd,) = [c for c in finished.caveats if c.code == "several_persons"]
     assert crowd.frames == (first,)
     written = json.loads(layout.results.read_text())
-    assert [c["code"] for c in written["caveats"]] == codes
+    assert [c["code"] for c in written["persons"][0]["caveats"]] == codes
     assert RunResults.read(layout.results).caveats == finished.caveats

@@ -19,6 +19,7 @@ from bodymetry.estimation.outline_check import (
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.records import OutlineCheck, SessionShape
 from bodymetry.estimation.refinement import Alignment, ContourCost, RefineConfig
+from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunResults, SessionInfo
 from bodymetry.studio.rig import studio_rig
 
@@ -217,9 +218,10 @@ def test_json_round_trip_inside_the_session_block():
     assert back.outline.mm_per_px == 9.8 and back.outline.status == "ok"
     assert SessionShape.from_json(SessionShape(status="ok").to_json()).outline is None
     info = SessionInfo("/s", "s", ("cam_00",), 25.0, 10)
-    assert RunResults(info, {}, (), {}, session_shape=shape).outline == check
-    assert RunResults(info, {}, (), {}).outline is None
-    assert RunResults(info, {}, (), {}, session_shape=SessionShape(status="ok")).outline is None
+    assert RunResults.of_subject(info, ProcessConfig(), session_shape=shape).outline == check
+    assert RunResults.of_subject(info, ProcessConfig()).outline is None
+    ok = SessionShape(status="ok")
+    assert RunResults.of_subject(info, ProcessConfig(), session_shape=ok).outline is None
     with pytest.raises(InputError, match=r"session_shape\.outline"):
         SessionShape.from_json({"status": "ok", "outline": [1, 2]})
     with pytest.raises(InputError, match="malformed outline"):

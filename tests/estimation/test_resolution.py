@@ -164,7 +164,7 @@ def test_run_results_give_the_working_cameras():
     cameras = portrait_rig()
     resolution = WorkingResolution.choose(cameras, DEFAULT_WORKING_PERSON_PX)
     info = SessionInfo("/s", "s", cameras.names, 30.0, 1)
-    results = RunResults(info, ProcessConfig(), (), {}, working_resolution=resolution)
+    results = RunResults.of_subject(info, ProcessConfig(), working_resolution=resolution)
     back = RunResults.from_json(results.to_json())
     assert [c.size for c in back.working_cameras(cameras)][:2] == [(360, 640), (363, 640)]
     # A run recorded before working resolutions worked at full resolution.

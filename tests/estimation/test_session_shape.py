@@ -250,11 +250,11 @@ def test_results_round_trip_with_the_session_stage():
     summary = summarize(records, shape)
     assert summary["session"]["height_mm"].mean == 1801.5
     assert summary["session"]["height_mm"].std == 0.4 and summary["session"]["height_mm"].n == 2
-    results = RunResults(
+    results = RunResults.of_subject(
         SessionInfo("/s", "s", ("cam_00",), 25.0, 1),
         ProcessConfig(),
-        tuple(records),
-        summary,
+        frames=tuple(records),
+        summary=summary,
         session_shape=shape,
     )
     back = RunResults.from_json(results.to_json())
@@ -264,19 +264,22 @@ def test_results_round_trip_with_the_session_stage():
     assert est.biometrics == {"height_mm": 1801.5, "weight_kg": 75.2}
     assert back.summary["session"]["weight_kg"].std == 0.1
     with pytest.raises(InputError, match="session_shape"):
-        RunResults.from_json({**results.to_json(), "session_shape": {"nu": []}})
+        RunResults.from_json(
+            {**results.to_json(), "persons": [{"id": 0, "frames": [], "session_shape": {"nu": []}}]}
+        )
 
 
 def test_results_without_the_session_stage_still_load():
     """A run recorded before the session stage (or with it disabled) reads as before."""
     records = [_record(f, TRUE_NU, session=False) for f in (0, 1)]
-    data = RunResults(
+    data = RunResults.of_subject(
         SessionInfo("/s", "s", ("cam_00",), 25.0, 1),
         ProcessConfig(),
-        tuple(records),
-        summarize(records),
+        frames=tuple(records),
+        summary=summarize(records),
     ).to_json()
-    assert "session_shape" not in data and "session" not in data["summary"]
+    (person,) = data["persons"]
+    assert "session_shape" not in person and "session" not in person["summary"]
     back = RunResults.from_json(data)
     assert back.session_shape is None and back.frames[0].estimate("session") is None
     # A rejected session shape adds no stage to the summary.

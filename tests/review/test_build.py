@@ -51,7 +51,7 @@ def test_a_failing_writer_keeps_the_previous_file(run_copy, monkeypatch):
 def test_frames_left_out_by_a_quality_gate_are_still_shown(run_copy):
     path = run_copy / "results.json"
     results = json.loads(path.read_text())
-    gated = results["frames"][1]
+    gated = results["persons"][0]["frames"][1]
     gated["status"] = "poor fit: mean IoU 0.50 < 0.85"
     path.write_text(json.dumps(results))
     summary = build_review(run_copy)

@@ -46,9 +46,7 @@ def _pass_quality_gate(path, n_ok):
         for r in results.frames
     )
     results = dataclasses.replace(
-        results,
-        frames=frames,
-        summary=summarize(frames, results.session_shape),
+        results.with_person(frames=frames, summary=summarize(frames, results.session_shape)),
         warnings=("a warning",),
     )
     write_json_atomic(path, results.to_json())
@@ -94,7 +92,9 @@ def test_csv_has_a_row_per_session_with_the_runs_summaries(study, review_run):
     assert [r["session"] for r in rows] == [*NAMES, "carol"]
     n_kept = len(review_run.results.frames)
     for row, n_used in zip(rows[:2], (3, 2), strict=True):
-        summary = json.loads((study / row["session"] / "results.json").read_text())["summary"]
+        summary = json.loads((study / row["session"] / "results.json").read_text())["persons"][0][
+            "summary"
+        ]
         assert row["status"] == "done" and row["reason"] == ""
         assert row["warnings"] == "a warning"
         assert row["subject"] == review_run.results.session.name

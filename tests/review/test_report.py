@@ -17,6 +17,7 @@ import pytest
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.records import FrameRecord
+from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import EVALUATION_FORMAT, RunResults, SessionInfo
 from bodymetry.review import plots
 from bodymetry.review import report as report_module
@@ -212,12 +213,12 @@ def _run_without_measured_frames(review_run, tmp_path, status: str):
     """A copy of the review run's results.json whose every frame failed with ``status``."""
     results = json.loads((review_run.folder / "results.json").read_text())
     fitted = status.startswith("poor fit")
-    for frame in results["frames"]:
+    for frame in results["persons"][0]["frames"]:
         frame["status"] = status
         if not fitted:
             for key in ("estimates", "silhouette_iou", "annealing", "refinement"):
                 frame.pop(key, None)
-    for stage in results["summary"].values():
+    for stage in results["persons"][0]["summary"].values():
         for stat in stage.values():
             stat.update(mean=None, std=None, n=0)
     (tmp_path / "results.json").write_text(json.dumps(results))
@@ -240,7 +241,9 @@ def test_review_of_a_run_with_no_measured_frame(review_run, tmp_path, status):
 def _empty_run():
     """A run-like object with two frames, neither fitted."""
     frames = (FrameRecord(0, "no silhouette in any camera"), FrameRecord(10, "fit failed: x"))
-    results = RunResults(SessionInfo("/s", "s", ("cam_00",), 25.0, 10), {}, frames, {})
+    results = RunResults.of_subject(
+        SessionInfo("/s", "s", ("cam_00",), 25.0, 10), ProcessConfig(), frames=frames
+    )
     return SimpleNamespace(
         fitted_frames=[],
         ok_frames=[],
@@ -317,9 +320,9 @@ def test_the_session_stage_is_beside_the_per_frame_stages(review_run):
 
 def test_a_run_without_the_session_stage_has_no_session_column(review_run, bare_run):
     data = json.loads((bare_run / "results.json").read_text())
-    data.pop("session_shape")
-    data["summary"].pop("session")
-    for frame in data["frames"]:
+    data["persons"][0].pop("session_shape")
+    data["persons"][0]["summary"].pop("session")
+    for frame in data["persons"][0]["frames"]:
         frame.pop("session", None)
     (bare_run / "results.json").write_text(json.dumps(data))
     html = build_report(bare_run).html.read_text()
@@ -341,7 +344,7 @@ def test_the_outline_check_and_the_run_warnings_are_in_the_report(review_run, ba
     assert "undecided: working pixels of" in html
     data = json.loads((bare_run / "results.json").read_text())
     warning = "loose clothing likely: the silhouettes lie 4.2 ± 0.3 mm further outside"
-    data["session_shape"]["outline"] = {
+    data["persons"][0]["session_shape"]["outline"] = {
         "status": "ok",
         "mm_per_px": 9.5,
         "frames": 3,
@@ -397,14 +400,14 @@ def test_without_the_session_estimate_the_headline_is_the_per_frame_mean(
     review_run, bare_run, stage
 ):
     data = json.loads((bare_run / "results.json").read_text())
-    data["summary"].pop("session")
-    for frame in data["frames"]:
+    data["persons"][0]["summary"].pop("session")
+    for frame in data["persons"][0]["frames"]:
         frame.pop("session", None)
     status = "rejected: the shared shape lowers the frames' mean silhouette IoU"
     if stage == "rejected":
-        data["session_shape"]["status"] = status
+        data["persons"][0]["session_shape"]["status"] = status
     else:
-        data.pop("session_shape")
+        data["persons"][0].pop("session_shape")
         status = "the session stage was not run"
     (bare_run / "results.json").write_text(json.dumps(data))
     html = build_report(bare_run).html.read_text()
@@ -435,7 +438,7 @@ def test_the_views_left_out_as_unreliable_are_listed_only_when_there_are_any(
     html = (review_run.folder / "report.html").read_text()
     assert "Views left out" not in html  # capture left no view out of this run
     data = json.loads((bare_run / "results.json").read_text())
-    frames = data["frames"]
+    frames = data["persons"][0]["frames"]
     for frame, value in ((frames[0], 0.61), (frames[2], 0.7449)):
         frame["flags"]["cam_01"] = ["unreliable"]
         frame["view_agreement"] = {"cam_00": 0.97, "cam_01": value}
@@ -456,7 +459,7 @@ def test_caveats_head_the_report_only_when_there_are_any(review_run, bare_run, m
     monkeypatch.setattr(report_module, "_figures", lambda run, body: ({}, {}))
     assert 'id="caveats"' not in (review_run.folder / "report.html").read_text()
     data = json.loads((bare_run / "results.json").read_text())
-    frames = data["frames"]
+    frames = data["persons"][0]["frames"]
     frames[0]["persons"] = 2
     (bare_run / "results.json").write_text(json.dumps(data))
     html = build_report(bare_run).html.read_text()

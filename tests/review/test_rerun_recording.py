@@ -132,7 +132,7 @@ def test_capture_view_agreement_is_a_metric_per_view(review_run, tmp_path):
     for name in ("results.json", "calibration.yaml"):
         shutil.copy(review_run.folder / name, folder / name)
     data = json.loads((folder / "results.json").read_text())
-    first = data["frames"][0]
+    first = data["persons"][0]["frames"][0]
     first.update(status="no silhouette in any camera", view_agreement={"cam_01": 0.58}, persons=2)
     for stage in ("discriminative", "generative", "session"):
         first.pop(stage, None)
