@@ -136,7 +136,8 @@ class RunLayout:
 
     @property
     def evaluation(self) -> Path:
-        return self.folder / "evaluation.json"
+        """``evaluation.json`` (a run of several persons: each one's in ``persons/K/``)."""
+        return self._person_root / "evaluation.json"
 
     @property
     def review_files(self) -> tuple[Path, ...]:
@@ -764,6 +765,12 @@ class Evaluation:
     mpjpe_mm : dict of str to float
         Mean per-joint position error per stage.
     silhouette_iou_mean : float
+    person : int or None
+        The run's person evaluated, for a run of several persons (None: the run's
+        one person).
+    truth_person : int
+        The studio's person their truth is (0: the session's subject), matched
+        by where they stood for a person capture told apart.
     """
 
     run: str
@@ -774,6 +781,8 @@ class Evaluation:
     table: dict[str, dict[str, Stat]]
     mpjpe_mm: dict[str, float]
     silhouette_iou_mean: float
+    person: int | None = None
+    truth_person: int = 0
 
     @property
     def stages(self) -> tuple[str, ...]:
@@ -794,9 +803,12 @@ class Evaluation:
             },
             "mpjpe_mm": self.mpjpe_mm,
             "silhouette_iou_mean": self.silhouette_iou_mean,
+            "person": self.person,
+            "truth_person": self.truth_person,
         }
 
     def write(self, layout: RunLayout) -> None:
+        """Write it where ``layout`` keeps it (:meth:`RunLayout.for_person`)."""
         write_json_atomic(layout.evaluation, self.to_json())
 
     @classmethod
@@ -824,6 +836,8 @@ class Evaluation:
                 table=table,
                 mpjpe_mm={str(k): float(v) for k, v in dict(data["mpjpe_mm"]).items()},
                 silhouette_iou_mean=float(data["silhouette_iou_mean"]),
+                person=None if data.get("person") is None else int(data["person"]),
+                truth_person=int(data.get("truth_person", 0)),
             )
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{path}: malformed evaluation ({exc})") from exc

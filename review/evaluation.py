@@ -17,22 +17,27 @@ from pathlib import Path
 import numpy as np
 
 from bodymetry.calibration.camera import CameraGroup
-from bodymetry.capture.ground_truth import GROUND_TRUTH_STATES
+from bodymetry.capture.ground_truth import (
+    GROUND_TRUTH_STATES,
+    SubjectTruth,
+    match_person,
+    person_folder,
+)
 from bodymetry.capture.session import load_session
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.fit import FitConfig, generative_fit, shared_body_model
-from bodymetry.estimation.records import CORE_MEASUREMENTS, FRAME_STAGES, Stat
-from bodymetry.estimation.run_files import GT_STAGE, Evaluation, RunLayout
+from bodymetry.estimation.records import CORE_MEASUREMENTS, FRAME_STAGES, FrameArrays, Stat
+from bodymetry.estimation.run_files import GT_STAGE, Evaluation, RunLayout, RunResults
 from bodymetry.estimation.view_selection import blank_unusable, usable_views
 from bodymetry.fileio import load_npz
 from bodymetry.log import Progress
-from bodymetry.review.run_data import RunData, load_frame_arrays, load_run
+from bodymetry.review.run_data import RunData, load_run
 
 #: Spread of the GT + Generative start around the true pose (τ m, θ rad, ν).
 GT_START_STD = (0.01, 0.02, 0.3)
 
-__all__ = ["GT_START_STD", "evaluate_run"]
+__all__ = ["GT_START_STD", "evaluate_persons", "evaluate_run"]
 
 
 def _gt_generative(
@@ -54,7 +59,12 @@ def _gt_generative(
 
 
 def _gt_generative_fits(
-    data: RunData, states: dict[str, np.ndarray], workers: int | None, progress: Progress | None
+    data: RunData,
+    layout: RunLayout,
+    results: RunResults,
+    states: dict[str, np.ndarray],
+    workers: int | None,
+    progress: Progress | None,
 ) -> dict[int, tuple[dict[str, float], list]]:
     """Per ok frame, the measurements and joints of the generative fit started at the
     true pose (:func:`_gt_generative`), on the frame's recorded silhouettes, in a pool.
@@ -64,10 +74,11 @@ def _gt_generative_fits(
     InputError
         When a frame's recorded silhouettes are missing.
     """
-    layout, names, config = data.layout, data.camera_names, data.results.config.fit
+    names, config = data.camera_names, results.config.fit
     jobs = []
-    for record in data.ok_frames:
-        arrays = load_frame_arrays(layout.folder, record.frame)
+    for record in results.ok_frames:
+        path = layout.frame_arrays(record.frame)
+        arrays = FrameArrays.load(path) if path.is_file() else None
         if arrays is None or set(arrays.observed) != set(names):
             raise InputError(
                 f"{layout.frame_arrays(record.frame)}: the frame's recorded silhouettes are "
@@ -94,39 +105,65 @@ def evaluate_run(
     run: str | Path,
     workers: int | None = None,
     progress: Progress | None = None,
+    person: int | None = None,
 ) -> Evaluation:
-    """Compute the Figure 3 numbers for a run and write ``run/evaluation.json``.
+    """Compute the Figure 3 numbers for one person of a run and write their
+    ``evaluation.json`` (``RUN/evaluation.json``, or ``RUN/persons/K/`` for a run of
+    several persons).
+
+    Parameters
+    ----------
+    run : path
+    workers : int, optional
+    progress : callable, optional
+    person : int, optional
+        The run's person to evaluate (default: its first). A person capture told
+        apart from others is scored against the studio person whose root their
+        fits follow (:func:`bodymetry.capture.ground_truth.match_person`).
 
     Raises
     ------
     InputError
-        When the run is missing or unreadable, its session has no ground truth,
-        no frame was fitted, or it measured a chosen person (``--person``).
+        When the run is missing or unreadable, it has no person ``person``, its
+        session has no ground truth, no studio person matches, or no frame was
+        fitted.
     """
     data = load_run(run)
-    layout: RunLayout = data.layout
-    if data.results.config.person is not None:
-        # The session's truth is its subject's, and which tracked person that is
-        # is not known yet: no comparison with somebody else's numbers.
-        raise InputError(
-            f"{layout.results}: the run measured person {data.results.config.person} "
-            "(--person); evaluating a chosen person against their own truth is not "
-            "supported yet"
-        )
-    truth = data.ground_truth
+    ident = data.results.person.id if person is None else person
+    try:
+        results = data.results.for_person(ident)
+    except KeyError as exc:
+        raise InputError(f"{data.layout.results}: {exc.args[0]}") from None
+    several = data.results.several
+    layout: RunLayout = data.layout.for_person(ident if several else None)
     session = load_session(data.results.session.path) if data.session_folder else None
-    gt_dir = session.ground_truth_path if session is not None else None
-    if truth is None or gt_dir is None or not (gt_dir / GROUND_TRUTH_STATES).is_file():
+    gt_root = session.ground_truth_path if session is not None else None
+    if gt_root is None or not (gt_root / GROUND_TRUTH_STATES).is_file():
         raise InputError(
             f"{data.results.session.path}: the session has no ground truth to evaluate against"
         )
+    index = 0
+    if results.person.told_apart or results.config.person is not None:
+        positions = {
+            r.frame: r.estimates["generative"].state.tau[0] for r in results.frames if r.fitted
+        }
+        matched, distance = match_person(gt_root, positions)
+        if matched is None:
+            raise InputError(
+                f"{data.layout.results}: person {ident} is matched to none of the studio's "
+                f"people (nearest root {distance:.2f} m away on average, or two about as "
+                "near): no truth to score them against"
+            )
+        index = matched
+    gt_dir = person_folder(gt_root, index)
+    truth = SubjectTruth.read(gt_dir)
     states = load_npz(gt_dir / GROUND_TRUTH_STATES)
-    ok = data.ok_frames
+    ok = results.ok_frames
     if not ok:
-        raise InputError(f"{layout.results}: no frame was fitted")
+        raise InputError(f"{layout.results}: no frame of person {ident} was fitted")
     if data.cameras is None:
         raise InputError(f"{layout.calibration}: the run has no recorded cameras")
-    gt_gen = _gt_generative_fits(data, states, workers, progress)
+    gt_gen = _gt_generative_fits(data, layout, results, states, workers, progress)
 
     body = shared_body_model()
 
@@ -141,7 +178,7 @@ def evaluate_run(
         return record.estimates[stage].biometrics[key]
 
     # The session stage: one value and its standard error (in "std"), when the run has it.
-    session = data.results.summary.get("session", {})
+    session = results.summary.get("session", {})
     table: dict[str, dict[str, Stat]] = {}
     for key in CORE_MEASUREMENTS:
         table[key] = {stage: Stat.of([bio(r, stage, key) for r in ok]) for stage in FRAME_STAGES}
@@ -163,7 +200,7 @@ def evaluate_run(
         run=str(layout.folder.resolve()),
         session=data.name,
         frames=len(ok),
-        frames_failed=len(data.frames) - len(ok),
+        frames_failed=len(results.frames) - len(ok),
         actual={key: truth.measurements[key] for key in CORE_MEASUREMENTS},
         table=table,
         mpjpe_mm={
@@ -172,6 +209,16 @@ def evaluate_run(
             GT_STAGE: gt_mpjpe,
         },
         silhouette_iou_mean=float(np.mean([r.mean_iou for r in ok])),
+        person=ident if several else None,
+        truth_person=index,
     )
     evaluation.write(layout)
     return evaluation
+
+
+def evaluate_persons(
+    run: str | Path, workers: int | None = None, progress: Progress | None = None
+) -> list[Evaluation]:
+    """:func:`evaluate_run` for every person of the run, in id order."""
+    ids = [p.id for p in load_run(run).results.persons]
+    return [evaluate_run(run, workers, progress, person=ident) for ident in ids]

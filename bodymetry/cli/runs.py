@@ -14,12 +14,12 @@ from rich.table import Table
 
 from bodymetry.cli.common import console, friendly_errors, labelled_progress
 from bodymetry.errors import InputError
-from bodymetry.estimation.run_files import GT_STAGE, RECORDING_MCAP, RECORDING_RRD
+from bodymetry.estimation.run_files import GT_STAGE, RECORDING_MCAP, RECORDING_RRD, Evaluation
 from bodymetry.review.build import build_review
 from bodymetry.review.cohort import STUDY_JSON, write_cohort
 
 # The evaluation's entry point, imported in this one place (it may move between packages).
-from bodymetry.review.evaluation import evaluate_run
+from bodymetry.review.evaluation import evaluate_persons
 
 __all__ = ["evaluate", "report", "view"]
 
@@ -116,17 +116,28 @@ def _report_study(study: Path, pdf: bool, recordings: bool) -> None:
     "--workers", default=None, type=int, help="Frames fitted in parallel (default: all cores)."
 )
 @click.option(
-    "--json", "as_json", is_flag=True, help="Print one JSON object (also in RUN/evaluation.json)."
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print one JSON object per person, a line each (also in RUN/evaluation.json, or "
+    "RUN/persons/K/evaluation.json for a run of several persons).",
 )
 @friendly_errors
 def evaluate(run: Path, workers: int | None, as_json: bool) -> None:
-    """The paper's Figure 3 for a processed session with ground truth (RUN/evaluation.json)."""
+    """The paper's Figure 3 for a processed session with ground truth (RUN/evaluation.json);
+    for a run of several persons, each scored against the studio person where they stood."""
     with labelled_progress() as update:
-        ev = evaluate_run(run, workers=workers, progress=update)
-    if as_json:
-        click.echo(json.dumps(ev.to_json()))
-        return
-    table = Table(title=f"{ev.session} ({ev.frames} frames): Figure 3")
+        evaluations = evaluate_persons(run, workers=workers, progress=update)
+    for ev in evaluations:
+        if as_json:
+            click.echo(json.dumps(ev.to_json()))
+        else:
+            _print_evaluation(ev)
+
+
+def _print_evaluation(ev: Evaluation) -> None:
+    who = "" if ev.person is None else f" person {ev.person} (studio person {ev.truth_person})"
+    table = Table(title=f"{ev.session}{who} ({ev.frames} frames): Figure 3")
     table.add_column("biometric")
     table.add_column("actual", justify="right")
     # The session's one value is ± its standard error; the others ± their spread.

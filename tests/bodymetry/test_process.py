@@ -35,7 +35,7 @@ from bodymetry.estimation.run_files import EVALUATION_FORMAT, Evaluation, RunLay
 from bodymetry.estimation.session_shape import SessionShapeConfig, session_frame
 from bodymetry.estimation.training import DiscriminativeModels
 from bodymetry.frame_jobs import RESCUE_FILE, rescue_poor_frames
-from bodymetry.review.evaluation import evaluate_run
+from bodymetry.review.evaluation import evaluate_persons, evaluate_run
 
 
 @pytest.fixture(scope="module")
@@ -258,6 +258,58 @@ def test_evaluate_writes_the_figure_3_table(run):
     # Started from the true pose, the fit's joints are closer to the truth than the
     # discriminative guess.
     assert ev["mpjpe_mm"]["gt_generative"] < ev["mpjpe_mm"]["discriminative"]
+
+
+def _as_two_persons(out, folder, shift_m=0.0):
+    """A copy of run ``out`` as a run of two persons told apart: person 0 the run's
+    own frames, person 1 the same frames with each fit moved ``shift_m`` metres in x."""
+    shutil.copytree(out, folder)
+    results = RunResults.read(folder / "results.json")
+    layout = RunLayout(folder)
+    for ident in (0, 1):
+        dest = layout.for_person(ident)
+        shutil.copytree(folder / "frames", dest.frames_dir)
+    moved = []
+    for r in results.frames:
+        estimates = {
+            k: dataclasses.replace(
+                e, state=dataclasses.replace(e.state, tau=e.state.tau + [shift_m, 0.0, 0.0])
+            )
+            for k, e in r.estimates.items()
+        }
+        moved.append(dataclasses.replace(r, estimates=estimates))
+    zero = dataclasses.replace(results.person, told_apart=True)
+    one = dataclasses.replace(zero, id=1, frames=tuple(moved))
+    dataclasses.replace(results, persons=(zero, one)).write(layout)
+    return folder
+
+
+def test_evaluate_scores_each_person_against_the_studio_person_where_they_stood(run, tmp_path):
+    _, out, _, _ = run
+    alone = (
+        Evaluation.read(out / "evaluation.json")
+        if (out / "evaluation.json").is_file()
+        else (evaluate_run(out, workers=1))
+    )
+    two = _as_two_persons(out, tmp_path / "two")
+    first, second = evaluate_persons(two, workers=1)
+    assert (first.person, second.person) == (0, 1)
+    assert first.truth_person == second.truth_person == 0  # the studio has its subject only
+    for ev, ident in ((first, 0), (second, 1)):
+        assert Evaluation.read(two / "persons" / str(ident) / "evaluation.json") == ev
+        assert ev.actual == alone.actual and ev.frames == alone.frames
+        for key in CORE_MEASUREMENTS:
+            assert ev.table[key]["generative"] == alone.table[key]["generative"]
+    assert not (two / "evaluation.json").is_file() or (
+        Evaluation.read(two / "evaluation.json").person is None  # the copied one-person file
+    )
+    # A person who stood where no studio person was has no truth: a clear error.
+    far = _as_two_persons(out, tmp_path / "far", shift_m=5.0)
+    assert evaluate_run(far, workers=1, person=0).person == 0
+    with pytest.raises(InputError, match="person 1 is matched to none of the studio's people"):
+        evaluate_run(far, workers=1, person=1)
+    with pytest.raises(InputError, match=r"has no person 7"):
+        evaluate_run(far, workers=1, person=7)
 
 
 def test_evaluate_needs_a_run(tmp_path):
