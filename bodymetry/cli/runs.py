@@ -124,8 +124,10 @@ def _report_study(study: Path, pdf: bool, recordings: bool) -> None:
 )
 @friendly_errors
 def evaluate(run: Path, workers: int | None, as_json: bool) -> None:
-    """The paper's Figure 3 for a processed session with ground truth (RUN/evaluation.json);
-    for a run of several persons, each scored against the studio person where they stood."""
+    """The paper's Figure 3 for a processed session with ground truth (RUN/evaluation.json).
+
+    A run of several persons scores each against the studio person where they stood
+    (RUN/persons/K/evaluation.json)."""
     with labelled_progress() as update:
         evaluations = evaluate_persons(run, workers=workers, progress=update)
     for ev in evaluations:

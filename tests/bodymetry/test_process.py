@@ -18,6 +18,7 @@ import bodymetry.pipeline as pipeline
 import bodymetry.process as process_module
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.calibration.solve import CalibrationResult
+from bodymetry.capture.people import Sighting
 from bodymetry.capture.segmentation import segment_session
 from bodymetry.capture.session import load_session
 from bodymetry.capture.video import H264Writer
@@ -597,3 +598,48 @@ def test_a_second_person_in_view_is_recorded_and_becomes_a_caveat(run, tmp_path,
     written = json.loads(layout.results.read_text())
     assert [c["code"] for c in written["persons"][0]["caveats"]] == codes
     assert RunResults.read(layout.results).caveats == finished.caveats
+
+
+def test_a_run_measures_each_person_capture_tells_apart(run, tmp_path, monkeypatch):
+    """Capture tells two people apart in every kept frame (here both standing in the
+    subject's pixels, one at x = 0 and one 1.5 m away): the run fits each of them on
+    their own, writes each one's frames under persons/K/, records both in results.json
+    without the several_persons caveat, and a second call finds the run finished."""
+    session, _, alone, base = run
+    real_segment = pipeline.segment_session
+
+    def two_people(*args, **kwargs):
+        for sil in real_segment(*args, **kwargs):
+            n = len(sil.masks)
+            people = tuple(
+                Sighting(np.array([x, 0.0, 1.0]), sil.masks, (None,) * n, (False,) * n)
+                for x in (0.0, 1.5)
+            )
+            yield dataclasses.replace(sil, persons=2, sightings=people)
+
+    monkeypatch.setattr(pipeline, "segment_session", two_people)
+    monkeypatch.setattr(pipeline, "needs_every_frame", lambda config: True)
+    out = tmp_path / "two"
+    results = process_module.process_session(session.folder, out, _config(base))
+    assert results.several and [p.id for p in results.persons] == [0, 1]
+    layout = RunLayout(out)
+    kept = [f.frame for f in alone.frames]
+    for person in results.persons:
+        assert person.told_apart and [f.frame for f in person.frames] == kept
+        assert sorted(layout.for_person(person.id).recorded_frames()) == kept
+        assert all(f.persons == 2 for f in person.frames)
+        codes = [c.code for c in results.for_person(person.id).caveats]
+        assert "several_persons" not in codes
+    assert layout.recorded_frames() == []  # a run of several keeps no subject's frames
+    # The same pixels and the same seed: both persons' fits are the run of one subject's.
+    for person in results.persons:
+        for mine, theirs in zip(person.frames, alone.frames, strict=True):
+            assert mine.status.split(":")[0] == theirs.status.split(":")[0]
+    assert RunResults.read(out / "results.json").to_json() == results.to_json()
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("a finished run fits nothing")
+
+    monkeypatch.setattr(pipeline, "fit", no_fit)
+    again = process_module.process_session(session.folder, out, _config(base))
+    assert again.to_json() == results.to_json()
