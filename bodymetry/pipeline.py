@@ -13,12 +13,16 @@ step                  grain        does
 :func:`segment`       frames       each kept frame's silhouettes (once per frame), at the working
                                    resolution, with the subject's landmarks
 :func:`check_calibration`  session  shifts a camera whose calibration the landmarks contradict
+:func:`plan_persons`  session      whom the run measures: every person capture tells apart and
+                                   follows, ``--person N``, or the one subject
+:func:`choose_person` person       each kept frame's silhouettes as one person's
 :func:`train`         rig          the rig's discriminative models (cached; once per rig)
-:func:`fit`           frame        one frame's fit, written to the run folder (arrays and mesh,
-                                   then the record that marks it done)
-:func:`rescue`        session      the frames below the session's quality gate, again from
+:func:`fit`           frame        one person's fit of one frame, written to the run folder
+                                   (arrays and mesh, then the record that marks it done)
+:func:`rescue`        person       the frames below the person's quality gate, again from
                                    their neighbours
-:func:`finish`        session      the session stage and ``results.json``
+:func:`finish_person` person       the quality gate and the session stage of one person
+:func:`finish`        session      ``results.json``, every person
 :func:`review`        session      the recording, MCAP, report and CSV
 ====================  ===========  =============================================================
 
