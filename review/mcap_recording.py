@@ -21,6 +21,12 @@ Topics (one message per kept frame unless said otherwise; cameras ``cam_NN``):
                                  weights (fitted frames with particles)
 ``/measurements``                JSON  the frame's record from ``results.json``
                                  (without the body states)
+
+A run of several persons has one topic set per person K, ``/person/K/body``,
+``/person/K/particles``, ``/person/K/measurements`` and
+``/person/K/cameras/cam_NN/overlay`` (the overlay in the person's colour), and
+the cameras' ``image``, ``calibration`` and ``/tf`` once per frame; a run of one
+person keeps the topics above.
 """
 
 from __future__ import annotations

@@ -8,7 +8,11 @@ evaluate`` wrote ``evaluation.json``), per-frame plots, silhouette overlays of
 a few frames in every camera, front and side renders of the fitted body, the
 calibration quality and a per-frame table. ``report.pdf`` (``--pdf``) has the
 same content, composed with matplotlib (no system libraries needed).
-``measurements.csv`` has one row per kept frame.
+``measurements.csv`` has one row per person and kept frame (a ``person`` column).
+A run of several persons has one section per person ("Person K": headline
+cards, frames and fit, tables, plots, overlays in the person's colour, body,
+frames), the run's warnings once above them; a run of one person looks as it
+always did.
 
 Everything is rebuilt from the run folder (``bodymetry report RUN``):
 ``results.json``, the cameras of ``calibration.yaml`` and, for the overlays,
@@ -805,22 +809,39 @@ def write_pdf(content: _Content, path: str | Path) -> Path:
     ctx = content.context
     metadata = {"Title": ctx["title"], "Creator": f"bodymetry {ctx['version']}"}
     with atomic_path(path) as tmp, PdfPages(tmp, metadata=metadata) as pdf:
-        pdf.savefig(_summary_page(ctx))
-        for name in ("measurements", "fit"):
-            if name in content.figures:
-                pdf.savefig(content.figures[name])
-        if content.overlays:
-            fig = plots.image_grid(
-                [(f"frame {row.frame}", row.images) for row in content.overlays],
-                content.overlays[0].cameras,
+        # One set of pages per person (a run of one person: today's pages).
+        for person in content.persons or [content]:
+            mine = _Content(
+                {**ctx, **person.context},
+                person.figures,
+                person.overlays,
+                person.renders,
             )
-            fig.suptitle(
-                "Silhouette overlays: observed only light blue, model only dark red, both orange",
-                fontsize=10,
-            )
-            pdf.savefig(fig)
-        pdf.savefig(_body_and_calibration_page(content))
+            if ctx["several"]:
+                mine.context["title"] = f"{ctx['title']}, person {person.context['id']}"
+            _person_pages(pdf, mine)
     return path
+
+
+def _person_pages(pdf: Any, content: _Content) -> None:
+    """A person's pages: summary, per-frame plots, overlays, body and calibration."""
+    pdf.savefig(_summary_page(content.context))
+    for name in ("measurements", "fit"):
+        if name in content.figures:
+            pdf.savefig(content.figures[name])
+    if content.overlays:
+        fig = plots.image_grid(
+            [(f"frame {row.frame}", row.images) for row in content.overlays],
+            content.overlays[0].cameras,
+        )
+        person = content.overlays[0].person
+        colours = "dark red, both orange" if person == 0 else "in the person's colour"
+        fig.suptitle(
+            f"Silhouette overlays: observed only light blue, model only {colours}",
+            fontsize=10,
+        )
+        pdf.savefig(fig)
+    pdf.savefig(_body_and_calibration_page(content))
 
 
 def _summary_page(ctx: dict[str, Any]) -> Any:

@@ -37,7 +37,18 @@ the start of the recording):
     evidence (the record's ``view_agreement``), per judged view and frame; a
     view flagged ``unreliable`` was left out of that frame's fit.
 
-The blueprint opens with the 3D view beside the camera grid and the plots below.
+A run of several persons (``results.json`` with more than one person) keeps
+the camera images, ``/metrics/persons`` and the rig once and puts each person's
+entities under their id K: ``/world/person/K/{body,session,landmarks}/...``
+(the paths above, below ``/world/person/K``), ``/world/rig/cam_NN/person/K/
+{observed,model}`` (their silhouettes stay under the camera: a 2D view shows
+only what lies under its pinhole; their model class is ``2 + index`` in the
+person's colour, :mod:`bodymetry.review.person_colors`) and
+``/metrics/person/K/...`` (the series above, below ``/metrics/person/K``). A
+run of one person keeps the paths without ``person/K``.
+
+The blueprint opens with the 3D view beside the camera grid and the plots below
+(each plot with every person's series in a run of several).
 """
 
 from __future__ import annotations

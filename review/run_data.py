@@ -3,7 +3,8 @@
 A run folder (docs/outputs.md, schema :mod:`bodymetry.estimation.records`)
 holds ``results.json``, the cameras the fit used (``calibration.yaml``) and,
 per kept frame, the arrays the fit left (``frames/FFFFFF.npz``: observed and
-model silhouettes, the last annealing layer). The review reads these; it
+model silhouettes, the last annealing layer; in a run of several persons each
+person's are in ``persons/K/frames/``). The review reads these; it
 does not segment or project again. Only the camera images come from the
 session's videos (decoded, not processed); when the session folder has moved
 away, the review has no images, with a warning.

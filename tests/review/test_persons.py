@@ -22,7 +22,7 @@ from bodymetry.review.build import build_review
 from bodymetry.review.cohort import write_cohort
 from bodymetry.review.mcap_recording import overlay_silhouettes
 from bodymetry.review.person_colors import person_rgb
-from bodymetry.review.report import _num, headline_cards
+from bodymetry.review.report import _num, build_report, headline_cards
 from bodymetry.review.run_data import load_frame_arrays, load_run
 
 RUN_WARNING = "a warning about the whole run (test)"
@@ -205,3 +205,14 @@ def test_cohort_has_a_row_per_person(review_run, two_person_run, tmp_path, monke
     html = files.html.read_text()
     assert "pair, person 1" in html and "3 persons measured" in html
     assert re.search(r"sessions done</div><div class=\"v\">2 <small>of 2", html)
+
+
+def _pdf_pages(path) -> int:
+    return len(re.findall(rb"/Type\s*/Page(?![s\w])", path.read_bytes()))
+
+
+def test_pdf_has_the_pages_of_each_person(reviewed, review_run):
+    files = build_report(reviewed, pdf=True)
+    one = _pdf_pages(review_run.folder / "report.pdf")
+    assert one >= 3
+    assert _pdf_pages(files.pdf) == 2 * one
