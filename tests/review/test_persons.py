@@ -216,3 +216,18 @@ def test_pdf_has_the_pages_of_each_person(reviewed, review_run):
     one = _pdf_pages(review_run.folder / "report.pdf")
     assert one >= 3
     assert _pdf_pages(files.pdf) == 2 * one
+
+
+def test_one_person_report_shows_the_persons_own_warnings(review_run, tmp_path):
+    """A run of one person (format 3) has its person's warnings in results.json's
+    person entry: the report shows them with the run's, each once."""
+    folder = tmp_path / "run"
+    shutil.copytree(review_run.folder, folder, ignore=shutil.ignore_patterns("recording.*"))
+    data = json.loads((folder / "results.json").read_text())
+    data["warnings"] = [RUN_WARNING]
+    data["persons"][0]["warnings"] = ["own warning of the subject (test)"]
+    (folder / "results.json").write_text(json.dumps(data))
+    html = build_report(folder).html.read_text()
+    assert html.count(RUN_WARNING) == 1
+    assert html.count("own warning of the subject (test)") == 1
+    assert 'id="person-0"' not in html and "<h2>Subject</h2>" in html
