@@ -32,7 +32,7 @@ from bodymetry.log import Progress
 from bodymetry.review.mcap_recording import McapWriter
 from bodymetry.review.report import OverlayRow, build_report, overlay_row, select_overlay_frames
 from bodymetry.review.rerun_recording import RerunWriter
-from bodymetry.review.run_data import RunData, frame_views, load_run
+from bodymetry.review.run_data import RunData, load_run, run_frame_views
 
 log = logging.getLogger(__name__)
 
@@ -116,7 +116,10 @@ def build_review(
     files: dict[str, Path] = {}
     errors: dict[str, str] = {}
     outputs = _start_recordings(run, body, errors) if recordings else []
-    overlay_frames = set(select_overlay_frames(run)) if report else set()
+    # Each person's overlay frames (person id -> frames): chosen from their own fits.
+    overlay_frames = (
+        {p.person_id: set(select_overlay_frames(p)) for p in run.person_runs()} if report else {}
+    )
     overlays, done = _write_frames(
         run, body, outputs, errors, overlay_frames, every_frame=recordings, progress=progress
     )
@@ -157,40 +160,44 @@ def _write_frames(
     body: BodyModel,
     outputs: list[_Output],
     errors: dict[str, str],
-    overlay_frames: set[int],
+    overlay_frames: dict[int, set[int]],
     *,
     every_frame: bool,
     progress: Progress | None,
 ) -> tuple[list[OverlayRow], int]:
-    """The pass over the frames: each frame to every recording in ``outputs`` (a
-    writer that fails is discarded, removed from ``outputs`` and named in
-    ``errors``) and the overlays of ``overlay_frames`` for the report.
+    """The pass over the frames: each person's view of each frame to every recording
+    in ``outputs`` (a writer that fails is discarded, removed from ``outputs`` and
+    named in ``errors``) and the overlays of each person's ``overlay_frames`` for
+    the report.
 
-    Every kept frame when ``every_frame``, else only the overlay frames.
-    Returns the overlay rows and the number of frames passed.
+    Every frame some person kept when ``every_frame``, else only the overlay
+    frames. Returns the overlay rows and the number of frames passed.
     """
     overlays: list[OverlayRow] = []
-    n_frames = len(run.frames)
+    kept = {r.frame for p in run.person_runs() for r in p.frames}
+    shown = set().union(*overlay_frames.values()) if overlay_frames else set()
+    total = len(kept) if every_frame else len(shown)
     done = 0
-    wanted = None if every_frame else sorted(overlay_frames)
+    wanted = None if every_frame else sorted(shown)
     if progress:
-        progress("review", 0, n_frames if every_frame else len(overlay_frames))
-    for view in frame_views(run, body, frames=wanted):
-        for out in list(outputs):
-            try:
-                out.writer.add(view)
-            except Exception as exc:
-                log.exception("%s: writing frame %d failed", out.final, view.frame)
-                errors[out.name] = f"frame {view.frame}: {type(exc).__name__}: {exc}"
-                out.discard()
-                outputs.remove(out)
-        if view.frame in overlay_frames:
-            row = overlay_row(run, view)
-            if row is not None:
-                overlays.append(row)
+        progress("review", 0, total)
+    for views in run_frame_views(run, body, frames=wanted):
+        for view in views:
+            for out in list(outputs):
+                try:
+                    out.writer.add(view)
+                except Exception as exc:
+                    log.exception("%s: writing frame %d failed", out.final, view.frame)
+                    errors[out.name] = f"frame {view.frame}: {type(exc).__name__}: {exc}"
+                    out.discard()
+                    outputs.remove(out)
+            if view.frame in overlay_frames.get(view.person, ()):
+                row = overlay_row(run.for_person(view.person), view)
+                if row is not None:
+                    overlays.append(row)
         done += 1
         if progress:
-            progress("review", done, n_frames if every_frame else len(overlay_frames))
+            progress("review", done, total)
     return overlays, done
 
 

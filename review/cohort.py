@@ -1,5 +1,5 @@
-"""The cohort of a study: one row per session, as ``cohort.csv``, ``cohort.parquet`` and
-``cohort.html`` (docs/cohort.md).
+"""The cohort of a study: one row per session and person, as ``cohort.csv``,
+``cohort.parquet`` and ``cohort.html`` (docs/cohort.md).
 
 A study folder (``bodymetry batch SESSIONS... --out STUDY``) holds one run folder
 per session (``STUDY/<name>/``, as ``bodymetry process --out`` writes it) and
@@ -7,7 +7,9 @@ per session (``STUDY/<name>/``, as ``bodymetry process --out`` writes it) and
 sessions are done, failed or pending, and why. The cohort reads the two: per
 session the summary of its ``results.json`` (mean and standard deviation per
 stage and measurement over the frames that passed the quality gate), how many
-kept frames were used, the mean silhouette IoU and the run's warnings.
+kept frames were used, the mean silhouette IoU and the run's warnings. A session
+that measured several persons (``results.json`` format 3) is one row per person,
+each with that person's numbers, caveats and warnings (after the run's).
 
 A session without numbers (failed, pending, or a ``results.json`` that is
 missing or unreadable) is a row too, with its status and reason; building the
@@ -74,12 +76,17 @@ _IOU_DIGITS = 4
 
 @dataclass(frozen=True)
 class CohortRow:
-    """One session of a study, as the cohort table shows it.
+    """One person of one session of a study, as the cohort table shows it.
 
     Attributes
     ----------
     name : str
         The session's run folder inside the study folder.
+    person : int or None
+        The person's id in the session (0 for a session of one subject); None for
+        a session without numbers.
+    several : bool
+        Whether the session measured several persons (the row is one of them).
     subject : str
         The session's name from ``results.json`` (the folder name without one).
     status : str
@@ -108,12 +115,15 @@ class CohortRow:
     warnings : str
         The run's warnings, joined with ``"; "``.
     link : str or None
-        ``<name>/report.html`` relative to the study folder, when that file exists.
+        ``<name>/report.html`` relative to the study folder, when that file exists
+        (``#person-K``: the person's section, for a session of several).
     """
 
     name: str
     subject: str
     status: str
+    person: int | None = None
+    several: bool = False
     reason: str = ""
     session_path: str = ""
     rig: str = ""
@@ -125,6 +135,12 @@ class CohortRow:
     caveats: str = ""
     warnings: str = ""
     link: str | None = None
+
+    @property
+    def label(self) -> str:
+        """The row's name in tables and plots: the session, with the person when the
+        session measured several."""
+        return f"{self.name}, person {self.person}" if self.several else self.name
 
     @property
     def done(self) -> bool:
@@ -148,7 +164,8 @@ class CohortFiles:
 
 # --- rows ---------------------------------------------------------------------------------
 def cohort_rows(study_dir: Path, study: StudyResults) -> list[CohortRow]:
-    """One row per session of ``study``, in the study's order.
+    """One row per session of ``study`` and person it measured, in the study's order
+    (a session's persons in the order of its ``results.json``).
 
     Parameters
     ----------
@@ -165,10 +182,11 @@ def cohort_rows(study_dir: Path, study: StudyResults) -> list[CohortRow]:
         raises for one session.
     """
     study_dir = Path(study_dir)
-    return [_row(study_dir, s) for s in study.sessions]
+    return [row for s in study.sessions for row in _rows(study_dir, s)]
 
 
-def _row(study_dir: Path, session: Any) -> CohortRow:
+def _rows(study_dir: Path, session: Any) -> list[CohortRow]:
+    """A session's rows: one per person it measured, or one without numbers."""
     folder = study_dir / session.name
     layout = RunLayout(folder)
     report = folder / REPORT_HTML
@@ -183,7 +201,7 @@ def _row(study_dir: Path, session: Any) -> CohortRow:
         "link": f"{session.name}/{REPORT_HTML}" if report.is_file() else None,
     }
     if session.status != DONE and not layout.results.is_file():
-        return CohortRow(**base)
+        return [CohortRow(**base)]
     try:
         results = RunResults.read(layout.results)
     except InputError as exc:
@@ -193,12 +211,22 @@ def _row(study_dir: Path, session: Any) -> CohortRow:
             log.warning("%s: %s", session.name, exc)
             base["status"] = FAILED
             base["reason"] = _one_line(f"results.json missing or unreadable: {exc}")
-        return CohortRow(**base)
+        return [CohortRow(**base)]
+    base["subject"] = results.session.name or session.name
+    return [_person_row(base, results.for_person(p.id), results.several) for p in results.persons]
+
+
+def _person_row(base: dict[str, Any], results: RunResults, several: bool) -> CohortRow:
+    """The row of one person (``results``: the run as that person sees it)."""
     ok = results.ok_frames
     kept = len(results.frames)
     ious = [r.mean_iou for r in ok if math.isfinite(r.mean_iou)]
+    ident = results.person.id
+    link = base["link"]
     return CohortRow(
-        **{**base, "subject": results.session.name or session.name},
+        **{**base, "link": f"{link}#person-{ident}" if link and several else link},
+        person=ident,
+        several=several,
         frames_kept=kept,
         frames_used=len(ok),
         fraction_used=len(ok) / kept if kept else None,
@@ -231,6 +259,7 @@ def cohort_columns(keys: Sequence[str]) -> list[str]:
     """Columns of ``cohort.csv`` for the measurements ``keys`` (docs/cohort.md)."""
     cols = [
         "session",
+        "person",
         "subject",
         "status",
         "reason",
@@ -260,6 +289,7 @@ def _record(row: CohortRow, keys: Sequence[str]) -> dict[str, Any]:
     """A row's cells by column, rounded as in the CSV; None for missing values."""
     out: dict[str, Any] = {
         "session": row.name,
+        "person": row.person,
         "subject": row.subject,
         "status": row.status,
         "reason": row.reason,
@@ -318,7 +348,7 @@ def _write_parquet(
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    ints = {"frames_kept", "frames_used"}
+    ints = {"person", "frames_kept", "frames_used"}
     floats = {"fraction_used", "iou_mean"} | {
         f"{stage}_{key}_{what}" for stage in STAGES for key in keys for what in ("mean", "std")
     }
@@ -334,12 +364,13 @@ def _write_parquet(
 
 # --- HTML ---------------------------------------------------------------------------------
 def _generative_values(rows: Sequence[CohortRow], key: str) -> list[tuple[str, float, float]]:
-    """(session, mean, std) of a measurement's generative stage, per session that has one."""
+    """(row label, mean, std) of a measurement's generative stage, per row (session and
+    person) that has one."""
     out = []
     for row in rows:
         s = row.stat("generative", key)
         if s is not None and s.mean is not None and math.isfinite(s.mean):
-            out.append((row.name, s.mean, s.std or 0.0))
+            out.append((row.label, s.mean, s.std or 0.0))
     return out
 
 
@@ -381,7 +412,8 @@ def distribution_figure(rows: Sequence[CohortRow]) -> Any:
         )
         ax.set_xticks([])
         ax.set_xlim(-0.6, 0.6)
-        ax.set_xlabel(f"{len(means)} session{'s' if len(means) != 1 else ''}", fontsize=8)
+        what = "person" if any(r.several for r in rows) else "session"
+        ax.set_xlabel(f"{len(means)} {what}{'s' if len(means) != 1 else ''}", fontsize=8)
     return fig
 
 
@@ -400,7 +432,7 @@ def quality_figure(rows: Sequence[CohortRow]) -> Any:
         left=0.2, right=0.98, top=1 - 0.45 / height, bottom=0.45 / height, wspace=0.08
     )
     y = np.arange(n)
-    names = [r.name if r.done else f"{r.name} ({r.status})" for r in rows]
+    names = [r.label if r.done else f"{r.name} ({r.status})" for r in rows]
     used = [r.fraction_used if r.fraction_used is not None else 0.0 for r in rows]
     iou = [r.iou_mean if r.iou_mean is not None else 0.0 for r in rows]
     # Sessions without numbers stay listed (grey, zero length) so every row lines up.
@@ -428,12 +460,16 @@ def _pm(stat: Stat | None, digits: int) -> dict[str, Any] | None:
 def _html_context(
     study_dir: Path, study: StudyResults, rows: Sequence[CohortRow], keys: Sequence[str]
 ) -> dict[str, Any]:
-    done = [r for r in rows if r.done]
+    # Counts of sessions count each session once, whatever the persons it measured.
+    first_rows = list({r.name: r for r in reversed(rows)}.values())[::-1]
+    done = [r for r in first_rows if r.done]
     sessions = []
     for r in rows:
         sessions.append(
             {
                 "name": r.name,
+                "label": r.label,
+                "person": r.person if r.several else None,
                 "subject": r.subject,
                 "status": r.status,
                 "reason": r.reason,
@@ -473,10 +509,12 @@ def _html_context(
         "version": __version__,
         "study_folder": str(study_dir.resolve()),
         "counts": {
-            "sessions": len(rows),
+            "sessions": len(first_rows),
             "done": len(done),
-            "failed": sum(r.status == FAILED for r in rows),
-            "pending": sum(r.status == PENDING for r in rows),
+            "failed": sum(r.status == FAILED for r in first_rows),
+            "pending": sum(r.status == PENDING for r in first_rows),
+            "persons": sum(r.done for r in rows),
+            "several": any(r.several for r in rows),
             "frames_used": sum(r.frames_used or 0 for r in rows),
             "frames_kept": sum(r.frames_kept or 0 for r in rows),
         },
@@ -543,8 +581,8 @@ def write_cohort(study_dir: Path) -> CohortFiles:
     html_path = study_dir / COHORT_HTML
     write_text_atomic(html_path, render_cohort_html(study_dir, study, rows, keys))
     log.info(
-        "cohort of %d sessions (%d done): wrote %s",
-        len(rows),
+        "cohort of %d sessions (%d persons measured): wrote %s",
+        len({r.name for r in rows}),
         sum(r.done for r in rows),
         ", ".join(str(p) for p in (csv_path, parquet_path, html_path) if p is not None),
     )

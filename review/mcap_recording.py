@@ -21,6 +21,12 @@ Topics (one message per kept frame unless said otherwise; cameras ``cam_NN``):
                                  weights (fitted frames with particles)
 ``/measurements``                JSON  the frame's record from ``results.json``
                                  (without the body states)
+
+A run of several persons has one topic set per person K, ``/person/K/body``,
+``/person/K/particles``, ``/person/K/measurements`` and
+``/person/K/cameras/cam_NN/overlay`` (the overlay in the person's colour), and
+the cameras' ``image``, ``calibration`` and ``/tf`` once per frame; a run of one
+person keeps the topics above.
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ from scipy.spatial.transform import Rotation
 from bodymetry.estimation.body_model.model import TAU, BodyModel
 from bodymetry.estimation.records import STAGES, FrameRecord
 from bodymetry.review.meshes import PART_COLORS
+from bodymetry.review.person_colors import person_overlap_rgb, person_rgb
 from bodymetry.review.rerun_recording import camera_to_world, jpeg
 from bodymetry.review.run_data import FrameView, RunData, skeleton_segments
 
@@ -64,15 +71,21 @@ MEASUREMENTS_SCHEMA = {
 
 
 def overlay_silhouettes(
-    image: np.ndarray | None, observed: np.ndarray | None, model: np.ndarray | None
+    image: np.ndarray | None,
+    observed: np.ndarray | None,
+    model: np.ndarray | None,
+    person: int = 0,
 ) -> np.ndarray:
     """The paper's Figure 4 overlay: observed only light blue, model only dark red,
-    both orange, blended over the camera image.
+    both orange, blended over the camera image; another person's model and overlap
+    in that person's colours (:mod:`bodymetry.review.person_colors`).
 
     Parameters
     ----------
     image : (H, W, 3) uint8 BGR or None (grey background)
     observed, model : (H, W) bool or None
+    person : int
+        Whose silhouettes these are (their colours; 0: the paper's).
 
     Returns
     -------
@@ -84,8 +97,8 @@ def overlay_silhouettes(
     mod = np.zeros(shape, bool) if model is None else model
     for mask, bgr in (
         (obs & ~mod, (255, 190, 120)),  # light blue
-        (mod & ~obs, (30, 20, 170)),  # dark red
-        (obs & mod, (0, 150, 255)),  # orange
+        (mod & ~obs, person_rgb(person)[::-1]),  # person 0: dark red
+        (obs & mod, person_overlap_rgb(person)[::-1]),  # person 0: orange
     ):
         if mask.any():
             out[mask] = (0.35 * out[mask] + 0.65 * np.array(bgr)).astype(np.uint8)
@@ -93,6 +106,28 @@ def overlay_silhouettes(
         contours, _ = cv2.findContours(obs.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
         cv2.drawContours(out, contours, -1, (255, 255, 255), 1, cv2.LINE_AA)
     return out
+
+
+def person_prefix(person: int | None) -> str:
+    """The topic prefix of a person's channels: ``""`` for a run of one person (None),
+    ``/person/K`` for person K of a run of several."""
+    return "" if person is None else f"/person/{person}"
+
+
+class _PersonTopics:
+    """One person's channels: ``<prefix>/cameras/cam_NN/overlay``, ``<prefix>/body``,
+    ``<prefix>/particles``, ``<prefix>/measurements`` (prefix: :func:`person_prefix`)."""
+
+    def __init__(self, prefix: str, cameras: Any, context: foxglove.Context) -> None:
+        self.overlay = {
+            n: ch.CompressedImageChannel(f"{prefix}/cameras/{n}/overlay", context=context)
+            for n in cameras
+        }
+        self.body = ch.SceneUpdateChannel(f"{prefix}/body", context=context)
+        self.particles = ch.PointCloudChannel(f"{prefix}/particles", context=context)
+        self.measurements = foxglove.Channel(
+            f"{prefix}/measurements", schema=MEASUREMENTS_SCHEMA, context=context
+        )
 
 
 def _timestamp(seconds: float) -> m.Timestamp:
@@ -129,20 +164,17 @@ class McapWriter:
         self._image = {
             n: ch.CompressedImageChannel(topic(n, "image"), context=self._ctx) for n in names
         }
-        self._overlay = {
-            n: ch.CompressedImageChannel(topic(n, "overlay"), context=self._ctx) for n in names
-        }
         self._calib = {
             n: ch.CameraCalibrationChannel(topic(n, "calibration"), context=self._ctx)
             for n in names
         }
         self._tf = ch.FrameTransformsChannel("/tf", context=self._ctx)
-        self._body = ch.SceneUpdateChannel("/body", context=self._ctx)
-        self._particles = ch.PointCloudChannel("/particles", context=self._ctx)
-        self._measurements = foxglove.Channel(
-            "/measurements", schema=MEASUREMENTS_SCHEMA, context=self._ctx
-        )
+        self._topics = {
+            ident: _PersonTopics(person_prefix(ident if run.several else None), names, self._ctx)
+            for ident in run.person_ids
+        }
         self._frames = 0
+        self._last_frame: int | None = None
         faces = body.faces()
         parts = np.asarray(body.full.arrays.parts)
         rgb = PART_COLORS[parts]
@@ -161,11 +193,39 @@ class McapWriter:
         return self._frames
 
     def add(self, view: FrameView) -> None:
-        """Write one frame."""
+        """Write one person's view of a frame (the cameras' images, calibrations and
+        transforms once per frame, on its first view)."""
         seconds = self.run.time_seconds(view.frame)
         log_time = round(seconds * 1e9)
         stamp = _timestamp(seconds)
-        self._frames += 1
+        first = view.frame != self._last_frame
+        if first:
+            self._frames += 1
+            self._last_frame = view.frame
+            self._log_cameras(view, stamp, log_time)
+        topics = self._topics[view.person]
+        for c, cam in enumerate(self.run.cameras or ()):
+            image = view.images[c] if c < len(view.images) else None
+            observed = view.observed[c] if c < len(view.observed) else None
+            model = view.model[c] if view.model is not None else None
+            if image is not None or observed is not None or model is not None:
+                topics.overlay[cam.name].log(
+                    m.CompressedImage(
+                        timestamp=stamp,
+                        frame_id=cam.name,
+                        data=jpeg(overlay_silhouettes(image, observed, model, view.person)),
+                        format="jpeg",
+                    ),
+                    log_time=log_time,
+                )
+        if view.vertices is not None:
+            topics.body.log(self._scene(view, stamp), log_time=log_time)
+        if view.particles is not None and view.weights is not None:
+            topics.particles.log(_point_cloud(view, stamp), log_time=log_time)
+        topics.measurements.log(json.dumps(_measurement_message(view.record)), log_time=log_time)
+
+    def _log_cameras(self, view: FrameView, stamp: m.Timestamp, log_time: int) -> None:
+        """The frame's camera images, calibrations and the ``/tf`` transforms."""
         transforms = []
         for c, cam in enumerate(self.run.cameras or ()):
             rot, centre = camera_to_world(cam)
@@ -197,8 +257,6 @@ class McapWriter:
                 log_time=log_time,
             )
             image = view.images[c] if c < len(view.images) else None
-            observed = view.observed[c] if c < len(view.observed) else None
-            model = view.model[c] if view.model is not None else None
             if image is not None:
                 self._image[cam.name].log(
                     m.CompressedImage(
@@ -206,23 +264,8 @@ class McapWriter:
                     ),
                     log_time=log_time,
                 )
-            if image is not None or observed is not None or model is not None:
-                self._overlay[cam.name].log(
-                    m.CompressedImage(
-                        timestamp=stamp,
-                        frame_id=cam.name,
-                        data=jpeg(overlay_silhouettes(image, observed, model)),
-                        format="jpeg",
-                    ),
-                    log_time=log_time,
-                )
         if transforms:
             self._tf.log(m.FrameTransforms(transforms=transforms), log_time=log_time)
-        if view.vertices is not None:
-            self._body.log(self._scene(view, stamp), log_time=log_time)
-        if view.particles is not None and view.weights is not None:
-            self._particles.log(_point_cloud(view, stamp), log_time=log_time)
-        self._measurements.log(json.dumps(_measurement_message(view.record)), log_time=log_time)
 
     def _scene(self, view: FrameView, stamp: m.Timestamp) -> m.SceneUpdate:
         verts = np.asarray(view.vertices, float)

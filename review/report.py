@@ -8,7 +8,11 @@ evaluate`` wrote ``evaluation.json``), per-frame plots, silhouette overlays of
 a few frames in every camera, front and side renders of the fitted body, the
 calibration quality and a per-frame table. ``report.pdf`` (``--pdf``) has the
 same content, composed with matplotlib (no system libraries needed).
-``measurements.csv`` has one row per kept frame.
+``measurements.csv`` has one row per person and kept frame (a ``person`` column).
+A run of several persons has one section per person ("Person K": headline
+cards, frames and fit, tables, plots, overlays in the person's colour, body,
+frames), the run's warnings once above them; a run of one person looks as it
+always did.
 
 Everything is rebuilt from the run folder (``bodymetry report RUN``):
 ``results.json``, the cameras of ``calibration.yaml`` and, for the overlays,
@@ -56,7 +60,8 @@ from bodymetry.review import plots
 from bodymetry.review.accuracy import SESSION_ACCURACY
 from bodymetry.review.accuracy import SOURCE as ACCURACY_SOURCE
 from bodymetry.review.mcap_recording import overlay_silhouettes
-from bodymetry.review.run_data import FrameView, RunData, frame_views, load_run
+from bodymetry.review.person_colors import person_hex, person_overlap_rgb
+from bodymetry.review.run_data import FrameView, RunData, frame_views, load_run, run_frame_views
 
 log = logging.getLogger(__name__)
 
@@ -87,12 +92,15 @@ class OverlayRow:
     caption : str
     images : list of (H, W, 3) uint8 RGB, one per camera (downscaled)
     cameras : list of str
+    person : int
+        Whose fit the overlays show (drawn in their colour).
     """
 
     frame: int
     caption: str
     images: list[np.ndarray] = field(default_factory=list)
     cameras: list[str] = field(default_factory=list)
+    person: int = 0
 
 
 def select_overlay_frames(run: RunData, n: int = OVERLAY_FRAMES) -> list[int]:
@@ -127,7 +135,7 @@ def overlay_row(run: RunData, view: FrameView) -> OverlayRow | None:
         model = view.model[c] if view.model is not None else None
         if image is None and observed is None:
             continue
-        bgr = overlay_silhouettes(image, observed, model)
+        bgr = overlay_silhouettes(image, observed, model, view.person)
         h, w = bgr.shape[:2]
         scale = OVERLAY_WIDTH / w
         small = cv2.resize(bgr, (OVERLAY_WIDTH, round(h * scale)), interpolation=cv2.INTER_AREA)
@@ -154,16 +162,30 @@ def overlay_row(run: RunData, view: FrameView) -> OverlayRow | None:
     caption = f"frame {view.frame} (t = {run.time_seconds(view.frame):.2f} s)"
     if np.isfinite(iou):
         caption += f", mean IoU {iou:.2f}"
-    return OverlayRow(view.frame, caption, tiles, names)
+    return OverlayRow(view.frame, caption, tiles, names, view.person)
 
 
-def compute_overlays(run: RunData, body: BodyModel, frames: Sequence[int]) -> list[OverlayRow]:
-    """Overlay rows for ``frames``: recorded silhouettes over the session's images."""
+def compute_overlays(
+    run: RunData, body: BodyModel, frames: Sequence[int] | None = None
+) -> list[OverlayRow]:
+    """Overlay rows: recorded silhouettes over the session's images.
+
+    ``frames`` of the run's first person; None: each person's own
+    :func:`select_overlay_frames` (the camera images of a frame decoded once).
+    """
+    if frames is not None:
+        views = ([v] for v in frame_views(run, body, frames=frames))
+        wanted = {run.person_id: set(frames)}
+    else:
+        wanted = {p.person_id: set(select_overlay_frames(p)) for p in run.person_runs()}
+        views = run_frame_views(run, body, frames=sorted(set().union(*wanted.values())))
     rows = []
-    for view in frame_views(run, body, frames=frames):
-        row = overlay_row(run, view)
-        if row is not None:
-            rows.append(row)
+    for frame_views_ in views:
+        for view in frame_views_:
+            if view.frame in wanted.get(view.person, ()):
+                row = overlay_row(run.for_person(view.person), view)
+                if row is not None:
+                    rows.append(row)
     return rows
 
 
@@ -255,7 +277,7 @@ def measurement_rows(run: RunData) -> list[dict[str, Any]]:
 def csv_columns(run: RunData) -> list[str]:
     """Columns of ``measurements.csv``."""
     keys = _measurement_keys(run)
-    cols = ["frame", "time_s", "status", "flags"]
+    cols = ["person", "frame", "time_s", "status", "flags"]
     cols += [f"{stage}_{key}" for stage in STAGES for key in keys]
     cols += [f"iou_{name}" for name in run.camera_names]
     cols += ["iou_mean", "session_iou_mean", "final_log_likelihood", "seconds_total"]
@@ -263,7 +285,8 @@ def csv_columns(run: RunData) -> list[str]:
 
 
 def _measurement_keys(run: RunData) -> list[str]:
-    fitted = run.fitted_frames
+    # Every person is measured with the same model: the first fitted frame of any says.
+    fitted = [r for p in run.person_runs() for r in p.fitted_frames]
     present = (
         set(fitted[0].estimates["generative"].biometrics) if fitted else set(CORE_MEASUREMENTS)
     )
@@ -271,15 +294,18 @@ def _measurement_keys(run: RunData) -> list[str]:
 
 
 def write_measurements_csv(run: RunData, path: str | Path) -> Path:
-    """``measurements.csv``: one row per kept frame (failed frames with empty values)."""
+    """``measurements.csv``: one row per person and kept frame (failed frames with empty
+    values), person by person; the ``person`` column is the person's id (0 for a run
+    of one subject)."""
     path = Path(path)
     keys = _measurement_keys(run)
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(csv_columns(run))
-    for r in run.frames:
+    records = [(p.person_id, r) for p in run.person_runs() for r in p.frames]
+    for person, r in records:
         flags = ";".join(f"{cam}:{flag}" for cam, fl in sorted(r.flags.items()) for flag in fl)
-        row: list[Any] = [r.frame, f"{run.time_seconds(r.frame):.4f}", r.status, flags]
+        row: list[Any] = [person, r.frame, f"{run.time_seconds(r.frame):.4f}", r.status, flags]
         for stage in STAGES:
             est = r.estimates.get(stage)
             values = est.biometrics if est is not None else {}
@@ -389,6 +415,9 @@ class _Content:
     figures: dict[str, Any]
     overlays: list[OverlayRow]
     renders: dict[str, dict[str, np.ndarray]]
+    #: Per person (one for a run of one person): the person's own context, figures,
+    #: overlays and renders; ``context`` above holds the run's and the first person's.
+    persons: list[_Content] = field(default_factory=list)
 
 
 def session_unavailable(shape: SessionShape | None) -> str:
@@ -553,42 +582,74 @@ def _figures(
     return figures, renders
 
 
-def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -> _Content:
-    """The report's template context, figures and renders (``body`` None: no renders)."""
+def _person_content(
+    run: RunData, body: BodyModel | None, overlays: list[OverlayRow], several: bool
+) -> _Content:
+    """One person's part of the report (``run``: the person's view of the run)."""
     results = run.results
     truth = run.ground_truth
+    ident = run.person_id
     figures, renders = _figures(run, body)
+    person = results.person
+    context = {
+        "id": ident,
+        "frames": _frame_counts(run),
+        "gate": _recorded_settings(results)["gate"],
+        "failed": [r for r in run.frames if not r.ok],
+        "left_out": left_out_rows(run),
+        "truth": truth,
+        "truth_source": truth.source if truth else None,
+        "headline": headline_cards(run),
+        "session_unavailable": session_unavailable(results.session_shape),
+        "figure3": figure3_rows(run),
+        "figure3_columns": figure3_columns(run),
+        "session_shape": results.session_shape,
+        "outline": results.outline,
+        # A run of several persons shows its own warnings once, above the persons.
+        "warnings": list(person.warnings if several else results.warnings),
+        "caveats": list(results.caveats),
+        "measurements": measurement_rows(run),
+        "per_frame": per_frame_rows(run),
+        "overlay_note": _overlay_note(run, overlays),
+        "sfx": f"-p{ident}" if several else "",
+        "who": f" (person {ident})" if several else "",
+        "summary_title": f"Person {ident}" if several else "Subject",
+        "person_color": person_hex(ident) if several else "",
+        "model_color": person_hex(ident),
+        "overlap_color": "#{:02x}{:02x}{:02x}".format(*person_overlap_rgb(ident)),
+        "meshes_dir": f"{run.layout.meshes_dir.relative_to(run.folder).as_posix()}/",
+    }
+    return _Content(context, figures, overlays, renders)
+
+
+def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -> _Content:
+    """The report's template context, figures and renders (``body`` None: no renders):
+    the run's, and each person's (:attr:`_Content.persons`; the first person's also
+    at the top, as a run of one person shows them)."""
+    persons = [
+        _person_content(p, body, [o for o in overlays if o.person == p.person_id], run.several)
+        for p in run.person_runs()
+    ]
+    first = persons[0]
+    results = run.results
     context = {
         "title": f"bodymetry report: {run.name}",
         "name": run.name,
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "version": __version__,
         "session": _session_facts(run),
-        "frames": _frame_counts(run),
         **_recorded_settings(results),
-        "failed": [r for r in run.frames if not r.ok],
-        "left_out": left_out_rows(run),
         "timing": results.timing_seconds,
-        "truth": truth,
-        "truth_source": truth.source if truth else None,
-        "headline": headline_cards(run),
-        "session_unavailable": session_unavailable(results.session_shape),
         "accuracy_source": ACCURACY_SOURCE,
-        "figure3": figure3_rows(run),
-        "figure3_columns": figure3_columns(run),
-        "session_shape": results.session_shape,
-        "outline": results.outline,
-        "warnings": list(results.warnings),
-        "caveats": list(results.caveats),
         "has_evaluation": run.evaluation is not None,
-        "measurements": measurement_rows(run),
         "core_labels": [plots.label(k) for k in CORE_MEASUREMENTS],
-        "per_frame": per_frame_rows(run),
         "calibration": calibration_summary(run),
         "run_folder": str(run.folder.resolve()),
-        "overlay_note": _overlay_note(run, overlays),
+        **first.context,
+        "several": run.several,
+        "warnings": list(results.warnings) if run.several else first.context["warnings"],
     }
-    return _Content(context, figures, overlays, renders)
+    return _Content(context, first.figures, first.overlays, first.renders, persons)
 
 
 def _overlay_note(run: RunData, overlays: list[OverlayRow]) -> str:
@@ -662,17 +723,29 @@ def figure_uri(fig: Any) -> str:
 def render_html(content: _Content) -> str:
     """The report as one self-contained HTML page."""
     env = template_environment()
-    images = {name: figure_uri(fig) for name, fig in content.figures.items()}
-    overlays = [
-        {
-            "caption": row.caption,
-            "tiles": [_jpeg_uri(t) for t in row.images],
-            "cameras": row.cameras,
-        }
-        for row in content.overlays
-    ]
+    persons = []
+    for person in content.persons or [content]:
+        persons.append(
+            {
+                **person.context,
+                "images": {name: figure_uri(fig) for name, fig in person.figures.items()},
+                "overlays": [
+                    {
+                        "caption": row.caption,
+                        "tiles": [_jpeg_uri(t) for t in row.images],
+                        "cameras": row.cameras,
+                    }
+                    for row in person.overlays
+                ],
+            }
+        )
     template = env.get_template("report.html.j2")
-    return template.render(**content.context, images=images, overlays=overlays)
+    return template.render(
+        **content.context,
+        images=persons[0]["images"],
+        overlays=persons[0]["overlays"],
+        persons=persons,
+    )
 
 
 def _num(value: Any, digits: int = 1) -> str:
@@ -713,10 +786,7 @@ def build_report(
         run = load_run(run)
     if body is None:
         body = shared_body_model()
-    if overlays is None:
-        rows = compute_overlays(run, body, select_overlay_frames(run))
-    else:
-        rows = list(overlays)
+    rows = compute_overlays(run, body) if overlays is None else list(overlays)
     content = _content(run, body, rows)
     csv_path = write_measurements_csv(run, run.folder / MEASUREMENTS_CSV)
     html_path = run.folder / REPORT_HTML
@@ -739,22 +809,39 @@ def write_pdf(content: _Content, path: str | Path) -> Path:
     ctx = content.context
     metadata = {"Title": ctx["title"], "Creator": f"bodymetry {ctx['version']}"}
     with atomic_path(path) as tmp, PdfPages(tmp, metadata=metadata) as pdf:
-        pdf.savefig(_summary_page(ctx))
-        for name in ("measurements", "fit"):
-            if name in content.figures:
-                pdf.savefig(content.figures[name])
-        if content.overlays:
-            fig = plots.image_grid(
-                [(f"frame {row.frame}", row.images) for row in content.overlays],
-                content.overlays[0].cameras,
+        # One set of pages per person (a run of one person: today's pages).
+        for person in content.persons or [content]:
+            mine = _Content(
+                {**ctx, **person.context},
+                person.figures,
+                person.overlays,
+                person.renders,
             )
-            fig.suptitle(
-                "Silhouette overlays: observed only light blue, model only dark red, both orange",
-                fontsize=10,
-            )
-            pdf.savefig(fig)
-        pdf.savefig(_body_and_calibration_page(content))
+            if ctx["several"]:
+                mine.context["title"] = f"{ctx['title']}, person {person.context['id']}"
+            _person_pages(pdf, mine)
     return path
+
+
+def _person_pages(pdf: Any, content: _Content) -> None:
+    """A person's pages: summary, per-frame plots, overlays, body and calibration."""
+    pdf.savefig(_summary_page(content.context))
+    for name in ("measurements", "fit"):
+        if name in content.figures:
+            pdf.savefig(content.figures[name])
+    if content.overlays:
+        fig = plots.image_grid(
+            [(f"frame {row.frame}", row.images) for row in content.overlays],
+            content.overlays[0].cameras,
+        )
+        person = content.overlays[0].person
+        colours = "dark red, both orange" if person == 0 else "in the person's colour"
+        fig.suptitle(
+            f"Silhouette overlays: observed only light blue, model only {colours}",
+            fontsize=10,
+        )
+        pdf.savefig(fig)
+    pdf.savefig(_body_and_calibration_page(content))
 
 
 def _summary_page(ctx: dict[str, Any]) -> Any:

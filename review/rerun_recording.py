@@ -37,7 +37,18 @@ the start of the recording):
     evidence (the record's ``view_agreement``), per judged view and frame; a
     view flagged ``unreliable`` was left out of that frame's fit.
 
-The blueprint opens with the 3D view beside the camera grid and the plots below.
+A run of several persons (``results.json`` with more than one person) keeps
+the camera images, ``/metrics/persons`` and the rig once and puts each person's
+entities under their id K: ``/world/person/K/{body,session,landmarks}/...``
+(the paths above, below ``/world/person/K``), ``/world/rig/cam_NN/person/K/
+{observed,model}`` (their silhouettes stay under the camera: a 2D view shows
+only what lies under its pinhole; their model class is ``2 + index`` in the
+person's colour, :mod:`bodymetry.review.person_colors`) and
+``/metrics/person/K/...`` (the series above, below ``/metrics/person/K``). A
+run of one person keeps the paths without ``person/K``.
+
+The blueprint opens with the 3D view beside the camera grid and the plots below
+(each plot with every person's series in a run of several).
 """
 
 from __future__ import annotations
@@ -56,6 +67,7 @@ from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
 from bodymetry.estimation.body_model.model import TAU, BodyModel
 from bodymetry.estimation.records import STAGES, FrameRecord
 from bodymetry.review.meshes import PART_COLORS
+from bodymetry.review.person_colors import person_rgb
 from bodymetry.review.run_data import FrameView, RunData, skeleton_segments
 
 log = logging.getLogger(__name__)
@@ -113,12 +125,37 @@ def vertex_colors(body: BodyModel) -> np.ndarray:
     return out
 
 
+def metrics_root(person: int | None) -> str:
+    """Where a person's series lie: ``/metrics`` for a run of one person (None),
+    ``/metrics/person/K`` for person K of a run of several."""
+    return "/metrics" if person is None else f"/metrics/person/{person}"
+
+
+def world_root(person: int | None) -> str:
+    """Where a person's bodies lie: ``/world`` for a run of one person (None),
+    ``/world/person/K`` for person K of a run of several."""
+    return "/world" if person is None else f"/world/person/{person}"
+
+
+def _series_view(sub: str, name: str, persons: list[int] | None) -> Any:
+    """A time series view of ``/metrics/<sub>`` (one person), or of every person's
+    ``/metrics/person/K/<sub>`` in one plot (``persons``: a run of several)."""
+    if persons is None:
+        return rrb.TimeSeriesView(origin=f"/metrics/{sub}", name=name)
+    return rrb.TimeSeriesView(
+        origin="/metrics/person",
+        contents=[f"{metrics_root(k)}/{sub}/**" for k in persons],
+        name=name,
+    )
+
+
 def blueprint(
     camera_names: list[str],
     biometrics: list[str],
     eye: tuple[np.ndarray, np.ndarray] | None = None,
     agreement: bool = False,
     persons: bool = False,
+    person_ids: list[int] | None = None,
 ) -> Any:
     """3D view beside the camera grid, the time series below.
 
@@ -135,23 +172,26 @@ def blueprint(
     persons : bool
         Whether capture saw more than one person in some frame (a tab of the
         ``/metrics/persons`` series: people in the capture volume per frame).
+    person_ids : list of int, optional
+        The persons of a run of several: each plot shows every person's series
+        (``/metrics/person/K/...``); None for a run of one person.
     """
     cams = [rrb.Spatial2DView(origin=f"/world/rig/{name}", name=name) for name in camera_names]
     plots = [
-        rrb.TimeSeriesView(origin=f"/metrics/biometrics/{key}", name=key)
+        _series_view(f"biometrics/{key}", key, person_ids)
         for key in MAIN_PLOTS
         if key in biometrics
     ]
-    views = [rrb.TimeSeriesView(origin="/metrics/views", name="view agreement")]
+    views = [_series_view("views", "view agreement", person_ids)]
     people = [rrb.TimeSeriesView(origin="/metrics/persons", name="people in view")]
     more = [
         *(people if persons else []),
-        rrb.TimeSeriesView(origin="/metrics/likelihood", name="log-likelihood per layer"),
-        rrb.TimeSeriesView(origin="/metrics/silhouette_iou", name="silhouette IoU"),
+        _series_view("likelihood", "log-likelihood per layer", person_ids),
+        _series_view("silhouette_iou", "silhouette IoU", person_ids),
         *(views if agreement else []),
-        rrb.TimeSeriesView(origin="/metrics/particle_std", name="particle spread (mm)"),
+        _series_view("particle_std", "particle spread (mm)", person_ids),
         *(
-            rrb.TimeSeriesView(origin=f"/metrics/biometrics/{key}", name=key)
+            _series_view(f"biometrics/{key}", key, person_ids)
             for key in biometrics
             if key not in MAIN_PLOTS
         ),
@@ -178,7 +218,10 @@ class RerunWriter:
     """Writes a run's recording to ``path``, one frame at a time.
 
     Uses its own :class:`rerun.RecordingStream`, never the global one. The
-    caller makes the write atomic (:func:`bodymetry.fileio.atomic_path`).
+    caller makes the write atomic (:func:`bodymetry.fileio.atomic_path`). In a
+    run of several persons each person's entities lie under ``/world/person/K``,
+    ``/world/rig/cam_NN/person/K`` and ``/metrics/person/K`` (docs/review.md);
+    a run of one person keeps the paths without ``person/K``.
 
     Parameters
     ----------
@@ -191,9 +234,11 @@ class RerunWriter:
     def __init__(self, path: str | Path, run: RunData, body: BodyModel) -> None:
         self.path = Path(path)
         self.run = run
+        self._persons = run.person_runs()
+        self._several = run.several
         self._rec = rr.RecordingStream("bodymetry", recording_id=f"bodymetry-{run.name}")
         names = [] if run.cameras is None else list(run.cameras.names)
-        fitted = run.fitted_frames
+        fitted = [r for p in self._persons for r in p.fitted_frames]
         present = fitted[0].estimates["generative"].biometrics if fitted else {}
         self.biometrics = [k for k in MEASUREMENTS if k in present]
         eye = None
@@ -208,19 +253,45 @@ class RerunWriter:
             radius = np.linalg.norm(centres[:, :2] - target[:2], axis=1).mean()
             horizontal = side / np.linalg.norm(side) * radius * 1.1
             eye = (target + np.r_[horizontal, centres[:, 2].mean() + 0.6], target)
-        agreement = any(r.view_agreement for r in run.frames)
-        crowded = any((r.persons or 0) > 1 for r in run.frames)
+        records = [r for p in self._persons for r in p.frames]
+        agreement = any(r.view_agreement for r in records)
+        crowded = any((r.persons or 0) > 1 for r in records)
         self._rec.save(
             self.path,
-            default_blueprint=blueprint(names, self.biometrics, eye, agreement, crowded),
+            default_blueprint=blueprint(
+                names,
+                self.biometrics,
+                eye,
+                agreement,
+                crowded,
+                list(run.person_ids) if self._several else None,
+            ),
         )
         self._frames = 0
+        self._last_frame: int | None = None
+        self._truth: dict[int, dict[str, float]] = {}
         self._log_static(body)
+
+    def _key(self, person: int) -> int | None:
+        """The person part of the entity paths: None (no ``person/K``) in a run of one."""
+        return person if self._several else None
+
+    def _model_class(self, person: int) -> int:
+        """The segmentation class of a person's model silhouette (person 0: MODEL_CLASS)."""
+        return MODEL_CLASS + (self.run.person_ids.index(person) if self._several else 0)
 
     # -- static content --------------------------------------------------------------
     def _log_static(self, body: BodyModel) -> None:
         rec = self._rec
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        models = (
+            [
+                (self._model_class(k), f"model silhouette, person {k}", person_rgb(k))
+                for k in self.run.person_ids
+            ]
+            if self._several
+            else [(MODEL_CLASS, "model silhouette", MODEL_RGB)]
+        )
         rec.log(
             "/world/rig",
             rr.AnnotationContext(
@@ -228,7 +299,7 @@ class RerunWriter:
                     # Class 0 must be transparent, else the viewer colours it.
                     (0, "background", (0, 0, 0, 0)),
                     (OBSERVED_CLASS, "observed silhouette", OBSERVED_RGB),
-                    (MODEL_CLASS, "model silhouette", MODEL_RGB),
+                    *models,
                 ]
             ),
             static=True,
@@ -247,124 +318,144 @@ class RerunWriter:
                 ),
                 static=True,
             )
-        rec.log(
-            "/world/body/mesh",
-            rr.Mesh3D.from_fields(
-                triangle_indices=body.faces().astype(np.uint32),
-                vertex_colors=vertex_colors(body),
-            ),
-            static=True,
-        )
-        if self.run.results.session_shape is not None and self.run.results.session_shape.ok:
+        colors = vertex_colors(body)
+        for person in self._persons:
+            key = self._key(person.person_id)
+            world, metrics = world_root(key), metrics_root(key)
             rec.log(
-                "/world/session/mesh",
+                f"{world}/body/mesh",
                 rr.Mesh3D.from_fields(
-                    triangle_indices=body.faces(lod=True).astype(np.uint32),
-                    albedo_factor=SESSION_RGBA,
+                    triangle_indices=body.faces().astype(np.uint32), vertex_colors=colors
                 ),
                 static=True,
             )
-        for key in self.biometrics:
-            for stage in (*STAGES, "actual"):
+            shape = person.results.session_shape
+            if shape is not None and shape.ok:
                 rec.log(
-                    f"/metrics/biometrics/{key}/{stage}",
-                    rr.SeriesLines(colors=[STAGE_RGB[stage]], names=[stage]),
+                    f"{world}/session/mesh",
+                    rr.Mesh3D.from_fields(
+                        triangle_indices=body.faces(lod=True).astype(np.uint32),
+                        albedo_factor=SESSION_RGBA,
+                    ),
                     static=True,
                 )
-        truth = self.run.ground_truth.measurements if self.run.ground_truth else {}
-        self._truth = {k: float(truth[k]) for k in self.biometrics if k in truth}
-        summary = _summary_text(self.run)
+            who = "" if key is None else f"person {key} "
+            for name in self.biometrics:
+                for stage in (*STAGES, "actual"):
+                    rec.log(
+                        f"{metrics}/biometrics/{name}/{stage}",
+                        rr.SeriesLines(colors=[STAGE_RGB[stage]], names=[f"{who}{stage}"]),
+                        static=True,
+                    )
+            truth = person.ground_truth.measurements if person.ground_truth else {}
+            self._truth[person.person_id] = {
+                k: float(truth[k]) for k in self.biometrics if k in truth
+            }
+        summary = "\n\n".join(_summary_text(p, self._several) for p in self._persons)
         rec.log("/notes", rr.TextDocument(summary, media_type="text/markdown"), static=True)
 
     # -- per frame ---------------------------------------------------------------------
     def add(self, view: FrameView) -> None:
-        """Log one frame."""
+        """Log one person's view of a frame (the camera images once per frame)."""
         rec = self._rec
         frame = view.frame
         rec.set_time("frame", sequence=frame)
         rec.set_time("time", duration=self.run.time_seconds(frame))
-        self._frames += 1
+        first = frame != self._last_frame
+        if first:
+            self._frames += 1
+            self._last_frame = frame
+        key = self._key(view.person)
+        world = world_root(key)
         for c, cam in enumerate(self.run.cameras):
             base = f"/world/rig/{cam.name}"
-            if c < len(view.images) and view.images[c] is not None:
+            mine = base if key is None else f"{base}/person/{key}"
+            if first and c < len(view.images) and view.images[c] is not None:
                 rec.log(
                     f"{base}/image",
                     rr.EncodedImage(contents=jpeg(view.images[c]), media_type="image/jpeg"),
                 )
             if c < len(view.observed) and view.observed[c] is not None:
                 rec.log(
-                    f"{base}/observed",
+                    f"{mine}/observed",
                     rr.SegmentationImage(
                         view.observed[c].astype(np.uint8) * OBSERVED_CLASS, opacity=0.45
                     ),
                 )
             if view.model is not None:
                 rec.log(
-                    f"{base}/model",
+                    f"{mine}/model",
                     rr.SegmentationImage(
-                        view.model[c].astype(np.uint8) * MODEL_CLASS, opacity=0.45
+                        view.model[c].astype(np.uint8) * self._model_class(view.person),
+                        opacity=0.45,
                     ),
                 )
         if view.vertices is not None:
-            rec.log("/world/body/mesh", rr.Mesh3D.from_fields(vertex_positions=view.vertices))
+            rec.log(f"{world}/body/mesh", rr.Mesh3D.from_fields(vertex_positions=view.vertices))
         if view.session_vertices is not None:
             rec.log(
-                "/world/session/mesh", rr.Mesh3D.from_fields(vertex_positions=view.session_vertices)
+                f"{world}/session/mesh",
+                rr.Mesh3D.from_fields(vertex_positions=view.session_vertices),
             )
         if view.keypoints is not None:
             rec.log(
-                "/world/body/skeleton",
+                f"{world}/body/skeleton",
                 rr.LineStrips3D(
-                    skeleton_segments(view.keypoints), radii=0.012, colors=[(30, 30, 30)]
+                    skeleton_segments(view.keypoints),
+                    radii=0.012,
+                    colors=[person_rgb(view.person) if key is not None else (30, 30, 30)],
                 ),
             )
             rec.log(
-                "/world/body/keypoints",
+                f"{world}/body/keypoints",
                 rr.Points3D(view.keypoints, radii=0.02, colors=[(250, 200, 0)]),
             )
         if view.landmarks is not None:
             seen = np.all(np.isfinite(view.landmarks), axis=1)
             rec.log(
-                "/world/landmarks",
+                f"{world}/landmarks",
                 rr.Points3D(view.landmarks[seen], radii=0.015, colors=[(0, 200, 255)]),
             )
         if view.particles is not None and view.weights is not None:
             w = view.weights / max(float(view.weights.max()), 1e-12)
             colors = np.stack([255 * w, 80 + 0 * w, 255 * (1 - w)], axis=1).astype(np.uint8)
             rec.log(
-                "/world/body/particles",
+                f"{world}/body/particles",
                 rr.Points3D(view.particles[:, TAU], radii=0.008, colors=colors),
             )
-        self._log_metrics(view.record)
+        if first and view.record.persons is not None:
+            # Capture's count of people in view is the frame's, not a person's.
+            rec.log("/metrics/persons", rr.Scalars(float(view.record.persons)))
+        self._log_metrics(view.record, view.person)
 
-    def _log_metrics(self, record: FrameRecord) -> None:
+    def _log_metrics(self, record: FrameRecord, person: int = 0) -> None:
         rec = self._rec
+        root = metrics_root(self._key(person))
         # Capture's verdict on each view stands whether or not the frame was fitted.
         for name, value in record.view_agreement.items():
             if np.isfinite(value):
-                rec.log(f"/metrics/views/{name}/agreement", rr.Scalars(float(value)))
-        if record.persons is not None:
-            rec.log("/metrics/persons", rr.Scalars(float(record.persons)))
+                rec.log(f"{root}/views/{name}/agreement", rr.Scalars(float(value)))
         if record.estimate() is None:  # no fit: nothing else to plot
             return
+        truth = self._truth.get(person, {})
         for key in self.biometrics:
             for stage in STAGES:
                 est = record.estimates.get(stage)
                 value = est.biometrics.get(key) if est is not None else None
                 # NaN stands for a value the record does not have: no point.
                 if value is not None and np.isfinite(value):
-                    rec.log(f"/metrics/biometrics/{key}/{stage}", rr.Scalars(float(value)))
-            if key in self._truth:
-                rec.log(f"/metrics/biometrics/{key}/actual", rr.Scalars(self._truth[key]))
+                    rec.log(f"{root}/biometrics/{key}/{stage}", rr.Scalars(float(value)))
+            if key in truth:
+                rec.log(f"{root}/biometrics/{key}/actual", rr.Scalars(truth[key]))
         for name, iou in record.silhouette_iou.items():
             if np.isfinite(iou):
-                rec.log(f"/metrics/silhouette_iou/{name}", rr.Scalars(float(iou)))
+                rec.log(f"{root}/silhouette_iou/{name}", rr.Scalars(float(iou)))
         if record.annealing is None:
             return
         for i, value in enumerate(record.annealing.layer_log_likelihood):
-            rec.log(f"/metrics/likelihood/layer_{i:02d}", rr.Scalars(float(value)))
+            rec.log(f"{root}/likelihood/layer_{i:02d}", rr.Scalars(float(value)))
         for axis, value in zip("xyz", record.annealing.tau_std_m, strict=False):
-            rec.log(f"/metrics/particle_std/tau_{axis}_mm", rr.Scalars(1000.0 * float(value)))
+            rec.log(f"{root}/particle_std/tau_{axis}_mm", rr.Scalars(1000.0 * float(value)))
 
     @property
     def frames(self) -> int:
@@ -377,8 +468,10 @@ class RerunWriter:
         self._rec.disconnect()
 
 
-def _summary_text(run: RunData) -> str:
-    lines = [f"# {run.name}", ""]
+def _summary_text(run: RunData, several: bool = False) -> str:
+    """The notes of one person's view of the run (with a "Person K" heading when
+    the run has several)."""
+    lines = [f"# {run.name}" + (f": person {run.person_id}" if several else ""), ""]
     ok = len(run.ok_frames)
     lines.append(
         f"{ok} of {len(run.frames)} kept frames fitted; cameras: {run.calibration_source}."

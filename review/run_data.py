@@ -3,7 +3,8 @@
 A run folder (docs/outputs.md, schema :mod:`bodymetry.estimation.records`)
 holds ``results.json``, the cameras the fit used (``calibration.yaml``) and,
 per kept frame, the arrays the fit left (``frames/FFFFFF.npz``: observed and
-model silhouettes, the last annealing layer). The review reads these; it
+model silhouettes, the last annealing layer; in a run of several persons each
+person's are in ``persons/K/frames/``). The review reads these; it
 does not segment or project again. Only the camera images come from the
 session's videos (decoded, not processed); when the session folder has moved
 away, the review has no images, with a warning.
@@ -20,7 +21,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -69,6 +70,15 @@ class RunData:
         ``evaluation.json`` written by ``bodymetry evaluate``, when present.
     session_folder : Path or None
         The session folder, when it still exists.
+    person : int or None
+        Whose frame files :attr:`layout` points at: None for a run of one person
+        (``frames/``, ``meshes/``), the person's id in a view of a run of several
+        (``persons/K/...``; :meth:`for_person`).
+
+    A run of several persons is read once; :meth:`for_person` gives the run as
+    one person sees it (their results, their frame files) without reading
+    anything again, so that every reader of one person's numbers serves each
+    person (:meth:`person_runs`).
     """
 
     folder: Path
@@ -80,10 +90,50 @@ class RunData:
     calibration_quality: dict[str, Any] | None = None
     evaluation: Evaluation | None = None
     session_folder: Path | None = None
+    person: int | None = None
+    # Whether ``results`` is already one person's view (their warnings added once).
+    _viewed: bool = field(default=False, repr=False)
 
     @property
     def layout(self) -> RunLayout:
-        return RunLayout(self.folder)
+        """Where this run's (or this person's) files lie."""
+        return RunLayout(self.folder).for_person(self.person)
+
+    @property
+    def person_ids(self) -> tuple[int, ...]:
+        """The ids of the run's persons, in the order of ``results.json``."""
+        return tuple(p.id for p in self.results.persons)
+
+    @property
+    def several(self) -> bool:
+        """Whether this is a run of several persons (False for one person's view)."""
+        return self.results.several
+
+    @property
+    def person_id(self) -> int:
+        """The id of the run's first person (of a person's view: that person)."""
+        return self.results.person.id
+
+    def for_person(self, ident: int) -> RunData:
+        """The run as person ``ident`` sees it: only their results (their warnings
+        after the run's, :meth:`RunResults.for_person`) and their frame files.
+
+        Raises
+        ------
+        KeyError
+            When the run has no person ``ident``.
+        """
+        if self.results.persons == (self.results.person,) and ident == self.person_id:
+            # One person (a run of one, or a view already): their warnings are in
+            # ``results.warnings`` once, and their frame files stay where they are.
+            if not self.results.person.warnings or self._viewed:
+                return self
+            return replace(self, results=self.results.for_person(ident), _viewed=True)
+        return replace(self, results=self.results.for_person(ident), person=ident, _viewed=True)
+
+    def person_runs(self) -> list[RunData]:
+        """One view per person (:meth:`for_person`), in the order of ``results.json``."""
+        return [self.for_person(i) for i in self.person_ids]
 
     @property
     def frames(self) -> tuple[FrameRecord, ...]:
@@ -196,9 +246,18 @@ def load_run(folder: str | Path) -> RunData:
     )
 
 
-def load_frame_arrays(folder: Path, frame: int) -> FrameArrays | None:
-    """A frame's recorded arrays (silhouettes, particles), or None when missing or unreadable."""
-    path = RunLayout(folder).frame_arrays(frame)
+def load_frame_arrays(where: Path | RunLayout, frame: int) -> FrameArrays | None:
+    """A frame's recorded arrays (silhouettes, particles), or None when missing or unreadable.
+
+    Parameters
+    ----------
+    where : Path or RunLayout
+        A run folder (its ``frames/``: a run of one person) or a person's layout
+        (:attr:`RunData.layout`: ``persons/K/frames/`` in a run of several).
+    frame : int
+    """
+    layout = where if isinstance(where, RunLayout) else RunLayout(Path(where))
+    path = layout.frame_arrays(frame)
     if not path.is_file():
         return None
     try:
@@ -238,6 +297,8 @@ class FrameView:
         frame's refined pose), its level of detail (``body.faces(lod=True)``:
         it is drawn beside the full-resolution fitted body and would double the
         recordings); None without one.
+    person : int
+        Whose fit this is (the person's id; 0 for a run of one subject).
     """
 
     record: FrameRecord
@@ -250,6 +311,7 @@ class FrameView:
     weights: np.ndarray | None = None
     landmarks: np.ndarray | None = None
     session_vertices: np.ndarray | None = None
+    person: int = 0
 
     @property
     def frame(self) -> int:
@@ -306,36 +368,66 @@ def pose_frame(
 def frame_views(
     run: RunData, body: BodyModel, *, images: bool = True, frames: Sequence[int] | None = None
 ) -> Iterator[FrameView]:
-    """Yield a :class:`FrameView` per kept frame (or per frame of ``frames``), in order.
+    """Yield a :class:`FrameView` per kept frame (or per frame of ``frames``) of the
+    run's first person, in order (``run.for_person(K)`` for another person,
+    :func:`run_frame_views` for every person at once).
 
-    Silhouettes and particles are read from the run's ``frames/FFFFFF.npz``;
-    with ``images`` and a reachable session, the camera images are decoded
-    from its videos.
+    Silhouettes and particles are read from the person's ``FFFFFF.npz``; with
+    ``images`` and a reachable session, the camera images are decoded from its
+    videos.
     """
-    records = {r.frame: r for r in run.frames}
-    wanted = sorted(records) if frames is None else [f for f in sorted(frames) if f in records]
+    first = run.for_person(run.person_id)
+    for views in run_frame_views(first, body, images=images, frames=frames):
+        yield views[0]
+
+
+def run_frame_views(
+    run: RunData, body: BodyModel, *, images: bool = True, frames: Sequence[int] | None = None
+) -> Iterator[list[FrameView]]:
+    """Yield, per frame that some person kept (or per such frame of ``frames``), in
+    order, one :class:`FrameView` per person who kept it (in the order of
+    ``results.json``).
+
+    The camera images of a frame are decoded once and shared by its views; each
+    person's silhouettes and particles come from their own frame files
+    (:attr:`RunData.layout`).
+    """
+    persons = run.person_runs()
+    records = [{r.frame: r for r in p.frames} for p in persons]
+    kept = sorted(set().union(*records))
+    wanted = kept if frames is None else sorted(set(frames) & set(kept))
     image_sets = _images(run, wanted) if images else iter(())
-    names = run.camera_names
     for frame in wanted:
-        record = records[frame]
-        arrays = load_frame_arrays(run.folder, frame) or FrameArrays()
-        vertices, keypoints = pose_frame(body, record)
-        observed = [arrays.observed.get(n) for n in names] if arrays.observed else []
-        model = (
-            [arrays.model.get(n) for n in names] if arrays.model and vertices is not None else None
-        )
-        yield FrameView(
-            record=record,
-            images=next(image_sets, []) if images else [],
-            observed=observed,
-            model=model,
-            vertices=vertices,
-            keypoints=keypoints,
-            particles=arrays.particles if vertices is not None else None,
-            weights=arrays.weights if vertices is not None else None,
-            landmarks=arrays.landmarks,
-            session_vertices=pose_frame(body, record, "session", lod=True)[0],
-        )
+        shared = next(image_sets, []) if images else []
+        yield [
+            _frame_view(p, body, mine[frame], shared)
+            for p, mine in zip(persons, records, strict=True)
+            if frame in mine
+        ]
+
+
+def _frame_view(
+    run: RunData, body: BodyModel, record: FrameRecord, images: list[np.ndarray | None]
+) -> FrameView:
+    """One person's view of a frame (``run``: that person's view of the run)."""
+    arrays = load_frame_arrays(run.layout, record.frame) or FrameArrays()
+    names = run.camera_names
+    vertices, keypoints = pose_frame(body, record)
+    observed = [arrays.observed.get(n) for n in names] if arrays.observed else []
+    model = [arrays.model.get(n) for n in names] if arrays.model and vertices is not None else None
+    return FrameView(
+        record=record,
+        images=images,
+        observed=observed,
+        model=model,
+        vertices=vertices,
+        keypoints=keypoints,
+        particles=arrays.particles if vertices is not None else None,
+        weights=arrays.weights if vertices is not None else None,
+        landmarks=arrays.landmarks,
+        session_vertices=pose_frame(body, record, "session", lod=True)[0],
+        person=run.person_id,
+    )
 
 
 def _images(run: RunData, frames: Sequence[int]) -> Iterator[list[np.ndarray | None]]:

@@ -101,7 +101,12 @@ def _print_study(study, folder: Path) -> None:
     for col in ("session", "status", "rig", "detail"):
         table.add_column(col)
     # A done session whose numbers stand on thin or ambiguous evidence says so.
-    caveats = {row.name: row.caveats for row in cohort_rows(folder, study)}
+    # A session of several persons: each person's caveats, with whose they are.
+    caveats: dict[str, str] = {}
+    for row in cohort_rows(folder, study):
+        if row.caveats:
+            mine = f"person {row.person}: {row.caveats}" if row.several else row.caveats
+            caveats[row.name] = "; ".join(filter(None, (caveats.get(row.name), mine)))
     for entry in study.sessions:
         found = caveats.get(entry.name)
         detail = entry.reason or (f"caveats: {found}" if found else "")

@@ -86,7 +86,9 @@ def report(run: Path, pdf: bool, recordings: bool) -> None:
     with labelled_progress() as update:
         summary = build_review(run, recordings=recordings, pdf=pdf, progress=update)
     for name, path in summary.files.items():
-        console.print(f"wrote {path}" if name != "csv" else f"wrote {path} (one row per frame)")
+        console.print(
+            f"wrote {path}" if name != "csv" else f"wrote {path} (one row per person and frame)"
+        )
     for name, why in summary.errors.items():
         console.print(f"[bold red]{name} failed:[/] {rich.markup.escape(why)}", highlight=False)
     if summary.errors:
@@ -102,7 +104,7 @@ def _report_study(study: Path, pdf: bool, recordings: bool) -> None:
             f"run: `bodymetry report {study / '<session>'} --pdf`"
         )
     files = write_cohort(study)
-    console.print(f"wrote {files.csv} (one row per session)")
+    console.print(f"wrote {files.csv} (one row per session and person)")
     if files.parquet is not None:
         console.print(f"wrote {files.parquet}")
     else:

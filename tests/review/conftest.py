@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 from tiny_run import TINY_TRAIN, tiny_session
+from two_persons import two_person_copy
 
 from bodymetry.capture.session import Session
 from bodymetry.estimation.run_config import ProcessConfig
@@ -44,3 +45,10 @@ def review_run(tmp_path_factory) -> ReviewRun:
         progress=lambda label, done, total: calls.append((label, done, total)),
     )
     return ReviewRun(session, base / "run", results, calls)
+
+
+@pytest.fixture(scope="session")
+def two_person_run(review_run, tmp_path_factory) -> Path:
+    """The review run as a run of two persons (:func:`two_person_copy`), review files
+    not yet written."""
+    return two_person_copy(review_run, tmp_path_factory.mktemp("two") / "run")

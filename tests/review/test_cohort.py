@@ -123,7 +123,9 @@ def test_csv_has_a_row_per_session_with_the_runs_summaries(study, review_run):
     # The columns: the documented order, core measurements first.
     header = list(rows[0])
     assert header == cohort_columns(measurement_keys(cohort_rows(study, _read(study))))
-    assert header[8:14] == [
+    assert header[:3] == ["session", "person", "subject"]
+    assert [r["person"] for r in rows] == ["0", "0", ""]  # a failed session: no person
+    assert header[9:15] == [
         f"discriminative_{k}_{w}" for k in CORE_MEASUREMENTS for w in ("mean", "std")
     ]
     assert not list(study.glob(".*.tmp"))
