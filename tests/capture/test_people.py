@@ -110,7 +110,13 @@ def test_someone_a_camera_missed_behind_another_keeps_their_visible_pixels():
     detections[0] = [Person(both.astype(np.float32), front.landmarks)]
     people = sightings(RIG, detections, 0.5, VisualHull(RIG).floor_box)
     seen_a, seen_b = sorted(people, key=lambda p: np.linalg.norm(p.position[:2] - a))
-    assert seen_b.masks[0] is not None and seen_b.occluded[0] and seen_b.landmarks[0] is None
+    assert seen_b.masks[0] is not None and seen_b.landmarks[0] is None
+    # Half of B is hidden: their covered pixels are unknown (A's, over B's body), and
+    # the view stays in B's fit (not ``occluded``, which leaves it out).
+    assert not seen_b.occluded[0]
+    hidden = seen_b.hidden[0]
+    assert hidden is not None and hidden.any() and not (hidden & seen_b.masks[0]).any()
+    assert (hidden <= seen_a.masks[0]).all()
     only_b = back.mask(0.5) & ~_person(RIG[0], tuple(a)).mask(0.5)
     assert only_b.any()
     assert seen_b.masks[0][only_b].mean() > 0.8 and not seen_a.masks[0][only_b].mean() > 0.2
