@@ -95,7 +95,7 @@ BONE_WIDTH = 0.01
 #: A nearer person's pixel within this fraction of a person's skeleton height of
 #: their bones may hide part of them (``hidden``). Measured against the studio's
 #: truth of hidden pixels (docs/capture.md, two-person session seed 7): reach 0.04
-#: finds 61 % of them at 57 % precision, 0.05 67 % at 53 %, 0.06 72 % at 48 %,
+#: finds 59 % of them at 57 % precision, 0.05 67 % at 53 %, 0.06 72 % at 48 %,
 #: 0.08 80 % at 38 %; wrongly unknown pixels are ones a fit may grow into for free.
 BODY_REACH = 0.05
 
