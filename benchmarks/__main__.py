@@ -29,6 +29,7 @@ BENCHMARKS = (
 REPORTS = {
     "codebase": "benchmarks.codebase",
     "fusion_fit": "benchmarks.fusion_fit",
+    "hidden_pixels": "benchmarks.bench_hidden_pixels",
     "imports": "benchmarks.imports",
     "person_tracks": "benchmarks.bench_person_tracks",
     "persons": "benchmarks.bench_persons",

@@ -98,6 +98,9 @@ class FitJob:
         by camera name (the record's ``view_agreement``).
     persons : int or None
         Person-sized bodies capture counted (the record's ``persons``).
+    unknown : list of ((h_c, w_c) bool or None)
+        Per camera at the working resolution, the person's pixels someone
+        nearer covers (neither person nor background to the fit); empty: none.
     """
 
     frame: int
@@ -111,6 +114,7 @@ class FitJob:
     previous: FrameFit | None = None
     agreement: dict[str, float] = field(default_factory=dict)
     persons: int | None = None
+    unknown: list[np.ndarray | None] = field(default_factory=list)
 
 
 def run_fit_job(job: FitJob) -> FrameFit:
@@ -129,6 +133,7 @@ def run_fit_job(job: FitJob) -> FrameFit:
         job.proposals,
         agreement=job.agreement,
         persons=job.persons,
+        unknown=job.unknown,
     )
 
 
@@ -470,4 +475,5 @@ def _rescue_job(
         # A whole fit again writes a new record: it keeps capture's verdicts.
         dict(old.view_agreement),
         old.persons,
+        arrays.unknown_of(cameras.names) if arrays.unknown else [],
     )

@@ -235,6 +235,10 @@ class SegmentedFrame:
         (:attr:`bodymetry.capture.segmentation.SilhouetteFrame.sightings`; empty
         where capture does not tell people apart); :func:`choose_person` turns
         the frame into one person's.
+    unknown : tuple of ((h_c, w_c) bool or None)
+        Per camera at the working resolution, the chosen person's pixels that
+        someone nearer covers (neither person nor background to the fit); empty
+        unless :func:`choose_person` set them.
     """
 
     frame: int
@@ -245,6 +249,7 @@ class SegmentedFrame:
     agreement: dict[str, float] = field(default_factory=dict)
     persons: int | None = None
     people: tuple[Sighting, ...] = field(default=(), repr=False)
+    unknown: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
 
 
 @dataclass(frozen=True)
@@ -449,13 +454,17 @@ def segment(
 def _working(
     resolution: WorkingResolution, names: Sequence[str], seen: Sighting, full: Sequence[np.ndarray]
 ) -> Sighting:
-    """``seen`` with its masks at the working resolution (None stays None); ``full``:
-    the frame's masks at the cameras' own size."""
-    masks = resolution.downscale(
-        names, [np.zeros_like(f) if m is None else m for m, f in zip(seen.masks, full, strict=True)]
-    )
+    """``seen`` with its masks and hidden pixels at the working resolution (None stays
+    None); ``full``: the frame's masks at the cameras' own size."""
+
+    def working(masks: Sequence[np.ndarray | None]) -> tuple[np.ndarray | None, ...]:
+        small = resolution.downscale(
+            names, [np.zeros_like(f) if m is None else m for m, f in zip(masks, full, strict=True)]
+        )
+        return tuple(None if m is None else w for m, w in zip(masks, small, strict=True))
+
     return replace(
-        seen, masks=tuple(None if m is None else w for m, w in zip(seen.masks, masks, strict=True))
+        seen, masks=working(seen.masks), hidden=working(seen.hidden) if seen.hidden else ()
     )
 
 
@@ -644,10 +653,11 @@ def choose_person(
     The people capture found in each frame are given identities across the
     frames (:func:`bodymetry.capture.persons.track_ids`, as in
     :func:`plan_persons`), and each frame's silhouettes, flags and landmarks
-    become those of the chosen person: a view where someone nearer hides part
-    of them is flagged ``occluded`` (left out of that frame's fit), one that
-    shows nothing of them ``empty``, and a frame without them has no silhouette
-    (its record says so).
+    become those of the chosen person, with the pixels of theirs that someone
+    nearer covers as ``unknown`` (neither person nor background to the fit): a
+    view where most of them is hidden is flagged ``occluded`` (left out of that
+    frame's fit), one that shows nothing of them ``empty``, and a frame without
+    them has no silhouette (its record says so).
     """
     ordered = sorted(segmented, key=lambda s: s.frame)
     ids = track_ids([s.people for s in ordered])
@@ -672,6 +682,10 @@ def choose_person(
             ("empty",) if mine is None else ("occluded",) if hidden else ()
             for mine, hidden in zip(person.masks, person.occluded, strict=True)
         )
+        unknown = tuple(
+            None if mine is None or u is None or not u.any() else u
+            for mine, u in zip(person.masks, person.hidden or (None,) * len(names), strict=True)
+        )
         views = list(person.landmarks)
         landmarks = (
             triangulate_landmarks(prepared.calibrated, views, config.capture.landmarks)
@@ -682,6 +696,7 @@ def choose_person(
             replace(
                 seg, masks=masks, flags=flags, landmarks=landmarks,
                 view_landmarks=tuple(views), agreement={}, people=(),
+                unknown=unknown if any(u is not None for u in unknown) else (),
             )
         )  # fmt: skip
     log.info(
@@ -737,6 +752,7 @@ def fit_job_of(
         prepared.landmarks(seg.view_landmarks, seg.landmarks),
         agreement=seg.agreement,
         persons=seg.persons,
+        unknown=list(seg.unknown),
     )
 
 

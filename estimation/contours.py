@@ -16,7 +16,7 @@ deterministic (no random choices).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import ModuleType
 
 import cv2
@@ -25,7 +25,7 @@ from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
 
 from bodymetry.calibration.camera import Camera, CameraGroup
-from bodymetry.estimation.generative import compiled_likelihood
+from bodymetry.estimation.generative import compiled_likelihood, downscale_mask, unknown_masks
 from bodymetry.estimation.projection import camera_arrays, fill_silhouette
 
 __all__ = [
@@ -117,6 +117,11 @@ class ContourObservation:
     trees : list of cKDTree or None
     originals : CameraGroup or None
         The rig at its own resolution (None: ``cameras``).
+    unknown : list of ((h_c, w_c) bool or None)
+        Per view at the working resolution, pixels that are neither the
+        person's nor background (someone nearer covers them): model outline
+        points there have nothing to align with (:meth:`in_unknown`). Empty:
+        none in any view.
     """
 
     cameras: CameraGroup
@@ -125,10 +130,30 @@ class ContourObservation:
     normals: list[np.ndarray]
     trees: list[cKDTree | None]
     originals: CameraGroup | None = None
+    unknown: list[np.ndarray | None] = field(default_factory=list)
 
     @property
     def valid(self) -> np.ndarray:
         return np.array([t is not None for t in self.trees])
+
+    def in_unknown(self, c: int, points: np.ndarray) -> np.ndarray:
+        """(P,) bool: which of view ``c``'s working pixels ``points`` (P, 2) fall
+        on its unknown pixels (all False where it has none; outside the image:
+        False)."""
+        u = self.unknown[c] if self.unknown else None
+        if u is None or len(points) == 0:
+            return np.zeros(len(points), bool)
+        h, w = u.shape
+        ij = np.round(np.nan_to_num(points, nan=-1.0)).astype(int)
+        inside = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+        out = np.zeros(len(points), bool)
+        out[inside] = u[ij[inside, 1], ij[inside, 0]]
+        return out
+
+
+#: Observed outline points within this many pixels (at the masks' resolution) of
+#: an unknown pixel are dropped: that stretch of outline is the occluder's edge.
+UNKNOWN_MARGIN_PX = 2
 
 
 def prepare_contours(
@@ -136,6 +161,7 @@ def prepare_contours(
     masks: Sequence[np.ndarray] | np.ndarray,
     scale: float,
     max_points: int = 400,
+    unknown: Sequence[np.ndarray | None] | None = None,
 ) -> ContourObservation:
     """Boundary points of the observed silhouettes at the working scale.
 
@@ -151,22 +177,55 @@ def prepare_contours(
     scale : float
     max_points : int
         Evenly spread subset kept per view.
+    unknown : sequence of C ((H_c, W_c) bool or None), optional
+        Per view, pixels that are neither the person's nor background (someone
+        nearer covers them): the observed outline points bordering them
+        (within :data:`UNKNOWN_MARGIN_PX`) are dropped, and the model's outline
+        points that fall on them are left unpaired by the refinement.
 
     Raises
     ------
     ValueError
-        If the masks do not match the cameras in number or size.
+        If the masks (or unknown masks) do not match the cameras in number or size.
     """
     masks = cameras.check_masks(masks)
+    hidden = unknown_masks(cameras, unknown)
     small = cameras.scaled(scale)
     points, normals, trees = [], [], []
-    for mask in masks:
+    for mask, u in zip(masks, hidden, strict=True):
         p = outline_samples(mask, max_points)
+        if u is not None and len(p):
+            p = p[~_borders(u, p)]
         normals.append(outline_normals(mask, p))
         # Pixel centres map as x' = (x + 0.5) s - 0.5 (see Camera.scaled).
         points.append((p + 0.5) * scale - 0.5)
         trees.append(cKDTree(points[-1]) if len(p) >= 10 else None)
-    return ContourObservation(small, cameras.centers, points, normals, trees, cameras)
+    small_unknown = (
+        [
+            None if u is None else downscale_mask(u, cam.size)
+            for u, cam in zip(hidden, small, strict=True)
+        ]
+        if any(u is not None for u in hidden)
+        else []
+    )
+    return ContourObservation(
+        small, cameras.centers, points, normals, trees, cameras, small_unknown
+    )
+
+
+def _borders(unknown: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(P,) bool: which outline points (P, 2) (x, y, between pixel centres) lie within
+    :data:`UNKNOWN_MARGIN_PX` of an ``unknown`` (H, W) pixel."""
+    r = UNKNOWN_MARGIN_PX
+    near = cv2.dilate(unknown.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+    h, w = near.shape
+    # A point between two pixels borders both: test the pixels on either side.
+    out = np.zeros(len(points), bool)
+    for f in (np.floor, np.ceil):
+        x = np.clip(f(points[:, 0]).astype(int), 0, w - 1)
+        y = np.clip(f(points[:, 1]).astype(int), 0, h - 1)
+        out |= near[y, x]
+    return out
 
 
 def outline_samples(mask: np.ndarray, max_points: int) -> np.ndarray:

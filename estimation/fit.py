@@ -342,6 +342,7 @@ def fit_frame(
     proposals: dict[str, np.ndarray] | None = None,
     agreement: dict[str, float] | None = None,
     persons: int | None = None,
+    unknown: Sequence[np.ndarray | None] | None = None,
 ) -> FrameFit:
     """Fit one frame (never raises for bad data: the record says what went wrong).
 
@@ -374,6 +375,11 @@ def fit_frame(
     persons : int, optional
         Person-sized bodies capture counted in the capture volume; recorded as the
         record's ``persons`` (None: not counted).
+    unknown : sequence of C ((H_c, W_c) bool or None), optional
+        Per camera, the person's pixels someone nearer covers: neither person
+        nor background to the likelihood, the contour refinement and the IoU
+        (:func:`~bodymetry.estimation.generative.prepare_observation`); kept
+        in the frame's arrays for the session stage.
     """
     t0 = time.perf_counter()
     body = shared_body_model()
@@ -388,6 +394,11 @@ def fit_frame(
     observed_arrays = FrameArrays(
         observed={n: np.asarray(m, bool) for n, m in zip(names, masks, strict=True)},
         landmarks=landmarks,
+        unknown={
+            n: np.asarray(u, bool)
+            for n, u in zip(names, unknown or [None] * len(names), strict=True)
+            if u is not None and np.any(u)
+        },
     )
 
     def failed(status: str) -> FrameFit:
@@ -409,7 +420,8 @@ def fit_frame(
         # Unusable views become empty masks of their own size (left out downstream).
         # Prepared first: it checks every mask against its camera's size.
         observed = blank_unusable(masks, valid)
-        obs = prepare_observation(cameras, observed, config.annealing.image_scale)
+        hidden = observed_arrays.unknown_of(names)
+        obs = prepare_observation(cameras, observed, config.annealing.image_scale, hidden)
         particles, points, disc_state = _discriminative(
             body, models, masks, valid, obs, config, rng
         )
@@ -417,7 +429,7 @@ def fit_frame(
         particles, starts = _search_starts(
             body, cameras, valid, points, particles, disc_state, proposals, landmarks, config, rng
         )
-        fit = generative_fit(body, cameras, observed, particles, config, rng, starts, obs)
+        fit = generative_fit(body, cameras, observed, particles, config, rng, starts, obs, hidden)
         t_gen = time.perf_counter() - t0 - t_disc
     except (ValueError, np.linalg.LinAlgError) as exc:
         return failed(f"fit failed: {exc}")
@@ -575,7 +587,7 @@ def _finish(
     model_masks = project_silhouettes(
         body.pose(state, lod=True).vertices[0], body.faces(lod=True), cameras
     )
-    iou = view_ious(cameras, model_masks, masks, valid)
+    iou = view_ious(cameras, model_masks, masks, valid, arrays.unknown_of(names))
     mean_iou = float(np.mean(list(iou.values())))
     record = replace(
         record,
@@ -632,7 +644,11 @@ def refit_frame(
     observed = blank_unusable(masks, valid)
     try:
         contours = prepare_contours(
-            cameras, observed, config.refinement.image_scale, config.refinement.max_points
+            cameras,
+            observed,
+            config.refinement.image_scale,
+            config.refinement.max_points,
+            previous.arrays.unknown_of(names),
         )
         starts = {**proposals, f"frame {record.frame} (first fit)": first.vector()}
         refined, start = polish(body, contours, starts, config.refinement)
@@ -729,6 +745,7 @@ def generative_fit(
     rng: np.random.Generator,
     extra_starts: dict[str, np.ndarray] | None = None,
     obs: Observation | None = None,
+    unknown: Sequence[np.ndarray | None] | None = None,
 ) -> GenerativeFit:
     """Annealed search from initial particles, then contour refinement.
 
@@ -747,14 +764,18 @@ def generative_fit(
         More starts for the refinement (e.g. each camera's discriminative
         prediction), besides the annealing's weighted mean and best particle.
     obs : Observation, optional
-        The prepared observation, if the caller has it already.
+        The prepared observation, if the caller has it already (with the same
+        ``unknown``).
+    unknown : sequence of C ((H_c, W_c) bool or None), optional
+        Pixels that are neither the person's nor background (someone nearer
+        covers them), per view.
     """
     t0 = time.perf_counter()
-    obs = obs or prepare_observation(cameras, masks, config.annealing.image_scale)
+    obs = obs or prepare_observation(cameras, masks, config.annealing.image_scale, unknown)
     result = anneal(body, obs, initial, config.annealing, rng)
     t1 = time.perf_counter()
     contours = prepare_contours(
-        cameras, masks, config.refinement.image_scale, config.refinement.max_points
+        cameras, masks, config.refinement.image_scale, config.refinement.max_points, unknown
     )
     starts = {
         "annealing mean": result.state.vector()[0],

@@ -19,6 +19,13 @@ Images are compared at a reduced scale (``image_scale``); distances are in
 full-resolution pixels. Each view is compared at its own camera's size, so a
 rig may mix camera models (per-view arrays, not one stacked array).
 
+Pixels a view marks **unknown** U (a person's pixels that someone nearer to the
+camera covers) are neither person nor background: the model-outside term
+measures distances to O ∪ U, so a model part hidden behind the occluder costs
+nothing, while the observed-to-model term and the normalization stay on O:
+cost_c = (Σ_{S\\(O∪U)} d_{O∪U} + Σ_{O\\S} d_S) / |O|. Without unknown pixels
+this is the cost above, exactly.
+
 The estimate is the weighted mean of the last layer (heading averaged on the
 circle): with a narrow final kernel the particles share one mode, and the mean
 is less noisy than the single best particle (which overfits silhouette noise).
@@ -181,7 +188,10 @@ class Observation:
 
 
 def prepare_observation(
-    cameras: CameraGroup, masks: Sequence[np.ndarray] | np.ndarray, scale: float
+    cameras: CameraGroup,
+    masks: Sequence[np.ndarray] | np.ndarray,
+    scale: float,
+    unknown: Sequence[np.ndarray | None] | None = None,
 ) -> Observation:
     """Downscale the observed silhouettes and precompute their distance maps.
 
@@ -193,23 +203,30 @@ def prepare_observation(
         between cameras); an all-False mask marks a view without a usable
         silhouette (it is left out of the likelihood).
     scale : float
+    unknown : sequence of C ((H_c, W_c) bool or None), optional
+        Per view, pixels that are neither the person's nor background (someone
+        nearer covers them): the model may cover them at no cost (the
+        distance map is that of ``masks | unknown``). None or empty: none.
 
     Raises
     ------
     ValueError
-        If the masks do not match the cameras in number or size.
+        If the masks (or unknown masks) do not match the cameras in number or size.
     """
     masks = cameras.check_masks(masks)
+    hidden = unknown_masks(cameras, unknown)
     small_cams = cameras.scaled(scale)
     small, dist, area, valid, boxes = [], [], [], [], []
-    for cam, mask in zip(small_cams, masks, strict=True):
+    for cam, mask, u in zip(small_cams, masks, hidden, strict=True):
         w, h = cam.size
-        m = cv2.resize(mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_AREA) > 0
+        m = downscale_mask(mask, (w, h))
         small.append(m)
         x, y, bw, bh = cv2.boundingRect(m.astype(np.uint8))
         boxes.append((x, y, x + bw, y + bh))
         if m.any():
-            d = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3) / scale
+            # The model may cover unknown pixels for free: distances to O ∪ U.
+            near = m if u is None else m | downscale_mask(u, (w, h))
+            d = cv2.distanceTransform((~near).astype(np.uint8), cv2.DIST_L2, 3) / scale
         else:
             # No silhouette: nothing to be near (OpenCV's "far" value over a small
             # scale overflows float32). The view is left out of the likelihood.
@@ -226,6 +243,40 @@ def prepare_observation(
         np.asarray(valid),
         np.asarray(boxes, dtype=int).reshape(-1, 4),
     )
+
+
+def downscale_mask(mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(h, w) bool: ``mask`` (H, W) at ``size`` (w, h), a pixel set where any of the
+    pixels it covers is (area interpolation, then > 0)."""
+    w, h = size
+    return cv2.resize(np.asarray(mask, np.uint8), (w, h), interpolation=cv2.INTER_AREA) > 0
+
+
+def unknown_masks(
+    cameras: CameraGroup, unknown: Sequence[np.ndarray | None] | None
+) -> list[np.ndarray | None]:
+    """Per camera the unknown pixels (H_c, W_c) bool, None where a view has none.
+
+    Parameters
+    ----------
+    cameras : CameraGroup
+        C cameras.
+    unknown : sequence of C ((H_c, W_c) bool or None), or None/empty (none anywhere)
+
+    Raises
+    ------
+    ValueError
+        When there is not one entry per camera or a mask is not its camera's size.
+    """
+    if unknown is None or len(unknown) == 0:
+        return [None] * len(cameras)
+    if len(unknown) != len(cameras):
+        raise ValueError(f"unknown masks: {len(unknown)} for {len(cameras)} cameras")
+    filled = [
+        np.zeros(cam.size[::-1], bool) if u is None else u
+        for cam, u in zip(cameras, unknown, strict=True)
+    ]
+    return [u if u.any() else None for u in cameras.check_masks(filled)]
 
 
 def chamfer_costs(obs: Observation, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

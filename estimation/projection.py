@@ -82,6 +82,7 @@ def view_ious(
     model: Sequence[np.ndarray],
     observed: Sequence[np.ndarray],
     used: Sequence[bool],
+    unknown: Sequence[np.ndarray | None] | None = None,
 ) -> dict[str, float]:
     """Silhouette IoU per used view, keyed by camera name.
 
@@ -92,10 +93,17 @@ def view_ious(
     model, observed : sequences of C (H_c, W_c) bool
     used : sequence of C bool
         The views to score (the others are left out).
+    unknown : sequence of C ((H_c, W_c) bool or None), optional
+        Pixels that are neither the person's nor background (someone nearer
+        covers them): left out of both the intersection and the union, so the
+        IoU is measured on the pixels that are the person's or background.
     """
     out = {}
-    for cam, m, o, u in zip(cameras, model, observed, used, strict=True):
+    hidden = list(unknown) if unknown else [None] * len(model)
+    for cam, m, o, u, h in zip(cameras, model, observed, used, hidden, strict=True):
         if u:
+            if h is not None:
+                m, o = m & ~h, o & ~h
             union = np.logical_or(m, o).sum()
             out[cam.name] = float(np.logical_and(m, o).sum() / max(union, 1))
     return out

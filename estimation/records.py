@@ -386,6 +386,10 @@ class FrameArrays:
     landmarks : (33, 3) float or None
         The subject's body landmarks in the world frame, metres (NaN rows: not
         triangulated), when capture found them.
+    unknown : dict of str to (H, W) bool
+        Per camera where the person is partly hidden by someone nearer, the
+        pixels that are neither theirs nor background (the fit's "unknown";
+        ``unknown/<camera>`` in the file, absent from files of runs without).
     """
 
     observed: dict[str, np.ndarray] = field(default_factory=dict)
@@ -393,10 +397,19 @@ class FrameArrays:
     particles: np.ndarray | None = None
     weights: np.ndarray | None = None
     landmarks: np.ndarray | None = None
+    unknown: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def unknown_of(self, names: Sequence[str]) -> list[np.ndarray | None]:
+        """The unknown masks in camera order of ``names`` (None where a camera has none)."""
+        return [self.unknown.get(n) for n in names]
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {}
-        for kind, masks in (("observed", self.observed), ("model", self.model)):
+        for kind, masks in (
+            ("observed", self.observed),
+            ("model", self.model),
+            ("unknown", self.unknown),
+        ):
             for name, mask in masks.items():
                 out[f"{kind}/{name}"] = np.asarray(mask, bool)
         if self.particles is not None and self.weights is not None:
@@ -418,6 +431,11 @@ class FrameArrays:
         model = {
             k.split("/", 1)[1]: v.astype(bool) for k, v in arrays.items() if k.startswith("model/")
         }
+        unknown = {
+            k.split("/", 1)[1]: v.astype(bool)
+            for k, v in arrays.items()
+            if k.startswith("unknown/")
+        }
         particles = arrays.get("particles")
         weights = arrays.get("weights")
         landmarks = arrays.get("landmarks")
@@ -427,6 +445,7 @@ class FrameArrays:
             None if particles is None else np.asarray(particles, float),
             None if weights is None else np.asarray(weights, float),
             None if landmarks is None or landmarks.shape != (33, 3) else landmarks.astype(float),
+            unknown,
         )
 
 

@@ -387,6 +387,12 @@ class ContourCost:
                 continue
             e = self.edges[ids]
             p = self._project(c, V, e)
+            hidden = self.obs.in_unknown(c, p)
+            if hidden.any():
+                # Outline behind someone nearer: nothing observed to align it with.
+                e, p = e[~hidden], p[~hidden]
+                if len(e) == 0:
+                    continue
             pts, nrm = self.obs.points[c], self.obs.normals[c]
             j, k = _nearest(tree, p, pts)
             to_model, to_observed = pts[j], pts

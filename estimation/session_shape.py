@@ -177,12 +177,16 @@ class SessionFrame:
         frame's fit left out are all-False.
     iou : float
         The generative fit's mean silhouette IoU (its record's).
+    unknown : list of ((H_c, W_c) bool or None)
+        Per view, the person's pixels someone nearer covers (neither person nor
+        background; :attr:`FrameArrays.unknown`); empty: none.
     """
 
     frame: int
     start: np.ndarray
     masks: list[np.ndarray]
     iou: float
+    unknown: list[np.ndarray | None] = field(default_factory=list)
 
 
 def session_frame(record: FrameRecord, arrays: FrameArrays, cameras: CameraGroup) -> SessionFrame:
@@ -208,21 +212,26 @@ def session_frame(record: FrameRecord, arrays: FrameArrays, cameras: CameraGroup
         [np.asarray(arrays.observed[n], bool) for n in cameras.names],
         usable_views(cameras.names, record.person_pixels, record.flags),
     )
-    return SessionFrame(record.frame, est.vector(), masks, record.mean_iou)
+    unknown = arrays.unknown_of(cameras.names) if arrays.unknown else []
+    return SessionFrame(record.frame, est.vector(), masks, record.mean_iou, unknown)
 
 
 def silhouette_iou(
-    body: BodyModel, state: BodyState, cameras: CameraGroup, masks: Sequence[np.ndarray]
+    body: BodyModel,
+    state: BodyState,
+    cameras: CameraGroup,
+    masks: Sequence[np.ndarray],
+    unknown: Sequence[np.ndarray | None] | None = None,
 ) -> dict[str, float]:
     """IoU of a state's level-of-detail silhouette with the observed one, per used view.
 
     As the quality gate measures it (:func:`bodymetry.estimation.fit.fit_frame`);
-    all-False views are left out.
+    all-False views are left out, ``unknown`` pixels (per view, or None) too.
     """
     model = project_silhouettes(
         body.pose(state, lod=True).vertices[0], body.faces(lod=True), cameras
     )
-    return view_ious(cameras, model, masks, [m.any() for m in masks])
+    return view_ious(cameras, model, masks, [m.any() for m in masks], unknown)
 
 
 @dataclass(frozen=True)
@@ -508,7 +517,8 @@ def _at_average(
     spread = _spread(body, ends, stage.density)
     poses = {fr.frame: BodyState.from_vector(w.y[None]) for fr, w in zip(frames, work, strict=True)}
     ious = {
-        fr.frame: silhouette_iou(body, poses[fr.frame], stage.cameras, fr.masks) for fr in frames
+        fr.frame: silhouette_iou(body, poses[fr.frame], stage.cameras, fr.masks, fr.unknown)
+        for fr in frames
     }
     mean_iou = float(np.mean([np.mean(list(v.values())) for v in ious.values()]))
     reference = float(np.nanmean([fr.iou for fr in frames]))
@@ -586,7 +596,9 @@ def _frame_costs(
     return [
         ContourCost(
             body,
-            prepare_contours(cameras, fr.masks, refinement.image_scale, refinement.max_points),
+            prepare_contours(
+                cameras, fr.masks, refinement.image_scale, refinement.max_points, fr.unknown
+            ),
             data_config,
         )
         for fr in frames

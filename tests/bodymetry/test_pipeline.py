@@ -216,6 +216,21 @@ def test_choose_person_follows_one_person_through_the_frames(tmp_path):
     assert zero[2].flags == (("empty",),) * 3 and not any(m.any() for m in zero[2].masks)
     one = pipeline.choose_person(prepared, seg, ProcessConfig(), 1)
     assert one[0].flags == ((), (), ("occluded",))
+    assert zero[0].unknown == () and one[0].unknown == ()
+    # Person 0 is partly hidden in camera 1 at frame 0: those pixels are unknown to
+    # their fit (the view stays in it), and the fit's job carries them.
+    covered = mask(2) & ~mask(1)
+    covered[30:40] = True
+    partly = [replace(seg[0], people=(replace(seg[0].people[0], hidden=(None, covered, None)),
+                                      seg[0].people[1])), *seg[1:]]  # fmt: skip
+    zero = pipeline.choose_person(prepared, partly, ProcessConfig(), 0)
+    assert zero[0].flags == ((),) * 3
+    assert zero[0].unknown[0] is None and zero[0].unknown[2] is None
+    assert np.array_equal(zero[0].unknown[1], covered) and zero[1].unknown == ()
+    models = pipeline.RigModels("key", tmp_path, True, 0.0)
+    job = pipeline.fit_job_of(prepared, models, zero[0], ProcessConfig(person=0))
+    assert np.array_equal(job.unknown[1], covered) and job.unknown[0] is None
+    assert pipeline.fit_job_of(prepared, models, zero[1], ProcessConfig()).unknown == []
     assert one[1].flags == ((), ("empty",), ()) and not one[1].masks[1].any()
     assert np.array_equal(one[2].masks[0], mask(1)) and one[2].people == ()
     assert pipeline.plan_persons(prepared, seg, ProcessConfig(person=1)).ids == (1,)

@@ -110,8 +110,33 @@ def test_someone_a_camera_missed_behind_another_keeps_their_visible_pixels():
     detections[0] = [Person(both.astype(np.float32), front.landmarks)]
     people = sightings(RIG, detections, 0.5, VisualHull(RIG).floor_box)
     seen_a, seen_b = sorted(people, key=lambda p: np.linalg.norm(p.position[:2] - a))
-    assert seen_b.masks[0] is not None and seen_b.occluded[0] and seen_b.landmarks[0] is None
+    assert seen_b.masks[0] is not None and seen_b.landmarks[0] is None
+    # Half of B is hidden: their covered pixels are unknown (A's, over B's body); a
+    # camera that did not detect B leaves the view out of B's fit (``occluded``).
+    assert seen_b.occluded[0]
+    hidden = seen_b.hidden[0]
+    assert hidden is not None and hidden.any() and not (hidden & seen_b.masks[0]).any()
+    assert (hidden <= seen_a.masks[0]).all()
     only_b = back.mask(0.5) & ~_person(RIG[0], tuple(a)).mask(0.5)
     assert only_b.any()
     assert seen_b.masks[0][only_b].mean() > 0.8 and not seen_a.masks[0][only_b].mean() > 0.2
     assert not seen_a.occluded[0]
+
+
+def test_a_detected_person_half_behind_another_keeps_the_view_with_hidden_pixels():
+    a = np.array([0.0, 0.0])
+    away = a - RIG[0].center[:2]
+    side = np.array([-away[1], away[0]]) / np.linalg.norm(away)
+    b = a + 0.6 * away / np.linalg.norm(away) + 0.3 * side
+    people = sightings(RIG, _detections([tuple(a), tuple(b)]), 0.5, VisualHull(RIG).floor_box)
+    seen_a, seen_b = sorted(people, key=lambda p: np.linalg.norm(p.position[:2] - a))
+    # Camera 0 found B: half of them hidden is fitted, the covered pixels unknown.
+    assert not seen_b.occluded[0] and not seen_a.occluded[0]
+    hidden = seen_b.hidden[0]
+    assert hidden is not None and (hidden <= seen_a.masks[0]).all()
+    # The hidden pixels are A's over B's body, not all of A: A's far side stays
+    # background for B.
+    truly = _person(RIG[0], tuple(b)).mask(0.5) & seen_a.masks[0]
+    assert np.count_nonzero(hidden & truly) > 0.5 * np.count_nonzero(truly)
+    assert np.count_nonzero(hidden) < 0.8 * np.count_nonzero(seen_a.masks[0])
+    assert seen_a.hidden[0] is None  # nobody is nearer to camera 0 than A
