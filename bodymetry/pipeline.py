@@ -83,6 +83,7 @@ from bodymetry.estimation.run_files import PersonResults, RunLayout, RunResults,
 from bodymetry.estimation.session_shape import fit_session_shape, session_frame
 from bodymetry.estimation.training import cached_models_path, load_or_train, rig_key
 from bodymetry.estimation.view_selection import (
+    ABSENT,
     MIN_PIXELS,
     left_out_views,
     usable_camera_frames,
@@ -668,7 +669,7 @@ def choose_person(
             masks = tuple(np.zeros_like(m) for m in seg.masks)
             out.append(
                 replace(
-                    seg, masks=masks, flags=(("empty",),) * len(names), landmarks=None,
+                    seg, masks=masks, flags=(("empty", ABSENT),) * len(names), landmarks=None,
                     view_landmarks=(), agreement={}, people=(),
                 )
             )  # fmt: skip

@@ -50,7 +50,7 @@ from bodymetry.estimation.refinement import RefineConfig, RefineResult, refine
 from bodymetry.estimation.shape_context import ShapeContextConfig
 from bodymetry.estimation.training import DiscriminativeModels, targets_to_theta
 from bodymetry.estimation.view_features import silhouette_features
-from bodymetry.estimation.view_selection import MIN_PIXELS, blank_unusable, usable_views
+from bodymetry.estimation.view_selection import ABSENT, MIN_PIXELS, blank_unusable, usable_views
 
 __all__ = [
     "MIN_PIXELS",
@@ -415,6 +415,11 @@ def fit_frame(
         )
 
     if valid.sum() == 0:
+        if flag_map and all(ABSENT in f for f in flag_map.values()):
+            # A person told apart from others whom capture did not find in this frame.
+            return failed(
+                "person not found in this frame (fewer than three cameras agreed on them)"
+            )
         return failed("no silhouette in any camera")
     try:
         # Unusable views become empty masks of their own size (left out downstream).

@@ -26,6 +26,7 @@ import numpy as np
 from bodymetry.estimation.records import FrameRecord
 
 __all__ = [
+    "ABSENT",
     "LEAVE_OUT_FLAGS",
     "MIN_PIXELS",
     "LeftOutView",
@@ -44,6 +45,9 @@ MIN_PIXELS = 400
 #: (``unreliable``), or a chosen person whom someone nearer may hide in part
 #: (``occluded``: hidden pixels are unknown, not background).
 LEAVE_OUT_FLAGS = ("unreadable", "unreliable", "occluded")
+#: The flag of every view of a frame in which a person told apart from others was
+#: not found (their fit records why instead of "no silhouette").
+ABSENT = "absent"
 
 
 def usable_view(pixels: int, flags: Sequence[str]) -> bool:

@@ -213,7 +213,7 @@ def test_choose_person_follows_one_person_through_the_frames(tmp_path):
     zero = pipeline.choose_person(prepared, seg, ProcessConfig(), 0)
     assert [f.frame for f in zero] == [0, 25, 50]
     assert all(np.array_equal(a, mask(k)) for a, k in zip(zero[1].masks, (9, 10, 11), strict=True))
-    assert zero[2].flags == (("empty",),) * 3 and not any(m.any() for m in zero[2].masks)
+    assert zero[2].flags == (("empty", "absent"),) * 3 and not any(m.any() for m in zero[2].masks)
     one = pipeline.choose_person(prepared, seg, ProcessConfig(), 1)
     assert one[0].flags == ((), (), ("occluded",))
     assert zero[0].unknown == () and one[0].unknown == ()
