@@ -27,12 +27,12 @@ from bodymetry.capture.session import load_session
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.fit import FitConfig, generative_fit, shared_body_model
-from bodymetry.estimation.records import CORE_MEASUREMENTS, FRAME_STAGES, FrameArrays, Stat
+from bodymetry.estimation.records import CORE_MEASUREMENTS, FRAME_STAGES, Stat
 from bodymetry.estimation.run_files import GT_STAGE, Evaluation, RunLayout, RunResults
 from bodymetry.estimation.view_selection import blank_unusable, usable_views
 from bodymetry.fileio import load_npz
 from bodymetry.log import Progress
-from bodymetry.review.run_data import RunData, load_run
+from bodymetry.review.run_data import RunData, load_frame_arrays, load_run
 
 #: Spread of the GT + Generative start around the true pose (τ m, θ rad, ν).
 GT_START_STD = (0.01, 0.02, 0.3)
@@ -77,8 +77,7 @@ def _gt_generative_fits(
     names, config = data.camera_names, results.config.fit
     jobs = []
     for record in results.ok_frames:
-        path = layout.frame_arrays(record.frame)
-        arrays = FrameArrays.load(path) if path.is_file() else None
+        arrays = load_frame_arrays(layout, record.frame)
         if arrays is None or set(arrays.observed) != set(names):
             raise InputError(
                 f"{layout.frame_arrays(record.frame)}: the frame's recorded silhouettes are "

@@ -159,27 +159,25 @@ def process(
     )
     if config.review:
         _print_review_files(out)
+    # In a run of several persons each line names its person.
+    who = {v.person.id: f"person {v.person.id}: " if results.several else "" for v in views}
     if not any(view.ok_frames for view in views):
         # The run itself worked (results.json says why each frame failed), but
         # there is no measurement: a script must not mistake it for success.
         for view in views:
-            who = f"person {view.person.id}: " if results.several else ""
+            message = who[view.person.id] + no_frames_message(view, out)
             console.print(
-                f"[bold red]error:[/] {rich.markup.escape(who + no_frames_message(view, out))}",
+                f"[bold red]error:[/] {rich.markup.escape(message)}",
                 highlight=False,
                 soft_wrap=True,
             )
         sys.exit(EXIT_NO_FRAMES)
-    caveats = [
-        (f"person {view.person.id}: " if results.several else "", caveat)
-        for view in views
-        for caveat in view.caveats
-    ]
-    unmeasured = [view.person.id for view in views if not view.ok_frames]
-    for ident in unmeasured:
+    caveats = [(who[view.person.id], caveat) for view in views for caveat in view.caveats]
+    unmeasured = [view for view in views if not view.ok_frames]
+    for view in unmeasured:
+        message = who[view.person.id] + no_frames_message(view, out)
         console.print(
-            f"[bold yellow]caveat (unmeasured):[/] person {ident}: "
-            f"{rich.markup.escape(no_frames_message(results.for_person(ident), out))}",
+            f"[bold yellow]caveat (unmeasured):[/] {rich.markup.escape(message)}",
             highlight=False,
             soft_wrap=True,
         )

@@ -612,3 +612,27 @@ def test_process_with_caveats_exits_5_and_says_why(monkeypatch, toy: Path, tmp_p
         "kept frames (frame 10)" in text
     )
     assert "caveat (thin_evidence): only 1 of 5 kept frames measured (frame 10)" in text
+
+
+def test_process_of_two_persons_names_each_and_exits_5_for_the_unmeasured_one(
+    monkeypatch, toy: Path, tmp_path: Path
+) -> None:
+    """Two persons told apart: one table each, caveats prefixed by their person, and a
+    person of several measured in no frame is a caveat (status 5), not silence."""
+    import dataclasses
+
+    import bodymetry.cli.process as cli_process
+
+    base = _failed_results({f: "no silhouette in any camera" for f in (0, 10, 20, 30, 40)})
+    ok = tuple(dataclasses.replace(f, status="ok") for f in base.frames)
+    measured = dataclasses.replace(base.person, frames=ok, told_apart=True)
+    missed = dataclasses.replace(base.person, id=1, told_apart=True)
+    results = dataclasses.replace(base, persons=(measured, missed))
+    monkeypatch.setattr(cli_process, "process_session", lambda *a, **k: results)
+    result = _run("process", str(toy), "--out", str(tmp_path / "run"), "--no-review")
+    assert result.exit_code == 5, (result.exit_code, result.output, result.exception)
+    text = " ".join(result.output.split())
+    assert "s person 0: 5 of 5 kept frames measured" in text
+    assert "s person 1: 0 of 5 kept frames measured" in text
+    assert "caveat (unmeasured): person 1: no frame of 5 could be measured" in text
+    assert "caveat (unmeasured): person 0" not in text and "persons/*/frames/" in text
