@@ -38,6 +38,7 @@ REPORTS = {
     "session_spread": "benchmarks.bench_session_spread",
     "shape_space": "benchmarks.bench_shape_space",
     "standing_shape": "benchmarks.bench_standing_shape",
+    "thin_parts": "benchmarks.bench_thin_parts",
 }
 
 

@@ -72,6 +72,7 @@ __all__ = [
     "FusionWeights",
     "GeometryTerms",
     "change_evidence",
+    "confirmed_change",
     "fuse",
     "mask_iou",
     "segmenter_evidence",
@@ -262,6 +263,46 @@ def view_features(
             out[..., k] = term
     key = sources_key(change is not None, segmenter is not None, geometry is not None)
     return out, key
+
+
+def confirmed_change(
+    fused: np.ndarray,
+    subtracted: np.ndarray,
+    change: np.ndarray,
+    hull_any: np.ndarray,
+    thin: np.ndarray,
+) -> np.ndarray:
+    """The fused mask with the plain changes the other views confirm given back.
+
+    * A strong change of colour (:data:`STRONG_CHANGE`, not shadow-like) that the
+      hull confirms is person whatever the segmenter says: it misses shoes and
+      soft-edged parts that subtraction sees plainly.
+    * On a thin part (a hand, a wrist: ``thin``) any change that subtraction labels
+      person (above its threshold, not shadow) and the hull confirms is person: the
+      segmenter's coarse mask says background there, and the weights were fitted
+      away from the outline (:mod:`benchmarks.fusion_fit`), so they never saw a
+      finger. On the studio's hands the fusion alone lost a third of a pixel of
+      outline (fingertips of 1-2 px; docs/capture.md, "Thin parts").
+
+    Parameters
+    ----------
+    fused : (H, W) bool
+        The fused mask (:func:`fuse` > 0).
+    subtracted : (H, W) bool
+        Background subtraction's person label.
+    change : (H, W) float32
+        :func:`change_evidence`.
+    hull_any : (H, W) bool
+        :attr:`GeometryTerms.hull_any`.
+    thin : (H, W) bool
+        Thin parts of ``fused`` (:func:`bodymetry.capture.masks.thin_parts`).
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    confirmed = subtracted & hull_any & (change >= 0.0)
+    return fused | (confirmed & ((change >= STRONG_CHANGE) | thin))
 
 
 def fuse(features: np.ndarray, weights: FusionWeights) -> np.ndarray:

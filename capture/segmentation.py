@@ -31,11 +31,11 @@ from bodymetry.capture.consistency import HullBodies, HullConfig, visual_hull
 from bodymetry.capture.fusion import (
     FEATURES,
     LIT_CHANGE,
-    STRONG_CHANGE,
     SURE_LOGIT,
     FusionConfig,
     GeometryTerms,
     change_evidence,
+    confirmed_change,
     fuse,
     segmenter_evidence,
     view_agreement,
@@ -43,7 +43,7 @@ from bodymetry.capture.fusion import (
 )
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
-from bodymetry.capture.masks import CleanupConfig, clean_mask
+from bodymetry.capture.masks import CleanupConfig, clean_mask, thin_parts
 from bodymetry.capture.people import Sighting, sighting_of, sightings
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
@@ -598,10 +598,9 @@ class FrameSegmenter:
                 seg = features[..., FEATURES.index("segmenter")]
                 raw &= ~(terms.shadow_at_feet & (seg < SURE_LOGIT))
             if terms is not None:
-                # A strong change of colour (not shadow-like) that the other views
-                # confirm is person whatever the segmenter says: it misses shoes and
-                # soft-edged parts that subtraction sees plainly.
-                raw |= ev.raw & (ev.change >= STRONG_CHANGE) & terms.hull_any
+                raw = confirmed_change(
+                    raw, ev.raw, ev.change, terms.hull_any, thin_parts(raw, self.cleanup)
+                )
             # Shadow labels the fusion overruled (a grey shirt's shaded side) are person.
             shadow = shadow & ~raw
         mask, flags = clean_mask(raw, self.cleanup, image, self.models[c].median, shadow, found)

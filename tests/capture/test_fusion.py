@@ -11,11 +11,13 @@ from bodymetry.capture.fusion import (
     CHANGE_CLIP,
     FEATURES,
     LOGIT_CLIP,
+    STRONG_CHANGE,
     WEIGHTS,
     FusionConfig,
     FusionWeights,
     GeometryTerms,
     change_evidence,
+    confirmed_change,
     fuse,
     mask_iou,
     segmenter_evidence,
@@ -123,6 +125,24 @@ def test_agreement_is_the_better_of_hull_confirmation_and_segmenter_iou():
     assert scores[1] == pytest.approx(mask_iou(a, shifted))
     assert scores[2] is None and scores[3] is None
     assert scores[4] == pytest.approx(np.count_nonzero(shifted & fat) / shifted.sum())
+
+
+def test_confirmed_change_gives_back_thin_parts_and_strong_changes_only():
+    # One row per case: (fused, subtracted, change, hull, thin) -> kept.
+    cases = [
+        (True, False, -2.0, False, False, True),  # the fusion's own answer stays
+        (False, True, 0.3, True, True, True),  # a finger: weak change, thin, confirmed
+        (False, True, 0.3, True, False, False),  # the same change on the trunk's edge
+        (False, True, STRONG_CHANGE, True, False, True),  # a shoe: strong change
+        (False, True, 0.3, False, True, False),  # no other view confirms it
+        (False, False, 0.3, True, True, False),  # subtraction said shadow
+        (False, True, -0.5, True, True, False),  # below the change threshold
+    ]
+    fused, subtracted, change, hull, thin, kept = (
+        np.array([c[k] for c in cases])[None] for k in range(6)
+    )
+    out = confirmed_change(fused, subtracted, change.astype(np.float32), hull, thin)
+    np.testing.assert_array_equal(out, kept)
 
 
 def test_config_validation():

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from bodymetry.capture.masks import CleanupConfig, clean_mask, refine_edges
+from bodymetry.capture.masks import CleanupConfig, clean_mask, refine_edges, thin_parts
 from bodymetry.errors import InputError
 
 H, W = 240, 320
@@ -149,3 +149,50 @@ def test_refine_edges_never_adds_shadow_and_keeps_an_empty_mask():
     assert not out[:30, 48:].any() and out[:30, :48].all()
     empty = np.zeros_like(truth)
     assert not refine_edges(img, bg_img, empty).any()
+
+
+WALL = (120, 118, 115)
+
+
+def _sleeve_and_hand(sigma: float = 1.0):
+    """A red sleeve (40 x 40 px) and a skin-coloured hand 4 px wide leaving it, lit
+    above (2 rows) and shaded below (2 rows, darker, nearer the wall's colour), on a
+    grey wall, blurred by ``sigma`` px; the true mask (pixel centres), the image and
+    the wall's colour."""
+    truth = np.zeros((80, 120), bool)
+    img = np.zeros((80, 120, 3), np.float32)
+    img[:] = WALL
+    truth[20:60, 10:50] = True
+    img[20:60, 10:50] = (40, 40, 200)
+    truth[38:42, 50:95] = True
+    img[38:40, 50:95] = (210, 180, 160)
+    img[40:42, 50:95] = (150, 125, 110)
+    img = cv2.GaussianBlur(img, (0, 0), sigma)
+    return truth, np.clip(img + 0.5, 0, 255).astype(np.uint8), np.full_like(img, WALL)
+
+
+def test_thin_parts_are_the_hand_not_the_sleeve():
+    truth, *_ = _sleeve_and_hand()
+    truth = np.pad(truth, ((0, 400), (0, 520)))  # 640 x 480: the window is 7 px
+    thin = thin_parts(truth, CleanupConfig())
+    assert thin[38:42, 60:90].all()  # the hand, 4 px thick
+    assert not thin[25:55, 15:45].any()  # the sleeve, 40 px thick
+    # Invariance: transposing the mask transposes the answer.
+    np.testing.assert_array_equal(thin_parts(truth.T.copy(), CleanupConfig()), thin.T)
+
+
+def test_refine_edges_keeps_the_shaded_side_of_a_thin_part():
+    # Known answer: the threshold's mask a pixel too wide all round; the refined
+    # hand must keep its shaded side (a mean colour over the window, lit skin,
+    # shaded skin and sleeve, sits nearer the wall than the shaded skin does, and
+    # lost that row: recall 0.74) without spreading into the wall, and the
+    # sleeve's edge stays where it was.
+    truth, img, bg = _sleeve_and_hand()
+    wide = cv2.dilate(truth.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    out = refine_edges(img, bg, wide, radius=2, window=7)
+    hand = np.zeros_like(truth)
+    hand[30:50, 55:100] = True
+    assert (out & truth & hand).sum() / (truth & hand).sum() > 0.98
+    assert (out & ~truth & hand).sum() <= 0.02 * (truth & hand).sum()
+    sleeve = ~hand
+    assert (out ^ truth)[sleeve].sum() <= 6  # the corners where the hand meets it
