@@ -305,15 +305,21 @@ def _mended(landmarks: np.ndarray, projected: np.ndarray | None, camera) -> np.n
     """(33, 3) ``landmarks`` of one camera with each drawn landmark that lies
     further than :data:`~bodymetry.capture.headcount.MATCH_ERROR` of the image
     height from ``projected`` (the other cameras' skeleton as this one sees it,
-    (33, 3) or None) moved there."""
+    (33, 3) or None) moved there, and each one it does not draw (unseen, or
+    less visible than :data:`BONE_VISIBILITY`) drawn there: a limb the camera's
+    detector barely sees, e.g. behind someone, still claims its own pixels
+    (Demo_MultiPerson, frame 50, cam04: the woman's legs, visibility 0.04-0.22,
+    went to the man's nearest bones)."""
     lm = np.array(landmarks, float)
     if projected is None:
         return lm
     drawn = np.isfinite(lm).all(axis=1) & (lm[:, 2] >= BONE_VISIBILITY)
     known = np.isfinite(projected[:, :2]).all(axis=1)
-    off = np.linalg.norm(lm[:, :2] - projected[:, :2], axis=1) > MATCH_ERROR * camera.size[1]
-    moved = drawn & known & off
+    with np.errstate(invalid="ignore"):
+        off = np.linalg.norm(lm[:, :2] - projected[:, :2], axis=1) > MATCH_ERROR * camera.size[1]
+    moved = known & (off | ~drawn)
     lm[moved, :2] = projected[moved, :2]
+    lm[moved & ~drawn, 2] = BONE_VISIBILITY
     return lm
 
 
