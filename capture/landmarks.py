@@ -164,19 +164,33 @@ def _unswapped(cameras: CameraGroup, pixels: np.ndarray, cfg: LandmarkConfig) ->
         np.array([(k >> i) & 1 for i in range(views.size)], bool)
         for k in range(0, 2**views.size, 2)
     ]
+
+    def errors(trials: np.ndarray) -> np.ndarray:
+        """(T, L) capped error sums over the views of each landmark of labellings
+        (T, C, L, 2), triangulated in one go."""
+        t, _, n, _ = trials.shape
+        stacked = trials.transpose(1, 0, 2, 3).reshape(len(pixels), t * n, 2)
+        X = _triangulate(cameras, stacked, cfg)
+        with np.errstate(invalid="ignore"):
+            err = np.linalg.norm(cameras.project(X) - stacked, axis=-1) / limit
+        seen = np.isfinite(stacked[..., 0])
+        err = np.where(seen, np.where(np.isnan(err), 1.0, np.fmin(err, 1.0)), 0.0)
+        return err.reshape(len(pixels), t, n).sum(axis=0)
+
+    def scores(trials: np.ndarray) -> np.ndarray:
+        return errors(trials).sum(axis=1)
+
+    detected = errors(pixels[None])[0]
+    as_detected = [detected[group].sum() for group, _ in SWAP_GROUPS]
     best_of = []
-    for group, _ in SWAP_GROUPS:
-        scored = []
-        for flip in labellings:
-            if len(scored) == 1 and scored[0] < 1.0:
-                break  # the views agree as detected
-            trial = pixels[:, group].copy()
-            trial[views[flip]] = pixels[views[flip]][:, MIRROR[group]]
-            X = _triangulate(cameras, trial, cfg)
-            with np.errstate(invalid="ignore"):
-                err = np.linalg.norm(cameras.project(X) - trial, axis=-1) / limit
-            err = np.where(np.isnan(err), 1.0, np.minimum(err, 1.0))
-            scored.append(float(err[np.isfinite(trial[..., 0])].sum()))
+    for (group, _), score in zip(SWAP_GROUPS, as_detected, strict=True):
+        if score < 1.0:
+            best_of.append(None)  # the views agree as detected
+            continue
+        trials = np.repeat(pixels[None][:, :, group], len(labellings), axis=0)
+        for t, flip in enumerate(labellings):
+            trials[t, views[flip]] = pixels[views[flip]][:, MIRROR[group]]
+        scored = scores(trials)
         k = int(np.argmin(scored))
         best_of.append(labellings[k] if scored[k] < scored[0] - 1.0 else None)
     # Each group's chosen labelling or its mirror: the one that puts its left on the left.
