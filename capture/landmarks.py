@@ -106,7 +106,121 @@ def triangulate_landmarks(
         consistent views.
     """
     cfg = config or LandmarkConfig()
-    return _triangulate(cameras, _detections(cameras, landmarks, cfg), cfg)
+    pixels = _detections(cameras, landmarks, cfg)
+    return _triangulate(cameras, _unswapped(cameras, pixels, cfg), cfg)
+
+
+def _mirror() -> np.ndarray:
+    """(33,) int: each landmark's index with left and right exchanged."""
+    index = {name: i for i, name in enumerate(LANDMARKS)}
+    other = {"left_": "right_", "right_": "left_"}
+    out = np.arange(len(LANDMARKS))
+    for i, name in enumerate(LANDMARKS):
+        for a, b in other.items():
+            if name.startswith(a):
+                out[i] = index[b + name[len(a) :]]
+    return out
+
+
+#: Landmark index with left and right exchanged.
+MIRROR = _mirror()
+#: The groups whose left/right labels a view may swap on its own (the detector
+#: confuses the legs of a lunge without the arms, or the whole body), each with
+#: the pair that says which side is left: face (ears), arms (shoulders), legs (hips).
+SWAP_GROUPS: tuple[tuple[np.ndarray, tuple[int, int]], ...] = (
+    (np.arange(1, 11), (7, 8)),
+    (np.arange(11, 23), (11, 12)),
+    (np.arange(23, 33), (23, 24)),
+)
+
+
+def _unswapped(cameras: CameraGroup, pixels: np.ndarray, cfg: LandmarkConfig) -> np.ndarray:
+    """``pixels`` (C, 33, 2) with the views whose left and right labels disagree
+    with the other views' exchanged, per :data:`SWAP_GROUPS` group.
+
+    Dropping the worst view per landmark (:func:`_triangulate`) mends one swapped
+    view of four, not two: in a lunge the detector swaps the legs or the arms in
+    some views (Demo_MultiPerson, frame 60: the arms in two cameras of four), and
+    the triangulated limbs land between the sides. So every labelling of a group
+    (each view as detected or mirrored) is triangulated, and scored by its
+    observations' reprojection errors in units of ``cfg.max_error``, capped at 1
+    (an observation that does not fit counts once, however far off). The views
+    are relabelled only when the best labelling scores at least one observation
+    better than the detected one. A labelling and its mirror (every view
+    swapped) score the same; of the two, the one whose left landmarks lie on the
+    body's left is taken: left is up x forward, up from the hips' to the
+    shoulders' midpoint, forward from the ears' midpoint to the nose (midpoints
+    and the nose do not depend on the labels); without those, the one that
+    relabels fewer views.
+    """
+    seen = np.isfinite(pixels[..., 0])
+    views = np.flatnonzero(seen.any(axis=1))
+    if views.size < 3:
+        return pixels  # two views: any labelling triangulates to something
+    limit = cfg.max_error * np.array(cameras.sizes, float)[:, 1:]  # (C, 1)
+    out = pixels.copy()
+    # A labelling and its mirror score the same: the first view stays as detected.
+    labellings = [
+        np.array([(k >> i) & 1 for i in range(views.size)], bool)
+        for k in range(0, 2**views.size, 2)
+    ]
+
+    def errors(trials: np.ndarray) -> np.ndarray:
+        """(T, L) capped error sums over the views of each landmark of labellings
+        (T, C, L, 2), triangulated in one go."""
+        t, _, n, _ = trials.shape
+        stacked = trials.transpose(1, 0, 2, 3).reshape(len(pixels), t * n, 2)
+        X = _triangulate(cameras, stacked, cfg)
+        with np.errstate(invalid="ignore"):
+            err = np.linalg.norm(cameras.project(X) - stacked, axis=-1) / limit
+        seen = np.isfinite(stacked[..., 0])
+        err = np.where(seen, np.where(np.isnan(err), 1.0, np.fmin(err, 1.0)), 0.0)
+        return err.reshape(len(pixels), t, n).sum(axis=0)
+
+    def scores(trials: np.ndarray) -> np.ndarray:
+        return errors(trials).sum(axis=1)
+
+    detected = errors(pixels[None])[0]
+    as_detected = [detected[group].sum() for group, _ in SWAP_GROUPS]
+    best_of = []
+    for (group, _), score in zip(SWAP_GROUPS, as_detected, strict=True):
+        if score < 1.0:
+            best_of.append(None)  # the views agree as detected
+            continue
+        trials = np.repeat(pixels[None][:, :, group], len(labellings), axis=0)
+        for t, flip in enumerate(labellings):
+            trials[t, views[flip]] = pixels[views[flip]][:, MIRROR[group]]
+        scored = scores(trials)
+        k = int(np.argmin(scored))
+        best_of.append(labellings[k] if scored[k] < scored[0] - 1.0 else None)
+    # Each group's chosen labelling or its mirror: the one that puts its left on the left.
+    for (group, _), flip in zip(SWAP_GROUPS, best_of, strict=True):
+        if flip is not None:
+            out[views[flip][:, None], group] = pixels[views[flip]][:, MIRROR[group]]
+    left = _left_direction(_triangulate(cameras, out, cfg))
+    for (group, (a, b)), flip in zip(SWAP_GROUPS, best_of, strict=True):
+        if flip is None:
+            continue
+        X = _triangulate(cameras, out[:, [a, b]], cfg)
+        side = float((X[0] - X[1]) @ left) if left is not None else np.nan
+        mirrored = side < 0 if np.isfinite(side) else flip.sum() > views.size / 2
+        if mirrored:
+            # The mirror labelling: the views kept as detected are swapped instead.
+            keep = views[~flip]
+            out[views[flip][:, None], group] = pixels[views[flip][:, None], group]
+            out[keep[:, None], group] = pixels[keep][:, MIRROR[group]]
+    return out
+
+
+def _left_direction(points: np.ndarray) -> np.ndarray | None:
+    """(3,) the body's left (unit) from (33, 3) world landmarks: up x forward, up
+    from the hips' to the shoulders' midpoint, forward from the ears' midpoint
+    to the nose; None where those are not known."""
+    up = points[[11, 12]].mean(axis=0) - points[[23, 24]].mean(axis=0)
+    forward = points[0] - points[[7, 8]].mean(axis=0)
+    left = np.cross(up, forward)
+    norm = np.linalg.norm(left)
+    return left / norm if np.isfinite(norm) and norm > 0 else None
 
 
 def _detections(

@@ -42,7 +42,8 @@ import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import CameraGroup
-from bodymetry.capture.headcount import group_people, landmark_pixels
+from bodymetry.capture.headcount import MATCH_ERROR, group_people
+from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.person import LANDMARKS, Person
 from bodymetry.capture.persons import PersonObservation
 
@@ -179,21 +180,35 @@ def sightings(
     groups = group_people(
         cameras, [[p.landmarks for p in found] for found in detections], floor_box, min_views
     )
+    # Each person's skeleton as the cameras agree on it (a view whose labels are
+    # swapped relabelled, a landmark that disagrees with the other views dropped).
+    skeletons = [
+        _triangulated(
+            cameras,
+            [None if j is None else detections[v][j].landmarks for v, j in enumerate(g.detections)],
+        )
+        for g in groups
+    ]
+    # A detection's own landmarks may lie partly on someone else (in a crowd the
+    # detector builds one skeleton from two people: Demo_MultiPerson, cam03, frames
+    # 40-80, the man's head drawn on the woman's face behind him): where one lies
+    # further than MATCH_ERROR of the image height from where the other cameras put
+    # it, the partition draws the other cameras' landmark instead.
+    found = [list(view) for view in detections]
+    for g, skeleton in zip(groups, skeletons, strict=True):
+        for c, k in enumerate(g.detections):
+            if k is not None:
+                person = found[c][k]
+                mended = _mended(person.landmarks, _projected(cameras[c], skeleton), cameras[c])
+                found[c][k] = Person(person.probability, mended)
     # A person a camera did not find may still be there, hidden behind someone whose
     # mask then holds their visible bits: their skeleton, triangulated from the
     # cameras that found them, claims those pixels in the partition below.
-    found = [list(view) for view in detections]
     index = [list(g.detections) for g in groups]
-    for g, ids in zip(groups, index, strict=True):
-        skeleton = None
+    for ids, skeleton in zip(index, skeletons, strict=True):
         for c, k in enumerate(ids):
             if k is not None:
                 continue
-            if skeleton is None:
-                skeleton = _triangulated(cameras, [
-                    None if j is None else detections[v][j].landmarks
-                    for v, j in enumerate(g.detections)
-                ])  # fmt: skip
             projected = _projected(cameras[c], skeleton)
             if projected is not None:
                 shape = (cameras[c].size[1], cameras[c].size[0])
@@ -206,9 +221,8 @@ def sightings(
                 depths[c][k] = _distance(cameras[c], g.position)
     masks = [partition(view, threshold, d) for view, d in zip(found, depths, strict=True)]
     out = []
-    for g, ids in zip(groups, index, strict=True):
+    for g, ids, skeleton in zip(groups, index, skeletons, strict=True):
         occluded, mine_masks, hidden_masks = [], [], []
-        skeleton = None  # triangulated from the cameras that found them, when needed
         for c, k in enumerate(ids):
             hidden, mask, covered = False, None, None
             if k is not None:
@@ -220,11 +234,6 @@ def sightings(
                         nearer |= masks[c][j]
                 if nearer.any():
                     lm = found[c][k].landmarks
-                    if skeleton is None:
-                        skeleton = _triangulated(cameras, [
-                            None if j is None else detections[v][j].landmarks
-                            for v, j in enumerate(g.detections)
-                        ])  # fmt: skip
                     body = body_region([lm, _projected(cameras[c], skeleton)], mask.shape)
                     covered = None if body is None else nearer & body & ~mask
                     if g.detections[c] is None:
@@ -282,8 +291,36 @@ def body_region(
 
 def _triangulated(cameras: CameraGroup, views: Sequence[np.ndarray | None]) -> np.ndarray:
     """(33, 3) world landmarks from the cameras' (33, 3) detections (None: not seen);
-    NaN where fewer than two cameras saw a landmark well enough."""
-    return cameras.triangulate(landmark_pixels(views, range(len(LANDMARKS)), BONE_VISIBILITY))
+    NaN where fewer than two consistent cameras saw a landmark well enough
+    (:func:`~bodymetry.capture.landmarks.triangulate_landmarks`: views whose left
+    and right are swapped relabelled, a view that disagrees dropped)."""
+    return triangulate_landmarks(cameras, views, _SKELETON)
+
+
+#: The triangulation of a person's skeleton: every landmark drawn is used.
+_SKELETON = LandmarkConfig(min_visibility=BONE_VISIBILITY, refine_calibration=False)
+
+
+def _mended(landmarks: np.ndarray, projected: np.ndarray | None, camera) -> np.ndarray:
+    """(33, 3) ``landmarks`` of one camera with each drawn landmark that lies
+    further than :data:`~bodymetry.capture.headcount.MATCH_ERROR` of the image
+    height from ``projected`` (the other cameras' skeleton as this one sees it,
+    (33, 3) or None) moved there, and each one it does not draw (unseen, or
+    less visible than :data:`BONE_VISIBILITY`) drawn there: a limb the camera's
+    detector barely sees, e.g. behind someone, still claims its own pixels
+    (Demo_MultiPerson, frame 50, cam04: the woman's legs, visibility 0.04-0.22,
+    went to the man's nearest bones)."""
+    lm = np.array(landmarks, float)
+    if projected is None:
+        return lm
+    drawn = np.isfinite(lm).all(axis=1) & (lm[:, 2] >= BONE_VISIBILITY)
+    known = np.isfinite(projected[:, :2]).all(axis=1)
+    with np.errstate(invalid="ignore"):
+        off = np.linalg.norm(lm[:, :2] - projected[:, :2], axis=1) > MATCH_ERROR * camera.size[1]
+    moved = known & (off | ~drawn)
+    lm[moved, :2] = projected[moved, :2]
+    lm[moved & ~drawn, 2] = BONE_VISIBILITY
+    return lm
 
 
 def _projected(camera, points: np.ndarray) -> np.ndarray | None:

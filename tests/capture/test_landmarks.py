@@ -106,3 +106,73 @@ def test_small_offsets_and_thin_evidence_are_not_applied(rig):
     assert not any(o.applied for o in small)  # 1.5 px < 1 % of 480 px
     thin = principal_point_offsets(rig, _frames(rig, n_frames=2, shift=(8.0, 0.0)))[1]
     assert not thin[1].applied and thin[1].observations == 66  # < 100 observations
+
+
+def _skeleton() -> np.ndarray:
+    """(33, 3) landmarks of a person in a lunge facing -y (their left is +x):
+    the left knee forward, the right leg back, the left arm raised."""
+    from bodymetry.capture.person import LANDMARKS
+
+    side = {"left": 1.0, "right": -1.0}
+    base = {
+        "nose": (0.0, -0.10, 1.62), "eye_inner": (0.02, -0.08, 1.66), "eye": (0.035, -0.075, 1.66),
+        "eye_outer": (0.05, -0.07, 1.66), "ear": (0.08, 0.0, 1.63), "mouth": (0.025, -0.08, 1.57),
+        "shoulder": (0.19, 0.0, 1.42), "elbow": (0.24, -0.05, 1.15), "wrist": (0.27, -0.15, 0.92),
+        "pinky": (0.28, -0.18, 0.85), "index": (0.27, -0.19, 0.84), "thumb": (0.25, -0.18, 0.86),
+        "hip": (0.10, 0.0, 0.92), "knee": (0.12, -0.05, 0.50), "ankle": (0.13, 0.0, 0.08),
+        "heel": (0.13, 0.05, 0.04), "foot_index": (0.13, -0.15, 0.02),
+    }  # fmt: skip
+    # The lunge: the left knee and foot forward, the right ones back; the left arm up.
+    shift = {
+        ("left", "knee"): (0, -0.30, 0), ("left", "ankle"): (0, -0.35, 0),
+        ("left", "heel"): (0, -0.35, 0), ("left", "foot_index"): (0, -0.35, 0),
+        ("right", "knee"): (0, 0.25, -0.05), ("right", "ankle"): (0, 0.45, 0.1),
+        ("right", "heel"): (0, 0.45, 0.12), ("right", "foot_index"): (0, 0.4, 0.02),
+        ("left", "elbow"): (0, 0, 0.45), ("left", "wrist"): (0, 0.1, 0.85),
+    }  # fmt: skip
+    out = np.zeros((len(LANDMARKS), 3))
+    for i, name in enumerate(LANDMARKS):
+        if name == "nose":
+            out[i] = base["nose"]
+            continue
+        s, part = name.split("_", 1)
+        if s == "mouth":  # "mouth_left"
+            s, part = part, s
+        x, y, z = base[part]
+        out[i] = np.array([side[s] * x, y, z]) + np.array(shift.get((s, part), (0, 0, 0)))
+    return out
+
+
+@pytest.mark.parametrize(
+    "swapped",
+    [
+        {"arms": (1, 3)},  # two views of four: dropping the worst view cannot mend it
+        {"arms": (0, 1), "legs": (2,)},  # the first view among them
+        {"legs": (0, 2), "face": (3,)},
+    ],
+)
+def test_views_with_left_and_right_swapped_are_relabelled(rig, swapped):
+    from bodymetry.capture.landmarks import MIRROR
+
+    truth = _skeleton()
+    groups = {"face": np.arange(1, 11), "arms": np.arange(11, 23), "legs": np.arange(23, 33)}
+    views = _observed(rig, truth)
+    for name, cams in swapped.items():
+        for c in cams:
+            g = groups[name]
+            views[c][g] = views[c][MIRROR[g]]
+    got = triangulate_landmarks(rig, views)
+    # Every landmark where it is, labels included (swapped ones land between the sides
+    # without the relabelling: up to 0.4 m off).
+    np.testing.assert_allclose(got, truth, atol=1e-6)
+
+
+def test_a_labelling_every_view_agrees_on_is_kept(rig):
+    from bodymetry.capture.landmarks import MIRROR
+
+    truth = _skeleton()
+    # Every view swapped: the views agree, so the detector's labels stand (nothing to
+    # choose between), and the same points come back with left and right exchanged.
+    views = [v[MIRROR] for v in _observed(rig, truth)]
+    got = triangulate_landmarks(rig, views)
+    np.testing.assert_allclose(got, truth[MIRROR], atol=1e-6)

@@ -164,3 +164,50 @@ def test_without_the_segmenter_a_clipless_session_falls_back_to_the_median(
         frames = list(segment_session(session, keep_images=False, frames=[0]))
     assert len(frames) == 1
     assert "temporal median" in caplog.text and "pip install --no-deps" in caplog.text
+
+
+class _ScriptedSegmenter(PersonSegmenter):
+    """A segmenter whose detector answers from a script (no model): the first
+    call the man, the second the woman, the third whatever the painted image
+    shows where the woman was hidden (the detector marks the painted blob)."""
+
+    def __init__(self, answers) -> None:  # no model to load
+        self.config = PersonConfig()
+        self._answers = list(answers)
+        self.seen = []
+
+    def detect(self, image, roi=None):
+        self.seen.append(np.array(image, copy=True))
+        answer = self._answers.pop(0)
+        return answer(image) if callable(answer) else answer
+
+
+def test_a_duplicate_detection_of_the_painted_blob_adds_no_halo():
+    from bodymetry.capture.masks import grown_mask
+    from bodymetry.capture.person import Person
+
+    h, w = 200, 240
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 60, (h, w, 3), dtype=np.uint8)
+    man, woman = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    man[20:180, 30:70] = True
+    woman[30:170, 140:175] = True
+    lm = np.full((33, 3), np.nan)
+
+    def blob(work):
+        # The painted pixels (the image's median colour) where the woman was hidden:
+        # the detector outlines them as a person, 4 % of her height grown all round.
+        fill = np.median(work.reshape(-1, 3), axis=0)
+        painted = np.all(work == fill, axis=2) & (np.arange(w) > 100)[None]
+        return Person(painted.astype(np.float32), lm)
+
+    first = Person(man.astype(np.float32), lm)
+    seg = _ScriptedSegmenter([Person(woman.astype(np.float32), lm), blob])
+    others = seg.detect_others(image, first)
+    assert len(others) == 1
+    mask = others[0].mask(0.5)
+    halo = grown_mask(woman, seg.config.hide_margin) & ~woman
+    assert halo.sum() > 500  # the band the painted blob adds around her
+    # Her mask stays her own detection: nothing of the painted band is added.
+    assert (mask & halo).sum() == 0
+    assert (mask == woman).all()
