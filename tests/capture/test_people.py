@@ -97,12 +97,18 @@ def test_pixels_another_detection_holds_go_to_the_nearest_skeleton():
     assert np.array_equal(alone, mask_a)
 
 
-def test_someone_a_camera_missed_behind_another_keeps_their_visible_pixels():
+def _behind(camera, aside: float) -> tuple[np.ndarray, np.ndarray]:
+    """Floor positions (2,) of A at the origin and of B 0.6 m behind A as ``camera``
+    sees them, ``aside`` metres to the side."""
     a = np.array([0.0, 0.0])
-    away = a - RIG[0].center[:2]
+    away = a - camera.center[:2]
     side = np.array([-away[1], away[0]]) / np.linalg.norm(away)
+    return a, a + 0.6 * away / np.linalg.norm(away) + aside * side
+
+
+def test_someone_a_camera_missed_behind_another_keeps_their_visible_pixels():
     # B stands behind A as camera 0 sees them, a little to the side: half visible.
-    b = a + 0.6 * away / np.linalg.norm(away) + 0.3 * side
+    a, b = _behind(RIG[0], 0.3)
     detections = _detections([tuple(a), tuple(b)])
     front, back = detections[0]
     both = front.mask(0.5) | back.mask(0.5)
@@ -124,10 +130,7 @@ def test_someone_a_camera_missed_behind_another_keeps_their_visible_pixels():
 
 
 def test_a_detected_person_half_behind_another_keeps_the_view_with_hidden_pixels():
-    a = np.array([0.0, 0.0])
-    away = a - RIG[0].center[:2]
-    side = np.array([-away[1], away[0]]) / np.linalg.norm(away)
-    b = a + 0.6 * away / np.linalg.norm(away) + 0.3 * side
+    a, b = _behind(RIG[0], 0.3)
     people = sightings(RIG, _detections([tuple(a), tuple(b)]), 0.5, VisualHull(RIG).floor_box)
     seen_a, seen_b = sorted(people, key=lambda p: np.linalg.norm(p.position[:2] - a))
     # Camera 0 found B: half of them hidden is fitted, the covered pixels unknown.
@@ -143,10 +146,7 @@ def test_a_detected_person_half_behind_another_keeps_the_view_with_hidden_pixels
 
 
 def test_landmarks_a_camera_put_on_someone_else_are_drawn_where_the_others_see_them():
-    a = np.array([0.0, 0.0])
-    away = a - RIG[0].center[:2]
-    side = np.array([-away[1], away[0]]) / np.linalg.norm(away)
-    b = a + 0.6 * away / np.linalg.norm(away) + 0.35 * side
+    a, b = _behind(RIG[0], 0.35)
     detections = _detections([tuple(a), tuple(b)])
     front, back = detections[0]
     # Camera 0's detector built A's skeleton partly on B behind them (a crowd): A's
@@ -173,10 +173,7 @@ def test_landmarks_a_camera_put_on_someone_else_are_drawn_where_the_others_see_t
 
 
 def test_limbs_a_camera_barely_sees_are_drawn_where_the_others_see_them():
-    a = np.array([0.0, 0.0])
-    away = a - RIG[0].center[:2]
-    side = np.array([-away[1], away[0]]) / np.linalg.norm(away)
-    b = a + 0.6 * away / np.linalg.norm(away) + 0.35 * side
+    a, b = _behind(RIG[0], 0.35)
     detections = _detections([tuple(a), tuple(b)])
     front, back = detections[0]
     right = sightings(RIG, detections, 0.5, VisualHull(RIG).floor_box)
