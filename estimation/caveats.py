@@ -23,6 +23,10 @@ list), and says why in a sentence a user can act on:
     The session stage's outline check found the observed outline wider than
     the body's around the trunk or above the head (loose clothing or hair):
     height, girths and weight may be inflated.
+``outside_validated``
+    The measured height or weight lies outside the bodies the benchmarks
+    validated the body model on (:data:`VALIDATED`, issue 33's edge set): the
+    numbers are an extrapolation of the body model, with no measured accuracy.
 
 The command line prints the caveats and exits with status 5
 (:data:`bodymetry.cli.common.EXIT_CAVEATS`); the report lists them first;
@@ -32,7 +36,7 @@ The command line prints the caveats and exits with status 5
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from bodymetry.estimation.records import FrameRecord
@@ -43,7 +47,9 @@ __all__ = [
     "MAX_LEFT_OUT_SHARE",
     "MIN_MEASURED_FRAMES",
     "MIN_MEASURED_SHARE",
+    "VALIDATED",
     "Caveat",
+    "ValidatedRange",
     "run_caveats",
 ]
 
@@ -56,7 +62,69 @@ MIN_MEASURED_SHARE = 0.5
 MAX_LEFT_OUT_SHARE = 0.5
 
 #: Every caveat code, in the order they are listed.
-CAVEAT_CODES = ("several_persons", "thin_evidence", "view_left_out", "clothing")
+CAVEAT_CODES = (
+    "several_persons",
+    "thin_evidence",
+    "view_left_out",
+    "clothing",
+    "outside_validated",
+)
+
+
+@dataclass(frozen=True)
+class ValidatedRange:
+    """The bodies the end-to-end benchmarks measured, edge to edge.
+
+    Attributes
+    ----------
+    height_mm, weight_kg, age_years : (float, float)
+        Smallest and largest true value over the subjects.
+    subjects : int
+        How many studio subjects (one session each) span it.
+    source : str
+        The command that measured them.
+    """
+
+    height_mm: tuple[float, float]
+    weight_kg: tuple[float, float]
+    age_years: tuple[float, float]
+    subjects: int
+    source: str
+
+    def describe(self) -> str:
+        """The range in words, for the report and the caveat."""
+        (h0, h1), (w0, w1), (a0, a1) = self.height_mm, self.weight_kg, self.age_years
+        return (
+            f"heights {h0:.0f}-{h1:.0f} mm, weights {w0:.0f}-{w1:.0f} kg, ages {a0:.0f}-{a1:.0f} "
+            f"years ({self.subjects} studio subjects of both sexes, {self.source})"
+        )
+
+    def outside(self, measured: Mapping[str, float]) -> list[str]:
+        """``"height 1052 mm"``-style entries for the measured values outside the
+        range (``height_mm`` and ``weight_kg`` of ``measured``; others ignored)."""
+        out = []
+        for key, label, unit, (lo, hi) in (
+            ("height_mm", "height", "mm", self.height_mm),
+            ("weight_kg", "weight", "kg", self.weight_kg),
+        ):
+            value = measured.get(key)
+            if value is not None and math.isfinite(value) and not lo <= value <= hi:
+                out.append(f"{label} {value:.0f} {unit}")
+        return out
+
+
+#: The edge set of issue 33 (``python -m benchmarks pipeline --edge``): the 1st and
+#: 99th percentiles of height and weight of adult women and men, an 80-year-old and
+#: children of 6, 10 and 14; the mid-population subjects of issue 15 lie inside it.
+#: ``tests/estimation/test_caveats.py`` recomputes it from
+#: ``benchmarks/results/pipeline_edge.json``, so it cannot drift from what was measured.
+VALIDATED = ValidatedRange(
+    height_mm=(1145.3, 1938.8),
+    weight_kg=(21.18, 110.95),
+    age_years=(6.0, 80.0),
+    subjects=12,
+    source="python -m benchmarks pipeline --edge",
+)
 
 
 @dataclass(frozen=True)
@@ -95,6 +163,7 @@ def run_caveats(
     cameras: Sequence[str],
     outline_warnings: Sequence[str] = (),
     told_apart: bool = False,
+    headline: Mapping[str, float] | None = None,
 ) -> tuple[Caveat, ...]:
     """The caveats of a run (module docstring), in :data:`CAVEAT_CODES` order.
 
@@ -110,6 +179,9 @@ def run_caveats(
         Capture told the measured person apart from the others in view (a run of
         several persons, or ``process --person N``): others then do not mix into
         the numbers, and ``several_persons`` is not raised.
+    headline : mapping of str to float, optional
+        The run's headline ``height_mm`` and ``weight_kg`` (the session stage's,
+        else the frames' mean), held against :data:`VALIDATED`.
 
     Returns
     -------
@@ -159,4 +231,14 @@ def run_caveats(
             )
     if outline_warnings:  # each already says what is likely overstated
         out.append(Caveat("clothing", "; ".join(outline_warnings)))
+    outside = VALIDATED.outside(headline or {})
+    if outside:
+        out.append(
+            Caveat(
+                "outside_validated",
+                f"the measured {' and '.join(outside)} {'lie' if len(outside) > 1 else 'lies'} outside the bodies the body model "
+                f"was validated on ({VALIDATED.describe()}): the measurements extrapolate the "
+                "model and their accuracy was not measured",
+            )
+        )
     return tuple(out)

@@ -456,7 +456,19 @@ class RunResults:
             self.session.cameras,
             () if outline is None else outline.warnings,
             told_apart=self.person.told_apart or self.config.person is not None,
+            headline=self.headline_values,
         )
+
+    @property
+    def headline_values(self) -> dict[str, float]:
+        """The first person's measurements as the run states them: per measurement the
+        session stage's value, else the generative frames' mean (missing when neither)."""
+        out: dict[str, float] = {}
+        for stage in ("generative", "session"):  # the session's value wins where it has one
+            for key, stat in self.summary.get(stage, {}).items():
+                if stat.mean is not None:
+                    out[key] = stat.mean
+        return out
 
     def working_cameras(self, cameras: CameraGroup) -> CameraGroup:
         """The rig the run was trained and fitted with, from its calibrated one.

@@ -44,6 +44,7 @@ import numpy as np
 from bodymetry import __version__
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
+from bodymetry.estimation.caveats import VALIDATED
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, SessionGate, SessionShape, Stat
@@ -641,6 +642,7 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
         **_recorded_settings(results),
         "timing": results.timing_seconds,
         "accuracy_source": ACCURACY_SOURCE,
+        "validated_range": VALIDATED.describe(),
         "has_evaluation": run.evaluation is not None,
         "core_labels": [plots.label(k) for k in CORE_MEASUREMENTS],
         "calibration": calibration_summary(run),
@@ -914,6 +916,7 @@ def _summary_lines(ctx: dict[str, Any]) -> list[str]:
             + ":"
         )
         lines.append(f"{ctx['accuracy_source']}.")
+        lines.append(f"The body model was validated on {ctx['validated_range']}.")
     return [part for line in lines for part in textwrap.wrap(line, SUMMARY_LINE_CHARS)]
 
 

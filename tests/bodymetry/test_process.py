@@ -29,6 +29,7 @@ from bodymetry.estimation.records import (
     STAGES,
     FrameArrays,
     FrameRecord,
+    Stat,
     summarize,
 )
 from bodymetry.estimation.run_config import ProcessConfig
@@ -650,3 +651,22 @@ def test_a_run_measures_each_person_capture_tells_apart(run, tmp_path, monkeypat
     monkeypatch.setattr(pipeline, "fit", no_fit)
     again = process_module.process_session(session.folder, out, _config(base))
     assert again.to_json() == results.to_json()
+
+
+def test_the_headline_values_prefer_the_session_stage_and_are_held_to_the_validated_range(run):
+    """The values a run states (the session stage's, else the frames' mean) are what
+    the validated-range caveat judges; a body the benchmarks never measured is named."""
+    alone = run[2]
+    inside = alone.with_person(
+        summary={
+            "generative": {"height_mm": Stat(1700.0, 5.0, 3), "weight_kg": Stat(70.0, 1.0, 3)},
+            "session": {"height_mm": Stat(1705.0, 1.0, 3), "weight_kg": Stat(None, None, 0)},
+        }
+    )
+    assert inside.headline_values == {"height_mm": 1705.0, "weight_kg": 70.0}
+    assert "outside_validated" not in [c.code for c in inside.caveats]
+    small = inside.with_person(
+        summary={**inside.summary, "session": {"height_mm": Stat(1052.0, 1.0, 3)}}
+    )
+    (caveat,) = [c for c in small.caveats if c.code == "outside_validated"]
+    assert caveat.message.startswith("the measured height 1052 mm lies outside")

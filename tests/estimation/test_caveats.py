@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 import dataclasses
+import json
+import math
+from pathlib import Path
+
+import pytest
 
 from bodymetry.estimation.caveats import (
     CAVEAT_CODES,
     MIN_MEASURED_FRAMES,
+    VALIDATED,
     run_caveats,
 )
 from bodymetry.estimation.records import FrameRecord
@@ -77,3 +83,42 @@ def test_the_person_count_round_trips_and_old_records_read_without_it():
     del data["persons"]
     assert FrameRecord.from_json(data).persons is None
     assert "persons" not in FrameRecord(10, "ok").to_json()
+
+
+def test_the_validated_range_is_the_edge_benchmarks_subjects():
+    # The range the report states and the caveat holds runs against is what
+    # `python -m benchmarks pipeline --edge` measured, not a number typed in.
+    results = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
+    subjects = json.loads((results / "pipeline_edge.json").read_text())["edge_summary"]["subjects"]
+    assert VALIDATED.subjects == len(subjects)
+    for key in ("height_mm", "weight_kg", "age_years"):
+        values = [s[key] for s in subjects]
+        assert getattr(VALIDATED, key) == pytest.approx((min(values), max(values)), abs=0.05)
+    assert "1145-1939 mm" in VALIDATED.describe() and "ages 6-80 years" in VALIDATED.describe()
+
+
+@pytest.mark.parametrize(
+    ("headline", "outside"),
+    [
+        ({"height_mm": 1700.0, "weight_kg": 70.0}, []),
+        ({"height_mm": VALIDATED.height_mm[0], "weight_kg": VALIDATED.weight_kg[1]}, []),
+        ({"height_mm": 1052.0, "weight_kg": 17.0}, ["height 1052 mm", "weight 17 kg"]),
+        ({"height_mm": 2011.0}, ["height 2011 mm"]),
+        ({"weight_kg": 140.0, "arm_span_mm": 5000.0}, ["weight 140 kg"]),
+        ({"height_mm": math.nan, "weight_kg": math.inf}, []),
+        ({}, []),
+    ],
+)
+def test_a_body_outside_the_validated_range_is_a_caveat(headline, outside):
+    assert VALIDATED.outside(headline) == outside
+    caveats = run_caveats(_records(9, 9, persons=1), NAMES, headline=headline)
+    if not outside:
+        assert caveats == ()
+        return
+    (caveat,) = caveats
+    assert caveat.code == "outside_validated" and caveat.frames == ()
+    verb = "lie" if len(outside) > 1 else "lies"
+    assert caveat.message.startswith(f"the measured {' and '.join(outside)} {verb} outside")
+    assert VALIDATED.describe() in caveat.message
+    # Nothing measured: no caveat about the numbers (exit 3 says it).
+    assert run_caveats(_records(9, 0), NAMES, headline=headline) == ()
