@@ -277,6 +277,12 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
         "checks": checks,
         # Issue 15 item 4: the loose-clothing and hair check, as it comes.
         "outline": None if results.outline is None else results.outline.to_json(),
+        # Issue 33: how far the session stage's shape prior moved each value.
+        "prior_pull": (
+            {k: round(results.session_shape.prior_pull[k], 3) for k in SESSION_TARGETS}
+            if results.session_shape is not None and results.session_shape.prior_pull
+            else None
+        ),
         "models_reused": results.models_reused,
         "timing_seconds": {
             **results.timing_seconds,
@@ -394,10 +400,12 @@ def edge_summary(sessions: list[dict]) -> dict:
         ``subjects``: per session its edge key, age, true height and weight, the
         session stage's errors (height mm, arm span mm, weight kg), the weight target
         (1.5 kg, or :data:`CHILD_WEIGHT_SHARE` of the true weight for a child), the
-        share of kept frames measured, the discriminative stage's height error and
-        whether the session is within issue 33's targets; ``discriminative_height``:
-        the mean absolute (and largest) discriminative height error over the set;
-        ``all_within``: every subject within the targets with >= 90 % of kept frames.
+        share of kept frames measured, the discriminative stage's height error, how
+        far the session stage's shape prior moved each value (``prior_pull``, None
+        for runs without it) and whether the session is within issue 33's targets;
+        ``discriminative_height``: the mean absolute (and largest) discriminative
+        height error over the set; ``all_within``: every subject within the targets
+        with >= 90 % of kept frames.
     """
     rows = []
     for s in sessions:
@@ -424,6 +432,7 @@ def edge_summary(sessions: list[dict]) -> dict:
                 "weight_target_kg": round(weight_target, 2),
                 "frame_share": s["frame_share"],
                 "discriminative_height_error_mm": checks["height_mm"]["discriminative_error"],
+                "prior_pull": s.get("prior_pull"),
                 "within_issue_33": all(within.values()) and s["frame_share_pass"],
                 "within": within,
             }

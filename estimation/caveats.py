@@ -236,7 +236,8 @@ def run_caveats(
         out.append(
             Caveat(
                 "outside_validated",
-                f"the measured {' and '.join(outside)} {'lie' if len(outside) > 1 else 'lies'} outside the bodies the body model "
+                f"the measured {' and '.join(outside)} {'lie' if len(outside) > 1 else 'lies'} "
+                "outside the bodies the body model "
                 f"was validated on ({VALIDATED.describe()}): the measurements extrapolate the "
                 "model and their accuracy was not measured",
             )

@@ -619,6 +619,11 @@ class SessionShape:
     descent_spread : dict of str to float
         Per measurement, the standard deviation of the descents' end points
         (0 for one descent); the standard errors include it.
+    prior_pull : dict of str to float
+        Per measurement, how far the shape prior moved it: the value at the
+        shared shape minus the value at the optimum of the data term alone
+        (linearized about the shared shape; +: the prior raised it). Empty in runs
+        recorded before it.
     seconds : float
     outline : OutlineCheck or None
         The loose-clothing and hair check on the session's frames (at the
@@ -642,6 +647,7 @@ class SessionShape:
     covariance: str = ""
     descents: int = 1
     descent_spread: dict[str, float] = field(default_factory=dict)
+    prior_pull: dict[str, float] = field(default_factory=dict)
     seconds: float = 0.0
     outline: OutlineCheck | None = None
 
@@ -671,6 +677,7 @@ class SessionShape:
             "iterations": int(self.iterations),
             "descents": int(self.descents),
             "descent_spread": {k: _finite_or_none(v, 4) for k, v in self.descent_spread.items()},
+            "prior_pull": {k: _finite_or_none(v, 4) for k, v in self.prior_pull.items()},
             "seconds": round(float(self.seconds), 2),
             "outline": None if self.outline is None else self.outline.to_json(),
         }
@@ -706,6 +713,7 @@ class SessionShape:
                 descent_spread={
                     k: _nan_if_none(v) for k, v in data.get("descent_spread", {}).items()
                 },
+                prior_pull={k: _nan_if_none(v) for k, v in data.get("prior_pull", {}).items()},
                 seconds=float(data.get("seconds", 0.0)),
                 outline=None
                 if data.get("outline") is None

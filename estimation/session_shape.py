@@ -88,6 +88,7 @@ __all__ = [
     "SessionShapeFit",
     "biometric_errors",
     "fit_session_shape",
+    "prior_pull",
     "session_frame",
     "silhouette_iou",
 ]
@@ -510,7 +511,9 @@ def _at_average(
         return give_up(f"failed: no contour in frames {bad} at the averaged shape")
     weights = _frame_weights(fs, config.frame_scale)
     f_total = _session_cost(weights, fs, nu, stage.prior)
-    cov, how = _shape_covariance(work, stage.step, weights, stage.prior, body.n_shape, descents)
+    cov, how, data_h = _shape_covariance(
+        work, stage.step, weights, stage.prior, body.n_shape, descents
+    )
     ends = np.array([d.states[0, NU] for d in descents])
     nu_se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     bios, bio_se = biometric_errors(body, nu, cov, stage.density)
@@ -537,6 +540,7 @@ def _at_average(
         covariance=how,
         descents=len(descents),
         descent_spread=spread,
+        prior_pull=prior_pull(body, nu, data_h, stage.prior, stage.density),
     )
     alignments = {
         fr.frame: Alignment(w.cost_fn, w.y.copy(), w.pairs)
@@ -657,16 +661,18 @@ def _shape_covariance(
     prior: float,
     n_shape: int,
     descents: Sequence[_Descent],
-) -> tuple[np.ndarray, str]:
+) -> tuple[np.ndarray, str, np.ndarray]:
     """The shared shape's covariance (n_shape, n_shape) at ``work`` and how it was
     found: the curvature's, plus the scatter of the average of K descents' end
-    points (their spread / sqrt(K)) when there are several."""
-    cov, how = _covariance(_blocks(work, step), weights, prior, n_shape)
+    points (their spread / sqrt(K)) when there are several; and the data term's
+    pose-marginal curvature (n_shape, n_shape) there, for :func:`prior_pull`."""
+    blocks = _blocks(work, step)
+    cov, how = _covariance(blocks, weights, prior, n_shape)
     ends = np.array([d.states[0, NU] for d in descents])
     if len(descents) > 1:
         cov = cov + np.atleast_2d(np.cov(ends.T, ddof=1)) / len(descents)
         how = f"{how} + spread of {len(descents)} descents"
-    return cov, how
+    return cov, how, _data_curvature(blocks, weights, n_shape)[0]
 
 
 def _spread(body: BodyModel, ends: np.ndarray, density: float) -> dict[str, float]:
@@ -678,6 +684,65 @@ def _spread(body: BodyModel, ends: np.ndarray, density: float) -> dict[str, floa
     return {k: float(np.std([m[k] for m in measured], ddof=1)) for k in measured[0]}
 
 
+def _data_curvature(
+    blocks: Sequence[_Blocks], weights: np.ndarray, n_shape: int
+) -> tuple[np.ndarray, list[np.ndarray], float, int]:
+    """The data term's pose-marginal Gauss-Newton matrix ``Σ_f w_f S_f`` (n_shape,
+    n_shape) with ``S_f = C_f - B_fᵀ A_f⁻¹ B_f``, each frame's pose-marginal gradient
+    ``w_f (g_ν,f - B_fᵀ A_f⁻¹ g_pose,f)`` (n_shape,), the weighted squared residual
+    and the number of residuals."""
+    H = np.zeros((n_shape, n_shape))
+    grads = []
+    sq, count = 0.0, 0
+    for w, (A, B, C, gp, gn, rr, R) in zip(weights, blocks, strict=True):
+        Ainv = damped_inverse(A, 0.0)
+        H = H + w * (C - B.T @ Ainv @ B)
+        grads.append(w * (gn - B.T @ Ainv @ gp))
+        sq += w * rr
+        count += R
+    return H, grads, sq, count
+
+
+def prior_pull(
+    body: BodyModel,
+    nu: np.ndarray,
+    data_h: np.ndarray,
+    prior: float,
+    density: float = DEFAULT_DENSITY,
+) -> dict[str, float]:
+    """How far the shape prior moved each measurement of the shared shape.
+
+    At the optimum ``ν`` of data + prior, the data term's gradient balances the
+    prior's, ``-prior ν``; one Gauss-Newton step of the data term alone moves
+    ``ν`` to ``ν + H_d⁻¹ prior ν`` (``H_d`` the data's pose-marginal curvature,
+    pseudo-inverted: a direction the frames do not constrain at all is left where
+    the prior put it, since no data would move it). The pull is the measurement
+    at ``ν`` minus the one there (+: the prior raised it).
+
+    Parameters
+    ----------
+    body : BodyModel
+    nu : (n_shape,) float
+        The shared shape (with the prior).
+    data_h : (n_shape, n_shape) float
+        The data term's pose-marginal Gauss-Newton matrix at ``nu``.
+    prior : float
+        The shape prior's weight (cost ``prior * ν·ν``).
+    density : float
+
+    Returns
+    -------
+    dict of str to float
+        Per measurement of :func:`~bodymetry.estimation.body_model.biometrics.measure`.
+    """
+    nu = np.asarray(nu, float)
+    data_only = nu + np.linalg.pinv(data_h, rcond=1e-8, hermitian=True) @ (prior * nu)
+    with_prior, without = (
+        b.to_dict() for b in measure(body, np.vstack([nu, data_only]), density=density)
+    )
+    return {k: float(with_prior[k] - without[k]) for k in with_prior}
+
+
 def _covariance(
     blocks: Sequence[_Blocks], weights: np.ndarray, prior: float, n_shape: int
 ) -> tuple[np.ndarray, str]:
@@ -687,16 +752,8 @@ def _covariance(
     ``S_f = C_f - B_fᵀ A_f⁻¹ B_f``; each frame's pose-marginal gradient is
     ``g_f = w_f (g_ν,f - B_fᵀ A_f⁻¹ g_pose,f)``.
     """
-    H = prior * np.eye(n_shape)
-    grads = []
-    sq, count = 0.0, 0
-    for w, (A, B, C, gp, gn, rr, R) in zip(weights, blocks, strict=True):
-        Ainv = damped_inverse(A, 0.0)
-        H = H + w * (C - B.T @ Ainv @ B)
-        grads.append(w * (gn - B.T @ Ainv @ gp))
-        sq += w * rr
-        count += R
-    Hinv = np.linalg.pinv(H)
+    data_h, grads, sq, count = _data_curvature(blocks, weights, n_shape)
+    Hinv = np.linalg.pinv(data_h + prior * np.eye(n_shape))
     n = len(grads)
     if n >= 3:
         G = np.array(grads)

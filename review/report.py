@@ -29,6 +29,7 @@ import csv
 import datetime as _dt
 import io
 import logging
+import math
 import re
 import textwrap
 from collections.abc import Iterable, Sequence
@@ -44,8 +45,8 @@ import numpy as np
 from bodymetry import __version__
 from bodymetry.calibration.camera import Camera
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
-from bodymetry.estimation.caveats import VALIDATED
 from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.caveats import VALIDATED
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, SessionGate, SessionShape, Stat
 from bodymetry.estimation.run_files import (
@@ -421,6 +422,21 @@ class _Content:
     persons: list[_Content] = field(default_factory=list)
 
 
+def prior_pull_text(shape: SessionShape | None) -> str:
+    """How far the shape prior moved the core session values, in words
+    (``"height -0.4 mm, arm span +0.2 mm, weight +0.05 kg"``; ``""`` when the stage
+    was not accepted or was recorded before the pull was)."""
+    if shape is None or not shape.ok:
+        return ""
+    parts = []
+    for key in CORE_MEASUREMENTS:
+        pull, unit = shape.prior_pull.get(key, math.nan), MEASUREMENTS[key]
+        if math.isfinite(pull):
+            digits = 2 if unit == "kg" else 1
+            parts.append(f"{plots.LABELS[key].lower()} {pull:+.{digits}f} {unit}")
+    return ", ".join(parts)
+
+
 def session_unavailable(shape: SessionShape | None) -> str:
     """Why a run has no session estimate: ``""`` when its session stage was accepted,
     else the stage's status (``"rejected: ..."``, ``"skipped: ..."``, ``"failed: ..."``)
@@ -605,6 +621,7 @@ def _person_content(
         "figure3": figure3_rows(run),
         "figure3_columns": figure3_columns(run),
         "session_shape": results.session_shape,
+        "prior_pull": prior_pull_text(results.session_shape),
         "outline": results.outline,
         # A run of several persons shows its own warnings once, above the persons.
         "warnings": list(person.warnings if several else results.warnings),

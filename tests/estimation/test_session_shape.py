@@ -19,6 +19,7 @@ from bodymetry.estimation.session_shape import (
     SessionShapeConfig,
     _covariance,
     fit_session_shape,
+    prior_pull,
 )
 from bodymetry.studio.rig import studio_rig
 
@@ -97,6 +98,9 @@ def test_one_shape_recovers_the_true_body_better_than_the_frames_mean(scene):
         error = abs(s.biometrics[key] - truth[key])
         mean_error = abs(np.mean([b[key] for b in per_frame]) - truth[key])
         assert error < tol and error < 0.5 * mean_error, (key, error, mean_error)
+        # The prior moved the answer by less than the tolerance: the frames decide.
+        assert abs(s.prior_pull[key]) < tol, (key, s.prior_pull[key])
+    assert set(s.prior_pull) == set(s.biometrics)
     # Every frame carries the one shape with its own pose, biometrics and IoU.
     assert sorted(fit.estimates) == list(range(5))
     for est in fit.estimates.values():
@@ -240,6 +244,7 @@ def _shape() -> SessionShape:
         covariance="cluster-robust (frames) + spread of 4 descents",
         descents=4,
         descent_spread={"height_mm": 0.3, "weight_kg": 0.05},
+        prior_pull={"height_mm": -0.8, "weight_kg": 0.02},
         seconds=1.2,
     )
 
@@ -285,3 +290,28 @@ def test_results_without_the_session_stage_still_load():
     # A rejected session shape adds no stage to the summary.
     rejected = SessionShape(status="rejected: worse silhouettes")
     assert "session" not in summarize(records, rejected)
+
+
+def test_the_prior_pull_is_what_the_data_alone_would_undo(scene):
+    """Known answers for :func:`prior_pull`: no prior, no pull; a direction the frames
+    do not constrain is the prior's alone (no pull reported); with data curvature h
+    the pull shrinks as 1/h and matches the measurements' linear response to the
+    data-only step prior * nu / h (the biometrics' own finite differences)."""
+    model = scene[0]
+    n = model.n_shape
+    nu = np.zeros(n)
+    nu[:3] = (0.8, -0.5, 0.3)
+    assert set(prior_pull(model, nu, 50.0 * np.eye(n), 0.0).values()) == {0.0}
+    h = np.zeros((n, n))
+    h[0, 0] = 50.0
+    lone = np.zeros(n)
+    lone[1] = 1.0  # constrained by nothing: the data would not move it
+    assert set(prior_pull(model, lone, h, 1.0).values()) == {0.0}
+    weak = prior_pull(model, nu, 100.0 * np.eye(n), 1.0)
+    strong = prior_pull(model, nu, 1000.0 * np.eye(n), 1.0)
+    step = nu / 1000.0
+    base, moved = (b.to_dict() for b in measure(model, np.vstack([nu, nu + step])))
+    for key in ("height_mm", "arm_span_mm", "weight_kg"):
+        assert weak[key] != 0.0
+        assert strong[key] == pytest.approx(weak[key] / 10.0, rel=0.05), key
+        assert strong[key] == pytest.approx(base[key] - moved[key], rel=1e-9), key

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import csv
+import dataclasses
 import html as html_text
 import json
 import re
@@ -16,7 +17,7 @@ import pytest
 
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel
-from bodymetry.estimation.records import FrameRecord
+from bodymetry.estimation.records import FrameRecord, SessionShape
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import EVALUATION_FORMAT, RunResults, SessionInfo
 from bodymetry.review import plots
@@ -35,6 +36,7 @@ from bodymetry.review.report import (
     left_out_rows,
     measurement_rows,
     ordinal,
+    prior_pull_text,
     select_overlay_frames,
 )
 from bodymetry.review.run_data import load_run
@@ -470,3 +472,16 @@ def test_caveats_head_the_report_only_when_there_are_any(review_run, bare_run, m
     assert "several_persons" in box and f"frame {frames[0]['frame']}" in box
     # The frames table says it on that frame's row.
     assert "2 people in view" in html[html.index('id="frames"') :]
+
+
+def test_the_prior_pull_is_stated_for_an_accepted_session_stage_only():
+    pulled = SessionShape(
+        "ok", prior_pull={"height_mm": -0.43, "arm_span_mm": 1.25, "weight_kg": 0.051}
+    )
+    assert prior_pull_text(pulled) == "height -0.4 mm, arm span +1.2 mm, weight +0.05 kg"
+    # Recorded before the pull existed, rejected, not run: nothing is claimed.
+    assert prior_pull_text(SessionShape("ok")) == ""
+    assert prior_pull_text(dataclasses.replace(pulled, status="rejected: worse IoU")) == ""
+    assert prior_pull_text(None) == ""
+    partial = SessionShape("ok", prior_pull={"weight_kg": float("nan"), "height_mm": 2.0})
+    assert prior_pull_text(partial) == "height +2.0 mm"
