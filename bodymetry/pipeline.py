@@ -903,11 +903,13 @@ def finish_person(
     ordered = tuple(gated)
     if gate.threshold < gate.min_iou:
         log.info(
-            "%s: quality gate %.2f (the good frames score %.2f; min_iou %.2f)",
+            "%s: quality gate %.2f (the good frames score %.2f; min_iou %.2f; deficits x%.2f "
+            "for the body's width)",
             name,
             gate.threshold,
             gate.reference,
             gate.min_iou,
+            gate.width_scale,
         )
     warnings = camera_warnings(
         ordered, session.camera_names, bound=config.capture.fusion.min_agreement

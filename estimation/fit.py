@@ -677,6 +677,39 @@ def refit_frame(
     )
 
 
+#: The silhouette width ``sqrt(volume / height)`` (m) of the bodies ``min_iou`` and
+#: ``gate_margin`` were set on: the studio's mid-population adults (the mean adult,
+#: ν = 0: 1689 mm and 66.7 l, gives 0.199 m).
+REFERENCE_WIDTH_M = 0.199
+#: The most a slim or small body relaxes the gate's IoU deficits (a 6-year-old:
+#: 1.47; beyond that the gate would stop telling a wrong pose from a right one).
+MAX_WIDTH_SCALE = 1.5
+
+
+def width_scale(records: Sequence[FrameRecord]) -> float:
+    """How much wider a session's IoU deficits are because its body is slimmer or
+    smaller than the bodies the gate was set on.
+
+    For an outline off by the same distance everywhere, ``1 - IoU`` is that distance
+    times the silhouette's perimeter over its area, and the perimeter over the
+    area of a body's silhouettes goes as one over its width. The width is
+    ``W = sqrt(V / H)`` of the fitted frames' median generative volume and height;
+    the scale is ``REFERENCE_WIDTH_M / W``, at least 1 (a broader body keeps the
+    gate it was set with) and at most :data:`MAX_WIDTH_SCALE`; 1 when the records
+    do not carry both measurements.
+    """
+    sizes = [
+        (est.biometrics.get("volume_l", math.nan), est.biometrics.get("height_mm", math.nan))
+        for r in records
+        if r.fitted and (est := r.estimates.get("generative")) is not None
+    ]
+    sizes = [(v, h) for v, h in sizes if math.isfinite(v) and math.isfinite(h) and v > 0 < h]
+    if not sizes:
+        return 1.0
+    volume_m3, height_m = np.median(np.array(sizes), axis=0) / 1000.0
+    return float(np.clip(REFERENCE_WIDTH_M / math.sqrt(volume_m3 / height_m), 1.0, MAX_WIDTH_SCALE))
+
+
 def session_gate(
     records: Sequence[FrameRecord], config: FitConfig
 ) -> tuple[SessionGate, list[FrameRecord]]:
@@ -691,7 +724,10 @@ def session_gate(
     percentile of the fitted frames' mean IoU: unchanged where the good frames
     reach ``min_iou`` (the studio sessions), and otherwise a frame passes
     when it is within ``gate_margin`` of the session's good frames. A frame
-    stuck in a wrong pose scores well below them in either case.
+    stuck in a wrong pose scores well below them in either case. Both
+    deficits, ``1 - min_iou`` and ``gate_margin``, are set for mid-population
+    bodies and widen by :func:`width_scale` for a slimmer or smaller one (a
+    child's right pose scores lower IoU than an adult's).
 
     Returns
     -------
@@ -704,13 +740,17 @@ def session_gate(
     if not fitted:
         return SessionGate(config.min_iou, config.min_iou, None), list(records)
     reference = float(np.percentile(fitted, 75))
-    threshold = min(config.min_iou, max(config.gate_floor, reference - config.gate_margin))
+    scale = width_scale(records)
+    # A slim or small body's silhouettes lose more IoU to the same outline error:
+    # both deficits (from a perfect overlap, from the good frames) widen with it.
+    min_iou = 1.0 - scale * (1.0 - config.min_iou)
+    threshold = min(min_iou, max(config.gate_floor, reference - scale * config.gate_margin))
     out = []
     for r in records:
         if r.fitted and math.isfinite(r.mean_iou):
             r = replace(r, status=_gate_status(r.mean_iou, threshold))
         out.append(r)
-    return SessionGate(threshold, config.min_iou, reference), out
+    return SessionGate(threshold, config.min_iou, reference, scale), out
 
 
 def _gate_status(mean_iou: float, threshold: float) -> str:

@@ -736,17 +736,23 @@ class SessionGate:
         The configured gate.
     reference : float or None
         The 75th percentile of the fitted frames' mean IoU (None: no fitted frame).
+    width_scale : float
+        How much the gate's IoU deficits were widened for a slim or small body
+        (:func:`bodymetry.estimation.fit.width_scale`; 1: as configured, and in
+        runs recorded before it).
     """
 
     threshold: float
     min_iou: float
     reference: float | None
+    width_scale: float = 1.0
 
     def to_json(self) -> dict[str, Any]:
         return {
             "threshold": round(self.threshold, 4),
             "min_iou": self.min_iou,
             "reference": None if self.reference is None else round(self.reference, 4),
+            "width_scale": round(self.width_scale, 4),
         }
 
     @classmethod
@@ -756,6 +762,7 @@ class SessionGate:
                 float(data["threshold"]),
                 float(data["min_iou"]),
                 None if data.get("reference") is None else float(data["reference"]),
+                float(data.get("width_scale", 1.0)),
             )
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{where}: malformed quality gate ({exc})") from exc

@@ -272,7 +272,7 @@ class ContourCost:
         return (self.model.full if self.full else self.model.lod).n_vertices
 
     def vertices(self, Y: np.ndarray, lod: bool | None = None) -> np.ndarray:
-        """(B, V, 3) vertices of states (B, 49): the residual mesh, or the given one."""
+        """(B, V, 3) vertices of states (B, 40 + n_shape): the residual mesh, or the given one."""
         lod = not self.full if lod is None else lod
         return self.model.pose(BodyState.from_vector(np.atleast_2d(Y)), lod=lod).vertices
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.errors import InputError
-from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.model import ADULT_YEARS, BodyModel, BodyState
 from bodymetry.estimation.body_model.motion.ik import (
     arm_angles,
     neutral_pose,
@@ -320,7 +320,9 @@ def place_bystanders(
     room = room or Room()
     rng = np.random.default_rng([int(seed), 0xB75])
     heldout = model.prior_shapes("heldout")
-    free = [i for i in range(len(heldout)) if i not in set(exclude_heldout)]
+    # Adults, as the studio's subjects drawn by seed (studio.synth).
+    adults = np.flatnonzero(model.prior_ages("heldout") >= ADULT_YEARS)
+    free = [int(i) for i in adults if i not in set(exclude_heldout)]
     indices = rng.choice(free, size=n, replace=False)
     lo, hi = room.bounds[:, :2] + [[placement.wall_clearance_m], [-placement.wall_clearance_m]]
     site = _Site(

@@ -56,7 +56,7 @@ from bodymetry.capture.session import BoardSpec, Session, SessionCamera, save_se
 from bodymetry.capture.video import H264Writer
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import measure
-from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.model import ADULT_YEARS, BodyModel, BodyState
 from bodymetry.estimation.body_model.motion.library import (
     MOTIONS,
     Motion,
@@ -150,7 +150,11 @@ class SubjectSpec:
             return nu, {"source": "explicit nu"}
         index = self.heldout_index
         if index is None:
-            index = int(np.random.default_rng(seed_for("test", self.seed)).integers(len(heldout)))
+            # A seed draws an adult, as the studio always has; children (and any
+            # held-out body) are one ``heldout:N`` or ``independent:...,edge=`` away.
+            adults = np.flatnonzero(model.prior_ages("heldout") >= ADULT_YEARS)
+            rng = np.random.default_rng(seed_for("test", self.seed))
+            index = int(adults[rng.integers(len(adults))])
         if not 0 <= index < len(heldout):
             raise InputError(f"--subject heldout:{index}: expected 0..{len(heldout) - 1}")
         return heldout[index], {"source": "calibrated prior, held-out body", "heldout_index": index}

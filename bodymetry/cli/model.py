@@ -13,7 +13,12 @@ from bodymetry.cli.common import console, friendly_errors
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.bake.bake import BakeConfig, bake
 from bodymetry.estimation.body_model.biometrics import measure
-from bodymetry.estimation.body_model.model import DEFAULT_MODEL_PATH, BodyModel, BodyState
+from bodymetry.estimation.body_model.model import (
+    DEFAULT_MODEL_PATH,
+    DEFAULT_SHAPE_DOFS,
+    BodyModel,
+    BodyState,
+)
 from bodymetry.estimation.body_model.skeleton import N_POSE, PARTS
 from bodymetry.review.meshes import MESH_FORMATS, write_mesh
 
@@ -38,7 +43,11 @@ _model_path = click.option(
     help="Model file (default: the one shipped with bodymetry).",
 )
 _n_shape = click.option(
-    "--shape-dofs", default=9, show_default=True, type=click.IntRange(1), help="Shape components ν."
+    "--shape-dofs",
+    default=DEFAULT_SHAPE_DOFS,
+    show_default=True,
+    type=click.IntRange(1),
+    help="Shape components ν.",
 )
 
 

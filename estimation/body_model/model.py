@@ -41,7 +41,10 @@ MODEL_FORMAT = 1
 #: (``studio/data/independent_bodies.npz``): written by the maintainers' bake
 #: (``bake.independent``), read by ``studio.independent``; bumped when it changes incompatibly.
 INDEPENDENT_FORMAT = 1
-DEFAULT_SHAPE_DOFS = 9
+DEFAULT_SHAPE_DOFS = 12
+#: Bodies of the prior at least this old (years) are adults: ν = 0 is their mean body
+#: (the bake), and the studio draws its subjects by seed among them.
+ADULT_YEARS = 18.0
 #: Skeleton anchors of the posed solve (see :meth:`BodyModel.pose`): every vertex at
 #: least ANCHOR_CLEARANCE metres (rest body) from any other part is pulled towards
 #: where its part's rigid motion about the skeleton carries it, with this weight
@@ -280,6 +283,16 @@ class BodyModel:
         if split not in ("train", "heldout"):
             raise ValueError(f"split: expected 'train' or 'heldout', got {split!r}")
         return self.data[f"{split}_nu"][:, : self.n_shape].astype(float)
+
+    def prior_ages(self, split: str = "train") -> np.ndarray:
+        """Age in years (n,) of the bodies of :meth:`prior_shapes` (same order).
+
+        The bake draws the population from 5 to 90 years, children included
+        (docs/body-model.md); callers that want adults select ``>= 18``.
+        """
+        if split not in ("train", "heldout"):
+            raise ValueError(f"split: expected 'train' or 'heldout', got {split!r}")
+        return self.data[f"{split}_age_years"].astype(float)
 
     def faces(self, lod: bool = False) -> np.ndarray:
         """Triangles (T, 3) of the full mesh or of the level of detail, in file order.

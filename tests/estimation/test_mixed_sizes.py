@@ -47,7 +47,7 @@ def mixed_rig(size: tuple[int, int] = (160, 120), seed: int = 4, n: int = 3) -> 
 def scene():
     model = BodyModel.load()
     cameras = mixed_rig()
-    nu = np.array([0.8, -0.5, 0.3, 0.0, 0.4, 0.0, -0.3, 0.0, 0.2])
+    nu = np.pad([0.8, -0.5, 0.3, 0.0, 0.4, 0.0, -0.3, 0.0, 0.2], (0, model.n_shape - 9))
     truth = BodyState([0.1, -0.2, 0.93], model.poses["apose"], nu)
     masks = project_silhouettes(model.pose(truth).vertices[0], model.faces(), cameras)
     return model, cameras, truth, masks

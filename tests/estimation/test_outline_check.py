@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bodymetry.errors import InputError
-from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.model import DEFAULT_SHAPE_DOFS, BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.contours import prepare_contours
 from bodymetry.estimation.outline_check import (
@@ -23,7 +23,7 @@ from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunResults, SessionInfo
 from bodymetry.studio.rig import studio_rig
 
-NU = np.array([0.5, -0.3, 0.2, 0.0, 0.3, 0.0, -0.2, 0.0, 0.1])
+NU = np.pad([0.5, -0.3, 0.2, 0.0, 0.3, 0.0, -0.2, 0.0, 0.1], (0, DEFAULT_SHAPE_DOFS - 9))
 #: The tolerance on a region's offset (mm) when the silhouettes are the body's
 #: own: rasterization puts the outline within half a pixel, here about 3 mm.
 EXACT_MM = 1.5

@@ -6,9 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import BodyState
-from bodymetry.estimation.fit import FitConfig, session_gate
-from bodymetry.estimation.records import FrameRecord, StageEstimate
+from bodymetry.estimation.fit import (
+    MAX_WIDTH_SCALE,
+    REFERENCE_WIDTH_M,
+    FitConfig,
+    session_gate,
+    shared_body_model,
+    width_scale,
+)
+from bodymetry.estimation.records import FrameRecord, SessionGate, StageEstimate
 
 
 def _records(ious: list[float]) -> list[FrameRecord]:
@@ -59,3 +67,53 @@ def test_a_gate_below_the_floor_is_kept():
     gate, out = session_gate(_records([0.6, 0.55, 0.7]), FitConfig(min_iou=0.5))
     assert gate.threshold == pytest.approx(0.5)
     assert all(r.ok for r in out)
+
+
+def _sized(ious: list[float], height_mm: float, volume_l: float) -> list[FrameRecord]:
+    state = BodyState.rest()
+    bios = {"height_mm": height_mm, "volume_l": volume_l}
+    est = {s: StageEstimate(state, bios) for s in ("discriminative", "generative")}
+    return [
+        FrameRecord(i, "ok", estimates=est, silhouette_iou={"a": v, "b": v})
+        for i, v in enumerate(ious)
+    ]
+
+
+def test_the_reference_width_is_the_mean_adults():
+    body = shared_body_model()
+    mean = measure(body, np.zeros((1, body.n_shape)))[0].to_dict()
+    width = np.sqrt(mean["volume_l"] / mean["height_mm"])  # l/mm = m³/m
+    assert width == pytest.approx(REFERENCE_WIDTH_M, abs=0.001)
+
+
+def test_a_slim_or_small_body_widens_the_gates_deficits():
+    # Known answers: the mean adult keeps the gate; a 10-year-old (1377 mm, 31.4 l) is
+    # W = sqrt(0.0314 / 1.377) = 0.151 m wide, s = 0.199 / 0.151 = 1.318, so the gate
+    # is 1 - 1.318 * 0.1 = 0.868: a right pose at 0.897 counts, a wrong one at 0.85 not.
+    ious = [0.94, 0.946, 0.934, 0.93, 0.897, 0.85]
+    adult, out = session_gate(_sized(ious, 1689.0, 66.7), FitConfig())
+    assert adult.width_scale == pytest.approx(1.0, abs=2e-3)
+    assert adult.threshold == pytest.approx(0.9, abs=2e-4)
+    assert [r.ok for r in out] == [True, True, True, True, False, False]
+    child, out = session_gate(_sized(ious, 1377.0, 31.4), FitConfig())
+    assert child.width_scale == pytest.approx(0.199 / np.sqrt(0.0314 / 1.377), rel=1e-6)
+    assert child.threshold == pytest.approx(1 - child.width_scale * 0.1)
+    assert [r.ok for r in out] == [True, True, True, True, True, False]
+    # Broader than the reference: never stricter than configured. Tiny: capped.
+    broad, _ = session_gate(_sized(ious, 1750.0, 110.0), FitConfig())
+    assert broad.width_scale == 1.0 and broad.threshold == 0.9
+    assert width_scale(_sized(ious, 1000.0, 10.0)) == MAX_WIDTH_SCALE
+    # The relative gate's margin widens too (real footage of a child).
+    real = [0.86, 0.87, 0.85, 0.88, 0.80]
+    gate, _ = session_gate(_sized(real, 1377.0, 31.4), FitConfig())
+    p75 = np.percentile(real, 75)
+    assert gate.threshold == pytest.approx(p75 - gate.width_scale * 0.03)
+
+
+def test_the_gate_round_trips_and_old_gates_read_with_no_widening():
+    gate, _ = session_gate(_sized([0.95, 0.9], 1377.0, 31.4), FitConfig())
+    data = gate.to_json()
+    back = SessionGate.from_json(data)
+    assert back.width_scale == pytest.approx(gate.width_scale, abs=1e-4)
+    del data["width_scale"]
+    assert SessionGate.from_json(data).width_scale == 1.0

@@ -9,7 +9,13 @@ import pytest
 
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import measure
-from bodymetry.estimation.body_model.model import NU, POSE_DIM, BodyModel, BodyState
+from bodymetry.estimation.body_model.model import (
+    DEFAULT_SHAPE_DOFS,
+    NU,
+    POSE_DIM,
+    BodyModel,
+    BodyState,
+)
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.records import FrameRecord, SessionShape, StageEstimate, summarize
 from bodymetry.estimation.run_config import ProcessConfig
@@ -24,10 +30,11 @@ from bodymetry.estimation.session_shape import (
 from bodymetry.studio.rig import studio_rig
 
 #: The true body of the synthetic session (shape space in standard deviations).
-TRUE_NU = np.array([0.8, -0.5, 0.3, 0.0, 0.4, 0.0, -0.3, 0.0, 0.2])
+TRUE_NU = np.pad([0.8, -0.5, 0.3, 0.0, 0.4, 0.0, -0.3, 0.0, 0.2], (0, DEFAULT_SHAPE_DOFS - 9))
 #: Per-frame fits' shape errors: a common bias (what a pose error compensated by
-#: the shape looks like: +40 mm height and arm span, +8 kg) plus frame-to-frame scatter.
-NU_BIAS = np.array([-0.3, 0.6, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+#: the shape looks like: +46 mm height, +43 mm arm span, +7 kg) plus frame-to-frame
+#: scatter.
+NU_BIAS = np.pad([0.23, 0.1], (0, DEFAULT_SHAPE_DOFS - 2))
 NU_SCATTER = 0.25
 
 
@@ -117,7 +124,7 @@ def test_a_bad_frame_does_not_drag_the_shape(scene):
     alone: +6, +12); without the frame weights +30 and +49 mm."""
     model, cameras, poses, _ = scene
     frames = _frames(scene, np.random.default_rng(2), indices=range(4))
-    big = np.r_[poses[4], TRUE_NU + np.r_[2.5, 2.5, np.zeros(7)]]
+    big = np.r_[poses[4], TRUE_NU + np.r_[2.5, 2.5, np.zeros(DEFAULT_SHAPE_DOFS - 2)]]
     masks = list(
         project_silhouettes(
             model.pose(BodyState.from_vector(big[None])).vertices[0], model.faces(), cameras

@@ -156,7 +156,7 @@ def _mask_of(nu, cameras):
 def test_photo_estimate_is_scaled_to_the_reference_height(trained, cameras):
     models = trained[0]
     body = BodyModel.load()
-    mask = _mask_of(np.zeros(9), cameras)
+    mask = _mask_of(np.zeros(body.n_shape), cameras)
     est = estimate_photo(mask, models, body, 1750.0)
     bio = est.biometrics
     assert bio.height_mm == pytest.approx(1750.0, rel=1e-9)

@@ -15,8 +15,9 @@ from bodymetry.studio.rig import studio_rig
 #: The estimated change must have the true sign and lie within this fraction range of it
 #: (the paper's own example recovered half of the reported change; SC regresses to the mean).
 CHANGE_FRACTION = (0.2, 1.3)
-#: Held-out prior bodies of about the same height (within 30 mm), 46.9 and 106.9 kg.
-THIN, HEAVY = 40, 44
+#: Held-out prior adults of about the same height (1758 and 1766 mm), 52.6 and 115.3 kg:
+#: the pair within 30 mm of height with the largest weight difference.
+THIN, HEAVY = 52, 44
 
 
 @pytest.mark.slow

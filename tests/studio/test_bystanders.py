@@ -11,7 +11,7 @@ from tiny_run import SYNTH_SIZE, SYNTH_TINY
 
 from bodymetry.capture.session import load_session
 from bodymetry.errors import InputError
-from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.model import DEFAULT_SHAPE_DOFS, BodyModel, BodyState
 from bodymetry.fileio import load_npz
 from bodymetry.preflight import check_session
 from bodymetry.studio.bystanders import (
@@ -99,7 +99,7 @@ def test_bystanders_are_recorded(crowd):
     for b in bystanders:
         assert 1 <= len(b.seen_by) <= 2
         assert np.hypot(b.tau[0], b.tau[1]) >= 2.0
-        assert len(b.nu) == 9 and len(b.theta) == 37
+        assert len(b.nu) == DEFAULT_SHAPE_DOFS and len(b.theta) == 37
     assert "2 bystander(s)" in describe(crowd)
 
 

@@ -11,6 +11,7 @@ from tiny_run import SYNTH_SIZE, SYNTH_TINY
 
 from bodymetry.capture.session import load_session
 from bodymetry.errors import InputError
+from bodymetry.estimation.body_model.model import DEFAULT_SHAPE_DOFS
 from bodymetry.fileio import load_npz
 from bodymetry.studio.board_motion import board_trajectory
 from bodymetry.studio.rig import studio_rig
@@ -56,7 +57,7 @@ def test_ground_truth_files(session):
     assert 1300 < subject["height_mm"] < 2200 and 30 < subject["weight_kg"] < 150
     with np.load(gt / "states.npz", allow_pickle=False) as states:
         assert states["theta"].shape == (6, 37) and states["joints"].shape == (6, 15, 3)
-        assert states["nu"].shape == (9,)
+        assert states["nu"].shape == (DEFAULT_SHAPE_DOFS,)
     kept = sorted(p.name for p in (gt / "silhouettes" / "cam_01").iterdir())
     assert kept == ["000000.png", "000002.png", "000004.png"]
 

@@ -51,6 +51,7 @@ from bodymetry.estimation.body_model.bake.rigging import (
     segment_triangles,
 )
 from bodymetry.estimation.body_model.model import (
+    ADULT_YEARS,
     MODEL_FORMAT,
     BodyModel,
     BodyState,
@@ -90,11 +91,13 @@ class BakeConfig:
     seed : int
         Seeds every random draw (bodies, poses).
     n_train_bodies, n_heldout_bodies : int
-        Bodies drawn from the calibrated adult prior for the PCA and for validation.
-    age_years : tuple of float
-        Age range of the drawn adults.
+        Bodies drawn from the calibrated prior for the PCA and for validation.
+    age_bands : tuple of (float, float)
+        Age bands (years) of the population
+        (:func:`phenotype.sample_population`: stratified over age band, sex,
+        height and weight; children from 5 years, adults to 90).
     n_components : int
-        Shape components stored (ν uses the first 9 by default).
+        Shape components stored (ν uses the first ``DEFAULT_SHAPE_DOFS``).
     n_train_poses, n_test_poses : int
         LBS-posed meshes for fitting Q and for validating it.
     max_bend : float
@@ -112,7 +115,7 @@ class BakeConfig:
     seed: int = 0
     n_train_bodies: int = 600
     n_heldout_bodies: int = 100
-    age_years: tuple[float, float] = (18.0, 80.0)
+    age_bands: tuple[tuple[float, float], ...] = phenotype.POPULATION_AGE_BANDS
     n_components: int = 20
     n_train_poses: int = 120
     n_test_poses: int = 30
@@ -348,6 +351,8 @@ class ShapeSpace:
         ν of every body.
     std, explained : (k,) float
         Standard deviation and explained variance fraction per component.
+    sample : phenotype.AdultSample
+        Phenotype, age (years) and sex of every body, in ``bodies`` order.
     """
 
     bodies: np.ndarray
@@ -359,6 +364,7 @@ class ShapeSpace:
     scores: np.ndarray
     std: np.ndarray
     explained: np.ndarray
+    sample: phenotype.AdultSample
 
 
 def fit_shape_space(
@@ -369,7 +375,7 @@ def fit_shape_space(
     config: BakeConfig,
     rng: np.random.Generator,
 ) -> ShapeSpace:
-    """Step 3: draw adult bodies from the calibrated prior and run the shape PCA.
+    """Step 3: draw the population from the calibrated prior and run the shape PCA.
 
     Parameters
     ----------
@@ -381,8 +387,16 @@ def fit_shape_space(
     n_body = assets.body_vertex_count
     faces = assets.body_faces
     n_all = config.n_train_bodies + config.n_heldout_bodies
-    log.info("sampling %d adult bodies from the calibrated prior", n_all)
-    sample = phenotype.sample_adult_phenotypes(prior, n_all, rng, config.age_years)
+    log.info("sampling %d bodies (5-90 years) from the calibrated prior", n_all)
+    # Training and held-out bodies are each stratified over the whole population.
+    train_sample = phenotype.sample_population(prior, config.n_train_bodies, rng, config.age_bands)
+    held_sample = phenotype.sample_population(prior, config.n_heldout_bodies, rng, config.age_bands)
+    sample = phenotype.AdultSample(
+        *(
+            np.concatenate([getattr(train_sample, f), getattr(held_sample, f)])
+            for f in ("phenotypes", "age_years", "is_female")
+        )
+    )
     bodies_raw = phenotype.body_vertices(assets.vertices, targets, sample.phenotypes)  # (n, N, 3)
     bodies = to_world(bodies_raw[:, :n_body])
     bodies_kp = rig_keypoints(assets, bodies_raw)
@@ -404,8 +418,17 @@ def fit_shape_space(
     shape_basis = (comps * std[:, None] / w).reshape(config.n_components, len(faces), 9)
     shape_mean = mean.reshape(len(faces), 9)
     scores = ((D - mean) * w) @ comps.T / std  # ν of every body, (n_all, k)
+    # Origin of ν: the training adults' mean body, not the population's (whose
+    # 3/8 children make it a 1.5 m teenager). ν = 0 is what the pipeline treats
+    # as the typical body (the shape prior's centre, the motion library's rest
+    # body, starting states), and most people measured are adults. Only the
+    # origin moves: the components and their scale are the PCA's.
+    adults = sample.age_years[train] >= ADULT_YEARS
+    centre = scores[train][adults].mean(axis=0)
+    shape_mean = shape_mean + np.tensordot(centre, shape_basis, axes=1)
+    scores = scores - centre
     return ShapeSpace(
-        bodies, bodies_kp, train, held, shape_mean, shape_basis, scores, std, explained
+        bodies, bodies_kp, train, held, shape_mean, shape_basis, scores, std, explained, sample
     )
 
 
@@ -544,10 +567,12 @@ def level_of_detail(
     lod_parts = lod_mod.transfer_face_labels(template, faces, parts, lod_template, lod_f)
     D_lod = deformation_gradients(lod_template, to_lod(shape.bodies[train]), lod_f)
     D_lod = D_lod.reshape(config.n_train_bodies, -1)
-    lod_mean = D_lod.mean(axis=0)
-    # Same ν as the full mesh: regress the LOD deformations on the full PCA scores.
+    # Same ν as the full mesh: regress the LOD deformations on the full PCA scores
+    # (centred: ν = 0 is the adults' mean, not the training bodies' mean, step 3).
     nu_train = shape.scores[train]
-    lod_basis, *_ = np.linalg.lstsq(nu_train, D_lod - lod_mean, rcond=None)
+    nu_centre = nu_train.mean(axis=0)
+    lod_basis, *_ = np.linalg.lstsq(nu_train - nu_centre, D_lod - D_lod.mean(axis=0), rcond=None)
+    lod_mean = D_lod.mean(axis=0) - nu_centre @ lod_basis
     lod_pairs = nearest_joint_pairs(lod_template, lod_f, lod_parts, rest)
     lod_posed = to_lod(pose.posed[ptrain], keep_volume=False)
     lod_coef = fit_pose_coefficients(
@@ -582,6 +607,14 @@ def _provenance(wheel: Path, config: BakeConfig, shape: ShapeSpace) -> dict:
         # The overhead test poses only enter the validation report, not the model.
         "bake_config": {k: v for k, v in asdict(config).items() if k != "n_overhead_poses"},
         "licences": LICENCES,
+        "population": (
+            "anny's calibrated phenotype prior, drawn by phenotype.sample_population: "
+            "the age bands x 2 sexes with equal counts, age stratified in its band, "
+            "height and weight a Latin hypercube of the sex's age-conditional Betas; "
+            f"training {int((shape.sample.age_years[shape.train] < ADULT_YEARS).sum())} "
+            f"children of {config.n_train_bodies}"
+        ),
+        "shape_origin": f"mean of the training bodies aged >= {ADULT_YEARS:g} years",
         "shape_std": shape.std.tolist(),
         "shape_explained_variance": shape.explained.tolist(),
     }
@@ -656,6 +689,12 @@ def model_arrays(
         # drawing subjects (training draws from train_nu, test subjects from heldout_nu).
         "train_nu": shape.scores[shape.train].astype(np.float32),
         "heldout_nu": shape.scores[shape.held].astype(np.float32),
+        # Who those bodies are (the population is stratified; callers that want
+        # adults only, or one sex, select by these).
+        "train_age_years": shape.sample.age_years[shape.train].astype(np.float32),
+        "heldout_age_years": shape.sample.age_years[shape.held].astype(np.float32),
+        "train_is_female": shape.sample.is_female[shape.train],
+        "heldout_is_female": shape.sample.is_female[shape.held],
     }
 
 
@@ -721,8 +760,10 @@ def validate(
         Further test meshes and angles whose shoulders span their whole
         limits; reported as ``pose_overhead``.
     skinning : ((V, 15) float, (H, 15, 3) float), optional
-        Skin weights and the held-out bodies' own joint centres: the first
-        ``n_skinned`` held-out bodies are posed by skinning at the test
+        Skin weights and the held-out bodies' own joint centres: ``n_skinned``
+        held-out bodies evenly spaced through the held-out set (which is
+        ordered by age band, so children and adults of every age band are
+        among them) are posed by skinning at the test
         angles and compared with the model at their best ν, posed as at run
         time (``pose_heldout_bodies``, with and without the skeleton anchors).
     """
@@ -737,10 +778,11 @@ def validate(
     if overhead is not None:
         report["pose_overhead"] = _pose_errors(model, *overhead)
     if skinning is not None:
+        pick = np.linspace(0, len(heldout) - 1, min(n_skinned, len(heldout))).round().astype(int)
         report["pose_heldout_bodies"] = _skinned_errors(
             BodyModel.load(model_path),
-            heldout[:n_skinned],
-            skinning[1][:n_skinned],
+            heldout[pick],
+            skinning[1][pick],
             skinning[0],
             {"moderate": thetas, **({"overhead": overhead[1]} if overhead else {})},
         )
@@ -748,7 +790,7 @@ def validate(
 
 
 def _shape_report(model_path: Path, heldout: np.ndarray, heldout_nu: np.ndarray) -> dict:
-    """Height and volume errors of the held-out bodies rebuilt from 9 and 20 components.
+    """Height and volume errors of the held-out bodies rebuilt from 9, 12 and 20 components.
 
     Parameters
     ----------
@@ -766,7 +808,7 @@ def _shape_report(model_path: Path, heldout: np.ndarray, heldout_nu: np.ndarray)
     """
     report: dict = {}
     true_h = heldout[..., 2].max(axis=1) - heldout[..., 2].min(axis=1)
-    for k in (9, 20):
+    for k in (9, 12, 20):
         model = BodyModel.load(model_path, n_shape=k)
         faces = model.faces()
         vol_true = geometry.mesh_volume(heldout, faces)

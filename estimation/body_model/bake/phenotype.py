@@ -29,7 +29,9 @@ in (x, y, z) of anny is :data:`NEWBORN_SCALE` = ``(0.922, 0.75, 0.922)`` in
 
 :func:`sample_adult_phenotypes` ports anny's ``SimpleShapeDistribution``
 (``data/shape_calibration/{boys,girls}.pth``), restricted to a range of
-morphological ages in years.
+morphological ages in years; :func:`sample_population` draws the whole
+population (children from 5 years to adults of 90) stratified over age, sex,
+height and weight, so that the edges of the prior are represented.
 """
 
 from __future__ import annotations
@@ -59,6 +61,7 @@ __all__ = [
     "load_macro_targets",
     "load_shape_prior",
     "sample_adult_phenotypes",
+    "sample_population",
     "variation_coefficients",
     "variation_mask",
 ]
@@ -731,6 +734,21 @@ def sample_adult_phenotypes(
     return AdultSample(phenotypes=phenotypes, age_years=years, is_female=is_female)
 
 
+#: Age bands (years) of :func:`sample_population`: children from 5 years in three
+#: bands (their proportions change fast), adults to 90 in five. Every band gets
+#: the same number of bodies per sex, so children are 3/8 of the population.
+POPULATION_AGE_BANDS: tuple[tuple[float, float], ...] = (
+    (5.0, 9.0),
+    (9.0, 13.0),
+    (13.0, 18.0),
+    (18.0, 30.0),
+    (30.0, 45.0),
+    (45.0, 60.0),
+    (60.0, 75.0),
+    (75.0, 90.0),
+)
+
+
 def sex_and_age(
     prior: ShapePrior, years: np.ndarray, female: bool, rng: np.random.Generator
 ) -> tuple[dict[str, np.ndarray], object]:
@@ -750,3 +768,81 @@ def sex_and_age(
         gender = np.maximum(gender, np.nextafter(0.5, 1.0))  # strictly above the split
     values = {"gender": gender, "age": prior.morphological_to_anny_age(years)}
     return values, prior.female if female else prior.male
+
+
+def _strata(m: int, rng: np.random.Generator) -> np.ndarray:
+    """(m,) uniforms on [0, 1), one in each of m equal strata, in random order."""
+    return (rng.permutation(m) + rng.uniform(size=m)) / m
+
+
+def sample_population(
+    prior: ShapePrior,
+    n: int,
+    rng: np.random.Generator,
+    age_bands: Sequence[tuple[float, float]] = POPULATION_AGE_BANDS,
+) -> AdultSample:
+    """Draw ``n`` phenotypes stratified over age, sex, height and weight.
+
+    The population is split into cells (age band x sex), each of
+    ``n // cells`` bodies (the first ``n % cells`` cells one more). Within a
+    cell: the age is stratified over the band (one body in each of m equal
+    sub-bands), gender is uniform on [0, 0.5] for men and (0.5, 1] for women
+    (the prior's own split), and height and weight are a Latin hypercube of
+    that sex's age-conditional Beta distributions (one body in each 1/m
+    quantile band of each, paired at random), so every cell reaches its 1/m
+    and 1 - 1/m quantiles of both; muscle and proportions are drawn from
+    their Betas as anny draws them. Unlike :func:`sample_adult_phenotypes`,
+    the tails and the children are there by construction, not by chance.
+
+    Parameters
+    ----------
+    prior
+        The calibrated prior (:func:`load_shape_prior`).
+    n
+        Number of bodies, >= 0.
+    rng
+        Source of randomness (deterministic given its state).
+    age_bands
+        (low, high) morphological ages in years, within the calibration's range.
+
+    Returns
+    -------
+    AdultSample
+        ``phenotypes`` (n, 6), ``age_years`` (n,), ``is_female`` (n,), cell
+        after cell (age band outer, men first).
+    """
+    from scipy.stats import beta as beta_dist  # the bake's dependency only
+
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 0:
+        raise ValueError(f"n must be a non-negative int, got {n!r}")
+    first, last = prior.morphological_age_anchors[0], prior.morphological_age_anchors[-1]
+    for low, high in age_bands:
+        if not (first <= low < high <= last):
+            raise ValueError(
+                f"age_bands: each band must satisfy {first:g} <= low < high <= {last:g}, "
+                f"got {(low, high)!r}"
+            )
+    cells = [(band, female) for band in age_bands for female in (False, True)]
+    counts = np.full(len(cells), int(n) // len(cells))
+    counts[: int(n) % len(cells)] += 1
+    phenotypes, years_all, female_all = [], [], []
+    for ((low, high), female), m in zip(cells, counts, strict=True):
+        if m == 0:
+            continue
+        years = low + (high - low) * _strata(m, rng)
+        values, table = sex_and_age(prior, years, female, rng)
+        anny_age = values["age"]
+        for name in _CONDITIONALS:
+            alpha, beta = table[name].params(anny_age)
+            if name in ("height", "weight"):
+                values[name] = beta_dist.ppf(_strata(m, rng), alpha, beta)
+            else:
+                values[name] = rng.beta(alpha, beta)
+        phenotypes.append(np.stack([values[k] for k in PHENOTYPE_LABELS], axis=1))
+        years_all.append(years)
+        female_all.append(np.full(m, female))
+    if not phenotypes:
+        return AdultSample(np.zeros((0, len(PHENOTYPE_LABELS))), np.zeros(0), np.zeros(0, bool))
+    return AdultSample(
+        np.concatenate(phenotypes), np.concatenate(years_all), np.concatenate(female_all)
+    )

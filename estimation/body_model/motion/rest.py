@@ -105,28 +105,29 @@ class RestPoseInfo:
         return replace(self, joints=self.joints * s, soles=self.soles * s)
 
 
-# The committed model's mean body (ν = 0), rounded; a test checks them against the model.
+# The committed model's mean body (ν = 0: the mean adult of the 2026-12-04 bake, 5-90
+# years), rounded; a test checks them against the model.
 # Copied rather than read from the model: reading them needs the 12 MB model file and
 # its mesh, while motion generation and the pose prior stay numpy-only without it; and
 # every seeded motion depends on these exact (rounded) numbers, so deriving them would
 # change every generated motion and training set.
 _DEFAULT_JOINTS = np.array(
     [
-        [0.0, 0.0, 0.881],
-        [0.0, 0.0165, 1.0462],
-        [0.0003, -0.0133, 1.4648],
-        [0.1753, -0.0201, 1.3397],
-        [0.3489, -0.032, 1.1509],
-        [0.468, -0.1891, 1.033],
-        [-0.1753, -0.0201, 1.3397],
-        [-0.3489, -0.032, 1.1509],
-        [-0.468, -0.1891, 1.033],
-        [0.112, 0.0, 0.8811],
-        [0.143, -0.0301, 0.5083],
-        [0.1854, 0.002, 0.0765],
-        [-0.112, 0.0, 0.8811],
-        [-0.143, -0.0301, 0.5083],
-        [-0.1854, 0.002, 0.0765],
+        [0.0, 0.0, 0.8836],
+        [-0.0001, 0.0163, 1.0502],
+        [0.0003, -0.0141, 1.4684],
+        [0.1749, -0.0208, 1.3431],
+        [0.3488, -0.0325, 1.154],
+        [0.4681, -0.1903, 1.0363],
+        [-0.1749, -0.0208, 1.3431],
+        [-0.3488, -0.0325, 1.154],
+        [-0.4681, -0.1903, 1.0363],
+        [0.1126, -0.0005, 0.8832],
+        [0.1428, -0.0304, 0.5087],
+        [0.1858, 0.0021, 0.0767],
+        [-0.1126, -0.0005, 0.8832],
+        [-0.1428, -0.0304, 0.5087],
+        [-0.1858, 0.0021, 0.0767],
     ]
 )
 _DEFAULT_HINGES = np.zeros((N_PARTS, 3))
