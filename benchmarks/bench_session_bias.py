@@ -160,9 +160,7 @@ def processed_session(session_dir: Path, run_dir: Path) -> ProcessedSession:
         for r in run.results.frames
         if r.ok
     ]
-    return ProcessedSession(
-        run, session, truth, ProcessConfig.from_json(run.results.config), frames
-    )
+    return ProcessedSession(run, session, truth, run.results.config, frames)
 
 
 def session_bias(session_dir: Path, run_dir: Path) -> dict:
