@@ -50,14 +50,14 @@ class MeasuredAccuracy:
 #: Per core measurement (results.json key): the session stage's error on the eleven
 #: tight-clothed studio subjects the model was not built from (seeds 42, 43, 49, the
 #: held-out 71, 72, the heavy 81, 82, 83 and the fresh 91, 92, 96; 16 kept frames each),
-#: benchmark runs of 2026-12-05 (evening: after the capture stage stopped thinning the
-#: hands, docs/capture.md "Thin parts"). Other machines
+#: benchmark runs of 2026-12-05 on the 5-90-year shape space (issue 33; after the
+#: capture stage stopped thinning the hands, docs/capture.md "Thin parts"). Other machines
 #: running the same code give values a few millimetres and a few tenths of a kilogram
 #: apart (README, "The same code on three machines").
 SESSION_ACCURACY: dict[str, MeasuredAccuracy] = {
-    "height_mm": MeasuredAccuracy(rms=5.3, worst=12.2, bias=4.3, sessions=11),
-    "arm_span_mm": MeasuredAccuracy(rms=7.1, worst=12.2, bias=-0.4, sessions=11),
-    "weight_kg": MeasuredAccuracy(rms=1.3, worst=2.3, bias=0.8, sessions=11),
+    "height_mm": MeasuredAccuracy(rms=5.0, worst=9.8, bias=4.6, sessions=11),
+    "arm_span_mm": MeasuredAccuracy(rms=8.2, worst=18.2, bias=-1.3, sessions=11),
+    "weight_kg": MeasuredAccuracy(rms=1.2, worst=2.3, bias=0.7, sessions=11),
 }
 
 #: Where :data:`SESSION_ACCURACY` comes from, for the report.
