@@ -747,6 +747,13 @@ class SessionGate:
     reference: float | None
     width_scale: float = 1.0
 
+    @property
+    def follows_frames(self) -> bool:
+        """Whether the session's good frames set the gate (it lies below what the
+        widened ``min_iou`` alone would give), rather than ``min_iou`` itself."""
+        widened = 1.0 - self.width_scale * (1.0 - self.min_iou)
+        return self.reference is not None and self.threshold < widened - 1e-6
+
     def to_json(self) -> dict[str, Any]:
         return {
             "threshold": round(self.threshold, 4),

@@ -117,3 +117,12 @@ def test_the_gate_round_trips_and_old_gates_read_with_no_widening():
     assert back.width_scale == pytest.approx(gate.width_scale, abs=1e-4)
     del data["width_scale"]
     assert SessionGate.from_json(data).width_scale == 1.0
+
+
+def test_the_gate_says_whether_the_frames_or_the_widened_min_iou_set_it():
+    studio = [0.94, 0.946, 0.934, 0.93, 0.897, 0.85]
+    real = [0.86, 0.87, 0.85, 0.88, 0.80]
+    for height, volume in ((1689.0, 66.7), (1377.0, 31.4)):
+        assert not session_gate(_sized(studio, height, volume), FitConfig())[0].follows_frames
+        assert session_gate(_sized(real, height, volume), FitConfig())[0].follows_frames
+    assert not SessionGate(0.9, 0.9, None).follows_frames

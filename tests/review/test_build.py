@@ -69,3 +69,40 @@ def test_frames_left_out_by_a_quality_gate_are_still_shown(run_copy):
     for c in meshes:
         frames.update(c.to_record_batch().column("frame").to_pylist())
     assert gated["frame"] in frames
+
+
+@pytest.mark.parametrize(
+    ("gate", "says", "not_said"),
+    [
+        # A child's studio session: the widened min_iou alone set the gate.
+        (
+            {"threshold": 0.8682, "min_iou": 0.9, "reference": 0.94, "width_scale": 1.318},
+            ["at least 0.87", "loses 1.32 times the IoU of a mid-population adult"],
+            ["so the gate follows them"],
+        ),
+        # A child in clothes on real footage: the frames set it, widened too.
+        (
+            {"threshold": 0.8105, "min_iou": 0.9, "reference": 0.85, "width_scale": 1.318},
+            ["this session's good frames score 0.85, so the gate follows them, and a body"],
+            [],
+        ),
+        # An adult on real footage: the frames alone.
+        (
+            {"threshold": 0.82, "min_iou": 0.9, "reference": 0.85, "width_scale": 1.0},
+            ["so the gate follows them;"],
+            ["times the IoU"],
+        ),
+    ],
+)
+def test_the_report_says_what_set_the_quality_gate(run_copy, gate, says, not_said):
+    path = run_copy / "results.json"
+    results = json.loads(path.read_text())
+    results["persons"][0]["quality_gate"] = gate
+    path.write_text(json.dumps(results))
+    summary = build_review(run_copy, recordings=False)
+    assert not summary.errors, summary.errors
+    html = " ".join((run_copy / "report.html").read_text().split())
+    for text in says:
+        assert text in html
+    for text in not_said:
+        assert text not in html
