@@ -666,13 +666,12 @@ def _shape_covariance(
     found: the curvature's, plus the scatter of the average of K descents' end
     points (their spread / sqrt(K)) when there are several; and the data term's
     pose-marginal curvature (n_shape, n_shape) there, for :func:`prior_pull`."""
-    blocks = _blocks(work, step)
-    cov, how = _covariance(blocks, weights, prior, n_shape)
+    cov, how, data_h = _covariance(_blocks(work, step), weights, prior, n_shape)
     ends = np.array([d.states[0, NU] for d in descents])
     if len(descents) > 1:
         cov = cov + np.atleast_2d(np.cov(ends.T, ddof=1)) / len(descents)
         how = f"{how} + spread of {len(descents)} descents"
-    return cov, how, _data_curvature(blocks, weights, n_shape)[0]
+    return cov, how, data_h
 
 
 def _spread(body: BodyModel, ends: np.ndarray, density: float) -> dict[str, float]:
@@ -745,8 +744,9 @@ def prior_pull(
 
 def _covariance(
     blocks: Sequence[_Blocks], weights: np.ndarray, prior: float, n_shape: int
-) -> tuple[np.ndarray, str]:
-    """Covariance (n_shape, n_shape) of ν with the poses marginalized, and which one.
+) -> tuple[np.ndarray, str, np.ndarray]:
+    """Covariance (n_shape, n_shape) of ν with the poses marginalized, which one, and
+    the data term's pose-marginal curvature ``Σ_f w_f S_f`` (n_shape, n_shape).
 
     The pose-marginal Gauss-Newton matrix is ``H = Σ_f w_f S_f + prior I`` with
     ``S_f = C_f - B_fᵀ A_f⁻¹ B_f``; each frame's pose-marginal gradient is
@@ -759,9 +759,9 @@ def _covariance(
         G = np.array(grads)
         G = G - G.mean(axis=0)
         meat = n / (n - 1) * G.T @ G
-        return Hinv @ meat @ Hinv, "cluster-robust (frames)"
+        return Hinv @ meat @ Hinv, "cluster-robust (frames)", data_h
     dof = max(count - (POSE_DIM * n + n_shape), 1)
-    return sq / dof * Hinv, "Gauss-Newton (residual variance)"
+    return sq / dof * Hinv, "Gauss-Newton (residual variance)", data_h
 
 
 def biometric_errors(

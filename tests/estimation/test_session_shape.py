@@ -208,12 +208,12 @@ def test_the_standard_errors_shrink_with_more_frames():
     rng = np.random.default_rng(5)
     se = {}
     for n in (6, 60):
-        cov, how = _covariance(_linear_blocks(n, rng), np.ones(n), 0.0, 3)
+        cov, how, _ = _covariance(_linear_blocks(n, rng), np.ones(n), 0.0, 3)
         assert how == "cluster-robust (frames)"
         se[n] = np.sqrt(np.diag(cov))
     ratio = se[6] / se[60]
     assert np.all((ratio > np.sqrt(10) / 2) & (ratio < np.sqrt(10) * 2)), ratio
-    cov, how = _covariance(_linear_blocks(2, rng), np.ones(2), 0.0, 3)
+    cov, how, _ = _covariance(_linear_blocks(2, rng), np.ones(2), 0.0, 3)
     assert how.startswith("Gauss-Newton") and np.all(np.diag(cov) > 0)
 
 
