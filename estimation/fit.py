@@ -743,7 +743,7 @@ def session_gate(
     scale = width_scale(records)
     # A slim or small body's silhouettes lose more IoU to the same outline error:
     # both deficits (from a perfect overlap, from the good frames) widen with it.
-    min_iou = 1.0 - scale * (1.0 - config.min_iou)
+    min_iou = SessionGate.widened(config.min_iou, scale)
     threshold = min(min_iou, max(config.gate_floor, reference - scale * config.gate_margin))
     out = []
     for r in records:

@@ -747,11 +747,16 @@ class SessionGate:
     reference: float | None
     width_scale: float = 1.0
 
+    @staticmethod
+    def widened(min_iou: float, width_scale: float) -> float:
+        """``min_iou`` with its deficit ``1 - min_iou`` widened by ``width_scale``."""
+        return 1.0 - width_scale * (1.0 - min_iou)
+
     @property
     def follows_frames(self) -> bool:
         """Whether the session's good frames set the gate (it lies below what the
         widened ``min_iou`` alone would give), rather than ``min_iou`` itself."""
-        widened = 1.0 - self.width_scale * (1.0 - self.min_iou)
+        widened = self.widened(self.min_iou, self.width_scale)
         return self.reference is not None and self.threshold < widened - 1e-6
 
     def to_json(self) -> dict[str, Any]:
