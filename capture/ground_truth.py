@@ -4,7 +4,7 @@ A studio session (docs/session-format.md) has ``ground_truth/`` beside its
 videos: ``subject.json`` (:class:`SubjectTruth`: the true measurements of the
 subject, its shape ν when it is a body of our model, and how it was made),
 ``studio.json`` (:class:`StudioRecord`: how the studio rendered the session),
-``states.npz`` and the true silhouettes. The studio writes them; ``process``,
+``states.npz``, the true silhouettes and the true cast shadows. The studio writes them; ``process``,
 the review and the studio's evaluation read them, through these classes only.
 
 A session with several people (``bodymetry synth --people N``) keeps the
@@ -29,6 +29,7 @@ from bodymetry.fileio import load_npz, read_json_object, write_json_atomic
 __all__ = [
     "GROUND_TRUTH_OCCLUDED",
     "GROUND_TRUTH_PERSONS",
+    "GROUND_TRUTH_SHADOWS",
     "GROUND_TRUTH_SILHOUETTES",
     "GROUND_TRUTH_STATES",
     "GROUND_TRUTH_STUDIO",
@@ -48,6 +49,10 @@ GROUND_TRUTH_STUDIO = "studio.json"
 GROUND_TRUTH_STATES = "states.npz"
 #: The true silhouettes, ``ground_truth/silhouettes/<camera>/<frame>.png``.
 GROUND_TRUTH_SILHOUETTES = "silhouettes"
+#: The true cast shadows (no person pixel), ``ground_truth/shadows/<camera>/<frame>.png``.
+#: Rendered with the body model of the render: re-rendering them later from the states
+#: would follow whatever body model is current then.
+GROUND_TRUTH_SHADOWS = "shadows"
 #: Where another person hides a person, ``<person folder>/occluded/<camera>/<frame>.png``.
 GROUND_TRUTH_OCCLUDED = "occluded"
 #: The other persons' folders, ``ground_truth/persons/<k>/`` (k >= 1).

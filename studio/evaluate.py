@@ -3,13 +3,14 @@
 - ``iou``: intersection over union of the computed and the true person mask
   (``ground_truth/silhouettes/<camera>/<frame:06d>.png``);
 - ``shadow_false_positive``: the fraction of true cast-shadow pixels labelled
-  person. The studio does not store shadow masks, so they are recomputed: the
-  session's state (``ground_truth/states.npz``) is posed and rendered again
-  through the true cameras with the session's light and room (its look,
-  ``ground_truth/studio.json``), without noise (the shadow geometry does not
-  depend on the noise). An independent subject
-  (``ground_truth/subject.json`` names it; its states have no ν) is rebuilt from
-  the committed bank and skinned, clothed as it was rendered.
+  person. The studio stores them as rendered
+  (``ground_truth/shadows/<camera>/<frame:06d>.png``). Sessions rendered before
+  it did are given shadows recomputed from ``ground_truth/states.npz``, posed
+  and rendered again through the true cameras with the session's light and room
+  (its look, ``ground_truth/studio.json``), without noise; an independent
+  subject (``ground_truth/subject.json`` names it) is rebuilt from the committed
+  bank. That re-render uses today's body model (and its skeleton), so after the
+  model changes it no longer matches the video: a warning says so.
 
 :func:`segment_and_score` runs the capture stage on a session (any session;
 the scoring only where it has ground truth), writes the masks and
@@ -20,6 +21,7 @@ scoring renders the studio's shadows and capture must not import the studio.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -32,6 +34,7 @@ import numpy as np
 from bodymetry.capture.background import SubtractionConfig
 from bodymetry.capture.ground_truth import (
     GROUND_TRUTH_OCCLUDED,
+    GROUND_TRUTH_SHADOWS,
     GROUND_TRUTH_SILHOUETTES,
     GROUND_TRUTH_STATES,
     GROUND_TRUTH_SUBJECT,
@@ -64,6 +67,8 @@ __all__ = [
     "load_ground_truth",
     "segment_and_score",
 ]
+
+log = logging.getLogger(__name__)
 
 #: The stage's summary file in the output folder (:meth:`SilhouetteRun.to_dict`
 #: plus ``per_frame``).
@@ -177,9 +182,22 @@ class GroundTruth:
         return self._shadow_cache[key]
 
     def _render_shadow(self, camera: str, frame: int) -> np.ndarray | None:
+        gt = self.session.ground_truth_path
+        if gt is None:
+            return None
+        stored = gt / GROUND_TRUTH_SHADOWS
+        if stored.is_dir():
+            self.session.camera(camera)  # an unknown camera is an error, not a missing mask
+            return _read_mask(stored / camera / f"{frame:06d}.png")
         if not self.has_states():
             return None
         if self._studio is None:
+            log.warning(
+                "%s has no stored shadow masks (rendered before the studio wrote them): its "
+                "shadows are re-rendered with today's body model and are wrong where the model "
+                "changed since; render the session again for a trustworthy shadow figure",
+                gt,
+            )
             self._setup()
         s = self._states
         rows = np.flatnonzero(s["frame"] == frame)

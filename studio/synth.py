@@ -46,6 +46,7 @@ from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.calibration.io import save_calibration
 from bodymetry.capture.ground_truth import (
     GROUND_TRUTH_OCCLUDED,
+    GROUND_TRUTH_SHADOWS,
     GROUND_TRUTH_SILHOUETTES,
     GROUND_TRUTH_STATES,
     StudioRecord,
@@ -381,6 +382,8 @@ def _render_camera(job: _CameraJob, progress) -> dict:
                 writer.write(image)
                 if frame in kept:
                     _write_masks(folders, GROUND_TRUTH_SILHOUETTES, cam.name, frame, masks)
+                    # Stored, not re-rendered when scored: a later body model would move them.
+                    _write_masks([gt], GROUND_TRUTH_SHADOWS, cam.name, frame, shadow[None])
                     if hidden is not None:
                         _write_masks(folders, GROUND_TRUTH_OCCLUDED, cam.name, frame, hidden)
                         occluded += hidden.sum(axis=(1, 2))
