@@ -474,14 +474,17 @@ class VisualHull:
         heads = count_persons(self.grid(people), self.voxel)
         return replace(bodies, persons=max(heads, int(bodies.person_sized.sum())))
 
-    def support(self, occupied: np.ndarray, c: int) -> np.ndarray:
-        """(H, W) bool: where the occupied voxels project in camera ``c``."""
+    def support(self, occupied: np.ndarray, c: int, reach: float = 0.5) -> np.ndarray:
+        """(H, W) bool: where the occupied voxels project in camera ``c``, each as a
+        square of ``reach`` voxel sides about its centre's pixel (0.5: the voxel's
+        own footprint; more reaches the parts thinner than a voxel that the
+        centre-sampled hull cannot hold, e.g. fingers)."""
         cam = self.cameras[c]
         out = np.zeros((cam.size[1], cam.size[0]), np.uint8)
         sel = occupied & self.seen[c]
         px = self.pixels[c, sel]
         out[px[:, 1], px[:, 0]] = 1
-        r = int(self.splat[c])
+        r = max(int(np.ceil(self.splat[c] * reach / 0.5)), 1)
         out = cv2.dilate(out, cv2.getStructuringElement(cv2.MORPH_RECT, (2 * r + 1, 2 * r + 1)))
         return out.astype(bool)
 

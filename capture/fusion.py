@@ -95,6 +95,12 @@ LOGIT_CLIP = 4.0
 #: the change threshold).
 STRONG_CHANGE = 1.0
 
+#: How far (voxel sides about each occupied voxel's centre) the hull confirms a
+#: thin part: the hull holds a voxel only where every view's mask covers its centre,
+#: so fingers and a hand seen edge-on (thinner than the 4 cm voxels) lie up to about
+#: a voxel outside its footprint (half a side) even where each view sees them.
+THIN_REACH = 1.5
+
 #: The segmenter is sure of a pixel above this logit (p > 0.9).
 SURE_LOGIT = float(np.log(9.0))
 
@@ -119,12 +125,18 @@ class GeometryTerms:
     shadow_at_feet : (H, W) bool or None
         The floor shadows that touch the feet
         (:func:`bodymetry.capture.shadows.at_feet`): never person.
+    hull_reach : (H, W) bool or None
+        ``hull_any`` widened by :data:`THIN_REACH` voxels: the hull samples voxel
+        centres, so a part thinner than a voxel (fingers) falls outside it even
+        where every view sees it; the thin-part rule of :func:`confirmed_change`
+        confirms against this (None: ``hull_any``).
     """
 
     hull_body: np.ndarray
     hull_any: np.ndarray
     floor_shadow: np.ndarray | None = None
     shadow_at_feet: np.ndarray | None = None
+    hull_reach: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -271,6 +283,7 @@ def confirmed_change(
     change: np.ndarray,
     hull_any: np.ndarray,
     thin: np.ndarray,
+    hull_reach: np.ndarray | None = None,
 ) -> np.ndarray:
     """The fused mask with the plain changes the other views confirm given back.
 
@@ -296,13 +309,18 @@ def confirmed_change(
         :attr:`GeometryTerms.hull_any`.
     thin : (H, W) bool
         Thin parts of ``fused`` (:func:`bodymetry.capture.masks.thin_parts`).
+    hull_reach : (H, W) bool, optional
+        :attr:`GeometryTerms.hull_reach`: what confirms a thin part (the hull's
+        voxels are as wide as a hand; ``hull_any`` when not given).
 
     Returns
     -------
     (H, W) bool
     """
-    confirmed = subtracted & hull_any & (change >= 0.0)
-    return fused | (confirmed & ((change >= STRONG_CHANGE) | thin))
+    changed = subtracted & (change >= 0.0)
+    reach = hull_any if hull_reach is None else hull_reach | hull_any
+    strong = changed & hull_any & (change >= STRONG_CHANGE)
+    return fused | strong | (changed & reach & thin)
 
 
 def fuse(features: np.ndarray, weights: FusionWeights) -> np.ndarray:

@@ -32,6 +32,7 @@ from bodymetry.capture.fusion import (
     FEATURES,
     LIT_CHANGE,
     SURE_LOGIT,
+    THIN_REACH,
     FusionConfig,
     GeometryTerms,
     change_evidence,
@@ -547,6 +548,7 @@ class FrameSegmenter:
                 self.hull.support(occupied, c),
                 None if floor[c] is None else floor[c].mask,
                 feet[c],
+                self.hull.support(occupied, c, reach=THIN_REACH),
             )
             for c in range(len(evidence))
         ]
@@ -599,7 +601,12 @@ class FrameSegmenter:
                 raw &= ~(terms.shadow_at_feet & (seg < SURE_LOGIT))
             if terms is not None:
                 raw = confirmed_change(
-                    raw, ev.raw, ev.change, terms.hull_any, thin_parts(raw, self.cleanup)
+                    raw,
+                    ev.raw,
+                    ev.change,
+                    terms.hull_any,
+                    thin_parts(raw, self.cleanup),
+                    terms.hull_reach,
                 )
             # Shadow labels the fusion overruled (a grey shirt's shaded side) are person.
             shadow = shadow & ~raw

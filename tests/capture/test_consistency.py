@@ -72,6 +72,19 @@ def test_the_subject_is_occupied_and_kept_whole(hull, rig):
         np.testing.assert_array_equal(before, after)
 
 
+def test_the_hulls_reach_widens_its_footprint_by_about_a_voxel(hull, rig):
+    masks = [_cylinder_mask(c) for c in rig]
+    occ = hull.occupied(masks)
+    for c in range(len(rig)):
+        own, reach = hull.support(occ, c), hull.support(occ, c, reach=1.5)
+        assert (own <= reach).all() and reach.sum() > own.sum()
+        # The reach widens each voxel's square (half-side: splat, half a voxel in
+        # pixels) to 1.5 voxel sides: by 2 splats, diagonally sqrt(2) times that.
+        extra = cv2.distanceTransform((~own).astype(np.uint8), cv2.DIST_L2, 3)[reach]
+        assert extra.max() <= np.sqrt(2) * (np.ceil(3 * hull.splat[c]) - hull.splat[c]) + 1
+        assert (masks[c] & ~own).sum() >= (masks[c] & ~reach).sum()
+
+
 def test_a_blob_one_camera_sees_is_removed(hull, rig):
     masks = [_cylinder_mask(c) for c in rig]
     extra = _blob(rig[0], masks[0])

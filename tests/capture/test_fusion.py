@@ -145,6 +145,25 @@ def test_confirmed_change_gives_back_thin_parts_and_strong_changes_only():
     np.testing.assert_array_equal(out, kept)
 
 
+def test_thin_parts_are_confirmed_within_the_hulls_reach_strong_changes_not():
+    # Outside the hull's own footprint but within its reach (a finger thinner than a
+    # voxel): a thin change is confirmed, a strong change on a thick part is not.
+    cases = [
+        (False, True, 0.3, True, True),  # thin, within reach: person
+        (False, True, STRONG_CHANGE, False, False),  # strong but not thin: needs the hull
+        (False, True, 0.3, True, True),
+    ]
+    fused, subtracted, change, thin, kept = (
+        np.array([c[k] for c in cases])[None] for k in range(5)
+    )
+    hull = np.zeros_like(fused)
+    reach = np.array([[True, True, False]])
+    out = confirmed_change(fused, subtracted, change.astype(np.float32), hull, thin, reach)
+    np.testing.assert_array_equal(out, kept & reach)
+    # Without a reach, the hull's footprint decides (nothing here).
+    assert not confirmed_change(fused, subtracted, change.astype(np.float32), hull, thin).any()
+
+
 def test_config_validation():
     with pytest.raises(InputError, match="floor_band"):
         FusionConfig(floor_band=-0.1)

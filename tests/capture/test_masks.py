@@ -73,6 +73,33 @@ def test_person_touching_the_border_is_flagged() -> None:
     assert flags == ("border",) and mask[0].any()
 
 
+def test_the_opening_gives_back_a_finger_but_not_specks() -> None:
+    raw = _person(160, ax=30, ay=60)  # top at row 60
+    raw[52:60, 160] = True  # a finger of 1 px hanging from the top
+    raw[40:48, 100] = True  # a thin streak of noise, not attached
+    # Lengths are given at 640x480: at 320x240 a radius 2 is a disc of 1 px.
+    plain, _ = clean_mask(raw, CleanupConfig(open_radius=2, restore_radius=0))
+    mask, _ = clean_mask(raw, CleanupConfig(open_radius=2, restore_radius=20))  # 10 steps
+    assert not plain[52:58, 160].any()  # the opening took the finger...
+    assert mask[52:60, 160].all()  # ...and it is given back, as far as it reaches
+    assert not mask[40:48, 100].any()  # noise away from the body stays out
+    # What is new beyond the raw mask is the closing rounding the finger's root.
+    assert np.count_nonzero(mask & ~plain & ~raw) <= 4
+    # The restoration is bounded: 2 steps (4 px at 640x480) reach 2 px of the finger.
+    column = raw[:, 160].nonzero()[0]
+    short, _ = clean_mask(raw, CleanupConfig(open_radius=2, restore_radius=4))
+    assert short[column, 160].sum() == plain[column, 160].sum() + 2
+    # A ragged pixel of the outline (touching it diagonally) is not given back: it
+    # does not stick out two pixels.
+    body = _person(160, ax=30, ay=60)
+    top = np.nonzero(body.any(axis=1))[0].min()
+    right = np.nonzero(body[top])[0].max()
+    ragged = body.copy()
+    ragged[top - 1, right + 1] = True
+    kept, _ = clean_mask(ragged, CleanupConfig(open_radius=2, restore_radius=20))
+    assert not kept[top - 1, right + 1]
+
+
 def test_holes_filled_only_when_they_changed() -> None:
     raw = _person(160, ax=40, ay=90)
     hole = np.zeros((H, W), bool)
@@ -98,6 +125,8 @@ def test_clean_mask_is_translation_equivariant() -> None:
 def test_bad_mask_shape() -> None:
     with pytest.raises(InputError, match="mask"):
         clean_mask(np.zeros((4, 4, 3), bool))
+    with pytest.raises(InputError, match="restore_radius"):
+        CleanupConfig(restore_radius=-1)
 
 
 # --------------------------------------------------------------------------
