@@ -109,9 +109,9 @@ class CleanupConfig:
     open_radius, close_radius : int
         Disc radii of the opening and closing (0 = skip).
     restore_radius : int
-        Thin parts the opening removed (a finger of 1-2 px) are given back where
-        they hang from the opened mask within this many pixels (0 = a plain
-        opening; :func:`_restore_thin`).
+        Thin parts the opening removed (a finger of 1-2 px) are given back up to
+        this many pixels from the opened mask, where they stick out of it by
+        :data:`STICK_OUT` or more (0 = a plain opening; :func:`_restore_thin`).
     min_person_fraction : float
         Smallest person, as a fraction of the image area (smaller: ``empty``).
     max_person_fraction : float
