@@ -52,9 +52,8 @@ class MeasuredAccuracy:
 #: held-out 71, 72, the heavy 81, 82, 83 and the fresh 91, 92, 96; 16 kept frames each),
 #: on the 5-90-year shape space (issue 33), evaluated again on 2026-12-05 after the capture
 #: stage kept the fingers (``benchmarks/results/pipeline_recheck.json``; docs/capture.md
-#: "Thin parts"). Other machines
-#: running the same code give values a few millimetres and a few tenths of a kilogram
-#: apart (README, "The same code on three machines").
+#: "Thin parts"). Other machines running the same code give values a few millimetres and
+#: a few tenths of a kilogram apart (README, "The same code on three machines").
 SESSION_ACCURACY: dict[str, MeasuredAccuracy] = {
     "height_mm": MeasuredAccuracy(rms=5.8, worst=10.5, bias=5.4, sessions=11),
     "arm_span_mm": MeasuredAccuracy(rms=6.6, worst=12.5, bias=1.3, sessions=11),
