@@ -190,6 +190,9 @@ def _class_summary(cams: list[dict], cls: str) -> dict:
         "iou_mean": round(float(np.mean([c["iou_mean"] for c in cams])), 4),
         "worst_camera_iou_mean": round(min(c["iou_mean"] for c in cams), 4),
         "worst_frame_iou": round(min(c["iou_min"] for c in cams), 4),
+        # In pixels, so sessions of different bodies compare (studio.evaluate.outline_errors).
+        "outline_error_px": _mean_of(cams, "outline_error_px"),
+        "outline_bias_px": _mean_of(cams, "outline_bias_px"),
         "worst_camera_shadow_false_positive": round(worst_fp, 4),
         "mean_shadow_false_positive": round(
             float(np.mean([c["shadow_false_positive"] for c in cams])), 4
@@ -200,6 +203,12 @@ def _class_summary(cams: list[dict], cls: str) -> dict:
             and worst_fp <= shadow_fp
         ),
     }
+
+
+def _mean_of(cams: list[dict], key: str) -> float | None:
+    """The mean of one per-camera figure over the cameras that have it (None: none has)."""
+    values = [c[key] for c in cams if c.get(key) is not None]
+    return round(float(np.mean(values)), 4) if values else None
 
 
 def throughput(folder: Path = DEMO) -> dict:

@@ -65,6 +65,8 @@ __all__ = [
     "SilhouetteScores",
     "iou",
     "load_ground_truth",
+    "outline_errors",
+    "outline_length",
     "segment_and_score",
 ]
 
@@ -79,6 +81,46 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
     """Intersection over union of two (H, W) bool masks (1.0 when both are empty)."""
     union = np.count_nonzero(a | b)
     return float(np.count_nonzero(a & b) / union) if union else 1.0
+
+
+def outline_length(mask: np.ndarray) -> int:
+    """Length of the outline of an (H, W) bool mask, in pixel sides: the number of
+    4-neighbour pairs with one pixel inside and one outside (the image border
+    counts as outside)."""
+    m = np.pad(np.asarray(mask, bool), 1)
+    return int(np.count_nonzero(m[1:] != m[:-1]) + np.count_nonzero(m[:, 1:] != m[:, :-1]))
+
+
+def outline_errors(mask: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """How far a silhouette's outline lies from the true one, in pixels.
+
+    IoU depends on the body as much as on the segmentation: the same error along
+    the outline costs a thin body more (its outline is longer per pixel of area;
+    the studio's held-out subject of 47 kg has 45 % more outline per area than
+    the 91 kg one before the re-bake, and the same segmentation lost 0.01 of
+    IoU on it). Dividing the disagreeing pixels by the true outline's length
+    gives a figure in pixels that does not.
+
+    Parameters
+    ----------
+    mask, truth : (H, W) bool
+
+    Returns
+    -------
+    error_px : float
+        Pixels that disagree (added plus missed) per pixel of true outline: the
+        mean absolute offset of the outline where the errors are thin bands.
+    bias_px : float
+        Added minus missed per pixel of true outline: the mean signed offset
+        (+: the silhouette lies outside the true one). NaN both when ``truth`` is empty.
+    """
+    mask, truth = np.asarray(mask, bool), np.asarray(truth, bool)
+    length = outline_length(truth)
+    if length == 0:
+        return float("nan"), float("nan")
+    added = np.count_nonzero(mask & ~truth)
+    missed = np.count_nonzero(truth & ~mask)
+    return (added + missed) / length, (added - missed) / length
 
 
 @dataclass
@@ -261,6 +303,7 @@ class SilhouetteScores:
         self.gt = ground_truth
         self.shadows = shadows and ground_truth.has_states()
         self.ious: dict[str, list[float]] = {}
+        self.outlines: dict[str, list[tuple[float, float]]] = {}
         self.shadow_hits: dict[str, int] = {}
         self.shadow_total: dict[str, int] = {}
         self.shadow_fractions: dict[str, list[float]] = {}
@@ -277,6 +320,8 @@ class SilhouetteScores:
                     f"{truth.shape[1]}x{truth.shape[0]}, the video {mask.shape[1]}x{mask.shape[0]}"
                 )
             self.ious.setdefault(name, []).append(iou(mask, truth))
+            if truth.any():
+                self.outlines.setdefault(name, []).append(outline_errors(mask, truth))
             if self.shadows:
                 shadow = self.gt.shadow(name, sf.frame)
                 if shadow is not None:
@@ -288,16 +333,24 @@ class SilhouetteScores:
                         self.shadow_fractions.setdefault(name, []).append(hits / total)
 
     def summary(self) -> dict[str, dict]:
-        """Per camera: ``iou_mean``, ``iou_min``, ``shadow_false_positive`` (pooled
+        """Per camera: ``iou_mean``, ``iou_min``, ``outline_error_px`` and
+        ``outline_bias_px`` (means over the frames with a person in the truth,
+        :func:`outline_errors`; None without one), ``shadow_false_positive`` (pooled
         over frames: true shadow pixels labelled person / true shadow pixels;
         None when not scored), ``shadow_false_positive_max`` (worst frame), ``frames``."""
         out = {}
         for name, values in self.ious.items():
             total = self.shadow_total.get(name, 0)
             fractions = self.shadow_fractions.get(name, [])
+            outline = np.array(self.outlines.get(name, []), float).reshape(-1, 2)
+            error, bias = (
+                (round(float(v), 4) for v in outline.mean(axis=0)) if len(outline) else (None, None)
+            )
             out[name] = {
                 "iou_mean": round(float(np.mean(values)), 4),
                 "iou_min": round(float(np.min(values)), 4),
+                "outline_error_px": error,
+                "outline_bias_px": bias,
                 "shadow_false_positive": (
                     round(self.shadow_hits[name] / total, 4) if total else None
                 ),

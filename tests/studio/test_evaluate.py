@@ -18,6 +18,8 @@ from bodymetry.studio.evaluate import (
     SilhouetteScores,
     iou,
     load_ground_truth,
+    outline_errors,
+    outline_length,
     segment_and_score,
 )
 
@@ -108,3 +110,43 @@ def test_segment_and_score(toy: Path, tmp_path: Path) -> None:
     assert saved == {**data, "per_frame": run.per_frame}
     assert (out / "masks" / "cam_01" / "000030.png").is_file()
     assert not (out / "overlays").exists()
+
+
+def test_outline_length_counts_pixel_sides() -> None:
+    m = np.zeros((8, 8), bool)
+    assert outline_length(m) == 0
+    m[2:5, 3:7] = True  # 3 x 4 pixels
+    assert outline_length(m) == 2 * (3 + 4)
+    full = np.ones((3, 5), bool)  # the image border counts as outside
+    assert outline_length(full) == 2 * (3 + 5)
+
+
+def test_outline_errors_known_answers() -> None:
+    truth = np.zeros((40, 40), bool)
+    truth[10:30, 10:30] = True  # outline 80 pixel sides
+    grown = truth.copy()
+    grown[30, 10:30] = True  # one row added along one side
+    error, bias = outline_errors(grown, truth)
+    assert error == pytest.approx(20 / 80) and bias == pytest.approx(20 / 80)
+    shrunk = truth.copy()
+    shrunk[10, 10:30] = False
+    error, bias = outline_errors(shrunk, truth)
+    assert error == pytest.approx(20 / 80) and bias == pytest.approx(-20 / 80)
+    assert outline_errors(truth, truth) == (0.0, 0.0)
+    assert all(np.isnan(outline_errors(truth, np.zeros_like(truth))))
+
+
+def test_outline_error_does_not_depend_on_the_body_as_iou_does() -> None:
+    """A one-pixel dilation of a thin and of a thick bar: IoU differs by far, the
+    outline error in pixels hardly (the corners add 4 pixels to either)."""
+    figures = []
+    for width in (6, 30):
+        truth = np.zeros((120, 80), bool)
+        truth[10:110, 20 : 20 + width] = True
+        grown = np.zeros_like(truth)
+        grown[9:111, 19 : 21 + width] = True
+        figures.append((iou(grown, truth), *outline_errors(grown, truth)))
+    (iou_thin, err_thin, bias_thin), (iou_thick, err_thick, bias_thick) = figures
+    assert iou_thick - iou_thin > 0.15
+    assert err_thin == pytest.approx(1.0, abs=0.02) and err_thick == pytest.approx(1.0, abs=0.02)
+    assert bias_thin == err_thin and bias_thick == err_thick
