@@ -17,7 +17,10 @@ condition                   starts                         silhouettes
 ==========================  =============================  ==========================
 
 Each gives the error of height, arm span and weight against the subject's truth,
-the session cost before and after, and the steps taken; ``arms_subsets`` repeats
+the fitted body's lowest point over the frames (``lowest_point_mm``, median; the
+studio stands its subjects on the floor, z = 0, so a negative figure is soles sunk
+into it, read as that much more height), the session cost before and after, and
+the steps taken; ``arms_subsets`` repeats
 ``stage`` and ``true_states_silhouettes`` on the frames whose true pose has a wrist
 above its shoulder and on the others (each when it has 3 frames or more). Reading the table: the
 gap between ``stage`` and ``true_states`` is what the per-frame fits' poses (local
@@ -118,6 +121,17 @@ def _arms_up(body, states: list[np.ndarray]) -> np.ndarray:
     )
 
 
+def _lowest_point_mm(body, estimates) -> float | None:
+    """Median over frames of the fitted body's lowest point (full mesh), mm above the
+    floor (z = 0; the studio stands its subjects on it, so below 0 the fit sank the
+    soles into the floor and reads the body taller by about as much)."""
+    states = [e.vector() for e in estimates]
+    if not states:
+        return None
+    lowest = body.pose(BodyState.from_vector(np.stack(states)), lod=False).vertices[..., 2].min(1)
+    return round(float(np.median(lowest)) * 1000.0, 2)
+
+
 def posing_offsets(body, cameras, subject: str, states, masks, refinement) -> dict:
     """Median outline offset per region (mm) of an independent subject's rendered
     truth against the model at the true pose and the subject's projected shape."""
@@ -205,6 +219,7 @@ def session_bias(session_dir: Path, run_dir: Path) -> dict:
             "status": s.status,
             "frames": len(inputs),
             "errors": {k: round(s.biometrics[k] - truth[k], 2) for k in KEYS},
+            "lowest_point_mm": _lowest_point_mm(body, fit.estimates.values()),
             "standard_errors": {k: round(s.standard_errors[k], 2) for k in KEYS},
             "cost": [round(s.initial_cost, 2), round(s.cost, 2)],
             "steps": s.iterations,
@@ -221,9 +236,11 @@ def session_bias(session_dir: Path, run_dir: Path) -> dict:
         for label, use in (("arms_up", up), ("arms_down", ~up))
         if use.sum() >= MIN_SUBSET
     }
-    if str(truth.get("subject", "")).startswith("independent:"):
+    # The subject's spec is a detail of ground_truth/subject.json, not a measurement.
+    subject = str(SubjectTruth.read(session.ground_truth_path).details.get("subject", ""))
+    if subject.startswith("independent:"):
         out["posing_offsets_mm"] = posing_offsets(
-            body, run.cameras, truth["subject"], true_states, true_masks, recorded.fit.refinement
+            body, run.cameras, subject, true_states, true_masks, recorded.fit.refinement
         )
     return out
 

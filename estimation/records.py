@@ -628,6 +628,15 @@ class SessionShape:
     outline : OutlineCheck or None
         The loose-clothing and hair check on the session's frames (at the
         shared shape when accepted, else at the per-frame fits).
+    floor_mm : float
+        How far the fitted soles stood below the floor (world z = 0), mm: the
+        median over the frames of each frame's lowest point when below 0
+        (negative), else 0; NaN in runs recorded before it
+        (:mod:`bodymetry.estimation.standing_height`).
+    floor_height : bool
+        Whether ``height_mm`` was read from the floor (it is the canonical
+        body's height less the soles' depth when ``floor_mm`` < 0); False in
+        runs recorded before it.
     """
 
     status: str
@@ -650,6 +659,8 @@ class SessionShape:
     prior_pull: dict[str, float] = field(default_factory=dict)
     seconds: float = 0.0
     outline: OutlineCheck | None = None
+    floor_mm: float = math.nan
+    floor_height: bool = False
 
     @property
     def ok(self) -> bool:
@@ -680,6 +691,8 @@ class SessionShape:
             "prior_pull": {k: _finite_or_none(v, 4) for k, v in self.prior_pull.items()},
             "seconds": round(float(self.seconds), 2),
             "outline": None if self.outline is None else self.outline.to_json(),
+            "floor_mm": _finite_or_none(self.floor_mm, 2),
+            "floor_height": bool(self.floor_height),
         }
 
     @classmethod
@@ -718,6 +731,8 @@ class SessionShape:
                 outline=None
                 if data.get("outline") is None
                 else OutlineCheck.from_json(data["outline"], f"{where}.outline"),
+                floor_mm=_nan_if_none(data.get("floor_mm")),
+                floor_height=bool(data.get("floor_height", False)),
             )
         except (TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{where}: malformed session shape ({exc})") from exc

@@ -76,6 +76,7 @@ from bodymetry.estimation.refinement import (
     RefineConfig,
     difference_steps,
 )
+from bodymetry.estimation.standing_height import from_the_floor, lowest_points, sole_depth
 from bodymetry.estimation.view_selection import blank_unusable, usable_views
 from bodymetry.log import Progress
 
@@ -133,6 +134,10 @@ class SessionShapeConfig:
     jitter : float
         Standard deviation of the jitter of every start value (metres, radians
         and shape standard deviations alike: far below what a fit resolves).
+    floor_height : bool
+        Read the height from the floor where the fitted soles sink below it
+        (:mod:`bodymetry.estimation.standing_height`); false keeps the canonical
+        body's height (a world whose z = 0 is not the floor).
     seed : int
         Seed of the jitter.
     """
@@ -146,6 +151,7 @@ class SessionShapeConfig:
     descents: int = 4
     jitter: float = 1e-3
     seed: int = 0
+    floor_height: bool = True
 
     def __post_init__(self) -> None:
         if self.iterations < 0:
@@ -519,6 +525,13 @@ def _at_average(
     bios, bio_se = biometric_errors(body, nu, cov, stage.density)
     spread = _spread(body, ends, stage.density)
     poses = {fr.frame: BodyState.from_vector(w.y[None]) for fr, w in zip(frames, work, strict=True)}
+    # The height as a stadiometer reads it: from the floor, where the fit sank the
+    # soles into it (estimation.standing_height).
+    depth, depth_se = sole_depth(lowest_points(body, np.stack([w.y for w in work])))
+    if config.floor_height:
+        bios, bio_se = from_the_floor(bios, bio_se, depth, depth_se)
+        if depth < 0:
+            log.info("session shape: soles %.1f mm in the floor; height read from it", -1e3 * depth)
     ious = {
         fr.frame: silhouette_iou(body, poses[fr.frame], stage.cameras, fr.masks, fr.unknown)
         for fr in frames
@@ -541,6 +554,8 @@ def _at_average(
         descents=len(descents),
         descent_spread=spread,
         prior_pull=prior_pull(body, nu, data_h, stage.prior, stage.density),
+        floor_mm=depth * 1000.0,
+        floor_height=config.floor_height,
     )
     alignments = {
         fr.frame: Alignment(w.cost_fn, w.y.copy(), w.pairs)

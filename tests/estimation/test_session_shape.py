@@ -27,6 +27,7 @@ from bodymetry.estimation.session_shape import (
     fit_session_shape,
     prior_pull,
 )
+from bodymetry.estimation.standing_height import lowest_points
 from bodymetry.studio.rig import studio_rig
 
 #: The true body of the synthetic session (shape space in standard deviations).
@@ -49,12 +50,16 @@ def _poses(model: BodyModel, n: int, rng: np.random.Generator) -> list[np.ndarra
     return out
 
 
-def _scene():
-    """A known body seen in 5 poses by 4 studio cameras (320x240); silhouettes from
-    the full mesh. Returns (model, cameras, poses, masks per frame)."""
+def _scene(sink: float = 0.0):
+    """A known body seen in 5 poses by 4 studio cameras (320x240), standing on the
+    floor (its lowest point ``sink`` metres below z = 0); silhouettes from the full
+    mesh. Returns (model, cameras, poses, masks per frame)."""
     model = BodyModel.load()
     cameras = studio_rig(4, (320, 240), seed=4)
     poses = _poses(model, 5, np.random.default_rng(0))
+    lowest = lowest_points(model, np.stack([np.r_[p, TRUE_NU] for p in poses]))
+    for pose, low in zip(poses, lowest, strict=True):
+        pose[2] -= low + sink
     masks = []
     for pose in poses:
         state = BodyState.from_vector(np.r_[pose, TRUE_NU][None])
@@ -322,3 +327,57 @@ def test_the_prior_pull_is_what_the_data_alone_would_undo(scene):
         assert weak[key] != 0.0
         assert strong[key] == pytest.approx(weak[key] / 10.0, rel=0.05), key
         assert strong[key] == pytest.approx(base[key] - moved[key], rel=1e-9), key
+
+
+def _with_a_row_under_the_soles(mask: np.ndarray) -> np.ndarray:
+    """The silhouette one pixel row deeper under the feet (its lowest tenth moved down
+    a row): a dark shoe blended with its contact shadow on the floor."""
+    rows = np.nonzero(mask.any(axis=1))[0]
+    low = rows[-1] - (rows[-1] - rows[0]) // 10
+    feet = np.zeros_like(mask)
+    feet[low:] = mask[low:]
+    return mask | np.roll(feet, 1, axis=0)
+
+
+def test_soles_in_the_floor_read_the_height_from_the_floor(scene):
+    """Known answer: silhouettes a pixel row too deep under the feet (16 mm at this
+    scene's 320x240) make the fitted soles sink into the floor and the canonical
+    body's height read +10.8 mm; read from the floor it is within 4 mm of the truth.
+    Only the height changes, and on clean silhouettes the floor reading is nearer
+    the truth too (the contour cost's own lean, +3.6 mm here, is soles in the floor)."""
+    model, cameras = scene[:2]
+    clean = _frames(scene, np.random.default_rng(1))
+    shadowed = [replace(f, masks=[_with_a_row_under_the_soles(m) for m in f.masks]) for f in clean]
+    config = SessionShapeConfig(iterations=4, descents=1)
+    truth = measure(model, TRUE_NU[None])[0].to_dict()
+    results = {}
+    for name, frames in (("clean", clean), ("shadowed", shadowed)):
+        floor = fit_session_shape(model, cameras, frames, config=config).summary
+        canonical = fit_session_shape(
+            model, cameras, frames, config=replace(config, floor_height=False)
+        ).summary
+        assert floor.ok and floor.floor_height and not canonical.floor_height
+        assert floor.nu == canonical.nu and floor.floor_mm == canonical.floor_mm
+        height = floor.biometrics["height_mm"]
+        assert height - canonical.biometrics["height_mm"] == pytest.approx(floor.floor_mm)
+        assert floor.standard_errors["height_mm"] > canonical.standard_errors["height_mm"]
+        for key in ("weight_kg", "arm_span_mm", "chest_mm", "inseam_mm"):
+            assert floor.biometrics[key] == canonical.biometrics[key]
+        results[name] = (
+            floor.floor_mm,
+            height - truth["height_mm"],
+            canonical.biometrics["height_mm"] - truth["height_mm"],
+        )
+        back = SessionShape.from_json(floor.to_json())
+        assert back.floor_height and back.floor_mm == pytest.approx(floor.floor_mm, abs=0.01)
+    (depth_clean, err_clean, canon_clean), (depth_shadow, err_shadow, canon_shadow) = (
+        results["clean"],
+        results["shadowed"],
+    )
+    assert canon_shadow > 7.0 and abs(err_shadow) < 4.0
+    assert depth_shadow < depth_clean - 3.0 <= -3.0
+    assert abs(err_clean) < 2.0 and abs(err_clean) < abs(canon_clean)
+    # A run recorded before the floor reading: neither field, the canonical height.
+    old = {k: v for k, v in SessionShape(status="ok").to_json().items() if "floor" not in k}
+    assert not SessionShape.from_json(old).floor_height
+    assert np.isnan(SessionShape.from_json(old).floor_mm)
