@@ -219,8 +219,8 @@ def check_outline(
         for name, values in excess.items():
             if np.isfinite(med[name]) and np.isfinite(med["lower limbs"]):
                 values.append(med[name] - med["lower limbs"])
-    trunk, trunk_se = _median(excess["trunk"]), _standard_error(excess["trunk"])
-    crown, crown_se = _median(excess["crown"]), _standard_error(excess["crown"])
+    trunk, trunk_se = _median(excess["trunk"]), median_standard_error(excess["trunk"])
+    crown, crown_se = _median(excess["crown"]), median_standard_error(excess["crown"])
     mm_per_px = float(np.median(np.concatenate(pixel))) if any(len(p) for p in pixel) else np.nan
     coarse = not mm_per_px <= config.max_mm_per_px
     # Coarse pixels: the figures are kept, but they decide nothing.
@@ -305,8 +305,9 @@ def _median(values: Sequence[float]) -> float:
     return float(np.median(values)) if len(values) else float("nan")
 
 
-def _standard_error(values: Sequence[float]) -> float:
-    """Standard error of the median over frames (1.2533 σ/√n, normal efficiency)."""
+def median_standard_error(values: Sequence[float]) -> float:
+    """Standard error of the median of ``values`` over frames (1.2533 σ/√n, the
+    median's efficiency under a normal spread); NaN for fewer than two."""
     if len(values) < 2:
         return float("nan")
     return float(1.2533 * np.std(values, ddof=1) / np.sqrt(len(values)))

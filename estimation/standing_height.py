@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.outline_check import median_standard_error
 
 __all__ = ["from_the_floor", "lowest_points", "sole_depth"]
 
@@ -80,7 +81,7 @@ def sole_depth(lowest: np.ndarray) -> tuple[float, float]:
     depth = min(float(np.median(lowest)), 0.0)
     if depth == 0.0 or lowest.size < 2:
         return depth, 0.0
-    return depth, float(1.2533 * np.std(lowest, ddof=1) / np.sqrt(lowest.size))
+    return depth, median_standard_error(lowest)
 
 
 def from_the_floor(
