@@ -26,6 +26,8 @@ tight-clothed ones rendered after the last change chosen on the sets above;
 clothing in a plain grey room); ``--edge`` renders :data:`EDGE_SESSIONS` (issue 33:
 the studio's edge bodies, by percentile of height, weight and age, children included,
 tight clothing in the saturated colours) and adds :func:`edge_summary`;
+``--edge-unseen`` the same bodies with other seeds and motions
+(:data:`EDGE_UNSEEN_SESSIONS`);
 ``--held-out`` renders
 :data:`HELD_OUT_SESSIONS`, a replication of the four same-model sessions with new
 subjects.
@@ -166,6 +168,19 @@ EDGE_SESSIONS = (
     (340, "reach", "independent:340,edge=girl_age6"),
     (341, "mixed", "independent:341,edge=boy_age10"),
     (342, "arm_raises", "independent:342,edge=girl_age14"),
+)
+#: Issue 33, the edge bodies again with seeds and motions the set above never gave
+#: them (seed + 20, the next motion of arm_raises -> reach -> mixed -> walk_turn), rendered
+#: after the height was read from the floor: ``--edge-unseen``.
+EDGE_UNSEEN_SESSIONS = tuple(
+    (
+        seed + 20,
+        ("arm_raises", "reach", "mixed", "walk_turn")[
+            (("arm_raises", "reach", "mixed", "walk_turn").index(motion) + 1) % 4
+        ],
+        f"independent:{seed + 20},edge={subject.rpartition('=')[2]}",
+    )
+    for seed, motion, subject in EDGE_SESSIONS
 )
 #: Issue 33: a child's weight target is this share of the true weight (not 1.5 kg).
 CHILD_WEIGHT_SHARE = 0.03
@@ -459,8 +474,10 @@ def run(
     fresh: bool = False,
     looks: bool = False,
     edge: bool = False,
+    edge_unseen: bool = False,
 ) -> dict:
     reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
+    edge = edge or edge_unseen
     same_model = HELD_OUT_SESSIONS if held_out else SESSIONS
     independent = independent or bool(os.environ.get("BODYMETRY_BENCH_INDEPENDENT"))
     subjects = (
@@ -497,7 +514,9 @@ def run(
                     {},
                     subject,
                 )
-                for seed, motion, subject in EDGE_SESSIONS
+                for seed, motion, subject in (
+                    EDGE_UNSEEN_SESSIONS if edge_unseen else EDGE_SESSIONS
+                )
             ]
         elif independent:
             folders = [

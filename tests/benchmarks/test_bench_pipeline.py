@@ -83,6 +83,7 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
     or, for subjects the model was not built from, their bank bodies."""
     from benchmarks.bench_pipeline import (
         EDGE_SESSIONS,
+        EDGE_UNSEEN_SESSIONS,
         FRESH_SESSIONS,
         HEAVY_SESSIONS,
         HELD_OUT_SESSIONS,
@@ -102,6 +103,7 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
         FRESH_SESSIONS,
         LOOK_SESSIONS,
         EDGE_SESSIONS,
+        EDGE_UNSEEN_SESSIONS,
     )
     seeds = [s[0] for group in sets for s in group]
     assert len(seeds) == len(set(seeds))
@@ -181,3 +183,17 @@ def test_edge_set_has_every_required_edge_body_once():
     for age in (6, 10, 14):
         assert any(k.endswith(f"_age{age}") for k in keys)
     assert all(spec.clothing == "tight" and not spec.hair for spec in specs)
+
+
+def test_the_unseen_edge_set_has_every_edge_body_with_another_motion():
+    from benchmarks.bench_pipeline import EDGE_SESSIONS, EDGE_UNSEEN_SESSIONS
+
+    def key(subject: str) -> str:
+        return subject.rpartition("=")[2]
+
+    assert [key(s[2]) for s in EDGE_UNSEEN_SESSIONS] == [key(s[2]) for s in EDGE_SESSIONS]
+    for (seed, motion, _), (new_seed, new_motion, subject) in zip(
+        EDGE_SESSIONS, EDGE_UNSEEN_SESSIONS, strict=True
+    ):
+        assert new_seed != seed and new_motion != motion
+        assert subject.startswith(f"independent:{new_seed},")
