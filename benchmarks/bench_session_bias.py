@@ -64,6 +64,7 @@ from bodymetry.estimation.records import FrameArrays
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunLayout
 from bodymetry.estimation.session_shape import SessionFrame, fit_session_shape, session_frame
+from bodymetry.estimation.standing_height import lowest_points
 from bodymetry.fileio import load_npz
 from bodymetry.process import process_session
 from bodymetry.review.run_data import RunData, load_run
@@ -128,8 +129,7 @@ def _lowest_point_mm(body, estimates) -> float | None:
     states = [e.vector() for e in estimates]
     if not states:
         return None
-    lowest = body.pose(BodyState.from_vector(np.stack(states)), lod=False).vertices[..., 2].min(1)
-    return round(float(np.median(lowest)) * 1000.0, 2)
+    return round(float(np.median(lowest_points(body, np.stack(states)))) * 1000.0, 2)
 
 
 def posing_offsets(body, cameras, subject: str, states, masks, refinement) -> dict:

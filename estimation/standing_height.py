@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.body_model.model import POSE_DIM, BodyModel, BodyState
 from bodymetry.estimation.outline_check import median_standard_error
 
 __all__ = ["from_the_floor", "lowest_points", "sole_depth"]
@@ -53,8 +53,8 @@ def lowest_points(body: BodyModel, states: np.ndarray) -> np.ndarray:
         The lowest point of the full-resolution mesh posed at each state.
     """
     states = np.atleast_2d(np.asarray(states, dtype=float))
-    if states.shape[1] != 40 + body.n_shape:
-        raise ValueError(f"states: expected (F, {40 + body.n_shape}), got {states.shape}")
+    if states.shape[1] != POSE_DIM + body.n_shape:
+        raise ValueError(f"states: expected (F, {POSE_DIM + body.n_shape}), got {states.shape}")
     vertices = body.pose(BodyState.from_vector(states), lod=False).vertices
     return vertices[..., 2].min(axis=1)
 

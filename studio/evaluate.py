@@ -52,6 +52,7 @@ from bodymetry.capture.segmentation import (
 from bodymetry.capture.session import Session
 from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
+from bodymetry.estimation.contours import boundary_points
 from bodymetry.fileio import load_npz, write_json_atomic
 from bodymetry.log import Progress
 from bodymetry.studio.independent import IndependentSpec, IndependentSubject
@@ -85,10 +86,10 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
 
 def outline_length(mask: np.ndarray) -> int:
     """Length of the outline of an (H, W) bool mask, in pixel sides: the number of
-    4-neighbour pairs with one pixel inside and one outside (the image border
-    counts as outside)."""
-    m = np.pad(np.asarray(mask, bool), 1)
-    return int(np.count_nonzero(m[1:] != m[:-1]) + np.count_nonzero(m[:, 1:] != m[:, :-1]))
+    4-neighbour pairs with one pixel inside and one outside (the points of
+    :func:`~bodymetry.estimation.contours.boundary_points`; the image border counts
+    as outside)."""
+    return len(boundary_points(np.pad(np.asarray(mask, bool), 1)))
 
 
 def outline_errors(mask: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
