@@ -172,12 +172,11 @@ EDGE_SESSIONS = (
 #: Issue 33, the edge bodies again with seeds and motions the set above never gave
 #: them (seed + 20, the next motion of arm_raises -> reach -> mixed -> walk_turn), rendered
 #: after the height was read from the floor: ``--edge-unseen``.
+_EDGE_MOTIONS = ("arm_raises", "reach", "mixed", "walk_turn")
 EDGE_UNSEEN_SESSIONS = tuple(
     (
         seed + 20,
-        ("arm_raises", "reach", "mixed", "walk_turn")[
-            (("arm_raises", "reach", "mixed", "walk_turn").index(motion) + 1) % 4
-        ],
+        _EDGE_MOTIONS[(_EDGE_MOTIONS.index(motion) + 1) % len(_EDGE_MOTIONS)],
         f"independent:{seed + 20},edge={subject.rpartition('=')[2]}",
     )
     for seed, motion, subject in EDGE_SESSIONS
