@@ -27,6 +27,7 @@ BENCHMARKS = (
 )
 #: Reports that are not timed benchmarks (run only when named).
 REPORTS = {
+    "arm_evidence": "benchmarks.bench_arm_evidence",
     "codebase": "benchmarks.codebase",
     "fusion_fit": "benchmarks.fusion_fit",
     "hidden_pixels": "benchmarks.bench_hidden_pixels",

@@ -58,8 +58,10 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.bench_arm_evidence import arm_span_by_evidence
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.cli import DEMO_SESSION
+from bodymetry.estimation.arm_evidence import raised_frames
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunLayout
 from bodymetry.frame_jobs import read_rescue
@@ -181,6 +183,19 @@ EDGE_UNSEEN_SESSIONS = tuple(
     )
     for seed, motion, subject in EDGE_SESSIONS
 )
+#: Issue 33, the arm span's evidence (``estimation/arm_evidence.py``): the arms-down
+#: sessions of the sets above read the arm span high, so walking subjects (the arms by the
+#: sides) are checked on bodies and seeds none of those sets used, beside two with the arms
+#: raised or reaching, rendered after the ``arms_down`` caveat was written:
+#: ``python -m benchmarks pipeline --arms``.
+ARMS_SESSIONS = (
+    (371, "walk_turn", "independent:371"),
+    (372, "walk_turn", "independent:372"),
+    (373, "walk_turn", "independent:373,edge=male_height_p99"),
+    (374, "walk_turn", "independent:374,edge=girl_age14"),
+    (375, "arm_raises", "independent:375"),
+    (376, "reach", "independent:376,edge=female_weight_p01"),
+)
 #: Issue 33: a child's weight target is this share of the true weight (not 1.5 kg).
 CHILD_WEIGHT_SHARE = 0.03
 #: Issue 33: below this age (years) a subject is a child for the weight target.
@@ -229,6 +244,11 @@ def _render(
     )
     synthesize(folder, config, workers=_workers())
     return folder
+
+
+def session_name(seed: int, motion: str, subject: str) -> str:
+    """A rendered session's folder name: ``seed371_walk_turn_371_edge-girl_age14``."""
+    return f"seed{seed}_{motion}_{subject.partition(':')[2].replace(',', '_').replace('=', '-')}"
 
 
 def _rescue_log(run: Path) -> dict:
@@ -291,6 +311,10 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
         "checks": checks,
         # Issue 15 item 4: the loose-clothing and hair check, as it comes.
         "outline": None if results.outline is None else results.outline.to_json(),
+        # Issue 33: the measured frames with an arm raised (the arm span's evidence),
+        # and the caveats the run states.
+        "arm_raised_frames": list(raised_frames(results.frames) or ()),
+        "caveats": [c.code for c in results.caveats],
         # Issue 33: how far the session stage's shape prior moved each value.
         "prior_pull": (
             {k: round(results.session_shape.prior_pull[k], 3) for k in SESSION_TARGETS}
@@ -474,6 +498,7 @@ def run(
     looks: bool = False,
     edge: bool = False,
     edge_unseen: bool = False,
+    arms: bool = False,
 ) -> dict:
     reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
     edge = edge or edge_unseen
@@ -503,6 +528,11 @@ def run(
                     subject,
                 )
                 for seed, motion, subject, look in LOOK_SESSIONS
+            ]
+        elif arms:
+            folders = [
+                _render(tmp / session_name(*row), row[0], row[1], {}, row[2])
+                for row in ARMS_SESSIONS
             ]
         elif edge:
             folders = [
@@ -534,7 +564,7 @@ def run(
     listed = LOOK_SESSIONS if looks else subjects if independent else same_model
     described = (
         [f.name for f in folders]
-        if reuse or looks or edge
+        if reuse or looks or edge or arms
         else [s[::2] if independent else s[:2] for s in listed]
     )
     workers = _workers()
@@ -547,6 +577,7 @@ def run(
         ),
         "sessions": out,
         **({"edge_summary": edge_summary(out)} if edge else {}),
+        "arm_evidence": arm_span_by_evidence(out),
         # Loose clothing biases both stages alike: the stages are compared on the rest.
         "stage_comparison": stage_comparison(
             [s for s in out if _outfit(Path(s["session"]).name) != "loose"]

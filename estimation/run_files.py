@@ -28,6 +28,7 @@ from typing import Any
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.errors import InputError
+from bodymetry.estimation.arm_evidence import raised_frames
 from bodymetry.estimation.caveats import Caveat, run_caveats
 from bodymetry.estimation.records import (
     STAGES,
@@ -457,6 +458,7 @@ class RunResults:
             () if outline is None else outline.warnings,
             told_apart=self.person.told_apart or self.config.person is not None,
             headline=self.headline_values,
+            raised=raised_frames(self.frames),
         )
 
     @property

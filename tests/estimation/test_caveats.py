@@ -9,7 +9,10 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.bench_arm_evidence import CAVEAT_SETS, arm_span_by_evidence, committed_sessions
+from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES
 from bodymetry.estimation.caveats import (
+    ARMS_DOWN_STUDIO,
     CAVEAT_CODES,
     MIN_MEASURED_FRAMES,
     VALIDATED,
@@ -122,3 +125,32 @@ def test_a_body_outside_the_validated_range_is_a_caveat(headline, outside):
     assert VALIDATED.describe() in caveat.message
     # Nothing measured: no caveat about the numbers (exit 3 says it).
     assert run_caveats(_records(9, 0), NAMES, headline=headline) == ()
+
+
+def test_arms_down_is_a_caveat_below_the_minimum_of_raised_frames():
+    records = _records(9, 9, persons=1)
+    assert run_caveats(records, NAMES) == ()  # not judged
+    assert run_caveats(records, NAMES, raised=(0, 25, 50)[:MIN_RAISED_FRAMES]) == ()
+    for raised in ((), (25,), (25, 75)):
+        (caveat,) = run_caveats(records, NAMES, raised=raised)
+        assert caveat.code == "arms_down" and caveat.frames == ()  # the whole run's arm span
+        assert caveat.message.startswith(
+            f"an arm was raised (at least 45 degrees from hanging) in {len(raised)} of 9 "
+            "measured frames"
+        )
+        assert (" 25" in caveat.message) == bool(raised)
+        assert f"{ARMS_DOWN_STUDIO.high:+.1f} mm high" in caveat.message
+    # Nothing measured: no caveat about the numbers.
+    assert run_caveats(_records(9, 0), NAMES, raised=()) == ()
+
+
+def test_the_arms_down_figures_are_the_benchmarks():
+    # What the caveat quotes is what the committed end-to-end results measured
+    # (python -m benchmarks arm_evidence), not a number typed in.
+    down = arm_span_by_evidence(committed_sessions(CAVEAT_SETS))["arms_down"]
+    assert ARMS_DOWN_STUDIO.sessions == down["sessions"]
+    assert (ARMS_DOWN_STUDIO.low, ARMS_DOWN_STUDIO.high, ARMS_DOWN_STUDIO.mean) == (
+        down["low_mm"],
+        down["high_mm"],
+        down["mean_mm"],
+    )
