@@ -637,6 +637,12 @@ class SessionShape:
         Whether ``height_mm`` was read from the floor (it is the canonical
         body's height less the soles' depth when ``floor_mm`` < 0); False in
         runs recorded before it.
+    canonical_weight_kg : float
+        The canonical (unposed) body's weight, kg; NaN in runs recorded before it.
+    posed_weight : bool
+        Whether ``weight_kg`` (and ``volume_l``, ``bmi``) were read from the
+        fitted body in the frames' poses (:mod:`bodymetry.estimation.posed_weight`);
+        False: the canonical body's, as in runs recorded before it.
     """
 
     status: str
@@ -661,6 +667,8 @@ class SessionShape:
     outline: OutlineCheck | None = None
     floor_mm: float = math.nan
     floor_height: bool = False
+    canonical_weight_kg: float = math.nan
+    posed_weight: bool = False
 
     @property
     def ok(self) -> bool:
@@ -693,6 +701,8 @@ class SessionShape:
             "outline": None if self.outline is None else self.outline.to_json(),
             "floor_mm": _finite_or_none(self.floor_mm, 2),
             "floor_height": bool(self.floor_height),
+            "canonical_weight_kg": _finite_or_none(self.canonical_weight_kg, 3),
+            "posed_weight": bool(self.posed_weight),
         }
 
     @classmethod
@@ -733,6 +743,8 @@ class SessionShape:
                 else OutlineCheck.from_json(data["outline"], f"{where}.outline"),
                 floor_mm=_nan_if_none(data.get("floor_mm")),
                 floor_height=bool(data.get("floor_height", False)),
+                canonical_weight_kg=_nan_if_none(data.get("canonical_weight_kg")),
+                posed_weight=bool(data.get("posed_weight", False)),
             )
         except (TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{where}: malformed session shape ({exc})") from exc

@@ -68,6 +68,7 @@ from bodymetry.estimation.body_model.model import NU, POSE_DIM, BodyModel, BodyS
 from bodymetry.estimation.contours import prepare_contours
 from bodymetry.estimation.generative import state_bounds, weighted_estimate
 from bodymetry.estimation.least_squares import Damping, damped_inverse, damped_step, marquardt
+from bodymetry.estimation.posed_weight import posed_volumes, weight_from_posed
 from bodymetry.estimation.projection import project_silhouettes, view_ious
 from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape, StageEstimate
 from bodymetry.estimation.refinement import (
@@ -152,6 +153,7 @@ class SessionShapeConfig:
     jitter: float = 1e-3
     seed: int = 0
     floor_height: bool = True
+    posed_weight: bool = True
 
     def __post_init__(self) -> None:
         if self.iterations < 0:
@@ -532,6 +534,17 @@ def _at_average(
         bios, bio_se = from_the_floor(bios, bio_se, depth, depth_se)
         if depth < 0:
             log.info("session shape: soles %.1f mm in the floor; height read from it", -1e3 * depth)
+    # The weight as the posed bodies hold it: the model's posing changes the volume,
+    # a body's does not (estimation.posed_weight).
+    canonical_weight = bios["weight_kg"]
+    if config.posed_weight:
+        volumes = posed_volumes(body, np.stack([w.y for w in work]))
+        bios, bio_se = weight_from_posed(bios, bio_se, volumes, stage.density)
+        log.info(
+            "session shape: weight %.2f kg from the posed bodies (canonical body %.2f kg)",
+            bios["weight_kg"],
+            canonical_weight,
+        )
     ious = {
         fr.frame: silhouette_iou(body, poses[fr.frame], stage.cameras, fr.masks, fr.unknown)
         for fr in frames
@@ -556,6 +569,8 @@ def _at_average(
         prior_pull=prior_pull(body, nu, data_h, stage.prior, stage.density),
         floor_mm=depth * 1000.0,
         floor_height=config.floor_height,
+        canonical_weight_kg=canonical_weight,
+        posed_weight=config.posed_weight,
     )
     alignments = {
         fr.frame: Alignment(w.cost_fn, w.y.copy(), w.pairs)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bodymetry.errors import InputError
-from bodymetry.estimation.body_model.biometrics import measure
+from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
 from bodymetry.estimation.body_model.model import (
     DEFAULT_SHAPE_DOFS,
     NU,
@@ -16,6 +16,7 @@ from bodymetry.estimation.body_model.model import (
     BodyModel,
     BodyState,
 )
+from bodymetry.estimation.posed_weight import posed_volumes
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.records import FrameRecord, SessionShape, StageEstimate, summarize
 from bodymetry.estimation.run_config import ProcessConfig
@@ -381,3 +382,39 @@ def test_soles_in_the_floor_read_the_height_from_the_floor(scene):
     old = {k: v for k, v in SessionShape(status="ok").to_json().items() if "floor" not in k}
     assert not SessionShape.from_json(old).floor_height
     assert np.isnan(SessionShape.from_json(old).floor_mm)
+
+
+def test_the_weight_is_read_from_the_posed_bodies(scene):
+    """The session weight is the median volume of the fitted body in the frames'
+    poses (estimation.posed_weight); the canonical body's weight is recorded beside
+    it, and only the volume, the weight and the BMI change."""
+    model, cameras = scene[:2]
+    frames = _frames(scene, np.random.default_rng(1))
+    config = SessionShapeConfig(iterations=2, descents=1)
+    fit = fit_session_shape(model, cameras, frames, config=config)
+    posed = fit.summary
+    canonical = fit_session_shape(
+        model, cameras, frames, config=replace(config, posed_weight=False)
+    ).summary
+    assert posed.ok and posed.posed_weight and not canonical.posed_weight
+    assert posed.nu == canonical.nu
+    states = np.stack([fit.estimates[f].vector() for f in posed.frames])
+    volume = float(np.median(posed_volumes(model, states)))
+    assert posed.biometrics["volume_l"] == pytest.approx(volume * 1000.0, rel=1e-9)
+    assert posed.biometrics["weight_kg"] == pytest.approx(volume * DEFAULT_DENSITY, rel=1e-9)
+    assert posed.canonical_weight_kg == pytest.approx(canonical.biometrics["weight_kg"])
+    assert canonical.canonical_weight_kg == canonical.biometrics["weight_kg"]
+    height_m = posed.biometrics["height_mm"] / 1000.0
+    assert posed.biometrics["bmi"] == pytest.approx(posed.biometrics["weight_kg"] / height_m**2)
+    for key in ("height_mm", "arm_span_mm", "chest_mm", "inseam_mm"):
+        assert posed.biometrics[key] == canonical.biometrics[key]
+    assert posed.standard_errors["weight_kg"] >= canonical.standard_errors["weight_kg"]
+    back = SessionShape.from_json(posed.to_json())
+    assert back.posed_weight
+    assert back.canonical_weight_kg == pytest.approx(posed.canonical_weight_kg, abs=1e-3)
+    # A run recorded before it: the canonical weight, not recorded separately.
+    old = {
+        k: v for k, v in posed.to_json().items() if k not in ("posed_weight", "canonical_weight_kg")
+    }
+    assert not SessionShape.from_json(old).posed_weight
+    assert np.isnan(SessionShape.from_json(old).canonical_weight_kg)
