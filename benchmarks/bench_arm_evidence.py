@@ -2,7 +2,8 @@
 
 Reads the committed end-to-end results (no rendering, no fitting): issue 15's
 eleven evaluated again (``pipeline_recheck.json``), the edge, looks and unseen
-edge sets, and the arms check (``pipeline_arms.json``, when present), and splits
+edge sets, and the checks rendered after the caveat (``pipeline_arms.json``,
+``pipeline_weight.json``, when present), and splits
 their sessions by how many measured frames had an arm raised
 (``arm_raised_frames``, :func:`bodymetry.estimation.arm_evidence.raised_frames`):
 fewer than :data:`~bodymetry.estimation.arm_evidence.MIN_RAISED_FRAMES` is
@@ -32,8 +33,8 @@ CAVEAT_SETS = (
     "pipeline_looks.json",
     "pipeline_edge_unseen.json",
 )
-#: Rendered after the caveat was written (``pipeline --arms``): the check of it.
-CHECK_SETS = ("pipeline_arms.json",)
+#: Rendered after the caveat was written (``pipeline --arms``, ``--weight``): its check.
+CHECK_SETS = ("pipeline_arms.json", "pipeline_weight.json")
 #: Issue 15's arm span target for the session stage, mm.
 TARGET_MM = 15.0
 
