@@ -79,7 +79,13 @@ from bodymetry.estimation.outline_check import check_outline
 from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape, summarize
 from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.run_config import ProcessConfig
-from bodymetry.estimation.run_files import PersonResults, RunLayout, RunResults, SessionInfo
+from bodymetry.estimation.run_files import (
+    SUMMARY_VERSION,
+    PersonResults,
+    RunLayout,
+    RunResults,
+    SessionInfo,
+)
 from bodymetry.estimation.session_shape import fit_session_shape, session_frame
 from bodymetry.estimation.training import cached_models_path, load_or_train, rig_key
 from bodymetry.estimation.view_selection import (
@@ -363,8 +369,9 @@ def plan(prepared: PreparedRun, config: ProcessConfig) -> SessionPlan:
     """The kept frames, those recorded whole already, and whether the run is finished.
 
     A run is finished when ``results.json`` holds every kept frame, was made
-    with these settings (the session stage's and the review's included) and
-    the review files are written.
+    with these settings (the session stage's and the review's included) and by
+    this code's summary (:data:`SUMMARY_VERSION`), and the review files are
+    written. Otherwise the frames recorded whole are reused and the rest redone.
     """
     report = check_sync(prepared.session)
     kept = {int(f) for f in report.kept}
@@ -385,6 +392,15 @@ def plan(prepared: PreparedRun, config: ProcessConfig) -> SessionPlan:
         and replace(recorded.config, workers=None) == replace(config, workers=None)
         and (not config.review or all(p.is_file() for p in layout.review_files))
     )
+    if finished and recorded.summary_version != SUMMARY_VERSION:
+        log.info(
+            "%s: summary made by an earlier bodymetry (summary version %d, now %d); "
+            "making it again from the recorded frames",
+            layout.results,
+            recorded.summary_version,
+            SUMMARY_VERSION,
+        )
+        finished = False
     return SessionPlan(report, done, recorded if finished else None)
 
 

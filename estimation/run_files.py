@@ -55,6 +55,7 @@ __all__ = [
     "RESULTS_FORMAT",
     "RESULTS_FORMATS_READ",
     "STUDY_FORMAT",
+    "SUMMARY_VERSION",
     "Evaluation",
     "PersonResults",
     "RigEntry",
@@ -71,6 +72,13 @@ __all__ = [
 RESULTS_FORMAT = 3
 #: The results formats this code reads.
 RESULTS_FORMATS_READ = (2, 3)
+#: Version of the code that makes a run's summary from its recorded frames (the
+#: session stage and the measurements it reports). A finished run whose
+#: ``results.json`` holds another (files before it hold none: 0) has its summary made
+#: again from the recorded frames when ``process`` meets it, so that an upgrade
+#: reaches the numbers of runs already finished. Raise it when the summary changes
+#: (1: the height read from the floor; 2: the weight read from the posed bodies).
+SUMMARY_VERSION = 2
 #: Version of ``run.json``.
 MANIFEST_FORMAT = 1
 #: Version of ``evaluation.json`` (1: the generative stage was ``disc_generative``).
@@ -357,6 +365,9 @@ class RunResults:
         The discriminative models' cache key (recorded inside ``config`` in the file).
     models_reused : bool
         The models came from the cache (not trained by this run).
+    summary_version : int
+        :data:`SUMMARY_VERSION` of the code that made the summary (0: a file from
+        before the version was recorded).
     """
 
     session: SessionInfo
@@ -368,6 +379,7 @@ class RunResults:
     working_resolution: WorkingResolution | None = None
     models: str = ""
     models_reused: bool = False
+    summary_version: int = SUMMARY_VERSION
 
     def __post_init__(self) -> None:
         if not self.persons:
@@ -493,6 +505,7 @@ class RunResults:
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "format": RESULTS_FORMAT,
+            "summary_version": self.summary_version,
             "session": self.session.to_json(),
             "config": {
                 **self.config.to_json(),
@@ -560,6 +573,7 @@ class RunResults:
             config=ProcessConfig.from_json(dict(config), f"{where}: config"),
             models=str(config.get("models", "")),
             models_reused=bool(config.get("models_reused", False)),
+            summary_version=int(data.get("summary_version", 0)),
             persons=persons,
             timing_seconds=dict(data.get("timing_seconds", {})),
             calibration_source=str(data.get("calibration_source", "")),

@@ -33,7 +33,13 @@ from bodymetry.estimation.records import (
     summarize,
 )
 from bodymetry.estimation.run_config import ProcessConfig
-from bodymetry.estimation.run_files import EVALUATION_FORMAT, Evaluation, RunLayout, RunResults
+from bodymetry.estimation.run_files import (
+    EVALUATION_FORMAT,
+    SUMMARY_VERSION,
+    Evaluation,
+    RunLayout,
+    RunResults,
+)
 from bodymetry.estimation.session_shape import SessionShapeConfig, session_frame
 from bodymetry.estimation.training import DiscriminativeModels
 from bodymetry.frame_jobs import RESCUE_FILE, rescue_poor_frames
@@ -157,6 +163,37 @@ def test_resume_does_not_refit(run, monkeypatch, tmp_path):
     for f in results.frames:
         on_disk = json.loads((out / "frames" / f"{f.frame:06d}.json").read_text())
         assert "session" not in on_disk and "generative" in on_disk
+
+
+def test_a_summary_of_an_earlier_bodymetry_is_made_again(run, monkeypatch, tmp_path, caplog):
+    """A finished run whose summary an earlier version made (another or no
+    ``summary_version``) gets its summary made again from the recorded frames,
+    without fitting a frame; one of this version is returned as recorded."""
+    session, out, results, base = run
+    assert results.summary_version == SUMMARY_VERSION
+    assert json.loads((out / "results.json").read_text())["summary_version"] == SUMMARY_VERSION
+    old = tmp_path / "run"
+    shutil.copytree(out, old)
+    data = json.loads((old / "results.json").read_text())
+    del data["summary_version"]  # a file from before the version was recorded
+    data["persons"][0]["session_shape"]["biometrics"]["weight_kg"] = 1.0  # an old number
+    (old / "results.json").write_text(json.dumps(data))
+    assert RunResults.read(old / "results.json").summary_version == 0
+
+    def boom(*args, **kwargs):
+        raise AssertionError("a finished frame was fitted again")
+
+    monkeypatch.setattr(pipeline, "run_fit_job", boom)
+    with caplog.at_level("INFO"):
+        again = _process(session, old, base)
+    assert "summary made by an earlier bodymetry (summary version 0" in caplog.text
+    assert again.summary_version == SUMMARY_VERSION
+    assert again.session_shape.biometrics["weight_kg"] == pytest.approx(
+        results.session_shape.biometrics["weight_kg"]
+    )
+    # Now current: returned as recorded (nothing made again).
+    monkeypatch.setattr(pipeline, "finish", boom)
+    assert _process(session, old, base).summary == again.summary
 
 
 def test_frame_without_silhouette_is_marked_and_excluded(run):
