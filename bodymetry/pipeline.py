@@ -393,9 +393,11 @@ def plan(prepared: PreparedRun, config: ProcessConfig) -> SessionPlan:
         and (not config.review or all(p.is_file() for p in layout.review_files))
     )
     if finished and recorded.summary_version != SUMMARY_VERSION:
-        log.info(
+        # A warning, not progress: the run's numbers change from what the file said.
+        log.warning(
             "%s: summary made by an earlier bodymetry (summary version %d, now %d); "
-            "making it again from the recorded frames",
+            "making it again from the recorded frames (the per-frame fits stay as "
+            "recorded; --restart fits them again)",
             layout.results,
             recorded.summary_version,
             SUMMARY_VERSION,
