@@ -129,7 +129,7 @@ def _lowest_point_mm(body, estimates) -> float | None:
     states = [e.vector() for e in estimates]
     if not states:
         return None
-    return round(float(np.median(lowest_points(body, np.stack(states)))) * 1000.0, 2)
+    return round(float(np.median(lowest_points(body.pose_states(np.stack(states))))) * 1000.0, 2)
 
 
 def posing_offsets(body, cameras, subject: str, states, masks, refinement) -> dict:

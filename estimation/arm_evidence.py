@@ -29,7 +29,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from bodymetry.estimation.body_model.model import POSE_DIM, BodyModel, BodyState, shipped_model
+from bodymetry.estimation.body_model.model import POSE_DIM, BodyModel, shipped_model
 from bodymetry.estimation.records import FrameRecord
 
 __all__ = ["MIN_RAISED_FRAMES", "RAISED_DEG", "arm_elevations", "raised_frames"]
@@ -57,10 +57,7 @@ def arm_elevations(body: BodyModel, states: np.ndarray) -> np.ndarray:
         Angle between the shoulder-to-wrist direction and -z (left arm, right
         arm): 0 hanging, 90 held out level, 180 straight up.
     """
-    states = np.atleast_2d(np.asarray(states, dtype=float))
-    if states.shape[1] != POSE_DIM + body.n_shape:
-        raise ValueError(f"states: expected (F, {POSE_DIM + body.n_shape}), got {states.shape}")
-    keypoints = body.pose(BodyState.from_vector(states), lod=True).keypoints
+    keypoints = body.pose_states(states, lod=True).keypoints
     names = body.keypoint_names
     out = np.empty((len(states), 2))
     for k, side in enumerate("lr"):

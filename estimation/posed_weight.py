@@ -29,32 +29,23 @@ from collections.abc import Mapping
 import numpy as np
 
 from bodymetry.estimation.body_model import geometry
-from bodymetry.estimation.body_model.model import POSE_DIM, BodyModel, BodyState
+from bodymetry.estimation.body_model.model import PosedBody
 from bodymetry.estimation.outline_check import median_standard_error
 
 __all__ = ["posed_volumes", "weight_from_posed"]
 
 
-def posed_volumes(body: BodyModel, states: np.ndarray) -> np.ndarray:
-    """Volume (F,) of the full-resolution body posed at each state, m³.
+def posed_volumes(posed: PosedBody) -> np.ndarray:
+    """Volume (F,) of each posed body, m³.
 
     Parameters
     ----------
-    body : BodyModel
-    states : (F, 40 + n_shape) float
-        ``[τ, θ, ν]`` per frame.
-
-    Returns
-    -------
-    (F,) float
-        Enclosed volume of each posed mesh (closed and watertight, so the
-        divergence theorem's sum is its volume whatever the pose).
+    posed : PosedBody
+        The fitted bodies at full resolution (closed and watertight, so the
+        divergence theorem's sum is the volume whatever the pose), e.g.
+        :meth:`BodyModel.pose_states` of the frames' ``[τ, θ, ν]``.
     """
-    states = np.atleast_2d(np.asarray(states, dtype=float))
-    if states.shape[1] != POSE_DIM + body.n_shape:
-        raise ValueError(f"states: expected (F, {POSE_DIM + body.n_shape}), got {states.shape}")
-    vertices = body.pose(BodyState.from_vector(states), lod=False).vertices
-    return np.atleast_1d(geometry.mesh_volume(vertices, body.faces()))
+    return np.atleast_1d(geometry.mesh_volume(posed.vertices, posed.faces))
 
 
 def weight_from_posed(

@@ -529,7 +529,9 @@ def _at_average(
     poses = {fr.frame: BodyState.from_vector(w.y[None]) for fr, w in zip(frames, work, strict=True)}
     # The height as a stadiometer reads it: from the floor, where the fit sank the
     # soles into it (estimation.standing_height).
-    depth, depth_se = sole_depth(lowest_points(body, np.stack([w.y for w in work])))
+    # Posed once at full resolution: the soles' depth and the volumes read the same bodies.
+    posed = body.pose_states(np.stack([w.y for w in work]))
+    depth, depth_se = sole_depth(lowest_points(posed))
     if config.floor_height:
         bios, bio_se = from_the_floor(bios, bio_se, depth, depth_se)
         if depth < 0:
@@ -538,8 +540,7 @@ def _at_average(
     # a body's does not (estimation.posed_weight).
     canonical_weight = bios["weight_kg"]
     if config.posed_weight:
-        volumes = posed_volumes(body, np.stack([w.y for w in work]))
-        bios, bio_se = weight_from_posed(bios, bio_se, volumes, stage.density)
+        bios, bio_se = weight_from_posed(bios, bio_se, posed_volumes(posed), stage.density)
         log.info(
             "session shape: weight %.2f kg from the posed bodies (canonical body %.2f kg)",
             bios["weight_kg"],

@@ -32,31 +32,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from bodymetry.estimation.body_model.model import POSE_DIM, BodyModel, BodyState
+from bodymetry.estimation.body_model.model import PosedBody
 from bodymetry.estimation.outline_check import median_standard_error
 
 __all__ = ["from_the_floor", "lowest_points", "sole_depth"]
 
 
-def lowest_points(body: BodyModel, states: np.ndarray) -> np.ndarray:
-    """Height (F,) of each fitted body's lowest vertex above the floor, metres.
+def lowest_points(posed: PosedBody) -> np.ndarray:
+    """Height (F,) of each posed body's lowest vertex above the floor, metres.
 
     Parameters
     ----------
-    body : BodyModel
-    states : (F, 40 + n_shape) float
-        ``[τ, θ, ν]`` per frame (world frame, floor at z = 0).
-
-    Returns
-    -------
-    (F,) float
-        The lowest point of the full-resolution mesh posed at each state.
+    posed : PosedBody
+        The fitted bodies at full resolution, world frame (floor at z = 0), e.g.
+        :meth:`BodyModel.pose_states` of the frames' ``[τ, θ, ν]``.
     """
-    states = np.atleast_2d(np.asarray(states, dtype=float))
-    if states.shape[1] != POSE_DIM + body.n_shape:
-        raise ValueError(f"states: expected (F, {POSE_DIM + body.n_shape}), got {states.shape}")
-    vertices = body.pose(BodyState.from_vector(states), lod=False).vertices
-    return vertices[..., 2].min(axis=1)
+    return posed.vertices[..., 2].min(axis=1)
 
 
 def sole_depth(lowest: np.ndarray) -> tuple[float, float]:

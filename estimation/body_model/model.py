@@ -609,6 +609,26 @@ class BodyModel:
         kp = joints[:, parts] + np.einsum("bkij,bkj->bki", rot[:, parts], rel)
         return PosedBody(verts, self.faces(lod), joints, kp)
 
+    def pose_states(self, states: np.ndarray, lod: bool = False) -> PosedBody:
+        """:meth:`pose` of state vectors, checked against this model.
+
+        Parameters
+        ----------
+        states : (F, 40 + n_shape) float
+            ``[τ, θ, ν]`` per body.
+        lod : bool
+            The level of detail instead of the full mesh.
+
+        Raises
+        ------
+        ValueError
+            For states of another width (another number of shape components).
+        """
+        states = np.atleast_2d(np.asarray(states, dtype=float))
+        if states.ndim != 2 or states.shape[1] != POSE_DIM + self.n_shape:
+            raise ValueError(f"states: expected (F, {POSE_DIM + self.n_shape}), got {states.shape}")
+        return self.pose(BodyState.from_vector(states), lod=lod)
+
 
 def shipped_model(n_shape: int = DEFAULT_SHAPE_DOFS) -> BodyModel:
     """The shipped body model with ``n_shape`` components, loaded once per process.

@@ -60,7 +60,7 @@ def test_posed_volume_at_rest_is_the_canonical_volume_and_rigid_motion_keeps_it(
     moved[3:6] = (0.0, 0.0, 2.1)  # turned about the vertical
     tpose = rest.copy()
     tpose[3:POSE_DIM] = body.poses["tpose"]
-    volumes = posed_volumes(body, np.stack([rest, moved, tpose]))
+    volumes = posed_volumes(body.pose_states(np.stack([rest, moved, tpose])))
     canonical = measure(body, nu[None])[0].volume_l / 1000.0
     # The rest pose is the canonical body; moving it rigidly keeps its volume.
     assert volumes[0] == pytest.approx(canonical, rel=1e-6)
@@ -69,5 +69,5 @@ def test_posed_volume_at_rest_is_the_canonical_volume_and_rigid_motion_keeps_it(
     assert volumes[2] != pytest.approx(volumes[0], rel=1e-6)
     assert volumes[2] == pytest.approx(volumes[0], rel=0.05)
     with pytest.raises(ValueError, match="states"):
-        posed_volumes(body, np.zeros((1, POSE_DIM + body.n_shape + 2)))
+        posed_volumes(body.pose_states(np.zeros((1, POSE_DIM + body.n_shape + 2))))
     assert BodyState.from_vector(rest[None]).nu.shape == (1, body.n_shape)

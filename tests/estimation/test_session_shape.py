@@ -58,7 +58,7 @@ def _scene(sink: float = 0.0):
     model = BodyModel.load()
     cameras = studio_rig(4, (320, 240), seed=4)
     poses = _poses(model, 5, np.random.default_rng(0))
-    lowest = lowest_points(model, np.stack([np.r_[p, TRUE_NU] for p in poses]))
+    lowest = lowest_points(model.pose_states(np.stack([np.r_[p, TRUE_NU] for p in poses])))
     for pose, low in zip(poses, lowest, strict=True):
         pose[2] -= low + sink
     masks = []
@@ -399,7 +399,7 @@ def test_the_weight_is_read_from_the_posed_bodies(scene):
     assert posed.ok and posed.posed_weight and not canonical.posed_weight
     assert posed.nu == canonical.nu
     states = np.stack([fit.estimates[f].vector() for f in posed.frames])
-    volume = float(np.median(posed_volumes(model, states)))
+    volume = float(np.median(posed_volumes(model.pose_states(states))))
     assert posed.biometrics["volume_l"] == pytest.approx(volume * 1000.0, rel=1e-9)
     assert posed.biometrics["weight_kg"] == pytest.approx(volume * DEFAULT_DENSITY, rel=1e-9)
     assert posed.canonical_weight_kg == pytest.approx(canonical.biometrics["weight_kg"])

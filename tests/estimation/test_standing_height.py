@@ -43,11 +43,11 @@ def test_lowest_points_follow_the_body_up_and_down():
     states = np.stack([rest, rest, rest])
     states[1, 2] += 0.1  # raised by 10 cm
     states[2, 3:6] = (0.0, 0.0, 1.0)  # turned about the vertical: the same height
-    low = lowest_points(model, states)
+    low = lowest_points(model.pose_states(states))
     assert low[0] == pytest.approx(
         model.pose(BodyState.rest(model.n_shape), lod=False).vertices[0, :, 2].min()
     )
     assert low[1] - low[0] == pytest.approx(0.1, abs=1e-9)
     assert low[2] == pytest.approx(low[0], abs=1e-6)
     with pytest.raises(ValueError, match="states"):
-        lowest_points(model, np.zeros((2, 5)))
+        lowest_points(model.pose_states(np.zeros((2, 5))))
