@@ -29,6 +29,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from bodymetry.estimation.body_model import geometry
+from bodymetry.estimation.body_model.biometrics import body_mass_index
 from bodymetry.estimation.body_model.model import PosedBody
 from bodymetry.estimation.outline_check import median_standard_error
 
@@ -89,8 +90,7 @@ def weight_from_posed(
     for key, scale in (("volume_l", 1000.0), ("weight_kg", density)):
         se[key] = float(np.hypot(se.get(key, 0.0), volume_se * scale))
     if "height_mm" in bios:
-        height_m = bios["height_mm"] / 1000.0
-        bios["bmi"] = bios["weight_kg"] / height_m**2
+        bios["bmi"] = body_mass_index(bios["weight_kg"], bios["height_mm"])
         # Relative errors add: BMI = weight / height².
         se["bmi"] = bios["bmi"] * float(
             np.hypot(

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bodymetry.estimation.body_model.biometrics import body_mass_index
 from bodymetry.estimation.body_model.model import PosedBody
 from bodymetry.estimation.outline_check import median_standard_error
 
@@ -104,5 +105,5 @@ def from_the_floor(
     out["height_mm"] = biometrics["height_mm"] + depth * 1000.0
     se["height_mm"] = float(np.hypot(standard_errors.get("height_mm", 0.0), depth_se * 1000.0))
     if "bmi" in out and "weight_kg" in out:
-        out["bmi"] = out["weight_kg"] / (out["height_mm"] / 1000.0) ** 2
+        out["bmi"] = body_mass_index(out["weight_kg"], out["height_mm"])
     return out, se

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from bodymetry.errors import InputError
-from bodymetry.estimation.body_model.biometrics import Biometrics, measure
+from bodymetry.estimation.body_model.biometrics import Biometrics, body_mass_index, measure
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.training import DiscriminativeModels
 
@@ -86,7 +86,7 @@ def estimate_photo(
         k: v * s**3 if k in ("weight_kg", "volume_l") else v if k == "bmi" else v * s
         for k, v in raw.items()
     }
-    scaled["bmi"] = scaled["weight_kg"] / (height_mm / 1000.0) ** 2
+    scaled["bmi"] = body_mass_index(scaled["weight_kg"], height_mm)
     return PhotoEstimate(nu, float(s), Biometrics(**scaled))
 
 

@@ -105,6 +105,11 @@ def _girth_extreme(
     return float(girths.max() if largest else girths.min())
 
 
+def body_mass_index(weight_kg: float, height_mm: float) -> float:
+    """Weight over height squared, kg/m² (the ``bmi`` of :class:`Biometrics`)."""
+    return weight_kg / (height_mm / 1000.0) ** 2
+
+
 def measure(model: BodyModel, nu: np.ndarray, density: float = DEFAULT_DENSITY) -> list[Biometrics]:
     """Measure the canonical bodies of a batch of shapes.
 
@@ -242,5 +247,5 @@ def _measure_one(
         shoulder_breadth_mm=1000.0 * np.linalg.norm(v[lm["acromion_l"]] - v[lm["acromion_r"]]),
         inseam_mm=1000.0 * crotch,
         arm_length_mm=1000.0 * arm,
-        bmi=weight / height**2,
+        bmi=body_mass_index(weight, 1000.0 * height),
     )
