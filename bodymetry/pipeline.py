@@ -21,6 +21,8 @@ step                  grain        does
                                    (arrays and mesh, then the record that marks it done)
 :func:`rescue`        person       the frames below the person's quality gate, again from
                                    their neighbours
+:func:`register_cameras`  session  shifts a camera whose fitted bodies sit off its silhouettes
+                                   in every frame; the frames are then fitted again
 :func:`finish_person` person       the quality gate and the session stage of one person
 :func:`finish`        session      ``results.json``, every person
 :func:`review`        session      the recording, MCAP, report and CSV
@@ -62,6 +64,7 @@ from bodymetry.capture.ingest import SyncReport, check_sync
 from bodymetry.capture.landmarks import (
     LandmarkConfig,
     principal_point_offsets,
+    shifted_camera,
     triangulate_landmarks,
 )
 from bodymetry.capture.people import Sighting
@@ -77,6 +80,12 @@ from bodymetry.estimation.fit import (
 )
 from bodymetry.estimation.outline_check import check_outline
 from bodymetry.estimation.records import FrameArrays, FrameRecord, SessionShape, summarize
+from bodymetry.estimation.registration import (
+    CameraShift,
+    camera_shifts,
+    read_registration,
+    write_registration,
+)
 from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import (
@@ -117,6 +126,7 @@ __all__ = [
     "SegmentedFrame",
     "SessionPlan",
     "SessionRun",
+    "apply_registration",
     "backgrounds",
     "camera_warnings",
     "check_calibration",
@@ -128,6 +138,7 @@ __all__ = [
     "plan",
     "plan_persons",
     "prepare",
+    "register_cameras",
     "rescue",
     "review",
     "run_session",
@@ -158,8 +169,12 @@ class PreparedRun:
     warnings : tuple of str
         The up-front check's warnings (and the calibration check's).
     landmark_config : LandmarkConfig or None
-        Set when :func:`check_calibration` shifted cameras: the subject's
-        landmarks are then triangulated again through them.
+        Set when :func:`check_calibration` or :func:`apply_registration` shifted
+        cameras: the subject's landmarks are then triangulated again through them.
+    unregistered : CameraGroup or None
+        The working rig before :func:`apply_registration` shifted cameras (None:
+        none shifted): the rig the discriminative models are trained and cached
+        for, so that a resumed run finds the models its first part used.
     """
 
     session: Session
@@ -170,6 +185,12 @@ class PreparedRun:
     calibrated: CameraGroup
     warnings: tuple[str, ...] = ()
     landmark_config: LandmarkConfig | None = None
+    unregistered: CameraGroup | None = None
+
+    @property
+    def rig(self) -> CameraGroup:
+        """The working rig the discriminative models are trained for."""
+        return self.cameras if self.unregistered is None else self.unregistered
 
     def landmarks(
         self, views: Sequence[np.ndarray | None], recorded: np.ndarray | None
@@ -726,7 +747,7 @@ def choose_person(
 
 def rig_of(prepared: PreparedRun, config: ProcessConfig) -> str:
     """The cache key of the run's rig (:func:`bodymetry.estimation.training.rig_key`)."""
-    return rig_key(prepared.cameras, config.training)
+    return rig_key(prepared.rig, config.training)
 
 
 def train(
@@ -747,7 +768,7 @@ def train(
         workers = 1
     t0 = time.perf_counter()
     models, reused = load_or_train(
-        prepared.cameras,
+        prepared.rig,
         config.training,
         config.cache_dir,
         workers=workers if workers is not None else config.workers,
@@ -813,6 +834,115 @@ def rescue(
         config.fit.rescue_neighbours,
         progress,
         run_jobs,
+    )
+
+
+def register_cameras(
+    prepared: PreparedRun,
+    config: ProcessConfig,
+    records: dict[int | None, dict[int, FrameRecord]],
+) -> PreparedRun:
+    """Measure each camera's offset between the fitted bodies and the observed
+    silhouettes over every fitted frame (:func:`bodymetry.estimation.registration.camera_shifts`)
+    and shift the cameras that are off (:func:`apply_registration`).
+
+    ``records``: per person's layout (:meth:`PersonPlan.layout_person`), their
+    frames' records. The offsets are written to ``RUN/registration.json``; when a
+    camera is shifted, every frame's record is removed first, so that the caller
+    fits them all again through the shifted cameras (and a run stopped in between
+    measures again from fresh fits). Runs once: with ``registration.json`` written,
+    the run is returned as it is (:func:`apply_registration` applied it).
+    Pixels another person hides (``unknown``) count for neither silhouette.
+    """
+    cfg = config.registration
+    layout = prepared.layout
+    if not cfg.enabled or layout.registration.is_file():
+        return prepared
+    names = [cam.name for cam in prepared.cameras]
+    pairs: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {n: [] for n in names}
+    positions = []
+    for person, frames in records.items():
+        where = layout.for_person(person)
+        for frame, record in sorted(frames.items()):
+            if not record.fitted or "generative" not in record.estimates:
+                continue
+            positions.append(record.estimates["generative"].state.tau[0])
+            try:
+                arrays = FrameArrays.load(where.frame_arrays(frame))
+            except InputError as exc:
+                log.warning("%s; left out of the camera registration", exc)
+                continue
+            for name in names:
+                observed, model = arrays.observed.get(name), arrays.model.get(name)
+                if observed is None or model is None:
+                    continue
+                unknown = arrays.unknown.get(name)
+                if unknown is not None:
+                    observed, model = observed & ~unknown, model & ~unknown
+                pairs[name].append((observed, model))
+    if not positions:
+        return prepared
+    centre = np.median(np.asarray(positions), axis=0)
+    shifts = camera_shifts(prepared.cameras, [pairs[n] for n in names], centre, cfg)
+    for shift in shifts:
+        log.info("camera registration: %s", shift.describe())
+    if any(s.applied for s in shifts):
+        for person, frames in records.items():
+            where = layout.for_person(person)
+            for frame in frames:
+                where.frame_record(frame).unlink(missing_ok=True)
+    write_registration(layout.registration, shifts)
+    return _registered(prepared, config, shifts)
+
+
+def apply_registration(prepared: PreparedRun, config: ProcessConfig) -> PreparedRun:
+    """A resumed run with the registration :func:`register_cameras` recorded
+    (``RUN/registration.json``) applied; without it (or with
+    ``registration.enabled`` off) the run as it is."""
+    layout = prepared.layout
+    if not config.registration.enabled or not layout.registration.is_file():
+        return prepared
+    return _registered(prepared, config, read_registration(layout.registration))
+
+
+def _registered(
+    prepared: PreparedRun, config: ProcessConfig, shifts: Sequence[CameraShift]
+) -> PreparedRun:
+    """The run with the principal points of the cameras ``shifts`` applies to moved,
+    written to the run's ``calibration.yaml`` and named in a warning (``results.json``)."""
+    layout = prepared.layout
+    by_name = {s.camera: s for s in shifts if s.applied}
+    if not by_name:
+        return prepared
+    scales = prepared.resolution.scales
+    shifted = []
+    for cam in prepared.calibrated:
+        s = by_name.get(cam.name)
+        if s is None:
+            shifted.append(cam)
+            continue
+        # The offsets are working-resolution pixels; the calibration is at the camera's own.
+        scale = scales[cam.name]
+        kx = scale.calibrated_size[0] / scale.size[0]
+        ky = scale.calibrated_size[1] / scale.size[1]
+        shifted.append(shifted_camera(cam, s.dx * kx, s.dy * ky))
+    calibrated = CameraGroup(shifted)
+    warnings = tuple(
+        f"{by_name[name].describe()}: its principal point was shifted by that offset and "
+        "every frame fitted again (RUN/calibration.yaml, RUN/registration.json; "
+        "--set registration.enabled=false keeps the cameras as the calibration check left them)"
+        for name in sorted(by_name)
+    )
+    for text in warnings:
+        log.warning("%s", text)
+    save_calibration(layout.calibration, calibrated)
+    return replace(
+        prepared,
+        calibrated=calibrated,
+        cameras=prepared.resolution.apply(calibrated),
+        warnings=(*prepared.warnings, *warnings),
+        landmark_config=config.capture.landmarks,
+        unregistered=prepared.rig,
     )
 
 
@@ -1036,11 +1166,13 @@ STEPS: tuple[Callable, ...] = (
     backgrounds,
     segment,
     check_calibration,
+    apply_registration,
     plan_persons,
     choose_person,
     train,
     fit,
     rescue,
+    register_cameras,
     finish_person,
     finish,
     review,
@@ -1134,7 +1266,9 @@ def run_session(
         )
     if every:
         prep_f = ex.submit(check_calibration, prep_f, list(segmented.values()), config)
-        prepared = prep_f.result()
+    # A resumed run fits through the cameras its registration shifted.
+    prep_f = ex.submit(apply_registration, prep_f, config)
+    prepared = prep_f.result()
     # Whom to measure (an unknown --person is bad input: said before training).
     persons = (
         ex.submit(plan_persons, prep_f, list(segmented.values()), config).result()
@@ -1162,19 +1296,38 @@ def run_session(
     models_f = ex.shared(rig, train, prep_f, config, local)
     models: RigModels = models_f.result()
     t1 = time.perf_counter()
-    jobs = [
-        (ident, (prep_f, models_f, frames_of[ident][f], config, persons.layout_person(ident)))
-        for ident in persons.ids
-        for f in planned.kept
-        if f not in done[ident]
-    ]
-    fits = ex.submit_many(fit, [args for _, args in jobs])
-    new = _gathered(ex, fits, [ident for ident, _ in jobs], done, len(planned.kept), progress)
-    for ident in persons.ids:
-        done[ident] = ex.submit(
-            rescue, prep_f, models_f, done[ident], config, ex.job_runner(), local,
-            persons.layout_person(ident),
-        ).result()  # fmt: skip
+
+    def fit_all(prep_f) -> list[FrameRecord]:
+        """Fit every person's frames not yet done, then rescue their poor ones."""
+        jobs = [
+            (ident, (prep_f, models_f, frames_of[ident][f], config, persons.layout_person(ident)))
+            for ident in persons.ids
+            for f in planned.kept
+            if f not in done[ident]
+        ]
+        fits = ex.submit_many(fit, [args for _, args in jobs])
+        new = _gathered(ex, fits, [i for i, _ in jobs], done, len(planned.kept), progress)
+        for ident in persons.ids:
+            done[ident] = ex.submit(
+                rescue, prep_f, models_f, done[ident], config, ex.job_runner(), local,
+                persons.layout_person(ident),
+            ).result()  # fmt: skip
+        return new
+
+    new = fit_all(prep_f)
+    registered_f = ex.submit(
+        register_cameras,
+        prep_f,
+        config,
+        {persons.layout_person(ident): done[ident] for ident in persons.ids},
+    )
+    registered = registered_f.result()
+    if prepared.unregistered is None and registered.unregistered is not None:
+        # A camera was shifted: every frame again, through the registered cameras.
+        prep_f, prepared = registered_f, registered
+        for ident in persons.ids:
+            done[ident] = {}
+        new += fit_all(prep_f)
     cpu = sum(r.seconds.get("total", 0.0) for r in new)
     timing = {"training": models.seconds, "fitting_cpu": cpu}
     if not ex.remote:  # wall times of this session's own work (on Dask, steps interleave)

@@ -29,6 +29,7 @@ from typing import Any
 from bodymetry import __version__
 from bodymetry.capture.session import SESSION_FILE, Session
 from bodymetry.errors import InputError
+from bodymetry.estimation.registration import RegistrationConfig
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import MANIFEST_FORMAT, RunLayout, RunManifest
 
@@ -77,6 +78,8 @@ def config_fingerprint(config: ProcessConfig) -> str:
         relevant["person"] = config.person
     if config.largest:
         relevant["largest"] = True
+    if config.registration != RegistrationConfig():  # the default keeps earlier runs' hash
+        relevant["registration"] = data["registration"]
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
 
 

@@ -41,6 +41,7 @@ __all__ = [
     "LandmarkConfig",
     "principal_point_offsets",
     "shifted_camera",
+    "sparsest_offsets",
     "triangulate_landmarks",
 ]
 
@@ -345,7 +346,7 @@ def _joint_offsets(
     return total, counts, np.nanmean(X, axis=0)
 
 
-def _sparsest(cameras: CameraGroup, offsets: np.ndarray, centre: np.ndarray) -> np.ndarray:
+def sparsest_offsets(cameras: CameraGroup, offsets: np.ndarray, centre: np.ndarray) -> np.ndarray:
     """Among the offsets that explain the detections equally well, the sparsest.
 
     Moving the triangulated points by t moves every camera's projections by
@@ -353,6 +354,19 @@ def _sparsest(cameras: CameraGroup, offsets: np.ndarray, centre: np.ndarray) -> 
     known up to ``offsets - J t``. Most cameras of a rig are right: t minimizes
     the sum over cameras of the offsets' lengths (a group-sparse choice), which
     puts the error on the camera(s) that are off instead of spreading it.
+
+    Parameters
+    ----------
+    cameras : CameraGroup
+        C cameras, at the resolution of the offsets' pixels.
+    offsets : (C, 2) float
+        Pixels.
+    centre : (3,) float
+        The subject's position, world metres.
+
+    Returns
+    -------
+    (C, 2) float
     """
     J = []
     for cam in cameras:
@@ -381,7 +395,7 @@ def principal_point_offsets(
     The median reprojection residual of each camera's detections, iterated with
     the triangulation to a fixed point, gives offsets that are known only up to
     a common motion of the subject; of those, the sparsest set is taken
-    (:func:`_sparsest`: most cameras are right). A camera whose offset exceeds
+    (:func:`sparsest_offsets`: most cameras are right). A camera whose offset exceeds
     ``min_shift`` of its image height, on at least ``min_observations``
     detections, gets its principal point shifted.
 
@@ -410,7 +424,7 @@ def principal_point_offsets(
     if not frames:
         return cameras, [CameraOffset(c.name, 0.0, 0.0, 0, False) for c in cameras]
     joint, counts, centre = _joint_offsets(cameras, frames, cfg)
-    sparse = _sparsest(cameras, joint, centre)
+    sparse = sparsest_offsets(cameras, joint, centre)
     limit = cfg.min_shift * np.array(cameras.sizes, float)[:, 1]  # image heights
     applied = (np.hypot(sparse[:, 0], sparse[:, 1]) >= limit) & (counts >= cfg.min_observations)
     out = CameraGroup(

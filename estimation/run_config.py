@@ -19,6 +19,7 @@ from typing import Any
 from bodymetry.capture.segmentation import CaptureConfig
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import PRESETS, FitConfig
+from bodymetry.estimation.registration import RegistrationConfig
 from bodymetry.estimation.resolution import DEFAULT_WORKING_PERSON_PX
 from bodymetry.estimation.session_shape import SessionShapeConfig
 from bodymetry.estimation.training import TrainConfig, default_cache_dir
@@ -45,6 +46,10 @@ class ProcessConfig:
         Per-frame fit: seed, density, quality gate, annealing, refinement.
     training : TrainConfig
         Discriminative training for a new rig (paper §6: 3000 + 597 examples).
+    registration : RegistrationConfig
+        Whether and when the fitted bodies shift a camera that sits off the
+        observed silhouettes in every frame, and the frames are fitted again
+        (:mod:`bodymetry.estimation.registration`).
     session_shape : SessionShapeConfig
         The session stage after the per-frame fits: one shape for the session
         (``--set session_shape.enabled=false`` skips it). It changes no
@@ -86,6 +91,7 @@ class ProcessConfig:
     fit: FitConfig = field(default_factory=FitConfig)
     training: TrainConfig = field(default_factory=TrainConfig)
     session_shape: SessionShapeConfig = field(default_factory=SessionShapeConfig)
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     frame_step: int | None = None
     working_person_px: float | None = DEFAULT_WORKING_PERSON_PX
     workers: int | None = None

@@ -140,6 +140,12 @@ class RunLayout:
         return self.folder / "calibration.yaml"
 
     @property
+    def registration(self) -> Path:
+        """``registration.json``: the cameras' offsets measured on the fitted bodies
+        (:func:`bodymetry.pipeline.register_cameras`)."""
+        return self.folder / "registration.json"
+
+    @property
     def calibration_report(self) -> Path:
         return self.folder / "calibration-report.json"
 
@@ -166,6 +172,7 @@ class RunLayout:
             self.folder / "meshes",
             self.folder / PERSONS_DIR,
             self.calibration,
+            self.registration,
             self.calibration_report,
             *self.review_files,
             self.folder / REPORT_PDF,

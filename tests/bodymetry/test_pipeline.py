@@ -5,6 +5,7 @@ from __future__ import annotations
 import ast
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ import bodymetry
 from bodymetry import pipeline
 from bodymetry.capture.people import Sighting
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import FrameRecord
+from bodymetry.estimation.records import FrameArrays, FrameRecord
 from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunLayout
@@ -35,13 +36,18 @@ def _step_references() -> dict[str, list[str]]:
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom) and node.module == "bodymetry.pipeline":
                 visible |= {a.asname or a.name for a in node.names} & names
-        for func in ast.walk(tree):
-            if not isinstance(func, ast.FunctionDef):
-                continue
+        # A reference inside a nested function (run_session's fit_all) counts for the
+        # module-level function that holds it: the outermost function is the wiring.
+        outer = [
+            node
+            for top in tree.body
+            for node in ([top] if not isinstance(top, ast.ClassDef) else top.body)
+            if isinstance(node, ast.FunctionDef)
+        ]
+        for func in outer:
             for node in ast.walk(func):
                 if isinstance(node, ast.Name) and node.id in visible and func.name != node.id:
                     found[node.id].append(f"{path.name}:{func.name}:{node.lineno}")
-    # Each reference once: ast.walk visits a nested function's nodes from its parent too.
     return {n: sorted(set(p)) for n, p in found.items()}
 
 
@@ -285,3 +291,71 @@ def test_the_chosen_person_is_a_setting_of_the_run():
     assert config_fingerprint(ProcessConfig(largest=True)) != base
     with pytest.raises(InputError, match="choose one"):
         ProcessConfig(person=0, largest=True)
+
+
+def _fitted() -> SimpleNamespace:
+    """What the registration reads of a FrameRecord: fitted, and where the body stood."""
+    at = SimpleNamespace(state=SimpleNamespace(tau=np.array([[0.0, 0.0, 1.0]])))
+    return SimpleNamespace(fitted=True, estimates={"generative": at})
+
+
+def _registration_run(tmp_path, shift: tuple[int, int]) -> tuple[pipeline.PreparedRun, dict]:
+    """A run folder whose 5 frames' model silhouettes sit ``shift`` px off the observed
+    ones in camera 1 and exactly on them in cameras 0, 2 and 3."""
+    rig = studio_rig(4, (160, 120), seed=5)
+    layout = RunLayout(tmp_path)
+    layout.frames_dir.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for frame in range(5):
+        model = np.zeros((120, 160), bool)
+        y, x = rng.integers(20, 40), rng.integers(40, 80)
+        model[y : y + 70, x : x + 25] = True
+        model[y + 10 : y + 18, x + 25 : x + 60] = True  # an arm
+        observed = {c.name: model for c in rig}
+        observed["cam_01"] = np.roll(np.roll(model, shift[1], 0), shift[0], 1)
+        arrays = FrameArrays(observed, {c.name: model for c in rig})
+        np.savez_compressed(layout.frame_arrays(frame), **arrays.to_arrays())
+        layout.frame_record(frame).write_text("{}")
+    prepared = pipeline.PreparedRun(
+        session=None,
+        layout=layout,
+        cameras=rig,
+        calibration_source="test",
+        resolution=WorkingResolution.full(rig),
+        calibrated=rig,
+    )
+    return prepared, {None: {f: _fitted() for f in range(5)}}
+
+
+def test_a_camera_the_fitted_bodies_show_off_is_shifted_and_its_frames_fitted_again(tmp_path):
+    prepared, records = _registration_run(tmp_path, (2, -1))
+    config = ProcessConfig()
+    registered = pipeline.register_cameras(prepared, config, records)
+    rig = prepared.calibrated
+    moved = registered.calibrated[1].K - rig[1].K
+    np.testing.assert_allclose(moved[:2, 2], [2.0, -1.0], atol=0.5)
+    assert [registered.calibrated[c] is rig[c] for c in range(4)] == [True, False, True, True]
+    assert registered.unregistered is rig and registered.rig is rig  # models stay cached
+    assert len(registered.warnings) == 1 and "'cam_01'" in registered.warnings[0]
+    # Every frame's record is gone (fitted again through the shifted camera); the
+    # offsets are recorded, and a resumed run applies exactly them.
+    assert prepared.layout.recorded_frames() == []
+    assert prepared.layout.registration.is_file()
+    resumed = pipeline.apply_registration(prepared, config)
+    np.testing.assert_array_equal(resumed.calibrated[1].K, registered.calibrated[1].K)
+    assert resumed.warnings == registered.warnings
+    # It runs once: the registered run's own fits are not measured again.
+    assert pipeline.register_cameras(registered, config, records) is registered
+
+
+def test_registration_leaves_a_registered_rig_and_a_disabled_one_alone(tmp_path):
+    prepared, records = _registration_run(tmp_path / "exact", (0, 0))
+    same = pipeline.register_cameras(prepared, ProcessConfig(), records)
+    assert same.calibrated is prepared.calibrated and same.unregistered is None
+    assert prepared.layout.recorded_frames() == list(range(5))  # nothing to fit again
+    assert prepared.layout.registration.is_file()  # the measured offsets, all under the bound
+    off, records = _registration_run(tmp_path / "off", (3, 0))
+    config = ProcessConfig().with_overrides(["registration.enabled=false"])
+    assert pipeline.register_cameras(off, config, records) is off
+    assert not off.layout.registration.is_file()
+    assert config_fingerprint(config) != config_fingerprint(ProcessConfig())

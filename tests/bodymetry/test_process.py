@@ -17,7 +17,9 @@ import bodymetry.frame_jobs as frame_jobs
 import bodymetry.pipeline as pipeline
 import bodymetry.process as process_module
 from bodymetry.calibration.camera import CameraGroup
+from bodymetry.calibration.io import load_calibration, save_calibration
 from bodymetry.calibration.solve import CalibrationResult
+from bodymetry.capture.landmarks import shifted_camera
 from bodymetry.capture.people import Sighting
 from bodymetry.capture.segmentation import segment_session
 from bodymetry.capture.session import load_session
@@ -32,6 +34,7 @@ from bodymetry.estimation.records import (
     Stat,
     summarize,
 )
+from bodymetry.estimation.registration import read_registration
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import (
     EVALUATION_FORMAT,
@@ -44,6 +47,8 @@ from bodymetry.estimation.session_shape import SessionShapeConfig, session_frame
 from bodymetry.estimation.training import DiscriminativeModels
 from bodymetry.frame_jobs import RESCUE_FILE, rescue_poor_frames
 from bodymetry.review.evaluation import evaluate_persons, evaluate_run
+from bodymetry.studio.synth import synthesize
+from bodymetry.warmup import TINY_SESSION
 
 
 @pytest.fixture(scope="module")
@@ -711,3 +716,35 @@ def test_the_headline_values_prefer_the_session_stage_and_are_held_to_the_valida
     )
     (caveat,) = [c for c in small.caveats if c.code == "outside_validated"]
     assert caveat.message.startswith("the measured height 1052 mm lies outside")
+
+
+def test_a_camera_off_its_video_is_registered_and_the_frames_fitted_again(
+    run, tmp_path, monkeypatch
+):
+    """Camera 1's calibration moved 5 px down (its principal point) in a 4-camera
+    session: the fitted bodies sit off its silhouettes in every frame (and, meeting
+    it halfway, a little off the others'), so the run shifts camera 1 alone back,
+    fits every frame again and says so; a resumed run fits nothing again."""
+    base = run[3]
+    session = synthesize(
+        tmp_path / "session", dataclasses.replace(TINY_SESSION, cameras=4), workers=1
+    )
+    calib = load_calibration(session.calibration_path)
+    off = CameraGroup([shifted_camera(c, 0.0, 5.0) if c.name == "cam_01" else c for c in calib])
+    save_calibration(session.calibration_path, off)
+    out = tmp_path / "run"
+    registered = process_module.process_session(session.folder, out, _config(base))
+    shifts = {s.camera: s for s in read_registration(out / "registration.json")}
+    assert shifts["cam_01"].applied and -6.5 < shifts["cam_01"].dy < -3.0, shifts["cam_01"]
+    own = {n: np.hypot(s.dx, s.dy) for n, s in shifts.items()}
+    assert own["cam_01"] > 3 * max(v for n, v in own.items() if n != "cam_01"), own
+    run_calib = load_calibration(out / "calibration.yaml")
+    assert abs(run_calib[1].K[1, 2] - calib[1].K[1, 2]) < 1.5  # about where it belongs
+    assert any("'cam_01'" in w and "fitted again" in w for w in registered.warnings)
+    assert [f.frame for f in registered.frames] == [0, 2, 4]
+    # Resumed after its last frame: the registered cameras again, nothing refitted.
+    (out / "results.json").unlink()
+    monkeypatch.setattr(pipeline, "run_fit_job", lambda *a, **k: pytest.fail("refitted"))
+    again = process_module.process_session(session.folder, out, _config(base))
+    assert again.summary == registered.summary
+    assert again.warnings == registered.warnings
