@@ -23,6 +23,12 @@ list), and says why in a sentence a user can act on:
     The session stage's outline check found the observed outline wider than
     the body's around the trunk or above the head (loose clothing or hair):
     height, girths and weight may be inflated.
+``floor``
+    The session stage's fitted soles stood deeper below the floor (world
+    z = 0) than :data:`~bodymetry.estimation.standing_height.MAX_SOLE_DEPTH`,
+    more than shadow under the shoes sinks them: the person may stand on a
+    floor lower than the calibration's, or the silhouettes reach below the
+    feet. The height is the fitted body's own, not read from the floor.
 ``arms_down``
     Fewer than :data:`~bodymetry.estimation.arm_evidence.MIN_RAISED_FRAMES`
     measured frames had an arm raised (:mod:`bodymetry.estimation.arm_evidence`):
@@ -46,6 +52,7 @@ from dataclasses import dataclass
 
 from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES, RAISED_DEG
 from bodymetry.estimation.records import FrameRecord
+from bodymetry.estimation.standing_height import MAX_SOLE_DEPTH
 from bodymetry.estimation.view_selection import left_out_views
 
 __all__ = [
@@ -74,6 +81,7 @@ CAVEAT_CODES = (
     "thin_evidence",
     "view_left_out",
     "clothing",
+    "floor",
     "arms_down",
     "outside_validated",
 )
@@ -199,6 +207,7 @@ def run_caveats(
     told_apart: bool = False,
     headline: Mapping[str, float] | None = None,
     raised: Sequence[int] | None = None,
+    sole_depth_mm: float | None = None,
 ) -> tuple[Caveat, ...]:
     """The caveats of a run (module docstring), in :data:`CAVEAT_CODES` order.
 
@@ -220,6 +229,9 @@ def run_caveats(
     raised : sequence of int, optional
         The measured frames with an arm raised
         (:func:`bodymetry.estimation.arm_evidence.raised_frames`); None: not judged.
+    sole_depth_mm : float, optional
+        The session stage's soles below the floor, mm (:attr:`SessionShape.floor_mm`,
+        negative below); None: not judged (no session stage, or the floor not read).
 
     Returns
     -------
@@ -269,6 +281,18 @@ def run_caveats(
             )
     if outline_warnings:  # each already says what is likely overstated
         out.append(Caveat("clothing", "; ".join(outline_warnings)))
+    if sole_depth_mm is not None and sole_depth_mm < -1000.0 * MAX_SOLE_DEPTH:
+        out.append(
+            Caveat(
+                "floor",
+                f"the fitted soles stood {-sole_depth_mm:.0f} mm below the calibration's floor "
+                "(z = 0) in the median frame, deeper than the "
+                f"{1000.0 * MAX_SOLE_DEPTH:.0f} mm that shadow under the shoes explains: the "
+                "person may stand on a floor lower than the calibration's (beside a platform "
+                "or treadmill), or the silhouettes reach below the feet; the height is the "
+                f"fitted body's own, not read from the floor ({-sole_depth_mm:.0f} mm less)",
+            )
+        )
     if raised is not None and len(raised) < MIN_RAISED_FRAMES:
         seen = f" ({_frame_list(list(raised))})" if raised else ""
         studio = ARMS_DOWN_STUDIO

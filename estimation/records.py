@@ -634,9 +634,14 @@ class SessionShape:
         (negative), else 0; NaN in runs recorded before it
         (:mod:`bodymetry.estimation.standing_height`).
     floor_height : bool
-        Whether ``height_mm`` was read from the floor (it is the canonical
-        body's height less the soles' depth when ``floor_mm`` < 0); False in
-        runs recorded before it.
+        Whether the height is read from the floor where the soles sink (the
+        setting); False in runs recorded before it.
+    floor_applied : bool
+        Whether ``height_mm`` is the canonical body's height less the soles'
+        depth: they sank, by at most
+        :data:`~bodymetry.estimation.standing_height.MAX_SOLE_DEPTH` (runs
+        recorded before the bound read every depth from the floor, and files
+        without the field are read so).
     canonical_weight_kg : float
         The canonical (unposed) body's weight, kg; NaN in runs recorded before it.
     posed_weight : bool
@@ -667,6 +672,7 @@ class SessionShape:
     outline: OutlineCheck | None = None
     floor_mm: float = math.nan
     floor_height: bool = False
+    floor_applied: bool = False
     canonical_weight_kg: float = math.nan
     posed_weight: bool = False
 
@@ -701,6 +707,7 @@ class SessionShape:
             "outline": None if self.outline is None else self.outline.to_json(),
             "floor_mm": _finite_or_none(self.floor_mm, 2),
             "floor_height": bool(self.floor_height),
+            "floor_applied": bool(self.floor_applied),
             "canonical_weight_kg": _finite_or_none(self.canonical_weight_kg, 3),
             "posed_weight": bool(self.posed_weight),
         }
@@ -743,6 +750,12 @@ class SessionShape:
                 else OutlineCheck.from_json(data["outline"], f"{where}.outline"),
                 floor_mm=_nan_if_none(data.get("floor_mm")),
                 floor_height=bool(data.get("floor_height", False)),
+                floor_applied=bool(
+                    data.get(
+                        "floor_applied",
+                        data.get("floor_height", False) and (data.get("floor_mm") or 0.0) < 0,
+                    )
+                ),
                 canonical_weight_kg=_nan_if_none(data.get("canonical_weight_kg")),
                 posed_weight=bool(data.get("posed_weight", False)),
             )

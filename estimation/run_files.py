@@ -20,6 +20,7 @@ older or foreign file gets a clear error naming it, not a ``KeyError``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -77,8 +78,9 @@ RESULTS_FORMATS_READ = (2, 3)
 #: ``results.json`` holds another (files before it hold none: 0) has its summary made
 #: again from the recorded frames when ``process`` meets it, so that an upgrade
 #: reaches the numbers of runs already finished. Raise it when the summary changes
-#: (1: the height read from the floor; 2: the weight read from the posed bodies).
-SUMMARY_VERSION = 2
+#: (1: the height read from the floor; 2: the weight read from the posed bodies;
+#: 3: the floor trusted down to ``standing_height.MAX_SOLE_DEPTH`` only).
+SUMMARY_VERSION = 3
 #: Version of ``run.json``.
 MANIFEST_FORMAT = 1
 #: Version of ``evaluation.json`` (1: the generative stage was ``disc_generative``).
@@ -471,6 +473,8 @@ class RunResults:
         (:func:`bodymetry.estimation.caveats.run_caveats`; derived from the records,
         so an older ``results.json`` gets them too); :meth:`for_person` for another's."""
         outline = self.outline
+        shape = self.session_shape
+        floor = shape.floor_mm if shape is not None and shape.ok and shape.floor_height else None
         return run_caveats(
             self.frames,
             self.session.cameras,
@@ -478,6 +482,7 @@ class RunResults:
             told_apart=self.person.told_apart or self.config.person is not None,
             headline=self.headline_values,
             raised=raised_frames(self.frames),
+            sole_depth_mm=None if floor is None or not math.isfinite(floor) else floor,
         )
 
     @property

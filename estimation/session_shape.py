@@ -77,7 +77,13 @@ from bodymetry.estimation.refinement import (
     RefineConfig,
     difference_steps,
 )
-from bodymetry.estimation.standing_height import from_the_floor, lowest_points, sole_depth
+from bodymetry.estimation.standing_height import (
+    MAX_SOLE_DEPTH,
+    from_the_floor,
+    lowest_points,
+    reads_from_floor,
+    sole_depth,
+)
 from bodymetry.estimation.view_selection import blank_unusable, usable_views
 from bodymetry.log import Progress
 
@@ -532,10 +538,16 @@ def _at_average(
     # Posed once at full resolution: the soles' depth and the volumes read the same bodies.
     posed = body.pose_states(np.stack([w.y for w in work]))
     depth, depth_se = sole_depth(lowest_points(posed))
-    if config.floor_height:
+    if config.floor_height and reads_from_floor(depth):
         bios, bio_se = from_the_floor(bios, bio_se, depth, depth_se)
-        if depth < 0:
-            log.info("session shape: soles %.1f mm in the floor; height read from it", -1e3 * depth)
+        log.info("session shape: soles %.1f mm in the floor; height read from it", -1e3 * depth)
+    elif config.floor_height and depth < 0:
+        log.warning(
+            "session shape: soles %.1f mm below the floor (z = 0), deeper than %.0f mm: the "
+            "height is the fitted body's own, not read from the floor",
+            -1e3 * depth,
+            1e3 * MAX_SOLE_DEPTH,
+        )
     # The weight as the posed bodies hold it: the model's posing changes the volume,
     # a body's does not (estimation.posed_weight).
     canonical_weight = bios["weight_kg"]
@@ -570,6 +582,7 @@ def _at_average(
         prior_pull=prior_pull(body, nu, data_h, stage.prior, stage.density),
         floor_mm=depth * 1000.0,
         floor_height=config.floor_height,
+        floor_applied=config.floor_height and reads_from_floor(depth),
         canonical_weight_kg=canonical_weight,
         posed_weight=config.posed_weight,
     )

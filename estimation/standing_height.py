@@ -23,6 +23,17 @@ floor are left alone, since a foot lifted, a force plate or a step, a world
 whose z = 0 lies below the floor, or feet the segmentation lost all put them
 there, and none of them says the crown is lower.
 
+Sinking is not the only reason for soles below z = 0: the person may stand on
+a floor lower than the calibration's (beside a treadmill or a platform whose
+top the calibration took for the floor, on a mat the board lay on). Shadow
+bleeding under the shoes sank the studio's soles at most 8.4 mm (58 sessions,
+median 2.7 mm); on Pose2Sim's `Demo_MultiPerson` the woman's fitted soles
+stood 32 mm below z = 0 in the median frame with her feet outlined right in
+every view, beside the man on the treadmill, whose soles stood 15-47 mm above
+it. So the floor is trusted only down to :data:`MAX_SOLE_DEPTH`
+(:func:`reads_from_floor`); deeper, the height stays the fitted body's own and
+the run says so (the ``floor`` caveat, :mod:`bodymetry.estimation.caveats`).
+
 ``--set session_shape.floor_height=false`` keeps the canonical height (a world
 whose z = 0 is not the floor, e.g. a calibration board's own top surface lying
 on a thick mat).
@@ -36,7 +47,17 @@ from bodymetry.estimation.body_model.biometrics import body_mass_index
 from bodymetry.estimation.body_model.model import PosedBody
 from bodymetry.estimation.outline_check import median_standard_error
 
-__all__ = ["from_the_floor", "lowest_points", "sole_depth"]
+__all__ = ["MAX_SOLE_DEPTH", "from_the_floor", "lowest_points", "reads_from_floor", "sole_depth"]
+
+#: The deepest the fitted soles may stand below the floor (metres) for the height
+#: to be read from it: about twice the studio's deepest (8.4 mm over 58 sessions).
+MAX_SOLE_DEPTH = 0.015
+
+
+def reads_from_floor(depth: float) -> bool:
+    """Whether the height is read from the floor for soles ``depth`` metres below it
+    (:func:`sole_depth`): when they sink, by at most :data:`MAX_SOLE_DEPTH`."""
+    return -MAX_SOLE_DEPTH <= depth < 0.0
 
 
 def lowest_points(posed: PosedBody) -> np.ndarray:

@@ -154,3 +154,16 @@ def test_the_arms_down_figures_are_the_benchmarks():
         down["high_mm"],
         down["mean_mm"],
     )
+
+
+def test_soles_far_below_the_floor_are_a_caveat():
+    """The session stage's soles 32 mm below z = 0 (Demo_MultiPerson's woman, beside
+    the treadmill) are more than shadow explains: the run says so; the studio's
+    deepest (8.4 mm), soles above the floor and no session stage are not."""
+    records = _records(9, 9, persons=1)
+    for depth in (None, 0.0, -8.4, -15.0):
+        assert run_caveats(records, NAMES, sole_depth_mm=depth) == ()
+    (caveat,) = run_caveats(records, NAMES, sole_depth_mm=-31.8)
+    assert caveat.code == "floor" and caveat.frames == ()
+    assert caveat.message.startswith("the fitted soles stood 32 mm below the calibration's floor")
+    assert "not read from the floor (32 mm less)" in caveat.message

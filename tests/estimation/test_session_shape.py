@@ -28,7 +28,7 @@ from bodymetry.estimation.session_shape import (
     fit_session_shape,
     prior_pull,
 )
-from bodymetry.estimation.standing_height import lowest_points
+from bodymetry.estimation.standing_height import MAX_SOLE_DEPTH, lowest_points
 from bodymetry.studio.rig import studio_rig
 
 #: The true body of the synthetic session (shape space in standard deviations).
@@ -371,6 +371,7 @@ def test_soles_in_the_floor_read_the_height_from_the_floor(scene):
         )
         back = SessionShape.from_json(floor.to_json())
         assert back.floor_height and back.floor_mm == pytest.approx(floor.floor_mm, abs=0.01)
+        assert floor.floor_applied and back.floor_applied and not canonical.floor_applied
     (depth_clean, err_clean, canon_clean), (depth_shadow, err_shadow, canon_shadow) = (
         results["clean"],
         results["shadowed"],
@@ -382,6 +383,30 @@ def test_soles_in_the_floor_read_the_height_from_the_floor(scene):
     old = {k: v for k, v in SessionShape(status="ok").to_json().items() if "floor" not in k}
     assert not SessionShape.from_json(old).floor_height
     assert np.isnan(SessionShape.from_json(old).floor_mm)
+    # A run recorded before the bound read every depth from the floor.
+    before = SessionShape(status="ok", floor_mm=-31.8, floor_height=True).to_json()
+    del before["floor_applied"]
+    assert SessionShape.from_json(before).floor_applied
+
+
+def test_soles_far_below_the_floor_keep_the_bodys_own_height():
+    """A body standing 40 mm below z = 0 (a floor lower than the calibration's) is
+    not read from the floor: its soles stand deeper than the bound, the height is
+    the fitted body's own, within the tolerance of the truth, and the run's caveat
+    says so (tests/estimation/test_caveats.py)."""
+    low = _scene(sink=0.04)
+    model, cameras = low[:2]
+    frames = _frames(low, np.random.default_rng(1))
+    config = SessionShapeConfig(iterations=4, descents=1)
+    floor = fit_session_shape(model, cameras, frames, config=config).summary
+    canonical = fit_session_shape(
+        model, cameras, frames, config=replace(config, floor_height=False)
+    ).summary
+    assert floor.ok and floor.floor_mm < -1000 * MAX_SOLE_DEPTH
+    assert floor.floor_height and not floor.floor_applied
+    assert floor.biometrics == canonical.biometrics
+    truth = measure(model, TRUE_NU[None])[0].height_mm
+    assert abs(floor.biometrics["height_mm"] - truth) < TOLERANCE["height_mm"]
 
 
 def test_the_weight_is_read_from_the_posed_bodies(scene):

@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
-from bodymetry.estimation.standing_height import from_the_floor, lowest_points, sole_depth
+from bodymetry.estimation.standing_height import (
+    MAX_SOLE_DEPTH,
+    from_the_floor,
+    lowest_points,
+    reads_from_floor,
+    sole_depth,
+)
 
 
 def test_sole_depth_known_answers():
@@ -51,3 +57,14 @@ def test_lowest_points_follow_the_body_up_and_down():
     assert low[2] == pytest.approx(low[0], abs=1e-6)
     with pytest.raises(ValueError, match="states"):
         lowest_points(model.pose_states(np.zeros((2, 5))))
+
+
+def test_the_floor_is_trusted_down_to_the_bound_only():
+    """Soles that sink a few millimetres (shadow under the shoes) read the height from
+    the floor; soles far deeper (a floor below the calibration's) and soles above it
+    do not."""
+    assert pytest.approx(0.015) == MAX_SOLE_DEPTH
+    assert reads_from_floor(-0.0084) and reads_from_floor(-MAX_SOLE_DEPTH)
+    assert not reads_from_floor(-0.0318)  # Demo_MultiPerson's woman
+    assert not reads_from_floor(0.0) and not reads_from_floor(0.03)
+    assert not reads_from_floor(float("nan"))
