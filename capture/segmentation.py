@@ -623,9 +623,17 @@ class FrameSegmenter:
         sees_all = any(ev is not None and ev.raw is not None for ev in evidence)
         bodies = self.bodies(evidence) if sees_all else None
         terms = self.geometry(evidence, bodies)
+        people = None
         if sees_all:
-            people = None
             persons = None if bodies is None else bodies.persons
+            if persons is not None and persons > 1:
+                # Background subtraction sees everyone but cannot tell apart people who
+                # touch or cross; the segmenter's detections, matched across cameras by
+                # their skeletons, can (as without a clip). The hull's split stays the
+                # answer where they find fewer than two people.
+                found = self.people(images, evidence)
+                if found is not None and len(found) > 1:
+                    people, persons = found, len(found)
         else:
             people = self.people(images, evidence)
             persons = None if people is None else len(people)
@@ -651,7 +659,7 @@ class FrameSegmenter:
                     view.flags = (*view.flags, "inconsistent")
                     view.landmarks = None
             agreement = self._agreement(views, evidence)
-            if bodies is not None and bodies.persons > 1:
+            if people is None and bodies is not None and bodies.persons > 1:
                 everyone = everyone_silhouettes(
                     self.hull,
                     bodies,

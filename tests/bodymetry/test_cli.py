@@ -580,7 +580,12 @@ def test_without_a_terminal_commands_log_progress(truncated_run: Path) -> None:
 
 
 # --- warnings ---------------------------------------------------------------------------------
-def test_numeric_warnings_go_to_the_debug_log(caplog, capsys) -> None:
+def test_numeric_warnings_go_to_the_debug_log(caplog, capsys, monkeypatch) -> None:
+    # Only pytest's own handlers: a command run by an earlier test leaves its stderr
+    # handler on the root logger, which caplog's DEBUG level would open up.
+    root = logging.getLogger()
+    own = [h for h in root.handlers if type(h).__module__.startswith("_pytest")]
+    monkeypatch.setattr(root, "handlers", own)
     caplog.set_level(logging.DEBUG)
     with warnings.catch_warnings():
         warnings.simplefilter("always")

@@ -15,6 +15,7 @@ import pytest
 from tiny_run import TINY_TRAIN, tiny_session, tiny_train_overrides
 
 from bodymetry.capture.session import load_session
+from bodymetry.cli.common import EXIT_CAVEATS
 from bodymetry.errors import InputError
 from bodymetry.estimation.records import FrameArrays, FrameRecord
 from bodymetry.estimation.run_config import ProcessConfig
@@ -215,7 +216,9 @@ def test_sigkill_of_the_parent_leaves_no_worker_and_the_rerun_completes(finished
     done_before = len(list(frames.glob("*.json")))
     assert done_before < 5
     rerun = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
-    assert rerun.returncode == 0, rerun.stderr[-2000:]
+    # The tiny models' rough fits may state caveats (status 5), e.g. soles deep in
+    # the floor; the run completes either way.
+    assert rerun.returncode in (0, EXIT_CAVEATS), rerun.stderr[-2000:]
     results = RunResults.read(out / "results.json")
     assert len(results.frames) == 5
     for record in results.frames:  # every frame whole: record, arrays and (if fitted) mesh

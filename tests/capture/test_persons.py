@@ -11,6 +11,7 @@ from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.capture.background import BackgroundModel
 from bodymetry.capture.consistency import HullConfig, VisualHull
 from bodymetry.capture.fusion import FusionConfig
+from bodymetry.capture.people import Sighting
 from bodymetry.capture.persons import (
     TRACK_GATE,
     PersonObservation,
@@ -254,3 +255,25 @@ def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
         assert seen.views == 4 and seen.landmarks == (None,) * 4 and seen.source == "hull"
     _, _, _, persons, people = frame(images({(0.0, 0.0): 1.7}))
     assert persons == 1 and people == ()
+    # With the segmenter's people matched across cameras by their skeletons (as
+    # without a clip), those are the frame's persons: they tell apart people who
+    # touch or cross, which the hull's split cannot. Fewer than two: the split stays.
+    told = tuple(
+        Sighting(np.array([x, 0.0, 1.0]), (None,) * len(rig), (None,) * len(rig), (False,) * 4)
+        for x in (-0.6, 0.6)
+    )
+    asked = []
+
+    def segmenter_people(imgs, evidence):
+        asked.append(len(imgs))
+        return list(told[: answer[0]])
+
+    answer = [2]
+    frame.people = segmenter_people
+    _, _, _, persons, people = frame(images(two))
+    assert persons == 2 and people == told and asked == [len(rig)]
+    answer[0] = 1
+    _, _, _, persons, people = frame(images(two))
+    assert len(people) == 2 and all(p.source == "hull" for p in people)
+    _, _, _, persons, people = frame(images({(0.0, 0.0): 1.7}))
+    assert persons == 1 and people == () and len(asked) == 2  # one body: not asked
