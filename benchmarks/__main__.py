@@ -40,6 +40,7 @@ REPORTS = {
     "shape_space": "benchmarks.bench_shape_space",
     "standing_shape": "benchmarks.bench_standing_shape",
     "thin_parts": "benchmarks.bench_thin_parts",
+    "two_persons": "benchmarks.bench_two_persons",
 }
 
 

@@ -474,7 +474,13 @@ class RunResults:
         so an older ``results.json`` gets them too); :meth:`for_person` for another's."""
         outline = self.outline
         shape = self.session_shape
-        floor = shape.floor_mm if shape is not None and shape.ok and shape.floor_height else None
+        # Soles the floor reading did not trust (a file made before the bound read every
+        # depth from the floor, as its summary says; `process` makes it again).
+        floor = (
+            shape.floor_mm
+            if shape is not None and shape.ok and shape.floor_height and not shape.floor_applied
+            else None
+        )
         return run_caveats(
             self.frames,
             self.session.cameras,

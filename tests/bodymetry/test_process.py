@@ -748,3 +748,21 @@ def test_a_camera_off_its_video_is_registered_and_the_frames_fitted_again(
     again = process_module.process_session(session.folder, out, _config(base))
     assert again.summary == registered.summary
     assert again.warnings == registered.warnings
+
+
+def test_soles_the_floor_reading_did_not_trust_are_a_caveat_of_the_run(run):
+    """RunResults.caveats names the floor where the session stage kept the body's own
+    height (soles deeper than the bound), not where it read the height from the floor."""
+    alone = run[2]
+    shape = alone.session_shape
+    assert shape is not None and shape.ok
+
+    def codes(**floor):
+        changed = dataclasses.replace(shape, **floor)
+        return [c.code for c in alone.with_person(session_shape=changed).caveats]
+
+    assert "floor" in codes(floor_mm=-31.8, floor_height=True, floor_applied=False)
+    assert "floor" not in codes(floor_mm=-8.4, floor_height=True, floor_applied=True)
+    # A file made before the bound read its -31.8 mm from the floor, and says so.
+    assert "floor" not in codes(floor_mm=-31.8, floor_height=True, floor_applied=True)
+    assert "floor" not in codes(floor_mm=-31.8, floor_height=False, floor_applied=False)

@@ -1,0 +1,98 @@
+"""Two people measured end to end (issue 29): each person's session stage against their truth.
+
+Renders the two-person studio sessions of ``python -m benchmarks person_tracks``
+(:func:`benchmarks.bench_person_tracks.session`: ``bodymetry synth OUT --people 2
+--seed S --rig-seed 5``, with its empty-scene clip, 8 kept frames; the other
+person walks past the subject and crosses it in some cameras), runs
+``bodymetry process`` on each with the default settings and ``bodymetry
+evaluate`` (every person scored against the studio person where they stood),
+and reports per person:
+
+- the frames measured of the kept frames;
+- the session stage's error in height, arm span and weight against the
+  person's truth, and whether each is within issue 15's targets
+  (:data:`benchmarks.bench_pipeline.SESSION_TARGETS`: 10 mm, 15 mm, 1.5 kg);
+- the caveats the run states for them, and the mean fit IoU.
+
+``two_persons`` is a report (run only when named): ``python -m benchmarks
+two_persons``. Sessions and runs go to ``BODYMETRY_BENCH_PERSONS_DIR``
+(default a temporary folder; about 5 minutes a session on 2 cores).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from benchmarks.bench_person_tracks import SEEDS, session
+from benchmarks.bench_pipeline import SESSION_TARGETS
+from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.run_files import RunResults
+from bodymetry.process import process_session
+from bodymetry.review.evaluation import evaluate_persons
+
+
+def score_run(run: Path) -> list[dict]:
+    """Each person of a processed two-person run against their own truth."""
+    results = RunResults.read(run / "results.json")
+    out = []
+    for evaluation in evaluate_persons(run, workers=1):
+        person = results.for_person(evaluation.person or 0)
+        errors = {
+            key: (
+                None
+                if "session" not in evaluation.table[key]
+                or evaluation.table[key]["session"].mean is None
+                else round(evaluation.table[key]["session"].mean - evaluation.actual[key], 2)
+            )
+            for key in SESSION_TARGETS
+        }
+        out.append(
+            {
+                "person": evaluation.person,
+                "truth_person": evaluation.truth_person,
+                "frames_measured": evaluation.frames,
+                "frames_kept": len(person.frames),
+                "actual": {k: round(evaluation.actual[k], 1) for k in SESSION_TARGETS},
+                "session_error": errors,
+                "within": {
+                    k: v is not None and abs(v) <= SESSION_TARGETS[k] for k, v in errors.items()
+                },
+                "silhouette_iou_mean": round(evaluation.silhouette_iou_mean, 4),
+                "caveats": [c.code for c in person.caveats],
+            }
+        )
+    return out
+
+
+def run(**_: bool) -> dict:
+    base = os.environ.get("BODYMETRY_BENCH_PERSONS_DIR")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(base) if base else Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        sessions = {}
+        for seed in SEEDS:
+            where = session(folder, seed)
+            out = folder / f"two_persons_run_seed{seed}"
+            t0 = time.perf_counter()
+            process_session(where, out, ProcessConfig(), restart=True)
+            sessions[f"seed{seed}"] = {
+                "persons": score_run(out),
+                "seconds": round(time.perf_counter() - t0, 1),
+            }
+    persons = [p for s in sessions.values() for p in s["persons"]]
+    return {
+        "setup": (
+            f"two-person studio sessions (synth --people 2, seeds {list(SEEDS)}, --rig-seed 5, "
+            "with their empty-scene clips, 8 kept frames each), bodymetry process with the "
+            "default settings, bodymetry evaluate per person"
+        ),
+        "targets": SESSION_TARGETS,
+        "sessions": sessions,
+        "summary": {
+            "persons": len(persons),
+            "within_every_target": sum(all(p["within"].values()) for p in persons),
+        },
+    }
