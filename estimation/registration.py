@@ -40,6 +40,7 @@ from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.landmarks import sparsest_offsets
 from bodymetry.errors import InputError
 from bodymetry.fileio import read_json_object, write_json_atomic
+from bodymetry.settings import from_jsonable
 
 __all__ = [
     "REGISTRATION_FORMAT",
@@ -301,22 +302,11 @@ def read_registration(path: Path) -> list[CameraShift]:
         raise InputError(f"{path}: 'cameras' must be a list")
     out = []
     for i, entry in enumerate(cameras):
-        try:
-            shift = CameraShift(
-                str(entry["camera"]),
-                float(entry["dx"]),
-                float(entry["dy"]),
-                float(entry["seen_dx"]),
-                float(entry["seen_dy"]),
-                int(entry["frames"]),
-                float(entry["iou_before"]),
-                float(entry["iou_after"]),
-                float(entry["agreement"]),
-                bool(entry["applied"]),
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{path}: cameras[{i}]: {exc!r}") from exc
+        where = f"{path}: cameras[{i}]"
+        if not isinstance(entry, dict):
+            raise InputError(f"{where}: expected an object, got {entry!r}")
+        shift = from_jsonable(CameraShift, entry, where)
         if not (np.isfinite(shift.dx) and np.isfinite(shift.dy)):
-            raise InputError(f"{path}: cameras[{i}]: offsets must be finite")
+            raise InputError(f"{where}: offsets must be finite")
         out.append(shift)
     return out
