@@ -538,7 +538,8 @@ def _at_average(
     # Posed once at full resolution: the soles' depth and the volumes read the same bodies.
     posed = body.pose_states(np.stack([w.y for w in work]))
     depth, depth_se = sole_depth(lowest_points(posed))
-    if config.floor_height and reads_from_floor(depth):
+    floor_applied = config.floor_height and reads_from_floor(depth)
+    if floor_applied:
         bios, bio_se = from_the_floor(bios, bio_se, depth, depth_se)
         log.info("session shape: soles %.1f mm in the floor; height read from it", -1e3 * depth)
     elif config.floor_height and depth < 0:
@@ -582,7 +583,7 @@ def _at_average(
         prior_pull=prior_pull(body, nu, data_h, stage.prior, stage.density),
         floor_mm=depth * 1000.0,
         floor_height=config.floor_height,
-        floor_applied=config.floor_height and reads_from_floor(depth),
+        floor_applied=floor_applied,
         canonical_weight_kg=canonical_weight,
         posed_weight=config.posed_weight,
     )
