@@ -44,7 +44,7 @@ from bodymetry.capture.fusion import (
 )
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
-from bodymetry.capture.masks import CleanupConfig, clean_mask, thin_parts
+from bodymetry.capture.masks import CleanupConfig, clean_mask, grown_mask, thin_parts
 from bodymetry.capture.people import Sighting, sighting_of, sightings
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
@@ -62,6 +62,10 @@ log = logging.getLogger(__name__)
 
 #: Height above the floor (metres) from which the hull's voxels give the body's footprint.
 KNEE_HEIGHT = 0.5
+#: With a clip and one body in the hull, the segmenter is asked for everyone where, in
+#: two views or more, the changed pixels outside its person (grown by ``hide_margin``)
+#: are more than this share of its person: someone else stands where the hull does.
+SECOND_PERSON_SHARE = 0.3
 
 __all__ = [
     "CAPTURE_METHODS",
@@ -553,6 +557,25 @@ class FrameSegmenter:
             for c in range(len(evidence))
         ]
 
+    def _more_than_one(
+        self, evidence: Sequence[ViewEvidence | None], terms: Sequence[GeometryTerms | None]
+    ) -> bool:
+        """Whether the hull's one body may be two people standing close: in at least
+        two views, background subtraction's person pixels where the hull stands hold
+        more than :data:`SECOND_PERSON_SHARE` of the segmenter's person again outside
+        it (two people half a metre apart merge into one hull body, and its split
+        looks for two heads 0.45 m apart)."""
+        if self.segmenter is None:
+            return False
+        views = 0
+        for ev, term in zip(evidence, terms, strict=True):
+            if ev is None or ev.raw is None or ev.found is None or term is None:
+                continue
+            found = grown_mask(ev.found, self.config.person.hide_margin)
+            rest = np.count_nonzero(ev.raw & term.hull_any & ~found)
+            views += rest > SECOND_PERSON_SHARE * np.count_nonzero(ev.found)
+        return views >= 2
+
     def features(
         self, c: int, ev: ViewEvidence, terms: GeometryTerms | None
     ) -> tuple[np.ndarray, str]:
@@ -626,7 +649,7 @@ class FrameSegmenter:
         people = None
         if sees_all:
             persons = None if bodies is None else bodies.persons
-            if persons is not None and persons > 1:
+            if persons is not None and (persons > 1 or self._more_than_one(evidence, terms)):
                 # Background subtraction sees everyone but cannot tell apart people who
                 # touch or cross; the segmenter's detections, matched across cameras by
                 # their skeletons, can (as without a clip). The hull's split stays the

@@ -10,8 +10,9 @@ from silhouette_shapes import cylinder_mask
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.capture.background import BackgroundModel
 from bodymetry.capture.consistency import HullConfig, VisualHull
-from bodymetry.capture.fusion import FusionConfig
+from bodymetry.capture.fusion import FusionConfig, GeometryTerms
 from bodymetry.capture.people import Sighting
+from bodymetry.capture.person import Person
 from bodymetry.capture.persons import (
     TRACK_GATE,
     PersonObservation,
@@ -22,7 +23,7 @@ from bodymetry.capture.persons import (
     split_hull,
     track_persons,
 )
-from bodymetry.capture.segmentation import CaptureConfig, FrameSegmenter
+from bodymetry.capture.segmentation import CaptureConfig, FrameSegmenter, ViewEvidence
 from bodymetry.errors import InputError
 from bodymetry.studio.rig import look_at, studio_rig
 
@@ -277,3 +278,28 @@ def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
     assert len(people) == 2 and all(p.source == "hull" for p in people)
     _, _, _, persons, people = frame(images({(0.0, 0.0): 1.7}))
     assert persons == 1 and people == () and len(asked) == 2  # one body: not asked
+
+
+def test_one_hull_body_holding_a_second_person_asks_the_segmenter():
+    """Two people half a metre apart merge into one hull body; where background
+    subtraction's person pixels hold a second person-sized blob beside the
+    segmenter's person in two views, the segmenter is asked for everyone."""
+    h, w = 120, 160
+    a, b = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    a[20:110, 40:60] = True
+    b[25:110, 75:95] = True
+    person = Person(a.astype(np.float32), np.full((33, 3), np.nan))
+
+    def evidence(raw):
+        return ViewEvidence(raw, np.zeros((h, w), bool), None, None, person)
+
+    terms = GeometryTerms(a | b, a | b)
+    frame = FrameSegmenter([None, None], [(w, h)] * 2, CaptureConfig(method="background"),
+                           None, None, None)  # fmt: skip
+    assert not frame._more_than_one([evidence(a | b)] * 2, [terms] * 2)  # no segmenter
+    frame.segmenter = object()
+    assert frame._more_than_one([evidence(a | b)] * 2, [terms] * 2)
+    assert not frame._more_than_one([evidence(a | b), evidence(a)], [terms] * 2)  # one view
+    assert not frame._more_than_one([evidence(a)] * 2, [terms] * 2)  # the person alone
+    # Changed pixels outside where the hull stands (a bystander) do not count.
+    assert not frame._more_than_one([evidence(a | b)] * 2, [GeometryTerms(a, a)] * 2)
