@@ -736,8 +736,7 @@ def test_a_camera_off_its_video_is_registered_and_the_frames_fitted_again(
     registered = process_module.process_session(session.folder, out, _config(base))
     shifts = {s.camera: s for s in read_registration(out / "registration.json")}
     assert shifts["cam_01"].applied and -6.5 < shifts["cam_01"].dy < -3.0, shifts["cam_01"]
-    own = {n: np.hypot(s.dx, s.dy) for n, s in shifts.items()}
-    assert own["cam_01"] > 3 * max(v for n, v in own.items() if n != "cam_01"), own
+    assert [n for n, s in shifts.items() if s.applied] == ["cam_01"], shifts
     run_calib = load_calibration(out / "calibration.yaml")
     assert abs(run_calib[1].K[1, 2] - calib[1].K[1, 2]) < 1.5  # about where it belongs
     assert any("'cam_01'" in w and "fitted again" in w for w in registered.warnings)
