@@ -106,6 +106,17 @@ def test_the_body_meeting_a_camera_halfway_is_taken_out():
     assert [s.applied for s in found] == [False, False, True, False]
 
 
+def test_two_cameras_off_are_both_moved_their_way_but_not_the_whole_way():
+    """The sparsest choice assumes most cameras are right: with two of four off, it
+    shares their offsets out ((3.0, 0) and (0, -2.2) px read (1.7, 0.4) and (1.2, -1.8)
+    px), so both are moved towards their calibration, not onto it (the run
+    registers once)."""
+    rng = np.random.default_rng(7)
+    both = _shifts(rng, [(0, 0), (3.0, 0), (0, 0), (0, -2.2)])
+    assert [s.applied for s in both] == [False, True, False, True]
+    assert 1.0 < both[1].dx < 3.0 + TOL_PX and -2.2 - TOL_PX < both[3].dy < -1.0
+
+
 def test_a_registered_camera_and_a_small_offset_are_left_alone():
     rng = np.random.default_rng(2)
     found = _shifts(rng, [(0, 0), (0.4, 0), (0, 0), (0, 0)], n=5)
