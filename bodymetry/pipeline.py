@@ -921,11 +921,11 @@ def _registered(
         if s is None:
             shifted.append(cam)
             continue
-        # The offsets are working-resolution pixels; the calibration is at the camera's own.
-        scale = scales[cam.name]
-        kx = scale.calibrated_size[0] / scale.size[0]
-        ky = scale.calibrated_size[1] / scale.size[1]
-        shifted.append(shifted_camera(cam, s.dx * kx, s.dy * ky))
+        # The offsets are working-resolution pixels; the working camera is the calibrated
+        # one scaled by 1/k (Camera.scaled), so a working pixel is exactly k of its own
+        # (not the ratio of the rounded image sizes).
+        k = scales[cam.name].factor
+        shifted.append(shifted_camera(cam, s.dx * k, s.dy * k))
     calibrated = CameraGroup(shifted)
     warnings = tuple(
         f"{by_name[name].describe()}: its principal point was shifted by that offset and "
