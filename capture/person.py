@@ -28,7 +28,7 @@ import importlib.util
 import logging
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -87,10 +87,16 @@ class Person:
     landmarks : (33, 3) float
         Per :data:`LANDMARKS`: pixel x, pixel y, and the model's visibility
         score in [0, 1] (NaN when the landmark model gave none).
+    unseen : (H, W) bool or None
+        Pixels the detector could not see when it found this person: the people
+        found before, grown by a margin and painted over
+        (:meth:`PersonSegmenter.detect_others`); None where it saw the whole
+        image.
     """
 
     probability: np.ndarray
     landmarks: np.ndarray
+    unseen: np.ndarray | None = field(default=None, repr=False)
 
     def mask(self, threshold: float) -> np.ndarray:
         """(H, W) bool: the pixels whose probability exceeds ``threshold``."""
@@ -288,7 +294,7 @@ class PersonSegmenter:
         -------
         list of Person
             At most ``max_persons - 1``; their probability is zero where an
-            earlier person was hidden.
+            earlier person was hidden (:attr:`Person.unseen`).
         """
         if found is None or self.config.max_persons < 2:
             return []
@@ -316,10 +322,15 @@ class PersonSegmenter:
                 # mask 4 % of his height too wide all round, fit IoU 0.59).
                 if k > 0:
                     rest = np.where(hidden, np.float32(0), person.probability)
-                    people[k] = Person(np.maximum(people[k].probability, rest), people[k].landmarks)
+                    merged = np.maximum(people[k].probability, rest)
+                    people[k] = replace(people[k], probability=merged)
                 break
             people.append(
-                Person(np.where(hidden, np.float32(0), person.probability), person.landmarks)
+                Person(
+                    np.where(hidden, np.float32(0), person.probability),
+                    person.landmarks,
+                    hidden.copy(),
+                )
             )
         return people[1:]
 

@@ -195,3 +195,42 @@ def test_limbs_a_camera_barely_sees_are_drawn_where_the_others_see_them():
     legs[: rows[0] + (rows[-1] - rows[0]) // 2] = False
     assert legs.sum() > 1000
     assert seen_a.masks[0][legs].mean() < 0.2 and seen_b.masks[0][legs].mean() > 0.8
+
+
+def test_what_a_detector_could_not_see_is_unknown_not_background():
+    from bodymetry.capture.masks import grown_mask
+
+    cam = RIG[0]
+    away = -cam.center[:2] / np.linalg.norm(cam.center[:2])
+    side = np.array([-away[1], away[0]])
+    a, b = tuple(-0.5 * side), tuple(0.5 * side)
+    detections = _detections([a, b])
+    # Camera 0's segmenter: A first, whose mask also holds a bit of B (a hand); B
+    # found next with A painted over (grown by the margin), which hid more of B
+    # than the bit (Demo_MultiPerson, frame 30, cam03).
+    first, second = detections[0]
+    whole_b = second.mask(0.5)
+    ys, xs = np.nonzero(whole_b)
+    bit = np.zeros_like(whole_b)
+    cy, cx = int(np.median(ys)), int(np.median(xs))
+    bit[cy - 3 : cy + 3, cx - 3 : cx + 3] = True
+    first = Person((first.mask(0.5) | bit).astype(np.float32), first.landmarks)
+    painted = grown_mask(first.mask(0.5), 0.04)
+    second = Person(np.where(painted, 0, second.probability).astype(np.float32),
+                    second.landmarks, painted)  # fmt: skip
+    detections[0] = [first, second]
+    floor = VisualHull(RIG).floor_box
+    people = sightings(RIG, detections, 0.5, floor)
+    seen_a, seen_b = sorted(people, key=lambda p: np.count_nonzero(p.masks[0] & whole_b))
+    hole = whole_b & ~seen_b.masks[0]
+    assert hole.sum() > 4 * bit.sum()  # the margin hid more than the bit
+    hidden = seen_b.hidden[0]
+    assert hidden is not None and hidden[hole].mean() > 0.9
+    assert not (hidden & seen_b.masks[0]).any() and not (hidden & seen_a.masks[0]).any()
+    # Not someone hiding them: the view stays in their fit; A, found first, saw it all.
+    assert not seen_b.occluded[0] and seen_a.hidden[0] is None
+    # A detection that saw the whole image has nothing unknown.
+    detections[0] = [first, Person(second.probability, second.landmarks)]
+    again = sightings(RIG, detections, 0.5, floor)
+    _, plain_b = sorted(again, key=lambda p: np.count_nonzero(p.masks[0] & whole_b))
+    assert plain_b.hidden[0] is None

@@ -12,6 +12,7 @@ from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.background import read_clip
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
+    Person,
     PersonConfig,
     PersonSegmenter,
     segmenter_available,
@@ -184,7 +185,6 @@ class _ScriptedSegmenter(PersonSegmenter):
 
 def test_a_duplicate_detection_of_the_painted_blob_adds_no_halo():
     from bodymetry.capture.masks import grown_mask
-    from bodymetry.capture.person import Person
 
     h, w = 200, 240
     rng = np.random.default_rng(3)
@@ -211,3 +211,34 @@ def test_a_duplicate_detection_of_the_painted_blob_adds_no_halo():
     # Her mask stays her own detection: nothing of the painted band is added.
     assert (mask & halo).sum() == 0
     assert (mask == woman).all()
+
+
+def test_a_later_detection_says_what_its_detector_could_not_see():
+    from bodymetry.capture.masks import grown_mask
+
+    h, w = 200, 240
+    rng = np.random.default_rng(4)
+    image = rng.integers(0, 60, (h, w, 3), dtype=np.uint8)
+    man, woman = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    man[20:180, 30:70] = True
+    woman[30:170, 140:175] = True
+    # The man's mask also holds a bit of the woman's hand (Demo_MultiPerson, frame 30,
+    # cam03): painted over with him, grown by the margin, it hides more of her.
+    hand = np.zeros((h, w), bool)
+    hand[100:108, 150:158] = True
+    lm = np.full((33, 3), np.nan)
+
+    def her(work):
+        fill = np.median(work.reshape(-1, 3), axis=0)
+        painted = np.all(work == fill, axis=2)
+        return Person((woman & ~painted).astype(np.float32), lm)
+
+    seg = _ScriptedSegmenter([her, None])
+    first = Person((man | hand).astype(np.float32), lm)
+    assert first.unseen is None  # the first look sees the whole image
+    (found,) = seg.detect_others(image, first)
+    painted = grown_mask(man | hand, seg.config.hide_margin)
+    assert found.unseen is not None and (found.unseen == painted).all()
+    # Her mask has a hole where she was painted over; the hole is what was unseen.
+    hole = woman & ~found.mask(0.5)
+    assert hole.sum() > 4 * hand.sum() and (hole <= found.unseen).all()
