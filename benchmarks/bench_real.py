@@ -41,7 +41,7 @@ from bodymetry.cli.common import EXIT_CAVEATS
 from bodymetry.estimation.fit import shared_body_model
 from bodymetry.estimation.run_files import RunResults
 from bodymetry.review.report import compute_overlays
-from bodymetry.review.run_data import frame_views, load_run
+from bodymetry.review.run_data import load_run, run_frame_views
 
 WHEEL = "pose2sim==0.10.49"
 DEMO = "Pose2Sim/Demo_SinglePerson"
@@ -154,36 +154,32 @@ def overlay_sheet(run: Path, frames: int = 3) -> np.ndarray:
 
 #: Each person's colour (BGR) in :func:`people_sheet`: orange, cyan, green.
 PERSON_COLOURS = ((0, 150, 255), (255, 200, 0), (80, 200, 60))
-#: The two-person overlay of the README (``--person 0`` and ``--person 1`` runs).
+#: The two-person overlay of the README (one ``process`` run measuring both).
 PEOPLE_OVERLAY = ROOT / "docs" / "images" / "real-pose2sim-two-people.jpg"
 
 
-def people_sheet(runs: list[Path], frames: list[int], width: int = 320) -> np.ndarray:
-    """Each run's fitted body (one run per person, ``process --person N``) over the
-    camera images, in the person's colour (:data:`PERSON_COLOURS`, with its
-    outline), a row per frame of ``frames`` and a column per camera.
+def people_sheet(run: Path, frames: list[int], width: int = 320) -> np.ndarray:
+    """Every measured person's fitted body in a run over the camera images, each
+    in their colour (:data:`PERSON_COLOURS` by their place in ``results.json``, with
+    a white outline), a row per frame of ``frames`` and a column per camera; a
+    frame a person was not measured in shows nothing of them.
 
     Returns
     -------
     (rows * H, C * width, 3) uint8 BGR
     """
-    body = shared_body_model()
-    views = [
-        {v.frame: v for v in frame_views(load_run(r), body, frames=frames, images=k == 0)}
-        for k, r in enumerate(runs)
-    ]
+    data = load_run(run)
+    order = {ident: k for k, ident in enumerate(data.person_ids)}
     rows = []
-    for frame in frames:
-        base = views[0][frame]
+    for views in run_frame_views(data, shared_body_model(), frames=frames):
         tiles = []
-        for c, image in enumerate(base.images):
+        for c, image in enumerate(views[0].images):
             out = image.copy()
-            for k, per_run in enumerate(views):
-                view = per_run.get(frame)
-                model = None if view is None or view.model is None else view.model[c]
+            for view in views:
+                model = None if view.model is None else view.model[c]
                 if model is None or not view.record.ok:
                     continue
-                colour = np.array(PERSON_COLOURS[k % len(PERSON_COLOURS)], float)
+                colour = np.array(PERSON_COLOURS[order[view.person] % len(PERSON_COLOURS)], float)
                 out[model] = (0.45 * out[model] + 0.55 * colour).astype(np.uint8)
                 contours, _ = cv2.findContours(
                     model.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE
@@ -191,8 +187,8 @@ def people_sheet(runs: list[Path], frames: list[int], width: int = 320) -> np.nd
                 cv2.drawContours(out, contours, -1, (255, 255, 255), 1, cv2.LINE_AA)
             h, w = out.shape[:2]
             small = cv2.resize(out, (width, round(h * width / w)), interpolation=cv2.INTER_AREA)
-            cv2.putText(small, f"frame {frame}", (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
-                        (255, 255, 255), 1, cv2.LINE_AA)  # fmt: skip
+            cv2.putText(small, f"frame {views[0].frame}", (6, 18), cv2.FONT_HERSHEY_SIMPLEX,
+                        0.5, (255, 255, 255), 1, cv2.LINE_AA)  # fmt: skip
             tiles.append(small)
         height = max(t.shape[0] for t in tiles)
         rows.append(
