@@ -234,3 +234,17 @@ def test_what_a_detector_could_not_see_is_unknown_not_background():
     again = sightings(RIG, detections, 0.5, floor)
     _, plain_b = sorted(again, key=lambda p: np.count_nonzero(p.masks[0] & whole_b))
     assert plain_b.hidden[0] is None
+
+
+def test_the_nearer_person_s_whole_torso_is_theirs():
+    from bodymetry.capture.people import TORSO
+
+    a, b = _behind(RIG[0], 0.05)  # B right behind A as camera 0 sees them
+    front, back = _detections([tuple(a), tuple(b)])[0]
+    depths = [np.linalg.norm([*a, 1.0] - RIG[0].center), np.linalg.norm([*b, 1.0] - RIG[0].center)]
+    got_a, got_b = partition([front, back], 0.5, depths)
+    quad = np.zeros_like(got_a, np.uint8)
+    cv2.fillPoly(quad, [np.round(front.landmarks[list(TORSO), :2]).astype(np.int32)], 1)
+    torso = cv2.erode(quad, np.ones((3, 3), np.uint8)) > 0
+    assert torso.sum() > 500
+    assert got_a[torso].all() and not got_b[torso].any()
