@@ -10,6 +10,7 @@ import pytest
 
 from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.background import read_clip
+from bodymetry.capture.masks import grown_mask
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
     Person,
@@ -183,15 +184,20 @@ class _ScriptedSegmenter(PersonSegmenter):
         return answer(image) if callable(answer) else answer
 
 
-def test_a_duplicate_detection_of_the_painted_blob_adds_no_halo():
-    from bodymetry.capture.masks import grown_mask
-
+def _man_and_woman(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A (200, 240, 3) noise image and the (200, 240) bool masks of a man on its
+    left and a woman on its right, for a scripted segmenter."""
     h, w = 200, 240
-    rng = np.random.default_rng(3)
-    image = rng.integers(0, 60, (h, w, 3), dtype=np.uint8)
+    image = np.random.default_rng(seed).integers(0, 60, (h, w, 3), dtype=np.uint8)
     man, woman = np.zeros((h, w), bool), np.zeros((h, w), bool)
     man[20:180, 30:70] = True
     woman[30:170, 140:175] = True
+    return image, man, woman
+
+
+def test_a_duplicate_detection_of_the_painted_blob_adds_no_halo():
+    image, man, woman = _man_and_woman(3)
+    w = image.shape[1]
     lm = np.full((33, 3), np.nan)
 
     def blob(work):
@@ -214,17 +220,10 @@ def test_a_duplicate_detection_of_the_painted_blob_adds_no_halo():
 
 
 def test_a_later_detection_says_what_its_detector_could_not_see():
-    from bodymetry.capture.masks import grown_mask
-
-    h, w = 200, 240
-    rng = np.random.default_rng(4)
-    image = rng.integers(0, 60, (h, w, 3), dtype=np.uint8)
-    man, woman = np.zeros((h, w), bool), np.zeros((h, w), bool)
-    man[20:180, 30:70] = True
-    woman[30:170, 140:175] = True
+    image, man, woman = _man_and_woman(4)
     # The man's mask also holds a bit of the woman's hand (Demo_MultiPerson, frame 30,
     # cam03): painted over with him, grown by the margin, it hides more of her.
-    hand = np.zeros((h, w), bool)
+    hand = np.zeros_like(man)
     hand[100:108, 150:158] = True
     lm = np.full((33, 3), np.nan)
 
