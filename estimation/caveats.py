@@ -15,10 +15,11 @@ list), and says why in a sentence a user can act on:
     Fewer than :data:`MIN_MEASURED_FRAMES` frames, or fewer than
     :data:`MIN_MEASURED_SHARE` of the kept frames, were measured.
 ``view_left_out``
-    A camera's view was left out as ``unreliable`` in at least
-    :data:`MAX_LEFT_OUT_SHARE` of the kept frames: the measurements rest on the
-    other views, and whatever made that view disagree (a reflection, a moved
-    camera, a second person) may be in them too.
+    A camera's view was left out as ``unreliable`` or ``occluded`` (another
+    person hides them there) in at least :data:`MAX_LEFT_OUT_SHARE` of the kept
+    frames: the measurements rest on the other views, and whatever made that
+    view disagree (a reflection, a moved camera, a second person) may be in them
+    too.
 ``clothing``
     The session stage's outline check found the observed outline wider than
     the body's around the trunk or above the head (loose clothing or hair):

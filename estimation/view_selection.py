@@ -1,4 +1,4 @@
-"""Which views of a frame the fit uses, and the views left out as unreliable.
+"""Which views of a frame the fit uses, and the views left out (unreliable or occluded).
 
 One decision, made here for every consumer of a frame's per-view silhouettes
 (the per-frame fit and its rescue, the session stage and its outline check,
@@ -10,7 +10,9 @@ capture did not flag it with one of :data:`LEAVE_OUT_FLAGS`.
 the frame's other evidence (the other views' hull and the learned segmenter;
 :attr:`bodymetry.capture.segmentation.SilhouetteFrame.agreement`). Capture
 keeps such a mask as it found it, for review; the fit leaves the view out of
-that frame. :func:`left_out_views` gathers those views over a run, and
+that frame. ``occluded`` is capture's verdict that someone else hides most of a
+person in a view (or a camera missed them where someone covers them).
+:func:`left_out_views` gathers both kinds of view over a run, and
 :meth:`LeftOutView.describe` is the run's warning about each camera (the
 report lists the same).
 """
@@ -28,6 +30,7 @@ from bodymetry.estimation.records import FrameRecord
 __all__ = [
     "ABSENT",
     "LEAVE_OUT_FLAGS",
+    "LEFT_OUT_REASONS",
     "MIN_PIXELS",
     "LeftOutView",
     "blank_unusable",
@@ -45,6 +48,13 @@ MIN_PIXELS = 400
 #: (``unreliable``), or a chosen person whom someone nearer may hide in part
 #: (``occluded``: hidden pixels are unknown, not background).
 LEAVE_OUT_FLAGS = ("unreadable", "unreliable", "occluded")
+#: Why :func:`left_out_views` reports a camera: capture's flag, and the words for it.
+LEFT_OUT_REASONS = {
+    "unreliable": "silhouette unreliable",
+    "occluded": "hidden behind another person",
+}
+
+
 #: The flag of every view of a frame in which a person told apart from others was
 #: not found (their fit records why instead of "no silhouette").
 ABSENT = "absent"
@@ -80,7 +90,8 @@ def usable_camera_frames(records: Sequence[FrameRecord], names: Sequence[str]) -
 
 @dataclass(frozen=True)
 class LeftOutView:
-    """A camera whose view was left out as ``unreliable`` in some kept frames.
+    """A camera whose view was left out (``unreliable`` or ``occluded``) in some kept
+    frames.
 
     Attributes
     ----------
@@ -92,12 +103,15 @@ class LeftOutView:
         ``frames`` that recorded one, in frame order.
     kept : int
         The run's kept frames.
+    reason : {"unreliable", "occluded"}
+        Capture's flag (:data:`LEFT_OUT_REASONS`).
     """
 
     camera: str
     frames: tuple[int, ...]
     agreement: tuple[float, ...]
     kept: int
+    reason: str = "unreliable"
 
     @property
     def agreement_text(self) -> str:
@@ -118,21 +132,33 @@ class LeftOutView:
             below = f" < {bound:.2f}" if bound is not None else ""
             detail = f" (agreement {self.agreement_text}{below})"
         return (
-            f"{self.camera}: silhouette unreliable in {len(self.frames)} of {self.kept} kept "
-            f"frames{detail}, left out of those frames' fits"
+            f"{self.camera}: {LEFT_OUT_REASONS[self.reason]} in {len(self.frames)} of "
+            f"{self.kept} kept frames{detail}, left out of those frames' fits"
         )
 
 
 def left_out_views(records: Sequence[FrameRecord], names: Sequence[str]) -> list[LeftOutView]:
-    """The cameras of ``names`` flagged ``unreliable`` in any of ``records`` (the run's
-    kept frames), in camera order; empty when no view was left out so."""
+    """The cameras of ``names`` flagged ``unreliable`` or ``occluded`` in any of
+    ``records`` (the run's kept frames), in camera order (an unreliable camera
+    first, then the same camera occluded); empty when no view was left out so.
+
+    An ``occluded`` view is one in which someone nearer hides most of the
+    person, or a camera whose segmenter did not detect them where someone else
+    covers their skeleton (:func:`bodymetry.capture.people.sightings`): a camera
+    that never saw a person leaves their measurements to the other views as
+    surely as an unreliable one does (studio two-person session of seed 31:
+    cam_03 left out of 15 of 16 frames of the person the detector missed there,
+    whose arm span read 36 mm short where the same body alone read 10 mm).
+    """
     out = []
     ordered = sorted(records, key=lambda r: r.frame)
     for name in names:
-        hit = [r for r in ordered if "unreliable" in r.flags.get(name, ())]
-        if not hit:
-            continue
-        values = [r.view_agreement.get(name) for r in hit]
-        agreement = tuple(float(v) for v in values if v is not None and math.isfinite(v))
-        out.append(LeftOutView(name, tuple(r.frame for r in hit), agreement, len(records)))
+        for reason in LEFT_OUT_REASONS:
+            hit = [r for r in ordered if reason in r.flags.get(name, ())]
+            if not hit:
+                continue
+            values = [r.view_agreement.get(name) for r in hit]
+            agreement = tuple(float(v) for v in values if v is not None and math.isfinite(v))
+            frames = tuple(r.frame for r in hit)
+            out.append(LeftOutView(name, frames, agreement, len(records), reason))
     return out

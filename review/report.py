@@ -517,12 +517,14 @@ def per_frame_rows(run: RunData) -> list[dict[str, Any]]:
 
 def left_out_rows(run: RunData) -> list[dict[str, str]]:
     """The "Views left out" list: per camera whose view capture flagged ``unreliable``
-    in some kept frames (left out of those frames' fits), its ``camera``, ``frames``
-    (how many and which) and ``agreement`` (the range of capture's agreement, "" when
-    none was recorded); empty when no view was left out."""
+    or ``occluded`` in some kept frames (left out of those frames' fits), its
+    ``camera``, ``reason`` (the flag), ``frames`` (how many and which) and
+    ``agreement`` (the range of capture's agreement, "" when none was recorded);
+    empty when no view was left out."""
     return [
         {
             "camera": view.camera,
+            "reason": view.reason,
             "frames": f"{len(view.frames)} of {view.kept} kept frames "
             f"({', '.join(map(str, view.frames))})",
             "agreement": view.agreement_text,
@@ -938,15 +940,15 @@ def _summary_lines(ctx: dict[str, Any]) -> list[str]:
 
 
 def _left_out_lines(ctx: dict[str, Any]) -> list[str]:
-    """The views left out as unreliable, in one line (none when no view was)."""
+    """The views left out as unreliable or occluded, in one line (none when no view was)."""
     if not ctx["left_out"]:
         return []
     views = "; ".join(
-        f"{v['camera']} in {v['frames']}"
+        f"{v['camera']} ({v['reason']}) in {v['frames']}"
         + (f", agreement {v['agreement']}" if v["agreement"] else "")
         for v in ctx["left_out"]
     )
-    return [f"Views left out of the fit as unreliable (capture's silhouette check): {views}."]
+    return [f"Views left out of the fit (capture's silhouette checks): {views}."]
 
 
 def _figure3_table(fig: Any, ctx: dict[str, Any]) -> None:

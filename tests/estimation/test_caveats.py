@@ -167,3 +167,20 @@ def test_soles_far_below_the_floor_are_a_caveat():
     assert caveat.code == "floor" and caveat.frames == ()
     assert caveat.message.startswith("the fitted soles stood 32 mm below the calibration's floor")
     assert "not read from the floor (32 mm less)" in caveat.message
+
+
+def test_a_camera_that_another_person_hides_in_most_frames_is_a_caveat():
+    # Studio two-person session of seed 31: the detector missed one person in cam_03 in
+    # 15 of 16 frames, the view was left out as occluded, and their arm span read 36 mm
+    # short (10 mm alone) with nothing said.
+    records = _records(6, 6)
+    for k in range(4):
+        records[k] = dataclasses.replace(records[k], flags={"cam_02": ("occluded",)})
+    (caveat,) = run_caveats(records, NAMES, told_apart=True)
+    assert caveat.code == "view_left_out" and caveat.frames == (0, 25, 50, 75)
+    assert caveat.message.startswith("cam_02: hidden behind another person in 4 of 6 kept frames")
+    assert caveat.message.endswith("the measurements rest on the other views")
+    # Hidden in 2 of 6: a warning, not a caveat.
+    for k in (2, 3):
+        records[k] = dataclasses.replace(records[k], flags={})
+    assert run_caveats(records, NAMES, told_apart=True) == ()

@@ -450,11 +450,24 @@ def test_the_views_left_out_as_unreliable_are_listed_only_when_there_are_any(
     items = re.findall(r"<li>(.*?)</li>", section[: section.index("</ul>")])
     kept = len(frames)
     listed = f"{frames[0]['frame']}, {frames[2]['frame']}"
-    assert items == [f"cam_01: 2 of {kept} kept frames ({listed}), agreement 0.61-0.74"]
+    assert items == [
+        f"cam_01 (unreliable): 2 of {kept} kept frames ({listed}), agreement 0.61-0.74"
+    ]
     # The frames table still lists the flag per frame; the PDF's summary says it in a line.
     assert "cam_01: unreliable" in html[html.index('id="frames"') :]
     (line,) = _left_out_lines({"left_out": left_out_rows(load_run(bare_run))})
-    assert line.endswith(f"cam_01 in 2 of {kept} kept frames ({listed}), agreement 0.61-0.74.")
+    assert line.endswith(
+        f"cam_01 (unreliable) in 2 of {kept} kept frames ({listed}), agreement 0.61-0.74."
+    )
+    # A view another person hides (occluded) is listed too, with no agreement.
+    frames[1]["flags"]["cam_00"] = ["occluded"]
+    (bare_run / "results.json").write_text(json.dumps(data))
+    rows = left_out_rows(load_run(bare_run))
+    assert [(r["camera"], r["reason"], r["agreement"]) for r in rows] == [
+        ("cam_00", "occluded", ""),
+        ("cam_01", "unreliable", "0.61-0.74"),
+    ]
+    assert rows[0]["frames"] == f"1 of {kept} kept frames ({frames[1]['frame']})"
 
 
 def test_caveats_head_the_report_only_when_there_are_any(bare_run, monkeypatch):
