@@ -53,8 +53,6 @@ LEFT_OUT_REASONS = {
     "unreliable": "silhouette unreliable",
     "occluded": "hidden behind another person",
 }
-
-
 #: The flag of every view of a frame in which a person told apart from others was
 #: not found (their fit records why instead of "no silhouette").
 ABSENT = "absent"
