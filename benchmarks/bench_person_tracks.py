@@ -53,15 +53,17 @@ RIG_SEED = 5
 MIN_VISIBLE = 200
 
 
-def session(folder: Path, seed: int) -> Path:
-    """Render (once) the two-person session of ``seed`` into ``folder/tracks_people2_seed<seed>``
-    (not ``people2_seed<seed>``: ``python -m benchmarks persons`` renders other subjects
-    and motions under that name, and a shared folder must not hand one the other's)."""
-    out = folder / f"tracks_people2_seed{seed}"
+def session(folder: Path, seed: int, frames: int = 200) -> Path:
+    """Render (once) the two-person session of ``seed`` (``frames`` long, a kept frame
+    every 25) into ``folder/tracks_people2_seed<seed>`` (``..._<frames>f`` when not
+    200; not ``people2_seed<seed>``: ``python -m benchmarks persons`` renders other
+    subjects and motions under that name, and a shared folder must not hand one the
+    other's)."""
+    out = folder / (f"tracks_people2_seed{seed}" + ("" if frames == 200 else f"_{frames}f"))
     if not (out / "session.yaml").is_file():
         synthesize(
             out,
-            SynthConfig(frames=200, frame_step=25, seed=seed, rig_seed=RIG_SEED, people=2),
+            SynthConfig(frames=frames, frame_step=25, seed=seed, rig_seed=RIG_SEED, people=2),
             workers=1,
             overwrite=True,
         )

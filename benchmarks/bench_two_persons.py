@@ -17,6 +17,12 @@ and reports per person:
 ``two_persons`` is a report (run only when named): ``python -m benchmarks
 two_persons``. Sessions and runs go to ``BODYMETRY_BENCH_PERSONS_DIR``
 (default a temporary folder; about 5 minutes a session on 2 cores).
+
+``python -m benchmarks two_persons --long`` (``two_persons_long.json``) renders
+sessions twice as long instead, 400 frames (16 kept), on the seeds
+:data:`LONG_SEEDS`, never used for the short ones: with 4-7 measured frames a
+person, a short session's weight moves by 1-2 kg when a few masks change
+(docs/capture.md), too much to judge a change by; about 6 minutes a session.
 """
 
 from __future__ import annotations
@@ -68,15 +74,22 @@ def score_run(run: Path) -> list[dict]:
     return out
 
 
-def run(**_: bool) -> dict:
+#: The seeds of ``--long`` (seed 31 is docs/capture.md's first 16-frame session).
+LONG_SEEDS = (31, 32, 33)
+#: Frames rendered for ``--long`` (a kept frame every 25: 16 kept).
+LONG_FRAMES = 400
+
+
+def run(long: bool = False, **_: bool) -> dict:
     base = os.environ.get("BODYMETRY_BENCH_PERSONS_DIR")
+    seeds, frames = (LONG_SEEDS, LONG_FRAMES) if long else (SEEDS, 200)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(base) if base else Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
         sessions = {}
-        for seed in SEEDS:
-            where = session(folder, seed)
-            out = folder / f"two_persons_run_seed{seed}"
+        for seed in seeds:
+            where = session(folder, seed, frames)
+            out = folder / f"two_persons_run_seed{seed}_{frames}f"
             shutil.rmtree(out, ignore_errors=True)  # today's code, not a finished run's record
             t0 = time.perf_counter()
             process_session(where, out, ProcessConfig())
@@ -87,9 +100,9 @@ def run(**_: bool) -> dict:
     persons = [p for s in sessions.values() for p in s["persons"]]
     return {
         "setup": (
-            f"two-person studio sessions (synth --people 2, seeds {list(SEEDS)}, --rig-seed 5, "
-            "with their empty-scene clips, 8 kept frames each), bodymetry process with the "
-            "default settings, bodymetry evaluate per person"
+            f"two-person studio sessions (synth --people 2, seeds {list(seeds)}, --rig-seed 5, "
+            f"--frames {frames}, with their empty-scene clips, {frames // 25} kept frames "
+            "each), bodymetry process with the default settings, bodymetry evaluate per person"
         ),
         "targets": SESSION_TARGETS,
         "sessions": sessions,
