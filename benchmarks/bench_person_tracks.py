@@ -49,17 +49,19 @@ SEEDS = (7, 8, 9)
 #: A view is "unoccluded" for a person when another person hides under this share of them.
 CLEAR_SHARE = 0.1
 RIG_SEED = 5
+#: Frames each session records (a kept frame every 25: 8 kept).
+FRAMES = 200
 #: A view scores a person's mask where the person shows at least this many true pixels.
 MIN_VISIBLE = 200
 
 
-def session(folder: Path, seed: int, frames: int = 200) -> Path:
+def session(folder: Path, seed: int, frames: int = FRAMES) -> Path:
     """Render (once) the two-person session of ``seed`` (``frames`` long, a kept frame
     every 25) into ``folder/tracks_people2_seed<seed>`` (``..._<frames>f`` when not
-    200; not ``people2_seed<seed>``: ``python -m benchmarks persons`` renders other
+    :data:`FRAMES`; not ``people2_seed<seed>``: ``python -m benchmarks persons`` renders other
     subjects and motions under that name, and a shared folder must not hand one the
     other's)."""
-    out = folder / (f"tracks_people2_seed{seed}" + ("" if frames == 200 else f"_{frames}f"))
+    out = folder / (f"tracks_people2_seed{seed}" + ("" if frames == FRAMES else f"_{frames}f"))
     if not (out / "session.yaml").is_file():
         synthesize(
             out,

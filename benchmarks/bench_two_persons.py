@@ -33,7 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.bench_person_tracks import SEEDS, session
+from benchmarks.bench_person_tracks import FRAMES, SEEDS, session
 from benchmarks.bench_pipeline import SESSION_TARGETS
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunResults
@@ -82,7 +82,7 @@ LONG_FRAMES = 400
 
 def run(long: bool = False, **_: bool) -> dict:
     base = os.environ.get("BODYMETRY_BENCH_PERSONS_DIR")
-    seeds, frames = (LONG_SEEDS, LONG_FRAMES) if long else (SEEDS, 200)
+    seeds, frames = (LONG_SEEDS, LONG_FRAMES) if long else (SEEDS, FRAMES)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(base) if base else Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
