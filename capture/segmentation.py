@@ -491,7 +491,11 @@ class FrameSegmenter:
         return self.hull.bodies(candidates)
 
     def people(
-        self, images: Sequence[np.ndarray | None], evidence: Sequence[ViewEvidence | None]
+        self,
+        images: Sequence[np.ndarray | None],
+        evidence: Sequence[ViewEvidence | None],
+        expected: int = 0,
+        foreground: Sequence[np.ndarray | None] | None = None,
     ) -> list[Sighting] | None:
         """Every person in the capture volume without a background, with their
         pixels in each camera (:func:`bodymetry.capture.people.sightings`); None
@@ -500,6 +504,9 @@ class FrameSegmenter:
         Background subtraction sees everyone; the segmenter returns one person
         per call, so each view is asked again with the people found hidden
         (:meth:`~bodymetry.capture.person.PersonSegmenter.detect_others`).
+        ``expected`` and ``foreground``: the hull's count of people and each
+        camera's silhouette of everyone, where the session has a background
+        (:func:`~bodymetry.capture.people.sightings`).
         """
         if self.hull is None or self.segmenter is None:
             return None
@@ -516,6 +523,8 @@ class FrameSegmenter:
             cfg.threshold,
             self.hull.floor_box,
             self.hull.config.min_views,
+            expected,
+            foreground,
         )
 
     def geometry(
@@ -646,6 +655,7 @@ class FrameSegmenter:
         sees_all = any(ev is not None and ev.raw is not None for ev in evidence)
         bodies = self.bodies(evidence) if sees_all else None
         terms = self.geometry(evidence, bodies)
+        views = [self._view(c, im, evidence[c], terms[c]) for c, im in enumerate(images)]
         people = None
         if sees_all:
             persons = None if bodies is None else bodies.persons
@@ -654,13 +664,18 @@ class FrameSegmenter:
                 # touch or cross; the segmenter's detections, matched across cameras by
                 # their skeletons, can (as without a clip). The hull's split stays the
                 # answer where they find fewer than two people.
-                found = self.people(images, evidence)
+                # What the detectors missed of what the background's change sees
+                # near someone is unknown to them, not background.
+                everyone = [
+                    None if ev is None or ev.raw is None else v.mask
+                    for ev, v in zip(evidence, views, strict=True)
+                ]
+                found = self.people(images, evidence, persons, everyone)
                 if found is not None and len(found) > 1:
                     people, persons = found, len(found)
         else:
             people = self.people(images, evidence)
             persons = None if people is None else len(people)
-        views = [self._view(c, im, evidence[c], terms[c]) for c, im in enumerate(images)]
         agreement: list[float | None] = [None] * len(views)
         if self.hull is not None:
             check = self.hull.check([v.mask for v in views])

@@ -197,23 +197,32 @@ def test_limbs_a_camera_barely_sees_are_drawn_where_the_others_see_them():
     assert seen_a.masks[0][legs].mean() < 0.2 and seen_b.masks[0][legs].mean() > 0.8
 
 
+def _side_by_side() -> list[list[Person]]:
+    """:func:`_detections` of A and B 1 m apart across camera 0's line of sight."""
+    away = -RIG[0].center[:2] / np.linalg.norm(RIG[0].center[:2])
+    side = np.array([-away[1], away[0]])
+    return _detections([tuple(-0.5 * side), tuple(0.5 * side)])
+
+
+def _block(mask: np.ndarray, half: int) -> np.ndarray:
+    """(H, W) bool: a square ``2 * half`` pixels wide at the middle of ``mask``."""
+    ys, xs = np.nonzero(mask)
+    cy, cx = int(np.median(ys)), int(np.median(xs))
+    out = np.zeros_like(mask)
+    out[cy - half : cy + half, cx - half : cx + half] = True
+    return out
+
+
 def test_what_a_detector_could_not_see_is_unknown_not_background():
     from bodymetry.capture.masks import grown_mask
 
-    cam = RIG[0]
-    away = -cam.center[:2] / np.linalg.norm(cam.center[:2])
-    side = np.array([-away[1], away[0]])
-    a, b = tuple(-0.5 * side), tuple(0.5 * side)
-    detections = _detections([a, b])
+    detections = _side_by_side()
     # Camera 0's segmenter: A first, whose mask also holds a bit of B (a hand); B
     # found next with A painted over (grown by the margin), which hid more of B
     # than the bit (Demo_MultiPerson, frame 30, cam03).
     first, second = detections[0]
     whole_b = second.mask(0.5)
-    ys, xs = np.nonzero(whole_b)
-    bit = np.zeros_like(whole_b)
-    cy, cx = int(np.median(ys)), int(np.median(xs))
-    bit[cy - 3 : cy + 3, cx - 3 : cx + 3] = True
+    bit = _block(whole_b, 3)
     first = Person((first.mask(0.5) | bit).astype(np.float32), first.landmarks)
     painted = grown_mask(first.mask(0.5), 0.04)
     second = Person(np.where(painted, 0, second.probability).astype(np.float32),
@@ -248,3 +257,84 @@ def test_the_nearer_person_s_whole_torso_is_theirs():
     torso = cv2.erode(quad, np.ones((3, 3), np.uint8)) > 0
     assert torso.sum() > 500
     assert got_a[torso].all() and not got_b[torso].any()
+
+
+def test_someone_only_two_cameras_tell_apart_is_found_when_the_hull_counts_them():
+    # A and B side by side for cameras 2 and 3; cameras 0 and 1 each return one
+    # detection holding both (A's skeleton): B is found by two cameras only.
+    a, b = _behind(RIG[0], 0.3)
+    detections = _detections([tuple(a), tuple(b)])
+    only_b = {}
+    for c in (0, 1):
+        dist = [np.linalg.norm([*at, 1.0] - RIG[c].center) for at in (a, b)]
+        near_a = dist[0] < dist[1]
+        person_a, person_b = detections[c] if near_a else detections[c][::-1]
+        both = person_a.mask(0.5) | person_b.mask(0.5)
+        only_b[c] = _person(RIG[c], tuple(b)).mask(0.5) & ~_person(RIG[c], tuple(a)).mask(0.5)
+        detections[c] = [Person(both.astype(np.float32), person_a.landmarks)]
+    box = VisualHull(RIG).floor_box
+    # Three cameras must agree on a person: B is not found.
+    assert len(sightings(RIG, detections, 0.5, box)) == 1
+    # The background's hull counts two: the two cameras that agree on B make them up.
+    people = sightings(RIG, detections, 0.5, box, expected=2)
+    assert len(people) == 2
+    seen_a, seen_b = sorted(people, key=lambda p: np.linalg.norm(p.position[:2] - a))
+    np.testing.assert_allclose(seen_b.position[:2], b, atol=0.05)
+    np.testing.assert_allclose(seen_a.position[:2], a, atol=0.05)
+    # B's own pixels in the merged detections are B's, not A's.
+    for c in (0, 1):
+        assert only_b[c].any()
+        assert seen_b.masks[c][only_b[c]].mean() > 0.8
+        assert seen_a.masks[c][only_b[c]].mean() < 0.2
+    # A count higher than the people two cameras agree on adds nobody.
+    assert len(sightings(RIG, detections, 0.5, box, expected=3)) == 2
+
+
+def test_what_the_detectors_missed_of_the_background_s_change_is_unknown():
+    detections = _side_by_side()
+    # Camera 0's segmenter missed a block of B's body that background subtraction saw.
+    first, second = detections[0]
+    whole_b = second.mask(0.5)
+    missed = _block(whole_b, 10) & whole_b
+    detections[0] = [first, Person(np.where(missed, 0, second.probability).astype(np.float32),
+                                   second.landmarks)]  # fmt: skip
+    foreground = [np.logical_or.reduce([p.mask(0.5) for p in view]) for view in detections]
+    foreground[0] = first.mask(0.5) | whole_b
+    # A blob of change far from everyone (a moved chair) is nobody's business, and a
+    # sliver along B's outline is the masks' halo, not body.
+    chair = np.zeros_like(whole_b)
+    chair[:20, :20] = True
+    halo = cv2.dilate(whole_b.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    halo &= ~whole_b & ~first.mask(0.5)
+    foreground[0] |= chair | halo
+    floor = VisualHull(RIG).floor_box
+    people = sightings(RIG, detections, 0.5, floor, foreground=foreground)
+    seen_a, seen_b = sorted(people, key=lambda p: np.count_nonzero(p.masks[0] & whole_b))
+    assert not seen_b.masks[0][missed].any()
+    hidden = seen_b.hidden[0]
+    assert hidden is not None and hidden[missed].mean() > 0.9
+    assert not hidden[chair].any() and not hidden[halo].any()
+    assert not (hidden & seen_a.masks[0]).any() and not (hidden & seen_b.masks[0]).any()
+    assert not seen_b.occluded[0]  # not counted as hidden by someone
+    # Without the background's silhouettes it is background, as before.
+    (_, plain_b) = sorted(sightings(RIG, detections, 0.5, floor),
+                          key=lambda p: np.count_nonzero(p.masks[0] & whole_b))  # fmt: skip
+    assert plain_b.hidden[0] is None
+
+
+def test_a_limb_whose_middle_joint_is_not_seen_is_drawn_from_end_to_end():
+    from bodymetry.capture.people import skeleton_mask
+    from bodymetry.capture.person import LANDMARKS
+
+    landmarks = detection(RIG[0], (0.0, 0.0))
+    shoulder, elbow, wrist = (LANDMARKS.index(f"left_{j}") for j in ("shoulder", "elbow", "wrist"))
+    full = skeleton_mask(landmarks, (SIZE[1], SIZE[0]))
+    landmarks[elbow, 2] = 0.0  # the elbow barely seen
+    straight = skeleton_mask(landmarks, (SIZE[1], SIZE[0]))
+    mid = np.round(0.5 * (landmarks[shoulder, :2] + landmarks[wrist, :2])).astype(int)
+    assert straight[mid[1], mid[0]]
+    # The rest of the skeleton is as before; nothing else is drawn.
+    assert (straight & ~full).sum() < 0.1 * full.sum()
+    # An end not seen: the limb is left out, not guessed.
+    landmarks[wrist, 2] = 0.0
+    assert not skeleton_mask(landmarks, (SIZE[1], SIZE[0]))[mid[1], mid[0]]
