@@ -150,7 +150,9 @@ class Sighting:
         (:func:`body_region`), the hull's split its own estimate. Also unknown:
         the pixels near their skeleton that their detector could not see (the
         people found before, painted over:
-        :attr:`~bodymetry.capture.person.Person.unseen`) and nobody's mask holds.
+        :attr:`~bodymetry.capture.person.Person.unseen`) and nobody's mask holds,
+        and, with an empty-scene clip, the parts of the background's silhouette
+        near them wider than :data:`MISSED_WIDTH` that nobody's mask holds.
     source : {"segmenter", "hull"}
         How they were told apart: the segmenter's detections matched across
         cameras (:func:`sightings`), or the split of the multi-view hull
@@ -401,6 +403,16 @@ def _mended(landmarks: np.ndarray, projected: np.ndarray | None, camera) -> np.n
     moved = known & (off | ~drawn)
     lm[moved, :2] = projected[moved, :2]
     lm[moved & ~drawn, 2] = BONE_VISIBILITY
+    # A middle joint the other cameras cannot place, on a limb whose end this
+    # camera put elsewhere than they do, is no surer than that end: not drawn (the
+    # limb is then drawn from end to end). Two-person studio session seed 8, frame
+    # 125, cam_02: one detection of both people put the woman's right elbow and
+    # wrist on the arm of the man behind her; the wrist was moved back, the elbow
+    # stayed, and her forearm bone cut across his shirt, which the partition gave
+    # her.
+    for a, middle, b in LIMBS:
+        if drawn[middle] and not known[middle] and (off[a] & known[a] or off[b] & known[b]):
+            lm[middle, 2] = 0.0
     return lm
 
 

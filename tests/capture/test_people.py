@@ -338,3 +338,25 @@ def test_a_limb_whose_middle_joint_is_not_seen_is_drawn_from_end_to_end():
     # An end not seen: the limb is left out, not guessed.
     landmarks[wrist, 2] = 0.0
     assert not skeleton_mask(landmarks, (SIZE[1], SIZE[0]))[mid[1], mid[0]]
+
+
+def test_a_middle_joint_nobody_confirms_on_a_limb_put_elsewhere_is_not_drawn():
+    from bodymetry.capture.people import _mended
+    from bodymetry.capture.person import LANDMARKS
+
+    cam = RIG[0]
+    true = detection(cam, (0.0, 0.0))
+    elbow, wrist = LANDMARKS.index("right_elbow"), LANDMARKS.index("right_wrist")
+    projected = true.copy()
+    projected[elbow] = np.nan  # the other cameras cannot place the elbow
+    # This camera's detection put the forearm on someone beside them.
+    seen = true.copy()
+    seen[[elbow, wrist], 0] += 0.3 * SIZE[1]
+    mended = _mended(seen, projected, cam)
+    np.testing.assert_allclose(mended[wrist, :2], true[wrist, :2])
+    assert mended[elbow, 2] == 0.0
+    # Where the wrist agrees with the other cameras, the unconfirmed elbow stays.
+    agreed = true.copy()
+    agreed[elbow, 0] += 2.0
+    kept = _mended(agreed, projected, cam)
+    np.testing.assert_array_equal(kept[elbow], agreed[elbow])
