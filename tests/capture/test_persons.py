@@ -265,7 +265,11 @@ def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
     )
     asked = []
 
-    def segmenter_people(imgs, evidence):
+    def segmenter_people(imgs, evidence, expected=0, foreground=None):
+        # Asked with the hull's count and everyone's silhouette per camera.
+        assert expected >= 2 and len(foreground) == len(imgs)
+        pairs = zip(foreground, imgs, strict=True)
+        assert all(m is not None and m.shape == im.shape[:2] for m, im in pairs)
         asked.append(len(imgs))
         return list(told[: answer[0]])
 
