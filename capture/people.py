@@ -286,9 +286,9 @@ def sightings(
                 # painted over (Person.unseen), and what it missed of what the
                 # background's change sees.
                 unseen = found[c][k].unseen
-                seen_all = None if foreground is None else foreground[c]
+                everyone = None if foreground is None else foreground[c]
                 body = None
-                if nearer.any() or unseen is not None or seen_all is not None:
+                if nearer.any() or unseen is not None or everyone is not None:
                     lm = found[c][k].landmarks
                     body = body_region([lm, _projected(cameras[c], skeleton)], mask.shape)
                 if nearer.any():
@@ -307,7 +307,7 @@ def sightings(
                     else:
                         n_hidden = 0 if covered is None else np.count_nonzero(covered)
                         hidden = n_hidden > OCCLUDED_SHARE * (n_hidden + np.count_nonzero(mask))
-                if body is not None and (unseen is not None or seen_all is not None):
+                if body is not None and (unseen is not None or everyone is not None):
                     # Where nobody's pixels are, their detector could not see them or
                     # missed them, not saw background (Demo_MultiPerson, frame 30,
                     # cam03: bits of the woman's hands and foot in the man's mask,
@@ -320,10 +320,9 @@ def sightings(
                     lost = np.zeros_like(mask)
                     if unseen is not None:
                         lost |= unseen & body & ~claimed[c] & ~mask
-                    if seen_all is not None:
-                        rows = np.flatnonzero(body.any(axis=1))
-                        tall = MISSED_WIDTH * (rows[-1] - rows[0] + 1)
-                        lost |= _solid(seen_all & body & ~claimed[c] & ~mask, tall)
+                    if everyone is not None:
+                        width = MISSED_WIDTH * _tall(body)
+                        lost |= _solid(everyone & body & ~claimed[c] & ~mask, width)
                     if lost.any():
                         covered = lost if covered is None else covered | lost
                 if g.detections[c] is None and not mask.any():
@@ -348,6 +347,12 @@ def sightings(
     return out
 
 
+def _tall(mask: np.ndarray) -> int:
+    """Rows from the top to the bottom of a non-empty (H, W) bool ``mask``."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    return int(rows[-1] - rows[0] + 1)
+
+
 def _solid(mask: np.ndarray, width: float) -> np.ndarray:
     """(H, W) bool: the parts of ``mask`` wider than ``width`` pixels (an opening)."""
     r = max(1, round(0.5 * width))
@@ -366,10 +371,8 @@ def body_region(
     if not bones:
         return None
     drawn = np.logical_or.reduce(bones)
-    rows = np.flatnonzero(drawn.any(axis=1))
-    tall = rows[-1] - rows[0] + 1
     distance = cv2.distanceTransform((~drawn).astype(np.uint8), cv2.DIST_L2, 3)
-    return distance <= reach * tall
+    return distance <= reach * _tall(drawn)
 
 
 def _triangulated(cameras: CameraGroup, views: Sequence[np.ndarray | None]) -> np.ndarray:
@@ -400,7 +403,8 @@ def _mended(landmarks: np.ndarray, projected: np.ndarray | None, camera) -> np.n
     known = np.isfinite(projected[:, :2]).all(axis=1)
     with np.errstate(invalid="ignore"):
         off = np.linalg.norm(lm[:, :2] - projected[:, :2], axis=1) > MATCH_ERROR * camera.size[1]
-    moved = known & (off | ~drawn)
+    elsewhere = known & off
+    moved = elsewhere | (known & ~drawn)
     lm[moved, :2] = projected[moved, :2]
     lm[moved & ~drawn, 2] = BONE_VISIBILITY
     # A middle joint the other cameras cannot place, on a limb whose end this
@@ -411,7 +415,7 @@ def _mended(landmarks: np.ndarray, projected: np.ndarray | None, camera) -> np.n
     # stayed, and her forearm bone cut across his shirt, which the partition gave
     # her.
     for a, middle, b in LIMBS:
-        if drawn[middle] and not known[middle] and (off[a] & known[a] or off[b] & known[b]):
+        if drawn[middle] and not known[middle] and (elsewhere[a] or elsewhere[b]):
             lm[middle, 2] = 0.0
     return lm
 
@@ -474,23 +478,15 @@ def skeleton_mask(
     all four are seen); None when no bone can be drawn."""
     canvas = np.zeros(shape, np.uint8)
     lm = np.asarray(landmarks, float)
-    drawn = False
-    if torso:
-        corners = lm[list(TORSO)]
-        if np.isfinite(corners).all() and (corners[:, 2] >= BONE_VISIBILITY).all():
-            cv2.fillPoly(canvas, [np.round(corners[:, :2]).astype(np.int32)], 1)
-    for a, b in BONES:
-        if (np.isfinite(lm[[a, b]]).all() and lm[a, 2] >= BONE_VISIBILITY
-                and lm[b, 2] >= BONE_VISIBILITY):  # fmt: skip
-            pa, pb = (tuple(round(v) for v in lm[i, :2]) for i in (a, b))
-            cv2.line(canvas, pa, pb, 1, max(int(width), 1))
-            drawn = True
     seen = np.isfinite(lm).all(axis=1) & (np.nan_to_num(lm[:, 2]) >= BONE_VISIBILITY)
-    for a, middle, b in LIMBS:
-        if seen[a] and seen[b] and not seen[middle]:
-            pa, pb = (tuple(round(v) for v in lm[i, :2]) for i in (a, b))
-            cv2.line(canvas, pa, pb, 1, max(int(width), 1))
-    return canvas > 0 if drawn else None
+    if torso and seen[list(TORSO)].all():
+        cv2.fillPoly(canvas, [np.round(lm[list(TORSO), :2]).astype(np.int32)], 1)
+    bones = [(a, b) for a, b in BONES if seen[a] and seen[b]]
+    shortcuts = [(a, b) for a, middle, b in LIMBS if seen[a] and seen[b] and not seen[middle]]
+    for a, b in bones + shortcuts:
+        pa, pb = (tuple(round(v) for v in lm[i, :2]) for i in (a, b))
+        cv2.line(canvas, pa, pb, 1, max(int(width), 1))
+    return canvas > 0 if bones else None
 
 
 def partition(
@@ -534,8 +530,7 @@ def partition(
         bones = skeleton_mask(person.landmarks, (h, w), torso=True)
         if bones is not None:
             distance[k] = cv2.distanceTransform((~bones).astype(np.uint8), cv2.DIST_L2, 3)
-            rows = np.flatnonzero(bones.any(axis=1))
-            tall = rows[-1] - rows[0] + 1
+            tall = _tall(bones)
             core[k] = distance[k] <= CORE * tall
             # Pixels far from every bone are nobody's (a bystander the segmenter
             # marked in the crop but did not detect).
