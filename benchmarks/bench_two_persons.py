@@ -44,6 +44,7 @@ import numpy as np
 
 from benchmarks.bench_person_tracks import FRAMES, SEEDS, session
 from benchmarks.bench_pipeline import SESSION_TARGETS
+from bodymetry.calibration.camera import CameraGroup
 from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.session import load_session
 from bodymetry.estimation.body_model.skeleton import JOINTS
@@ -60,20 +61,24 @@ HAND_RADIUS = 0.09
 HAND_REACH = 0.08
 
 
-def hand_recall(run: Path, person: int, folder: Path, truth_person: int) -> float | None:
-    """Of the true visible pixels of person ``truth_person``'s hands in session
-    ``folder``, the share that run person ``person``'s observed masks hold, over
+def hand_recall(
+    results: RunResults,
+    person: int,
+    run: Path,
+    truth: GroundTruth,
+    cameras: CameraGroup,
+    truth_person: int,
+) -> float | None:
+    """Of the true visible pixels of person ``truth_person``'s hands (``truth``, seen
+    by the session's true ``cameras``), the share that person ``person`` of the run
+    in ``run`` (``results``: its results.json) holds in their observed masks, over
     the views their fits used (None: no hand pixel in any)."""
-    everyone = RunResults.read(run / "results.json")
-    results = everyone.for_person(person)
-    layout = RunLayout(run).for_person(person if everyone.several else None)
-    truth = GroundTruth(load_session(folder))
+    layout = RunLayout(run).for_person(person if results.several else None)
     states = truth.person_states(truth_person)
-    cameras = load_calibration(folder / "calibration.yaml")
     row = {int(f): i for i, f in enumerate(states["frame"])}
     hands = [(JOINTS.index(f"wrist_{s}"), JOINTS.index(f"elbow_{s}")) for s in "lr"]
     held = seen = 0
-    for record in results.frames:
+    for record in results.for_person(person).frames:
         if not record.silhouette_iou:
             continue
         arrays = FrameArrays.load(layout.frame_arrays(record.frame))
@@ -104,6 +109,8 @@ def hand_recall(run: Path, person: int, folder: Path, truth_person: int) -> floa
 def score_run(run: Path, folder: Path) -> list[dict]:
     """Each person of a processed two-person run against their own truth."""
     results = RunResults.read(run / "results.json")
+    truth = GroundTruth(load_session(folder))
+    cameras = load_calibration(folder / "calibration.yaml")
     out = []
     for evaluation in evaluate_persons(run, workers=1):
         person = results.for_person(evaluation.person or 0)
@@ -129,7 +136,12 @@ def score_run(run: Path, folder: Path) -> list[dict]:
                 },
                 "silhouette_iou_mean": round(evaluation.silhouette_iou_mean, 4),
                 "hand_recall": hand_recall(
-                    run, evaluation.person or 0, folder, evaluation.truth_person or 0
+                    results,
+                    evaluation.person or 0,
+                    run,
+                    truth,
+                    cameras,
+                    evaluation.truth_person or 0,
                 ),
                 "caveats": [c.code for c in person.caveats],
             }
