@@ -101,6 +101,9 @@ class FitJob:
     unknown : list of ((h_c, w_c) bool or None)
         Per camera at the working resolution, the person's pixels someone
         nearer covers (neither person nor background to the fit); empty: none.
+    clothing : list of ((h_c, w_c) bool or None)
+        Per camera at the working resolution, the silhouettes' pixels that are
+        not skin (capture's; kept in the frame's arrays); empty: not told.
     """
 
     frame: int
@@ -115,6 +118,7 @@ class FitJob:
     agreement: dict[str, float] = field(default_factory=dict)
     persons: int | None = None
     unknown: list[np.ndarray | None] = field(default_factory=list)
+    clothing: list[np.ndarray | None] = field(default_factory=list)
 
 
 def run_fit_job(job: FitJob) -> FrameFit:
@@ -134,6 +138,7 @@ def run_fit_job(job: FitJob) -> FrameFit:
         agreement=job.agreement,
         persons=job.persons,
         unknown=job.unknown,
+        clothing=job.clothing,
     )
 
 
@@ -476,4 +481,5 @@ def _rescue_job(
         dict(old.view_agreement),
         old.persons,
         arrays.unknown_of(cameras.names) if arrays.unknown else [],
+        arrays.clothing_of(cameras.names) if arrays.clothing else [],
     )

@@ -267,6 +267,11 @@ class SegmentedFrame:
         Per camera at the working resolution, the chosen person's pixels that
         someone nearer covers (neither person nor background to the fit); empty
         unless :func:`choose_person` set them.
+    clothing : tuple of ((h_c, w_c) bool or None)
+        Per camera at the working resolution, the silhouettes' pixels that are
+        not skin (:attr:`SilhouetteFrame.clothing
+        <bodymetry.capture.segmentation.SilhouetteFrame.clothing>`); empty
+        where capture could not tell.
     """
 
     frame: int
@@ -278,6 +283,7 @@ class SegmentedFrame:
     persons: int | None = None
     people: tuple[Sighting, ...] = field(default=(), repr=False)
     unknown: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
+    clothing: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
 
 
 @dataclass(frozen=True)
@@ -477,6 +483,9 @@ def segment(
             agreement=judged_agreement(names, sil.agreement, sil.frame),
             persons=sil.persons,
             people=tuple(_working(prepared.resolution, names, p, sil.masks) for p in sil.sightings),
+            clothing=_working_masks(prepared.resolution, names, sil.clothing, sil.masks)
+            if any(c is not None for c in sil.clothing)
+            else (),
         )
         for sil in segment_session(
             prepared.session,
@@ -497,15 +506,25 @@ def _working(
     """``seen`` with its masks and hidden pixels at the working resolution (None stays
     None); ``full``: the frame's masks at the cameras' own size."""
 
-    def working(masks: Sequence[np.ndarray | None]) -> tuple[np.ndarray | None, ...]:
-        small = resolution.downscale(
-            names, [np.zeros_like(f) if m is None else m for m, f in zip(masks, full, strict=True)]
-        )
-        return tuple(None if m is None else w for m, w in zip(masks, small, strict=True))
-
     return replace(
-        seen, masks=working(seen.masks), hidden=working(seen.hidden) if seen.hidden else ()
+        seen,
+        masks=_working_masks(resolution, names, seen.masks, full),
+        hidden=_working_masks(resolution, names, seen.hidden, full) if seen.hidden else (),
     )
+
+
+def _working_masks(
+    resolution: WorkingResolution,
+    names: Sequence[str],
+    masks: Sequence[np.ndarray | None],
+    full: Sequence[np.ndarray],
+) -> tuple[np.ndarray | None, ...]:
+    """Per camera masks at the cameras' own size brought to the working resolution
+    (None stays None); ``full``: the frame's masks at the cameras' own size."""
+    small = resolution.downscale(
+        names, [np.zeros_like(f) if m is None else m for m, f in zip(masks, full, strict=True)]
+    )
+    return tuple(None if m is None else w for m, w in zip(masks, small, strict=True))
 
 
 def judged_agreement(
@@ -793,6 +812,7 @@ def fit_job_of(
         agreement=seg.agreement,
         persons=seg.persons,
         unknown=list(seg.unknown),
+        clothing=list(seg.clothing),
     )
 
 

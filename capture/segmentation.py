@@ -56,6 +56,7 @@ from bodymetry.capture.person import (
 from bodymetry.capture.persons import everyone_silhouettes, observe_persons
 from bodymetry.capture.session import Session
 from bodymetry.capture.shadows import at_feet, floor_shadows
+from bodymetry.capture.skin import SkinConfig, clothing_masks, facing
 from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -107,6 +108,9 @@ class CaptureConfig:
         How background change, shadow label, segmenter and hull are fused per
         pixel (:mod:`bodymetry.capture.fusion`), and the agreement below which a
         view is ``unreliable``.
+    skin : SkinConfig
+        How the silhouettes' skin is told from clothing and hair
+        (:mod:`bodymetry.capture.skin`; needs the segmenter's landmarks).
     """
 
     method: str = "auto"
@@ -115,6 +119,7 @@ class CaptureConfig:
     hull: HullConfig = field(default_factory=HullConfig)
     landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    skin: SkinConfig = field(default_factory=SkinConfig)
 
     def __post_init__(self) -> None:
         if self.method not in CAPTURE_METHODS:
@@ -215,6 +220,7 @@ class SilhouetteFrame:
     agreement: tuple[float | None, ...] = ()
     persons: int | None = None
     sightings: tuple[Sighting, ...] = field(default=(), repr=False)
+    clothing: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
 
     def stack(self) -> np.ndarray:
         """(C, H, W) bool masks, for rigs whose cameras all have one image size.
@@ -740,6 +746,53 @@ class FrameSegmenter:
             self.segmenter.close()
 
 
+def frame_clothing(
+    images: Sequence[np.ndarray | None],
+    masks: Sequence[np.ndarray],
+    landmarks: np.ndarray | None,
+    view_landmarks: Sequence[np.ndarray | None],
+    people: Sequence[Sighting],
+    cameras: CameraGroup | None,
+    config: CaptureConfig,
+) -> tuple[np.ndarray | None, ...]:
+    """Per camera, the silhouettes' pixels that are not skin (:attr:`SilhouetteFrame.clothing`).
+
+    The seeds of the skin colour are the subject's landmarks in each view and
+    every sighting's (a person's face seeds only in the views that see it,
+    judged from their triangulated landmarks; without the cameras, their hands
+    alone); the pixels classified are those of the frame's silhouettes and of
+    every sighting's masks.
+    """
+    n = len(masks)
+    found = []  # (per-view 2D landmarks, world landmarks or None), one per person
+    if any(v is not None for v in view_landmarks):
+        found.append((tuple(view_landmarks), landmarks))
+    for seen in people:
+        views = tuple(seen.landmarks)
+        world = (
+            triangulate_landmarks(cameras, list(views), config.landmarks)
+            if cameras is not None and sum(v is not None for v in views) >= 2
+            else None
+        )
+        found.append((views, world))
+    silhouettes = []
+    for c, mask in enumerate(masks):
+        union = np.asarray(mask, bool).copy()
+        for seen in people:
+            if seen.masks[c] is not None:
+                union |= seen.masks[c]
+        silhouettes.append(union)
+    seeds = [
+        [
+            (views[c], world is not None and facing(world, cameras[c].center))
+            for views, world in found
+            if views[c] is not None
+        ]
+        for c in range(n)
+    ]
+    return tuple(clothing_masks(list(images), silhouettes, seeds, config.skin))
+
+
 def segment_session(
     session: Session,
     *,
@@ -794,20 +847,27 @@ def segment_session(
     try:
         for fs in _prefetch(read_frame_sets(session, report, frames=frames, method=read_method)):
             per_view, landmarks, agreement, persons, people = views(fs.images)
+            masks = tuple(v.mask for v in per_view)
+            view_landmarks = (
+                tuple(v.landmarks for v in per_view) if views.segmenter is not None else ()
+            )
             out = SilhouetteFrame(
                 frame=fs.frame,
                 cameras=fs.cameras,
-                masks=tuple(v.mask for v in per_view),
+                masks=masks,
                 flags=tuple(v.flags for v in per_view),
                 images=fs.images if keep_images else (),
                 shadows=tuple(v.shadow for v in per_view),
                 landmarks=landmarks,
-                view_landmarks=tuple(v.landmarks for v in per_view)
-                if views.segmenter is not None
-                else (),
+                view_landmarks=view_landmarks,
                 agreement=tuple(agreement) if any(a is not None for a in agreement) else (),
                 persons=persons,
                 sightings=people,
+                clothing=frame_clothing(
+                    fs.images, masks, landmarks, view_landmarks, people, cameras, config
+                )
+                if view_landmarks
+                else (),
             )
             if on_frame is not None:
                 on_frame(out)

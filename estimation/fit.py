@@ -343,6 +343,7 @@ def fit_frame(
     agreement: dict[str, float] | None = None,
     persons: int | None = None,
     unknown: Sequence[np.ndarray | None] | None = None,
+    clothing: Sequence[np.ndarray | None] | None = None,
 ) -> FrameFit:
     """Fit one frame (never raises for bad data: the record says what went wrong).
 
@@ -380,6 +381,9 @@ def fit_frame(
         nor background to the likelihood, the contour refinement and the IoU
         (:func:`~bodymetry.estimation.generative.prepare_observation`); kept
         in the frame's arrays for the session stage.
+    clothing : sequence of C ((H_c, W_c) bool or None), optional
+        Per camera, the pixels capture found not to be skin (clothing, hair,
+        shoes); kept in the frame's arrays where they fall on the silhouette.
     """
     t0 = time.perf_counter()
     body = shared_body_model()
@@ -398,6 +402,11 @@ def fit_frame(
             n: np.asarray(u, bool)
             for n, u in zip(names, unknown or [None] * len(names), strict=True)
             if u is not None and np.any(u)
+        },
+        clothing={
+            n: np.asarray(c, bool) & np.asarray(m, bool)
+            for n, c, m in zip(names, clothing or [None] * len(names), masks, strict=True)
+            if c is not None and np.shape(c) == np.shape(m)
         },
     )
 

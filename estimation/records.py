@@ -390,6 +390,11 @@ class FrameArrays:
         Per camera where the person is partly hidden by someone nearer, the
         pixels that are neither theirs nor background (the fit's "unknown";
         ``unknown/<camera>`` in the file, absent from files of runs without).
+    clothing : dict of str to (H, W) bool
+        Per camera where capture told skin from clothing, the observed
+        silhouette's pixels that are not skin: clothing, hair, shoes
+        (:mod:`bodymetry.capture.skin`; ``clothing/<camera>`` in the file,
+        absent from files of runs without).
     """
 
     observed: dict[str, np.ndarray] = field(default_factory=dict)
@@ -398,10 +403,15 @@ class FrameArrays:
     weights: np.ndarray | None = None
     landmarks: np.ndarray | None = None
     unknown: dict[str, np.ndarray] = field(default_factory=dict)
+    clothing: dict[str, np.ndarray] = field(default_factory=dict)
 
     def unknown_of(self, names: Sequence[str]) -> list[np.ndarray | None]:
         """The unknown masks in camera order of ``names`` (None where a camera has none)."""
         return [self.unknown.get(n) for n in names]
+
+    def clothing_of(self, names: Sequence[str]) -> list[np.ndarray | None]:
+        """The clothing masks in camera order of ``names`` (None where a camera has none)."""
+        return [self.clothing.get(n) for n in names]
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {}
@@ -409,6 +419,7 @@ class FrameArrays:
             ("observed", self.observed),
             ("model", self.model),
             ("unknown", self.unknown),
+            ("clothing", self.clothing),
         ):
             for name, mask in masks.items():
                 out[f"{kind}/{name}"] = np.asarray(mask, bool)
@@ -423,29 +434,25 @@ class FrameArrays:
     def load(cls, path: Path) -> FrameArrays:
         """Read ``frames/FFFFFF.npz``; InputError naming the file when it is unreadable."""
         arrays = load_npz(path)
-        observed = {
-            k.split("/", 1)[1]: v.astype(bool)
-            for k, v in arrays.items()
-            if k.startswith("observed/")
-        }
-        model = {
-            k.split("/", 1)[1]: v.astype(bool) for k, v in arrays.items() if k.startswith("model/")
-        }
-        unknown = {
-            k.split("/", 1)[1]: v.astype(bool)
-            for k, v in arrays.items()
-            if k.startswith("unknown/")
-        }
+
+        def masks(kind: str) -> dict[str, np.ndarray]:
+            return {
+                k.split("/", 1)[1]: v.astype(bool)
+                for k, v in arrays.items()
+                if k.startswith(f"{kind}/")
+            }
+
         particles = arrays.get("particles")
         weights = arrays.get("weights")
         landmarks = arrays.get("landmarks")
         return cls(
-            observed,
-            model,
+            masks("observed"),
+            masks("model"),
             None if particles is None else np.asarray(particles, float),
             None if weights is None else np.asarray(weights, float),
             None if landmarks is None or landmarks.shape != (33, 3) else landmarks.astype(float),
-            unknown,
+            masks("unknown"),
+            masks("clothing"),
         )
 
 

@@ -63,7 +63,14 @@ from bodymetry.review.accuracy import SESSION_ACCURACY
 from bodymetry.review.accuracy import SOURCE as ACCURACY_SOURCE
 from bodymetry.review.mcap_recording import overlay_silhouettes
 from bodymetry.review.person_colors import person_hex, person_overlap_rgb
-from bodymetry.review.run_data import FrameView, RunData, frame_views, load_run, run_frame_views
+from bodymetry.review.run_data import (
+    FrameView,
+    RunData,
+    frame_views,
+    load_frame_arrays,
+    load_run,
+    run_frame_views,
+)
 
 log = logging.getLogger(__name__)
 
@@ -533,6 +540,22 @@ def left_out_rows(run: RunData) -> list[dict[str, str]]:
     ]
 
 
+def clothing_share(run: RunData) -> float | None:
+    """The share of the measured frames' observed silhouette pixels capture called
+    clothing, hair or shoes (``clothing/<camera>`` of their arrays), over the
+    cameras where it told skin from clothing; None where it told nowhere."""
+    worn = seen = 0
+    for record in run.frames:
+        arrays = load_frame_arrays(run.layout, record.frame) if record.ok else None
+        if arrays is None:
+            continue
+        for name, mask in arrays.clothing.items():
+            if name in arrays.observed:
+                worn += int(np.count_nonzero(mask))
+                seen += int(np.count_nonzero(arrays.observed[name]))
+    return worn / seen if seen else None
+
+
 def _session_facts(run: RunData) -> dict[str, Any]:
     """The session's folder, cameras, image sizes, frame rate and step."""
     session = run.results.session
@@ -625,6 +648,7 @@ def _person_content(
         "session_shape": results.session_shape,
         "prior_pull": prior_pull_text(results.session_shape),
         "outline": results.outline,
+        "clothing_share": clothing_share(run),
         # A run of several persons shows its own warnings once, above the persons.
         "warnings": list(person.warnings if several else results.warnings),
         "caveats": list(results.caveats),

@@ -76,6 +76,9 @@ log = logging.getLogger(__name__)
 OBSERVED_CLASS, MODEL_CLASS = 1, 2
 OBSERVED_RGB = (120, 190, 255)
 MODEL_RGB = (170, 20, 30)
+#: The observed silhouette's pixels that are not skin (clothing, hair, shoes): a
+#: class far above the persons' model classes (2 + a person's index).
+CLOTHING_CLASS, CLOTHING_RGB = 200, (150, 60, 200)
 #: Series colours per stage.
 STAGE_RGB = {
     "discriminative": (70, 130, 230),
@@ -300,6 +303,7 @@ class RerunWriter:
                     (0, "background", (0, 0, 0, 0)),
                     (OBSERVED_CLASS, "observed silhouette", OBSERVED_RGB),
                     *models,
+                    (CLOTHING_CLASS, "clothing or hair (not skin)", CLOTHING_RGB),
                 ]
             ),
             static=True,
@@ -380,6 +384,13 @@ class RerunWriter:
                     f"{mine}/observed",
                     rr.SegmentationImage(
                         view.observed[c].astype(np.uint8) * OBSERVED_CLASS, opacity=0.45
+                    ),
+                )
+            if c < len(view.clothing) and view.clothing[c] is not None:
+                rec.log(
+                    f"{mine}/clothing",
+                    rr.SegmentationImage(
+                        view.clothing[c].astype(np.uint8) * CLOTHING_CLASS, opacity=0.45
                     ),
                 )
             if view.model is not None:

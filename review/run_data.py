@@ -299,6 +299,10 @@ class FrameView:
         recordings); None without one.
     person : int
         Whose fit this is (the person's id; 0 for a run of one subject).
+    clothing : list of ((h, w) bool or None), length C
+        The observed silhouettes' pixels capture found not to be skin
+        (clothing, hair, shoes; :mod:`bodymetry.capture.skin`); empty list
+        when not recorded.
     """
 
     record: FrameRecord
@@ -312,6 +316,7 @@ class FrameView:
     landmarks: np.ndarray | None = None
     session_vertices: np.ndarray | None = None
     person: int = 0
+    clothing: list[np.ndarray | None] = field(default_factory=list)
 
     @property
     def frame(self) -> int:
@@ -427,6 +432,7 @@ def _frame_view(
         landmarks=arrays.landmarks,
         session_vertices=pose_frame(body, record, "session", lod=True)[0],
         person=run.person_id,
+        clothing=arrays.clothing_of(names) if arrays.clothing else [],
     )
 
 
