@@ -49,6 +49,10 @@ __all__ = [
 FACE = tuple(range(11))
 #: BlazePose landmarks on the hands (pinky and index knuckles, thumbs).
 HANDS = (17, 18, 19, 20, 21, 22)
+#: A view's own skin colour is used where it lies within this many times
+#: ``max_distance`` of the frame's (a camera's white balance and exposure move it
+#: by more than the skin's spread within one view; seeds on cloth by far more).
+RECENTRE = 2.0
 #: Shoulders and hips (the torso length that scales the seed discs).
 _SHOULDERS, _HIPS = (11, 12), (23, 24)
 
@@ -221,23 +225,29 @@ def skin_models(samples: Sequence[np.ndarray], config: SkinConfig) -> list[SkinM
         All None with fewer than ``min_seeds`` seeds in all. Each view's seeds
         are trimmed to the ``trim`` share nearest their median (hair, cuffs and
         cloth inside the discs). The centre is a view's own median where it has
-        ``min_seeds`` seeds lying within ``max_distance`` of the frame's colour
-        (cameras differ in white balance and exposure; seeds further off are
-        mostly something else, a hand held against the trousers), else the
-        median of all; the spread is that of every view's seeds about their own
-        centre (so the cameras' differences do not widen it).
+        ``min_seeds`` seeds lying within :data:`RECENTRE` times ``max_distance``
+        of the median of all (cameras differ in white balance and exposure;
+        seeds further off are mostly something else, a hand held against the
+        trousers), else the median of all; the spread is that of the other
+        views' seeds about their own median (so the cameras' differences do
+        not widen it, nor seeds on cloth).
     """
     kept = [_trimmed(np.asarray(x, float).reshape(-1, 3), config.trim) for x in samples]
     everything = np.concatenate(kept) if kept else np.empty((0, 3))
     if len(everything) < config.min_seeds:
         return [None] * len(kept)
     overall = np.median(everything, axis=0)
-    frame = _gaussian(overall, everything - overall, config.trim, len(everything))
-    centres = []
-    for own in kept:
-        centre = np.median(own, axis=0) if len(own) >= config.min_seeds else overall
-        centres.append(centre if float(frame.distance(centre)) <= config.max_distance else overall)
-    offsets = np.concatenate([own - c for own, c in zip(kept, centres, strict=True)])
+    own = [np.median(x, axis=0) if len(x) >= config.min_seeds else overall for x in kept]
+    # The spread of skin within one view (about its own centre): the cameras'
+    # differences do not widen it, and neither does a view whose seeds are all
+    # something else.
+    within = np.concatenate([x - c for x, c in zip(kept, own, strict=True)])
+    frame = _gaussian(overall, within, config.trim, len(everything))
+    near = [float(frame.distance(c)) <= RECENTRE * config.max_distance for c in own]
+    centres = [c if ok else overall for c, ok in zip(own, near, strict=True)]
+    # A view whose seeds lie far off neither centres nor widens the colour.
+    close = [x - c for x, c, ok in zip(kept, own, near, strict=True) if ok]
+    offsets = np.concatenate(close) if close else everything - overall
     return [_gaussian(c, offsets, config.trim, len(everything)) for c in centres]
 
 
