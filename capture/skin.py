@@ -53,6 +53,10 @@ HANDS = (17, 18, 19, 20, 21, 22)
 #: ``max_distance`` of the frame's (a camera's white balance and exposure move it
 #: by more than the skin's spread within one view; seeds on cloth by far more).
 RECENTRE = 2.0
+#: Seed colours with less chroma (CIE a*b*) than this, or a hue angle outside
+#: SKIN_HUE (degrees), are not skin (black, grey and white cloth, blue jeans).
+MIN_CHROMA = 6.0
+SKIN_HUE = (15.0, 95.0)
 #: Shoulders and hips (the torso length that scales the seed discs).
 _SHOULDERS, _HIPS = (11, 12), (23, 24)
 
@@ -79,7 +83,10 @@ class SkinConfig:
         Weight of the lightness in the colour distance relative to the
         chroma's (below 1: shading counts less than hue).
     max_distance : float
-        A pixel within this many standard deviations of the skin colour is skin.
+        A pixel within this many standard deviations of the skin colour is
+        skin, if its chroma is one skin can have at all (:data:`MIN_CHROMA`,
+        :data:`SKIN_HUE`): the spread within one view's seeds is narrow, and
+        the same skin in shade or in a window's light lies several of them off.
     """
 
     enabled: bool = True
@@ -89,7 +96,7 @@ class SkinConfig:
     min_seeds: int = 40
     trim: float = 0.6
     lightness_weight: float = 0.15
-    max_distance: float = 3.5
+    max_distance: float = 5.0
 
     def __post_init__(self) -> None:
         for name in ("face_radius", "hand_radius", "max_distance"):
@@ -194,6 +201,21 @@ def seed_mask(
     return (discs > 0) & (inner > 0)
 
 
+def _skin_toned(samples: np.ndarray) -> np.ndarray:
+    """The colour samples (N, 3) whose chroma could be skin's: human skin of every
+    tone lies in a narrow band of warm hues (a* and b* both positive, hue angle
+    within :data:`SKIN_HUE`) with at least :data:`MIN_CHROMA`; black, grey and white
+    cloth has almost none (a hand held against black shorts seeds them too)."""
+    return samples[_toned(samples)]
+
+
+def _toned(coords: np.ndarray) -> np.ndarray:
+    """(...,) bool: which colour coordinates (..., 3) have a chroma skin can have."""
+    a, b = coords[..., 1], coords[..., 2]
+    hue = np.degrees(np.arctan2(b, a))
+    return (np.hypot(a, b) >= MIN_CHROMA) & (hue >= SKIN_HUE[0]) & (hue <= SKIN_HUE[1])
+
+
 def _trimmed(samples: np.ndarray, trim: float) -> np.ndarray:
     """The ``trim`` share of colour samples (N, 3) nearest their median."""
     if len(samples) < 3:
@@ -216,7 +238,8 @@ def skin_models(samples: Sequence[np.ndarray], config: SkinConfig) -> list[SkinM
     Parameters
     ----------
     samples : sequence of C (N_c, 3) float
-        Each view's seed colours (:func:`colour_coords` at :func:`seed_mask`).
+        Each view's seed colours (:func:`colour_coords` at :func:`seed_mask`);
+        those no skin has (:func:`_skin_toned`) are dropped first.
     config : SkinConfig
 
     Returns
@@ -232,7 +255,9 @@ def skin_models(samples: Sequence[np.ndarray], config: SkinConfig) -> list[SkinM
         views' seeds about their own median (so the cameras' differences do
         not widen it, nor seeds on cloth).
     """
-    kept = [_trimmed(np.asarray(x, float).reshape(-1, 3), config.trim) for x in samples]
+    kept = [
+        _trimmed(_skin_toned(np.asarray(x, float).reshape(-1, 3)), config.trim) for x in samples
+    ]
     everything = np.concatenate(kept) if kept else np.empty((0, 3))
     if len(everything) < config.min_seeds:
         return [None] * len(kept)
@@ -316,7 +341,7 @@ def clothing_masks(
         if lab is None or model is None:
             continue
         person = np.asarray(person, bool)
-        skin = (model.distance(lab) <= config.max_distance) & person
+        skin = (model.distance(lab) <= config.max_distance) & _toned(lab) & person
         skin = cv2.morphologyEx(skin.astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0
         worn = cv2.morphologyEx((person & ~skin).astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0
         out[c] = worn & person

@@ -89,6 +89,33 @@ def test_recorded_silhouettes_are_one_person_per_view(real_run):
         assert arrays.model[name].shape == observed.shape
 
 
+def test_skin_and_clothing_are_told_apart_on_the_real_subject(real_run):
+    # He wears black shorts and no shirt: seen from the front (cam01, cam02), a point
+    # a third of the way from hip to knee is clothing, one below the chest is skin.
+    base, _ = real_run
+    run = base / "run"
+    cameras = load_calibration(run / "calibration.yaml")
+    shorts = torso = 0
+    seen = 0
+    for frame in range(4):
+        arrays = FrameArrays.load(run / "frames" / f"{frame:06d}.npz")
+        lm = arrays.landmarks
+        thighs = [lm[h] + (lm[k] - lm[h]) / 3 for h, k in ((23, 25), (24, 26))]
+        chest = lm[[11, 12]].mean(axis=0) + 0.4 * (
+            lm[[23, 24]].mean(axis=0) - lm[[11, 12]].mean(axis=0)
+        )
+        for name in ("cam01", "cam02"):
+            clothing = arrays.clothing[name]
+            cam = cameras[name]
+            cam = cam.scaled(clothing.shape[1] / cam.size[0])
+            x, y = np.round(cam.project(np.array([*thighs, chest]))).astype(int).T
+            shorts += int(clothing[y[:2], x[:2]].sum())
+            torso += int(~clothing[y[2], x[2]])
+            seen += 1
+    assert shorts >= 0.75 * 2 * seen, (shorts, seen)
+    assert torso >= 0.75 * seen, (torso, seen)
+
+
 def test_review_outputs_show_the_real_session(real_run):
     base, _ = real_run
     run = base / "run"
@@ -97,6 +124,8 @@ def test_review_outputs_show_the_real_session(real_run):
     assert "cam04" in html
     paths = set(rc.RrdReader(run / "recording.rrd").store().schema().entity_paths())
     assert {"/world/landmarks", "/world/body/mesh", "/world/rig/cam03/model"} <= paths
+    assert "/world/rig/cam03/clothing" in paths  # skin and clothing, per camera
+    assert "of the measured frames' silhouette pixels are clothing" in html
     csv = (run / "measurements.csv").read_text().splitlines()
     assert len(csv) == 1 + 4
     results = RunResults.read(run / "results.json")
