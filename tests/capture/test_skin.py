@@ -192,3 +192,22 @@ def test_two_views_that_disagree_wholly_still_give_a_colour():
     models = skin_models([one, two], config)
     assert all(m is not None for m in models)
     assert np.allclose(models[0].mean, models[1].mean)
+
+
+def test_capture_learns_from_every_persons_landmarks_and_classifies_their_pixels():
+    from bodymetry.capture.people import Sighting
+    from bodymetry.capture.segmentation import CaptureConfig, frame_clothing
+
+    rng = np.random.default_rng(10)
+    img, person, worn, marks = _person(rng)
+    # The frame's silhouette holds the upper body only; a sighting holds the legs
+    # (told apart by the segmenter) and the landmarks.
+    upper = person.copy()
+    upper[130:] = False
+    legs = person & ~upper
+    seen = Sighting(np.zeros(3), (legs,), (marks,), (False,))
+    (found,) = frame_clothing([img], [upper], None, [None], [seen], None, CaptureConfig())
+    assert _accuracy(found, worn, person) > 0.97
+    assert found[150:200, 60:100].all()  # the sighting's trousers
+    # Without any landmarks, nothing is told.
+    assert frame_clothing([img], [upper], None, [None], [], None, CaptureConfig()) == (None,)

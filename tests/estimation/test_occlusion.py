@@ -12,6 +12,7 @@ import pytest
 from bodymetry.estimation import generative
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.contours import UNKNOWN_MARGIN_PX, prepare_contours
+from bodymetry.estimation.fit import FitConfig, fit_frame
 from bodymetry.estimation.generative import chamfer_costs, prepare_observation
 from bodymetry.estimation.projection import project_silhouettes, view_ious
 from bodymetry.estimation.records import FrameArrays
@@ -161,3 +162,35 @@ def test_frame_arrays_keep_unknown_masks_and_old_files_still_load(tmp_path, scen
     save_npz(path, old)
     assert FrameArrays.load(path).unknown == {}
     assert FrameArrays.load(path).unknown_of(names) == [None, None, None]
+
+
+def test_frame_arrays_keep_clothing_masks_and_old_files_still_load(tmp_path, scene):
+    _, cameras, _, masks, _, box = scene
+    names = cameras.names
+    worn = masks[1] & ~box[0]
+    arrays = FrameArrays(observed=dict(zip(names, masks, strict=True)), clothing={names[1]: worn})
+    path = tmp_path / "000000.npz"
+    save_npz(path, arrays.to_arrays())
+    back = FrameArrays.load(path)
+    assert list(back.clothing) == [names[1]] and back.unknown == {}
+    np.testing.assert_array_equal(back.clothing[names[1]], worn)
+    assert back.clothing_of(names) == [None, back.clothing[names[1]], None]
+    # A file written before clothing masks existed: none.
+    old = {k: v for k, v in arrays.to_arrays().items() if not k.startswith("clothing/")}
+    save_npz(path, old)
+    assert FrameArrays.load(path).clothing == {}
+
+
+def test_a_frames_arrays_keep_capture_s_clothing_where_the_silhouette_is(scene):
+    # Every view unreadable: the frame fails before any fit, with what capture saw.
+    _, cameras, _, masks, _, box = scene
+    names = cameras.names
+    everywhere = np.ones_like(masks[0])
+    fit = fit_frame(
+        0, masks, [["unreadable"]] * 3, cameras, None, FitConfig(),
+        clothing=[everywhere, None, box[0]],
+    )  # fmt: skip
+    assert not fit.record.fitted
+    assert list(fit.arrays.clothing) == [names[0], names[2]]
+    np.testing.assert_array_equal(fit.arrays.clothing[names[0]], masks[0])
+    np.testing.assert_array_equal(fit.arrays.clothing[names[2]], box[0] & masks[2])
