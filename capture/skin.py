@@ -322,10 +322,11 @@ def clothing_masks(
     out: list[np.ndarray | None] = [None] * len(images)
     if not config.enabled:
         return out
-    coords, samples = [], []
+    boxes, coords, samples = [], [], []
     for image, person, marks in zip(images, persons, landmarks, strict=True):
         person = np.asarray(person, bool)
         if image is None or not person.any():
+            boxes.append(None)
             coords.append(None)
             samples.append(np.empty((0, 3)))
             continue
@@ -333,16 +334,33 @@ def clothing_masks(
             raise ValueError(
                 f"image {image.shape[:2]} and silhouette {person.shape} differ in size"
             )
-        coords.append(colour_coords(image, config.lightness_weight))
-        samples.append(coords[-1][seed_mask(person.shape, person, marks, config)])
+        # Only the silhouette's box is converted and classified (a 2-megapixel view
+        # holds a person in a tenth of it).
+        box = _box(person)
+        boxes.append(box)
+        coords.append(colour_coords(image[box], config.lightness_weight))
+        samples.append(coords[-1][seed_mask(person.shape, person, marks, config)[box]])
     models = skin_models(samples, config)
     kernel = np.ones((3, 3), np.uint8)
-    for c, (lab, person, model) in enumerate(zip(coords, persons, models, strict=True)):
+    for c, (box, lab, person, model) in enumerate(zip(boxes, coords, persons, models, strict=True)):
         if lab is None or model is None:
             continue
         person = np.asarray(person, bool)
-        skin = (model.distance(lab) <= config.max_distance) & _toned(lab) & person
+        inside = person[box]
+        skin = (model.distance(lab) <= config.max_distance) & _toned(lab) & inside
         skin = cv2.morphologyEx(skin.astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0
-        worn = cv2.morphologyEx((person & ~skin).astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0
-        out[c] = worn & person
+        worn = cv2.morphologyEx((inside & ~skin).astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0
+        out[c] = np.zeros_like(person)
+        out[c][box] = worn & inside
     return out
+
+
+def _box(mask: np.ndarray) -> tuple[slice, slice]:
+    """The rows and columns of a non-empty mask's bounding box, a pixel wider on
+    every side (the clean-up's 3x3 opening sees the border as outside)."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    h, w = mask.shape
+    return (
+        slice(max(rows[0] - 1, 0), min(rows[-1] + 2, h)),
+        slice(max(cols[0] - 1, 0), min(cols[-1] + 2, w)),
+    )
