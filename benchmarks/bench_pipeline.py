@@ -229,8 +229,11 @@ MIN_FRAME_SHARE = 0.9
 
 def _outfit(subject: str) -> str:
     """``loose`` or ``tight``: what an independent session's subject wears, from its
-    ``--subject`` text or its folder name (``seed46_arm_raises_loose``)."""
-    return "loose" if "clothing=loose" in subject or subject.endswith("_loose") else "tight"
+    ``--subject`` text or its folder name (``seed46_arm_raises_loose``); the draped
+    garments are loose ones."""
+    garments = ("clothing=loose", "clothing=draped")
+    worn = any(g in subject for g in garments) or subject.endswith(("_loose", "_draped"))
+    return "loose" if worn else "tight"
 
 
 def _workers() -> int:

@@ -38,8 +38,12 @@ from bodymetry.estimation.body_model import geometry
 from bodymetry.estimation.body_model.skeleton import JOINTS, PARTS
 
 #: Clothing a subject can wear: ``tight`` (no layer: the body's own outline, as a
-#: tight suit would show) or ``loose`` (shirt with short sleeves and shorts).
-CLOTHING = ("tight", "loose")
+#: tight suit would show), ``loose`` (shirt with short sleeves and shorts) or
+#: ``draped`` (the same garments resting on the body where it faces up: the
+#: shoulders and the top of the chest, as worn cloth does).
+CLOTHING = ("tight", "loose", "draped")
+#: The loose garments (``tight`` is the body's own outline).
+GARMENTS = ("loose", "draped")
 
 
 @dataclass(frozen=True)
@@ -71,6 +75,11 @@ class ClothingLayer:
         Hair volume at the crown, metres.
     seed : int
         Seed of the fold noise.
+    rest_on : (2,) float
+        ``draped``: where the garments rest on the body. The gap is scaled by
+        ``1 - s``, with ``s`` rising from 0 to 1 as the rest-pose normal's
+        upward component rises from ``rest_on[0]`` to ``rest_on[1]``: gravity
+        lays cloth on the surfaces that face up.
     """
 
     ease: float = 0.015
@@ -85,6 +94,7 @@ class ClothingLayer:
     hang_sector: float = 0.14
     hair_thickness: float = 0.025
     seed: int = 11
+    rest_on: tuple[float, float] = (0.2, 0.6)
 
 
 def _along(points: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:
@@ -209,7 +219,7 @@ def dress(
     vertex_parts : (V,) int
     joints : (15, 3) float
         Its joint centres.
-    clothing : {"tight", "loose"}
+    clothing : {"tight", "loose", "draped"}
     hair : bool
 
     Returns
@@ -224,7 +234,7 @@ def dress(
     normals /= np.linalg.norm(normals, axis=1, keepdims=True) + 1e-12
     smooth = geometry.neighbour_mean(faces, len(rest))
     d = np.zeros(len(rest))
-    if clothing == "loose":
+    if clothing in GARMENTS:
         w = garment_weight(rest, vertex_parts, joints, layer)
         cloth = w > 0
         d[cloth] = layer.ease
@@ -248,6 +258,10 @@ def dress(
             offset = np.where(cloth[:, None], smooth @ offset, 0.0)
         gap = np.linalg.norm(offset, axis=1)
         offset *= (np.minimum(gap, layer.max_gap) / np.maximum(gap, 1e-12) * w)[:, None]
+        if clothing == "draped":
+            low, high = layer.rest_on
+            lying = np.clip((normals[:, 2] - low) / (high - low), 0.0, 1.0)
+            offset *= (1.0 - lying)[:, None]
     else:
         offset = np.zeros_like(rest)
     if hair:

@@ -37,7 +37,7 @@ from bodymetry.estimation.body_model.model import INDEPENDENT_FORMAT, BodyModel
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS, forward_kinematics
 from bodymetry.fileio import load_npz
-from bodymetry.studio.clothing import CLOTHING, dress
+from bodymetry.studio.clothing import CLOTHING, GARMENTS, dress
 from bodymetry.studio.scene import Appearance
 
 #: The committed bank of independent bodies.
@@ -169,7 +169,7 @@ def _model() -> BodyModel:
 @dataclass(frozen=True)
 class IndependentSpec:
     """Which independent subject:
-    ``independent:SEED[,body=K|edge=KEY][,clothing=loose][,hair=1]``.
+    ``independent:SEED[,body=K|edge=KEY][,clothing=loose|draped][,hair=1]``.
 
     Attributes
     ----------
@@ -179,7 +179,7 @@ class IndependentSpec:
         Index into the bank.
     edge : str or None
         A body of the edge bank by key (:data:`EDGE_KEYS`), instead of the drawn bank.
-    clothing : {"tight", "loose"}
+    clothing : {"tight", "loose", "draped"}
     hair : bool
     """
 
@@ -214,7 +214,7 @@ class IndependentSpec:
         except ValueError:
             raise InputError(
                 f"--subject independent:{value}: expected independent:SEED[,body=K|edge=KEY]"
-                "[,clothing=tight|loose][,hair=0|1]"
+                "[,clothing=tight|loose|draped][,hair=0|1]"
             ) from None
         fields: dict = {}
         for option in options:
@@ -222,7 +222,7 @@ class IndependentSpec:
             if not sep or key not in ("body", "edge", "clothing", "hair"):
                 raise InputError(
                     f"--subject independent:{value}: unknown option {option!r} "
-                    "(expected body=K, edge=KEY, clothing=tight|loose or hair=0|1)"
+                    "(expected body=K, edge=KEY, clothing=tight|loose|draped or hair=0|1)"
                 )
             if key in fields:
                 raise InputError(f"--subject independent:{value}: {key}= given twice")
@@ -421,7 +421,7 @@ class IndependentSubject:
     def appearance(self) -> Appearance:
         """Clothing colours: the studio's, with bare shins below loose shorts."""
         colors = np.array(Appearance().part_colors, dtype=float)
-        if self.spec.clothing == "loose":
+        if self.spec.clothing in GARMENTS:
             skin = colors[PARTS.index("head")]
             for side in "lr":
                 colors[PARTS.index(f"shin_{side}")] = skin

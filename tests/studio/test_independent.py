@@ -115,6 +115,23 @@ def test_loose_clothing_contains_the_body_and_hides_its_outline(model, loose):
     np.testing.assert_array_equal(loose.surface[bare], loose.rest[bare])
 
 
+def test_draped_clothing_rests_on_the_shoulders_and_hangs_like_loose_elsewhere(model, loose):
+    draped = IndependentSubject(IndependentSpec(4, clothing="draped", hair=True), model=model)
+    covered = garment_weight(loose.rest, model.vertex_parts, loose.rest_joints) == 1.0
+    normals = geometry.vertex_normals(loose.rest, model.faces())
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    gap = np.linalg.norm(draped.surface - draped.rest, axis=1)
+    loose_gap = np.linalg.norm(loose.surface - loose.rest, axis=1)
+    up, side = covered & (normals[:, 2] > 0.6), covered & (np.abs(normals[:, 2]) < 0.2)
+    assert up.sum() > 50 and side.sum() > 500
+    # Where the body faces up the cloth lies on it; where it faces sideways it hangs
+    # as the loose garments do (the same body, the same layer).
+    assert gap[up].max() < 1e-9 < loose_gap[up].min()
+    np.testing.assert_allclose(gap[side], loose_gap[side], atol=1e-4)
+    assert np.all(gap <= loose_gap + 1e-9)
+    assert draped.biometrics() == loose.biometrics()  # the truth is the nude body
+
+
 def test_hair_raises_the_head_but_not_the_measured_height(model, loose):
     assert loose.surface[:, 2].max() > loose.rest[:, 2].max() + 0.015
     assert loose.biometrics().height_mm == pytest.approx(1000.0 * loose.rest[:, 2].max())
@@ -124,6 +141,8 @@ def test_subject_texts_parse_with_clear_errors():
     spec = SubjectSpec.parse("independent:12,clothing=loose,hair=1", 0).independent
     assert spec == IndependentSpec(12, clothing="loose", hair=True)
     assert IndependentSpec.parse(spec.to_text().partition(":")[2]) == spec
+    draped = SubjectSpec.parse("independent:12,clothing=draped", 0).independent
+    assert IndependentSpec.parse(draped.to_text().partition(":")[2]) == draped
     assert SubjectSpec.parse("independent:3,body=40", 0).independent.index(48) == 40
     for text, match in (
         ("independent:x", "SEED"),
