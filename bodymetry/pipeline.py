@@ -994,10 +994,10 @@ def session_stage(
     layout = prepared.layout.for_person(person)
     log.info("%s: session shape from %d accepted frames", prepared.session.folder, len(ok))
     try:
-        frames = [
-            session_frame(r, FrameArrays.load(layout.frame_arrays(r.frame)), prepared.cameras)
-            for r in ok
-        ]
+        arrays = [FrameArrays.load(layout.frame_arrays(r.frame)) for r in ok]
+        worn, seen = np.sum([a.clothing_pixels() for a in arrays], axis=0) if arrays else (0, 0)
+        clothing_share = worn / seen if seen else math.nan
+        frames = [session_frame(r, a, prepared.cameras) for r, a in zip(ok, arrays, strict=True)]
         shape = fit_session_shape(
             shared_body_model(),
             prepared.cameras,
@@ -1009,9 +1009,8 @@ def session_stage(
         )
     except (InputError, ValueError, np.linalg.LinAlgError) as exc:
         log.warning("%s: the session shape failed: %s", prepared.session.folder, exc)
-        return SessionShape(status=f"failed: {exc}", frames=tuple(r.frame for r in ok)), list(
-            records
-        )
+        failed = SessionShape(status=f"failed: {exc}", frames=tuple(r.frame for r in ok))
+        return failed, list(records)
     if not shape.summary.ok:
         log.warning("%s: session shape %s", prepared.session.folder, shape.summary.status)
     # The outline check at the states the summary reports: the shared shape
@@ -1033,7 +1032,7 @@ def session_stage(
         else r
         for r in records
     ]
-    return replace(shape.summary, outline=outline), out
+    return replace(shape.summary, outline=outline, clothing_share=float(clothing_share)), out
 
 
 def camera_warnings(

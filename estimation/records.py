@@ -413,6 +413,15 @@ class FrameArrays:
         """The clothing masks in camera order of ``names`` (None where a camera has none)."""
         return [self.clothing.get(n) for n in names]
 
+    def clothing_pixels(self) -> tuple[int, int]:
+        """(clothing, silhouette) pixel counts over the cameras with a clothing mask."""
+        worn = seen = 0
+        for name, mask in self.clothing.items():
+            if name in self.observed:
+                worn += int(np.count_nonzero(mask))
+                seen += int(np.count_nonzero(self.observed[name]))
+        return worn, seen
+
     def to_arrays(self) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {}
         for kind, masks in (
@@ -655,6 +664,12 @@ class SessionShape:
         Whether ``weight_kg`` (and ``volume_l``, ``bmi``) were read from the
         fitted body in the frames' poses (:mod:`bodymetry.estimation.posed_weight`);
         False: the canonical body's, as in runs recorded before it.
+    clothing_share : float
+        The share of the stage's frames' silhouette pixels capture found not
+        to be skin (clothing, hair, shoes; :mod:`bodymetry.capture.skin`),
+        over the views where it told; NaN where it told nowhere (and in runs
+        recorded before it). The stage does not use it yet: its measurements
+        assume tight clothing.
     """
 
     status: str
@@ -682,6 +697,7 @@ class SessionShape:
     floor_applied: bool = False
     canonical_weight_kg: float = math.nan
     posed_weight: bool = False
+    clothing_share: float = math.nan
 
     @property
     def ok(self) -> bool:
@@ -717,6 +733,7 @@ class SessionShape:
             "floor_applied": bool(self.floor_applied),
             "canonical_weight_kg": _finite_or_none(self.canonical_weight_kg, 3),
             "posed_weight": bool(self.posed_weight),
+            "clothing_share": _finite_or_none(self.clothing_share, 4),
         }
 
     @classmethod
@@ -765,6 +782,7 @@ class SessionShape:
                 ),
                 canonical_weight_kg=_nan_if_none(data.get("canonical_weight_kg")),
                 posed_weight=bool(data.get("posed_weight", False)),
+                clothing_share=_nan_if_none(data.get("clothing_share")),
             )
         except (TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{where}: malformed session shape ({exc})") from exc

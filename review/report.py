@@ -63,14 +63,7 @@ from bodymetry.review.accuracy import SESSION_ACCURACY
 from bodymetry.review.accuracy import SOURCE as ACCURACY_SOURCE
 from bodymetry.review.mcap_recording import overlay_silhouettes
 from bodymetry.review.person_colors import person_hex, person_overlap_rgb
-from bodymetry.review.run_data import (
-    FrameView,
-    RunData,
-    frame_views,
-    load_frame_arrays,
-    load_run,
-    run_frame_views,
-)
+from bodymetry.review.run_data import FrameView, RunData, frame_views, load_run, run_frame_views
 
 log = logging.getLogger(__name__)
 
@@ -540,20 +533,12 @@ def left_out_rows(run: RunData) -> list[dict[str, str]]:
     ]
 
 
-def clothing_share(run: RunData) -> float | None:
-    """The share of the measured frames' observed silhouette pixels capture called
-    clothing, hair or shoes (``clothing/<camera>`` of their arrays), over the
-    cameras where it told skin from clothing; None where it told nowhere."""
-    worn = seen = 0
-    for record in run.frames:
-        arrays = load_frame_arrays(run.layout, record.frame) if record.ok else None
-        if arrays is None:
-            continue
-        for name, mask in arrays.clothing.items():
-            if name in arrays.observed:
-                worn += int(np.count_nonzero(mask))
-                seen += int(np.count_nonzero(arrays.observed[name]))
-    return worn / seen if seen else None
+def _clothing_share(shape: SessionShape | None) -> float | None:
+    """The share of the session stage's silhouette pixels capture called clothing,
+    hair or shoes (:attr:`SessionShape.clothing_share`); None where it told nowhere."""
+    if shape is None or not math.isfinite(shape.clothing_share):
+        return None
+    return shape.clothing_share
 
 
 def _session_facts(run: RunData) -> dict[str, Any]:
@@ -648,7 +633,7 @@ def _person_content(
         "session_shape": results.session_shape,
         "prior_pull": prior_pull_text(results.session_shape),
         "outline": results.outline,
-        "clothing_share": clothing_share(run),
+        "clothing_share": _clothing_share(results.session_shape),
         # A run of several persons shows its own warnings once, above the persons.
         "warnings": list(person.warnings if several else results.warnings),
         "caveats": list(results.caveats),

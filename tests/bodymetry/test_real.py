@@ -125,7 +125,9 @@ def test_review_outputs_show_the_real_session(real_run):
     paths = set(rc.RrdReader(run / "recording.rrd").store().schema().entity_paths())
     assert {"/world/landmarks", "/world/body/mesh", "/world/rig/cam03/model"} <= paths
     assert "/world/rig/cam03/clothing" in paths  # skin and clothing, per camera
-    assert "of the measured frames' silhouette pixels are clothing" in html
+    assert "silhouette pixels are clothing, hair or shoes" in html
+    shape = RunResults.read(run / "results.json").session_shape
+    assert 0.05 < shape.clothing_share < 0.6  # his shorts, cap and shoes; not his chest
     csv = (run / "measurements.csv").read_text().splitlines()
     assert len(csv) == 1 + 4
     results = RunResults.read(run / "results.json")
