@@ -449,6 +449,6 @@ def test_the_clothing_share_round_trips_and_old_files_have_none():
     shape = SessionShape(status="ok", clothing_share=0.43187)
     assert SessionShape.from_json(shape.to_json()).clothing_share == pytest.approx(0.4319)
     # Told nowhere, and runs recorded before it: NaN, null in the file.
-    assert shape.__class__(status="ok").to_json()["clothing_share"] is None
+    assert SessionShape(status="ok").to_json()["clothing_share"] is None
     old = {k: v for k, v in shape.to_json().items() if k != "clothing_share"}
     assert np.isnan(SessionShape.from_json(old).clothing_share)
