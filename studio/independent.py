@@ -37,11 +37,14 @@ from bodymetry.estimation.body_model.model import INDEPENDENT_FORMAT, BodyModel
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS, forward_kinematics
 from bodymetry.fileio import load_npz
-from bodymetry.studio.clothing import CLOTHING, GARMENTS, dress
+from bodymetry.studio.clothing import CLOTHING, GARMENTS, ClothingLayer, dress
 from bodymetry.studio.scene import Appearance
 
 #: The committed bank of independent bodies.
 INDEPENDENT_BODIES_PATH = Path(__file__).with_name("data") / "independent_bodies.npz"
+#: ``ease=MM``'s range, millimetres: from nearly tight to garments that stand off
+#: the skin by 5 cm (the layer's gap is capped at 6 cm, ``ClothingLayer.max_gap``).
+EASE_MM = (5, 50)
 #: The committed bank of edge bodies (issue 33), chosen by percentile.
 EDGE_BODIES_PATH = Path(__file__).with_name("data") / "edge_bodies.npz"
 #: The edge bank's keys, in bank order (``edge=KEY``); the bank file is checked against them.
@@ -169,7 +172,7 @@ def _model() -> BodyModel:
 @dataclass(frozen=True)
 class IndependentSpec:
     """Which independent subject:
-    ``independent:SEED[,body=K|edge=KEY][,clothing=loose|draped][,hair=1]``.
+    ``independent:SEED[,body=K|edge=KEY][,clothing=loose|draped][,ease=MM][,hair=1]``.
 
     Attributes
     ----------
@@ -181,6 +184,10 @@ class IndependentSpec:
         A body of the edge bank by key (:data:`EDGE_KEYS`), instead of the drawn bank.
     clothing : {"tight", "loose", "draped"}
     hair : bool
+    ease : int or None
+        The garments' smallest gap to the skin, millimetres
+        (:attr:`~bodymetry.studio.clothing.ClothingLayer.ease`; None: its
+        default, 15 mm), from :data:`EASE_MM`; loose or draped clothing only.
     """
 
     seed: int
@@ -188,6 +195,7 @@ class IndependentSpec:
     clothing: str = "tight"
     hair: bool = False
     edge: str | None = None
+    ease: int | None = None
 
     def __post_init__(self) -> None:
         if self.edge is not None and self.body is not None:
@@ -204,6 +212,15 @@ class IndependentSpec:
                 f"--subject independent: clothing={self.clothing!r}, expected one of "
                 f"{', '.join(CLOTHING)}"
             )
+        if self.ease is not None and self.clothing not in GARMENTS:
+            raise InputError(
+                f"--subject independent: ease={self.ease} needs clothing=loose or draped"
+            )
+        if self.ease is not None and not EASE_MM[0] <= self.ease <= EASE_MM[1]:
+            raise InputError(
+                f"--subject independent: ease={self.ease}, expected {EASE_MM[0]}..{EASE_MM[1]} "
+                "(millimetres)"
+            )
 
     @classmethod
     def parse(cls, value: str) -> IndependentSpec:
@@ -214,15 +231,15 @@ class IndependentSpec:
         except ValueError:
             raise InputError(
                 f"--subject independent:{value}: expected independent:SEED[,body=K|edge=KEY]"
-                "[,clothing=tight|loose|draped][,hair=0|1]"
+                "[,clothing=tight|loose|draped][,ease=MM][,hair=0|1]"
             ) from None
         fields: dict = {}
         for option in options:
             key, sep, val = option.partition("=")
-            if not sep or key not in ("body", "edge", "clothing", "hair"):
+            if not sep or key not in ("body", "edge", "clothing", "hair", "ease"):
                 raise InputError(
                     f"--subject independent:{value}: unknown option {option!r} "
-                    "(expected body=K, edge=KEY, clothing=tight|loose|draped or hair=0|1)"
+                    "(expected body=K, edge=KEY, clothing=tight|loose|draped, ease=MM or hair=0|1)"
                 )
             if key in fields:
                 raise InputError(f"--subject independent:{value}: {key}= given twice")
@@ -239,7 +256,7 @@ class IndependentSpec:
                     fields[key] = int(val)
                 except ValueError:
                     raise InputError(
-                        f"--subject independent:{value}: body={val!r}, expected an integer"
+                        f"--subject independent:{value}: {key}={val!r}, expected an integer"
                     ) from None
         return cls(seed=seed, **fields)
 
@@ -277,6 +294,8 @@ class IndependentSpec:
             text += f",edge={self.edge}"
         if self.clothing != "tight":
             text += f",clothing={self.clothing}"
+        if self.ease is not None:
+            text += f",ease={self.ease}"
         return text + (",hair=1" if self.hair else "")
 
 
@@ -325,6 +344,9 @@ class IndependentSubject:
             self.rest_joints,
             clothing=self.spec.clothing,
             hair=self.spec.hair,
+            layer=ClothingLayer()
+            if self.spec.ease is None
+            else ClothingLayer(ease=self.spec.ease / 1000.0),
         )
 
     @property

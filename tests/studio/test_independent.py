@@ -132,6 +132,17 @@ def test_draped_clothing_rests_on_the_shoulders_and_hangs_like_loose_elsewhere(m
     assert draped.biometrics() == loose.biometrics()  # the truth is the nude body
 
 
+def test_ease_sets_how_far_the_garments_stand_off(model, loose):
+    covered = garment_weight(loose.rest, model.vertex_parts, loose.rest_joints) == 1.0
+    looser = IndependentSubject(IndependentSpec(4, clothing="loose", ease=35), model=model)
+    gap = np.linalg.norm(looser.surface - looser.rest, axis=1)[covered]
+    default = np.linalg.norm(loose.surface - loose.rest, axis=1)[covered]
+    # 15 mm by default, 35 mm asked: the median gap grows by about the difference.
+    assert 0.015 < np.median(gap) - np.median(default) < 0.025
+    assert gap.max() <= 0.06 + 1e-9  # the layer's cap
+    assert looser.biometrics() == loose.biometrics()
+
+
 def test_hair_raises_the_head_but_not_the_measured_height(model, loose):
     assert loose.surface[:, 2].max() > loose.rest[:, 2].max() + 0.015
     assert loose.biometrics().height_mm == pytest.approx(1000.0 * loose.rest[:, 2].max())
@@ -141,7 +152,8 @@ def test_subject_texts_parse_with_clear_errors():
     spec = SubjectSpec.parse("independent:12,clothing=loose,hair=1", 0).independent
     assert spec == IndependentSpec(12, clothing="loose", hair=True)
     assert IndependentSpec.parse(spec.to_text().partition(":")[2]) == spec
-    draped = SubjectSpec.parse("independent:12,clothing=draped", 0).independent
+    draped = SubjectSpec.parse("independent:12,clothing=draped,ease=30", 0).independent
+    assert draped.ease == 30
     assert IndependentSpec.parse(draped.to_text().partition(":")[2]) == draped
     assert SubjectSpec.parse("independent:3,body=40", 0).independent.index(48) == 40
     for text, match in (
@@ -150,6 +162,9 @@ def test_subject_texts_parse_with_clear_errors():
         ("independent:1,hair=yes", "hair"),
         ("independent:1,colour=red", "unknown option"),
         ("independent:1,body=two", "body"),
+        ("independent:1,ease=20", "needs clothing=loose or draped"),
+        ("independent:1,clothing=loose,ease=90", "expected 5..50"),
+        ("independent:1,clothing=loose,ease=wide", "ease='wide', expected an integer"),
     ):
         with pytest.raises(InputError, match=match):
             SubjectSpec.parse(text, 0)
