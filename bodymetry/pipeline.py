@@ -1025,6 +1025,7 @@ def session_stage(
         checked,
         config.fit.refinement,
         alignments=[shape.alignments.get(f.frame) for f in frames],
+        clothing=[f.clothing for f in frames],
     )
     out = [
         replace(r, estimates={**r.estimates, "session": shape.estimates[r.frame]})

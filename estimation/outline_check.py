@@ -35,6 +35,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import CameraGroup
@@ -79,12 +80,18 @@ class OutlineConfig:
         at: the signatures are a few millimetres, a third to a whole pixel of
         the demo's 10 mm working pixels; at 25 mm (a 240x180 camera) they are
         lost in the outline's quantization.
+    bare_trunk : float
+        Where capture told skin from clothing (:mod:`bodymetry.capture.skin`),
+        a trunk whose outline lies on clothing in less than this share is
+        bare: it wears no loose shirt, and no loose-clothing warning is given
+        (the real Pose2Sim subject, shirtless, reads +2.7 ± 1.3 mm).
     """
 
     loose_mm: float = 3.2
     crown_mm: float = 7.0
     min_points: int = 10
     max_mm_per_px: float = 15.0
+    bare_trunk: float = 0.5
 
     def __post_init__(self) -> None:
         if not (self.loose_mm > 0 and self.crown_mm > 0):
@@ -95,6 +102,8 @@ class OutlineConfig:
             raise ValueError(f"min_points: expected >= 1, got {self.min_points}")
         if not self.max_mm_per_px > 0:
             raise ValueError(f"max_mm_per_px: expected > 0, got {self.max_mm_per_px}")
+        if not 0 <= self.bare_trunk <= 1:
+            raise ValueError(f"bare_trunk: expected in [0, 1], got {self.bare_trunk}")
 
 
 def crown_vertices(body: BodyModel, lod: bool) -> np.ndarray:
@@ -143,6 +152,20 @@ def frame_offsets(
     mm_per_px : (N,) float
         The size of a working pixel at each edge's depth, millimetres.
     """
+    verts, offsets, sizes, _, _ = _frame_pairs(body, cameras, masks, state, refinement, alignment)
+    return verts, offsets, sizes
+
+
+def _frame_pairs(
+    body: BodyModel,
+    cameras: CameraGroup,
+    masks: Sequence[np.ndarray],
+    state: np.ndarray,
+    refinement: RefineConfig,
+    alignment: Alignment | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`frame_offsets`, and where each offset's observed outline point lies:
+    (N, 2) working pixels (``x``, ``y`` of the masks) and (N,) the view index."""
     y = np.asarray(state, float)
     if alignment is None:
         obs = prepare_contours(cameras, masks, refinement.image_scale, refinement.max_points)
@@ -151,7 +174,7 @@ def frame_offsets(
     else:
         cost, obs, pairs = alignment.cost, alignment.cost.obs, alignment.pairs_at(y)
     V = cost.vertices(y)[0]
-    verts, offsets, sizes = [], [], []
+    verts, offsets, sizes, where, views = [], [], [], [], []
     for p in pairs:
         if p.source is not None:  # the observed-to-model direction repeats edges
             continue
@@ -162,9 +185,38 @@ def frame_offsets(
         verts.append(p.edges[:, 0])
         sizes.append(depth / cam.K[0, 0] * 1000.0)
         offsets.append(px * sizes[-1])
+        # The outline's points are at the contour scale (Camera.scaled: x' = (x + 0.5) s - 0.5).
+        where.append((p.targets + 0.5) / refinement.image_scale - 0.5)
+        views.append(np.full(len(p.edges), p.camera))
     if not verts:
-        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
-    return np.concatenate(verts), np.concatenate(offsets), np.concatenate(sizes)
+        empty = np.zeros(0)
+        return np.zeros(0, np.int64), empty, empty, np.zeros((0, 2)), np.zeros(0, np.int64)
+    return (
+        np.concatenate(verts),
+        np.concatenate(offsets),
+        np.concatenate(sizes),
+        np.concatenate(where),
+        np.concatenate(views),
+    )
+
+
+def _on_clothing(
+    clothing: Sequence[np.ndarray | None], where: np.ndarray, views: np.ndarray
+) -> np.ndarray:
+    """(N,) float: 1 where an outline point (``where`` (N, 2) working pixels, in view
+    ``views`` (N,)) lies within a pixel of its view's clothing mask, 0 where not, NaN
+    where the view has none."""
+    out = np.full(len(where), np.nan)
+    for c, mask in enumerate(clothing):
+        sel = views == c
+        if mask is None or not sel.any():
+            continue
+        near = cv2.dilate(np.asarray(mask, np.uint8), np.ones((3, 3), np.uint8)) > 0
+        h, w = near.shape
+        x = np.clip(np.round(where[sel, 0]).astype(int), 0, w - 1)
+        y = np.clip(np.round(where[sel, 1]).astype(int), 0, h - 1)
+        out[sel] = near[y, x]
+    return out
 
 
 def check_outline(
@@ -174,6 +226,7 @@ def check_outline(
     refinement: RefineConfig | None = None,
     config: OutlineConfig | None = None,
     alignments: Sequence[Alignment | None] | None = None,
+    clothing: Sequence[Sequence[np.ndarray | None]] | None = None,
 ) -> OutlineCheck:
     """The session's outline offsets per region, and its warnings.
 
@@ -190,6 +243,11 @@ def check_outline(
     alignments : sequence of (Alignment or None), optional
         Per frame, its contour cost from the session stage (see
         :func:`frame_offsets`); saves preparing the outlines again.
+    clothing : sequence of (sequence of C ((H_c, W_c) bool or None)), optional
+        Per frame, capture's clothing masks per view (empty or None: not
+        told): the share of the trunk's outline on clothing
+        (``trunk_clothing_share``) tells a bare trunk, which wears no loose
+        shirt (``OutlineConfig.bare_trunk``).
 
     Returns
     -------
@@ -207,8 +265,16 @@ def check_outline(
     aligned = [None] * len(frames) if alignments is None else list(alignments)
     if len(aligned) != len(frames):
         raise ValueError(f"alignments: expected {len(frames)}, got {len(aligned)}")
-    for (masks, state), alignment in zip(frames, aligned, strict=True):
-        verts, mm, size = frame_offsets(body, cameras, masks, state, refinement, alignment)
+    worn = [None] * len(frames) if clothing is None else list(clothing)
+    if len(worn) != len(frames):
+        raise ValueError(f"clothing: expected {len(frames)}, got {len(worn)}")
+    trunk_worn = []
+    for (masks, state), alignment, cloth in zip(frames, aligned, worn, strict=True):
+        verts, mm, size, where, views = _frame_pairs(
+            body, cameras, masks, state, refinement, alignment
+        )
+        if cloth:
+            trunk_worn.append(_on_clothing(cloth, where, views)[members["trunk"][verts]])
         pixel.append(size)
         med = {}
         for name, member in members.items():
@@ -224,7 +290,12 @@ def check_outline(
     mm_per_px = float(np.median(np.concatenate(pixel))) if any(len(p) for p in pixel) else np.nan
     coarse = not mm_per_px <= config.max_mm_per_px
     # Coarse pixels: the figures are kept, but they decide nothing.
-    warnings = [] if coarse else _clothing_warnings(trunk, trunk_se, crown, crown_se, config)
+    on_cloth = np.concatenate(trunk_worn) if trunk_worn else np.zeros(0)
+    on_cloth = on_cloth[np.isfinite(on_cloth)]
+    trunk_share = float(on_cloth.mean()) if len(on_cloth) else float("nan")
+    warnings = (
+        [] if coarse else _clothing_warnings(trunk, trunk_se, crown, crown_se, config, trunk_share)
+    )
     status = _status(mm_per_px, coarse, config)
     return OutlineCheck(
         status=status,
@@ -236,6 +307,7 @@ def check_outline(
         crown_excess_mm=crown,
         crown_excess_se_mm=crown_se,
         warnings=tuple(warnings),
+        trunk_clothing_share=trunk_share,
     )
 
 
@@ -251,18 +323,37 @@ def _region_members(body: BodyModel, lod: bool) -> dict[str, np.ndarray]:
 
 
 def _clothing_warnings(
-    trunk: float, trunk_se: float, crown: float, crown_se: float, config: OutlineConfig
+    trunk: float,
+    trunk_se: float,
+    crown: float,
+    crown_se: float,
+    config: OutlineConfig,
+    trunk_share: float = float("nan"),
 ) -> list[str]:
     """The warnings for loose clothing (the trunk's excess offset, mm) and for hair
-    or headwear (the crown's), each with its standard error."""
+    or headwear (the crown's), each with its standard error.
+
+    Loose clothing is warned of above ``loose_mm``, and also within one standard
+    error below it, where the frames do not settle the verdict either way; not
+    where the trunk's outline is bare skin (``trunk_share``, the share of it on
+    clothing, under ``bare_trunk``)."""
     warnings = []
-    if np.isfinite(trunk) and trunk > config.loose_mm:
+    bare = np.isfinite(trunk_share) and trunk_share < config.bare_trunk
+    if np.isfinite(trunk) and trunk > config.loose_mm and not bare:
         note = _borderline(trunk, trunk_se, config.loose_mm)
         warnings.append(
             f"loose clothing likely: the silhouettes lie {_mm(trunk, trunk_se)} "
             "further outside the fitted body at the trunk than at the forearms and shins "
             f"(tight clothing: under {config.loose_mm:g} mm{note}); the weight, "
             "circumferences and widths are probably overstated"
+        )
+    elif not bare and np.isfinite(trunk_se) and trunk + trunk_se >= config.loose_mm:
+        warnings.append(
+            f"loose clothing possible: the silhouettes lie {_mm(trunk, trunk_se)} "
+            "further outside the fitted body at the trunk than at the forearms and "
+            f"shins (tight clothing: under {config.loose_mm:g} mm; within one standard "
+            "error below it, the frames do not settle it); the weight, circumferences "
+            "and widths may be overstated"
         )
     if np.isfinite(crown) and crown > config.crown_mm:
         note = _borderline(crown, crown_se, config.crown_mm)

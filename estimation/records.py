@@ -550,6 +550,12 @@ class OutlineCheck:
         Crown minus lower limbs (the hair signature) and its standard error.
     warnings : tuple of str
         What the offsets suggest (loose clothing, hair), in words.
+    trunk_clothing_share : float
+        The share of the trunk's observed outline points that lie on what
+        capture called clothing (:mod:`bodymetry.capture.skin`); under
+        ``OutlineConfig.bare_trunk`` the trunk is bare and no loose-clothing
+        warning is given. NaN where capture did not tell (and in runs
+        recorded before it).
     """
 
     status: str = OK
@@ -561,6 +567,7 @@ class OutlineCheck:
     crown_excess_mm: float = math.nan
     crown_excess_se_mm: float = math.nan
     warnings: tuple[str, ...] = ()
+    trunk_clothing_share: float = math.nan
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -573,6 +580,7 @@ class OutlineCheck:
             "crown_excess_mm": _finite_or_none(self.crown_excess_mm, 2),
             "crown_excess_se_mm": _finite_or_none(self.crown_excess_se_mm, 2),
             "warnings": list(self.warnings),
+            "trunk_clothing_share": _finite_or_none(self.trunk_clothing_share, 3),
         }
 
     @classmethod
@@ -592,6 +600,7 @@ class OutlineCheck:
                 crown_excess_mm=_nan_if_none(data.get("crown_excess_mm")),
                 crown_excess_se_mm=_nan_if_none(data.get("crown_excess_se_mm")),
                 warnings=tuple(str(w) for w in data.get("warnings", ())),
+                trunk_clothing_share=_nan_if_none(data.get("trunk_clothing_share")),
             )
         except (TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{where}: malformed outline check ({exc})") from exc

@@ -195,6 +195,9 @@ class SessionFrame:
     unknown : list of ((H_c, W_c) bool or None)
         Per view, the person's pixels someone nearer covers (neither person nor
         background; :attr:`FrameArrays.unknown`); empty: none.
+    clothing : list of ((H_c, W_c) bool or None)
+        Per view, the silhouette's pixels capture found not to be skin
+        (:attr:`FrameArrays.clothing`), for the outline check; empty: not told.
     """
 
     frame: int
@@ -202,6 +205,7 @@ class SessionFrame:
     masks: list[np.ndarray]
     iou: float
     unknown: list[np.ndarray | None] = field(default_factory=list)
+    clothing: list[np.ndarray | None] = field(default_factory=list)
 
 
 def session_frame(record: FrameRecord, arrays: FrameArrays, cameras: CameraGroup) -> SessionFrame:
@@ -228,7 +232,8 @@ def session_frame(record: FrameRecord, arrays: FrameArrays, cameras: CameraGroup
         usable_views(cameras.names, record.person_pixels, record.flags),
     )
     unknown = arrays.unknown_of(cameras.names) if arrays.unknown else []
-    return SessionFrame(record.frame, est.vector(), masks, record.mean_iou, unknown)
+    clothing = arrays.clothing_of(cameras.names) if arrays.clothing else []
+    return SessionFrame(record.frame, est.vector(), masks, record.mean_iou, unknown, clothing)
 
 
 def silhouette_iou(

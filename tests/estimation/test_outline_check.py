@@ -245,3 +245,48 @@ def test_a_warning_within_one_standard_error_of_its_threshold_says_so():
     assert _borderline(3.3, 1.3, 3.2).startswith("; borderline")
     assert _borderline(5.0, 1.3, 3.2) == ""
     assert _borderline(3.3, float("nan"), 3.2) == ""  # one frame: no standard error
+
+
+def test_a_figure_within_one_standard_error_below_the_threshold_says_it_cannot_tell():
+    from bodymetry.estimation.outline_check import _clothing_warnings
+
+    config = OutlineConfig()
+    (possible,) = _clothing_warnings(3.0, 0.3, 0.0, 0.1, config)
+    assert possible.startswith("loose clothing possible") and "do not settle" in possible
+    assert _clothing_warnings(2.5, 0.3, 0.0, 0.1, config) == []  # more than one s.e. below
+    assert _clothing_warnings(3.0, float("nan"), 0.0, 0.1, config) == []  # one frame
+    (likely,) = _clothing_warnings(3.5, 0.4, 0.0, 0.1, config)
+    assert likely.startswith("loose clothing likely")
+
+
+def test_a_bare_trunk_wears_no_loose_shirt():
+    from bodymetry.estimation.outline_check import _clothing_warnings
+
+    config = OutlineConfig()
+    for trunk in (3.0, 5.0):  # below and above the threshold
+        assert _clothing_warnings(trunk, 0.3, 0.0, 0.1, config, trunk_share=0.2) == []
+        assert _clothing_warnings(trunk, 0.3, 0.0, 0.1, config, trunk_share=0.9)
+    # Hair is judged all the same.
+    (hair,) = _clothing_warnings(5.0, 0.3, 12.0, 0.5, config, trunk_share=0.2)
+    assert hair.startswith("hair or headwear likely")
+
+
+def test_the_trunks_share_on_clothing_is_measured_where_capture_told(scene):
+    model, cameras, states = scene
+    frames = [(_masks(model, cameras, s), s) for s in states]
+    trunk = _region_faces(model, ("torso", "pelvis"))
+    shirts = [_masks(model, cameras, s, trunk) for s in states]
+    told = check_outline(model, cameras, frames, clothing=shirts)
+    # The trunk's outline points lie on its own silhouette (within a pixel), but
+    # where an arm or the legs cover its edge they are theirs.
+    assert 0.6 < told.trunk_clothing_share <= 1.0
+    bare = check_outline(
+        model, cameras, frames, clothing=[[np.zeros_like(m) for m in f] for f in shirts]
+    )
+    assert bare.trunk_clothing_share == 0.0
+    assert np.isnan(check_outline(model, cameras, frames).trunk_clothing_share)
+    with pytest.raises(ValueError, match="clothing"):
+        check_outline(model, cameras, frames, clothing=shirts[:1])
+    back = OutlineCheck.from_json(told.to_json())
+    assert back.trunk_clothing_share == pytest.approx(told.trunk_clothing_share, abs=1e-3)
+    assert np.isnan(OutlineCheck.from_json({"status": "ok"}).trunk_clothing_share)
