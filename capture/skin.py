@@ -121,13 +121,10 @@ class SkinModel:
         ``(w L*, a*, b*)``, with ``w`` the config's ``lightness_weight``.
     inverse : (3, 3) float
         Inverse covariance of the same coordinates.
-    seeds : int
-        Seed pixels it was fitted to (after trimming).
     """
 
     mean: np.ndarray
     inverse: np.ndarray
-    seeds: int
 
     def distance(self, coords: np.ndarray) -> np.ndarray:
         """Mahalanobis distances (...,) of colour coordinates (..., 3) (:func:`colour_coords`)."""
@@ -201,16 +198,13 @@ def seed_mask(
     return (discs > 0) & (inner > 0)
 
 
-def _skin_toned(samples: np.ndarray) -> np.ndarray:
-    """The colour samples (N, 3) whose chroma could be skin's: human skin of every
-    tone lies in a narrow band of warm hues (a* and b* both positive, hue angle
-    within :data:`SKIN_HUE`) with at least :data:`MIN_CHROMA`; black, grey and white
-    cloth has almost none (a hand held against black shorts seeds them too)."""
-    return samples[_toned(samples)]
-
-
 def _toned(coords: np.ndarray) -> np.ndarray:
-    """(...,) bool: which colour coordinates (..., 3) have a chroma skin can have."""
+    """(...,) bool: which colour coordinates (..., 3) have a chroma skin can have.
+
+    Human skin of every tone lies in a narrow band of warm hues (a* and b* both
+    positive, hue angle within :data:`SKIN_HUE`) with at least :data:`MIN_CHROMA`;
+    black, grey and white cloth has almost none (a hand held against black
+    shorts seeds them too)."""
     a, b = coords[..., 1], coords[..., 2]
     hue = np.degrees(np.arctan2(b, a))
     return (np.hypot(a, b) >= MIN_CHROMA) & (hue >= SKIN_HUE[0]) & (hue <= SKIN_HUE[1])
@@ -224,12 +218,12 @@ def _trimmed(samples: np.ndarray, trim: float) -> np.ndarray:
     return samples[spread <= np.quantile(spread, trim)]
 
 
-def _gaussian(centre: np.ndarray, offsets: np.ndarray, trim: float, seeds: int) -> SkinModel:
+def _gaussian(centre: np.ndarray, offsets: np.ndarray, trim: float) -> SkinModel:
     """A :class:`SkinModel` about ``centre`` with the covariance of ``offsets`` (N, 3)."""
     # The trimmed set's covariance understates the full one; a small floor on the
     # diagonal keeps a flat-coloured face (a studio render) from a singular model.
     cov = offsets.T @ offsets / max(len(offsets) - 1, 1) / trim + np.eye(3) * 1e-2
-    return SkinModel(np.asarray(centre, float), np.linalg.inv(cov), seeds)
+    return SkinModel(np.asarray(centre, float), np.linalg.inv(cov))
 
 
 def skin_models(samples: Sequence[np.ndarray], config: SkinConfig) -> list[SkinModel | None]:
@@ -239,7 +233,7 @@ def skin_models(samples: Sequence[np.ndarray], config: SkinConfig) -> list[SkinM
     ----------
     samples : sequence of C (N_c, 3) float
         Each view's seed colours (:func:`colour_coords` at :func:`seed_mask`);
-        those no skin has (:func:`_skin_toned`) are dropped first.
+        those no skin has (:func:`_toned`) are dropped first.
     config : SkinConfig
 
     Returns
@@ -255,9 +249,8 @@ def skin_models(samples: Sequence[np.ndarray], config: SkinConfig) -> list[SkinM
         views' seeds about their own median (so the cameras' differences do
         not widen it, nor seeds on cloth).
     """
-    kept = [
-        _trimmed(_skin_toned(np.asarray(x, float).reshape(-1, 3)), config.trim) for x in samples
-    ]
+    toned = [np.asarray(x, float).reshape(-1, 3) for x in samples]
+    kept = [_trimmed(x[_toned(x)], config.trim) for x in toned]
     everything = np.concatenate(kept) if kept else np.empty((0, 3))
     if len(everything) < config.min_seeds:
         return [None] * len(kept)
@@ -267,13 +260,13 @@ def skin_models(samples: Sequence[np.ndarray], config: SkinConfig) -> list[SkinM
     # differences do not widen it, and neither does a view whose seeds are all
     # something else.
     within = np.concatenate([x - c for x, c in zip(kept, own, strict=True)])
-    frame = _gaussian(overall, within, config.trim, len(everything))
+    frame = _gaussian(overall, within, config.trim)
     near = [float(frame.distance(c)) <= RECENTRE * config.max_distance for c in own]
     centres = [c if ok else overall for c, ok in zip(own, near, strict=True)]
     # A view whose seeds lie far off neither centres nor widens the colour.
     close = [x - c for x, c, ok in zip(kept, own, near, strict=True) if ok]
     offsets = np.concatenate(close) if close else everything - overall
-    return [_gaussian(c, offsets, config.trim, len(everything)) for c in centres]
+    return [_gaussian(c, offsets, config.trim) for c in centres]
 
 
 def clothing_masks(
