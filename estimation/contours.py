@@ -37,6 +37,7 @@ __all__ = [
     "face_frames",
     "mesh_edges",
     "near_outside",
+    "near_region",
     "occluding_contour",
     "outline_normals",
     "outline_samples",
@@ -195,7 +196,7 @@ def prepare_contours(
     for mask, u in zip(masks, hidden, strict=True):
         p = outline_samples(mask, max_points)
         if u is not None and len(p):
-            p = p[~_borders(u, p)]
+            p = p[~near_region(u, p, UNKNOWN_MARGIN_PX)]
         normals.append(outline_normals(mask, p))
         # Pixel centres map as x' = (x + 0.5) s - 0.5 (see Camera.scaled).
         points.append((p + 0.5) * scale - 0.5)
@@ -213,11 +214,11 @@ def prepare_contours(
     )
 
 
-def _borders(unknown: np.ndarray, points: np.ndarray) -> np.ndarray:
+def near_region(region: np.ndarray, points: np.ndarray, r: int) -> np.ndarray:
     """(P,) bool: which outline points (P, 2) (x, y, between pixel centres) lie within
-    :data:`UNKNOWN_MARGIN_PX` of an ``unknown`` (H, W) pixel."""
-    r = UNKNOWN_MARGIN_PX
-    near = cv2.dilate(unknown.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+    ``r`` pixels of a ``region`` (H, W) pixel (the unknown pixels someone covers, the
+    clothing)."""
+    near = cv2.dilate(region.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
     h, w = near.shape
     # A point between two pixels borders both: test the pixels on either side.
     out = np.zeros(len(points), bool)

@@ -35,13 +35,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import PARTS
-from bodymetry.estimation.contours import prepare_contours
+from bodymetry.estimation.contours import near_region, prepare_contours
 from bodymetry.estimation.records import OutlineCheck
 from bodymetry.estimation.refinement import Alignment, ContourCost, RefineConfig
 
@@ -211,11 +210,7 @@ def _on_clothing(
         sel = views == c
         if mask is None or not sel.any():
             continue
-        near = cv2.dilate(np.asarray(mask, np.uint8), np.ones((3, 3), np.uint8)) > 0
-        h, w = near.shape
-        x = np.clip(np.round(where[sel, 0]).astype(int), 0, w - 1)
-        y = np.clip(np.round(where[sel, 1]).astype(int), 0, h - 1)
-        out[sel] = near[y, x]
+        out[sel] = near_region(np.asarray(mask, bool), where[sel], 1)
     return out
 
 
