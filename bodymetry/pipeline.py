@@ -714,7 +714,8 @@ def choose_person(
     :func:`plan_persons`), and each frame's silhouettes, flags and landmarks
     become those of the chosen person, with the pixels of theirs that someone
     nearer covers as ``unknown`` (neither person nor background to the fit): a
-    view where most of them is hidden is flagged ``occluded`` (left out of that
+    view where most of them is hidden is flagged ``occluded`` and one whose
+    detection mixed them with someone else ``mixed`` (both left out of that
     frame's fit), one that shows nothing of them ``empty``, and a frame without
     them has no silhouette (its record says so).
     """
@@ -737,9 +738,10 @@ def choose_person(
             np.zeros_like(m) if mine is None else mine
             for m, mine in zip(seg.masks, person.masks, strict=True)
         )
+        mixed = person.mixed or (False,) * len(names)
         flags = tuple(
-            ("empty",) if mine is None else ("occluded",) if hidden else ()
-            for mine, hidden in zip(person.masks, person.occluded, strict=True)
+            ("empty",) if mine is None else ("occluded",) if hidden else ("mixed",) if mix else ()
+            for mine, hidden, mix in zip(person.masks, person.occluded, mixed, strict=True)
         )
         unknown = tuple(
             None if mine is None or u is None or not u.any() else u

@@ -55,6 +55,11 @@ Flags per camera and frame (:data:`FLAGS`):
     the camera touches this person's silhouette, so part of them may be
     hidden, which is unknown, not background: the fit leaves the view out for
     that frame (:mod:`bodymetry.capture.people`).
+``mixed``
+    (a person of several) the camera's detection of this person is partly
+    someone else's: its landmarks stray from where the other cameras put
+    them, and its mask follows both people; the fit leaves the view out for
+    that frame (:data:`bodymetry.capture.people.MIXED_SHARE`).
 
 The capture stage that produces the raw masks and applies this clean-up is
 :mod:`bodymetry.capture.segmentation`.
@@ -86,6 +91,7 @@ FLAGS = (
     "inconsistent",
     "unreliable",
     "occluded",
+    "mixed",
 )
 
 

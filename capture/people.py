@@ -49,7 +49,9 @@ from bodymetry.capture.persons import PersonObservation
 
 __all__ = [
     "BONES",
+    "MIXED_SHARE",
     "Sighting",
+    "astray",
     "body_region",
     "partition",
     "sighting_of",
@@ -122,6 +124,18 @@ BODY_REACH = 0.05
 MISSED_WIDTH = 0.02
 
 
+#: A camera's detection of a person is ``mixed`` (the view is left out of their fit)
+#: when more than this share of its drawn landmarks lie further than
+#: :data:`~bodymetry.capture.headcount.MATCH_ERROR` of the image height from where the
+#: other cameras put them (:func:`astray`): the detector built one skeleton from
+#: two people, and the mask follows it. Demo_MultiPerson: 0 to 0.15 for detections
+#: of one person; 0.21 to 0.67 where a detection mixed the two (0.48 and 0.58 in
+#: cam03 at frames 80 and 60, where the man's mask left out his shorts and held
+#: the woman's face). Between 0.2 and 0.35 the detection is mended instead
+#: (:func:`_mended`): the view kept at 0.2 gave frames fitted from one camera.
+MIXED_SHARE = 0.35
+
+
 @dataclass(frozen=True)
 class Sighting:
     """One person found in one kept frame.
@@ -157,6 +171,9 @@ class Sighting:
         How they were told apart: the segmenter's detections matched across
         cameras (:func:`sightings`), or the split of the multi-view hull
         (:func:`sighting_of`).
+    mixed : tuple of bool
+        Per camera, whether its detection of them is partly someone else's
+        (:data:`MIXED_SHARE`; the view is left out of their fit); empty: none.
     """
 
     position: np.ndarray
@@ -166,6 +183,7 @@ class Sighting:
     height: float = float("nan")
     hidden: tuple[np.ndarray | None, ...] = ()
     source: str = "segmenter"
+    mixed: tuple[bool, ...] = ()
 
     @property
     def views(self) -> int:
@@ -242,13 +260,17 @@ def sightings(
     # detector builds one skeleton from two people: Demo_MultiPerson, cam03, frames
     # 40-80, the man's head drawn on the woman's face behind him): where one lies
     # further than MATCH_ERROR of the image height from where the other cameras put
-    # it, the partition draws the other cameras' landmark instead.
+    # it, the partition draws the other cameras' landmark instead. Where many do,
+    # the mask followed the wrong skeleton too: the view is ``mixed``.
     found = [list(view) for view in detections]
-    for g, skeleton in zip(groups, skeletons, strict=True):
+    mixed = [[False] * len(cameras) for _ in groups]
+    for g, skeleton, flags in zip(groups, skeletons, mixed, strict=True):
         for c, k in enumerate(g.detections):
             if k is not None:
                 person = found[c][k]
-                mended = _mended(person.landmarks, _projected(cameras[c], skeleton), cameras[c])
+                projected = _projected(cameras[c], skeleton)
+                flags[c] = astray(person.landmarks, projected, cameras[c]) > MIXED_SHARE
+                mended = _mended(person.landmarks, projected, cameras[c])
                 found[c][k] = replace(person, landmarks=mended)
     # A person a camera did not find may still be there, hidden behind someone whose
     # mask then holds their visible bits: their skeleton, triangulated from the
@@ -271,7 +293,7 @@ def sightings(
     masks = [partition(view, threshold, d) for view, d in zip(found, depths, strict=True)]
     claimed = [np.logical_or.reduce(view) if view else None for view in masks]
     out = []
-    for g, ids, skeleton in zip(groups, index, skeletons, strict=True):
+    for g, ids, skeleton, flags in zip(groups, index, skeletons, mixed, strict=True):
         occluded, mine_masks, hidden_masks = [], [], []
         for c, k in enumerate(ids):
             hidden, mask, covered = False, None, None
@@ -342,6 +364,7 @@ def sightings(
                 ),
                 occluded=tuple(occluded),
                 hidden=tuple(hidden_masks),
+                mixed=tuple(f and m is not None for f, m in zip(flags, mine_masks, strict=True)),
             )
         )
     return out
@@ -418,6 +441,23 @@ def _mended(landmarks: np.ndarray, projected: np.ndarray | None, camera) -> np.n
         if drawn[middle] and not known[middle] and (elsewhere[a] or elsewhere[b]):
             lm[middle, 2] = 0.0
     return lm
+
+
+def astray(landmarks: np.ndarray, projected: np.ndarray | None, camera) -> float:
+    """The share of a camera's detection's drawn ``landmarks`` (33, 3) (visibility
+    at least :data:`BONE_VISIBILITY`) that lie further than
+    :data:`~bodymetry.capture.headcount.MATCH_ERROR` of the image height from
+    ``projected`` (the other cameras' skeleton as this camera sees it, (33, 3) or
+    None); 0 where nothing can be compared."""
+    if projected is None:
+        return 0.0
+    lm = np.asarray(landmarks, float)
+    both = np.isfinite(lm).all(axis=1) & (np.nan_to_num(lm[:, 2]) >= BONE_VISIBILITY)
+    both &= np.isfinite(projected[:, :2]).all(axis=1)
+    if not both.any():
+        return 0.0
+    off = np.linalg.norm(lm[both, :2] - projected[both, :2], axis=1)
+    return float(np.mean(off > MATCH_ERROR * camera.size[1]))
 
 
 def _projected(camera, points: np.ndarray) -> np.ndarray | None:

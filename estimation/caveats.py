@@ -15,8 +15,9 @@ list), and says why in a sentence a user can act on:
     Fewer than :data:`MIN_MEASURED_FRAMES` frames, or fewer than
     :data:`MIN_MEASURED_SHARE` of the kept frames, were measured.
 ``view_left_out``
-    A camera's view was left out as ``unreliable`` or ``occluded`` (another
-    person hides them there) in at least :data:`MAX_LEFT_OUT_SHARE` of the kept
+    A camera's view was left out as ``unreliable``, ``occluded`` (another
+    person hides them there) or ``mixed`` (the detection there is partly
+    another person's) in at least :data:`MAX_LEFT_OUT_SHARE` of the kept
     frames: the measurements rest on the other views, and whatever made that
     view disagree (a reflection, a moved camera, a second person) may be in them
     too.

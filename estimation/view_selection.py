@@ -46,12 +46,14 @@ MIN_PIXELS = 400
 #: Capture's view flags that leave a view out of the frame's fit: no image
 #: (``unreadable``), a silhouette the frame's other evidence contradicts
 #: (``unreliable``), or a chosen person whom someone nearer may hide in part
-#: (``occluded``: hidden pixels are unknown, not background).
-LEAVE_OUT_FLAGS = ("unreadable", "unreliable", "occluded")
+#: (``occluded``: hidden pixels are unknown, not background) or whose detection
+#: there is partly someone else's (``mixed``: its mask follows both).
+LEAVE_OUT_FLAGS = ("unreadable", "unreliable", "occluded", "mixed")
 #: Why :func:`left_out_views` reports a camera: capture's flag, and the words for it.
 LEFT_OUT_REASONS = {
     "unreliable": "silhouette unreliable",
     "occluded": "hidden behind another person",
+    "mixed": "detected mixed with another person",
 }
 #: The flag of every view of a frame in which a person told apart from others was
 #: not found (their fit records why instead of "no silhouette").
@@ -101,7 +103,7 @@ class LeftOutView:
         ``frames`` that recorded one, in frame order.
     kept : int
         The run's kept frames.
-    reason : {"unreliable", "occluded"}
+    reason : {"unreliable", "occluded", "mixed"}
         Capture's flag (:data:`LEFT_OUT_REASONS`).
     """
 
@@ -136,9 +138,9 @@ class LeftOutView:
 
 
 def left_out_views(records: Sequence[FrameRecord], names: Sequence[str]) -> list[LeftOutView]:
-    """The cameras of ``names`` flagged ``unreliable`` or ``occluded`` in any of
-    ``records`` (the run's kept frames), in camera order (an unreliable camera
-    first, then the same camera occluded); empty when no view was left out so.
+    """The cameras of ``names`` flagged ``unreliable``, ``occluded`` or ``mixed`` in
+    any of ``records`` (the run's kept frames), in camera order (per camera in the
+    order of :data:`LEFT_OUT_REASONS`); empty when no view was left out so.
 
     An ``occluded`` view is one in which someone nearer hides most of the
     person, or a camera whose segmenter did not detect them where someone else

@@ -18,6 +18,7 @@ from bodymetry.estimation.records import FrameArrays, FrameRecord
 from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunLayout
+from bodymetry.estimation.view_selection import usable_view
 from bodymetry.executors import DaskExecutor, Executor, LocalExecutor
 from bodymetry.run_folder import config_fingerprint
 from bodymetry.studio.rig import studio_rig
@@ -233,6 +234,13 @@ def test_choose_person_follows_one_person_through_the_frames(tmp_path):
     assert zero[0].flags == ((),) * 3
     assert zero[0].unknown[0] is None and zero[0].unknown[2] is None
     assert np.array_equal(zero[0].unknown[1], covered) and zero[1].unknown == ()
+    # Person 0's detection in camera 0 at frame 25 mixed them with person 1: that
+    # view is left out, and named for it.
+    mixed = [seg[0], replace(seg[1], people=(seg[1].people[0], replace(
+        seg[1].people[1], mixed=(True, False, False)))), seg[2]]  # fmt: skip
+    either = pipeline.choose_person(prepared, mixed, ProcessConfig(), 0)
+    assert either[1].flags == (("mixed",), (), ())
+    assert not usable_view(int(either[1].masks[0].sum()), either[1].flags[0])
     models = pipeline.RigModels("key", tmp_path, True, 0.0)
     job = pipeline.fit_job_of(prepared, models, zero[0], ProcessConfig(person=0))
     assert np.array_equal(job.unknown[1], covered) and job.unknown[0] is None

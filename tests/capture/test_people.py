@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 from skeletons import detection
 
 from bodymetry.capture.consistency import VisualHull
-from bodymetry.capture.people import partition, sightings
+from bodymetry.capture.people import MIXED_SHARE, astray, partition, sightings
 from bodymetry.capture.person import Person
 from bodymetry.studio.rig import studio_rig
 
@@ -143,6 +144,41 @@ def test_a_detected_person_half_behind_another_keeps_the_view_with_hidden_pixels
     assert np.count_nonzero(hidden & truly) > 0.5 * np.count_nonzero(truly)
     assert np.count_nonzero(hidden) < 0.8 * np.count_nonzero(seen_a.masks[0])
     assert seen_a.hidden[0] is None  # nobody is nearer to camera 0 than A
+
+
+def test_a_detection_mostly_on_someone_else_is_named_mixed():
+    a, b = _behind(RIG[0], 0.35)
+    detections = _detections([tuple(a), tuple(b)])
+    front, back = detections[0]
+    floor = VisualHull(RIG).floor_box
+    clean = sightings(RIG, detections, 0.5, floor)
+    assert not any(any(p.mixed) for p in clean)
+    # Camera 0's detector drew A's left arm and legs on B behind them (13 of 33
+    # landmarks), and A's mask followed: that view of A is mixed, no other is.
+    wrong = front.landmarks.copy()
+    moved = [13, 15, 17, 19, 21, *range(25, 33)]
+    wrong[moved] = back.landmarks[moved]
+    detections[0] = [Person(front.probability, wrong), back]
+    seen_a, seen_b = sorted(
+        sightings(RIG, detections, 0.5, floor), key=lambda p: np.linalg.norm(p.position[:2] - a)
+    )
+    assert seen_a.mixed == (True, False, False, False)
+    assert not any(seen_b.mixed) and not seen_a.occluded[0]
+
+
+def test_how_far_a_detection_strays_from_the_other_cameras():
+    cam = RIG[0]
+    lm = detection(cam, (0.0, 0.0))
+    assert astray(lm, lm, cam) == 0.0 and astray(lm, None, cam) == 0.0
+    drawn = np.isfinite(lm).all(axis=1) & (lm[:, 2] >= 0.3)
+    off = lm.copy()
+    off[:11, 0] += 0.05 * cam.size[1]  # the face moved 5 % of the image height
+    assert astray(off, lm, cam) == pytest.approx(drawn[:11].sum() / drawn.sum())
+    assert astray(off, lm, cam) < MIXED_SHARE  # mended, not mixed
+    # Landmarks drawn too faintly are not counted.
+    faint = off.copy()
+    faint[:11, 2] = 0.1
+    assert astray(faint, lm, cam) == 0.0
 
 
 def test_landmarks_a_camera_put_on_someone_else_are_drawn_where_the_others_see_them():

@@ -71,6 +71,24 @@ def test_left_out_views_name_each_camera_once_with_its_frames_and_agreement():
     assert left_out_views([_record(0, {})], NAMES) == []
 
 
+def test_views_left_out_for_each_reason_are_named_for_it():
+    def flagged(frame: int, flag: str) -> FrameRecord:
+        return FrameRecord(
+            frame, "ok", flags={n: (flag,) if n == "cam_01" else () for n in NAMES},
+            person_pixels={n: 5000 for n in NAMES},
+        )  # fmt: skip
+
+    records = [flagged(0, "mixed"), flagged(25, "occluded"), flagged(50, "mixed")]
+    assert not usable_view(5000, ("mixed",))
+    occluded, mixed = left_out_views(records, NAMES)
+    assert (occluded.reason, occluded.frames) == ("occluded", (25,))
+    assert (mixed.reason, mixed.frames) == ("mixed", (0, 50))
+    assert mixed.describe() == (
+        "cam_01: detected mixed with another person in 2 of 3 kept frames, "
+        "left out of those frames' fits"
+    )
+
+
 def test_camera_frames_count_only_the_usable_views():
     records = [_record(0, {"cam_01": 0.5}), _record(25, {}), _record(50, {"cam_01": 0.6}, 10)]
     assert usable_camera_frames(records, NAMES) == {
