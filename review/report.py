@@ -516,8 +516,8 @@ def per_frame_rows(run: RunData) -> list[dict[str, Any]]:
 
 
 def left_out_rows(run: RunData) -> list[dict[str, str]]:
-    """The "Views left out" list: per camera whose view capture flagged ``unreliable``
-    or ``occluded`` in some kept frames (left out of those frames' fits), its
+    """The "Views left out" list: per camera whose view capture flagged ``unreliable``,
+    ``occluded`` or ``mixed`` in some kept frames (left out of those frames' fits), its
     ``camera``, ``reason`` (the flag), ``frames`` (how many and which) and
     ``agreement`` (the range of capture's agreement, "" when none was recorded);
     empty when no view was left out."""
@@ -949,7 +949,7 @@ def _summary_lines(ctx: dict[str, Any]) -> list[str]:
 
 
 def _left_out_lines(ctx: dict[str, Any]) -> list[str]:
-    """The views left out as unreliable or occluded, in one line (none when no view was)."""
+    """The views left out (unreliable, occluded or mixed), in one line (none when no view was)."""
     if not ctx["left_out"]:
         return []
     views = "; ".join(

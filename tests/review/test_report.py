@@ -468,6 +468,17 @@ def test_the_views_left_out_as_unreliable_are_listed_only_when_there_are_any(
         ("cam_01", "unreliable", "0.61-0.74"),
     ]
     assert rows[0]["frames"] == f"1 of {kept} kept frames ({frames[1]['frame']})"
+    # So is a view whose detection mixed the person with another.
+    frames[2]["flags"]["cam_00"] = ["mixed"]
+    (bare_run / "results.json").write_text(json.dumps(data))
+    rows = left_out_rows(load_run(bare_run))
+    assert [(r["camera"], r["reason"]) for r in rows] == [
+        ("cam_00", "occluded"),
+        ("cam_00", "mixed"),
+        ("cam_01", "unreliable"),
+    ]
+    html = build_report(bare_run).html.read_text()
+    assert f"cam_00 (mixed): 1 of {kept} kept frames ({frames[2]['frame']})" in html
 
 
 def test_caveats_head_the_report_only_when_there_are_any(bare_run, monkeypatch):
