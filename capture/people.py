@@ -422,11 +422,7 @@ def _mended(landmarks: np.ndarray, projected: np.ndarray | None, camera) -> np.n
     lm = np.array(landmarks, float)
     if projected is None:
         return lm
-    drawn = np.isfinite(lm).all(axis=1) & (lm[:, 2] >= BONE_VISIBILITY)
-    known = np.isfinite(projected[:, :2]).all(axis=1)
-    with np.errstate(invalid="ignore"):
-        off = np.linalg.norm(lm[:, :2] - projected[:, :2], axis=1) > MATCH_ERROR * camera.size[1]
-    elsewhere = known & off
+    drawn, known, elsewhere = _placed(lm, projected, camera)
     moved = elsewhere | (known & ~drawn)
     lm[moved, :2] = projected[moved, :2]
     lm[moved & ~drawn, 2] = BONE_VISIBILITY
@@ -451,13 +447,24 @@ def astray(landmarks: np.ndarray, projected: np.ndarray | None, camera) -> float
     None); 0 where nothing can be compared."""
     if projected is None:
         return 0.0
-    lm = np.asarray(landmarks, float)
-    both = np.isfinite(lm).all(axis=1) & (np.nan_to_num(lm[:, 2]) >= BONE_VISIBILITY)
-    both &= np.isfinite(projected[:, :2]).all(axis=1)
-    if not both.any():
-        return 0.0
-    off = np.linalg.norm(lm[both, :2] - projected[both, :2], axis=1)
-    return float(np.mean(off > MATCH_ERROR * camera.size[1]))
+    drawn, known, elsewhere = _placed(np.asarray(landmarks, float), projected, camera)
+    both = drawn & known
+    return float(np.mean(elsewhere[both])) if both.any() else 0.0
+
+
+def _placed(
+    landmarks: np.ndarray, projected: np.ndarray, camera
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Three (33,) bool of one camera's ``landmarks`` (33, 3) against ``projected``
+    (33, 3), the other cameras' skeleton as it sees it: which it draws (finite,
+    visibility at least :data:`BONE_VISIBILITY`), which the others place, and
+    which lie further than :data:`~bodymetry.capture.headcount.MATCH_ERROR` of the
+    image height from where the others put them."""
+    drawn = np.isfinite(landmarks).all(axis=1) & (np.nan_to_num(landmarks[:, 2]) >= BONE_VISIBILITY)
+    known = np.isfinite(projected[:, :2]).all(axis=1)
+    with np.errstate(invalid="ignore"):
+        off = np.linalg.norm(landmarks[:, :2] - projected[:, :2], axis=1)
+    return drawn, known, known & (off > MATCH_ERROR * camera.size[1])
 
 
 def _projected(camera, points: np.ndarray) -> np.ndarray | None:
