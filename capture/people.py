@@ -131,8 +131,9 @@ MISSED_WIDTH = 0.02
 #: two people, and the mask follows it. Demo_MultiPerson: 0 to 0.15 for detections
 #: of one person; 0.21 to 0.67 where a detection mixed the two (0.48 and 0.58 in
 #: cam03 at frames 80 and 60, where the man's mask left out his shorts and held
-#: the woman's face). Between 0.2 and 0.35 the detection is mended instead
-#: (:func:`_mended`): the view kept at 0.2 gave frames fitted from one camera.
+#: the woman's face). A detection below the bound keeps its view and only its
+#: stray landmarks are mended (:func:`_mended`); a bound of 0.2 left the man's
+#: frame 60 with one camera.
 MIXED_SHARE = 0.35
 
 

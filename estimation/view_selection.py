@@ -1,4 +1,4 @@
-"""Which views of a frame the fit uses, and the views left out (unreliable or occluded).
+"""Which views of a frame the fit uses, and the views left out (unreliable, occluded, mixed).
 
 One decision, made here for every consumer of a frame's per-view silhouettes
 (the per-frame fit and its rescue, the session stage and its outline check,
@@ -11,8 +11,10 @@ the frame's other evidence (the other views' hull and the learned segmenter;
 :attr:`bodymetry.capture.segmentation.SilhouetteFrame.agreement`). Capture
 keeps such a mask as it found it, for review; the fit leaves the view out of
 that frame. ``occluded`` is capture's verdict that someone else hides most of a
-person in a view (or a camera missed them where someone covers them).
-:func:`left_out_views` gathers both kinds of view over a run, and
+person in a view (or a camera missed them where someone covers them), and
+``mixed`` that the camera's detection of a person is partly someone else's
+(:data:`bodymetry.capture.people.MIXED_SHARE`). :func:`left_out_views`
+gathers these kinds of view over a run, and
 :meth:`LeftOutView.describe` is the run's warning about each camera (the
 report lists the same).
 """
@@ -90,7 +92,7 @@ def usable_camera_frames(records: Sequence[FrameRecord], names: Sequence[str]) -
 
 @dataclass(frozen=True)
 class LeftOutView:
-    """A camera whose view was left out (``unreliable`` or ``occluded``) in some kept
+    """A camera whose view was left out (``unreliable``, ``occluded`` or ``mixed``) in some kept
     frames.
 
     Attributes
