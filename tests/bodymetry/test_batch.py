@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import dataclasses
 import shutil
 import socket
 import time
@@ -15,17 +14,12 @@ from tiny_run import TINY_TRAIN, tiny_session
 
 import bodymetry.batch as batch_module
 from bodymetry.batch import dask_client, find_sessions, run_batch, run_names
-from bodymetry.calibration.camera import CameraGroup
-from bodymetry.calibration.io import load_calibration, save_calibration
-from bodymetry.capture.landmarks import shifted_camera
 from bodymetry.cli import main
 from bodymetry.errors import InputError
 from bodymetry.estimation.registration import read_registration
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunResults, StudyResults
 from bodymetry.process import process_session
-from bodymetry.studio.synth import synthesize
-from bodymetry.warmup import TINY_SESSION
 
 #: The batch tests check the plumbing, not the session stage's accuracy: one
 #: descent of one step (the default 4 x 3 cost ~5 s per session on 2 cores).
@@ -182,24 +176,18 @@ def test_scheduler_unreachable_reads_the_address_forms():
     assert scheduler_unreachable("inproc://somewhere") is None  # only Dask can tell
 
 
-def test_a_camera_registered_in_a_batch_is_what_process_registers(study, tmp_path):
+def test_a_camera_registered_in_a_batch_is_what_process_registers(study, moved_camera, tmp_path):
     """The registration's second fit of every frame runs on Dask as in process:
     camera 1 of a 4-camera session moved 5 px down is registered alike, and the
     runs hold the same frames and summary."""
-    base, *_, address = study
-    session = synthesize(
-        tmp_path / "moved", dataclasses.replace(TINY_SESSION, cameras=4), workers=1
-    )
-    calib = load_calibration(session.calibration_path)
-    off = CameraGroup([shifted_camera(c, 0.0, 5.0) if c.name == "cam_01" else c for c in calib])
-    save_calibration(session.calibration_path, off)
-    alone = process_session(session.folder, tmp_path / "alone", _config(base))
+    *_, address = study
+    session, alone, config = moved_camera.session, moved_camera.results, moved_camera.config
     with Client(address) as client:
-        run_batch([session.folder], tmp_path / "study", _config(base), client)
-    batch = RunResults.read(tmp_path / "study" / "moved" / "results.json")
+        run_batch([session.folder], tmp_path / "study", config, client)
+    batch = RunResults.read(tmp_path / "study" / session.folder.name / "results.json")
     registered = [
         read_registration(where / "registration.json")
-        for where in (tmp_path / "alone", tmp_path / "study" / "moved")
+        for where in (moved_camera.out, tmp_path / "study" / session.folder.name)
     ]
     assert registered[0] == registered[1]
     assert [s.camera for s in registered[0] if s.applied] == ["cam_01"]

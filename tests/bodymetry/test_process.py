@@ -10,16 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from tiny_run import TINY_TRAIN, tiny_session
+from tiny_run import TINY_TRAIN, tiny_process_config, tiny_session
 
 import bodymetry.cameras as cameras_module
 import bodymetry.frame_jobs as frame_jobs
 import bodymetry.pipeline as pipeline
 import bodymetry.process as process_module
 from bodymetry.calibration.camera import CameraGroup
-from bodymetry.calibration.io import load_calibration, save_calibration
+from bodymetry.calibration.io import load_calibration
 from bodymetry.calibration.solve import CalibrationResult
-from bodymetry.capture.landmarks import shifted_camera
 from bodymetry.capture.people import Sighting
 from bodymetry.capture.segmentation import segment_session
 from bodymetry.capture.session import load_session
@@ -43,12 +42,10 @@ from bodymetry.estimation.run_files import (
     RunLayout,
     RunResults,
 )
-from bodymetry.estimation.session_shape import SessionShapeConfig, session_frame
+from bodymetry.estimation.session_shape import session_frame
 from bodymetry.estimation.training import DiscriminativeModels
 from bodymetry.frame_jobs import RESCUE_FILE, rescue_poor_frames
 from bodymetry.review.evaluation import evaluate_persons, evaluate_run
-from bodymetry.studio.synth import synthesize
-from bodymetry.warmup import TINY_SESSION
 
 
 @pytest.fixture(scope="module")
@@ -59,24 +56,8 @@ def run(tmp_path_factory):
     return session, out, _process(session, out, base), base
 
 
-def _config(base, **fit) -> ProcessConfig:
-    # The tiny models and 240x180 images fit less tightly than the real
-    # setting; the quality gate has its own test.
-    return ProcessConfig.preset(
-        "fast",
-        fit=FitConfig.preset("fast", min_iou=0.5, **fit),
-        training=TINY_TRAIN,
-        # One descent of one step, always accepted: the session stage's accuracy
-        # and its acceptance have their own tests (tests/estimation/
-        # test_session_shape.py); here it is plumbing. The tiny session's first
-        # camera is encoded one of two ways from the same rendered frames (libx264
-        # through PyAV, not understood yet), and on one of them the stage's IoU
-        # check rejected the shape by 0.002 (0.797 -> 0.785, bound 0.01).
-        session_shape=SessionShapeConfig(descents=1, iterations=1, max_iou_drop=1.0),
-        workers=1,
-        cache_dir=base / "cache",
-        review=False,
-    )
+def _config(base) -> ProcessConfig:
+    return tiny_process_config(base / "cache")
 
 
 def _process(session, out, base) -> RunResults:
@@ -719,32 +700,28 @@ def test_the_headline_values_prefer_the_session_stage_and_are_held_to_the_valida
 
 
 def test_a_camera_off_its_video_is_registered_and_the_frames_fitted_again(
-    run, tmp_path, monkeypatch
+    moved_camera, tmp_path, monkeypatch
 ):
     """Camera 1's calibration moved 5 px down (its principal point) in a 4-camera
     session: the fitted bodies sit off its silhouettes in every frame (and, meeting
     it halfway, a little off the others'), so the run shifts camera 1 alone back,
     fits every frame again and says so; a resumed run fits nothing again."""
-    base = run[3]
-    session = synthesize(
-        tmp_path / "session", dataclasses.replace(TINY_SESSION, cameras=4), workers=1
-    )
-    calib = load_calibration(session.calibration_path)
-    off = CameraGroup([shifted_camera(c, 0.0, 5.0) if c.name == "cam_01" else c for c in calib])
-    save_calibration(session.calibration_path, off)
-    out = tmp_path / "run"
-    registered = process_module.process_session(session.folder, out, _config(base))
+    registered, out = moved_camera.results, moved_camera.out
     shifts = {s.camera: s for s in read_registration(out / "registration.json")}
     assert shifts["cam_01"].applied and -6.5 < shifts["cam_01"].dy < -3.0, shifts["cam_01"]
     assert [n for n, s in shifts.items() if s.applied] == ["cam_01"], shifts
     run_calib = load_calibration(out / "calibration.yaml")
-    assert abs(run_calib[1].K[1, 2] - calib[1].K[1, 2]) < 1.5  # about where it belongs
+    rendered = moved_camera.calibration[1].K[1, 2]
+    assert abs(run_calib[1].K[1, 2] - rendered) < 1.5  # about where it belongs
     assert any("'cam_01'" in w and "fitted again" in w for w in registered.warnings)
     assert [f.frame for f in registered.frames] == [0, 2, 4]
-    # Resumed after its last frame: the registered cameras again, nothing refitted.
-    (out / "results.json").unlink()
+    # Resumed after its last frame (in a copy: the run is shared): the registered
+    # cameras again, nothing refitted.
+    resumed = shutil.copytree(out, tmp_path / "run")
+    (resumed / "results.json").unlink()
     monkeypatch.setattr(pipeline, "run_fit_job", lambda *a, **k: pytest.fail("refitted"))
-    again = process_module.process_session(session.folder, out, _config(base))
+    folder = moved_camera.session.folder
+    again = process_module.process_session(folder, resumed, moved_camera.config)
     assert again.summary == registered.summary
     assert again.warnings == registered.warnings
 
