@@ -154,8 +154,11 @@ def overlay_sheet(run: Path, frames: int = 3) -> np.ndarray:
 
 #: Each person's colour (BGR) in :func:`people_sheet`: orange, cyan, green.
 PERSON_COLOURS = ((0, 150, 255), (255, 200, 0), (80, 200, 60))
-#: The two-person overlay of the README (one ``process`` run measuring both).
+#: The two-person overlay of the README (one ``process`` run measuring both):
+#: ``python -m benchmarks.bench_real people RUN`` on a run of Demo_MultiPerson.
 PEOPLE_OVERLAY = ROOT / "docs" / "images" / "real-pose2sim-two-people.jpg"
+#: Its kept frames: the two apart (10), side by side (80), the man kicking past her (90).
+PEOPLE_FRAMES = (10, 80, 90)
 
 
 def people_sheet(run: Path, frames: list[int], width: int = 320) -> np.ndarray:
@@ -265,5 +268,9 @@ if __name__ == "__main__":  # pragma: no cover
         make_fixture()
         make_fixture(MULTI_FIXTURE, MULTI_DEMO, MULTI_FIXTURE_FRAMES)
         print(f"wrote {FIXTURE} and {MULTI_FIXTURE}")
+    elif len(sys.argv) == 3 and sys.argv[1] == "people":
+        sheet = people_sheet(Path(sys.argv[2]), list(PEOPLE_FRAMES))
+        cv2.imwrite(str(PEOPLE_OVERLAY), sheet, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        print(f"wrote {PEOPLE_OVERLAY}")
     else:
         print(json.dumps(run(), indent=2))

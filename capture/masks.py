@@ -58,8 +58,11 @@ Flags per camera and frame (:data:`FLAGS`):
 ``mixed``
     (a person of several) the camera's detection of this person is partly
     someone else's: its landmarks stray from where the other cameras put
-    them, and its mask follows both people; the fit leaves the view out for
-    that frame (:data:`bodymetry.capture.people.MIXED_SHARE`).
+    them, and its mask follows both people; or the camera did not detect them
+    and its masks leave most of their projected skeleton on background; the
+    fit leaves the view out for that frame
+    (:data:`bodymetry.capture.people.MIXED_SHARE`,
+    :data:`bodymetry.capture.people.BACKGROUND_BONES`).
 
 The capture stage that produces the raw masks and applies this clean-up is
 :mod:`bodymetry.capture.segmentation`.

@@ -45,7 +45,7 @@ from bodymetry.capture.fusion import (
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.masks import CleanupConfig, clean_mask, grown_mask, thin_parts
-from bodymetry.capture.people import Sighting, sighting_of, sightings
+from bodymetry.capture.people import Sighting, people_boxes, sighting_of, sightings
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
     Person,
@@ -485,6 +485,40 @@ class FrameSegmenter:
         change = change_evidence(dist2, sub.config.fg_sigma)
         return ViewEvidence(raw, shadow, change, brightness, person, threshold)
 
+    def _asked_again(
+        self, images: Sequence[np.ndarray | None], evidence: list[ViewEvidence | None]
+    ) -> list[ViewEvidence | None]:
+        """``evidence`` with each camera whose segmenter found nobody, while two
+        other cameras agree on someone, asked again in the box where they put
+        each such person (:func:`~bodymetry.capture.people.people_boxes`), until
+        one is found.
+
+        The detector can miss everyone in a whole image and find them in a crop:
+        Demo_MultiPerson, frame 90, cam02, both people in plain view, nobody found
+        even at detection confidence 0.1, each found in a crop of their own. A
+        camera that did find someone is not asked again here (someone hidden behind
+        another is their skeleton's business, :func:`~bodymetry.capture.people.sightings`).
+        """
+        if self.segmenter is None or self.hull is None:
+            return evidence
+        missed = [
+            c for c, ev in enumerate(evidence)
+            if ev is not None and ev.person is None and images[c] is not None
+        ]  # fmt: skip
+        if not missed:
+            return evidence
+        landmarks = [
+            [] if ev is None or ev.person is None else [ev.person.landmarks] for ev in evidence
+        ]
+        for c in missed:
+            for roi in people_boxes(self.hull.cameras, landmarks, c, self.hull.floor_box):
+                again = self.evidence(c, images[c], roi)
+                if again.person is not None:
+                    log.debug("camera %s: nobody found in the image, someone in %s", c, roi)
+                    evidence[c] = again
+                    break
+        return evidence
+
     def bodies(self, evidence: Sequence[ViewEvidence | None]) -> HullBodies | None:
         """The hull's bodies of every pixel some source calls person (the fusion's
         candidates); None without a hull."""
@@ -654,6 +688,7 @@ class FrameSegmenter:
     def __call__(self, images: Sequence[np.ndarray | None]) -> _FrameViews:
         """Segment one frame's images (None: unreadable): :class:`_FrameViews`."""
         evidence = [None if im is None else self.evidence(c, im) for c, im in enumerate(images)]
+        evidence = self._asked_again(images, evidence)
         # Background subtraction sees everyone; without a background clip the
         # segmenter is asked for everyone (to count them and tell them apart: the
         # frame's silhouettes stay the most prominent person's, checked across

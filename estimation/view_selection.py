@@ -13,7 +13,9 @@ keeps such a mask as it found it, for review; the fit leaves the view out of
 that frame. ``occluded`` is capture's verdict that someone else hides most of a
 person in a view (or a camera missed them where someone covers them), and
 ``mixed`` that the camera's detection of a person is partly someone else's
-(:data:`bodymetry.capture.people.MIXED_SHARE`). :func:`left_out_views`
+(:data:`bodymetry.capture.people.MIXED_SHARE`), or that a camera which did not
+detect them has masks there that follow someone else
+(:data:`bodymetry.capture.people.BACKGROUND_BONES`). :func:`left_out_views`
 gathers these kinds of view over a run, and
 :meth:`LeftOutView.describe` is the run's warning about each camera (the
 report lists the same).

@@ -9,7 +9,7 @@ import pytest
 from skeletons import detection
 
 from bodymetry.capture.consistency import VisualHull
-from bodymetry.capture.people import MIXED_SHARE, astray, partition, sightings
+from bodymetry.capture.people import MIXED_SHARE, astray, partition, people_boxes, sightings
 from bodymetry.capture.person import Person
 from bodymetry.studio.rig import studio_rig
 
@@ -164,6 +164,69 @@ def test_a_detection_mostly_on_someone_else_is_named_mixed():
     )
     assert seen_a.mixed == (True, False, False, False)
     assert not any(seen_b.mixed) and not seen_a.occluded[0]
+
+
+def test_someone_a_camera_missed_in_front_of_the_one_it_found_is_mixed_there():
+    a, b = _behind(RIG[0], 0.3)  # B behind A as camera 0 sees them, half hidden
+    detections = _detections([tuple(a), tuple(b)])
+    whole_a = _person(RIG[0], tuple(a)).mask(0.5)
+    back = detections[0][1]  # B's visible pixels, with B's skeleton
+    rows = np.flatnonzero(whole_a.any(axis=1))
+    legs = whole_a.copy()
+    legs[: rows[0] + 2 * (rows[-1] - rows[0]) // 3] = False  # A's lowest third
+    floor = VisualHull(RIG).floor_box
+
+    def seen(mask, foreground=None):
+        # Camera 0's detector found B only, with B's skeleton and ``mask``.
+        found = [*detections]
+        found[0] = [Person(mask.astype(np.float32), back.landmarks)]
+        people = sightings(RIG, found, 0.5, floor, foreground=foreground)
+        return sorted(people, key=lambda p: np.linalg.norm(p.position[:2] - a))
+
+    # Its mask followed B and held A's legs, not A's trunk: nobody hides A from
+    # camera 0, yet most of A's projected skeleton lies on pixels A's fit would
+    # read as background. That view of A is mixed, not fitted as A's silhouette.
+    seen_a, seen_b = seen(back.mask(0.5) | legs)
+    assert seen_a.landmarks[0] is None and seen_a.masks[0] is not None
+    assert seen_a.mixed == (True, False, False, False) and not seen_a.occluded[0]
+    assert not any(seen_b.mixed)
+    # Where the background's change sees everyone, A's trunk that no mask holds is
+    # unknown to A, not background: the view is kept, its trunk left to the others.
+    everyone = [whole_a | _person(RIG[0], tuple(b)).mask(0.5), None, None, None]
+    seen_a, _ = seen(back.mask(0.5) | legs, everyone)
+    assert not any(seen_a.mixed) and seen_a.hidden[0] is not None
+    assert np.count_nonzero(seen_a.hidden[0] & whole_a & ~legs) > 0.5 * np.count_nonzero(
+        whole_a & ~legs
+    )
+    # One detection of both whose mask holds all of A: A's pixels there, not mixed.
+    seen_a, seen_b = seen(back.mask(0.5) | whole_a)
+    assert not any(seen_a.mixed) and not any(seen_b.mixed)
+    assert seen_a.masks[0][whole_a].mean() > 0.9
+
+
+def test_people_boxes_frame_where_the_other_cameras_put_each_person():
+    places = [(-0.5, 0.2), (0.6, -0.1)]
+    landmarks = [[detection(cam, at) for at in places] for cam in RIG]
+    floor = VisualHull(RIG).floor_box
+    for c, cam in enumerate(RIG):
+        boxes = people_boxes(RIG, landmarks, c, floor)
+        assert len(boxes) == 2
+        for at in places:
+            # Each person's own landmarks in camera c lie in one box, tight to 2 px.
+            xy = detection(cam, at)[:, :2]
+            xy = xy[np.isfinite(xy[:, 0])]
+            lo, hi = xy.min(axis=0), xy.max(axis=0)
+            assert any(
+                np.all(np.abs([x0 - lo[0], y0 - lo[1], x1 - hi[0], y1 - hi[1]]) < 2.0)
+                for x0, y0, x1, y1 in boxes
+            ), (c, at, boxes)
+    # Camera c's own detections are not used: the boxes are the same without them.
+    without = [list(v) for v in landmarks]
+    without[1] = []
+    assert people_boxes(RIG, without, 1, floor) == people_boxes(RIG, landmarks, 1, floor)
+    # Someone only one other camera found is nowhere.
+    one = [[], [detection(RIG[1], places[0])], [], []]
+    assert people_boxes(RIG, one, 0, floor) == []
 
 
 def test_how_far_a_detection_strays_from_the_other_cameras():

@@ -14,11 +14,21 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from skeletons import detection
 
 from bodymetry.capture.background import SubtractionConfig
-from bodymetry.capture.segmentation import SilhouetteFrame, background_models, segment_session
+from bodymetry.capture.person import Person
+from bodymetry.capture.segmentation import (
+    CaptureConfig,
+    FrameSegmenter,
+    SilhouetteFrame,
+    ViewEvidence,
+    background_models,
+    segment_session,
+)
 from bodymetry.capture.session import Session, load_session
 from bodymetry.capture.toy import ToyScene, toy_background, toy_frame, write_toy_session
+from bodymetry.studio.rig import studio_rig
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -141,3 +151,48 @@ def test_camera_order_does_not_change_the_masks(toy: Path, tmp_path: Path) -> No
         assert x.flags == y.flags[::-1]
         for u, v in zip(x.masks, y.masks[::-1], strict=True):
             np.testing.assert_array_equal(u, v)
+
+
+class _CropOnlySegmenter:
+    """A segmenter that finds nobody in a whole image and, in a box, the person whose
+    projected skeleton the box holds (Demo_MultiPerson, frame 90, cam02)."""
+
+    def __init__(self, rig, camera, at):
+        self.found = detection(rig[camera], at)
+        self.asked = []
+
+    def detect(self, image, roi=None):
+        self.asked.append(roi)
+        if roi is None:
+            return None
+        h, w = image.shape[:2]
+        x0, y0, x1, y1 = roi
+        inside = (self.found[:, 0] >= x0 - 2) & (self.found[:, 0] <= x1 + 2)
+        inside &= (self.found[:, 1] >= y0 - 2) & (self.found[:, 1] <= y1 + 2)
+        if not inside[np.isfinite(self.found[:, 0])].all():
+            return None
+        prob = np.zeros((h, w), np.float32)
+        prob[y0:y1, x0:x1] = 1.0
+        return Person(prob, self.found)
+
+
+def test_a_camera_that_found_nobody_is_asked_again_where_the_others_see_someone():
+    rig = studio_rig(4, (320, 240), seed=3)
+    frame = FrameSegmenter(
+        [None] * 4, rig.sizes, CaptureConfig(method="background"), None, None, rig
+    )
+    at = (0.2, -0.1)
+    images = [np.zeros((240, 320, 3), np.uint8)] * 4
+    found = [Person(np.zeros((240, 320), np.float32), detection(cam, at)) for cam in rig]
+    evidence = [ViewEvidence(None, np.zeros((240, 320), bool), None, None, p) for p in found]
+    evidence[2] = ViewEvidence(None, np.zeros((240, 320), bool), None, None, None)
+    frame.segmenter = _CropOnlySegmenter(rig, 2, at)
+    again = frame._asked_again(images, list(evidence))
+    assert again[2].person is not None and frame.segmenter.asked[0] is not None
+    np.testing.assert_array_equal(again[2].person.landmarks, found[2].landmarks)
+    assert again[:2] == evidence[:2] and again[3] is evidence[3]  # the others as they were
+    # Nobody found by two other cameras: nothing to ask, the view stays empty.
+    lonely = [evidence[0], *(ViewEvidence(None, e.raw, None, None, None) for e in evidence[1:])]
+    frame.segmenter = _CropOnlySegmenter(rig, 2, at)
+    assert frame._asked_again(images, list(lonely))[2].person is None
+    assert frame.segmenter.asked == []
