@@ -50,7 +50,13 @@ from bodymetry.estimation.refinement import RefineConfig, RefineResult, refine
 from bodymetry.estimation.shape_context import ShapeContextConfig
 from bodymetry.estimation.training import DiscriminativeModels, targets_to_theta
 from bodymetry.estimation.view_features import silhouette_features
-from bodymetry.estimation.view_selection import ABSENT, MIN_PIXELS, blank_unusable, usable_views
+from bodymetry.estimation.view_selection import (
+    ABSENT,
+    MIN_PIXELS,
+    MIN_VIEWS,
+    blank_unusable,
+    usable_views,
+)
 
 __all__ = [
     "MIN_PIXELS",
@@ -347,6 +353,10 @@ def fit_frame(
 ) -> FrameFit:
     """Fit one frame (never raises for bad data: the record says what went wrong).
 
+    A frame that fewer than :data:`~bodymetry.estimation.view_selection.MIN_VIEWS`
+    of a rig's cameras show usably is not fitted ("too few views"): one
+    silhouette says nothing of the body's depth.
+
     Parameters
     ----------
     frame : int
@@ -430,6 +440,12 @@ def fit_frame(
                 "person not found in this frame (fewer than three cameras agreed on them)"
             )
         return failed("no silhouette in any camera")
+    if valid.sum() < MIN_VIEWS <= len(names):
+        seen = ", ".join(n for n, ok in zip(names, valid, strict=True) if ok)
+        return failed(
+            f"too few views: only {seen} of {len(names)} cameras shows the person usably, "
+            f"and one view cannot tell the body's depth (at least {MIN_VIEWS} are needed)"
+        )
     try:
         # Unusable views become empty masks of their own size (left out downstream).
         # Prepared first: it checks every mask against its camera's size.

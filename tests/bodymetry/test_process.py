@@ -567,9 +567,11 @@ def _first_frame_as_captured(run, tmp_path, monkeypatch, verdict):
 
 
 def test_an_unreliable_view_is_left_out_of_the_fit_and_named(run, tmp_path, monkeypatch):
-    """Capture flags cam_01 ``unreliable`` in the first kept frame: that frame is fitted
-    with cam_00 alone, the session stage sees cam_01 blank, camera_frames does not count
-    it, a warning names it, and capture's agreement survives the record's round trip."""
+    """Capture flags cam_01 ``unreliable`` in the first kept frame: cam_00 alone is left
+    in that frame of the 2-camera session, too few views to measure (one silhouette says
+    nothing of depth), so the frame is not fitted and says why; the session stage sees
+    cam_01 blank, camera_frames does not count it, a warning names it, and capture's
+    agreement survives the record's round trip."""
 
     def unreliable(sil):
         flags = (sil.flags[0], (*sil.flags[1], "unreliable"))
@@ -580,7 +582,9 @@ def test_an_unreliable_view_is_left_out_of_the_fit_and_named(run, tmp_path, monk
     )
     first = planned.kept[0]
     assert seg.agreement == {"cam_00": 0.97, "cam_01": 0.58}
-    assert record.fitted and set(record.silhouette_iou) == {"cam_00"}
+    assert not record.fitted and record.status.startswith(
+        "too few views: only cam_00 of 2 cameras shows the person usably"
+    )
     assert record.view_agreement == {"cam_00": 0.97, "cam_01": 0.58}
     assert record.person_pixels["cam_01"] > 400  # left out for its flag, not its size
     layout = prepared.layout
@@ -588,7 +592,10 @@ def test_an_unreliable_view_is_left_out_of_the_fit_and_named(run, tmp_path, monk
     assert done[first].to_json() == record.to_json()  # a resumed run reads the same verdict
     arrays = FrameArrays.load(layout.frame_arrays(first))
     assert arrays.observed["cam_01"].any()  # kept for review, as capture found it
-    sf = session_frame(record, arrays, prepared.cameras)
+    # The session stage blanks a view its record leaves out (here on the record given
+    # another frame's fit: a 2-camera frame with one view left is not fitted).
+    fitted = dataclasses.replace(record, estimates=done[planned.kept[1]].estimates)
+    sf = session_frame(fitted, arrays, prepared.cameras)
     assert sf.masks[0].any() and not sf.masks[1].any()
     finished = _finished(prepared, config, rig, done)
     n = len(planned.kept)

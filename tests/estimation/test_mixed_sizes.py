@@ -217,6 +217,10 @@ def test_training_and_fit_on_a_mixed_rig(tmp_path):
     # A mask of the wrong size is a failed frame naming the camera, not a crash.
     bad = fit_frame(4, [masks[0], masks[0]], [[], []], cameras, trained, FitConfig.preset("fast"))
     assert bad.record.status.startswith("fit failed: camera cam_01: mask is 240x180")
+    # One view left (the other flagged unreliable): not measured, and it says why.
+    alone = fit_frame(5, masks, [[], ["unreliable"]], cameras, trained, FitConfig.preset("fast"))
+    assert alone.record.status.startswith("too few views: only cam_00 of 2 cameras")
+    assert not alone.record.fitted and alone.record.estimates == {}
 
 
 def test_view_ious_score_each_used_view_at_its_own_size():
