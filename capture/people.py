@@ -323,10 +323,13 @@ def sightings(
                 # background's change sees.
                 unseen = found[c][k].unseen
                 everyone = None if foreground is None else foreground[c]
-                body = None
+                lm = found[c][k].landmarks
+                body = bones = None
                 if nearer.any() or unseen is not None or everyone is not None:
-                    lm = found[c][k].landmarks
                     body = body_region([lm, _projected(cameras[c], skeleton)], mask.shape)
+                if g.detections[c] is None:
+                    # A camera that did not detect them: their projected skeleton's bones.
+                    bones = skeleton_mask(lm, mask.shape, round(BONE_WIDTH * mask.shape[0]))
                 if nearer.any():
                     covered = None if body is None else nearer & body & ~mask
                     if g.detections[c] is None:
@@ -335,7 +338,6 @@ def sightings(
                         # that someone covers part of their skeleton, too unsure to fit
                         # (on Demo_MultiPerson the woman's such masks in cam03 fitted at
                         # IoU 0.1-0.5).
-                        bones = skeleton_mask(lm, mask.shape, round(BONE_WIDTH * mask.shape[0]))
                         hidden = bones is not None and (
                             np.count_nonzero(bones & nearer)
                             > MISSED_SHARE * np.count_nonzero(bones)
@@ -361,7 +363,7 @@ def sightings(
                         lost |= _solid(everyone & body & ~claimed[c] & ~mask, width)
                     if lost.any():
                         covered = lost if covered is None else covered | lost
-                if g.detections[c] is None and not hidden and mask.any():
+                if bones is not None and not hidden and mask.any():
                     # Nobody nearer covers them, so the camera shows them, and their
                     # projected skeleton lies on their pixels, or on pixels unknown to
                     # them. Where most of it lies on pixels their fit would read as
@@ -370,14 +372,9 @@ def sightings(
                     # undetected; the woman's detection behind him held his leg and
                     # not his trunk, 59 % of his bones on background; the fit's IoU
                     # there was 0.28).
-                    bones = skeleton_mask(
-                        found[c][k].landmarks, mask.shape, round(BONE_WIDTH * mask.shape[0])
-                    )
-                    if bones is not None:
-                        read = mask if covered is None else mask | covered
-                        on_background = np.count_nonzero(bones & ~read)
-                        wrong = on_background > BACKGROUND_BONES * np.count_nonzero(bones)
-                        flags[c] = flags[c] or wrong
+                    read = mask if covered is None else mask | covered
+                    on_background = np.count_nonzero(bones & ~read)
+                    flags[c] = on_background > BACKGROUND_BONES * np.count_nonzero(bones)
                 if g.detections[c] is None and not mask.any():
                     mask = None  # nothing of them is left in that camera
             occluded.append(hidden and mask is not None)
