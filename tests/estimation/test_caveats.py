@@ -15,6 +15,7 @@ from bodymetry.estimation.caveats import (
     ARMS_DOWN_STUDIO,
     CAVEAT_CODES,
     MIN_MEASURED_FRAMES,
+    PERSONS_STUDIO,
     VALIDATED,
     run_caveats,
 )
@@ -184,3 +185,41 @@ def test_a_camera_that_another_person_hides_in_most_frames_is_a_caveat():
     for k in (2, 3):
         records[k] = dataclasses.replace(records[k], flags={})
     assert run_caveats(records, NAMES, told_apart=True) == ()
+
+
+def test_a_person_measured_among_others_says_so_with_the_studio_s_figures():
+    records = _records(6, 6, persons=2)
+    records[5] = dataclasses.replace(records[5], persons=1)  # alone in the last frame
+    (caveat,) = run_caveats(records, NAMES, told_apart=True)
+    assert caveat.code == "among_persons" and caveat.frames == (0, 25, 50, 75, 100)
+    assert caveat.message.startswith(
+        "measured among 2 people (someone else in the capture volume in 5 of 6 kept frames)"
+    )
+    lo, hi = PERSONS_STUDIO.weight_kg
+    assert f"{lo:+.1f} to {hi:+.1f} kg in weight" in caveat.message
+    # Not told apart (one subject per frame): the several_persons caveat instead.
+    assert [c.code for c in run_caveats(records, NAMES)] == ["several_persons"]
+    # Told apart and alone in every frame, or not counted: nothing to say.
+    assert run_caveats(_records(6, 6, persons=1), NAMES, told_apart=True) == ()
+    assert run_caveats(_records(6, 6), NAMES, told_apart=True) == ()
+
+
+def test_the_two_person_figures_are_the_benchmarks():
+    # What the caveat quotes is what the committed two-person results measured
+    # (python -m benchmarks two_persons [--long]), not a number typed in.
+    results = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
+    rows = [
+        person
+        for name in ("two_persons.json", "two_persons_long.json")
+        for session in json.loads((results / name).read_text())["sessions"].values()
+        for person in session["persons"]
+    ]
+    assert PERSONS_STUDIO.persons == len(rows) == 12
+    assert PERSONS_STUDIO.within == sum(all(p["within"].values()) for p in rows)
+    for key, (lo, hi) in (
+        ("height_mm", PERSONS_STUDIO.height_mm),
+        ("arm_span_mm", PERSONS_STUDIO.arm_span_mm),
+        ("weight_kg", PERSONS_STUDIO.weight_kg),
+    ):
+        errors = [p["session_error"][key] for p in rows]
+        assert (lo, hi) == (round(min(errors), 1), round(max(errors), 1)), key
