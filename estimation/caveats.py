@@ -7,10 +7,11 @@ list), and says why in a sentence a user can act on:
 
 ``several_persons``
     Capture counted more than one person-sized body in the capture volume in
-    some kept frames (:attr:`FrameRecord.persons`). bodymetry measures one
-    subject per session, the largest body of each frame (the most prominent
-    person without an empty-scene clip): its numbers may mix people (issue 29
-    is to measure each).
+    some kept frames (:attr:`FrameRecord.persons`) and did not tell the
+    measured person apart from the others (``--largest``, or a hull's split
+    it could not measure from): one subject is measured, the largest body of
+    each frame (the most prominent person without an empty-scene clip), and
+    its numbers may mix people.
 ``among_persons``
     The person was told apart from others in the capture volume and measured
     on their own (a run of several persons, or ``process --person N``), in
