@@ -30,9 +30,11 @@ $(VENV)/.installed-test: $(VENV)/.installed
 demo: $(VENV)/.installed
 	$(BIN)/bodymetry process recordings/demo --out runs/demo --restart
 
+# Two test processes, each test file whole in one of them (its module fixtures once):
+# the suite takes about 4.5 minutes instead of 6.5 on the 2-core CI machine.
 test: $(VENV)/.installed-test
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 --dist loadfile
 
 bench: $(VENV)/.installed-test
 	$(BIN)/python -m benchmarks
