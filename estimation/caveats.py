@@ -297,8 +297,9 @@ def run_caveats(
                 f"more than one person in the capture volume in {len(crowded)} of {kept} kept "
                 f"frames ({_frame_list([r.frame for r in crowded])}): bodymetry measures one "
                 "subject per frame (the largest body, or the most prominent person where there "
-                "is no empty-scene clip), so these measurements may mix people; without an "
-                "empty-scene clip, bodymetry measures each person (unless --largest)",
+                "is no empty-scene clip), so these measurements may mix people; each person is "
+                "measured where capture tells them apart (not with --largest, nor where only "
+                "the multi-view hull splits them)",
                 tuple(r.frame for r in crowded),
             )
         )
