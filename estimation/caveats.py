@@ -288,23 +288,24 @@ def run_caveats(
     if not measured:
         return ()
     out = []
-    crowded = [r for r in ordered if not told_apart and r.persons is not None and r.persons > 1]
-    if crowded:
-        # A count above one is "more than one": the hull's phantoms can add to it.
+    # The kept frames in which capture counted someone besides the measured person
+    # (a count above one is "more than one": the hull's phantoms can add to it).
+    crowded = [r for r in ordered if r.persons is not None and r.persons > 1]
+    frames = tuple(r.frame for r in crowded)
+    if crowded and not told_apart:
         out.append(
             Caveat(
                 "several_persons",
                 f"more than one person in the capture volume in {len(crowded)} of {kept} kept "
-                f"frames ({_frame_list([r.frame for r in crowded])}): bodymetry measures one "
+                f"frames ({_frame_list(frames)}): bodymetry measures one "
                 "subject per frame (the largest body, or the most prominent person where there "
                 "is no empty-scene clip), so these measurements may mix people; each person is "
                 "measured where capture tells them apart (not with --largest, nor where only "
                 "the multi-view hull splits them)",
-                tuple(r.frame for r in crowded),
+                frames,
             )
         )
-    among = [r for r in ordered if told_apart and r.persons is not None and r.persons > 1]
-    if among:
+    elif crowded:
         (h0, h1), (a0, a1), (w0, w1) = (
             PERSONS_STUDIO.height_mm,
             PERSONS_STUDIO.arm_span_mm,
@@ -313,15 +314,15 @@ def run_caveats(
         out.append(
             Caveat(
                 "among_persons",
-                f"measured among {max(r.persons for r in among)} people (someone else in the "
-                f"capture volume in {len(among)} of {kept} kept frames): others hide parts of "
+                f"measured among {max(r.persons for r in crowded)} people (someone else in the "
+                f"capture volume in {len(crowded)} of {kept} kept frames): others hide parts of "
                 "this person and their masks are cut from the others', and on the studio's "
                 f"two-person sessions a person's measurements read {h0:+.1f} to {h1:+.1f} mm "
                 f"in height, {a0:+.1f} to {a1:+.1f} mm in arm span and {w0:+.1f} to "
                 f"{w1:+.1f} kg in weight off the truth ({PERSONS_STUDIO.within} of "
                 f"{PERSONS_STUDIO.persons} persons within 10 mm, 15 mm and 1.5 kg): less "
                 "sure than one person's alone",
-                tuple(r.frame for r in among),
+                frames,
             )
         )
     need = max(MIN_MEASURED_FRAMES, math.ceil(MIN_MEASURED_SHARE * kept))
