@@ -270,6 +270,8 @@ def sightings(
         )
         for g in groups
     ]
+    # Each skeleton as each camera sees it (None: mostly behind it or outside its image).
+    projections = [[_projected(camera, skeleton) for camera in cameras] for skeleton in skeletons]
     # A detection's own landmarks may lie partly on someone else (in a crowd the
     # detector builds one skeleton from two people: Demo_MultiPerson, cam03, frames
     # 40-80, the man's head drawn on the woman's face behind him): where one lies
@@ -278,26 +280,24 @@ def sightings(
     # the mask followed the wrong skeleton too: the view is ``mixed``.
     found = [list(view) for view in detections]
     mixed = [[False] * len(cameras) for _ in groups]
-    for g, skeleton, flags in zip(groups, skeletons, mixed, strict=True):
+    for g, projected, flags in zip(groups, projections, mixed, strict=True):
         for c, k in enumerate(g.detections):
             if k is not None:
                 person = found[c][k]
-                projected = _projected(cameras[c], skeleton)
-                flags[c] = astray(person.landmarks, projected, cameras[c]) > MIXED_SHARE
-                mended = _mended(person.landmarks, projected, cameras[c])
+                flags[c] = astray(person.landmarks, projected[c], cameras[c]) > MIXED_SHARE
+                mended = _mended(person.landmarks, projected[c], cameras[c])
                 found[c][k] = replace(person, landmarks=mended)
     # A person a camera did not find may still be there, hidden behind someone whose
     # mask then holds their visible bits: their skeleton, triangulated from the
     # cameras that found them, claims those pixels in the partition below.
     index = [list(g.detections) for g in groups]
-    for ids, skeleton in zip(index, skeletons, strict=True):
+    for ids, projected in zip(index, projections, strict=True):
         for c, k in enumerate(ids):
             if k is not None:
                 continue
-            projected = _projected(cameras[c], skeleton)
-            if projected is not None:
+            if projected[c] is not None:
                 shape = (cameras[c].size[1], cameras[c].size[0])
-                found[c].append(Person(np.zeros(shape, np.float32), projected))
+                found[c].append(Person(np.zeros(shape, np.float32), projected[c]))
                 ids[c] = len(found[c]) - 1
     depths = [[np.inf] * len(view) for view in found]
     for g, ids in zip(groups, index, strict=True):
@@ -307,7 +307,7 @@ def sightings(
     masks = [partition(view, threshold, d) for view, d in zip(found, depths, strict=True)]
     claimed = [np.logical_or.reduce(view) if view else None for view in masks]
     out = []
-    for g, ids, skeleton, flags in zip(groups, index, skeletons, mixed, strict=True):
+    for g, ids, projected, flags in zip(groups, index, projections, mixed, strict=True):
         occluded, mine_masks, hidden_masks = [], [], []
         for c, k in enumerate(ids):
             hidden, mask, covered = False, None, None
@@ -326,7 +326,7 @@ def sightings(
                 lm = found[c][k].landmarks
                 body = bones = None
                 if nearer.any() or unseen is not None or everyone is not None:
-                    body = body_region([lm, _projected(cameras[c], skeleton)], mask.shape)
+                    body = body_region([lm, projected[c]], mask.shape)
                 if g.detections[c] is None:
                     # A camera that did not detect them: their projected skeleton's bones.
                     bones = skeleton_mask(lm, mask.shape, round(BONE_WIDTH * mask.shape[0]))
