@@ -19,7 +19,7 @@ import logging
 import queue
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import NamedTuple
 
@@ -512,10 +512,12 @@ class FrameSegmenter:
         ]
         for c in missed:
             for roi in people_boxes(self.hull.cameras, landmarks, c, self.hull.floor_box):
-                again = self.evidence(c, images[c], roi)
-                if again.person is not None:
+                # Only the segmenter is asked again: background subtraction's labels
+                # do not depend on where it looks.
+                person = self.segmenter.detect(images[c], roi)
+                if person is not None:
                     log.debug("camera %s: nobody found in the image, someone in %s", c, roi)
-                    evidence[c] = again
+                    evidence[c] = replace(evidence[c], person=person)
                     break
         return evidence
 
@@ -728,7 +730,8 @@ class FrameSegmenter:
                     if bad and check.rois[c] is not None and images[c] is not None
                 ]  # fmt: skip
                 for c in retry:
-                    evidence[c] = self.evidence(c, images[c], check.rois[c])
+                    person = self.segmenter.detect(images[c], check.rois[c])
+                    evidence[c] = replace(evidence[c], person=person)
                     views[c] = self._view(c, images[c], evidence[c], terms[c])
                 if retry:
                     check = self.hull.check([v.mask for v in views])
