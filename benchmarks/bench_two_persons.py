@@ -29,6 +29,8 @@ sessions twice as long instead, 400 frames (16 kept), on the seeds
 :data:`LONG_SEEDS`, never used for the short ones: with 4-7 measured frames a
 person, a short session's weight moves by 1-2 kg when a few masks change
 (docs/capture.md), too much to judge a change by; about 6 minutes a session.
+``--fresh`` (``two_persons_fresh.json``) runs short sessions on the seeds
+:data:`FRESH_SEEDS`, which no change was tuned on.
 """
 
 from __future__ import annotations
@@ -155,9 +157,16 @@ LONG_SEEDS = (31, 32, 33)
 LONG_FRAMES = 400
 
 
-def run(long: bool = False, **_: bool) -> dict:
+#: The seeds of ``--fresh``: sessions rendered after the per-person fused silhouettes
+#: (2026-12-06) and never used to tune anything; 200 frames each, as the short ones.
+FRESH_SEEDS = (41, 42, 43)
+
+
+def run(long: bool = False, fresh: bool = False, **_: bool) -> dict:
     base = os.environ.get("BODYMETRY_BENCH_PERSONS_DIR")
     seeds, frames = (LONG_SEEDS, LONG_FRAMES) if long else (SEEDS, FRAMES)
+    if fresh:
+        seeds = FRESH_SEEDS
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(base) if base else Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)

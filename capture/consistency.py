@@ -428,24 +428,7 @@ class VisualHull:
             one view whose cone crosses the subject's cones in others) or other
             people (:attr:`HullBodies.persons`).
         """
-        if len(masks) != len(self.cameras):
-            raise InputError(f"expected {len(self.cameras)} masks, got {len(masks)}")
-        hits = np.zeros(len(self.points), np.int16)
-        votes = np.zeros(len(self.points), np.int16)
-        for c, (cam, mask) in enumerate(zip(self.cameras, masks, strict=True)):
-            if np.shape(mask) != (cam.size[1], cam.size[0]):
-                raise InputError(
-                    f"camera {cam.name!r}: mask is {np.shape(mask)[1]}x{np.shape(mask)[0]}, "
-                    f"the camera {cam.size[0]}x{cam.size[1]}"
-                )
-            if not mask.any():
-                continue
-            seen = self.seen[c]
-            inside = np.zeros(len(self.points), bool)
-            u, v = self.pixels[c, seen, 0], self.pixels[c, seen, 1]
-            inside[seen] = mask[v, u]
-            hits += inside
-            votes += seen
+        hits, votes = self._votes(masks)
         # Never fewer than min_views agreeing cameras: the silhouette cones of two
         # cameras always meet somewhere, far from the subject too.
         need = np.maximum(votes - self.config.misses, self.config.min_views)
@@ -473,6 +456,49 @@ class VisualHull:
         # can be a body's only top, and it stands on nothing).
         heads = count_persons(self.grid(people), self.voxel)
         return replace(bodies, persons=max(heads, int(bodies.person_sized.sum())))
+
+    def _votes(self, masks: Sequence[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray]:
+        """Per voxel (N,) int16: the cameras whose silhouette holds it, and the cameras
+        that see it and have a silhouette (an empty or None mask abstains)."""
+        if len(masks) != len(self.cameras):
+            raise InputError(f"expected {len(self.cameras)} masks, got {len(masks)}")
+        hits = np.zeros(len(self.points), np.int16)
+        votes = np.zeros(len(self.points), np.int16)
+        for c, (cam, mask) in enumerate(zip(self.cameras, masks, strict=True)):
+            if mask is None:
+                continue
+            if np.shape(mask) != (cam.size[1], cam.size[0]):
+                raise InputError(
+                    f"camera {cam.name!r}: mask is {np.shape(mask)[1]}x{np.shape(mask)[0]}, "
+                    f"the camera {cam.size[0]}x{cam.size[1]}"
+                )
+            if not mask.any():
+                continue
+            seen = self.seen[c]
+            inside = np.zeros(len(self.points), bool)
+            u, v = self.pixels[c, seen, 0], self.pixels[c, seen, 1]
+            inside[seen] = mask[v, u]
+            hits += inside
+            votes += seen
+        return hits, votes
+
+    def carved(self, masks: Sequence[np.ndarray | None], min_views: int = 2) -> np.ndarray:
+        """(N,) bool: the largest connected body of the voxels that every given
+        silhouette seeing them holds, seen by at least ``min_views`` of them.
+
+        One person's hull from their own silhouettes (None or empty: the camera
+        abstains), with no disagreement allowed: unlike :meth:`bodies` (the frame's
+        hull, which forgives a camera that lost part of someone), a person's
+        silhouettes were chosen to hold all of them.
+        """
+        hits, votes = self._votes(masks)
+        occupied = (hits == votes) & (votes >= min_views)
+        if not occupied.any():
+            return occupied
+        labels, _ = ndimage.label(self.grid(occupied), structure=np.ones((3, 3, 3)))
+        labels = labels.reshape(-1)[self._index]
+        largest = np.argmax(np.bincount(labels[occupied])[1:]) + 1
+        return occupied & (labels == largest)
 
     def support(self, occupied: np.ndarray, c: int, reach: float = 0.5) -> np.ndarray:
         """(H, W) bool: where the occupied voxels project in camera ``c``, each as a

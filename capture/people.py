@@ -12,7 +12,10 @@ grouped across cameras by their skeletons (:func:`bodymetry.capture.headcount.gr
 A person's silhouette in a camera is the part of the camera's person pixels
 (the union of its detections' masks) nearer to their skeleton than to anyone
 else's (:func:`partition`): the segmenter marks every person inside the crop
-it looks at, so one detection's mask can hold another's head. Where someone
+it looks at, so one detection's mask can hold another's head. With an
+empty-scene clip, those pixels are snapped to everyone's fused, edge-refined
+silhouette (:func:`partition`'s ``silhouette``), whose outline is the image's,
+not the segmenter's coarser one. Where someone
 nearer to a camera covers part of a person, those pixels are ``hidden``:
 unknown to the fit, not background. They are estimated as the nearer people's
 pixels within :data:`BODY_REACH` of the person's skeleton in that camera (their
@@ -46,6 +49,7 @@ import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import CameraGroup
+from bodymetry.capture.consistency import VisualHull
 from bodymetry.capture.headcount import MATCH_ERROR, group_people
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.person import LANDMARKS, Person
@@ -62,6 +66,7 @@ __all__ = [
     "sighting_of",
     "sightings",
     "skeleton_mask",
+    "within_hulls",
 ]
 
 #: The skeleton drawn for :func:`partition`: pairs of landmarks (the face as a chain
@@ -122,6 +127,11 @@ BONE_WIDTH = 0.01
 #: finds 59 % of them at 57 % precision, 0.05 67 % at 53 %, 0.06 72 % at 48 %,
 #: 0.08 80 % at 38 %; wrongly unknown pixels are ones a fit may grow into for free.
 BODY_REACH = 0.05
+#: With everyone's fused silhouette known (an empty-scene clip), a person's pixels are
+#: its pixels within this fraction of their skeleton height of their pixels from the
+#: detections' masks (:func:`partition`): the segmenter's masks, upsampled from 256 px
+#: crops about a person high, are a pixel or two of the crop off along the outline.
+SNAP = 0.01
 #: What the detectors missed of the background's silhouette near a person is
 #: unknown to them where it is wider than this share of their height: thinner
 #: slivers along their outline are the gap between a detection's mask and the
@@ -233,9 +243,14 @@ def sightings(
         ``min_views`` cameras, people two cameras agree on (on detections no
         one else holds) make up the count.
     foreground : sequence of ((H_c, W_c) bool or None), optional
-        Per camera, everyone's silhouette from background subtraction, where the
-        session has an empty-scene clip: its pixels near a person's skeleton that
-        no detection's mask holds are unknown to that person (``hidden``).
+        Per camera, everyone's silhouette where the session has an empty-scene
+        clip (background subtraction fused with every detection and the hull:
+        :meth:`~bodymetry.capture.segmentation.FrameSegmenter.everyone`). The
+        people's pixels are then its pixels, each to the person whose skeleton
+        is nearest (:func:`partition`), not the detections' coarser masks; its
+        pixels near a person's skeleton that no skeleton claims, in parts wider
+        than :data:`MISSED_WIDTH` of their height, are unknown to that person
+        (``hidden``).
 
     Returns
     -------
@@ -304,7 +319,10 @@ def sightings(
         for c, k in enumerate(ids):
             if k is not None:
                 depths[c][k] = _distance(cameras[c], g.position)
-    masks = [partition(view, threshold, d) for view, d in zip(found, depths, strict=True)]
+    masks = [
+        partition(view, threshold, d, None if foreground is None else foreground[c])
+        for c, (view, d) in enumerate(zip(found, depths, strict=True))
+    ]
     claimed = [np.logical_or.reduce(view) if view else None for view in masks]
     out = []
     for g, ids, projected, flags in zip(groups, index, projections, mixed, strict=True):
@@ -319,10 +337,12 @@ def sightings(
                     if other is not g and j is not None and depths[c][j] < depths[c][k]:
                         nearer |= masks[c][j]
                 # What their detector could not see: the people found before,
-                # painted over (Person.unseen), and what it missed of what the
-                # background's change sees.
+                # painted over (Person.unseen), and what everyone's silhouette
+                # holds near them that nobody's pixels are.
                 unseen = found[c][k].unseen
                 everyone = None if foreground is None else foreground[c]
+                if unseen is not None and everyone is not None:
+                    unseen = unseen & everyone  # the background's change saw it all
                 lm = found[c][k].landmarks
                 body = bones = None
                 if nearer.any() or unseen is not None or everyone is not None:
@@ -584,6 +604,70 @@ def sighting_of(observed: PersonObservation, share: float = HIDDEN_SHARE) -> Sig
     )
 
 
+def within_hulls(people: Sequence[Sighting], hull: VisualHull) -> list[Sighting]:
+    """``people`` with each camera's pixels that lie on someone else's hull and off
+    their own made unknown to them (``hidden``).
+
+    One detection can hold two people, one behind the other, and the partition
+    gives the nearer one what their skeleton's :data:`CORE` covers, the edges of
+    the one behind included (two-person studio session seed 31, frames 0-50,
+    cam_01: the shoulders and legs of the man behind the woman; those frames read
+    +9 to +13 kg). The other cameras may see them apart: each person's hull,
+    carved from their pixels in the other cameras (:meth:`VisualHull.carved`;
+    only cameras that detected them and whose detection is not ``mixed``: a
+    skeleton placed from elsewhere claims an unsure part of them), says where
+    they can be in this one. A pixel off their own hull's projection and on
+    someone else's may be that someone's: neither body nor background for them.
+    Their pixels in the other cameras leave out what someone hides there, so
+    their hull may lack a part that is theirs: unknown, not background, is what
+    that can afford. Off every hull is not enough: a hand seen edge-on is thinner
+    than a voxel, and the hull, which samples voxel centres, can miss it.
+
+    Parameters
+    ----------
+    people : sequence of Sighting
+        One frame's people.
+    hull : VisualHull
+        The rig's capture volume, at the resolution of the masks.
+
+    Returns
+    -------
+    list of Sighting
+    """
+    n = len(hull.cameras)
+    # Per person and camera, where their hull carved by the other cameras projects.
+    support: list[list[np.ndarray | None]] = []
+    for person in people:
+        views = [
+            m if m is not None and person.landmarks[c] is not None
+            and not (person.mixed and person.mixed[c]) else None
+            for c, m in enumerate(person.masks)
+        ]  # fmt: skip
+        mine: list[np.ndarray | None] = []
+        for c in range(n):
+            others = [None if k == c else m for k, m in enumerate(views)]
+            body = hull.carved(others) if sum(m is not None for m in others) >= 2 else None
+            mine.append(hull.support(body, c) if body is not None and body.any() else None)
+        support.append(mine)
+    out = []
+    for k, person in enumerate(people):
+        masks, hidden = list(person.masks), list(person.hidden or (None,) * n)
+        changed = False
+        for c, mask in enumerate(person.masks):
+            theirs = [s[c] for j, s in enumerate(support) if j != k and s[c] is not None]
+            if mask is None or support[k][c] is None or not theirs:
+                continue
+            unsure = mask & np.logical_or.reduce(theirs) & ~support[k][c]
+            if unsure.any():
+                changed = True
+                masks[c] = mask & ~unsure
+                hidden[c] = unsure if hidden[c] is None else hidden[c] | unsure
+        if changed:
+            person = replace(person, masks=tuple(masks), hidden=tuple(hidden))
+        out.append(person)
+    return out
+
+
 def skeleton_mask(
     landmarks: np.ndarray, shape: tuple[int, int], width: int = 3, torso: bool = False
 ) -> np.ndarray | None:
@@ -606,16 +690,21 @@ def skeleton_mask(
 
 
 def partition(
-    found: Sequence[Person], threshold: float, depths: Sequence[float] | None = None
+    found: Sequence[Person],
+    threshold: float,
+    depths: Sequence[float] | None = None,
+    silhouette: np.ndarray | None = None,
 ) -> list[np.ndarray]:
     """Each detected person's pixels in one image: the union of the detections'
     masks, each pixel to the person whose skeleton (:data:`BONES`) is nearest,
-    except where it lies on the body of someone nearer to the camera.
+    except where it lies on the body of someone nearer to the camera; with
+    ``silhouette``, those pixels snapped to it.
 
     Parameters
     ----------
     found : sequence of Person
-        The image's detections.
+        The image's detections (a person the camera's detector missed, placed
+        there by the other cameras, has an all-zero probability).
     threshold : float
         The segmenter's probability threshold.
     depths : sequence of float, optional
@@ -623,6 +712,17 @@ def partition(
         pixel within :data:`CORE` of the skeleton height of a nearer person's
         bone is theirs: where two people overlap in the image, the nearer one
         is the one seen.
+    silhouette : (H, W) bool, optional
+        Everyone's pixels, where another source knows them better than the
+        detections' masks (everyone's fused, edge-refined silhouette, with an
+        empty-scene clip). Each person's pixels are then their pixels from the
+        masks inside the silhouette, and the silhouette's outline band within
+        :data:`SNAP` of their skeleton height of them (the masks' outline,
+        upsampled from the segmenter's 256 px, is a pixel or two off; snapping
+        into the silhouette's inside would take the edge of someone beside
+        them). The rest of it goes to the people the detector missed, by their
+        nearest skeleton (their pixels are the ones no detection's mask holds);
+        what is left is nobody's.
 
     Returns
     -------
@@ -631,13 +731,14 @@ def partition(
         every skeleton are nobody's; a detection without a drawable skeleton
         claims its own mask.
     """
-    if len(found) < 2:
-        return [p.mask(threshold) for p in found]
     masks = [p.mask(threshold) for p in found]
+    if len(found) < 2 and silhouette is None:
+        return masks
     union = np.logical_or.reduce(masks)
     h, w = union.shape
     distance = np.empty((len(found), h, w), np.float32)
     core = np.zeros((len(found), h, w), bool)
+    tall = np.zeros(len(found))
     for k, person in enumerate(found):
         # The torso filled: a wide trunk's sides lie further from its bones than
         # CORE, and in front of someone its middle was given to their spine
@@ -646,14 +747,15 @@ def partition(
         bones = skeleton_mask(person.landmarks, (h, w), torso=True)
         if bones is not None:
             distance[k] = cv2.distanceTransform((~bones).astype(np.uint8), cv2.DIST_L2, 3)
-            tall = _tall(bones)
-            core[k] = distance[k] <= CORE * tall
+            tall[k] = _tall(bones)
+            core[k] = distance[k] <= CORE * tall[k]
             # Pixels far from every bone are nobody's (a bystander the segmenter
             # marked in the crop but did not detect).
-            distance[k][distance[k] > REACH * tall] = np.inf
+            distance[k][distance[k] > REACH * tall[k]] = np.inf
         else:
             # No skeleton to measure from: the person claims their own mask only.
             distance[k] = np.where(masks[k], 0.0, np.inf)
+            tall[k] = _tall(masks[k]) if masks[k].any() else 0.0
     owner = np.argmin(distance, axis=0)
     if depths is not None:
         # Front to back: the nearest person whose body covers a pixel owns it.
@@ -665,7 +767,48 @@ def partition(
                 owner[mine] = k
                 taken |= mine
     claimed = np.isfinite(distance.min(axis=0))
-    return [union & claimed & (owner == k) for k in range(len(found))]
+    out = [union & claimed & (owner == k) for k in range(len(found))]
+    if silhouette is None:
+        return out
+    return _snapped(out, np.asarray(silhouette, bool), distance, tall, [m.any() for m in masks])
+
+
+def _snapped(
+    owned: Sequence[np.ndarray],
+    silhouette: np.ndarray,
+    distance: np.ndarray,
+    tall: np.ndarray,
+    detected: Sequence[bool],
+) -> list[np.ndarray]:
+    """:func:`partition`'s pixels ``owned`` (K of (H, W) bool) snapped to
+    ``silhouette`` (H, W) bool: their pixels inside it, and each pixel of its
+    outline band (:data:`SNAP` of a person's skeleton height ``tall`` (K,) wide)
+    within that of their pixels, to the nearest such person; the rest to the
+    nearest skeleton (``distance`` (K, H, W), inf beyond reach) of the people
+    whose detector missed them (``detected`` False)."""
+    h, w = silhouette.shape
+    # How far inside the silhouette each pixel lies: a mask's outline is snapped
+    # out to the silhouette's own outline only, not into someone beside the person
+    # (their mask's edge there runs through the silhouette's inside).
+    inside = cv2.distanceTransform(silhouette.astype(np.uint8), cv2.DIST_L2, 3)
+    near = np.full((len(owned), h, w), np.inf, np.float32)
+    for k, mine in enumerate(owned):
+        if mine.any():
+            snap = max(SNAP * tall[k], 1.0)
+            near[k] = cv2.distanceTransform((~mine).astype(np.uint8), cv2.DIST_L2, 3)
+            near[k][(near[k] > snap) | ((near[k] > 0) & (inside > snap))] = np.inf
+    held = np.isfinite(near.min(axis=0))
+    closest = np.argmin(near, axis=0)
+    out = [silhouette & held & (closest == k) for k in range(len(owned))]
+    missed = [k for k, seen in enumerate(detected) if not seen]
+    if missed:
+        rest = silhouette & ~held
+        reach = distance[missed]
+        who = np.asarray(missed)[np.argmin(reach, axis=0)]
+        rest &= np.isfinite(reach.min(axis=0))
+        for k in missed:
+            out[k] |= rest & (who == k)
+    return out
 
 
 def _distance(camera, point: np.ndarray) -> float:

@@ -45,7 +45,13 @@ from bodymetry.capture.fusion import (
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
 from bodymetry.capture.masks import CleanupConfig, clean_mask, grown_mask, thin_parts
-from bodymetry.capture.people import Sighting, people_boxes, sighting_of, sightings
+from bodymetry.capture.people import (
+    Sighting,
+    people_boxes,
+    sighting_of,
+    sightings,
+    within_hulls,
+)
 from bodymetry.capture.person import (
     SEGMENTER_REQUIREMENT,
     Person,
@@ -537,18 +543,19 @@ class FrameSegmenter:
         images: Sequence[np.ndarray | None],
         evidence: Sequence[ViewEvidence | None],
         expected: int = 0,
-        foreground: Sequence[np.ndarray | None] | None = None,
+        bodies: HullBodies | None = None,
     ) -> list[Sighting] | None:
-        """Every person in the capture volume without a background, with their
-        pixels in each camera (:func:`bodymetry.capture.people.sightings`); None
-        without a hull (a calibrated rig) or the segmenter.
+        """Every person in the capture volume, with their pixels in each camera
+        (:func:`bodymetry.capture.people.sightings`); None without a hull (a
+        calibrated rig) or the segmenter.
 
         Background subtraction sees everyone; the segmenter returns one person
         per call, so each view is asked again with the people found hidden
         (:meth:`~bodymetry.capture.person.PersonSegmenter.detect_others`).
-        ``expected`` and ``foreground``: the hull's count of people and each
-        camera's silhouette of everyone, where the session has a background
-        (:func:`~bodymetry.capture.people.sightings`).
+        ``expected`` and ``bodies``: the hull's count of people and the hull's
+        bodies, where the session has a background: each person's pixels are
+        then their part of everyone's fused silhouette (:meth:`everyone`), not
+        of the detections' masks.
         """
         if self.hull is None or self.segmenter is None:
             return None
@@ -558,6 +565,9 @@ class FrameSegmenter:
             if found:
                 found += self.segmenter.detect_others(image, ev.person)
             detections.append(found)
+        foreground = None
+        if bodies is not None:
+            foreground = self.everyone(images, evidence, detections, bodies)
         cfg = self.config.person
         return sightings(
             self.hull.cameras,
@@ -569,18 +579,62 @@ class FrameSegmenter:
             foreground,
         )
 
+    def everyone(
+        self,
+        images: Sequence[np.ndarray | None],
+        evidence: Sequence[ViewEvidence | None],
+        detections: Sequence[Sequence[Person]],
+        bodies: HullBodies,
+    ) -> list[np.ndarray | None]:
+        """Per camera everyone's silhouette: the evidence fused as for one subject
+        (:meth:`_fused`), with every detection's segmenter probability and every
+        person-sized body of the hull, then cleaned and edge-refined around each
+        detection (:func:`~bodymetry.capture.masks.clean_mask` keeps the blob
+        that holds its person); None where the view has no background, or
+        nobody was detected in it.
+
+        The frame's silhouettes are the subject's: the segmenter's most prominent
+        person, the hull's largest body, and the cleaning's one blob. Each person
+        of several gets their pixels snapped to this instead of the detections'
+        masks, which are upsampled from the segmenter's 256 px input
+        (:func:`~bodymetry.capture.people.partition`; docs/capture.md, "Each
+        person's pixels from everyone's fused silhouette").
+        """
+        out: list[np.ndarray | None] = [None] * len(evidence)
+        if self.hull is None:
+            return out
+        occupied = (bodies.labels > 0) & bodies.person_sized[bodies.labels]
+        terms = self.geometry(evidence, bodies, occupied)
+        for c, (image, ev, found) in enumerate(zip(images, evidence, detections, strict=True)):
+            if image is None or ev is None or ev.raw is None or not found:
+                continue
+            everyone = Person(np.maximum.reduce([p.probability for p in found]), found[0].landmarks)
+            raw, shadow = self._fused(c, replace(ev, person=everyone), terms[c])
+            mask = np.zeros_like(raw)
+            for person in found:
+                mine, _ = clean_mask(raw, self.cleanup, image, self.models[c].median, shadow,
+                                     person.mask(ev.threshold))  # fmt: skip
+                mask |= mine
+            out[c] = mask
+        return out
+
     def geometry(
-        self, evidence: Sequence[ViewEvidence | None], bodies: HullBodies | None = None
+        self,
+        evidence: Sequence[ViewEvidence | None],
+        bodies: HullBodies | None = None,
+        occupied: np.ndarray | None = None,
     ) -> list[GeometryTerms | None]:
         """Per camera what the rig says (:class:`~bodymetry.capture.fusion.GeometryTerms`):
         the hull's support above the floor band and anywhere, and the floor-shadow
         test; None without a hull or fusion, or where the candidates agree on nothing.
-        ``bodies``: :meth:`bodies` of the same evidence, when already computed."""
+        ``bodies``: :meth:`bodies` of the same evidence, when already computed;
+        ``occupied`` (N,) bool: the voxels of the people to support (default the
+        largest body's: the subject's)."""
         none: list[GeometryTerms | None] = [None] * len(evidence)
         if self.hull is None or not self.config.fusion.enabled:
             return none
         bodies = bodies or self.bodies(evidence)
-        occupied = bodies.largest
+        occupied = bodies.largest if occupied is None else occupied
         if not occupied.any():
             return none
         body = occupied & (self.hull.points[:, 2] >= self.config.fusion.floor_band)
@@ -655,7 +709,6 @@ class FrameSegmenter:
             return _View(none, ("unreadable",), none)
         landmarks = None if ev.person is None else ev.person.landmarks
         found = ev.found
-        fusion = self.config.fusion
         if ev.raw is None:
             # No background: the segmenter's person is the silhouette (nothing to fuse
             # it with but the hull, which the multi-view check applies below).
@@ -663,10 +716,20 @@ class FrameSegmenter:
                 return _View(none, ("empty",), none)
             mask, flags = clean_mask(found, self.cleanup)
             return _View(mask, flags, none, landmarks)
+        raw, shadow = self._fused(c, ev, terms)
+        mask, flags = clean_mask(raw, self.cleanup, image, self.models[c].median, shadow, found)
+        return _View(mask, flags, shadow, landmarks)
+
+    def _fused(
+        self, c: int, ev: ViewEvidence, terms: GeometryTerms | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Camera ``c``'s person label (H, W) bool before cleaning, and its shadow
+        label (H, W) bool: background subtraction's, or (fusion enabled) the fused
+        evidence's (``ev`` has a background)."""
         raw, shadow = ev.raw, ev.shadow
-        if fusion.enabled:
+        if self.config.fusion.enabled:
             features, key = self.features(c, ev, terms)
-            raw = fuse(features, fusion.weights_for(key)) > 0
+            raw = fuse(features, self.config.fusion.weights_for(key)) > 0
             if terms is not None and terms.shadow_at_feet is not None:
                 # A shadow the other views confirm on the floor at the feet is not
                 # person where the segmenter is unsure (its soft outline spreads over
@@ -684,8 +747,7 @@ class FrameSegmenter:
                 )
             # Shadow labels the fusion overruled (a grey shirt's shaded side) are person.
             shadow = shadow & ~raw
-        mask, flags = clean_mask(raw, self.cleanup, image, self.models[c].median, shadow, found)
-        return _View(mask, flags, shadow, landmarks)
+        return raw, shadow
 
     def __call__(self, images: Sequence[np.ndarray | None]) -> _FrameViews:
         """Segment one frame's images (None: unreadable): :class:`_FrameViews`."""
@@ -707,15 +769,9 @@ class FrameSegmenter:
                 # touch or cross; the segmenter's detections, matched across cameras by
                 # their skeletons, can (as without a clip). The hull's split stays the
                 # answer where they find fewer than two people.
-                # What the detectors missed of what the background's change sees
-                # near someone is unknown to them, not background.
-                everyone = [
-                    None if ev is None or ev.raw is None else v.mask
-                    for ev, v in zip(evidence, views, strict=True)
-                ]
-                found = self.people(images, evidence, persons, everyone)
+                found = self.people(images, evidence, persons, bodies)
                 if found is not None and len(found) > 1:
-                    people, persons = found, len(found)
+                    people, persons = within_hulls(found, self.hull), len(found)
         else:
             people = self.people(images, evidence)
             persons = None if people is None else len(people)

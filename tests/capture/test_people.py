@@ -3,6 +3,8 @@ detections made from projected skeletons: who is who, and who hides whom."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -190,14 +192,14 @@ def test_someone_a_camera_missed_in_front_of_the_one_it_found_is_mixed_there():
     assert seen_a.landmarks[0] is None and seen_a.masks[0] is not None
     assert seen_a.mixed == (True, False, False, False) and not seen_a.occluded[0]
     assert not any(seen_b.mixed)
-    # Where the background's change sees everyone, A's trunk that no mask holds is
-    # unknown to A, not background: the view is kept, its trunk left to the others.
+    # Where everyone's fused silhouette is known (an empty-scene clip), A's trunk
+    # that no detection's mask holds is in it, and nearest A's projected skeleton:
+    # A's pixels, and the view is kept.
     everyone = [whole_a | _person(RIG[0], tuple(b)).mask(0.5), None, None, None]
     seen_a, _ = seen(back.mask(0.5) | legs, everyone)
-    assert not any(seen_a.mixed) and seen_a.hidden[0] is not None
-    assert np.count_nonzero(seen_a.hidden[0] & whole_a & ~legs) > 0.5 * np.count_nonzero(
-        whole_a & ~legs
-    )
+    assert not any(seen_a.mixed) and not seen_a.occluded[0]
+    trunk = whole_a & ~legs
+    assert np.count_nonzero(seen_a.masks[0] & trunk) > 0.8 * np.count_nonzero(trunk)
     # One detection of both whose mask holds all of A: A's pixels there, not mixed.
     seen_a, seen_b = seen(back.mask(0.5) | whole_a)
     assert not any(seen_a.mixed) and not any(seen_b.mixed)
@@ -389,36 +391,43 @@ def test_someone_only_two_cameras_tell_apart_is_found_when_the_hull_counts_them(
     assert len(sightings(RIG, detections, 0.5, box, expected=3)) == 2
 
 
-def test_what_the_detectors_missed_of_the_background_s_change_is_unknown():
+def test_everyone_s_silhouette_is_divided_among_the_people():
+    """With an empty-scene clip, the people's pixels are their masks' snapped to
+    everyone's fused silhouette: a halo the coarse mask added but the silhouette does
+    not hold is nobody's, a block inside a person that their mask missed is unknown
+    to them (not background), and a blob far from everyone (a moved chair) is
+    nobody's business."""
     detections = _side_by_side()
-    # Camera 0's segmenter missed a block of B's body that background subtraction saw.
+    # Camera 0's segmenter missed a block of B's body; its mask also spills a halo
+    # over the background around B.
     first, second = detections[0]
     whole_b = second.mask(0.5)
     missed = _block(whole_b, 10) & whole_b
-    detections[0] = [first, Person(np.where(missed, 0, second.probability).astype(np.float32),
-                                   second.landmarks)]  # fmt: skip
+    halo = cv2.dilate(whole_b.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    halo &= ~whole_b & ~first.mask(0.5)
+    coarse = np.where(missed, 0, np.where(halo, 1, second.probability))
+    detections[0] = [first, Person(coarse.astype(np.float32), second.landmarks)]
     foreground = [np.logical_or.reduce([p.mask(0.5) for p in view]) for view in detections]
     foreground[0] = first.mask(0.5) | whole_b
-    # A blob of change far from everyone (a moved chair) is nobody's business, and a
-    # sliver along B's outline is the masks' halo, not body.
     chair = np.zeros_like(whole_b)
     chair[:20, :20] = True
-    halo = cv2.dilate(whole_b.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    halo &= ~whole_b & ~first.mask(0.5)
-    foreground[0] |= chair | halo
+    foreground[0] |= chair
     floor = VisualHull(RIG).floor_box
     people = sightings(RIG, detections, 0.5, floor, foreground=foreground)
     seen_a, seen_b = sorted(people, key=lambda p: np.count_nonzero(p.masks[0] & whole_b))
-    assert not seen_b.masks[0][missed].any()
+    assert not seen_a.masks[0][missed].any()
+    assert not seen_b.masks[0][halo].any() and not seen_a.masks[0][halo].any()
+    assert not seen_a.masks[0][chair].any() and not seen_b.masks[0][chair].any()
+    assert seen_b.masks[0][whole_b & ~missed].mean() > 0.98
     hidden = seen_b.hidden[0]
-    assert hidden is not None and hidden[missed].mean() > 0.9
-    assert not hidden[chair].any() and not hidden[halo].any()
-    assert not (hidden & seen_a.masks[0]).any() and not (hidden & seen_b.masks[0]).any()
+    assert hidden is not None and (hidden | seen_b.masks[0])[missed].mean() > 0.95
+    assert not hidden[halo | chair].any() and not (hidden & seen_b.masks[0]).any()
     assert not seen_b.occluded[0]  # not counted as hidden by someone
-    # Without the background's silhouettes it is background, as before.
+    # Without everyone's silhouette the detections' masks are the pixels, as before:
+    # the missed block is background, the halo B's.
     (_, plain_b) = sorted(sightings(RIG, detections, 0.5, floor),
                           key=lambda p: np.count_nonzero(p.masks[0] & whole_b))  # fmt: skip
-    assert plain_b.hidden[0] is None
+    assert not plain_b.masks[0][missed].any() and plain_b.masks[0][halo].mean() > 0.9
 
 
 def test_a_limb_whose_middle_joint_is_not_seen_is_drawn_from_end_to_end():
@@ -459,3 +468,40 @@ def test_a_middle_joint_nobody_confirms_on_a_limb_put_elsewhere_is_not_drawn():
     agreed[elbow, 0] += 2.0
     kept = _mended(agreed, projected, cam)
     np.testing.assert_array_equal(kept[elbow], agreed[elbow])
+
+
+def test_a_person_s_pixels_on_someone_else_s_hull_and_off_their_own_are_unknown_to_them():
+    """One detection holding two people, one behind the other (camera 0): the
+    partition gives the nearer one the edges of the one behind that lie within
+    their core. The other cameras, which see them apart, carve each one's hull;
+    A's pixels in camera 0 that lie on B's hull's projection and off A's are
+    unknown to A, not A's."""
+    from bodymetry.capture.people import within_hulls
+
+    a, b = _behind(RIG[0], 0.25)
+    detections = _detections([tuple(a), tuple(b)])
+    front, back = detections[0]
+    only_b = back.mask(0.5) & ~front.mask(0.5)
+    merged = Person((front.mask(0.5) | back.mask(0.5)).astype(np.float32), front.landmarks)
+    detections[0] = [merged]  # camera 0 found one person, with A's skeleton
+    hull = VisualHull(RIG)
+    people = sightings(RIG, detections, 0.5, hull.floor_box)
+    people.sort(key=lambda p: np.linalg.norm(p.position[:2] - a))
+    seen_a = people[0]
+    taken = np.count_nonzero(seen_a.masks[0] & only_b)
+    assert taken > 0.05 * np.count_nonzero(only_b)  # the partition's core took B's edge
+    cut_a, _ = within_hulls(people, hull)
+    assert np.count_nonzero(cut_a.masks[0] & only_b) < 0.5 * taken
+    unknown = cut_a.hidden[0]
+    assert unknown is not None and not (unknown & cut_a.masks[0]).any()
+    assert np.array_equal(unknown | cut_a.masks[0], seen_a.masks[0])
+    # A's own pixels stay A's, or (where B hides part of A from another camera, so
+    # that A's hull lacks it) unknown to A: never background for A.
+    own = front.mask(0.5) & seen_a.masks[0]
+    assert (cut_a.masks[0] | unknown)[own].all() and cut_a.masks[0][own].mean() > 0.75
+    for c in (1, 2, 3):  # where A stands apart from B, nothing of A is taken
+        assert np.count_nonzero(cut_a.masks[c]) > 0.97 * np.count_nonzero(seen_a.masks[c])
+    # Where fewer than two other cameras detected someone, nothing carves their hull.
+    alone = [replace(p, landmarks=(p.landmarks[0], None, None, None)) for p in people]
+    for kept, person in zip(within_hulls(alone, hull), alone, strict=True):
+        assert all(np.array_equal(m, n) for m, n in zip(kept.masks, person.masks, strict=True))

@@ -265,11 +265,9 @@ def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
     )
     asked = []
 
-    def segmenter_people(imgs, evidence, expected=0, foreground=None):
-        # Asked with the hull's count and everyone's silhouette per camera.
-        assert expected >= 2 and len(foreground) == len(imgs)
-        pairs = zip(foreground, imgs, strict=True)
-        assert all(m is not None and m.shape == im.shape[:2] for m, im in pairs)
+    def segmenter_people(imgs, evidence, expected=0, bodies=None):
+        # Asked with the hull's count and bodies (for everyone's silhouette per camera).
+        assert expected >= 2 and bodies is not None and bodies.persons == expected
         asked.append(len(imgs))
         return list(told[: answer[0]])
 
@@ -307,3 +305,52 @@ def test_one_hull_body_holding_a_second_person_asks_the_segmenter():
     assert not frame._more_than_one([evidence(a)] * 2, [terms] * 2)  # the person alone
     # Changed pixels outside where the hull stands (a bystander) do not count.
     assert not frame._more_than_one([evidence(a | b)] * 2, [GeometryTerms(a, a)] * 2)
+
+
+def test_everyone_s_fused_silhouette_holds_every_detected_person_with_its_outline():
+    """With an empty-scene clip, each person of several gets the fused, edge-refined
+    silhouette a person alone gets (:meth:`FrameSegmenter.everyone`), not the
+    detections' coarse masks: both people apart in a view are kept (the cleaning of
+    one subject keeps one), and the outline follows the image, not the masks' halo."""
+    rig = studio_rig(4, (320, 240), seed=3)
+    rng = np.random.default_rng(9)
+    w, h = 320, 240
+    empty = np.full((h, w, 3), 120.0)
+    models = [
+        BackgroundModel.from_frames(
+            cam.name, np.clip(empty + rng.normal(0, 2, (8, h, w, 3)), 0, 255).astype(np.uint8)
+        )
+        for cam in rig
+    ]
+    frame = FrameSegmenter(models, rig.sizes, CaptureConfig(method="background"), None, None, rig)
+    places = {(-0.6, 0.0): 1.75, (0.6, 0.0): 1.55}
+    truth = [[_cylinder_mask(cam, c, height=ht) for c, ht in places.items()] for cam in rig]
+    images = []
+    for masks in truth:
+        img = empty.copy()
+        for mask, colour in zip(masks, ((200, 90, 40), (40, 60, 200)), strict=True):
+            img[mask] = colour
+        images.append(np.clip(img + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8))
+    evidence = [frame.evidence(c, im) for c, im in enumerate(images)]
+    no_landmarks = np.full((33, 3), np.nan)
+    # The segmenter's masks are coarse: a soft probability over a 2 px halo (upsampled
+    # from its 256 px input), which its threshold keeps.
+    detections = [
+        [Person(ndimage.gaussian_filter(ndimage.binary_dilation(m, iterations=2)
+                                        .astype(np.float32), 2.0), no_landmarks)
+         for m in masks]
+        for masks in truth
+    ]  # fmt: skip
+    bodies = frame.bodies(evidence)
+    out = frame.everyone(images, evidence, detections, bodies)
+    for c, masks in enumerate(truth):
+        both = masks[0] | masks[1]
+        coarse = np.logical_or.reduce([p.mask(0.5) for p in detections[c]])
+        assert out[c] is not None
+        for mask in masks:
+            assert out[c][mask].mean() > 0.97  # each person is there
+        iou = (out[c] & both).sum() / (out[c] | both).sum()
+        assert iou > 0.98 and iou > (coarse & both).sum() / (coarse | both).sum() + 0.05
+    # A view without a detection, or unreadable, has none.
+    out = frame.everyone([None, *images[1:]], [None, *evidence[1:]], [[], *detections[1:]], bodies)
+    assert out[0] is None and out[1] is not None
