@@ -555,7 +555,9 @@ class FrameSegmenter:
         ``expected`` and ``bodies``: the hull's count of people and the hull's
         bodies, where the session has a background: each person's pixels are
         then their part of everyone's fused silhouette (:meth:`everyone`), not
-        of the detections' masks.
+        of the detections' masks, and those on someone else's hull and off
+        their own are unknown to them
+        (:func:`~bodymetry.capture.people.within_hulls`).
         """
         if self.hull is None or self.segmenter is None:
             return None
@@ -569,7 +571,7 @@ class FrameSegmenter:
         if bodies is not None:
             foreground = self.everyone(images, evidence, detections, bodies)
         cfg = self.config.person
-        return sightings(
+        found = sightings(
             self.hull.cameras,
             detections,
             cfg.threshold,
@@ -578,6 +580,7 @@ class FrameSegmenter:
             expected,
             foreground,
         )
+        return found if foreground is None else within_hulls(found, self.hull, foreground)
 
     def everyone(
         self,
@@ -771,7 +774,7 @@ class FrameSegmenter:
                 # answer where they find fewer than two people.
                 found = self.people(images, evidence, persons, bodies)
                 if found is not None and len(found) > 1:
-                    people, persons = within_hulls(found, self.hull), len(found)
+                    people, persons = found, len(found)
         else:
             people = self.people(images, evidence)
             persons = None if people is None else len(people)
