@@ -221,10 +221,12 @@ def test_everyone_silhouettes_add_the_other_persons_change_where_the_hull_stands
     assert np.array_equal(everyone[3], subject[3])  # an unreadable view: the subject's
 
 
-def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
-    # Two coloured people 1.2 m apart in a plain room, background subtraction only.
+def _plain_room(seed: int):
+    """A 4-camera studio rig at 320x240 round a plain grey room: the rig, a random
+    generator seeded ``seed`` (after drawing the empty scene's noise), the empty image
+    (H, W, 3) float and each camera's empty-scene model."""
     rig = studio_rig(4, (320, 240), seed=3)
-    rng = np.random.default_rng(5)
+    rng = np.random.default_rng(seed)
     w, h = 320, 240
     empty = np.full((h, w, 3), 120.0)
     models = [
@@ -233,6 +235,12 @@ def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
         )
         for cam in rig
     ]
+    return rig, rng, empty, models
+
+
+def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
+    # Two coloured people 1.2 m apart in a plain room, background subtraction only.
+    rig, rng, empty, models = _plain_room(5)
     config = CaptureConfig(method="background", fusion=FusionConfig(enabled=True))
     frame = FrameSegmenter(models, rig.sizes, config, None, None, rig)
 
@@ -312,16 +320,7 @@ def test_everyone_s_fused_silhouette_holds_every_detected_person_with_its_outlin
     silhouette a person alone gets (:meth:`FrameSegmenter.everyone`), not the
     detections' coarse masks: both people apart in a view are kept (the cleaning of
     one subject keeps one), and the outline follows the image, not the masks' halo."""
-    rig = studio_rig(4, (320, 240), seed=3)
-    rng = np.random.default_rng(9)
-    w, h = 320, 240
-    empty = np.full((h, w, 3), 120.0)
-    models = [
-        BackgroundModel.from_frames(
-            cam.name, np.clip(empty + rng.normal(0, 2, (8, h, w, 3)), 0, 255).astype(np.uint8)
-        )
-        for cam in rig
-    ]
+    rig, rng, empty, models = _plain_room(9)
     frame = FrameSegmenter(models, rig.sizes, CaptureConfig(method="background"), None, None, rig)
     places = {(-0.6, 0.0): 1.75, (0.6, 0.0): 1.55}
     truth = [[_cylinder_mask(cam, c, height=ht) for c, ht in places.items()] for cam in rig]
