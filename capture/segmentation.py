@@ -61,7 +61,7 @@ from bodymetry.capture.person import (
 )
 from bodymetry.capture.persons import everyone_silhouettes, observe_persons
 from bodymetry.capture.session import Session
-from bodymetry.capture.shadows import at_feet, floor_shadows
+from bodymetry.capture.shadows import FloorShadow, at_feet, floor_shadows
 from bodymetry.capture.skin import SkinConfig, clothing_masks, facing
 from bodymetry.errors import InputError
 
@@ -544,6 +544,7 @@ class FrameSegmenter:
         evidence: Sequence[ViewEvidence | None],
         expected: int = 0,
         bodies: HullBodies | None = None,
+        floor: Sequence[FloorShadow | None] | None = None,
     ) -> list[Sighting] | None:
         """Every person in the capture volume, with their pixels in each camera
         (:func:`bodymetry.capture.people.sightings`); None without a hull (a
@@ -557,7 +558,8 @@ class FrameSegmenter:
         then their part of everyone's fused silhouette (:meth:`everyone`), not
         of the detections' masks, and those on someone else's hull and off
         their own are unknown to them
-        (:func:`~bodymetry.capture.people.within_hulls`).
+        (:func:`~bodymetry.capture.people.within_hulls`). ``floor``: :meth:`floor`
+        of the same evidence, when already computed.
         """
         if self.hull is None or self.segmenter is None:
             return None
@@ -569,7 +571,7 @@ class FrameSegmenter:
             detections.append(found)
         foreground = None
         if bodies is not None:
-            foreground = self.everyone(images, evidence, detections, bodies)
+            foreground = self.everyone(images, evidence, detections, bodies, floor)
         cfg = self.config.person
         found = sightings(
             self.hull.cameras,
@@ -588,6 +590,7 @@ class FrameSegmenter:
         evidence: Sequence[ViewEvidence | None],
         detections: Sequence[Sequence[Person]],
         bodies: HullBodies,
+        floor: Sequence[FloorShadow | None] | None = None,
     ) -> list[np.ndarray | None]:
         """Per camera everyone's silhouette: the evidence fused as for one subject
         (:meth:`_fused`), with every detection's segmenter probability and every
@@ -607,7 +610,7 @@ class FrameSegmenter:
         if self.hull is None:
             return out
         occupied = (bodies.labels > 0) & bodies.person_sized[bodies.labels]
-        terms = self.geometry(evidence, bodies, occupied)
+        terms = self.geometry(evidence, bodies, occupied, floor)
         for c, (image, ev, found) in enumerate(zip(images, evidence, detections, strict=True)):
             if image is None or ev is None or ev.raw is None or not found:
                 continue
@@ -626,13 +629,15 @@ class FrameSegmenter:
         evidence: Sequence[ViewEvidence | None],
         bodies: HullBodies | None = None,
         occupied: np.ndarray | None = None,
+        floor: Sequence[FloorShadow | None] | None = None,
     ) -> list[GeometryTerms | None]:
         """Per camera what the rig says (:class:`~bodymetry.capture.fusion.GeometryTerms`):
         the hull's support above the floor band and anywhere, and the floor-shadow
         test; None without a hull or fusion, or where the candidates agree on nothing.
         ``bodies``: :meth:`bodies` of the same evidence, when already computed;
         ``occupied`` (N,) bool: the voxels of the people to support (default the
-        largest body's: the subject's)."""
+        largest body's: the subject's); ``floor``: :meth:`floor` of the same
+        evidence, when already computed (it does not depend on who is supported)."""
         none: list[GeometryTerms | None] = [None] * len(evidence)
         if self.hull is None or not self.config.fusion.enabled:
             return none
@@ -641,15 +646,7 @@ class FrameSegmenter:
         if not occupied.any():
             return none
         body = occupied & (self.hull.points[:, 2] >= self.config.fusion.floor_band)
-        floor = floor_shadows(
-            self.hull.cameras,
-            [None if ev is None or ev.raw is None else ev.shadow for ev in evidence],
-            [
-                None if ev is None or ev.change is None else ev.change < LIT_CHANGE
-                for ev in evidence
-            ],
-            brightness=[None if ev is None else ev.brightness for ev in evidence],
-        )
+        floor = self.floor(evidence) if floor is None else floor
         # The body's footprint from its voxels above the knees: lower down the hull
         # also holds ghosts over the cast shadow (every view sees it dark there).
         legs = occupied & (self.hull.points[:, 2] >= KNEE_HEIGHT)
@@ -664,6 +661,19 @@ class FrameSegmenter:
             )
             for c in range(len(evidence))
         ]
+
+    def floor(self, evidence: Sequence[ViewEvidence | None]) -> list[FloorShadow | None]:
+        """Per camera the shadow labels the other views confirm on the floor
+        (:func:`~bodymetry.capture.shadows.floor_shadows`); needs the hull's cameras."""
+        return floor_shadows(
+            self.hull.cameras,
+            [None if ev is None or ev.raw is None else ev.shadow for ev in evidence],
+            [
+                None if ev is None or ev.change is None else ev.change < LIT_CHANGE
+                for ev in evidence
+            ],
+            brightness=[None if ev is None else ev.brightness for ev in evidence],
+        )
 
     def _more_than_one(
         self, evidence: Sequence[ViewEvidence | None], terms: Sequence[GeometryTerms | None]
@@ -762,7 +772,12 @@ class FrameSegmenter:
         # views as before).
         sees_all = any(ev is not None and ev.raw is not None for ev in evidence)
         bodies = self.bodies(evidence) if sees_all else None
-        terms = self.geometry(evidence, bodies)
+        # The floor-shadow test depends on the evidence alone: once per frame, for the
+        # subject's geometry and, with several people, everyone's (:meth:`everyone`).
+        floor = None
+        if sees_all and self.hull is not None and self.config.fusion.enabled:
+            floor = self.floor(evidence)
+        terms = self.geometry(evidence, bodies, floor=floor)
         views = [self._view(c, im, evidence[c], terms[c]) for c, im in enumerate(images)]
         people = None
         if sees_all:
@@ -772,7 +787,7 @@ class FrameSegmenter:
                 # touch or cross; the segmenter's detections, matched across cameras by
                 # their skeletons, can (as without a clip). The hull's split stays the
                 # answer where they find fewer than two people.
-                found = self.people(images, evidence, persons, bodies)
+                found = self.people(images, evidence, persons, bodies, floor)
                 if found is not None and len(found) > 1:
                     people, persons = found, len(found)
         else:

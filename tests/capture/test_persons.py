@@ -273,7 +273,7 @@ def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
     )
     asked = []
 
-    def segmenter_people(imgs, evidence, expected=0, bodies=None):
+    def segmenter_people(imgs, evidence, expected=0, bodies=None, floor=None):
         # Asked with the hull's count and bodies (for everyone's silhouette per camera).
         assert expected >= 2 and bodies is not None and bodies.persons == expected
         asked.append(len(imgs))
