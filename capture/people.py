@@ -42,7 +42,7 @@ Identities across kept frames are given over all of them by
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import cv2
@@ -324,11 +324,20 @@ def sightings(
         for c, (view, d) in enumerate(zip(found, depths, strict=True))
     ]
     claimed = [np.logical_or.reduce(view) if view else None for view in masks]
-    unsure = _merged(groups, index, found, projections, foreground)
+    regions: dict[tuple[int, int], np.ndarray | None] = {}
+
+    def region(p: int, c: int) -> np.ndarray | None:
+        # Person p's body region in camera c (p has a detection there), once.
+        if (p, c) not in regions:
+            person = found[c][index[p][c]]
+            regions[p, c] = body_region(
+                [person.landmarks, projections[p][c]], person.probability.shape
+            )
+        return regions[p, c]
+
+    unsure = _merged(groups, index, region, foreground is not None)
     out = []
-    for p, (g, ids, projected, flags) in enumerate(
-        zip(groups, index, projections, mixed, strict=True)
-    ):
+    for p, (g, ids, flags) in enumerate(zip(groups, index, mixed, strict=True)):
         occluded, mine_masks, hidden_masks = [], [], []
         for c, k in enumerate(ids):
             hidden, mask, covered = False, None, None
@@ -353,7 +362,7 @@ def sightings(
                 lm = found[c][k].landmarks
                 body = bones = None
                 if nearer.any() or unseen is not None or everyone is not None:
-                    body = body_region([lm, projected[c]], mask.shape)
+                    body = region(p, c)
                 if g.detections[c] is None:
                     # A camera that did not detect them: their projected skeleton's bones.
                     bones = skeleton_mask(lm, mask.shape, round(BONE_WIDTH * mask.shape[0]))
@@ -431,13 +440,13 @@ def sightings(
 def _merged(
     groups: Sequence,
     index: Sequence[Sequence[int | None]],
-    found: Sequence[Sequence[Person]],
-    projections: Sequence[Sequence[np.ndarray | None]],
-    foreground: Sequence[np.ndarray | None] | None,
+    region: Callable[[int, int], np.ndarray | None],
+    clip: bool,
 ) -> list[list[np.ndarray | None]]:
     """Per person and camera (:func:`sightings`' order), the pixels where their
-    body's region and that of someone the camera's detector did not find overlap
-    (:func:`body_region` of each one's drawn and projected skeleton), or None.
+    body's region (``region(person, camera)``: :func:`body_region` of their drawn
+    and projected skeleton) and that of someone the camera's detector did not
+    find overlap, or None; all None without an empty-scene clip (``clip``).
 
     A person the detector missed in a camera is there only as pixels of someone
     else's detection, given to the nearest skeleton (:func:`partition`); where
@@ -448,24 +457,19 @@ def _merged(
     cameras then measure the person without those pixels.
     """
     out: list[list[np.ndarray | None]] = [[None] * len(index[0]) for _ in index] if index else []
-    if foreground is None:
+    if not clip:
         return out
-    for c in range(len(found)):
+    for c in range(len(out[0]) if out else 0):
         missed = [p for p, (g, ids) in enumerate(zip(groups, index, strict=True))
                   if g.detections[c] is None and ids[c] is not None]  # fmt: skip
         if not missed:
             continue
-        shape = found[c][0].probability.shape
-        regions = [
-            None if ids[c] is None
-            else body_region([found[c][ids[c]].landmarks, projections[p][c]], shape)
-            for p, ids in enumerate(index)
-        ]  # fmt: skip
+        regions = [None if ids[c] is None else region(p, c) for p, ids in enumerate(index)]
         for m in missed:
-            for p, region in enumerate(regions):
-                if p == m or region is None or regions[m] is None:
+            for p, theirs in enumerate(regions):
+                if p == m or theirs is None or regions[m] is None:
                     continue
-                zone = region & regions[m]
+                zone = theirs & regions[m]
                 if zone.any():
                     for q in (p, m):
                         out[q][c] = zone if out[q][c] is None else out[q][c] | zone
