@@ -39,6 +39,7 @@ REPORTS = {
     "session_spread": "benchmarks.bench_session_spread",
     "shape_space": "benchmarks.bench_shape_space",
     "standing_shape": "benchmarks.bench_standing_shape",
+    "studio_accuracy": "benchmarks.bench_studio_accuracy",
     "thin_parts": "benchmarks.bench_thin_parts",
     "two_persons": "benchmarks.bench_two_persons",
 }

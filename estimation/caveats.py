@@ -48,6 +48,12 @@ list), and says why in a sentence a user can act on:
     The measured height or weight lies outside the bodies the benchmarks
     validated the body model on (:data:`VALIDATED`, issue 33's edge set): the
     numbers are an extrapolation of the body model, with no measured accuracy.
+``body_accuracy``
+    On the studio's sessions of bodies like the measured one
+    (:mod:`bodymetry.estimation.studio_accuracy`: height within 8 %, weight within
+    25 %, the same arm evidence for the arm span; at least 3 sessions), a core
+    measurement's RMS error exceeds its target (10 mm, 15 mm, 1.5 kg or 3 % of a
+    child's weight): the arm span of a 6-year-old read 9-25 mm short in all three.
 
 The command line prints the caveats and exits with status 5
 (:data:`bodymetry.cli.common.EXIT_CAVEATS`); the report lists them first;
@@ -63,6 +69,15 @@ from dataclasses import dataclass
 from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES, RAISED_DEG
 from bodymetry.estimation.records import FrameRecord
 from bodymetry.estimation.standing_height import MAX_SOLE_DEPTH
+from bodymetry.estimation.studio_accuracy import (
+    LIKE_HEIGHT,
+    LIKE_WEIGHT,
+    arms_note,
+    like_accuracy,
+    like_children,
+    like_sessions,
+    target_for,
+)
 from bodymetry.estimation.view_selection import left_out_views
 
 __all__ = [
@@ -97,6 +112,7 @@ CAVEAT_CODES = (
     "floor",
     "arms_down",
     "outside_validated",
+    "body_accuracy",
 )
 
 
@@ -384,4 +400,47 @@ def run_caveats(
                 "model and their accuracy was not measured",
             )
         )
+    out += _body_accuracy(headline or {}, raised)
     return tuple(out)
+
+
+_LABELS = {
+    "height_mm": ("height", "mm"),
+    "arm_span_mm": ("arm span", "mm"),
+    "weight_kg": ("weight", "kg"),
+}
+
+
+def _body_accuracy(headline: Mapping[str, float], raised: Sequence[int] | None) -> list[Caveat]:
+    """``body_accuracy``: the measurements whose studio error on like bodies exceeds
+    their target (one caveat naming them all; none when nothing is like this body)."""
+    arms = None if raised is None else len(raised) >= MIN_RAISED_FRAMES
+    accuracy = like_accuracy(headline, arms)
+    if not accuracy:
+        return []
+    like = like_sessions(float(headline["height_mm"]), float(headline["weight_kg"]))
+    child = like_children(like)
+    weight = float(headline["weight_kg"])
+    parts = []
+    for key, acc in accuracy.items():
+        target = target_for(key, weight, child)
+        if acc.rms > target:
+            label, unit = _LABELS[key]
+            parts.append(
+                f"the {label} read {acc.low:+.1f} to {acc.high:+.1f} {unit} off (RMS "
+                f"{acc.rms:.1f} {unit}, mean {acc.bias:+.1f} {unit}, {acc.sessions} sessions"
+                f"{arms_note(key, arms)}) against a target of {target:.1f} {unit}"
+            )
+    if not parts:
+        return []
+    height = float(headline["height_mm"])
+    return [
+        Caveat(
+            "body_accuracy",
+            "on the studio's sessions of bodies like this one (true height within "
+            f"{100 * LIKE_HEIGHT:.0f} % and weight within {100 * LIKE_WEIGHT:.0f} % of the "
+            f"measured {height:.0f} mm and {weight:.1f} kg), {'; '.join(parts)}: those "
+            "numbers are less sure than their standard error says (python -m benchmarks "
+            "studio_accuracy)",
+        )
+    ]

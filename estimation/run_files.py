@@ -29,7 +29,7 @@ from typing import Any
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.errors import InputError
-from bodymetry.estimation.arm_evidence import raised_frames
+from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES, raised_frames
 from bodymetry.estimation.caveats import Caveat, run_caveats
 from bodymetry.estimation.records import (
     STAGES,
@@ -41,6 +41,7 @@ from bodymetry.estimation.records import (
 )
 from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.run_config import ProcessConfig
+from bodymetry.estimation.studio_accuracy import MeasuredAccuracy, like_accuracy
 from bodymetry.fileio import read_json_object, write_json_atomic
 
 __all__ = [
@@ -492,6 +493,16 @@ class RunResults:
         )
 
     @property
+    def studio_accuracy(self) -> dict[str, MeasuredAccuracy]:
+        """The studio's accuracy on bodies like the first person's measured one, per core
+        measurement with enough like sessions
+        (:func:`bodymetry.estimation.studio_accuracy.like_accuracy`; derived, like
+        :attr:`caveats`)."""
+        raised = raised_frames(self.frames)  # None: not judged (no measured frame)
+        arms = None if raised is None else len(raised) >= MIN_RAISED_FRAMES
+        return like_accuracy(self.headline_values, arms)
+
+    @property
     def headline_values(self) -> dict[str, float]:
         """The first person's measurements as the run states them: per measurement the
         session stage's value, else the generative frames' mean (missing when neither)."""
@@ -532,9 +543,16 @@ class RunResults:
             },
             "calibration_source": self.calibration_source,
             "persons": [
-                # Caveats are derived from the records (read back by recomputing):
+                # Caveats and the studio's accuracy are derived from the records (read back
+                # by recomputing):
                 # written for scripts and viewers that read the file without bodymetry.
-                {**p.to_json(), "caveats": [c.to_json() for c in self.for_person(p.id).caveats]}
+                {
+                    **p.to_json(),
+                    "caveats": [c.to_json() for c in self.for_person(p.id).caveats],
+                    "studio_accuracy": {
+                        k: a.to_json() for k, a in self.for_person(p.id).studio_accuracy.items()
+                    },
+                }
                 for p in self.persons
             ],
             "timing_seconds": self.timing_seconds,

@@ -56,6 +56,7 @@ from bodymetry.estimation.run_files import (
     REPORT_PDF,
     RunResults,
 )
+from bodymetry.estimation.studio_accuracy import LIKE_HEIGHT, LIKE_WEIGHT, MIN_LIKE
 from bodymetry.estimation.view_selection import left_out_views
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
@@ -466,6 +467,8 @@ def headline_cards(run: RunData) -> list[dict[str, Any]]:
     summary = run.results.summary
     truth = run.ground_truth
     why = session_unavailable(run.results.session_shape)
+    # The studio's figures for bodies like this one where it scored enough of them.
+    like = run.results.studio_accuracy
     cards = []
     for key in CORE_MEASUREMENTS:
         gen = _stat(summary, "generative", key)
@@ -483,7 +486,7 @@ def headline_cards(run: RunData) -> list[dict[str, Any]]:
                 "session": session,
                 "unavailable": "" if session else why or "no session value for this measurement",
                 "actual": truth.get(key) if truth else None,
-                "accuracy": SESSION_ACCURACY.get(key),
+                "accuracy": like.get(key) or SESSION_ACCURACY.get(key),
             }
         )
     return cards
@@ -670,6 +673,9 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
         **_recorded_settings(results),
         "timing": results.timing_seconds,
         "accuracy_source": ACCURACY_SOURCE,
+        "like_min": MIN_LIKE,
+        "like_height": round(100 * LIKE_HEIGHT),
+        "like_weight": round(100 * LIKE_WEIGHT),
         "validated_range": VALIDATED.describe(),
         "has_evaluation": run.evaluation is not None,
         "core_labels": [plots.label(k) for k in CORE_MEASUREMENTS],
@@ -938,7 +944,7 @@ def _summary_lines(ctx: dict[str, Any]) -> list[str]:
             "Measured accuracy of the session values (RMS / worst error): "
             + ", ".join(
                 f"{h['label'].lower()} {_num(h['accuracy'].rms)} / {_num(h['accuracy'].worst)} "
-                f"{h['unit']}"
+                f"{h['unit']} ({h['accuracy'].sessions} {h['accuracy'].scope})"
                 for h in measured
             )
             + ":"

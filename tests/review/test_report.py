@@ -304,10 +304,14 @@ def test_the_session_stage_is_beside_the_per_frame_stages(review_run):
     height = review_run.results.summary["session"]["height_mm"]
     assert f"{height.mean:,.1f}".replace(",", " ") in html
     assert f"{height.std:.1f}" in html
-    # Beside each core session value, the accuracy the benchmarks measured, and whence.
+    # Beside each core session value, the accuracy the benchmarks measured on bodies like
+    # this one (else on the mid-population subjects), and whence.
+    like = review_run.results.studio_accuracy
     for key, accuracy in SESSION_ACCURACY.items():
-        assert f"RMS error {accuracy.rms:.1f}" in html, key
-    assert ACCURACY_SOURCE in html
+        quoted = like.get(key, accuracy)
+        assert f"RMS error {quoted.rms:.1f}" in html, key
+        assert f"(studio, {quoted.sessions} {quoted.scope})" in html, key
+    assert ACCURACY_SOURCE in html and "bodies like this one" in html
     with open(review_run.folder / "measurements.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     used = {str(f) for f in shape.frames}

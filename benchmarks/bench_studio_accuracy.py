@@ -1,0 +1,129 @@
+"""The studio's accuracy by body: ``python -m benchmarks studio_accuracy``.
+
+Reads the committed end-to-end results (no rendering, no fitting) of every set of
+tight-clothed studio sessions scored on the current pipeline (:data:`SETS`: issue 15's
+eleven evaluated again, and the edge, looks, unseen edge, arms and weight sets of
+issue 33) and writes one row per session (the subject's true height, weight and
+age, whether an arm was raised in enough measured frames, and the session stage's
+signed error per core measurement) to the package's
+``estimation/data/studio_sessions.json``, which
+:mod:`bodymetry.estimation.studio_accuracy` holds each run against.
+
+Its result says how well that rule would have told a session's error from the
+others (leave one out): per core measurement, the sessions whose own error was
+beyond the target, and for each session the like bodies' RMS computed without it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.bench_arm_evidence import RESULTS, committed_sessions
+from benchmarks.bench_pipeline import _outfit
+from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES
+from bodymetry.estimation.studio_accuracy import (
+    ADULT_AGE,
+    CORE,
+    DATA,
+    LIKE_HEIGHT,
+    LIKE_WEIGHT,
+    MIN_LIKE,
+    StudioSession,
+    like_accuracy,
+    target_for,
+)
+
+#: The committed results scored with the current pipeline (the height read from the
+#: floor and the weight from the posed bodies), tight clothing only.
+SETS = (
+    "pipeline_recheck.json",
+    "pipeline_edge.json",
+    "pipeline_looks.json",
+    "pipeline_edge_unseen.json",
+    "pipeline_arms.json",
+    "pipeline_weight.json",
+)
+
+
+def scored_sessions(names: tuple[str, ...] = SETS) -> list[StudioSession]:
+    """One :class:`StudioSession` per tight-clothed session with a session-stage value
+    of every core measurement in the committed results ``names``."""
+    out = []
+    for name in names:
+        for s in committed_sessions((name,)):
+            f3 = s["figure3"]
+            folder = Path(s["session"]).name
+            if _outfit(s.get("subject") or folder) != "tight":
+                continue
+            if not all("session" in f3[k] for k in CORE):
+                continue
+            out.append(
+                StudioSession(
+                    name=f"{Path(name).stem}:{folder}",
+                    height_mm=float(f3["height_mm"]["actual"]),
+                    weight_kg=float(f3["weight_kg"]["actual"]),
+                    age_years=float(s.get("age_years") or s["edge"]["age_years"]),
+                    arms_raised=len(s["arm_raised_frames"]) >= MIN_RAISED_FRAMES,
+                    errors={k: float(f3[k]["session"]["mean"] - f3[k]["actual"]) for k in CORE},
+                )
+            )
+    return out
+
+
+def leave_one_out(sessions: list[StudioSession]) -> dict:
+    """Per session, the like bodies' accuracy without it, beside its own error."""
+    rows = []
+    for i, s in enumerate(sessions):
+        others = sessions[:i] + sessions[i + 1 :]
+        measured = {"height_mm": s.height_mm, "weight_kg": s.weight_kg}
+        like = like_accuracy(measured, s.arms_raised, others)
+        row = {"session": s.name, "errors": {k: round(v, 2) for k, v in s.errors.items()}}
+        for key in CORE:
+            acc = like.get(key)
+            target = target_for(key, s.weight_kg, s.age_years < ADULT_AGE)
+            row[key] = {
+                "beyond_target": bool(abs(s.errors[key]) > target),
+                "like_sessions": 0 if acc is None else acc.sessions,
+                "like_rms": None if acc is None else round(acc.rms, 2),
+            }
+        rows.append(row)
+    return {
+        "sessions": rows,
+        "beyond_target": {
+            key: [r["session"] for r in rows if r[key]["beyond_target"]] for key in CORE
+        },
+    }
+
+
+def run(**_: bool) -> dict:
+    sessions = scored_sessions()
+    DATA.parent.mkdir(parents=True, exist_ok=True)
+    DATA.write_text(
+        json.dumps(
+            {
+                "source": f"python -m benchmarks studio_accuracy, from {list(SETS)}",
+                "sessions": [s.to_json() for s in sessions],
+            },
+            indent=1,
+        )
+        + "\n"
+    )
+    per_key = {}
+    for key in CORE:
+        e = np.array([s.errors[key] for s in sessions])
+        per_key[key] = {
+            "rms": round(float(np.sqrt(np.mean(e**2))), 2),
+            "worst": round(float(np.abs(e).max()), 2),
+        }
+    return {
+        "setup": (
+            f"{len(sessions)} tight-clothed studio sessions of {list(SETS)} (committed results "
+            f"in {RESULTS.name}/); like bodies: height within {LIKE_HEIGHT} and weight within "
+            f"{LIKE_WEIGHT} (log ratio), at least {MIN_LIKE} sessions; written to {DATA.name}"
+        ),
+        "all_sessions": per_key,
+        "leave_one_out": leave_one_out(sessions),
+    }
