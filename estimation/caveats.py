@@ -45,13 +45,16 @@ list), and says why in a sentence a user can act on:
     the arm span rests on arms hanging by the body, which the studio's sessions
     read high (:data:`ARMS_DOWN_STUDIO`).
 ``outside_validated``
-    The measured height or weight lies outside the bodies the benchmarks
-    validated the body model on (:data:`VALIDATED`, issue 33's edge set): the
-    numbers are an extrapolation of the body model, with no measured accuracy.
+    Fewer than 2 of the studio's scored sessions were of a body like the
+    measured one (:mod:`bodymetry.estimation.studio_accuracy`: true height within
+    8 %, weight within 25 %); with only a height or a weight, it lies outside
+    the span of the bodies the benchmarks validated the body model on
+    (:data:`VALIDATED`, issue 33's edge set): the numbers are an extrapolation
+    of the body model, with no measured accuracy.
 ``body_accuracy``
     On the studio's sessions of bodies like the measured one
     (:mod:`bodymetry.estimation.studio_accuracy`: height within 8 %, weight within
-    25 %, the same arm evidence for the arm span; at least 3 sessions), a core
+    25 %, the same arm evidence for the arm span; at least 2 sessions), a core
     measurement's RMS error exceeds its target (10 mm, 15 mm, 1.5 kg or 3 % of a
     child's weight): the arm span of a 6-year-old read 9-25 mm short in all three.
 
@@ -72,6 +75,7 @@ from bodymetry.estimation.standing_height import MAX_SOLE_DEPTH
 from bodymetry.estimation.studio_accuracy import (
     LIKE_HEIGHT,
     LIKE_WEIGHT,
+    MIN_LIKE,
     arms_note,
     like_accuracy,
     like_children,
@@ -284,7 +288,7 @@ def run_caveats(
         the numbers, and ``several_persons`` is not raised.
     headline : mapping of str to float, optional
         The run's headline ``height_mm`` and ``weight_kg`` (the session stage's,
-        else the frames' mean), held against :data:`VALIDATED`.
+        else the frames' mean), held against the studio's like bodies (:func:`_validity`).
     raised : sequence of int, optional
         The measured frames with an arm raised
         (:func:`bodymetry.estimation.arm_evidence.raised_frames`); None: not judged.
@@ -389,18 +393,7 @@ def run_caveats(
                 "raised to measure it",
             )
         )
-    outside = VALIDATED.outside(headline or {})
-    if outside:
-        out.append(
-            Caveat(
-                "outside_validated",
-                f"the measured {' and '.join(outside)} {'lie' if len(outside) > 1 else 'lies'} "
-                "outside the bodies the body model "
-                f"was validated on ({VALIDATED.describe()}): the measurements extrapolate the "
-                "model and their accuracy was not measured",
-            )
-        )
-    out += _body_accuracy(headline or {}, raised)
+    out += _validity(headline or {}, raised)
     return tuple(out)
 
 
@@ -409,6 +402,40 @@ _LABELS = {
     "arm_span_mm": ("arm span", "mm"),
     "weight_kg": ("weight", "kg"),
 }
+
+
+def _validity(headline: Mapping[str, float], raised: Sequence[int] | None) -> list[Caveat]:
+    """``outside_validated`` when fewer than ``MIN_LIKE`` of the studio's scored sessions
+    were of a body like the measured one (or, without both a height and a weight, when
+    the given one lies outside :data:`VALIDATED`), else ``body_accuracy`` where the like
+    bodies' error exceeds a target."""
+    height, weight = (float(headline.get(k, math.nan)) for k in ("height_mm", "weight_kg"))
+    if math.isfinite(height) and math.isfinite(weight):
+        like = len(like_sessions(height, weight))
+        if like >= MIN_LIKE:
+            return _body_accuracy(headline, raised)
+        message = (
+            f"the measured height {height:.0f} mm and weight {weight:.0f} kg are unlike the "
+            f"bodies the body model was validated on ({like} of the studio's scored sessions "
+            f"had a true height within {100 * LIKE_HEIGHT:.0f} % and weight within "
+            f"{100 * LIKE_WEIGHT:.0f} % of them, fewer than {MIN_LIKE}; the validated bodies "
+            f"span {VALIDATED.describe()})"
+        )
+    else:
+        outside = VALIDATED.outside(headline)
+        if not outside:
+            return []
+        message = (
+            f"the measured {' and '.join(outside)} {'lie' if len(outside) > 1 else 'lies'} "
+            f"outside the bodies the body model was validated on ({VALIDATED.describe()})"
+        )
+    return [
+        Caveat(
+            "outside_validated",
+            f"{message}: the measurements extrapolate the model and their accuracy was not "
+            "measured",
+        )
+    ]
 
 
 def _body_accuracy(headline: Mapping[str, float], raised: Sequence[int] | None) -> list[Caveat]:
@@ -423,6 +450,8 @@ def _body_accuracy(headline: Mapping[str, float], raised: Sequence[int] | None) 
     weight = float(headline["weight_kg"])
     parts = []
     for key, acc in accuracy.items():
+        if key == "arm_span_mm" and arms is False:
+            continue  # the arms_down caveat names the arm span already
         target = target_for(key, weight, child)
         if acc.rms > target:
             label, unit = _LABELS[key]

@@ -689,7 +689,7 @@ def test_a_run_measures_each_person_capture_tells_apart(run, tmp_path, monkeypat
 
 def test_the_headline_values_prefer_the_session_stage_and_are_held_to_the_validated_range(run):
     """The values a run states (the session stage's, else the frames' mean) are what
-    the validated-range caveat judges; a body the benchmarks never measured is named."""
+    the validated-bodies caveat judges; a body the benchmarks never measured is named."""
     alone = run[2]
     inside = alone.with_person(
         summary={
@@ -703,7 +703,8 @@ def test_the_headline_values_prefer_the_session_stage_and_are_held_to_the_valida
         summary={**inside.summary, "session": {"height_mm": Stat(1052.0, 1.0, 3)}}
     )
     (caveat,) = [c for c in small.caveats if c.code == "outside_validated"]
-    assert caveat.message.startswith("the measured height 1052 mm lies outside")
+    # Height from the session stage, weight from the frames: a body like none scored.
+    assert caveat.message.startswith("the measured height 1052 mm and weight 70 kg are unlike")
 
 
 def test_a_camera_off_its_video_is_registered_and_the_frames_fitted_again(

@@ -122,5 +122,10 @@ def test_a_body_like_the_studio_s_six_year_olds_gets_the_body_accuracy_caveat():
         c.code == "body_accuracy"
         for c in run_caveats(_records(9), ("cam_00",), headline=adult, raised=range(9))
     )
+    # Arms down: the arms_down caveat names the arm span; body_accuracy does not again.
+    thin = {"height_mm": 1623.0, "weight_kg": 36.5}  # the thinnest woman: walking, +26.9 mm
+    assert like_accuracy(thin, False)["arm_span_mm"].rms > TARGETS["arm_span_mm"]
+    codes = [c.code for c in run_caveats(_records(9), ("cam_00",), headline=thin, raised=[])]
+    assert "arms_down" in codes and "body_accuracy" not in codes
     # No headline (nothing measured): nothing to hold against the studio.
     assert not any(c.code == "body_accuracy" for c in run_caveats(_records(9), ("cam_00",)))
