@@ -32,7 +32,7 @@ import numpy as np
 from bodymetry.estimation.body_model.model import POSE_DIM, BodyModel, shipped_model
 from bodymetry.estimation.records import FrameRecord
 
-__all__ = ["MIN_RAISED_FRAMES", "RAISED_DEG", "arm_elevations", "raised_frames"]
+__all__ = ["MIN_RAISED_FRAMES", "RAISED_DEG", "arm_elevations", "arms_raised", "raised_frames"]
 
 #: An arm is raised when its shoulder-to-wrist direction is at least this far
 #: (degrees) from straight down: half-way to held out sideways or forwards.
@@ -98,3 +98,10 @@ def raised_frames(
     return tuple(
         int(f) for (f, _), e in zip(states, elevation, strict=True) if e.max() >= RAISED_DEG
     )
+
+
+def arms_raised(raised: Sequence[int] | None) -> bool | None:
+    """Whether enough measured frames had an arm raised (at least
+    :data:`MIN_RAISED_FRAMES` of ``raised``, :func:`raised_frames`' answer); None
+    where not judged."""
+    return None if raised is None else len(raised) >= MIN_RAISED_FRAMES

@@ -69,13 +69,14 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES, RAISED_DEG
+from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES, RAISED_DEG, arms_raised
 from bodymetry.estimation.records import FrameRecord
 from bodymetry.estimation.standing_height import MAX_SOLE_DEPTH
 from bodymetry.estimation.studio_accuracy import (
     LIKE_HEIGHT,
     LIKE_WEIGHT,
     MIN_LIKE,
+    StudioSession,
     arms_note,
     like_accuracy,
     like_children,
@@ -411,12 +412,12 @@ def _validity(headline: Mapping[str, float], raised: Sequence[int] | None) -> li
     bodies' error exceeds a target."""
     height, weight = (float(headline.get(k, math.nan)) for k in ("height_mm", "weight_kg"))
     if math.isfinite(height) and math.isfinite(weight):
-        like = len(like_sessions(height, weight))
-        if like >= MIN_LIKE:
-            return _body_accuracy(headline, raised)
+        like = like_sessions(height, weight)
+        if len(like) >= MIN_LIKE:
+            return _body_accuracy(height, weight, like, raised)
         message = (
             f"the measured height {height:.0f} mm and weight {weight:.0f} kg are unlike the "
-            f"bodies the body model was validated on ({like} of the studio's scored sessions "
+            f"bodies the body model was validated on ({len(like)} of the studio's scored sessions "
             f"had a true height within {100 * LIKE_HEIGHT:.0f} % and weight within "
             f"{100 * LIKE_WEIGHT:.0f} % of them, fewer than {MIN_LIKE}; the validated bodies "
             f"span {VALIDATED.describe()})"
@@ -438,16 +439,15 @@ def _validity(headline: Mapping[str, float], raised: Sequence[int] | None) -> li
     ]
 
 
-def _body_accuracy(headline: Mapping[str, float], raised: Sequence[int] | None) -> list[Caveat]:
-    """``body_accuracy``: the measurements whose studio error on like bodies exceeds
-    their target (one caveat naming them all; none when nothing is like this body)."""
-    arms = None if raised is None else len(raised) >= MIN_RAISED_FRAMES
-    accuracy = like_accuracy(headline, arms)
-    if not accuracy:
-        return []
-    like = like_sessions(float(headline["height_mm"]), float(headline["weight_kg"]))
+def _body_accuracy(
+    height: float, weight: float, like: Sequence[StudioSession], raised: Sequence[int] | None
+) -> list[Caveat]:
+    """``body_accuracy``: the measurements whose error on the studio's ``like`` sessions
+    (of a body of ``height`` mm and ``weight`` kg) exceeds their target (one caveat
+    naming them all)."""
+    arms = arms_raised(raised)
+    accuracy = like_accuracy({"height_mm": height, "weight_kg": weight}, arms, like)
     child = like_children(like)
-    weight = float(headline["weight_kg"])
     parts = []
     for key, acc in accuracy.items():
         if key == "arm_span_mm" and arms is False:
@@ -462,7 +462,6 @@ def _body_accuracy(headline: Mapping[str, float], raised: Sequence[int] | None) 
             )
     if not parts:
         return []
-    height = float(headline["height_mm"])
     return [
         Caveat(
             "body_accuracy",

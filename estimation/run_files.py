@@ -29,7 +29,7 @@ from typing import Any
 from bodymetry.calibration.camera import CameraGroup
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.errors import InputError
-from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES, raised_frames
+from bodymetry.estimation.arm_evidence import arms_raised, raised_frames
 from bodymetry.estimation.caveats import Caveat, run_caveats
 from bodymetry.estimation.records import (
     STAGES,
@@ -498,9 +498,7 @@ class RunResults:
         measurement with enough like sessions
         (:func:`bodymetry.estimation.studio_accuracy.like_accuracy`; derived, like
         :attr:`caveats`)."""
-        raised = raised_frames(self.frames)  # None: not judged (no measured frame)
-        arms = None if raised is None else len(raised) >= MIN_RAISED_FRAMES
-        return like_accuracy(self.headline_values, arms)
+        return like_accuracy(self.headline_values, arms_raised(raised_frames(self.frames)))
 
     @property
     def headline_values(self) -> dict[str, float]:

@@ -27,6 +27,7 @@ from bodymetry.estimation.studio_accuracy import MeasuredAccuracy
 __all__ = ["SESSION_ACCURACY", "SOURCE", "MeasuredAccuracy"]
 
 
+_MID = "mid-population subjects"
 #: Per core measurement (results.json key): the session stage's error on the eleven
 #: tight-clothed studio subjects the model was not built from (seeds 42, 43, 49, the
 #: held-out 71, 72, the heavy 81, 82, 83 and the fresh 91, 92, 96; 16 kept frames each),
@@ -36,7 +37,6 @@ __all__ = ["SESSION_ACCURACY", "SOURCE", "MeasuredAccuracy"]
 #: the floor", "The weight read from the posed bodies"). Other machines running the same
 #: code give values a few millimetres and a few tenths of a kilogram apart (README, "The
 #: same code on three machines").
-_MID = "mid-population subjects"
 SESSION_ACCURACY: dict[str, MeasuredAccuracy] = {
     "height_mm": MeasuredAccuracy(rms=2.1, worst=4.0, bias=1.8, sessions=11, scope=_MID),
     "arm_span_mm": MeasuredAccuracy(rms=6.6, worst=12.5, bias=1.3, sessions=11, scope=_MID),
