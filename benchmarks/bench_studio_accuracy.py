@@ -11,7 +11,9 @@ signed error per core measurement) to the package's
 
 Its result says how well that rule would have told a session's error from the
 others (leave one out): per core measurement, the sessions whose own error was
-beyond the target, and for each session the like bodies' RMS computed without it.
+beyond the target, those the ``body_accuracy`` rule (:meth:`MeasuredAccuracy.beyond`)
+would have named from the other sessions alone, and for each session the like
+bodies' RMS and mean computed without it.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ SETS = (
     "pipeline_edge_unseen.json",
     "pipeline_arms.json",
     "pipeline_weight.json",
+    "pipeline_children.json",
 )
 
 
@@ -88,12 +91,24 @@ def leave_one_out(sessions: list[StudioSession]) -> dict:
                 "beyond_target": bool(abs(s.errors[key]) > target),
                 "like_sessions": 0 if acc is None else acc.sessions,
                 "like_rms": None if acc is None else round(acc.rms, 2),
+                "like_bias": None if acc is None else round(acc.bias, 2),
+                # Would a caveat have named it before it was scored? The arm span of arms
+                # that stayed down is arms_down's; the rest body_accuracy's.
+                "flagged": (key == "arm_span_mm" and not s.arms_raised)
+                or (acc is not None and acc.beyond(target)),
             }
         rows.append(row)
     return {
         "sessions": rows,
-        "beyond_target": {
-            key: [r["session"] for r in rows if r[key]["beyond_target"]] for key in CORE
+        **{
+            key: {
+                "beyond_target": [r["session"] for r in rows if r[key]["beyond_target"]],
+                "flagged": [r["session"] for r in rows if r[key]["flagged"]],
+                "beyond_and_flagged": sum(
+                    r[key]["beyond_target"] and r[key]["flagged"] for r in rows
+                ),
+            }
+            for key in CORE
         },
     }
 

@@ -56,7 +56,9 @@ list), and says why in a sentence a user can act on:
     (:mod:`bodymetry.estimation.studio_accuracy`: height within 8 %, weight within
     25 %, the same arm evidence for the arm span; at least 2 sessions), a core
     measurement's RMS error exceeds its target (10 mm, 15 mm, 1.5 kg or 3 % of a
-    child's weight): the arm span of a 6-year-old read 9-25 mm short in all three.
+    child's weight), or they read it off one way by more than half the target
+    (:meth:`~bodymetry.estimation.studio_accuracy.MeasuredAccuracy.beyond`): the
+    arm span of a 6-year-old read short in every session.
 
 The command line prints the caveats and exits with status 5
 (:data:`bodymetry.cli.common.EXIT_CAVEATS`); the report lists them first;
@@ -453,12 +455,19 @@ def _body_accuracy(
         if key == "arm_span_mm" and arms is False:
             continue  # the arms_down caveat names the arm span already
         target = target_for(key, weight, child)
-        if acc.rms > target:
+        if acc.beyond(target):
             label, unit = _LABELS[key]
+            seen = (
+                f"{acc.low:+.1f} to {acc.high:+.1f} {unit}, {acc.sessions} sessions"
+                f"{arms_note(key, arms)}"
+            )
             parts.append(
-                f"the {label} read {acc.low:+.1f} to {acc.high:+.1f} {unit} off (RMS "
-                f"{acc.rms:.1f} {unit}, mean {acc.bias:+.1f} {unit}, {acc.sessions} sessions"
-                f"{arms_note(key, arms)}) against a target of {target:.1f} {unit}"
+                f"the {label} read {acc.rms:.1f} {unit} RMS off ({seen}; mean "
+                f"{acc.bias:+.1f} {unit}), beyond the {target:.1f} {unit} target"
+                if acc.rms > target
+                else f"the {label} read {'high' if acc.bias > 0 else 'low'} by "
+                f"{abs(acc.bias):.1f} {unit} on average ({seen}), more than half the "
+                f"{target:.1f} {unit} target"
             )
     if not parts:
         return []
