@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from bodymetry.errors import InputError
+from bodymetry.estimation.records import CORE_MEASUREMENTS
 
 __all__ = [
     "ADULT_AGE",
@@ -62,7 +63,7 @@ __all__ = [
 ]
 
 #: The core measurements (results.json keys) the studio scores.
-CORE = ("height_mm", "arm_span_mm", "weight_kg")
+CORE = CORE_MEASUREMENTS
 #: Issue 15's targets for the session stage on tight-clothed subjects.
 TARGETS: Mapping[str, float] = {"height_mm": 10.0, "arm_span_mm": 15.0, "weight_kg": 1.5}
 #: Issue 33: a child's weight target is this share of the weight (not 1.5 kg) ...
