@@ -391,6 +391,13 @@ def test_someone_only_two_cameras_tell_apart_is_found_when_the_hull_counts_them(
         assert only_b[c].any()
         assert seen_b.masks[c][only_b[c]].mean() > 0.8
         assert seen_a.masks[c][only_b[c]].mean() < 0.2
+        # Missed by both cameras in one frame: in each, nobody's pixel is two people's,
+        # and what is unknown to a person is not theirs.
+        assert not (seen_a.masks[c] & seen_b.masks[c]).any()
+        for seen in (seen_a, seen_b):
+            hidden = seen.hidden[c] if seen.hidden else None
+            assert hidden is None or not (hidden & seen.masks[c]).any()
+        assert seen_b.landmarks[c] is None
     # A count higher than the people two cameras agree on adds nobody.
     assert len(sightings(RIG, detections, 0.5, box, expected=3)) == 2
 
