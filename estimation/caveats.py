@@ -311,9 +311,7 @@ def run_caveats(
     if not measured:
         return ()
     out = []
-    # The kept frames in which capture counted someone besides the measured person
-    # (a count above one is "more than one": the hull's phantoms can add to it).
-    crowded = [r for r in ordered if r.persons is not None and r.persons > 1]
+    crowded = [r for r in ordered if r.crowded]
     frames = tuple(r.frame for r in crowded)
     if crowded and not told_apart:
         out.append(

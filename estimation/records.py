@@ -279,6 +279,12 @@ class FrameRecord:
         """Whether the frame counts in the summary."""
         return self.status == OK
 
+    @property
+    def crowded(self) -> bool:
+        """Whether capture counted someone besides the measured person in this frame (a
+        count above one is "more than one": the hull's phantoms can add to it)."""
+        return self.persons is not None and self.persons > 1
+
     def estimate(self, stage: str = "generative") -> StageEstimate | None:
         """A stage's estimate, or None when the frame has none (or a non-finite one)."""
         est = self.estimates.get(stage)

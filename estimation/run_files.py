@@ -497,8 +497,11 @@ class RunResults:
         """The studio's accuracy on bodies like the first person's measured one, per core
         measurement with enough like sessions
         (:func:`bodymetry.estimation.studio_accuracy.like_accuracy`; derived, like
-        :attr:`caveats`)."""
-        return like_accuracy(self.headline_values, arms_raised(raised_frames(self.frames)))
+        :attr:`caveats`); single-person sessions, and the scope says so for a person
+        measured among others."""
+        among = any(r.crowded for r in self.frames)
+        arms = arms_raised(raised_frames(self.frames))
+        return like_accuracy(self.headline_values, arms, among_others=among)
 
     @property
     def headline_values(self) -> dict[str, float]:

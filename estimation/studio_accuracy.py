@@ -252,6 +252,7 @@ def like_accuracy(
     measured: Mapping[str, float],
     arms_raised: bool | None = None,
     sessions: Sequence[StudioSession] | None = None,
+    among_others: bool = False,
 ) -> dict[str, MeasuredAccuracy]:
     """The studio's accuracy on bodies like the measured one, per core measurement.
 
@@ -264,6 +265,10 @@ def like_accuracy(
         then held against sessions of the same arm evidence (None: all).
     sessions : sequence of StudioSession, optional
         Default: the shipped ones.
+    among_others : bool
+        The run measured the person among others: the scope says that the studio's
+        sessions had one person alone in view (the ``among_persons`` caveat quotes the
+        two-person sessions' figures).
 
     Returns
     -------
@@ -283,6 +288,8 @@ def like_accuracy(
             if key in s.errors and (key != "arm_span_mm" or arms_raised in (None, s.arms_raised))
         ]
         if len(pool) >= MIN_LIKE:
-            scope = f"sessions of bodies like this one{arms_note(key, arms_raised)}"
+            scope = f"sessions of bodies like this one{arms_note(key, arms_raised)}" + (
+                ", each alone in view" if among_others else ""
+            )
             out[key] = MeasuredAccuracy.of([s.errors[key] for s in pool], scope)
     return out

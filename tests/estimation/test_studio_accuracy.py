@@ -87,6 +87,9 @@ def test_the_accuracy_of_like_bodies_is_their_errors_rms_mean_and_extremes():
     # Nothing like the body: nothing said.
     assert like_accuracy({"height_mm": 1900.0, "weight_kg": 90.0}, True, sessions) == {}
     assert MeasuredAccuracy.of(e, "x").to_json()["rms"] == pytest.approx(arm.rms, abs=1e-4)
+    # Measured among others: the same figures, whose scope says they are one person's.
+    among = like_accuracy(measured, True, sessions, among_others=True)["arm_span_mm"]
+    assert among.rms == arm.rms and among.scope == arm.scope + ", each alone in view"
 
 
 def test_a_child_s_weight_is_held_to_a_share_of_it():
