@@ -947,9 +947,14 @@ def _summary_lines(ctx: dict[str, Any]) -> list[str]:
                 f"{h['unit']} ({h['accuracy'].sessions} {h['accuracy'].scope})"
                 for h in measured
             )
-            + ":"
+            + "."
         )
-        lines.append(f"{ctx['accuracy_source']}.")
+        lines.append(
+            f"Figures of sessions of bodies like this one: the studio's sessions whose subject's "
+            f"true height lies within {ctx['like_height']} % and weight within "
+            f"{ctx['like_weight']} % of the measured ones (python -m benchmarks studio_accuracy); "
+            f"otherwise {ctx['accuracy_source']}."
+        )
         lines.append(f"The body model was validated on {ctx['validated_range']}.")
     return [part for line in lines for part in textwrap.wrap(line, SUMMARY_LINE_CHARS)]
 
