@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES
+from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES, arms_raised
 
 RESULTS = Path(__file__).with_name("results")
 #: The results the caveat's figures come from (the caveat was written on them).
@@ -66,7 +66,7 @@ def arm_span_by_evidence(sessions: list[dict]) -> dict:
         err = _arm_error(s)
         if err is None or "arm_raised_frames" not in s:
             continue
-        down = len(s["arm_raised_frames"]) < MIN_RAISED_FRAMES
+        down = not arms_raised(s["arm_raised_frames"])
         groups["arms_down" if down else "arms_raised"][Path(s["session"]).name] = round(err, 2)
     out = {}
     for name, errors in groups.items():

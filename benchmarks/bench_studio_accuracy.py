@@ -2,8 +2,8 @@
 
 Reads the committed end-to-end results (no rendering, no fitting) of every set of
 tight-clothed studio sessions scored on the current pipeline (:data:`SETS`: issue 15's
-eleven evaluated again, and the edge, looks, unseen edge, arms and weight sets of
-issue 33) and writes one row per session (the subject's true height, weight and
+eleven evaluated again, and the edge, looks, unseen edge, arms, weight and children
+sets of issue 33) and writes one row per session (the subject's true height, weight and
 age, whether an arm was raised in enough measured frames, and the session stage's
 signed error per core measurement) to the package's
 ``estimation/data/studio_sessions.json``, which
@@ -25,7 +25,7 @@ import numpy as np
 
 from benchmarks.bench_arm_evidence import RESULTS, committed_sessions
 from benchmarks.bench_pipeline import _outfit
-from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES
+from bodymetry.estimation.arm_evidence import arms_raised
 from bodymetry.estimation.studio_accuracy import (
     ADULT_AGE,
     CORE,
@@ -69,7 +69,7 @@ def scored_sessions(names: tuple[str, ...] = SETS) -> list[StudioSession]:
                     height_mm=float(f3["height_mm"]["actual"]),
                     weight_kg=float(f3["weight_kg"]["actual"]),
                     age_years=float(s.get("age_years") or s["edge"]["age_years"]),
-                    arms_raised=len(s["arm_raised_frames"]) >= MIN_RAISED_FRAMES,
+                    arms_raised=bool(arms_raised(s["arm_raised_frames"])),
                     errors={k: float(f3[k]["session"]["mean"] - f3[k]["actual"]) for k in CORE},
                 )
             )

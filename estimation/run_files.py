@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -488,9 +489,16 @@ class RunResults:
             () if outline is None else outline.warnings,
             told_apart=self.person.told_apart or self.config.person is not None,
             headline=self.headline_values,
-            raised=raised_frames(self.frames),
+            raised=self.arm_raised_frames,
             sole_depth_mm=None if floor is None or not math.isfinite(floor) else floor,
         )
+
+    @cached_property
+    def arm_raised_frames(self) -> tuple[int, ...] | None:
+        """The first person's measured frames with an arm raised
+        (:func:`~bodymetry.estimation.arm_evidence.raised_frames`: it poses the body of
+        every frame), judged once for :attr:`caveats` and :attr:`studio_accuracy`."""
+        return raised_frames(self.frames)
 
     @property
     def studio_accuracy(self) -> dict[str, MeasuredAccuracy]:
@@ -500,7 +508,7 @@ class RunResults:
         :attr:`caveats`); single-person sessions, and the scope says so for a person
         measured among others."""
         among = any(r.crowded for r in self.frames)
-        arms = arms_raised(raised_frames(self.frames))
+        arms = arms_raised(self.arm_raised_frames)
         return like_accuracy(self.headline_values, arms, among_others=among)
 
     @property
@@ -549,12 +557,10 @@ class RunResults:
                 # written for scripts and viewers that read the file without bodymetry.
                 {
                     **p.to_json(),
-                    "caveats": [c.to_json() for c in self.for_person(p.id).caveats],
-                    "studio_accuracy": {
-                        k: a.to_json() for k, a in self.for_person(p.id).studio_accuracy.items()
-                    },
+                    "caveats": [c.to_json() for c in view.caveats],
+                    "studio_accuracy": {k: a.to_json() for k, a in view.studio_accuracy.items()},
                 }
-                for p in self.persons
+                for p, view in ((p, self.for_person(p.id)) for p in self.persons)
             ],
             "timing_seconds": self.timing_seconds,
             "warnings": list(self.warnings),
