@@ -29,6 +29,8 @@ tight clothing in the saturated colours) and adds :func:`edge_summary`;
 ``--edge-unseen`` the same bodies with other seeds and motions
 (:data:`EDGE_UNSEEN_SESSIONS`); ``--children`` three children's sessions rendered after
 the ``body_accuracy`` caveat (:data:`CHILDREN_SESSIONS`), with :func:`edge_summary`;
+``--contrast`` four in low-contrast clothing rendered after runs were held against the
+sessions seen in like contrast (:data:`CONTRAST_SESSIONS`), with :func:`stated_accuracy`;
 ``--held-out`` renders
 :data:`HELD_OUT_SESSIONS`, a replication of the four same-model sessions with new
 subjects.
@@ -153,6 +155,17 @@ LOOK_SESSIONS = (
     (314, "arm_raises", "independent:314", "clothing=wall,room=plain,light=soft"),
     (315, "walk_turn", "independent:315", "clothing=white,room=plain,light=soft"),
     (316, "reach", "independent:316", "clothing=wall,room=textured,light=hard"),
+)
+#: Issue 32: subjects in low-contrast clothing rendered after runs were held against the
+#: studio's sessions seen in like contrast (``python -m benchmarks pipeline --contrast``):
+#: does the outline contrast class them as their look says, and does the accuracy the
+#: run states (``studio_accuracy``, the ``body_accuracy`` caveat) match their errors?
+#: Seeds, bodies and looks never used before; one light grey in the textured lab.
+CONTRAST_SESSIONS = (
+    (421, "reach", "independent:421", "clothing=white,room=plain,light=hard"),
+    (422, "arm_raises", "independent:422", "clothing=light_grey,room=plain,light=soft"),
+    (423, "mixed", "independent:423", "clothing=wall,room=plain,light=hard"),
+    (424, "arm_raises", "independent:424", "clothing=light_grey,room=textured,light=soft"),
 )
 DEMO_RIG_SEED = 5
 FRAMES = 400  # 16 kept frames each
@@ -339,6 +352,10 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
         # and the caveats the run states.
         "arm_raised_frames": list(raised_frames(results.frames) or ()),
         "caveats": [c.code for c in results.caveats],
+        # Issue 32: how plainly capture saw the subject stand out (the studio's accuracy
+        # holds a run against the sessions seen in like contrast).
+        "outline_contrast": results.outline_contrast,
+        "studio_accuracy": {k: a.to_json() for k, a in results.studio_accuracy.items()},
         # Issue 33: the session weight read from the posed bodies, and the canonical one.
         "canonical_weight_kg": (
             None
@@ -519,6 +536,32 @@ def edge_summary(sessions: list[dict]) -> dict:
     }
 
 
+def stated_accuracy(sessions: list[dict]) -> list[dict]:
+    """Per session: its outline contrast, the accuracy the run stated for each core
+    measurement (the studio's like sessions: scope, count, RMS, mean), its session-stage
+    error, and whether the ``body_accuracy`` caveat was raised."""
+    rows = []
+    for s in sessions:
+        f3 = s["figure3"]
+        rows.append(
+            {
+                "session": Path(s["session"]).name,
+                "outline_contrast": s.get("outline_contrast"),
+                "caveats": s["caveats"],
+                **{
+                    key: {
+                        "error": round(f3[key]["session"]["mean"] - f3[key]["actual"], 2)
+                        if "session" in f3[key]
+                        else None,
+                        "stated": s["studio_accuracy"].get(key),
+                    }
+                    for key in SESSION_TARGETS
+                },
+            }
+        )
+    return rows
+
+
 def run(
     independent: bool = False,
     validation: bool = False,
@@ -531,6 +574,7 @@ def run(
     arms: bool = False,
     weight: bool = False,
     children: bool = False,
+    contrast: bool = False,
 ) -> dict:
     reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
     edge = edge or edge_unseen
@@ -550,7 +594,7 @@ def run(
         tmp = Path(tmp)
         if reuse:
             folders = [Path(p) for p in reuse.split(":") if p]
-        elif looks:
+        elif looks or contrast:
             folders = [
                 _render(
                     tmp / f"seed{seed}_{motion}_{Look.parse(look).label.replace('/', '_')}",
@@ -559,7 +603,9 @@ def run(
                     {"look": Look.parse(look)},
                     subject,
                 )
-                for seed, motion, subject, look in LOOK_SESSIONS
+                for seed, motion, subject, look in (
+                    CONTRAST_SESSIONS if contrast else LOOK_SESSIONS
+                )
             ]
         elif arms or weight or children:
             rows = ARMS_SESSIONS if arms else WEIGHT_SESSIONS if weight else CHILDREN_SESSIONS
@@ -596,7 +642,7 @@ def run(
     listed = LOOK_SESSIONS if looks else subjects if independent else same_model
     described = (
         [f.name for f in folders]
-        if reuse or looks or edge or arms or weight or children
+        if reuse or looks or contrast or edge or arms or weight or children
         else [s[::2] if independent else s[:2] for s in listed]
     )
     workers = _workers()
@@ -609,6 +655,7 @@ def run(
         ),
         "sessions": out,
         **({"edge_summary": edge_summary(out)} if edge or children else {}),
+        **({"stated_accuracy": stated_accuracy(out)} if contrast else {}),
         "arm_evidence": arm_span_by_evidence(out),
         # Loose clothing biases both stages alike: the stages are compared on the rest.
         "stage_comparison": stage_comparison(

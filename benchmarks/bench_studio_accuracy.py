@@ -4,8 +4,10 @@ Reads the committed end-to-end results (no rendering, no fitting) of every set o
 tight-clothed studio sessions scored on the current pipeline (:data:`SETS`: issue 15's
 eleven evaluated again, and the edge, looks, unseen edge, arms, weight and children
 sets of issue 33) and writes one row per session (the subject's true height, weight and
-age, whether an arm was raised in enough measured frames, and the session stage's
-signed error per core measurement) to the package's
+age, whether an arm was raised in enough measured frames, whether capture saw the
+subject in low contrast (the run's outline contrast below ``LOW_CONTRAST``; sessions
+whose results predate the figure wore the studio's saturated colours), and the session
+stage's signed error per core measurement) to the package's
 ``estimation/data/studio_sessions.json``, which
 :mod:`bodymetry.estimation.studio_accuracy` holds each run against.
 
@@ -33,7 +35,9 @@ from bodymetry.estimation.studio_accuracy import (
     LIKE_HEIGHT,
     LIKE_WEIGHT,
     MIN_LIKE,
+    MeasuredAccuracy,
     StudioSession,
+    is_low_contrast,
     like_accuracy,
     target_for,
 )
@@ -71,6 +75,7 @@ def scored_sessions(names: tuple[str, ...] = SETS) -> list[StudioSession]:
                     age_years=float(s.get("age_years") or s["edge"]["age_years"]),
                     arms_raised=bool(arms_raised(s["arm_raised_frames"])),
                     errors={k: float(f3[k]["session"]["mean"] - f3[k]["actual"]) for k in CORE},
+                    low_contrast=bool(is_low_contrast(s.get("outline_contrast"))),
                 )
             )
     return out
@@ -82,7 +87,7 @@ def leave_one_out(sessions: list[StudioSession]) -> dict:
     for i, s in enumerate(sessions):
         others = sessions[:i] + sessions[i + 1 :]
         measured = {"height_mm": s.height_mm, "weight_kg": s.weight_kg}
-        like = like_accuracy(measured, s.arms_raised, others)
+        like = like_accuracy(measured, s.arms_raised, others, low_contrast=s.low_contrast)
         row = {"session": s.name, "errors": {k: round(v, 2) for k, v in s.errors.items()}}
         for key in CORE:
             acc = like.get(key)
@@ -133,6 +138,7 @@ def run(**_: bool) -> dict:
             "rms": round(float(np.sqrt(np.mean(e**2))), 2),
             "worst": round(float(np.abs(e).max()), 2),
         }
+    low = [s for s in sessions if s.low_contrast]
     return {
         "setup": (
             f"{len(sessions)} tight-clothed studio sessions of {list(SETS)} (committed results "
@@ -140,5 +146,14 @@ def run(**_: bool) -> dict:
             f"{LIKE_WEIGHT} (log ratio), at least {MIN_LIKE} sessions; written to {DATA.name}"
         ),
         "all_sessions": per_key,
+        # Issue 32: the sessions capture saw in low contrast, every body together.
+        "low_contrast": {
+            "sessions": [s.name for s in low],
+            **{
+                key: MeasuredAccuracy.of([s.errors[key] for s in low], "low contrast").to_json()
+                for key in CORE
+                if low
+            },
+        },
         "leave_one_out": leave_one_out(sessions),
     }

@@ -98,6 +98,8 @@ class FitJob:
         by camera name (the record's ``view_agreement``).
     persons : int or None
         Person-sized bodies capture counted (the record's ``persons``).
+    contrast : float or None
+        Capture's outline contrast (the record's ``outline_contrast``).
     unknown : list of ((h_c, w_c) bool or None)
         Per camera at the working resolution, the person's pixels someone
         nearer covers (neither person nor background to the fit); empty: none.
@@ -119,6 +121,7 @@ class FitJob:
     persons: int | None = None
     unknown: list[np.ndarray | None] = field(default_factory=list)
     clothing: list[np.ndarray | None] = field(default_factory=list)
+    contrast: float | None = None
 
 
 def run_fit_job(job: FitJob) -> FrameFit:
@@ -139,6 +142,7 @@ def run_fit_job(job: FitJob) -> FrameFit:
         persons=job.persons,
         unknown=job.unknown,
         clothing=job.clothing,
+        contrast=job.contrast,
     )
 
 
@@ -482,4 +486,5 @@ def _rescue_job(
         old.persons,
         arrays.unknown_of(cameras.names) if arrays.unknown else [],
         arrays.clothing_of(cameras.names) if arrays.clothing else [],
+        old.outline_contrast,
     )

@@ -272,6 +272,12 @@ class SegmentedFrame:
         not skin (:attr:`SilhouetteFrame.clothing
         <bodymetry.capture.segmentation.SilhouetteFrame.clothing>`); empty
         where capture could not tell.
+    contrast : float or None
+        How plainly the silhouettes stand out from the empty scene
+        (:attr:`SilhouetteFrame.contrast
+        <bodymetry.capture.segmentation.SilhouetteFrame.contrast>`); None without
+        an empty-scene clip, and for a person told apart from others (it is the
+        frame's largest body's).
     """
 
     frame: int
@@ -284,6 +290,7 @@ class SegmentedFrame:
     people: tuple[Sighting, ...] = field(default=(), repr=False)
     unknown: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
     clothing: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
+    contrast: float | None = None
 
 
 @dataclass(frozen=True)
@@ -482,6 +489,7 @@ def segment(
             view_landmarks=tuple(sil.view_landmarks),
             agreement=judged_agreement(names, sil.agreement, sil.frame),
             persons=sil.persons,
+            contrast=sil.contrast,
             people=tuple(_working(prepared.resolution, names, p, sil.masks) for p in sil.sightings),
             clothing=_working_masks(prepared.resolution, names, sil.clothing, sil.masks)
             if any(c is not None for c in sil.clothing)
@@ -729,7 +737,7 @@ def choose_person(
             out.append(
                 replace(
                     seg, masks=masks, flags=(("empty", ABSENT),) * len(names), landmarks=None,
-                    view_landmarks=(), agreement={}, people=(),
+                    view_landmarks=(), agreement={}, people=(), contrast=None,
                 )
             )  # fmt: skip
             continue
@@ -756,7 +764,7 @@ def choose_person(
         out.append(
             replace(
                 seg, masks=masks, flags=flags, landmarks=landmarks,
-                view_landmarks=tuple(views), agreement={}, people=(),
+                view_landmarks=tuple(views), agreement={}, people=(), contrast=None,
                 unknown=unknown if any(u is not None for u in unknown) else (),
             )
         )  # fmt: skip
@@ -813,6 +821,7 @@ def fit_job_of(
         prepared.landmarks(seg.view_landmarks, seg.landmarks),
         agreement=seg.agreement,
         persons=seg.persons,
+        contrast=seg.contrast,
         unknown=list(seg.unknown),
         clothing=list(seg.clothing),
     )

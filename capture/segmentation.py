@@ -38,6 +38,7 @@ from bodymetry.capture.fusion import (
     change_evidence,
     confirmed_change,
     fuse,
+    outline_contrast,
     segmenter_evidence,
     view_agreement,
     view_features,
@@ -213,6 +214,13 @@ class SilhouetteFrame:
         clip from the segmenter's detections (:mod:`bodymetry.capture.people`),
         with one from the split of the hull where more than one person is
         counted (:mod:`bodymetry.capture.persons`); empty otherwise.
+    clothing : tuple of ((H, W) bool or None), length C
+        Per camera, the silhouette's pixels that are not skin
+        (:mod:`bodymetry.capture.skin`); empty where it could not be told.
+    contrast : float or None
+        How plainly the silhouettes stand out from the empty scene along their
+        outline (:func:`bodymetry.capture.fusion.outline_contrast`); None
+        without an empty-scene clip.
     """
 
     frame: int
@@ -227,6 +235,7 @@ class SilhouetteFrame:
     persons: int | None = None
     sightings: tuple[Sighting, ...] = field(default=(), repr=False)
     clothing: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
+    contrast: float | None = None
 
     def stack(self) -> np.ndarray:
         """(C, H, W) bool masks, for rigs whose cameras all have one image size.
@@ -428,6 +437,8 @@ class _FrameViews(NamedTuple):
         :attr:`SilhouetteFrame.persons`.
     sightings : tuple of Sighting
         :attr:`SilhouetteFrame.sightings`.
+    contrast : float or None
+        :attr:`SilhouetteFrame.contrast`.
     """
 
     views: list[_View]
@@ -435,6 +446,7 @@ class _FrameViews(NamedTuple):
     agreement: list[float | None]
     persons: int | None
     sightings: tuple[Sighting, ...] = ()
+    contrast: float | None = None
 
 
 class FrameSegmenter:
@@ -837,7 +849,10 @@ class FrameSegmenter:
             landmarks = triangulate_landmarks(
                 self.cameras, [v.landmarks for v in views], self.config.landmarks
             )
-        return _FrameViews(views, landmarks, agreement, persons, tuple(people or ()))
+        contrast = outline_contrast(
+            [v.mask for v in views], [None if ev is None else ev.change for ev in evidence]
+        )
+        return _FrameViews(views, landmarks, agreement, persons, tuple(people or ()), contrast)
 
     def _agreement(
         self, views: list[_View], evidence: Sequence[ViewEvidence | None]
@@ -958,7 +973,7 @@ def segment_session(
     )
     try:
         for fs in _prefetch(read_frame_sets(session, report, frames=frames, method=read_method)):
-            per_view, landmarks, agreement, persons, people = views(fs.images)
+            per_view, landmarks, agreement, persons, people, contrast = views(fs.images)
             masks = tuple(v.mask for v in per_view)
             view_landmarks = (
                 tuple(v.landmarks for v in per_view) if views.segmenter is not None else ()
@@ -975,6 +990,7 @@ def segment_session(
                 agreement=tuple(agreement) if any(a is not None for a in agreement) else (),
                 persons=persons,
                 sightings=people,
+                contrast=contrast,
                 clothing=frame_clothing(
                     fs.images, masks, landmarks, view_landmarks, people, cameras, config
                 )

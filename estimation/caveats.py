@@ -78,11 +78,11 @@ from bodymetry.estimation.studio_accuracy import (
     LIKE_HEIGHT,
     LIKE_WEIGHT,
     MIN_LIKE,
-    StudioSession,
-    arms_note,
+    is_low_contrast,
     like_accuracy,
     like_children,
     like_sessions,
+    run_contrast,
     target_for,
 )
 from bodymetry.estimation.view_selection import left_out_views
@@ -394,7 +394,7 @@ def run_caveats(
                 "raised to measure it",
             )
         )
-    out += _validity(headline or {}, raised)
+    out += _validity(headline or {}, raised, is_low_contrast(run_contrast(ordered)))
     return tuple(out)
 
 
@@ -405,16 +405,19 @@ _LABELS = {
 }
 
 
-def _validity(headline: Mapping[str, float], raised: Sequence[int] | None) -> list[Caveat]:
+def _validity(
+    headline: Mapping[str, float], raised: Sequence[int] | None, low_contrast: bool | None
+) -> list[Caveat]:
     """``outside_validated`` when fewer than ``MIN_LIKE`` of the studio's scored sessions
     were of a body like the measured one (or, without both a height and a weight, when
-    the given one lies outside :data:`VALIDATED`), else ``body_accuracy`` where the like
-    bodies' error exceeds a target."""
+    the given one lies outside :data:`VALIDATED`), else ``body_accuracy`` where the
+    studio's error on like sessions (of like bodies, seen in like contrast:
+    :func:`~bodymetry.estimation.studio_accuracy.like_accuracy`) exceeds a target."""
     height, weight = (float(headline.get(k, math.nan)) for k in ("height_mm", "weight_kg"))
     if math.isfinite(height) and math.isfinite(weight):
         like = like_sessions(height, weight)
         if len(like) >= MIN_LIKE:
-            return _body_accuracy(height, weight, like, raised)
+            return _body_accuracy(height, weight, like_children(like), raised, low_contrast)
         message = (
             f"the measured height {height:.0f} mm and weight {weight:.0f} kg are unlike the "
             f"bodies the body model was validated on ({len(like)} of the studio's scored sessions "
@@ -440,14 +443,19 @@ def _validity(headline: Mapping[str, float], raised: Sequence[int] | None) -> li
 
 
 def _body_accuracy(
-    height: float, weight: float, like: Sequence[StudioSession], raised: Sequence[int] | None
+    height: float,
+    weight: float,
+    child: bool,
+    raised: Sequence[int] | None,
+    low_contrast: bool | None,
 ) -> list[Caveat]:
-    """``body_accuracy``: the measurements whose error on the studio's ``like`` sessions
-    (of a body of ``height`` mm and ``weight`` kg) exceeds their target (one caveat
-    naming them all)."""
+    """``body_accuracy``: the measurements whose error on the studio's like sessions (of
+    a body of ``height`` mm and ``weight`` kg, a ``child``'s, seen in like contrast)
+    exceeds their target (one caveat naming them all)."""
     arms = arms_raised(raised)
-    accuracy = like_accuracy({"height_mm": height, "weight_kg": weight}, arms, like)
-    child = like_children(like)
+    accuracy = like_accuracy(
+        {"height_mm": height, "weight_kg": weight}, arms, low_contrast=low_contrast
+    )
     parts = []
     for key, acc in accuracy.items():
         if key == "arm_span_mm" and arms is False:
@@ -455,10 +463,7 @@ def _body_accuracy(
         target = target_for(key, weight, child)
         if acc.beyond(target):
             label, unit = _LABELS[key]
-            seen = (
-                f"{acc.low:+.1f} to {acc.high:+.1f} {unit}, {acc.sessions} sessions"
-                f"{arms_note(key, arms)}"
-            )
+            seen = f"{acc.low:+.1f} to {acc.high:+.1f} {unit}, {acc.sessions} {acc.scope}"
             parts.append(
                 f"the {label} read {acc.rms:.1f} {unit} RMS off ({seen}; mean "
                 f"{acc.bias:+.1f} {unit}), beyond the {target:.1f} {unit} target"
@@ -472,10 +477,10 @@ def _body_accuracy(
     return [
         Caveat(
             "body_accuracy",
-            "on the studio's sessions of bodies like this one (true height within "
-            f"{100 * LIKE_HEIGHT:.0f} % and weight within {100 * LIKE_WEIGHT:.0f} % of the "
-            f"measured {height:.0f} mm and {weight:.1f} kg), {'; '.join(parts)}: those "
-            "numbers are less sure than their standard error says (python -m benchmarks "
-            "studio_accuracy)",
+            "on the studio's scored sessions (a body is like this one when its true height "
+            f"is within {100 * LIKE_HEIGHT:.0f} % and its weight within "
+            f"{100 * LIKE_WEIGHT:.0f} % of the measured {height:.0f} mm and "
+            f"{weight:.1f} kg), {'; '.join(parts)}: those numbers are less sure than their "
+            "standard error says (python -m benchmarks studio_accuracy)",
         )
     ]

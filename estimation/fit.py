@@ -350,6 +350,7 @@ def fit_frame(
     persons: int | None = None,
     unknown: Sequence[np.ndarray | None] | None = None,
     clothing: Sequence[np.ndarray | None] | None = None,
+    contrast: float | None = None,
 ) -> FrameFit:
     """Fit one frame (never raises for bad data: the record says what went wrong).
 
@@ -394,6 +395,8 @@ def fit_frame(
     clothing : sequence of C ((H_c, W_c) bool or None), optional
         Per camera, the pixels capture found not to be skin (clothing, hair,
         shoes); kept in the frame's arrays where they fall on the silhouette.
+    contrast : float, optional
+        Capture's outline contrast; recorded as the record's ``outline_contrast``.
     """
     t0 = time.perf_counter()
     body = shared_body_model()
@@ -403,7 +406,7 @@ def fit_frame(
     flag_map = {n: tuple(f) for n, f in zip(names, flags, strict=True)}
     valid = usable_views(names, pixels, flag_map)
     views = _ViewFacts(
-        flag_map, pixels, {n: float(v) for n, v in (agreement or {}).items()}, persons
+        flag_map, pixels, {n: float(v) for n, v in (agreement or {}).items()}, persons, contrast
     )
     observed_arrays = FrameArrays(
         observed={n: np.asarray(m, bool) for n, m in zip(names, masks, strict=True)},
@@ -429,6 +432,7 @@ def fit_frame(
                 person_pixels=pixels,
                 view_agreement=views.agreement,
                 persons=views.persons,
+                outline_contrast=views.contrast,
             ),
             observed_arrays,
         )
@@ -477,12 +481,14 @@ def fit_frame(
 @dataclass(frozen=True)
 class _ViewFacts:
     """What a frame's record says about its views: capture's flags, the person
-    pixels and capture's agreement, by camera name, and capture's person count."""
+    pixels and capture's agreement, by camera name, capture's person count and its
+    outline contrast."""
 
     flags: dict[str, tuple[str, ...]]
     pixels: dict[str, int]
     agreement: dict[str, float]
     persons: int | None = None
+    contrast: float | None = None
 
 
 def _fitted_record(
@@ -502,6 +508,7 @@ def _fitted_record(
         person_pixels=views.pixels,
         view_agreement=views.agreement,
         persons=views.persons,
+        outline_contrast=views.contrast,
         estimates={"discriminative": discriminative},
         annealing=AnnealingTrace(
             tuple(fit.annealing.layer_log_likelihood.tolist()),

@@ -256,6 +256,14 @@ class FrameRecord:
         silhouettes are the largest body's and may be another person's.
         None: not counted (no empty-scene clip, no calibrated rig, or a run
         before the count).
+    outline_contrast : float or None
+        How plainly the silhouettes stood out from the empty scene along their
+        outline (:func:`bodymetry.capture.fusion.outline_contrast`: the change
+        term on the silhouettes' inner rim, 2.0 at most); below
+        :data:`~bodymetry.estimation.studio_accuracy.LOW_CONTRAST` the frame was
+        seen in low contrast (white, grey or wall-coloured clothing in a plain
+        room). None: no empty-scene clip, a person told apart from others, or a
+        run before the figure.
     annealing : AnnealingTrace or None
     refinement : RefinementTrace or None
     seconds : dict of str to float
@@ -270,6 +278,7 @@ class FrameRecord:
     person_pixels: dict[str, int] = field(default_factory=dict)
     view_agreement: dict[str, float] = field(default_factory=dict)
     persons: int | None = None
+    outline_contrast: float | None = None
     annealing: AnnealingTrace | None = None
     refinement: RefinementTrace | None = None
     seconds: dict[str, float] = field(default_factory=dict)
@@ -320,6 +329,8 @@ class FrameRecord:
             }
         if self.persons is not None:
             out["persons"] = int(self.persons)
+        if self.outline_contrast is not None:
+            out["outline_contrast"] = round(float(self.outline_contrast), 3)
         if self.annealing is not None:
             out["annealing"] = self.annealing.to_json()
         if self.refinement is not None:
@@ -355,6 +366,9 @@ class FrameRecord:
                     for k, v in data.get("view_agreement", {}).items()
                 },
                 persons=None if data.get("persons") is None else int(data["persons"]),
+                outline_contrast=None
+                if data.get("outline_contrast") is None
+                else float(data["outline_contrast"]),
                 annealing=AnnealingTrace.from_json(data["annealing"])
                 if "annealing" in data
                 else None,

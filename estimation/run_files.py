@@ -42,7 +42,12 @@ from bodymetry.estimation.records import (
 )
 from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.run_config import ProcessConfig
-from bodymetry.estimation.studio_accuracy import MeasuredAccuracy, like_accuracy
+from bodymetry.estimation.studio_accuracy import (
+    MeasuredAccuracy,
+    is_low_contrast,
+    like_accuracy,
+    run_contrast,
+)
 from bodymetry.fileio import read_json_object, write_json_atomic
 
 __all__ = [
@@ -493,6 +498,14 @@ class RunResults:
             sole_depth_mm=None if floor is None or not math.isfinite(floor) else floor,
         )
 
+    @property
+    def outline_contrast(self) -> float | None:
+        """How plainly capture saw the first person stand out from the empty scene
+        (:func:`~bodymetry.estimation.studio_accuracy.run_contrast`, 3 decimals; None
+        without an empty-scene clip)."""
+        contrast = run_contrast(self.frames)
+        return None if contrast is None else round(contrast, 3)
+
     @cached_property
     def arm_raised_frames(self) -> tuple[int, ...] | None:
         """The first person's measured frames with an arm raised
@@ -509,7 +522,8 @@ class RunResults:
         measured among others."""
         among = any(r.crowded for r in self.frames)
         arms = arms_raised(self.arm_raised_frames)
-        return like_accuracy(self.headline_values, arms, among_others=among)
+        low = is_low_contrast(self.outline_contrast)
+        return like_accuracy(self.headline_values, arms, among_others=among, low_contrast=low)
 
     @property
     def headline_values(self) -> dict[str, float]:
@@ -558,6 +572,7 @@ class RunResults:
                 {
                     **p.to_json(),
                     "caveats": [c.to_json() for c in view.caveats],
+                    "outline_contrast": view.outline_contrast,
                     "studio_accuracy": {k: a.to_json() for k, a in view.studio_accuracy.items()},
                 }
                 for p, view in ((p, self.for_person(p.id)) for p in self.persons)

@@ -23,6 +23,17 @@ or by a one-sided bias (:meth:`MeasuredAccuracy.beyond`), the run gets the
 ``body_accuracy`` caveat (:mod:`bodymetry.estimation.caveats`). With fewer, no
 studio body was like it: ``outside_validated``.
 
+The silhouettes matter as much as the body. White, light grey and wall-coloured
+clothing in a plain room stands out from the empty scene far less than the
+studio's saturated colours, and the studio's sessions in such clothing read the
+weight 0.4-1.7 kg light (issue 32). A run knows how plainly its person stood out:
+capture's outline contrast (:attr:`~bodymetry.estimation.records.FrameRecord.outline_contrast`).
+Below :data:`LOW_CONTRAST` the run is held against the studio's low-contrast
+sessions only (and above it against the others): of bodies like the measured
+one where at least :data:`MIN_LIKE` were, else of every body, since there the
+silhouettes, not the body, decide the error. Without an empty-scene clip there
+is no outline contrast, and every session counts.
+
 The sessions ship with the package (``data/studio_sessions.json``), written by
 ``python -m benchmarks studio_accuracy`` from the committed benchmark results;
 ``tests/estimation/test_studio_accuracy.py`` recomputes them from those files,
@@ -42,7 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from bodymetry.errors import InputError
-from bodymetry.estimation.records import CORE_MEASUREMENTS
+from bodymetry.estimation.records import CORE_MEASUREMENTS, FrameRecord
 
 __all__ = [
     "ADULT_AGE",
@@ -50,14 +61,17 @@ __all__ = [
     "CORE",
     "LIKE_HEIGHT",
     "LIKE_WEIGHT",
+    "LOW_CONTRAST",
     "MIN_LIKE",
     "TARGETS",
     "MeasuredAccuracy",
     "StudioSession",
     "arms_note",
+    "is_low_contrast",
     "like_accuracy",
     "like_children",
     "like_sessions",
+    "run_contrast",
     "studio_sessions",
     "target_for",
 ]
@@ -82,6 +96,11 @@ LIKE_WEIGHT = 0.25
 #: mid-population subjects' figures. Two, because the sparsest validated bodies have two
 #: sessions each (the 10-year-old boy of the edge sets).
 MIN_LIKE = 2
+#: A run whose outline contrast (the median over its measured frames) is below this was
+#: seen in low contrast. On the studio's renders (docs/capture.md, "Outline contrast")
+#: saturated and black clothing read 1.63-2.00, white, light grey and wall-coloured
+#: clothing 0.34-1.15 (hard light and the textured lab the highest).
+LOW_CONTRAST = 1.4
 #: The shipped sessions.
 DATA = Path(__file__).with_name("data") / "studio_sessions.json"
 
@@ -164,6 +183,9 @@ class StudioSession:
         At least ``MIN_RAISED_FRAMES`` measured frames had an arm raised.
     errors : mapping of str to float
         Session stage less truth per core measurement (mm, kg).
+    low_contrast : bool
+        The subject wore white, light grey or wall-coloured clothing (a run of such a
+        session reads an outline contrast below :data:`LOW_CONTRAST`).
     """
 
     name: str
@@ -172,6 +194,7 @@ class StudioSession:
     age_years: float
     arms_raised: bool
     errors: Mapping[str, float] = field(default_factory=dict)
+    low_contrast: bool = False
 
     def to_json(self) -> dict:
         return {
@@ -180,6 +203,7 @@ class StudioSession:
             "weight_kg": round(self.weight_kg, 2),
             "age_years": round(self.age_years, 1),
             "arms_raised": self.arms_raised,
+            "low_contrast": self.low_contrast,
             "errors": {k: round(v, 2) for k, v in self.errors.items()},
         }
 
@@ -192,6 +216,7 @@ class StudioSession:
             age_years=float(data["age_years"]),
             arms_raised=bool(data["arms_raised"]),
             errors={k: float(v) for k, v in data["errors"].items()},
+            low_contrast=bool(data.get("low_contrast", False)),
         )
 
 
@@ -248,11 +273,24 @@ def arms_note(key: str, arms_raised: bool | None) -> str:
     return ", arms raised" if arms_raised else ", arms down"
 
 
+def run_contrast(records: Sequence[FrameRecord]) -> float | None:
+    """A run's outline contrast: the median of its measured frames' (None where none
+    has one: no empty-scene clip, a person told apart from others, an older run)."""
+    values = [r.outline_contrast for r in records if r.ok and r.outline_contrast is not None]
+    return float(np.median(values)) if values else None
+
+
+def is_low_contrast(contrast: float | None) -> bool | None:
+    """Whether a run's outline contrast (:func:`run_contrast`) is low (None: not known)."""
+    return None if contrast is None or not math.isfinite(contrast) else contrast < LOW_CONTRAST
+
+
 def like_accuracy(
     measured: Mapping[str, float],
     arms_raised: bool | None = None,
     sessions: Sequence[StudioSession] | None = None,
     among_others: bool = False,
+    low_contrast: bool | None = None,
 ) -> dict[str, MeasuredAccuracy]:
     """The studio's accuracy on bodies like the measured one, per core measurement.
 
@@ -269,27 +307,40 @@ def like_accuracy(
         The run measured the person among others: the scope says that the studio's
         sessions had one person alone in view (the ``among_persons`` caveat quotes the
         two-person sessions' figures).
+    low_contrast : bool, optional
+        Whether the run saw its person in low contrast (:func:`is_low_contrast`):
+        only the sessions of the same kind count, and in low contrast, where fewer
+        than :data:`MIN_LIKE` of them were of a like body, those of every body
+        (None: every session counts).
 
     Returns
     -------
     dict of str to MeasuredAccuracy
-        Only the measurements with at least :data:`MIN_LIKE` like sessions.
+        Only the measurements with at least :data:`MIN_LIKE` sessions to go by.
     """
+    every = studio_sessions() if sessions is None else sessions
+    if low_contrast is not None:
+        every = [s for s in every if s.low_contrast == low_contrast]
     like = like_sessions(
         float(measured.get("height_mm", math.nan)),
         float(measured.get("weight_kg", math.nan)),
-        sessions,
+        every,
     )
+    seen = " in low-contrast clothing" if low_contrast else ""
+    alone = ", each alone in view" if among_others else ""
     out = {}
     for key in CORE:
-        pool = [
-            s
-            for s in like
-            if key in s.errors and (key != "arm_span_mm" or arms_raised in (None, s.arms_raised))
-        ]
+
+        def scored(pool: Sequence[StudioSession], key: str = key) -> list[StudioSession]:
+            arms = arms_raised if key == "arm_span_mm" else None
+            return [s for s in pool if key in s.errors and arms in (None, s.arms_raised)]
+
+        pool, bodies = scored(like), "of bodies like this one"
+        if len(pool) < MIN_LIKE and low_contrast:
+            # Too few like bodies in low contrast: there the silhouettes decide the error
+            # more than the body does, so every body's session tells more than none.
+            pool, bodies = scored(every), "of every body"
         if len(pool) >= MIN_LIKE:
-            scope = f"sessions of bodies like this one{arms_note(key, arms_raised)}" + (
-                ", each alone in view" if among_others else ""
-            )
+            scope = f"sessions {bodies}{seen}{arms_note(key, arms_raised)}{alone}"
             out[key] = MeasuredAccuracy.of([s.errors[key] for s in pool], scope)
     return out

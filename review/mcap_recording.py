@@ -65,6 +65,7 @@ MEASUREMENTS_SCHEMA = {
         "silhouette_iou": {"type": "object"},
         "view_agreement": {"type": "object"},
         "persons": {"type": "integer"},
+        "outline_contrast": {"type": "number"},
         "annealing": {"type": "object"},
     },
 }

@@ -56,7 +56,7 @@ from bodymetry.estimation.run_files import (
     REPORT_PDF,
     RunResults,
 )
-from bodymetry.estimation.studio_accuracy import LIKE_HEIGHT, LIKE_WEIGHT, MIN_LIKE
+from bodymetry.estimation.studio_accuracy import LIKE_HEIGHT, LIKE_WEIGHT, LOW_CONTRAST, MIN_LIKE
 from bodymetry.estimation.view_selection import left_out_views
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
@@ -637,6 +637,8 @@ def _person_content(
         "prior_pull": prior_pull_text(results.session_shape),
         "outline": results.outline,
         "clothing_share": _clothing_share(results.session_shape),
+        "contrast": results.outline_contrast,
+        "low_contrast": LOW_CONTRAST,
         # A run of several persons shows its own warnings once, above the persons.
         "warnings": list(person.warnings if several else results.warnings),
         "caveats": list(results.caveats),

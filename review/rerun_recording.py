@@ -36,6 +36,10 @@ the start of the recording):
     capture's agreement of the view's silhouette with the frame's other
     evidence (the record's ``view_agreement``), per judged view and frame; a
     view flagged ``unreliable`` was left out of that frame's fit.
+``/metrics/views/outline_contrast``
+    capture's outline contrast of the frame (the record's ``outline_contrast``:
+    how plainly the person stood out from the empty scene; below 1.4, low
+    contrast), in the same tab.
 
 A run of several persons (``results.json`` with more than one person) keeps
 the camera images, ``/metrics/persons`` and the rig once and puts each person's
@@ -170,8 +174,8 @@ def blueprint(
     eye : ((3,) float, (3,) float), optional
         Initial 3D eye position and look target (world, metres).
     agreement : bool
-        Whether the run recorded capture's view agreement (a tab of its
-        ``/metrics/views`` series).
+        Whether the run recorded capture's view agreement or outline contrast (a
+        tab of its ``/metrics/views`` series).
     persons : bool
         Whether capture saw more than one person in some frame (a tab of the
         ``/metrics/persons`` series: people in the capture volume per frame).
@@ -185,7 +189,7 @@ def blueprint(
         for key in MAIN_PLOTS
         if key in biometrics
     ]
-    views = [_series_view("views", "view agreement", person_ids)]
+    views = [_series_view("views", "view agreement and outline contrast", person_ids)]
     people = [rrb.TimeSeriesView(origin="/metrics/persons", name="people in view")]
     more = [
         *(people if persons else []),
@@ -257,7 +261,7 @@ class RerunWriter:
             horizontal = side / np.linalg.norm(side) * radius * 1.1
             eye = (target + np.r_[horizontal, centres[:, 2].mean() + 0.6], target)
         records = [r for p in self._persons for r in p.frames]
-        agreement = any(r.view_agreement for r in records)
+        agreement = any(r.view_agreement or r.outline_contrast is not None for r in records)
         crowded = any((r.persons or 0) > 1 for r in records)
         self._rec.save(
             self.path,
@@ -446,6 +450,8 @@ class RerunWriter:
         for name, value in record.view_agreement.items():
             if np.isfinite(value):
                 rec.log(f"{root}/views/{name}/agreement", rr.Scalars(float(value)))
+        if record.outline_contrast is not None:
+            rec.log(f"{root}/views/outline_contrast", rr.Scalars(float(record.outline_contrast)))
         if record.estimate() is None:  # no fit: nothing else to plot
             return
         truth = self._truth.get(person, {})

@@ -43,6 +43,7 @@ from bodymetry.estimation.run_files import (
     RunResults,
 )
 from bodymetry.estimation.session_shape import session_frame
+from bodymetry.estimation.studio_accuracy import LOW_CONTRAST
 from bodymetry.estimation.training import DiscriminativeModels
 from bodymetry.frame_jobs import RESCUE_FILE, rescue_poor_frames
 from bodymetry.review.evaluation import evaluate_persons, evaluate_run
@@ -85,6 +86,10 @@ def test_results_schema(run):
         "persons": [person | {"warnings": []}]
     }
     assert [f.frame for f in results.frames] == [0, 2, 4]
+    # Capture's outline contrast, per frame and for the run (the saturated studio colours).
+    contrasts = [f.outline_contrast for f in results.frames]
+    assert all(c is not None and LOW_CONTRAST < c <= 2.0 for c in contrasts), contrasts
+    assert person["outline_contrast"] == pytest.approx(np.median(contrasts), abs=1e-3)
     for f in results.frames:
         assert f.status == "ok", f.status
         for stage in STAGES:
@@ -605,6 +610,23 @@ def test_an_unreliable_view_is_left_out_of_the_fit_and_named(run, tmp_path, monk
         "left out of those frames' fits"
     ) in finished.for_person(0).warnings
     assert RunResults.read(layout.results).frames[0].view_agreement == record.view_agreement
+
+
+def test_capture_s_outline_contrast_reaches_the_record_and_the_run(run, tmp_path, monkeypatch):
+    """Capture's outline contrast travels through the fit into the record, survives a
+    resume, and a run seen in low contrast is held against the studio's low-contrast
+    sessions (the scope of its studio accuracy says so)."""
+    prepared, planned, seg, record, rig, config = _first_frame_as_captured(
+        run, tmp_path, monkeypatch, lambda sil: dataclasses.replace(sil, contrast=1.1)
+    )
+    first = planned.kept[0]
+    assert seg.contrast == 1.1 and record.outline_contrast == 1.1
+    done = frame_jobs.read_done_frames(prepared.layout)
+    assert done[first].outline_contrast == 1.1
+    low = {f: dataclasses.replace(r, outline_contrast=1.1) for f, r in done.items()}
+    finished = _finished(prepared, config, rig, low)
+    assert finished.outline_contrast == 1.1
+    assert all("low-contrast clothing" in a.scope for a in finished.studio_accuracy.values())
 
 
 def _finished(prepared, config, rig, done):

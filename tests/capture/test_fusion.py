@@ -11,6 +11,7 @@ from bodymetry.capture.fusion import (
     CHANGE_CLIP,
     FEATURES,
     LOGIT_CLIP,
+    RIM_PX,
     STRONG_CHANGE,
     WEIGHTS,
     FusionConfig,
@@ -20,6 +21,7 @@ from bodymetry.capture.fusion import (
     confirmed_change,
     fuse,
     mask_iou,
+    outline_contrast,
     segmenter_evidence,
     sources_key,
     view_agreement,
@@ -27,6 +29,7 @@ from bodymetry.capture.fusion import (
 )
 from bodymetry.capture.segmentation import CaptureConfig, FrameSegmenter
 from bodymetry.errors import InputError
+from bodymetry.estimation.studio_accuracy import LOW_CONTRAST
 from bodymetry.studio.rig import studio_rig
 
 
@@ -164,6 +167,44 @@ def test_thin_parts_are_confirmed_within_the_hulls_reach_strong_changes_not():
     assert not confirmed_change(fused, subtracted, change.astype(np.float32), hull, thin).any()
 
 
+def test_outline_contrast_reads_the_rims_lower_quartile_median_over_views():
+    mask = np.zeros((60, 60), bool)
+    mask[20:40, 20:40] = True
+    inner = np.zeros_like(mask)
+    inner[20 + RIM_PX : 40 - RIM_PX, 20 + RIM_PX : 40 - RIM_PX] = True
+    rim = mask & ~inner
+
+    def change(on_rim: float) -> np.ndarray:
+        c = np.full(mask.shape, -CHANGE_CLIP, np.float32)  # outside: unchanged
+        c[inner] = 0.3  # deeper inside: not read
+        c[rim] = on_rim
+        return c
+
+    assert outline_contrast([mask], [change(1.7)]) == pytest.approx(1.7)
+    # What lies outside the silhouette or deeper in it does not count.
+    other = change(1.7)
+    other[~mask] = CHANGE_CLIP
+    other[inner] = -1.0
+    assert outline_contrast([mask], [other]) == pytest.approx(1.7)
+    # The median over the views; a view without a background or a silhouette is skipped.
+    empty = np.zeros_like(mask)
+    views = [mask, mask, mask, empty, mask]
+    changes = [change(1.0), change(2.0), change(1.5), change(0.0), None]
+    assert outline_contrast(views, changes) == pytest.approx(1.5)
+    assert outline_contrast([mask], [None]) is None
+    assert outline_contrast([empty], [change(1.0)]) is None
+    # The change three quarters of the rim reach: a lit side alone is not enough.
+    lit = change(CHANGE_CLIP)
+    ys, xs = np.nonzero(rim)
+    left = xs < 30
+    assert 0.3 < left.mean() < 0.7  # about half the rim
+    lit[ys[left], xs[left]] = 0.0
+    assert outline_contrast([mask], [lit]) == pytest.approx(0.0)
+    few = change(CHANGE_CLIP)
+    few[ys[:5], xs[:5]] = 0.0  # a few weak pixels do not matter
+    assert outline_contrast([mask], [few]) == pytest.approx(CHANGE_CLIP)
+
+
 def test_config_validation():
     with pytest.raises(InputError, match="floor_band"):
         FusionConfig(floor_band=-0.1)
@@ -229,8 +270,9 @@ def test_a_second_person_in_the_capture_volume_is_counted(grey_room):
     config = CaptureConfig(method="background", fusion=FusionConfig(enabled=True))
     frame = FrameSegmenter(models, rig.sizes, config, None, None, rig)
     try:
-        views, _, _, persons, _ = frame(images)
+        views, _, _, persons, _, contrast = frame(images)
         assert persons == 2
+        assert contrast > LOW_CONTRAST  # saturated colours stand out all round
         # The silhouettes stay the largest body's: the second person is removed in
         # every view where the two are apart in the image (where they overlap, the
         # image cannot part them: issue 29).
@@ -281,7 +323,7 @@ def _segment(grey_room, enabled: bool):
 
 def test_the_fusion_keeps_a_shaded_grey_side_and_drops_the_cast_shadow(grey_room):
     _, _, _, truth, shaded, cast = grey_room
-    views, _, agreement, persons, _ = _segment(grey_room, enabled=True)
+    views, _, agreement, persons, *_ = _segment(grey_room, enabled=True)
     for view, true, dark, floor in zip(views, truth, shaded, cast, strict=True):
         assert mask_iou(view.mask, true) > 0.9
         assert view.mask[dark].mean() > 0.8  # the shaded side is person

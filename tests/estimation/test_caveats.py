@@ -89,6 +89,15 @@ def test_the_person_count_round_trips_and_old_records_read_without_it():
     assert "persons" not in FrameRecord(10, "ok").to_json()
 
 
+def test_the_outline_contrast_round_trips_and_old_records_read_without_it():
+    data = FrameRecord(10, "ok", outline_contrast=1.23456).to_json()
+    assert data["outline_contrast"] == 1.235
+    assert FrameRecord.from_json(data).outline_contrast == 1.235
+    del data["outline_contrast"]
+    assert FrameRecord.from_json(data).outline_contrast is None
+    assert "outline_contrast" not in FrameRecord(10, "ok").to_json()
+
+
 def test_the_validated_range_is_the_edge_benchmarks_subjects():
     # The range the report states and the caveat holds runs against is what
     # `python -m benchmarks pipeline --edge` measured, not a number typed in.

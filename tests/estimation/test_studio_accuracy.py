@@ -14,13 +14,16 @@ from bodymetry.estimation.studio_accuracy import (
     CHILD_WEIGHT_SHARE,
     LIKE_HEIGHT,
     LIKE_WEIGHT,
+    LOW_CONTRAST,
     MIN_LIKE,
     TARGETS,
     MeasuredAccuracy,
     StudioSession,
+    is_low_contrast,
     like_accuracy,
     like_children,
     like_sessions,
+    run_contrast,
     studio_sessions,
     target_for,
 )
@@ -29,9 +32,10 @@ from bodymetry.estimation.studio_accuracy import (
 TOL = 1e-9
 
 
-def _session(name, height, weight, errors, arms=True, age=40.0) -> StudioSession:
+def _session(name, height, weight, errors, arms=True, age=40.0, low=False) -> StudioSession:
     keys = ("height_mm", "arm_span_mm", "weight_kg")
-    return StudioSession(name, height, weight, age, arms, dict(zip(keys, errors, strict=True)))
+    errors = dict(zip(keys, errors, strict=True))
+    return StudioSession(name, height, weight, age, arms, errors, low_contrast=low)
 
 
 def test_the_shipped_sessions_are_the_committed_benchmarks():
@@ -41,6 +45,7 @@ def test_the_shipped_sessions_are_the_committed_benchmarks():
     assert [s.name for s in shipped] == [s.name for s in recomputed]
     for a, b in zip(shipped, recomputed, strict=True):
         assert a.arms_raised == b.arms_raised
+        assert a.low_contrast == b.low_contrast
         assert (a.height_mm, a.weight_kg) == pytest.approx((b.height_mm, b.weight_kg), abs=0.05)
         for key, value in b.errors.items():
             assert a.errors[key] == pytest.approx(value, abs=0.005), (a.name, key)
@@ -101,9 +106,10 @@ def test_a_child_s_weight_is_held_to_a_share_of_it():
     assert target_for("arm_span_mm", 21.0, True) == TARGETS["arm_span_mm"]
 
 
-def _records(n: int) -> list[FrameRecord]:
-    """``n`` measured frames of one person (the arm evidence is passed as ``raised``)."""
-    return [FrameRecord(25 * k, "ok", persons=1) for k in range(n)]
+def _records(n: int, contrast: float | None = None) -> list[FrameRecord]:
+    """``n`` measured frames of one person (the arm evidence is passed as ``raised``),
+    seen with outline ``contrast``."""
+    return [FrameRecord(25 * k, "ok", persons=1, outline_contrast=contrast) for k in range(n)]
 
 
 def test_a_body_like_the_studio_s_six_year_olds_gets_the_body_accuracy_caveat():
@@ -152,3 +158,59 @@ def test_like_sessions_miss_a_target_by_their_rms_or_a_one_sided_bias(errors, be
     if len(e) > 1:
         assert acc.bias_standard_error() == pytest.approx(e.std(ddof=1) / np.sqrt(len(e)))
     assert acc.beyond(15.0) is beyond
+
+
+def test_a_run_s_contrast_is_the_median_of_its_measured_frames():
+    records = [
+        FrameRecord(0, "ok", outline_contrast=1.0),
+        FrameRecord(25, "ok", outline_contrast=1.2),
+        FrameRecord(50, "ok", outline_contrast=2.0),
+        FrameRecord(75, "ok"),  # no figure: left out
+        FrameRecord(100, "no person", outline_contrast=0.1),  # not measured: left out
+    ]
+    assert run_contrast(records) == pytest.approx(1.2, abs=TOL)
+    assert run_contrast([FrameRecord(0, "ok")]) is None
+    assert is_low_contrast(None) is None and is_low_contrast(math.nan) is None
+    assert is_low_contrast(LOW_CONTRAST - 0.01) is True
+    assert is_low_contrast(LOW_CONTRAST) is False
+
+
+def test_a_run_is_held_against_the_sessions_seen_in_like_contrast():
+    body = {"height_mm": 1700.0, "weight_kg": 70.0}
+    high = [_session(f"h{k}", 1700.0, 70.0, (1.0, 2.0, 0.2)) for k in range(3)]
+    low_like = [_session(f"l{k}", 1700.0, 70.0, (1.0, 2.0, -1.4), low=True) for k in range(2)]
+    low_other = [_session(f"o{k}", 1400.0, 45.0, (1.0, 2.0, -1.6), low=True) for k in range(2)]
+    every = high + low_like + low_other
+    # Unknown contrast (no empty-scene clip): every like body counts.
+    assert like_accuracy(body, True, every)["weight_kg"].sessions == 5
+    # High contrast: the high-contrast sessions only, the scope as before.
+    acc = like_accuracy(body, True, every, low_contrast=False)["weight_kg"]
+    assert (acc.sessions, acc.bias) == (3, pytest.approx(0.2, abs=TOL))
+    assert acc.scope == "sessions of bodies like this one"
+    # Low contrast: the like bodies seen in low contrast, and the scope says so.
+    acc = like_accuracy(body, True, every, low_contrast=True)["weight_kg"]
+    assert (acc.sessions, acc.bias) == (2, pytest.approx(-1.4, abs=TOL))
+    assert acc.scope == "sessions of bodies like this one in low-contrast clothing"
+    assert acc.beyond(TARGETS["weight_kg"])  # read 1.4 kg light every time
+    # Too few like bodies in low contrast: every body's low-contrast session counts ...
+    acc = like_accuracy(body, True, high + low_like[:1] + low_other, low_contrast=True)
+    assert acc["weight_kg"].sessions == 3
+    assert acc["weight_kg"].scope == "sessions of every body in low-contrast clothing"
+    assert acc["arm_span_mm"].scope.endswith("in low-contrast clothing, arms raised")
+    # ... but in high contrast too few like bodies are too few (outside_validated's).
+    assert like_accuracy(body, True, high[:1] + low_like, low_contrast=False) == {}
+
+
+def test_a_mid_size_adult_seen_in_low_contrast_gets_the_body_accuracy_caveat():
+    # The shipped sessions: the subjects in white, light grey and wall-coloured clothing
+    # in the plain room read the weight light (issue 32), the saturated ones did not.
+    adult = {"height_mm": 1600.0, "weight_kg": 60.0}
+    low = like_accuracy(adult, True, low_contrast=True)["weight_kg"]
+    assert "low-contrast clothing" in low.scope
+    assert low.bias < 0 and low.beyond(TARGETS["weight_kg"])
+    caveats = run_caveats(_records(9, contrast=1.1), ("cam_00",), headline=adult, raised=range(9))
+    (caveat,) = [c for c in caveats if c.code == "body_accuracy"]
+    assert "the weight read low by" in caveat.message
+    assert "low-contrast clothing" in caveat.message
+    high = run_caveats(_records(9, contrast=2.0), ("cam_00",), headline=adult, raised=range(9))
+    assert not any(c.code == "body_accuracy" for c in high)

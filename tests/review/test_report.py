@@ -20,6 +20,7 @@ from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.records import FrameRecord, SessionShape
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import EVALUATION_FORMAT, RunResults, SessionInfo
+from bodymetry.estimation.studio_accuracy import LOW_CONTRAST
 from bodymetry.review import plots
 from bodymetry.review import report as report_module
 from bodymetry.review.accuracy import SESSION_ACCURACY
@@ -322,6 +323,27 @@ def test_the_session_stage_is_beside_the_per_frame_stages(review_run):
             assert 0 < float(row["session_iou_mean"]) <= 1
         else:
             assert value == ""
+
+
+def test_the_report_says_how_plainly_the_person_stood_out(review_run, tmp_path):
+    """The fit's settings quote the run's outline contrast; seen in low contrast, the
+    report says so and quotes the studio's low-contrast sessions."""
+    html = (review_run.folder / "report.html").read_text()
+    contrast = review_run.results.outline_contrast
+    assert contrast is not None and contrast >= LOW_CONTRAST  # the studio's saturated colours
+    assert f"outline contrast {contrast:.2f}" in html and "stood out plainly" in html
+    folder = tmp_path / "run"
+    shutil.copytree(review_run.folder, folder)
+    results = json.loads((folder / "results.json").read_text())
+    for frame in results["persons"][0]["frames"]:
+        frame["outline_contrast"] = 1.1
+    (folder / "results.json").write_text(json.dumps(results))
+    build_review(folder, recordings=False, pdf=False)
+    low = (folder / "report.html").read_text()
+    assert "outline contrast 1.10" in low and "seen in low contrast" in low
+    for accuracy in RunResults.read(folder / "results.json").studio_accuracy.values():
+        assert f"(studio, {accuracy.sessions} {accuracy.scope})" in low
+        assert "low-contrast clothing" in accuracy.scope
 
 
 def test_a_run_without_the_session_stage_has_no_session_column(review_run, bare_run):

@@ -133,7 +133,12 @@ def test_capture_view_agreement_is_a_metric_per_view(review_run, tmp_path):
         shutil.copy(review_run.folder / name, folder / name)
     data = json.loads((folder / "results.json").read_text())
     first = data["persons"][0]["frames"][0]
-    first.update(status="no silhouette in any camera", view_agreement={"cam_01": 0.58}, persons=2)
+    first.update(
+        status="no silhouette in any camera",
+        view_agreement={"cam_01": 0.58},
+        persons=2,
+        outline_contrast=1.25,
+    )
     for stage in ("discriminative", "generative", "session"):
         first.pop(stage, None)
     (folder / "results.json").write_text(json.dumps(data))
@@ -161,3 +166,11 @@ def test_capture_view_agreement_is_a_metric_per_view(review_run, tmp_path):
         for v in chunk.to_record_batch().column("Scalars:scalars").to_pylist()
     ]
     assert np.ravel(people).tolist() == [2.0]
+    # So is its outline contrast, beside the views' agreement.
+    contrast = [
+        v
+        for chunk in store.stream().to_chunks()
+        if chunk.entity_path == "/metrics/views/outline_contrast"
+        for v in chunk.to_record_batch().column("Scalars:scalars").to_pylist()
+    ]
+    assert np.ravel(contrast).tolist() == pytest.approx([1.25])
