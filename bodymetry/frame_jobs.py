@@ -98,14 +98,14 @@ class FitJob:
         by camera name (the record's ``view_agreement``).
     persons : int or None
         Person-sized bodies capture counted (the record's ``persons``).
-    contrast : float or None
-        Capture's outline contrast (the record's ``outline_contrast``).
     unknown : list of ((h_c, w_c) bool or None)
         Per camera at the working resolution, the person's pixels someone
         nearer covers (neither person nor background to the fit); empty: none.
     clothing : list of ((h_c, w_c) bool or None)
         Per camera at the working resolution, the silhouettes' pixels that are
         not skin (capture's; kept in the frame's arrays); empty: not told.
+    contrast : float or None
+        Capture's outline contrast (the record's ``outline_contrast``).
     """
 
     frame: int

@@ -626,6 +626,7 @@ def test_capture_s_outline_contrast_reaches_the_record_and_the_run(run, tmp_path
     low = {f: dataclasses.replace(r, outline_contrast=1.1) for f, r in done.items()}
     finished = _finished(prepared, config, rig, low)
     assert finished.outline_contrast == 1.1
+    assert finished.studio_accuracy
     assert all("low-contrast clothing" in a.scope for a in finished.studio_accuracy.values())
 
 

@@ -341,7 +341,9 @@ def test_the_report_says_how_plainly_the_person_stood_out(review_run, tmp_path):
     build_review(folder, recordings=False, pdf=False)
     low = (folder / "report.html").read_text()
     assert "outline contrast 1.10" in low and "seen in low contrast" in low
-    for accuracy in RunResults.read(folder / "results.json").studio_accuracy.values():
+    stated = RunResults.read(folder / "results.json").studio_accuracy
+    assert stated  # the studio's low-contrast sessions, of like bodies or of every body
+    for accuracy in stated.values():
         assert f"(studio, {accuracy.sessions} {accuracy.scope})" in low
         assert "low-contrast clothing" in accuracy.scope
 
