@@ -309,38 +309,50 @@ def like_accuracy(
         two-person sessions' figures).
     low_contrast : bool, optional
         Whether the run saw its person in low contrast (:func:`is_low_contrast`):
-        only the sessions of the same kind count, and in low contrast, where fewer
-        than :data:`MIN_LIKE` of them were of a like body, those of every body
-        (None: every session counts).
+        only the sessions seen in the same contrast count (None: every session).
+        In low contrast, where fewer than :data:`MIN_LIKE` of them were of a like
+        body, two partial answers stand in: the like bodies' sessions in any
+        contrast (what the body costs) and every body's in low contrast (what the
+        silhouettes cost); both errors apply, so the larger by RMS is quoted.
 
     Returns
     -------
     dict of str to MeasuredAccuracy
         Only the measurements with at least :data:`MIN_LIKE` sessions to go by.
     """
-    every = studio_sessions() if sessions is None else sessions
-    if low_contrast is not None:
-        every = [s for s in every if s.low_contrast == low_contrast]
-    like = like_sessions(
-        float(measured.get("height_mm", math.nan)),
-        float(measured.get("weight_kg", math.nan)),
-        every,
+    everyone = studio_sessions() if sessions is None else sessions
+    same = (
+        everyone
+        if low_contrast is None
+        else [s for s in everyone if s.low_contrast == low_contrast]
     )
+    height, weight = (float(measured.get(k, math.nan)) for k in ("height_mm", "weight_kg"))
+    like = like_sessions(height, weight, same)
     seen = " in low-contrast clothing" if low_contrast else ""
     alone = ", each alone in view" if among_others else ""
     out = {}
     for key in CORE:
+        arms = arms_note(key, arms_raised)
 
         def scored(pool: Sequence[StudioSession], key: str = key) -> list[StudioSession]:
-            arms = arms_raised if key == "arm_span_mm" else None
-            return [s for s in pool if key in s.errors and arms in (None, s.arms_raised)]
+            wanted = arms_raised if key == "arm_span_mm" else None
+            return [s for s in pool if key in s.errors and wanted in (None, s.arms_raised)]
 
-        pool, bodies = scored(like), "of bodies like this one"
-        if len(pool) < MIN_LIKE and low_contrast:
-            # Too few like bodies in low contrast: there the silhouettes decide the error
-            # more than the body does, so every body's session tells more than none.
-            pool, bodies = scored(every), "of every body"
-        if len(pool) >= MIN_LIKE:
-            scope = f"sessions {bodies}{seen}{arms_note(key, arms_raised)}{alone}"
-            out[key] = MeasuredAccuracy.of([s.errors[key] for s in pool], scope)
+        answers = [(scored(like), f"sessions of bodies like this one{seen}{arms}{alone}")]
+        if len(answers[0][0]) < MIN_LIKE and low_contrast:
+            answers = [
+                (
+                    scored(like_sessions(height, weight, everyone)),
+                    f"sessions of bodies like this one, too few in low-contrast clothing"
+                    f"{arms}{alone}",
+                ),
+                (scored(same), f"sessions of every body in low-contrast clothing{arms}{alone}"),
+            ]
+        stated = [
+            MeasuredAccuracy.of([s.errors[key] for s in pool], scope)
+            for pool, scope in answers
+            if len(pool) >= MIN_LIKE
+        ]
+        if stated:
+            out[key] = max(stated, key=lambda a: a.rms)
     return out

@@ -192,11 +192,18 @@ def test_a_run_is_held_against_the_sessions_seen_in_like_contrast():
     assert (acc.sessions, acc.bias) == (2, pytest.approx(-1.4, abs=TOL))
     assert acc.scope == "sessions of bodies like this one in low-contrast clothing"
     assert acc.beyond(TARGETS["weight_kg"])  # read 1.4 kg light every time
-    # Too few like bodies in low contrast: every body's low-contrast session counts ...
-    acc = like_accuracy(body, True, high + low_like[:1] + low_other, low_contrast=True)
-    assert acc["weight_kg"].sessions == 3
+    # Too few like bodies in low contrast: the like bodies in any contrast (the body's
+    # error) and every body in low contrast (the silhouettes'), the larger quoted.
+    few = high + low_like[:1] + low_other
+    acc = like_accuracy(body, True, few, low_contrast=True)
+    assert acc["weight_kg"].sessions == 3  # -1.4, -1.6, -1.6 beat 0.2, 0.2, 0.2, -1.4
     assert acc["weight_kg"].scope == "sessions of every body in low-contrast clothing"
-    assert acc["arm_span_mm"].scope.endswith("in low-contrast clothing, arms raised")
+    worse_body = [_session(f"w{k}", 1700.0, 70.0, (1.0, 30.0, 0.2)) for k in range(3)]
+    arm = like_accuracy(body, True, worse_body + low_like[:1] + low_other, low_contrast=True)
+    assert arm["arm_span_mm"].rms == pytest.approx(np.sqrt((3 * 30.0**2 + 2.0**2) / 4))
+    assert arm["arm_span_mm"].scope == (
+        "sessions of bodies like this one, too few in low-contrast clothing, arms raised"
+    )
     # ... but in high contrast too few like bodies are too few (outside_validated's).
     assert like_accuracy(body, True, high[:1] + low_like, low_contrast=False) == {}
 
@@ -214,3 +221,15 @@ def test_a_mid_size_adult_seen_in_low_contrast_gets_the_body_accuracy_caveat():
     assert "low-contrast clothing" in caveat.message
     high = run_caveats(_records(9, contrast=2.0), ("cam_00",), headline=adult, raised=range(9))
     assert not any(c.code == "body_accuracy" for c in high)
+
+
+def test_a_child_seen_in_low_contrast_keeps_the_caveat_of_its_body():
+    # The studio saw no child in low contrast: its arm span is still held against the
+    # 6-year-olds' (short, in any contrast), its weight against every low-contrast body's.
+    child = {"height_mm": 1147.0, "weight_kg": 21.0}
+    acc = like_accuracy(child, True, low_contrast=True)
+    assert acc["arm_span_mm"].bias < -10 and "too few in low-contrast" in acc["arm_span_mm"].scope
+    assert "every body in low-contrast" in acc["weight_kg"].scope
+    caveats = run_caveats(_records(9, contrast=0.5), ("cam_00",), headline=child, raised=range(9))
+    (caveat,) = [c for c in caveats if c.code == "body_accuracy"]
+    assert "the arm span read" in caveat.message and "the weight read" in caveat.message
