@@ -2,13 +2,13 @@
 
 Reads the committed end-to-end results (no rendering, no fitting) of every set of
 tight-clothed studio sessions scored on the current pipeline (:data:`SETS`: issue 15's
-eleven evaluated again, and the edge, looks, unseen edge, arms, weight and children
-sets of issue 33) and writes one row per session (the subject's true height, weight and
-age, whether an arm was raised in enough measured frames, whether capture saw the
-subject in low contrast (the run's outline contrast below ``LOW_CONTRAST``; sessions
-whose results predate the figure wore the studio's saturated colours), and the session
-stage's signed error per core measurement) to the package's
-``estimation/data/studio_sessions.json``, which
+eleven evaluated again, the edge, looks, unseen edge, arms, weight and children sets
+of issue 33, and the low-contrast set of issue 32) and writes one row per session (the
+subject's true height, weight and age, whether an arm was raised in enough measured
+frames, whether capture saw the subject in low contrast (the run's outline contrast
+below ``LOW_CONTRAST``; sessions whose results predate the figure wore the studio's
+saturated colours), and the session stage's signed error per core measurement) to the
+package's ``estimation/data/studio_sessions.json``, which
 :mod:`bodymetry.estimation.studio_accuracy` holds each run against.
 
 Its result says how well that rule would have told a session's error from the
@@ -52,6 +52,7 @@ SETS = (
     "pipeline_arms.json",
     "pipeline_weight.json",
     "pipeline_children.json",
+    "pipeline_contrast.json",
 )
 
 
@@ -88,7 +89,11 @@ def leave_one_out(sessions: list[StudioSession]) -> dict:
         others = sessions[:i] + sessions[i + 1 :]
         measured = {"height_mm": s.height_mm, "weight_kg": s.weight_kg}
         like = like_accuracy(measured, s.arms_raised, others, low_contrast=s.low_contrast)
-        row = {"session": s.name, "errors": {k: round(v, 2) for k, v in s.errors.items()}}
+        row = {
+            "session": s.name,
+            "low_contrast": s.low_contrast,
+            "errors": {k: round(v, 2) for k, v in s.errors.items()},
+        }
         for key in CORE:
             acc = like.get(key)
             target = target_for(key, s.weight_kg, s.age_years < ADULT_AGE)
@@ -98,8 +103,10 @@ def leave_one_out(sessions: list[StudioSession]) -> dict:
                 "like_rms": None if acc is None else round(acc.rms, 2),
                 "like_bias": None if acc is None else round(acc.bias, 2),
                 # Would a caveat have named it before it was scored? The arm span of arms
-                # that stayed down is arms_down's; the rest body_accuracy's.
+                # that stayed down is arms_down's, every measurement of a session seen in
+                # low contrast low_contrast's; the rest body_accuracy's.
                 "flagged": (key == "arm_span_mm" and not s.arms_raised)
+                or s.low_contrast
                 or (acc is not None and acc.beyond(target)),
             }
         rows.append(row)

@@ -44,6 +44,15 @@ list), and says why in a sentence a user can act on:
     measured frames had an arm raised (:mod:`bodymetry.estimation.arm_evidence`):
     the arm span rests on arms hanging by the body, which the studio's sessions
     read high (:data:`ARMS_DOWN_STUDIO`).
+``low_contrast``
+    Capture saw the person in low contrast (the run's outline contrast, the
+    median of its frames' :attr:`FrameRecord.outline_contrast`, below
+    :data:`~bodymetry.estimation.studio_accuracy.LOW_CONTRAST`: white, light
+    grey or wall-coloured clothing before a background of about its colour).
+    The silhouettes then rest on the learned segmenter and the multi-view hull
+    more than on colour, and the studio's sessions seen so read the weight
+    light in nearly every one and the arm span up to two centimetres off either
+    way (issue 32): the message quotes their errors.
 ``outside_validated``
     Fewer than 2 of the studio's scored sessions were of a body like the
     measured one (:mod:`bodymetry.estimation.studio_accuracy`: true height within
@@ -77,7 +86,10 @@ from bodymetry.estimation.standing_height import MAX_SOLE_DEPTH
 from bodymetry.estimation.studio_accuracy import (
     LIKE_HEIGHT,
     LIKE_WEIGHT,
+    LOW_CONTRAST,
     MIN_LIKE,
+    arms_note,
+    contrast_accuracy,
     is_low_contrast,
     like_accuracy,
     like_children,
@@ -118,6 +130,7 @@ CAVEAT_CODES = (
     "clothing",
     "floor",
     "arms_down",
+    "low_contrast",
     "outside_validated",
     "body_accuracy",
 )
@@ -394,8 +407,34 @@ def run_caveats(
                 "raised to measure it",
             )
         )
-    out += _validity(headline or {}, raised, is_low_contrast(run_contrast(ordered)))
+    contrast = run_contrast(ordered)
+    low = is_low_contrast(contrast)
+    if low:
+        out.append(_low_contrast(contrast, arms_raised(raised)))
+    out += _validity(headline or {}, raised, low)
     return tuple(out)
+
+
+def _low_contrast(contrast: float, arms: bool | None) -> Caveat:
+    """``low_contrast``: the run's outline ``contrast`` and the studio's errors on every
+    session it saw in low contrast (the arm span's on those of the same arm
+    evidence ``arms``)."""
+    studio = contrast_accuracy(True, arms)
+    seen = "; ".join(
+        f"the {_LABELS[k][0]} {a.low:+.1f} to {a.high:+.1f} {_LABELS[k][1]} "
+        f"(mean {a.bias:+.1f}, RMS {a.rms:.1f}, {a.sessions} sessions{arms_note(k, arms)})"
+        for k, a in studio.items()
+    )
+    return Caveat(
+        "low_contrast",
+        f"the person stood out little from the empty scene (outline contrast {contrast:.2f}, "
+        f"below {LOW_CONTRAST}: clothing of about the background's colour, such as white, grey "
+        "or wall-coloured clothing before a plain wall), so the silhouettes rest on the person "
+        "segmenter and the multi-view hull more than on colour"
+        + (f"; on the studio's sessions seen so, {seen}" if seen else "")
+        + ": these numbers are less sure than their standard error says (docs/capture.md, "
+        '"Outline contrast")',
+    )
 
 
 _LABELS = {

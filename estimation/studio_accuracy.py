@@ -67,6 +67,7 @@ __all__ = [
     "MeasuredAccuracy",
     "StudioSession",
     "arms_note",
+    "contrast_accuracy",
     "is_low_contrast",
     "like_accuracy",
     "like_children",
@@ -283,6 +284,26 @@ def run_contrast(records: Sequence[FrameRecord]) -> float | None:
 def is_low_contrast(contrast: float | None) -> bool | None:
     """Whether a run's outline contrast (:func:`run_contrast`) is low (None: not known)."""
     return None if contrast is None or not math.isfinite(contrast) else contrast < LOW_CONTRAST
+
+
+def contrast_accuracy(
+    low_contrast: bool, arms_raised: bool | None = None
+) -> dict[str, MeasuredAccuracy]:
+    """The studio's accuracy on every shipped session seen in low contrast (or in plain
+    contrast), whatever the body, per core measurement with at least :data:`MIN_LIKE`
+    sessions (the arm span on those of the same arm evidence, where given)."""
+    pool = [s for s in studio_sessions() if s.low_contrast == low_contrast]
+    seen = "low-contrast clothing" if low_contrast else "plain contrast"
+    out = {}
+    for key in CORE:
+        wanted = arms_raised if key == "arm_span_mm" else None
+        errors = [
+            s.errors[key] for s in pool if key in s.errors and wanted in (None, s.arms_raised)
+        ]
+        if len(errors) >= MIN_LIKE:
+            scope = f"sessions of every body in {seen}{arms_note(key, arms_raised)}"
+            out[key] = MeasuredAccuracy.of(errors, scope)
+    return out
 
 
 def like_accuracy(

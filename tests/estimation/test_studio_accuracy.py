@@ -19,6 +19,7 @@ from bodymetry.estimation.studio_accuracy import (
     TARGETS,
     MeasuredAccuracy,
     StudioSession,
+    contrast_accuracy,
     is_low_contrast,
     like_accuracy,
     like_children,
@@ -233,3 +234,22 @@ def test_a_child_seen_in_low_contrast_keeps_the_caveat_of_its_body():
     caveats = run_caveats(_records(9, contrast=0.5), ("cam_00",), headline=child, raised=range(9))
     (caveat,) = [c for c in caveats if c.code == "body_accuracy"]
     assert "the arm span read" in caveat.message and "the weight read" in caveat.message
+
+
+def test_a_run_seen_in_low_contrast_says_so_with_the_studio_s_errors():
+    adult = {"height_mm": 1700.0, "weight_kg": 68.0}
+    low = run_caveats(_records(9, contrast=0.6), ("cam_00",), headline=adult, raised=range(9))
+    (caveat,) = [c for c in low if c.code == "low_contrast"]
+    studio = contrast_accuracy(True, True)
+    weight = studio["weight_kg"]
+    assert weight.sessions >= 5 and weight.bias < 0  # the studio's low-contrast weights read light
+    assert f"outline contrast 0.60, below {LOW_CONTRAST}" in caveat.message
+    assert f"the weight {weight.low:+.1f} to {weight.high:+.1f} kg" in caveat.message
+    assert "arms raised" in caveat.message
+    codes = [c.code for c in low]
+    assert codes == sorted(codes, key=CAVEAT_CODES.index)
+    # Plain contrast, or no empty-scene clip: no such caveat.
+    for contrast in (LOW_CONTRAST, 2.0, None):
+        records = _records(9, contrast=contrast)
+        caveats = run_caveats(records, ("cam_00",), headline=adult, raised=range(9))
+        assert "low_contrast" not in [c.code for c in caveats]
