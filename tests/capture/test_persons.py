@@ -256,13 +256,13 @@ def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
         return out
 
     two = {(-0.6, 0.0): 1.75, (0.6, 0.0): 1.55}
-    _, _, _, persons, people = frame(images(two))
+    _, _, _, persons, people, _ = frame(images(two))
     assert persons >= 2 and len(people) == 2
     for seen, (centre, height) in zip(people, two.items(), strict=True):
         assert np.linalg.norm(seen.position[:2] - np.array(centre)) < 0.1
         assert seen.height == pytest.approx(height, abs=0.1)
         assert seen.views == 4 and seen.landmarks == (None,) * 4 and seen.source == "hull"
-    _, _, _, persons, people = frame(images({(0.0, 0.0): 1.7}))
+    _, _, _, persons, people, _ = frame(images({(0.0, 0.0): 1.7}))
     assert persons == 1 and people == ()
     # With the segmenter's people matched across cameras by their skeletons (as
     # without a clip), those are the frame's persons: they tell apart people who
@@ -281,12 +281,12 @@ def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
 
     answer = [2]
     frame.people = segmenter_people
-    _, _, _, persons, people = frame(images(two))
+    _, _, _, persons, people, _ = frame(images(two))
     assert persons == 2 and people == told and asked == [len(rig)]
     answer[0] = 1
-    _, _, _, persons, people = frame(images(two))
+    _, _, _, persons, people, _ = frame(images(two))
     assert len(people) == 2 and all(p.source == "hull" for p in people)
-    _, _, _, persons, people = frame(images({(0.0, 0.0): 1.7}))
+    _, _, _, persons, people, _ = frame(images({(0.0, 0.0): 1.7}))
     assert persons == 1 and people == () and len(asked) == 2  # one body: not asked
 
 
