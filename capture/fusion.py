@@ -399,9 +399,9 @@ def outline_contrast(
     clipped at ±:data:`CHANGE_CLIP`) that :data:`RIM_SHARE` of each view's
     silhouette's inner rim (the pixels within :data:`RIM_PX` of the outside)
     reaches: its lower quartile. A person in saturated or black clothing stands
-    out nearly all round (1.6-2.0 on the studio's renders); one in white, light
+    out nearly all round (1.55-2.0 on the studio's runs); one in white, light
     grey or wall-coloured clothing, or light grey in the textured lab, only on
-    the lit side or nowhere (0.3-1.2): there the silhouettes rest on the
+    the lit side or nowhere (0.3-1.26): there the silhouettes rest on the
     segmenter and the hull more than on the colour, and the outline is less sure
     (docs/capture.md, "Outline contrast"). The lower quartile, not the median:
     in hard light a white shirt's lit side stands out as plainly as a saturated

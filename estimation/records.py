@@ -259,7 +259,8 @@ class FrameRecord:
     outline_contrast : float or None
         How plainly the silhouettes stood out from the empty scene along their
         outline (:func:`bodymetry.capture.fusion.outline_contrast`: the change
-        term on the silhouettes' inner rim, 2.0 at most); below
+        term that three quarters of the silhouettes' inner rim reach, 2.0 at
+        most); below
         :data:`~bodymetry.estimation.studio_accuracy.LOW_CONTRAST` the frame was
         seen in low contrast (white, grey or wall-coloured clothing in a plain
         room). None: no empty-scene clip, a person told apart from others, or a
