@@ -396,6 +396,16 @@ class VisualHull:
         """(N, 3) int: each capture-volume voxel's grid cell (see :meth:`grid`)."""
         return np.column_stack(np.unravel_index(self._index, self._shape))
 
+    def tops(self, bodies: HullBodies) -> np.ndarray:
+        """(K, 3) float: the people's tops (:func:`person_tops`) of ``bodies``'
+        person-sized bodies as world points, metres (floor position and the top of
+        the highest voxel), highest first; (0, 3) when there is none."""
+        people = (bodies.labels > 0) & bodies.person_sized[bodies.labels]
+        if not people.any():
+            return np.zeros((0, 3))
+        centres, heights = person_tops(self.grid(people), self.voxel)
+        return np.column_stack([self.origin[:2] + centres * self.voxel, heights])
+
     def occupied(self, masks: Sequence[np.ndarray]) -> np.ndarray:
         """The subject's voxels: the largest connected body of :meth:`bodies`.
 

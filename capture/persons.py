@@ -51,6 +51,7 @@ from bodymetry.capture.consistency import (
     VisualHull,
     person_tops,
 )
+from bodymetry.capture.person import LANDMARKS
 from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -67,6 +68,7 @@ __all__ = [
     "everyone_silhouettes",
     "observe_persons",
     "person_views",
+    "raised_hands",
     "split_hull",
     "track_ids",
     "track_persons",
@@ -88,6 +90,21 @@ PERSON_AXIS_RADIUS = 0.3
 #: A person explains at least this share of their projection's silhouette pixels that
 #: no taller person explains (else the body is a phantom of the visual hull).
 PERSON_OWN_SHARE = 0.25
+#: Metres on the floor: a hull top lies at a raised hand when one of the hand's
+#: triangulated landmarks (wrist, index, pinky, thumb) lies within this of it (the
+#: top is a plateau's centre, a few 4 cm voxels wide; an adult's hand is 0.19 m long).
+HAND_REACH = 0.15
+#: Metres: ... and the top stands at most this far above that landmark (the fingers
+#: above the wrist, the hull a voxel or two above the body) ...
+HAND_ABOVE = 0.35
+#: ... and at most this far below it.
+HAND_BELOW = 0.1
+#: The landmarks of the hands (:data:`~bodymetry.capture.person.LANDMARKS`).
+_HANDS = [
+    LANDMARKS.index(f"{side}_{part}")
+    for side in ("left", "right")
+    for part in ("wrist", "index", "pinky", "thumb")
+]
 #: The assignment's cost of a pair outside the gates (never chosen over a real pair).
 _FORBIDDEN = 1e6
 #: Depth buffer value of a pixel no voxel covers (finite: cv2.erode pads with the
@@ -205,6 +222,40 @@ def _neighbour_graph(occupied: np.ndarray, cell: float) -> sparse.csr_matrix:
     return sparse.csr_matrix(
         (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
     )
+
+
+def raised_hands(tops: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+    """Which of a hull's tops are one person's raised hands.
+
+    The hull counts people by their tops (:func:`~bodymetry.capture.consistency.person_tops`).
+    Hands held straight up stand above the head, 0.4-0.5 m apart, on arms that
+    stand on the shoulders: two tops as prominent and as solid as two heads, and
+    the hull's cross-section below them is no narrower than a neck (head, arms
+    and shoulders merge at 4 cm voxels). The segmenter's skeleton tells them
+    apart: its triangulated hands lie at those tops.
+
+    Parameters
+    ----------
+    tops : (K, 3) float
+        The tops as world points, metres (:meth:`VisualHull.tops`).
+    landmarks : (33, 3) float
+        One person's triangulated landmarks, metres, NaN where not triangulated
+        (:func:`~bodymetry.capture.landmarks.triangulate_landmarks`).
+
+    Returns
+    -------
+    (K,) bool
+        True where a hand landmark lies within :data:`HAND_REACH` on the floor,
+        and from :data:`HAND_BELOW` above to :data:`HAND_ABOVE` below the top.
+    """
+    tops = np.asarray(tops, float).reshape(-1, 3)
+    hands = np.asarray(landmarks, float)[_HANDS]
+    hands = hands[np.isfinite(hands).all(axis=1)]
+    if len(tops) == 0 or len(hands) == 0:
+        return np.zeros(len(tops), bool)
+    floor = np.linalg.norm(tops[:, None, :2] - hands[None, :, :2], axis=2)
+    rise = tops[:, None, 2] - hands[None, :, 2]
+    return ((floor <= HAND_REACH) & (rise <= HAND_ABOVE) & (rise >= -HAND_BELOW)).any(axis=1)
 
 
 def split_hull(occupied: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:

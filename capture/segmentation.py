@@ -60,7 +60,7 @@ from bodymetry.capture.person import (
     PersonSegmenter,
     segmenter_available,
 )
-from bodymetry.capture.persons import everyone_silhouettes, observe_persons
+from bodymetry.capture.persons import everyone_silhouettes, observe_persons, raised_hands
 from bodymetry.capture.session import Session
 from bodymetry.capture.shadows import FloorShadow, at_feet, floor_shadows
 from bodymetry.capture.skin import SkinConfig, clothing_masks, facing
@@ -687,6 +687,24 @@ class FrameSegmenter:
             brightness=[None if ev is None else ev.brightness for ev in evidence],
         )
 
+    def _hands_up(self, bodies: HullBodies, person: Sighting) -> bool:
+        """Whether the hull's count of more than one comes from ``person``'s raised
+        hands: the hull holds one person-sized body, and all its tops but one lie
+        at the hands of the one person the segmenter's detections agree on
+        (:func:`~bodymetry.capture.persons.raised_hands`; both arms held straight
+        up give two tops as solid and as far apart as two heads)."""
+        if self.hull is None or int(bodies.person_sized.sum()) != 1:
+            return False
+        tops = self.hull.tops(bodies)
+        landmarks = triangulate_landmarks(
+            self.hull.cameras, person.landmarks, self.config.landmarks
+        )
+        hands = raised_hands(tops, landmarks)
+        if hands.any() and int((~hands).sum()) <= 1:
+            log.debug("hull tops %s m: one person's raised hands", tops[hands].round(2).tolist())
+            return True
+        return False
+
     def _more_than_one(
         self, evidence: Sequence[ViewEvidence | None], terms: Sequence[GeometryTerms | None]
     ) -> bool:
@@ -802,6 +820,9 @@ class FrameSegmenter:
                 found = self.people(images, evidence, persons, bodies, floor)
                 if found is not None and len(found) > 1:
                     people, persons = found, len(found)
+                elif found is not None and len(found) == 1 and self._hands_up(bodies, found[0]):
+                    bodies = replace(bodies, persons=1)
+                    persons = 1
         else:
             people = self.people(images, evidence)
             persons = None if people is None else len(people)

@@ -9,10 +9,10 @@ from silhouette_shapes import cylinder_mask
 
 from bodymetry.calibration.camera import Camera, CameraGroup
 from bodymetry.capture.background import BackgroundModel
-from bodymetry.capture.consistency import HullConfig, VisualHull
+from bodymetry.capture.consistency import HullConfig, VisualHull, person_tops
 from bodymetry.capture.fusion import FusionConfig, GeometryTerms
 from bodymetry.capture.people import Sighting
-from bodymetry.capture.person import Person
+from bodymetry.capture.person import LANDMARKS, Person
 from bodymetry.capture.persons import (
     TRACK_GATE,
     PersonObservation,
@@ -20,6 +20,7 @@ from bodymetry.capture.persons import (
     everyone_silhouettes,
     observe_persons,
     person_views,
+    raised_hands,
     split_hull,
     track_persons,
 )
@@ -80,6 +81,52 @@ def test_people_joined_by_a_hand_split_at_the_hand():
     # The bridge parts at its middle (geodesic distance to each person's axis).
     y = GRID[..., 1][hand & (labels == 1)]
     assert y.max() <= 1.2 + CELL
+
+
+def _hands_up(x: float, y: float, height: float = 1.65, apart: float = 0.46) -> np.ndarray:
+    """(X, Y, Z) bool: :func:`_person` with both arms held straight up, ``apart`` metres
+    apart (columns on the shoulders, 0.3 m above the head)."""
+    body = _person(x, y, height)
+    for side in (-0.5, 0.5):
+        body |= _cylinder(x, y + side * apart, 0.05, height + 0.3)
+    return body
+
+
+def _skeleton(hands_at: list[tuple[float, float, float]]) -> np.ndarray:
+    """(33, 3) float: triangulated landmarks, NaN but the wrists at ``hands_at`` and the
+    index fingers 0.1 m above them."""
+    landmarks = np.full((33, 3), np.nan)
+    for side, at in zip(("left", "right"), hands_at, strict=True):
+        landmarks[LANDMARKS.index(f"{side}_wrist")] = at
+        landmarks[LANDMARKS.index(f"{side}_index")] = np.add(at, (0, 0, 0.1))
+    return landmarks
+
+
+def _world_tops(occupied: np.ndarray) -> np.ndarray:
+    centres, heights = person_tops(occupied, CELL)
+    return np.column_stack([centres * CELL + CELL / 2, heights])
+
+
+def test_hands_held_straight_up_are_tops_the_skeleton_names_as_hands():
+    # Both arms straight up: two tops, 0.46 m apart and 0.3 m above the head, as
+    # solid and as prominent as two heads (seed 422 of the contrast set).
+    tops = _world_tops(_hands_up(1.2, 1.2))
+    assert len(tops) == 2
+    np.testing.assert_allclose(np.sort(tops[:, 1]), [0.97, 1.43], atol=CELL)
+    raised = [(1.2, 0.97, 1.72), (1.2, 1.43, 1.72)]
+    assert raised_hands(tops, _skeleton(raised)).all()
+    # Hands by the sides, or a skeleton without hands: the tops are not hands.
+    assert not raised_hands(tops, _skeleton([(1.2, 0.9, 0.8), (1.2, 1.5, 0.8)])).any()
+    assert not raised_hands(tops, np.full((33, 3), np.nan)).any()
+    # A hand held at a top's place but far below it (a second person's head over the
+    # subject's hand) is not that top.
+    assert not raised_hands(tops, _skeleton([(1.2, 0.97, 1.2), (1.2, 1.43, 1.2)])).any()
+    # A second person's head half a metre from the subject's raised hand is a head.
+    other = _world_tops(_hands_up(1.2, 1.2) | _person(1.2, 2.0, 1.75))
+    assert len(other) == 3
+    hands = raised_hands(other, _skeleton(raised))
+    assert hands.sum() == 2 and other[~hands][0, 1] == pytest.approx(2.0, abs=CELL)
+    assert raised_hands(np.zeros((0, 3)), _skeleton(raised)).shape == (0,)
 
 
 def test_one_person_is_one_and_an_empty_grid_nobody():
@@ -288,6 +335,47 @@ def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
     assert len(people) == 2 and all(p.source == "hull" for p in people)
     _, _, _, persons, people, _ = frame(images({(0.0, 0.0): 1.7}))
     assert persons == 1 and people == () and len(asked) == 2  # one body: not asked
+
+
+def test_a_person_holding_both_hands_up_is_one_person_where_the_skeleton_says_so():
+    # One person with both arms straight up (columns 0.46 m apart on the shoulders,
+    # 0.3 m above the head): the hull's tops count two (seed 422 of the contrast set).
+    # The shoulders face a pair of the rig's diagonal cameras (with the arms along
+    # the other axis the hull of two thin columns, three views of four agreeing,
+    # has its tops between the cameras' cones, 0.37 m from the hands).
+    rig, rng, empty, models = _plain_room(6)
+    config = CaptureConfig(method="background", fusion=FusionConfig(enabled=True))
+    frame = FrameSegmenter(models, rig.sizes, config, None, None, rig)
+    images = []
+    for cam in rig:
+        img = empty.copy()
+        body = _cylinder_mask(cam, (0.0, 0.0), radius=0.22, height=1.35)
+        body |= _cylinder_mask(cam, (0.0, 0.0), radius=0.1, height=1.65)
+        for x in (-0.23, 0.23):
+            body |= _cylinder_mask(cam, (x, 0.0), radius=0.05, height=1.95)
+        img[body] = (200, 90, 40)
+        images.append(np.clip(img + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8))
+    evidence = [frame.evidence(c, im) for c, im in enumerate(images)]
+    assert frame.bodies(evidence).persons == 2
+
+    def one(hands_z):
+        """The segmenter's one person, their hands at height ``hands_z`` (m)."""
+        world = _skeleton([(-0.23, 0.0, hands_z), (0.23, 0.0, hands_z)])
+        seen = np.isfinite(world).all(axis=1)
+        views = []
+        for cam in rig:
+            landmarks = np.zeros((33, 3))
+            landmarks[seen, :2] = cam.project(world[seen])
+            landmarks[seen, 2] = 1.0
+            views.append(landmarks)
+        return Sighting(np.zeros(3), (None,) * 4, tuple(views), (False,) * 4)
+
+    for hands_z, persons in ((1.75, 1), (0.8, 2)):
+        frame.people = lambda *args, z=hands_z, **kwargs: [one(z)]
+        _, _, _, counted, people, _ = frame(images)
+        assert counted == persons, hands_z
+        # Hands up: one person, nobody to tell apart; hands down: the hull's split stays.
+        assert (people == ()) == (persons == 1)
 
 
 def test_one_hull_body_holding_a_second_person_asks_the_segmenter():
