@@ -32,6 +32,7 @@ from bodymetry.calibration.io import load_calibration
 from bodymetry.capture.segmentation import segment_session
 from bodymetry.capture.session import load_session
 from bodymetry.cli import DEMO_SESSION
+from bodymetry.studio.looks import Look
 from bodymetry.studio.synth import SubjectSpec, SynthConfig, synthesize
 
 #: Two-person sessions: (seed, motion, subject).
@@ -42,6 +43,14 @@ TWO_PERSON_SEEDS = (
 )
 #: The demo's rig (``bench_pipeline.DEMO_RIG_SEED``).
 DEMO_RIG_SEED = 5
+#: One person raising both arms straight up, the hands two tops as far apart as two
+#: heads (docs/capture.md, "Both arms straight up"): (seed, motion, subject, look),
+#: 400 frames, every 25th kept. Seed 422 is the session the false count was found on;
+#: 432 the same motion in saturated clothing on a body never used.
+HANDS_UP_SESSIONS = (
+    (422, "arm_raises", "independent:422", "clothing=light_grey,room=plain,light=soft"),
+    (432, "arm_raises", "independent:432", None),
+)
 
 
 def _two_person_session(folder: Path, seed: int, motion: str, subject: str) -> Path:
@@ -55,6 +64,22 @@ def _two_person_session(folder: Path, seed: int, motion: str, subject: str) -> P
             people=2,
             subject=SubjectSpec.parse(subject, seed),
             calibration_frames=30,
+        )
+        synthesize(out, config, overwrite=True)
+    return out
+
+
+def _hands_up_session(folder: Path, seed: int, motion: str, subject: str, look: str | None) -> Path:
+    out = folder / f"hands_up_seed{seed}"
+    if not (out / "session.yaml").is_file():
+        config = SynthConfig(
+            frames=400,
+            seed=seed,
+            rig_seed=DEMO_RIG_SEED,
+            motion=motion,
+            subject=SubjectSpec.parse(subject, seed),
+            calibration_frames=30,
+            **({} if look is None else {"look": Look.parse(look)}),
         )
         synthesize(out, config, overwrite=True)
     return out
@@ -83,6 +108,7 @@ def run() -> dict:
         single = [Path(DEMO_SESSION)]
         single += [studio_session(folder, seed) for seed in SEEDS]
         single += [studio_session(folder, seed, look) for seed, look in LOOK_SESSIONS]
+        single += [_hands_up_session(folder, *spec) for spec in HANDS_UP_SESSIONS]
         two = [_two_person_session(folder, *spec) for spec in TWO_PERSON_SEEDS]
         singles = {p.name: count_session(p) for p in single}
         pairs = {p.name: count_session(p) for p in two}
@@ -95,7 +121,9 @@ def run() -> dict:
     return {
         "setup": (
             f"{len(single)} single-person sessions (the demo, bench_capture's studio and "
-            f"look sessions) and {len(two)} two-person sessions (synth --people 2, seeds "
+            f"look sessions, and {len(HANDS_UP_SESSIONS)} raising both arms straight up, "
+            f"400 frames, every 25th kept) and {len(two)} two-person sessions (synth --people "
+            "2, seeds "
             f"{[s for s, *_ in TWO_PERSON_SEEDS]}, the demo's rig, 200 frames, every 25th "
             "kept)"
         ),
