@@ -105,6 +105,8 @@ _HANDS = [
     for side in ("left", "right")
     for part in ("wrist", "index", "pinky", "thumb")
 ]
+#: The face landmarks (nose, eyes, ears, mouth): a raised hand is above them all.
+_FACE = list(range(LANDMARKS.index("mouth_right") + 1))
 #: The assignment's cost of a pair outside the gates (never chosen over a real pair).
 _FORBIDDEN = 1e6
 #: Depth buffer value of a pixel no voxel covers (finite: cv2.erode pads with the
@@ -234,6 +236,11 @@ def raised_hands(tops: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
     and shoulders merge at 4 cm voxels). The segmenter's skeleton tells them
     apart: its triangulated hands lie at those tops.
 
+    Only hands held above the person's own head count (above the highest of
+    their triangulated face landmarks, :data:`_FACE`): a hand resting on a
+    second, shorter person's head (a parent steadying a child) lies at that
+    head's top too, but below the hand's owner's face.
+
     Parameters
     ----------
     tops : (K, 3) float
@@ -245,13 +252,19 @@ def raised_hands(tops: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
     Returns
     -------
     (K,) bool
-        True where a hand landmark lies within :data:`HAND_REACH` on the floor,
-        and from :data:`HAND_BELOW` above to :data:`HAND_ABOVE` below the top.
+        True where a raised hand landmark lies within :data:`HAND_REACH` on the
+        floor, and from :data:`HAND_BELOW` above to :data:`HAND_ABOVE` below the
+        top. All False where no face landmark was triangulated.
     """
     tops = np.asarray(tops, float).reshape(-1, 3)
-    hands = np.asarray(landmarks, float)[_HANDS]
+    landmarks = np.asarray(landmarks, float)
+    face = landmarks[_FACE, 2]
+    hands = landmarks[_HANDS]
     hands = hands[np.isfinite(hands).all(axis=1)]
-    if len(tops) == 0 or len(hands) == 0:
+    if not np.isfinite(face).any() or len(hands) == 0 or len(tops) == 0:
+        return np.zeros(len(tops), bool)
+    hands = hands[hands[:, 2] > np.nanmax(face)]
+    if len(hands) == 0:
         return np.zeros(len(tops), bool)
     floor = np.linalg.norm(tops[:, None, :2] - hands[None, :, :2], axis=2)
     rise = tops[:, None, 2] - hands[None, :, 2]

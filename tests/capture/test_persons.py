@@ -92,10 +92,16 @@ def _hands_up(x: float, y: float, height: float = 1.65, apart: float = 0.46) -> 
     return body
 
 
-def _skeleton(hands_at: list[tuple[float, float, float]]) -> np.ndarray:
-    """(33, 3) float: triangulated landmarks, NaN but the wrists at ``hands_at`` and the
-    index fingers 0.1 m above them."""
+def _skeleton(
+    hands_at: list[tuple[float, float, float]], nose: tuple[float, float, float] | None = None
+) -> np.ndarray:
+    """(33, 3) float: triangulated landmarks, NaN but the nose at ``nose`` (default: 1.5 m
+    over the floor point between the hands), the wrists at ``hands_at`` and the index
+    fingers 0.1 m above them."""
     landmarks = np.full((33, 3), np.nan)
+    if nose is None:
+        nose = (*np.mean(np.asarray(hands_at)[:, :2], axis=0), 1.5)
+    landmarks[LANDMARKS.index("nose")] = nose
     for side, at in zip(("left", "right"), hands_at, strict=True):
         landmarks[LANDMARKS.index(f"{side}_wrist")] = at
         landmarks[LANDMARKS.index(f"{side}_index")] = np.add(at, (0, 0, 0.1))
@@ -118,6 +124,18 @@ def test_hands_held_straight_up_are_tops_the_skeleton_names_as_hands():
     # Hands by the sides, or a skeleton without hands: the tops are not hands.
     assert not raised_hands(tops, _skeleton([(1.2, 0.9, 0.8), (1.2, 1.5, 0.8)])).any()
     assert not raised_hands(tops, np.full((33, 3), np.nan)).any()
+    # Hands at the tops but no face triangulated: nothing says they are raised.
+    faceless = _skeleton(raised)
+    faceless[LANDMARKS.index("nose")] = np.nan
+    assert not raised_hands(tops, faceless).any()
+    # A hand resting on a child's head (a parent steadying them) lies at the child's
+    # top, but below its owner's face: the child is a person.
+    parent = _person(1.2, 1.2, 1.75)
+    child = _person(1.2, 1.7, 1.45)  # touching the parent's side
+    steadied = _world_tops(parent | child)
+    assert len(steadied) == 2
+    on_head = _skeleton([(1.2, 1.7, 1.42), (1.2, 0.9, 0.8)], nose=(1.2, 1.25, 1.62))
+    assert not raised_hands(steadied, on_head).any()
     # A hand held at a top's place but far below it (a second person's head over the
     # subject's hand) is not that top.
     assert not raised_hands(tops, _skeleton([(1.2, 0.97, 1.2), (1.2, 1.43, 1.2)])).any()
