@@ -164,6 +164,9 @@ def rig_key(
     # How bodies are posed from the file (the skeleton anchors) shapes every
     # training silhouette as much as the file itself.
     h.update(f"anchors {ANCHOR_WEIGHT!r} {ANCHOR_CLEARANCE!r}".encode())
+    # ... and so does the number of shape components the models predict (a cache of
+    # another count fails every frame: its ν has the wrong length).
+    h.update(f"shape dofs {DEFAULT_SHAPE_DOFS}".encode())
     # The body model file (12 MB) is hashed once per process, not per call (batch
     # computes the key of every session).
     stat = Path(model_path).stat()

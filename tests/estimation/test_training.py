@@ -69,6 +69,13 @@ def test_rig_key_tracks_how_bodies_are_posed(cameras, monkeypatch):
     assert rig_key(cameras, TINY) != base
 
 
+def test_rig_key_tracks_the_number_of_shape_components(cameras, monkeypatch):
+    """Models trained for 12 shape components cannot serve a 20-component body model."""
+    base = rig_key(cameras, TINY)
+    monkeypatch.setattr(training, "DEFAULT_SHAPE_DOFS", training.DEFAULT_SHAPE_DOFS + 8)
+    assert rig_key(cameras, TINY) != base
+
+
 def test_sampled_states_stand_on_the_floor_and_split_shapes():
     model = BodyModel.load()
     train = sample_states(model, 30, "train", 0, 1.0)
