@@ -53,36 +53,29 @@ HANDS_UP_SESSIONS = (
 )
 
 
-def _two_person_session(folder: Path, seed: int, motion: str, subject: str) -> Path:
-    out = folder / f"people2_seed{seed}"
+def _session(out: Path, seed: int, motion: str, subject: str, frames: int, **options) -> Path:
+    """Render a studio session on the demo's rig into ``out`` unless it is there."""
     if not (out / "session.yaml").is_file():
         config = SynthConfig(
-            frames=200,
+            frames=frames,
             seed=seed,
             rig_seed=DEMO_RIG_SEED,
             motion=motion,
-            people=2,
             subject=SubjectSpec.parse(subject, seed),
             calibration_frames=30,
+            **options,
         )
         synthesize(out, config, overwrite=True)
     return out
+
+
+def _two_person_session(folder: Path, seed: int, motion: str, subject: str) -> Path:
+    return _session(folder / f"people2_seed{seed}", seed, motion, subject, 200, people=2)
 
 
 def _hands_up_session(folder: Path, seed: int, motion: str, subject: str, look: str | None) -> Path:
-    out = folder / f"hands_up_seed{seed}"
-    if not (out / "session.yaml").is_file():
-        config = SynthConfig(
-            frames=400,
-            seed=seed,
-            rig_seed=DEMO_RIG_SEED,
-            motion=motion,
-            subject=SubjectSpec.parse(subject, seed),
-            calibration_frames=30,
-            **({} if look is None else {"look": Look.parse(look)}),
-        )
-        synthesize(out, config, overwrite=True)
-    return out
+    options = {} if look is None else {"look": Look.parse(look)}
+    return _session(folder / f"hands_up_seed{seed}", seed, motion, subject, 400, **options)
 
 
 def count_session(folder: Path) -> dict:
