@@ -260,11 +260,11 @@ def raised_hands(tops: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
     landmarks = np.asarray(landmarks, float)
     face = landmarks[_FACE, 2]
     hands = landmarks[_HANDS]
-    hands = hands[np.isfinite(hands).all(axis=1)]
-    if not np.isfinite(face).any() or len(hands) == 0 or len(tops) == 0:
-        return np.zeros(len(tops), bool)
-    hands = hands[hands[:, 2] > np.nanmax(face)]
-    if len(hands) == 0:
+    if np.isfinite(face).any():
+        hands = hands[np.isfinite(hands).all(axis=1) & (hands[:, 2] > np.nanmax(face))]
+    else:
+        hands = hands[:0]
+    if len(hands) == 0 or len(tops) == 0:
         return np.zeros(len(tops), bool)
     floor = np.linalg.norm(tops[:, None, :2] - hands[None, :, :2], axis=2)
     rise = tops[:, None, 2] - hands[None, :, 2]

@@ -816,11 +816,17 @@ class FrameSegmenter:
                 # Background subtraction sees everyone but cannot tell apart people who
                 # touch or cross; the segmenter's detections, matched across cameras by
                 # their skeletons, can (as without a clip). The hull's split stays the
-                # answer where they find fewer than two people.
+                # answer where they find fewer than two people, unless the hull's extra
+                # tops are the one person's raised hands (:meth:`_hands_up`).
                 found = self.people(images, evidence, persons, bodies, floor)
                 if found is not None and len(found) > 1:
                     people, persons = found, len(found)
-                elif found is not None and len(found) == 1 and self._hands_up(bodies, found[0]):
+                elif (
+                    persons > 1
+                    and found is not None
+                    and len(found) == 1
+                    and self._hands_up(bodies, found[0])
+                ):
                     bodies = replace(bodies, persons=1)
                     persons = 1
         else:
