@@ -34,6 +34,7 @@ REPORTS = {
     "imports": "benchmarks.imports",
     "person_tracks": "benchmarks.bench_person_tracks",
     "persons": "benchmarks.bench_persons",
+    "posing": "benchmarks.bench_posing",
     "profile": "benchmarks.bench_profile",
     "session_bias": "benchmarks.bench_session_bias",
     "session_spread": "benchmarks.bench_session_spread",
