@@ -47,6 +47,7 @@ from bodymetry.capture.consistency import (
     PERSON_MIN_HEIGHT,
     PERSON_MIN_VOLUME,
     PERSON_REACH,
+    PERSON_SPACING,
     HullBodies,
     VisualHull,
     person_tops,
@@ -105,6 +106,8 @@ _HANDS = [
     for side in ("left", "right")
     for part in ("wrist", "index", "pinky", "thumb")
 ]
+#: Which of :data:`_HANDS` are the left hand's.
+_LEFT = np.array([LANDMARKS[i].startswith("left_") for i in _HANDS])
 #: The face landmarks (nose, eyes, ears, mouth): a raised hand is above them all.
 _FACE = list(range(LANDMARKS.index("mouth_right") + 1))
 #: The assignment's cost of a pair outside the gates (never chosen over a real pair).
@@ -239,7 +242,13 @@ def raised_hands(tops: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
     Only hands held above the person's own head count (above the highest of
     their triangulated face landmarks, :data:`_FACE`): a hand resting on a
     second, shorter person's head (a parent steadying a child) lies at that
-    head's top too, but below the hand's owner's face.
+    head's top too, but below the hand's owner's face. With both hands up, the
+    hull (three views of four agreeing) can put its tops between the cameras'
+    cones rather than over the two thin columns of the arms; a top within half
+    the hands' spacing plus :data:`HAND_REACH` of their midpoint, at their
+    height, is theirs as well, within
+    :data:`~bodymetry.capture.consistency.PERSON_SPACING` at most (two heads
+    stand no closer).
 
     Parameters
     ----------
@@ -254,21 +263,35 @@ def raised_hands(tops: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
     (K,) bool
         True where a raised hand landmark lies within :data:`HAND_REACH` on the
         floor, and from :data:`HAND_BELOW` above to :data:`HAND_ABOVE` below the
-        top. All False where no face landmark was triangulated.
+        top, or, with both hands raised, where their midpoint does within half
+        their spacing plus :data:`HAND_REACH`. All False where no face landmark
+        was triangulated.
     """
     tops = np.asarray(tops, float).reshape(-1, 3)
     landmarks = np.asarray(landmarks, float)
     face = landmarks[_FACE, 2]
     hands = landmarks[_HANDS]
-    if np.isfinite(face).any():
-        hands = hands[np.isfinite(hands).all(axis=1) & (hands[:, 2] > np.nanmax(face))]
-    else:
-        hands = hands[:0]
-    if len(hands) == 0 or len(tops) == 0:
+    raised = np.isfinite(hands).all(axis=1)
+    raised &= hands[:, 2] > np.nanmax(face) if np.isfinite(face).any() else False
+    if not raised.any() or len(tops) == 0:
         return np.zeros(len(tops), bool)
-    floor = np.linalg.norm(tops[:, None, :2] - hands[None, :, :2], axis=2)
-    rise = tops[:, None, 2] - hands[None, :, 2]
-    return ((floor <= HAND_REACH) & (rise <= HAND_ABOVE) & (rise >= -HAND_BELOW)).any(axis=1)
+
+    def at(points: np.ndarray, reach: np.ndarray | float) -> np.ndarray:
+        floor = np.linalg.norm(tops[:, None, :2] - points[None, :, :2], axis=2)
+        rise = tops[:, None, 2] - points[None, :, 2]
+        return ((floor <= reach) & (rise <= HAND_ABOVE) & (rise >= -HAND_BELOW)).any(axis=1)
+
+    out = at(hands[raised], HAND_REACH)
+    left, right = raised & _LEFT, raised & ~_LEFT
+    if left.any() and right.any():
+        # Both hands up: the hull of two thin columns, three views of four
+        # agreeing, can put its tops between the cameras' cones instead of over
+        # the hands; a top within half the hands' spacing (plus the reach) of
+        # their midpoint, at their height, is theirs too.
+        pair = np.stack([hands[left].mean(axis=0), hands[right].mean(axis=0)])
+        half = 0.5 * np.linalg.norm(pair[0, :2] - pair[1, :2])
+        out |= at(pair.mean(axis=0, keepdims=True), min(half + HAND_REACH, PERSON_SPACING))
+    return out
 
 
 def split_hull(occupied: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:

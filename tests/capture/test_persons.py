@@ -145,6 +145,13 @@ def test_hands_held_straight_up_are_tops_the_skeleton_names_as_hands():
     hands = raised_hands(other, _skeleton(raised))
     assert hands.sum() == 2 and other[~hands][0, 1] == pytest.approx(2.0, abs=CELL)
     assert raised_hands(np.zeros((0, 3)), _skeleton(raised)).shape == (0,)
+    # Both hands up: a top between them (the hull's, off the hands) is theirs; one
+    # hand up: only the tops at it.
+    between = np.array([[1.48, 1.2, 1.94], [0.92, 1.2, 1.94]])
+    assert raised_hands(between, _skeleton(raised)).all()
+    assert not raised_hands(between, _skeleton([raised[0], (1.2, 1.43, 0.8)])).any()
+    # ... but not a top as far from their midpoint as a second person's head.
+    assert not raised_hands(np.array([[1.2 + 0.46, 1.2, 1.75]]), _skeleton(raised)).any()
 
 
 def test_one_person_is_one_and_an_empty_grid_nobody():
@@ -355,30 +362,36 @@ def test_the_capture_stage_splits_two_people_and_leaves_one_alone():
     assert persons == 1 and people == () and len(asked) == 2  # one body: not asked
 
 
-def test_a_person_holding_both_hands_up_is_one_person_where_the_skeleton_says_so():
+@pytest.mark.parametrize("along", ["x", "y"])
+def test_a_person_holding_both_hands_up_is_one_person_where_the_skeleton_says_so(along):
     # One person with both arms straight up (columns 0.46 m apart on the shoulders,
     # 0.3 m above the head): the hull's tops count two (seed 422 of the contrast set).
-    # The shoulders face a pair of the rig's diagonal cameras (with the arms along
-    # the other axis the hull of two thin columns, three views of four agreeing,
-    # has its tops between the cameras' cones, 0.37 m from the hands).
+    # With the arms along y, the hull of two thin columns (three views of four
+    # agreeing; the rig's cameras stand on the diagonals) has its tops between the
+    # cameras' cones, 0.28 m from the midpoint along x and 0.37 m from the hands.
     rig, rng, empty, models = _plain_room(6)
     config = CaptureConfig(method="background", fusion=FusionConfig(enabled=True))
     frame = FrameSegmenter(models, rig.sizes, config, None, None, rig)
+    hands = [(-0.23, 0.0), (0.23, 0.0)] if along == "x" else [(0.0, -0.23), (0.0, 0.23)]
     images = []
     for cam in rig:
         img = empty.copy()
         body = _cylinder_mask(cam, (0.0, 0.0), radius=0.22, height=1.35)
         body |= _cylinder_mask(cam, (0.0, 0.0), radius=0.1, height=1.65)
-        for x in (-0.23, 0.23):
-            body |= _cylinder_mask(cam, (x, 0.0), radius=0.05, height=1.95)
+        for at in hands:
+            body |= _cylinder_mask(cam, at, radius=0.05, height=1.95)
         img[body] = (200, 90, 40)
         images.append(np.clip(img + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8))
     evidence = [frame.evidence(c, im) for c, im in enumerate(images)]
-    assert frame.bodies(evidence).persons == 2
+    bodies = frame.bodies(evidence)
+    assert bodies.persons == 2
+    tops = frame.hull.tops(bodies)
+    far = np.linalg.norm(tops[:, None, :2] - np.array(hands)[None], axis=2).min(axis=1)
+    assert (far > 0.3).all() if along == "y" else (far < 0.1).all()
 
     def one(hands_z):
         """The segmenter's one person, their hands at height ``hands_z`` (m)."""
-        world = _skeleton([(-0.23, 0.0, hands_z), (0.23, 0.0, hands_z)])
+        world = _skeleton([(*at, hands_z) for at in hands])
         seen = np.isfinite(world).all(axis=1)
         views = []
         for cam in rig:
