@@ -271,12 +271,13 @@ def raised_hands(tops: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
     landmarks = np.asarray(landmarks, float)
     face = landmarks[_FACE, 2]
     hands = landmarks[_HANDS]
-    raised = np.isfinite(hands).all(axis=1)
-    raised &= hands[:, 2] > np.nanmax(face) if np.isfinite(face).any() else False
+    raised = np.isfinite(hands).all(axis=1) & np.isfinite(face).any()
+    if raised.any():
+        raised &= hands[:, 2] > np.nanmax(face)
     if not raised.any() or len(tops) == 0:
         return np.zeros(len(tops), bool)
 
-    def at(points: np.ndarray, reach: np.ndarray | float) -> np.ndarray:
+    def at(points: np.ndarray, reach: float) -> np.ndarray:
         floor = np.linalg.norm(tops[:, None, :2] - points[None, :, :2], axis=2)
         rise = tops[:, None, 2] - points[None, :, 2]
         return ((floor <= reach) & (rise <= HAND_ABOVE) & (rise >= -HAND_BELOW)).any(axis=1)
