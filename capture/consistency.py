@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -167,6 +167,10 @@ class HullBodies:
         People among the bodies (:func:`count_persons` of the person-sized ones:
         at least :data:`PERSON_MIN_HEIGHT` tall and :data:`PERSON_MIN_VOLUME`
         large; a stool, a bag or a cast shadow's ghost is none).
+    tops : (T, 3) float
+        The tops :func:`count_persons` counted (:func:`person_tops`) as world
+        points, metres (floor position and the top of the highest voxel), highest
+        first; (0, 3) when there is no person-sized body.
     """
 
     labels: np.ndarray
@@ -174,6 +178,7 @@ class HullBodies:
     heights: np.ndarray
     voxel: float
     persons: int = 0
+    tops: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
 
     @property
     def largest(self) -> np.ndarray:
@@ -396,16 +401,6 @@ class VisualHull:
         """(N, 3) int: each capture-volume voxel's grid cell (see :meth:`grid`)."""
         return np.column_stack(np.unravel_index(self._index, self._shape))
 
-    def tops(self, bodies: HullBodies) -> np.ndarray:
-        """(K, 3) float: the people's tops (:func:`person_tops`) of ``bodies``'
-        person-sized bodies as world points, metres (floor position and the top of
-        the highest voxel), highest first; (0, 3) when there is none."""
-        people = (bodies.labels > 0) & bodies.person_sized[bodies.labels]
-        if not people.any():
-            return np.zeros((0, 3))
-        centres, heights = person_tops(self.grid(people), self.voxel)
-        return np.column_stack([self.origin[:2] + centres * self.voxel, heights])
-
     def occupied(self, masks: Sequence[np.ndarray]) -> np.ndarray:
         """The subject's voxels: the largest connected body of :meth:`bodies`.
 
@@ -464,8 +459,10 @@ class VisualHull:
             return bodies
         # Separate bodies are separate people whatever their tops say (a raised hand
         # can be a body's only top, and it stands on nothing).
-        heads = count_persons(self.grid(people), self.voxel)
-        return replace(bodies, persons=max(heads, int(bodies.person_sized.sum())))
+        centres, heights = person_tops(self.grid(people), self.voxel)
+        tops = np.column_stack([self.origin[:2] + centres * self.voxel, heights])
+        persons = max(len(tops), int(bodies.person_sized.sum()))
+        return replace(bodies, persons=persons, tops=tops)
 
     def _votes(self, masks: Sequence[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray]:
         """Per voxel (N,) int16: the cameras whose silhouette holds it, and the cameras

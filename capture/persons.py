@@ -253,7 +253,7 @@ def raised_hands(tops: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
     Parameters
     ----------
     tops : (K, 3) float
-        The tops as world points, metres (:meth:`VisualHull.tops`).
+        The tops as world points, metres (:attr:`HullBodies.tops`).
     landmarks : (33, 3) float
         One person's triangulated landmarks, metres, NaN where not triangulated
         (:func:`~bodymetry.capture.landmarks.triangulate_landmarks`).

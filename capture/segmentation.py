@@ -695,7 +695,7 @@ class FrameSegmenter:
         up give two tops as solid and as far apart as two heads)."""
         if self.hull is None or int(bodies.person_sized.sum()) != 1:
             return False
-        tops = self.hull.tops(bodies)
+        tops = bodies.tops
         landmarks = triangulate_landmarks(
             self.hull.cameras, person.landmarks, self.config.landmarks
         )

@@ -167,12 +167,12 @@ def test_a_rigs_hull_is_built_once_per_process(rig):
 
 def test_the_hull_s_tops_are_world_points_over_the_people(hull, rig):
     masks = [_cylinder_mask(cam, center=(0.3, -0.2), height=1.7) for cam in rig]
-    tops = hull.tops(hull.bodies(masks))
+    tops = hull.bodies(masks).tops
     assert tops.shape == (1, 3)
     # The hull of four views is a little wider and taller than the cylinder.
     np.testing.assert_allclose(tops[0, :2], (0.3, -0.2), atol=1.5 * hull.voxel)
     assert 1.7 - hull.voxel <= tops[0, 2] <= 1.7 + 3 * hull.voxel
-    assert hull.tops(hull.bodies([np.zeros_like(m) for m in masks])).shape == (0, 3)
+    assert hull.bodies([np.zeros_like(m) for m in masks]).tops.shape == (0, 3)
 
 
 def test_hull_bodies_person_sized_bodies_only():

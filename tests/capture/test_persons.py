@@ -385,7 +385,7 @@ def test_a_person_holding_both_hands_up_is_one_person_where_the_skeleton_says_so
     evidence = [frame.evidence(c, im) for c, im in enumerate(images)]
     bodies = frame.bodies(evidence)
     assert bodies.persons == 2
-    tops = frame.hull.tops(bodies)
+    tops = bodies.tops
     far = np.linalg.norm(tops[:, None, :2] - np.array(hands)[None], axis=2).min(axis=1)
     assert (far > 0.3).all() if along == "y" else (far < 0.1).all()
 
