@@ -6,7 +6,9 @@ Clean-up (:func:`clean_mask`), on the raw person mask of one image:
    split by thin misclassified seams);
 2. connected components: the person is the largest blob plus the blobs near it
    (within ``join_distance`` of the person's bounding box, grown by a fraction
-   of its height) that are not tiny: hands and feet cut off by a shadow-like seam;
+   of its height) that are not tiny: hands and feet cut off by a shadow-like seam.
+   With a segmenter, only blobs that touch its person are candidates, bar a part
+   the multi-view hull confirms (a shoe below a shin the segmenter lost);
 3. holes smaller than ``max_hole_fraction`` of the person's area are filled
    when most of their pixels differ from the background (clothing taken for
    shadow); holes showing the unchanged background (the gap between an arm and
@@ -134,6 +136,10 @@ class CleanupConfig:
     other_blob_fraction : float
         A blob away from the person with at least this fraction of its area
         raises ``multiple``.
+    confirmed_part_fraction : float
+        A blob off the segmenter's person that the other views confirm joins the
+        person when it is near and holds at least this fraction of its area
+        (:func:`clean_mask`'s ``confirmed``).
     max_hole_fraction : float
         Holes smaller than this fraction of the person's area are filled.
     edge_radius : int
@@ -151,6 +157,7 @@ class CleanupConfig:
     join_distance: float = 0.08
     min_part_pixels: int = 12
     other_blob_fraction: float = 0.25
+    confirmed_part_fraction: float = 0.01
     max_hole_fraction: float = 0.02
     edge_radius: int = 2
     edge_window: int = 7
@@ -182,6 +189,7 @@ def clean_mask(
     background: np.ndarray | None = None,
     shadow: np.ndarray | None = None,
     person: np.ndarray | None = None,
+    confirmed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, tuple[str, ...]]:
     """Clean a raw person mask and flag it.
 
@@ -200,6 +208,12 @@ def clean_mask(
     person : (H, W) bool, optional
         Where a learned segmenter sees the person: blobs that do not touch it
         (a bystander, a moved object) are dropped before the person is chosen.
+    confirmed : (H, W) bool, optional
+        Where the other calibrated views put the subject (the multi-view hull's
+        projection). With ``person``, a blob that does not touch ``person`` but
+        lies within ``confirmed`` may still join the person as a part (near it,
+        at least ``confirmed_part_fraction`` of its area): a shoe cut off by a
+        shin the segmenter lost.
 
     Returns
     -------
@@ -215,7 +229,7 @@ def clean_mask(
     h, w = raw.shape
     m = _open_close(raw, cfg)
     empty = np.zeros((h, w), bool)
-    blobs = _blobs(m, person)
+    blobs = _blobs(m, person, confirmed)
     if blobs is None:
         return empty, ("empty",)
     refused = _refusal(m, blobs, cfg)
@@ -308,12 +322,16 @@ class _Blobs:
         person nor a second person (off the segmenter's person).
     order : (n - 1,) int
         Blob indices (label - 1) by decreasing ``areas``.
+    confirmed : (n - 1,) bool
+        Blobs off the segmenter's person that the other views confirm (:func:`_blobs`):
+        they may join the person as a part, never be it.
     """
 
     labels: np.ndarray
     stats: np.ndarray
     areas: np.ndarray
     order: np.ndarray
+    confirmed: np.ndarray
 
     @property
     def main(self) -> int:
@@ -321,20 +339,39 @@ class _Blobs:
         return int(self.order[0]) + 1
 
 
-def _blobs(m: np.ndarray, person: np.ndarray | None) -> _Blobs | None:
+#: A blob off the segmenter's person joins the person when at least this share of
+#: its pixels lies where the other views confirm the subject (:func:`_blobs`).
+CONFIRMED_SHARE = 0.9
+
+
+def _blobs(
+    m: np.ndarray, person: np.ndarray | None, confirmed: np.ndarray | None = None
+) -> _Blobs | None:
     """Step 2a: the blobs of ``m`` (8-connected); with ``person``, those that do not
-    touch it are never chosen. None when no blob can be the person."""
+    touch it are never chosen. None when no blob can be the person.
+
+    With ``confirmed`` (where the multi-view hull puts the subject), a blob off
+    ``person`` that lies within it (:data:`CONFIRMED_SHARE`) is marked as a part the
+    person may keep: the segmenter can lose a whole shin in trousers of the floor's
+    colour, which cuts the shoe below it off its outline although subtraction and
+    every other view see the shoe.
+    """
     n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     if n <= 1:
         return None
     areas = stats[1:, cv2.CC_STAT_AREA].copy()
+    marked = np.zeros(n - 1, bool)
     if person is not None:
         touches = np.zeros(n, bool)
         touches[np.unique(labels[person & (m > 0)])] = True
-        areas[~touches[1:]] = 0  # never the person, never "multiple"
+        off = ~touches[1:]
+        if confirmed is not None and off.any():
+            inside = np.bincount(labels[confirmed & (m > 0)], minlength=n)[1:]
+            marked = off & (inside >= CONFIRMED_SHARE * areas)
+        areas[off] = 0  # never the person, never "multiple"
         if not areas.any():
             return None
-    return _Blobs(labels, stats, areas, np.argsort(-areas))
+    return _Blobs(labels, stats, areas, np.argsort(-areas), marked)
 
 
 def _refusal(m: np.ndarray, blobs: _Blobs, cfg: CleanupConfig) -> str | None:
@@ -354,6 +391,13 @@ def _person_parts(blobs: _Blobs, cfg: CleanupConfig, h: int, w: int) -> tuple[li
     stats, main = blobs.stats, blobs.main
     x0, y0, bw, bh = (int(v) for v in stats[main, :4])
     grow = cfg.join_distance * bh
+
+    def near(lab: int) -> bool:
+        bx, by, bbw, bbh = (int(v) for v in stats[lab, :4])
+        gap_x = max(x0 - (bx + bbw), bx - (x0 + bw), 0)
+        gap_y = max(y0 - (by + bbh), by - (y0 + bh), 0)
+        return max(gap_x, gap_y) <= grow
+
     keep = [main]
     flags: list[str] = []
     for idx in blobs.order[1:]:
@@ -361,10 +405,6 @@ def _person_parts(blobs: _Blobs, cfg: CleanupConfig, h: int, w: int) -> tuple[li
         area = int(blobs.areas[idx])
         if area < cfg.min_part_pixels:
             break
-        bx, by, bbw, bbh = (int(v) for v in stats[lab, :4])
-        gap_x = max(x0 - (bx + bbw), bx - (x0 + bw), 0)
-        gap_y = max(y0 - (by + bbh), by - (y0 + bh), 0)
-        near = max(gap_x, gap_y) <= grow
         large = area >= cfg.other_blob_fraction * stats[main, cv2.CC_STAT_AREA]
         if (
             large
@@ -373,7 +413,16 @@ def _person_parts(blobs: _Blobs, cfg: CleanupConfig, h: int, w: int) -> tuple[li
         ):
             flags.append("multiple")
             continue
-        if near:
+        if near(lab):
+            keep.append(lab)
+    # A part the segmenter lost but the other views confirm (:func:`_blobs`) joins when
+    # it is near and the size of a body part: smaller pieces inside the hull's coarse
+    # projection are floor texture and shadow fringes (the studio's were 50-60 px
+    # against a shoe's 550-590 px beside a person of 9,000-15,000).
+    least = max(cfg.min_part_pixels, cfg.confirmed_part_fraction * stats[main, cv2.CC_STAT_AREA])
+    for idx in np.flatnonzero(blobs.confirmed):
+        lab = int(idx) + 1
+        if stats[lab, cv2.CC_STAT_AREA] >= least and near(lab):
             keep.append(lab)
     return keep, flags
 

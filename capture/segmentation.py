@@ -760,7 +760,13 @@ class FrameSegmenter:
             mask, flags = clean_mask(found, self.cleanup)
             return _View(mask, flags, none, landmarks)
         raw, shadow = self._fused(c, ev, terms)
-        mask, flags = clean_mask(raw, self.cleanup, image, self.models[c].median, shadow, found)
+        # Where the hull puts the subject, a blob the segmenter did not touch may still
+        # be theirs (a shoe below a shin it lost; docs/capture.md, "Parts the
+        # segmenter lost").
+        confirmed = None if terms is None else terms.hull_any
+        mask, flags = clean_mask(
+            raw, self.cleanup, image, self.models[c].median, shadow, found, confirmed
+        )
         return _View(mask, flags, shadow, landmarks)
 
     def _fused(

@@ -60,6 +60,33 @@ def _speck() -> np.ndarray:
     return m
 
 
+def test_a_part_off_the_segmenter_joins_only_where_the_other_views_confirm_it() -> None:
+    """A shoe below a shin the segmenter lost: off its person, kept where the hull
+    puts the subject and the piece is the size of a body part."""
+    body = _person(160)
+    shoe = np.zeros((H, W), bool)
+    shoe[197:207, 150:170] = True  # 200 px, 1.5 % of the body, just below it
+    speck = np.zeros((H, W), bool)
+    speck[197:201, 180:184] = True  # 16 px: floor texture inside the hull's projection
+    raw = body | shoe | speck
+    segmenter = body  # saw the body, not the shoe
+    hull = cv2.dilate((body | shoe | speck).astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+
+    mask, flags = clean_mask(raw, person=segmenter)
+    assert flags == () and not mask[shoe].any()  # before: the segmenter decides alone
+    mask, flags = clean_mask(raw, person=segmenter, confirmed=hull)
+    assert flags == ()
+    assert mask[shoe].all() and not mask[speck].any()
+    assert iou(mask, body | shoe) > 0.97
+    # Where the other views do not put the subject, the piece stays out.
+    elsewhere = hull & ~shoe
+    mask, _ = clean_mask(raw, person=segmenter, confirmed=elsewhere)
+    assert not mask[shoe].any()
+    # A confirmed piece is never the person itself, nor a second person.
+    mask, flags = clean_mask(shoe, person=segmenter, confirmed=hull)
+    assert flags == ("empty",) and not mask.any()
+
+
 def test_two_people_sized_blobs_are_flagged_and_the_larger_kept() -> None:
     a, b = _person(80, ax=20), _person(250, ax=16)
     mask, flags = clean_mask(a | b)
