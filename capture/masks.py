@@ -84,6 +84,7 @@ __all__ = [
     "CleanupConfig",
     "clean_mask",
     "grown_mask",
+    "parts_off",
     "refine_edges",
 ]
 
@@ -372,6 +373,22 @@ def _blobs(
         if not areas.any():
             return None
     return _Blobs(labels, stats, areas, np.argsort(-areas), marked)
+
+
+def parts_off(mask: np.ndarray, person: np.ndarray, config: CleanupConfig | None = None) -> bool:
+    """Whether ``mask`` (H, W) bool holds a piece the size of a confirmed part
+    (:attr:`CleanupConfig.confirmed_part_fraction` of the mask) that does not touch
+    ``person`` (H, W) bool: a part :func:`clean_mask` kept because the other views
+    confirm it (its ``confirmed``), which the segmenter that gave ``person`` lost.
+    (Smaller pieces are the edge refinement's: it decides each outline pixel alone.)"""
+    cfg = config or CleanupConfig()
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    if n <= 2:
+        return False
+    touched = np.zeros(n, bool)
+    touched[labels[person & mask]] = True
+    least = max(cfg.min_part_pixels, cfg.confirmed_part_fraction * np.count_nonzero(mask))
+    return bool(np.any(~touched[1:] & (stats[1:, cv2.CC_STAT_AREA] >= least)))
 
 
 def _refusal(m: np.ndarray, blobs: _Blobs, cfg: CleanupConfig) -> str | None:

@@ -45,7 +45,7 @@ from bodymetry.capture.fusion import (
 )
 from bodymetry.capture.ingest import SyncReport, check_sync, read_frame_sets
 from bodymetry.capture.landmarks import LandmarkConfig, triangulate_landmarks
-from bodymetry.capture.masks import CleanupConfig, clean_mask, grown_mask, thin_parts
+from bodymetry.capture.masks import CleanupConfig, clean_mask, grown_mask, parts_off, thin_parts
 from bodymetry.capture.people import (
     Sighting,
     people_boxes,
@@ -372,6 +372,9 @@ class _View:
     flags: tuple[str, ...]
     shadow: np.ndarray
     landmarks: np.ndarray | None = None
+    #: The mask holds a part the segmenter's person does not touch (kept because the
+    #: hull confirms it): the segmenter lost what joins it to the body.
+    lost_part: bool = False
 
 
 @dataclass
@@ -767,7 +770,8 @@ class FrameSegmenter:
         mask, flags = clean_mask(
             raw, self.cleanup, image, self.models[c].median, shadow, found, confirmed
         )
-        return _View(mask, flags, shadow, landmarks)
+        lost = found is not None and confirmed is not None and parts_off(mask, found, self.cleanup)
+        return _View(mask, flags, shadow, landmarks, lost)
 
     def _fused(
         self, c: int, ev: ViewEvidence, terms: GeometryTerms | None
@@ -841,12 +845,17 @@ class FrameSegmenter:
         agreement: list[float | None] = [None] * len(views)
         if self.hull is not None:
             check = self.hull.check([v.mask for v in views])
-            if self.segmenter is not None and any(check.inconsistent):
-                # Ask again where the other views put the subject (the segmenter
-                # returns the most prominent person, maybe a bystander).
+            if self.segmenter is not None and any(
+                bad or v.lost_part for bad, v in zip(check.inconsistent, views, strict=True)
+            ):
+                # Ask again where the other views put the subject: the segmenter
+                # returns the most prominent person, maybe a bystander; and it can
+                # lose a whole shin in trousers of the floor's colour, which it
+                # finds when it sees the person larger (docs/capture.md, "Parts
+                # the segmenter lost").
                 retry = [
-                    c for c, bad in enumerate(check.inconsistent)
-                    if bad and check.rois[c] is not None and images[c] is not None
+                    c for c, (bad, v) in enumerate(zip(check.inconsistent, views, strict=True))
+                    if (bad or v.lost_part) and check.rois[c] is not None and images[c] is not None
                 ]  # fmt: skip
                 for c in retry:
                     person = self.segmenter.detect(images[c], check.rois[c])

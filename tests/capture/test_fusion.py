@@ -27,6 +27,7 @@ from bodymetry.capture.fusion import (
     view_agreement,
     view_features,
 )
+from bodymetry.capture.person import Person
 from bodymetry.capture.segmentation import CaptureConfig, FrameSegmenter
 from bodymetry.errors import InputError
 from bodymetry.estimation.studio_accuracy import LOW_CONTRAST
@@ -354,3 +355,74 @@ def test_a_view_that_disagrees_with_the_others_is_unreliable(grey_room):
         agreement,
         [v.flags for v in views],
     )
+
+
+class _LostShinSegmenter:
+    """A segmenter that, in the whole image of one camera, loses a shin in trousers of
+    the floor's colour and the shoe below it, and finds them in a box (the person
+    seen larger); every other camera's person it finds whole."""
+
+    def __init__(self, whole, lossy):
+        self.whole = whole  # image id -> (H, W) bool
+        self.lossy = lossy
+        self.asked = []
+
+    def detect(self, image, roi=None):
+        self.asked.append((id(image), roi))
+        mask = self.whole[id(image)] if roi is not None else self.lossy.get(id(image))
+        if mask is None:
+            mask = self.whole[id(image)]
+        return Person(mask.astype(np.float32), np.full((33, 3), np.nan))
+
+    def close(self):
+        pass
+
+
+def _slab(camera, z0, z1, radius=0.2) -> np.ndarray:
+    a = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    ring = np.column_stack([radius * np.cos(a), radius * np.sin(a)])
+    return _hull_mask(
+        camera, np.vstack([np.column_stack([ring, np.full(len(a), z)]) for z in (z0, z1)])
+    )
+
+
+def test_a_part_the_segmenter_lost_is_kept_and_asked_for_again(grey_room):
+    """Look 334 of the capture benchmark: camera 0's segmenter loses the near shin
+    (trousers of the floor's grey) and the shoe; the shoe, a strong change the hull
+    confirms, is kept although the segmenter's person does not touch it, and the view
+    is asked again in the hull's box, where the shin is found."""
+    rig, models, *_ = grey_room
+    rng = np.random.default_rng(5)
+    images, whole, lossy, shins, shoes = [], {}, {}, [], []
+    for c, cam in enumerate(rig):
+        body = _slab(cam, 0.35, 1.7)
+        shin = _slab(cam, 0.1, 0.35) & ~body
+        shoe = _slab(cam, 0.0, 0.1, radius=0.22) & ~body & ~shin
+        img = np.full((*body.shape, 3), 120.0)
+        img[body] = (200, 90, 40)
+        img[shoe] = (30, 30, 30)  # darker than any shadow: a change, not a shadow
+        img += rng.normal(0, 2, img.shape)
+        image = np.clip(img, 0, 255).astype(np.uint8)
+        images.append(image)
+        whole[id(image)] = body | shin | shoe
+        if c == 0:
+            lossy[id(image)] = body
+        shins.append(shin)
+        shoes.append(shoe)
+    config = CaptureConfig(method="background", fusion=FusionConfig(enabled=True))
+    frame = FrameSegmenter(models, rig.sizes, config, None, None, rig)
+    frame.segmenter = _LostShinSegmenter(whole, lossy)
+    try:
+        views = frame(images)[0]
+        asked_again = [roi for image, roi in frame.segmenter.asked if image == id(images[0])]
+        assert asked_again[0] is None and asked_again[-1] is not None
+        assert all(roi is None for image, roi in frame.segmenter.asked if image != id(images[0]))
+        for view, shin, shoe in zip(views, shins, shoes, strict=True):
+            assert view.mask[shoe].mean() > 0.9
+            assert view.mask[shin].mean() > 0.9
+        # Where the segmenter misses the shin in the box too, the shoe still stays.
+        frame.segmenter = _LostShinSegmenter({**whole, **lossy}, lossy)
+        view = frame(images)[0][0]
+        assert view.mask[shoes[0]].mean() > 0.9 and view.mask[shins[0]].mean() < 0.2
+    finally:
+        frame.close()

@@ -6,7 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
-from bodymetry.capture.masks import CleanupConfig, clean_mask, refine_edges, thin_parts
+from bodymetry.capture.masks import (
+    CleanupConfig,
+    clean_mask,
+    parts_off,
+    refine_edges,
+    thin_parts,
+)
 from bodymetry.errors import InputError
 
 H, W = 240, 320
@@ -85,6 +91,18 @@ def test_a_part_off_the_segmenter_joins_only_where_the_other_views_confirm_it() 
     # A confirmed piece is never the person itself, nor a second person.
     mask, flags = clean_mask(shoe, person=segmenter, confirmed=hull)
     assert flags == ("empty",) and not mask.any()
+
+
+def test_parts_off_names_a_part_the_segmenter_lost_not_a_speck() -> None:
+    body = _person(160)
+    shoe = np.zeros((H, W), bool)
+    shoe[197:207, 150:170] = True
+    speck = np.zeros((H, W), bool)
+    speck[197:200, 180:183] = True  # an edge pixel decided alone: not a part
+    assert parts_off(body | shoe, body)
+    assert not parts_off(body | shoe, body | shoe)  # the segmenter saw it
+    assert not parts_off(body | speck, body)
+    assert not parts_off(body, body)
 
 
 def test_two_people_sized_blobs_are_flagged_and_the_larger_kept() -> None:
