@@ -191,6 +191,7 @@ def clean_mask(
     shadow: np.ndarray | None = None,
     person: np.ndarray | None = None,
     confirmed: np.ndarray | None = None,
+    ends: np.ndarray | None = None,
 ) -> tuple[np.ndarray, tuple[str, ...]]:
     """Clean a raw person mask and flag it.
 
@@ -215,6 +216,10 @@ def clean_mask(
         lies within ``confirmed`` may still join the person as a part (near it,
         at least ``confirmed_part_fraction`` of its area): a shoe cut off by a
         shin the segmenter lost.
+    ends : (H, W) bool, optional
+        Where the segmenter's skeleton puts the hands and feet: a blob joins by
+        ``confirmed`` only where it also touches ``ends`` (the hull's coarse
+        projection also covers a hard cast shadow beside the feet).
 
     Returns
     -------
@@ -230,7 +235,7 @@ def clean_mask(
     h, w = raw.shape
     m = _open_close(raw, cfg)
     empty = np.zeros((h, w), bool)
-    blobs = _blobs(m, person, confirmed)
+    blobs = _blobs(m, person, confirmed, ends)
     if blobs is None:
         return empty, ("empty",)
     refused = _refusal(m, blobs, cfg)
@@ -346,7 +351,10 @@ CONFIRMED_SHARE = 0.9
 
 
 def _blobs(
-    m: np.ndarray, person: np.ndarray | None, confirmed: np.ndarray | None = None
+    m: np.ndarray,
+    person: np.ndarray | None,
+    confirmed: np.ndarray | None = None,
+    ends: np.ndarray | None = None,
 ) -> _Blobs | None:
     """Step 2a: the blobs of ``m`` (8-connected); with ``person``, those that do not
     touch it are never chosen. None when no blob can be the person.
@@ -355,7 +363,8 @@ def _blobs(
     ``person`` that lies within it (:data:`CONFIRMED_SHARE`) is marked as a part the
     person may keep: the segmenter can lose a whole shin in trousers of the floor's
     colour, which cuts the shoe below it off its outline although subtraction and
-    every other view see the shoe.
+    every other view see the shoe. With ``ends`` (where the segmenter's skeleton puts
+    the hands and feet), such a blob must also touch it.
     """
     n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     if n <= 1:
@@ -369,6 +378,8 @@ def _blobs(
         if confirmed is not None and off.any():
             inside = np.bincount(labels[confirmed & (m > 0)], minlength=n)[1:]
             marked = off & (inside >= CONFIRMED_SHARE * areas)
+            if ends is not None:
+                marked &= np.bincount(labels[ends & (m > 0)], minlength=n)[1:] > 0
         areas[off] = 0  # never the person, never "multiple"
         if not areas.any():
             return None

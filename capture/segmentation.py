@@ -23,6 +23,7 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 
 from bodymetry.calibration.camera import CameraGroup
@@ -54,6 +55,7 @@ from bodymetry.capture.people import (
     within_hulls,
 )
 from bodymetry.capture.person import (
+    LANDMARKS,
     SEGMENTER_REQUIREMENT,
     Person,
     PersonConfig,
@@ -362,6 +364,31 @@ def _prefetch(items: Iterator, depth: int = 2) -> Iterator:
     finally:
         stop.set()
         thread.join()
+
+
+#: A part the segmenter's mask lost is confirmed only where it reaches near where its
+#: own skeleton puts a hand or a foot: within this share of the person's height (the
+#: mask's box) of a visible wrist, finger, ankle, heel or toe landmark. The hull's
+#: projection alone also covers a hard cast shadow beside the feet.
+LIMB_END_REACH = 0.12
+_LIMB_ENDS = tuple(
+    i for i, name in enumerate(LANDMARKS)
+    if name.split("_", 1)[-1] in ("wrist", "pinky", "index", "thumb", "ankle", "heel", "foot_index")
+)  # fmt: skip
+
+
+def _near_ends(landmarks: np.ndarray, person: np.ndarray, reach: float) -> np.ndarray:
+    """(H, W) bool: pixels within ``reach`` of the person's height (rows of ``person``
+    (H, W) bool) of a visible hand or foot landmark of ``landmarks`` (33, 3)."""
+    out = np.zeros(person.shape, np.uint8)
+    if not person.any():
+        return out.astype(bool)
+    rows = np.flatnonzero(person.any(axis=1))
+    radius = max(round(float(reach * (rows[-1] - rows[0] + 1))), 1)
+    for x, y, visibility in landmarks[list(_LIMB_ENDS)]:
+        if np.isfinite(visibility) and visibility >= 0.5:
+            cv2.circle(out, (round(float(x)), round(float(y))), radius, 1, -1)
+    return out.astype(bool)
 
 
 @dataclass
@@ -766,9 +793,12 @@ class FrameSegmenter:
         # Where the hull puts the subject, a blob the segmenter did not touch may still
         # be theirs (a shoe below a shin it lost; docs/capture.md, "Parts the
         # segmenter lost").
-        confirmed = None if terms is None else terms.hull_any
+        confirmed = ends = None
+        if terms is not None and landmarks is not None and found is not None:
+            confirmed = terms.hull_any
+            ends = _near_ends(landmarks, found, LIMB_END_REACH)
         mask, flags = clean_mask(
-            raw, self.cleanup, image, self.models[c].median, shadow, found, confirmed
+            raw, self.cleanup, image, self.models[c].median, shadow, found, confirmed, ends
         )
         lost = found is not None and confirmed is not None and parts_off(mask, found, self.cleanup)
         return _View(mask, flags, shadow, landmarks, lost)
@@ -859,8 +889,12 @@ class FrameSegmenter:
                 ]  # fmt: skip
                 for c in retry:
                     person = self.segmenter.detect(images[c], check.rois[c])
-                    evidence[c] = replace(evidence[c], person=person)
-                    views[c] = self._view(c, images[c], evidence[c], terms[c])
+                    again = replace(evidence[c], person=person)
+                    view = self._view(c, images[c], again, terms[c])
+                    if check.inconsistent[c] or view.mask.sum() >= views[c].mask.sum():
+                        # A view that kept a lost part takes the second answer only
+                        # where it keeps as much: the segmenter may lose it again.
+                        evidence[c], views[c] = again, view
                 if retry:
                     check = self.hull.check([v.mask for v in views])
             for view, mask, bad in zip(views, check.masks, check.inconsistent, strict=True):

@@ -27,7 +27,7 @@ from bodymetry.capture.fusion import (
     view_agreement,
     view_features,
 )
-from bodymetry.capture.person import Person
+from bodymetry.capture.person import LANDMARKS, Person
 from bodymetry.capture.segmentation import CaptureConfig, FrameSegmenter
 from bodymetry.errors import InputError
 from bodymetry.estimation.studio_accuracy import LOW_CONTRAST
@@ -362,9 +362,10 @@ class _LostShinSegmenter:
     the floor's colour and the shoe below it, and finds them in a box (the person
     seen larger); every other camera's person it finds whole."""
 
-    def __init__(self, whole, lossy):
+    def __init__(self, whole, lossy, feet):
         self.whole = whole  # image id -> (H, W) bool
         self.lossy = lossy
+        self.feet = feet  # image id -> (x, y): where its skeleton puts the feet
         self.asked = []
 
     def detect(self, image, roi=None):
@@ -372,7 +373,10 @@ class _LostShinSegmenter:
         mask = self.whole[id(image)] if roi is not None else self.lossy.get(id(image))
         if mask is None:
             mask = self.whole[id(image)]
-        return Person(mask.astype(np.float32), np.full((33, 3), np.nan))
+        landmarks = np.full((33, 3), np.nan)
+        for name in ("left_ankle", "right_ankle", "left_heel", "right_heel"):
+            landmarks[LANDMARKS.index(name)] = (*self.feet[id(image)], 0.9)
+        return Person(mask.astype(np.float32), landmarks)
 
     def close(self):
         pass
@@ -393,7 +397,7 @@ def test_a_part_the_segmenter_lost_is_kept_and_asked_for_again(grey_room):
     is asked again in the hull's box, where the shin is found."""
     rig, models, *_ = grey_room
     rng = np.random.default_rng(5)
-    images, whole, lossy, shins, shoes = [], {}, {}, [], []
+    images, whole, lossy, feet, shins, shoes = [], {}, {}, {}, [], []
     for c, cam in enumerate(rig):
         body = _slab(cam, 0.35, 1.7)
         shin = _slab(cam, 0.1, 0.35) & ~body
@@ -405,13 +409,15 @@ def test_a_part_the_segmenter_lost_is_kept_and_asked_for_again(grey_room):
         image = np.clip(img, 0, 255).astype(np.uint8)
         images.append(image)
         whole[id(image)] = body | shin | shoe
+        ys, xs = np.nonzero(shin)
+        feet[id(image)] = (xs.mean(), ys.max())  # the ankle: the shin's lowest point
         if c == 0:
             lossy[id(image)] = body
         shins.append(shin)
         shoes.append(shoe)
     config = CaptureConfig(method="background", fusion=FusionConfig(enabled=True))
     frame = FrameSegmenter(models, rig.sizes, config, None, None, rig)
-    frame.segmenter = _LostShinSegmenter(whole, lossy)
+    frame.segmenter = _LostShinSegmenter(whole, lossy, feet)
     try:
         views = frame(images)[0]
         asked_again = [roi for image, roi in frame.segmenter.asked if image == id(images[0])]
@@ -421,8 +427,14 @@ def test_a_part_the_segmenter_lost_is_kept_and_asked_for_again(grey_room):
             assert view.mask[shoe].mean() > 0.9
             assert view.mask[shin].mean() > 0.9
         # Where the segmenter misses the shin in the box too, the shoe still stays.
-        frame.segmenter = _LostShinSegmenter({**whole, **lossy}, lossy)
+        frame.segmenter = _LostShinSegmenter({**whole, **lossy}, lossy, feet)
         view = frame(images)[0][0]
         assert view.mask[shoes[0]].mean() > 0.9 and view.mask[shins[0]].mean() < 0.2
+        # Where its skeleton puts no foot near the piece (a hard cast shadow beside the
+        # feet, which the hull's projection also covers), the piece stays out.
+        away = {k: (x + 80.0, y - 60.0) for k, (x, y) in feet.items()}
+        frame.segmenter = _LostShinSegmenter(whole, lossy, away)
+        view = frame(images)[0][0]
+        assert view.mask[shoes[0]].mean() < 0.1
     finally:
         frame.close()
