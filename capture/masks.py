@@ -386,6 +386,11 @@ def _blobs(
     return _Blobs(labels, stats, areas, np.argsort(-areas), marked)
 
 
+def _least_part(cfg: CleanupConfig, person_area: int) -> float:
+    """The fewest pixels of a confirmed part beside a person of ``person_area`` pixels."""
+    return max(cfg.min_part_pixels, cfg.confirmed_part_fraction * person_area)
+
+
 def parts_off(mask: np.ndarray, person: np.ndarray, config: CleanupConfig | None = None) -> bool:
     """Whether ``mask`` (H, W) bool holds a piece the size of a confirmed part
     (:attr:`CleanupConfig.confirmed_part_fraction` of the mask) that does not touch
@@ -398,7 +403,7 @@ def parts_off(mask: np.ndarray, person: np.ndarray, config: CleanupConfig | None
         return False
     touched = np.zeros(n, bool)
     touched[labels[person & mask]] = True
-    least = max(cfg.min_part_pixels, cfg.confirmed_part_fraction * np.count_nonzero(mask))
+    least = _least_part(cfg, np.count_nonzero(mask))
     return bool(np.any(~touched[1:] & (stats[1:, cv2.CC_STAT_AREA] >= least)))
 
 
@@ -447,7 +452,7 @@ def _person_parts(blobs: _Blobs, cfg: CleanupConfig, h: int, w: int) -> tuple[li
     # it is near and the size of a body part: smaller pieces inside the hull's coarse
     # projection are floor texture and shadow fringes (the studio's were 50-60 px
     # against a shoe's 550-590 px beside a person of 9,000-15,000).
-    least = max(cfg.min_part_pixels, cfg.confirmed_part_fraction * stats[main, cv2.CC_STAT_AREA])
+    least = _least_part(cfg, stats[main, cv2.CC_STAT_AREA])
     for idx in np.flatnonzero(blobs.confirmed):
         lab = int(idx) + 1
         if stats[lab, cv2.CC_STAT_AREA] >= least and near(lab):
