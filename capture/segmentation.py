@@ -371,10 +371,11 @@ def _prefetch(items: Iterator, depth: int = 2) -> Iterator:
 #: mask's box) of a visible wrist, finger, ankle, heel or toe landmark. The hull's
 #: projection alone also covers a hard cast shadow beside the feet.
 LIMB_END_REACH = 0.12
-_LIMB_ENDS = tuple(
-    i for i, name in enumerate(LANDMARKS)
-    if name.split("_", 1)[-1] in ("wrist", "pinky", "index", "thumb", "ankle", "heel", "foot_index")
-)  # fmt: skip
+_LIMB_ENDS = [
+    LANDMARKS.index(f"{side}_{part}")
+    for side in ("left", "right")
+    for part in ("wrist", "pinky", "index", "thumb", "ankle", "heel", "foot_index")
+]
 
 
 def _near_ends(landmarks: np.ndarray, person: np.ndarray, reach: float) -> np.ndarray:
@@ -385,7 +386,7 @@ def _near_ends(landmarks: np.ndarray, person: np.ndarray, reach: float) -> np.nd
         return out.astype(bool)
     rows = np.flatnonzero(person.any(axis=1))
     radius = max(round(float(reach * (rows[-1] - rows[0] + 1))), 1)
-    for x, y, visibility in landmarks[list(_LIMB_ENDS)]:
+    for x, y, visibility in landmarks[_LIMB_ENDS]:
         if np.isfinite(visibility) and visibility >= 0.5:
             cv2.circle(out, (round(float(x)), round(float(y))), radius, 1, -1)
     return out.astype(bool)
@@ -800,7 +801,7 @@ class FrameSegmenter:
         mask, flags = clean_mask(
             raw, self.cleanup, image, self.models[c].median, shadow, found, confirmed, ends
         )
-        lost = found is not None and confirmed is not None and parts_off(mask, found, self.cleanup)
+        lost = confirmed is not None and parts_off(mask, found, self.cleanup)
         return _View(mask, flags, shadow, landmarks, lost)
 
     def _fused(
@@ -875,18 +876,15 @@ class FrameSegmenter:
         agreement: list[float | None] = [None] * len(views)
         if self.hull is not None:
             check = self.hull.check([v.mask for v in views])
-            if self.segmenter is not None and any(
-                bad or v.lost_part for bad, v in zip(check.inconsistent, views, strict=True)
-            ):
-                # Ask again where the other views put the subject: the segmenter
-                # returns the most prominent person, maybe a bystander; and it can
-                # lose a whole shin in trousers of the floor's colour, which it
-                # finds when it sees the person larger (docs/capture.md, "Parts
-                # the segmenter lost").
-                retry = [
-                    c for c, (bad, v) in enumerate(zip(check.inconsistent, views, strict=True))
-                    if (bad or v.lost_part) and check.rois[c] is not None and images[c] is not None
-                ]  # fmt: skip
+            # Ask again where the other views put the subject: the segmenter returns
+            # the most prominent person, maybe a bystander; and it can lose a whole
+            # shin in trousers of the floor's colour, which it finds when it sees the
+            # person larger (docs/capture.md, "Parts the segmenter lost").
+            retry = [
+                c for c, (bad, v) in enumerate(zip(check.inconsistent, views, strict=True))
+                if (bad or v.lost_part) and check.rois[c] is not None and images[c] is not None
+            ]  # fmt: skip
+            if self.segmenter is not None and retry:
                 for c in retry:
                     person = self.segmenter.detect(images[c], check.rois[c])
                     again = replace(evidence[c], person=person)
@@ -895,8 +893,7 @@ class FrameSegmenter:
                         # A view that kept a lost part takes the second answer only
                         # where it keeps as much: the segmenter may lose it again.
                         evidence[c], views[c] = again, view
-                if retry:
-                    check = self.hull.check([v.mask for v in views])
+                check = self.hull.check([v.mask for v in views])
             for view, mask, bad in zip(views, check.masks, check.inconsistent, strict=True):
                 view.mask = mask
                 if bad:
