@@ -74,8 +74,8 @@ class RegistrationConfig:
     min_shift_px : float
         A shorter own offset is left alone. The peak's own uncertainty is about
         a quarter of a pixel on exact silhouettes, but rough fits read more: on
-        the tiny 240x180 test session, whose fits reach IoU 0.77, a right camera
-        read up to 1.4 px between two encodings of the same renders; on
+        the tiny 240x180 test session, whose fits reach IoU 0.77, the right
+        cameras read up to 1.2 px (render seeds 2-9, one camera 5 px off); on
         Pose2Sim's recordings the right cameras read at most 0.6 px.
     min_frames : int
         Fewest frames with both silhouettes in the camera.

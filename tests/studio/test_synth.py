@@ -95,6 +95,12 @@ def test_same_config_same_ground_truth(session, tmp_path):
     m1 = cv2.imread(str(session.ground_truth_silhouette_path("cam_00", 2)))
     m2 = cv2.imread(str(again.ground_truth_silhouette_path("cam_00", 2)))
     np.testing.assert_array_equal(m1, m2)
+    # And the clips, byte for byte (libx264's mbtree once made them vary, docs/studio.md).
+    clips = sorted(p.relative_to(session.folder) for p in session.folder.rglob("*.mp4"))
+    assert clips == sorted(p.relative_to(again.folder) for p in again.folder.rglob("*.mp4"))
+    assert clips
+    for clip in clips:
+        assert (session.folder / clip).read_bytes() == (again.folder / clip).read_bytes(), clip
 
 
 def test_refuses_to_overwrite(session):
