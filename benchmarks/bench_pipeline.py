@@ -292,6 +292,24 @@ def _rescue_log(run: Path) -> dict:
     return {str(f): o.to_json() for f, o in read_rescue(RunLayout(run)).items()}
 
 
+def _fitted_shapes(results) -> dict:
+    """The session stage's ν (None when it was not accepted) and each measured
+    frame's generative ν, rounded to 6 digits."""
+    session = results.session_shape
+    return {
+        "session": (
+            [round(float(v), 6) for v in session.nu]
+            if session is not None and session.ok and session.nu
+            else None
+        ),
+        "generative": {
+            str(f.frame): [round(float(v), 6) for v in f.estimates["generative"].state.nu[0]]
+            for f in results.frames
+            if f.ok and "generative" in f.estimates
+        },
+    }
+
+
 def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) -> dict:
     """Process and evaluate one session; the figures of this benchmark."""
     workers = _workers()
@@ -368,6 +386,9 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
             if results.session_shape is not None and results.session_shape.prior_pull
             else None
         ),
+        # The fitted shapes, so that a change of a measurement's definition can be
+        # scored again on these sessions without fitting them again.
+        "shapes": _fitted_shapes(results),
         "models_reused": results.models_reused,
         "timing_seconds": {
             **results.timing_seconds,

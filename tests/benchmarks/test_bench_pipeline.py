@@ -1,6 +1,7 @@
 """The pipeline benchmark's comparison of the session stage with the per-frame mean."""
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -8,9 +9,11 @@ import pytest
 from benchmarks.bench_pipeline import (
     MIN_FRAME_SHARE,
     SIGNIFICANT_Z,
+    _fitted_shapes,
     edge_summary,
     stage_comparison,
 )
+from bodymetry.estimation.body_model.model import BodyState
 
 
 def _session(name: str, errors: dict[str, tuple[float, float, float, float]]) -> dict:
@@ -197,3 +200,23 @@ def test_the_unseen_edge_set_has_every_edge_body_with_another_motion():
     ):
         assert new_seed != seed and new_motion != motion
         assert subject.startswith(f"independent:{new_seed},")
+
+
+def test_the_fitted_shapes_are_kept_so_a_session_can_be_measured_again():
+    rng = np.random.default_rng(3)
+    nus = rng.normal(size=(3, 12))
+
+    def frame(k: int, ok: bool = True) -> SimpleNamespace:
+        state = BodyState(np.zeros((1, 3)), np.zeros((1, 37)), nus[k][None])
+        return SimpleNamespace(
+            frame=25 * k, ok=ok, estimates={"generative": SimpleNamespace(state=state)}
+        )
+
+    session = SimpleNamespace(ok=True, nu=tuple(nus.mean(axis=0)))
+    results = SimpleNamespace(session_shape=session, frames=[frame(0), frame(1, False), frame(2)])
+    shapes = json.loads(json.dumps(_fitted_shapes(results)))  # JSON as written
+    assert list(shapes["generative"]) == ["0", "50"]  # the failed frame left out
+    np.testing.assert_allclose(shapes["generative"]["50"], nus[2], atol=5e-7)
+    np.testing.assert_allclose(shapes["session"], nus.mean(axis=0), atol=5e-7)
+    withheld = SimpleNamespace(session_shape=SimpleNamespace(ok=False, nu=()), frames=[])
+    assert _fitted_shapes(withheld) == {"session": None, "generative": {}}
