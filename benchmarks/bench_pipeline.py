@@ -66,7 +66,7 @@ from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.cli import DEMO_SESSION
 from bodymetry.estimation.arm_evidence import raised_frames
 from bodymetry.estimation.run_config import ProcessConfig
-from bodymetry.estimation.run_files import RunLayout
+from bodymetry.estimation.run_files import RunLayout, RunResults
 from bodymetry.estimation.studio_accuracy import ADULT_AGE, CHILD_WEIGHT_SHARE
 
 # Issue 15's session-stage targets on tight-clothed subjects are the runtime's own (a run's
@@ -292,7 +292,7 @@ def _rescue_log(run: Path) -> dict:
     return {str(f): o.to_json() for f, o in read_rescue(RunLayout(run)).items()}
 
 
-def _fitted_shapes(results) -> dict:
+def _fitted_shapes(results: RunResults) -> dict:
     """The session stage's ν (None when it was not accepted) and each measured
     frame's generative ν, rounded to 6 digits."""
     session = results.session_shape
