@@ -9,7 +9,9 @@ control (``mbtree``, on by default) is off. With it, the same frames encoded
 twice in one process came out different in 2-5 of 30 writes (the first
 I-frame's size already differed), the studio's same session rendered twice
 differed by up to 25 DN on some pixels of some cameras, and a registered
-camera moved 0.78-1.10 px between runs of the same script.
+camera moved 0.78-1.10 px between runs of the same script. It costs about
+3 ms per 640x480 frame (8 instead of 5 ms; a 400-frame 4-camera studio
+session, 1,840 images, renders about 6 s slower).
 """
 
 from __future__ import annotations
