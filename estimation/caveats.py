@@ -159,7 +159,7 @@ class ArmsDownError:
 #: ``--looks``, ``--edge-unseen``; 41 sessions, 8 of them with the arms down, all walking).
 #: ``tests/estimation/test_caveats.py`` recomputes it from the committed results
 #: (``arm_raised_frames`` and the session error of each session).
-ARMS_DOWN_STUDIO = ArmsDownError(low=0.7, high=26.9, mean=12.8, sessions=8)
+ARMS_DOWN_STUDIO = ArmsDownError(low=0.7, high=27.9, mean=12.7, sessions=8)
 
 
 @dataclass(frozen=True)
