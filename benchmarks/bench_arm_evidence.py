@@ -11,9 +11,11 @@ fewer than :data:`~bodymetry.estimation.arm_evidence.MIN_RAISED_FRAMES` is
 session stage's arm span error (mean, smallest, largest, RMS, the share within
 issue 15's 15 mm) and the sessions' names with their errors.
 
-:data:`bodymetry.estimation.caveats.ARMS_DOWN_STUDIO` quotes the "arms down"
-group of the four sets the caveat was written on (``CAVEAT_SETS``);
-``tests/estimation/test_caveats.py`` recomputes it from those files.
+:func:`bodymetry.estimation.caveats.arms_down_studio`, which the caveat quotes,
+reads the "arms down" sessions of every scored studio session instead (the
+shipped ``estimation/data/studio_sessions.json`` of ``python -m benchmarks
+studio_accuracy``, which holds these sets and more); this benchmark keeps the
+split of the four sets the caveat was written on (``CAVEAT_SETS``) and its check.
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ list), and says why in a sentence a user can act on:
     Fewer than :data:`~bodymetry.estimation.arm_evidence.MIN_RAISED_FRAMES`
     measured frames had an arm raised (:mod:`bodymetry.estimation.arm_evidence`):
     the arm span rests on arms hanging by the body, which the studio's sessions
-    read high (:data:`ARMS_DOWN_STUDIO`).
+    read high (:func:`arms_down_studio`).
 ``low_contrast``
     Capture saw the person in low contrast (the run's outline contrast, the
     median of its frames' :attr:`FrameRecord.outline_contrast`, below
@@ -80,6 +80,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from bodymetry.errors import InputError
 from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES, RAISED_DEG, arms_raised
 from bodymetry.estimation.records import FrameRecord
 from bodymetry.estimation.standing_height import MAX_SOLE_DEPTH
@@ -88,6 +89,7 @@ from bodymetry.estimation.studio_accuracy import (
     LIKE_WEIGHT,
     LOW_CONTRAST,
     MIN_LIKE,
+    StudioSession,
     arms_note,
     contrast_accuracy,
     is_low_contrast,
@@ -95,21 +97,23 @@ from bodymetry.estimation.studio_accuracy import (
     like_children,
     like_sessions,
     run_contrast,
+    studio_sessions,
     target_for,
 )
 from bodymetry.estimation.view_selection import left_out_views
 
 __all__ = [
-    "ARMS_DOWN_STUDIO",
     "CAVEAT_CODES",
     "MAX_LEFT_OUT_SHARE",
     "MIN_MEASURED_FRAMES",
     "MIN_MEASURED_SHARE",
     "PERSONS_STUDIO",
     "VALIDATED",
+    "ArmsDownError",
     "Caveat",
     "PersonsError",
     "ValidatedRange",
+    "arms_down_studio",
     "run_caveats",
 ]
 
@@ -154,12 +158,37 @@ class ArmsDownError:
     sessions: int
 
 
-#: The arms-down sessions of the benchmarks (issue 15's eleven evaluated again, the edge,
-#: looks and unseen edge sets: ``pipeline_recheck.json``, ``python -m benchmarks pipeline --edge``,
-#: ``--looks``, ``--edge-unseen``; 41 sessions, 8 of them with the arms down, all walking).
-#: ``tests/estimation/test_caveats.py`` recomputes it from the committed results
-#: (``arm_raised_frames`` and the session error of each session).
-ARMS_DOWN_STUDIO = ArmsDownError(low=0.7, high=27.9, mean=12.7, sessions=8)
+def arms_down_studio(sessions: Sequence[StudioSession] | None = None) -> ArmsDownError:
+    """The arm span error of the studio's scored sessions whose arms stayed down.
+
+    Read from the sessions that ship with the package
+    (:func:`~bodymetry.estimation.studio_accuracy.studio_sessions`, the same
+    scored sessions the ``body_accuracy`` caveat holds a run against), so the
+    figures the caveat quotes are what the benchmarks measured and there is one
+    place to update them (``python -m benchmarks studio_accuracy``).
+
+    Parameters
+    ----------
+    sessions : sequence of StudioSession, optional
+        Default: the shipped ones.
+
+    Raises
+    ------
+    InputError
+        When no scored session kept its arms down (a broken install).
+    """
+    pool = studio_sessions() if sessions is None else sessions
+    errors = [
+        s.errors["arm_span_mm"] for s in pool if not s.arms_raised and "arm_span_mm" in s.errors
+    ]
+    if not errors:
+        raise InputError("the studio's scored sessions hold no arm span with the arms down")
+    return ArmsDownError(
+        low=round(min(errors), 1),
+        high=round(max(errors), 1),
+        mean=round(math.fsum(errors) / len(errors), 1),
+        sessions=len(errors),
+    )
 
 
 @dataclass(frozen=True)
@@ -395,7 +424,7 @@ def run_caveats(
         )
     if raised is not None and len(raised) < MIN_RAISED_FRAMES:
         seen = f" ({_frame_list(list(raised))})" if raised else ""
-        studio = ARMS_DOWN_STUDIO
+        studio = arms_down_studio()
         out.append(
             Caveat(
                 "arms_down",

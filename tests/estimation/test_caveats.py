@@ -9,17 +9,18 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.bench_arm_evidence import CAVEAT_SETS, arm_span_by_evidence, committed_sessions
+from bodymetry.errors import InputError
 from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES
 from bodymetry.estimation.caveats import (
-    ARMS_DOWN_STUDIO,
     CAVEAT_CODES,
     MIN_MEASURED_FRAMES,
     PERSONS_STUDIO,
     VALIDATED,
+    arms_down_studio,
     run_caveats,
 )
 from bodymetry.estimation.records import FrameRecord
+from bodymetry.estimation.studio_accuracy import StudioSession, studio_sessions
 
 NAMES = ("cam_00", "cam_01", "cam_02")
 
@@ -175,21 +176,39 @@ def test_arms_down_is_a_caveat_below_the_minimum_of_raised_frames():
             "measured frames"
         )
         assert (" 25" in caveat.message) == bool(raised)
-        assert f"{ARMS_DOWN_STUDIO.high:+.1f} mm high" in caveat.message
+        assert f"{arms_down_studio().high:+.1f} mm high" in caveat.message
     # Nothing measured: no caveat about the numbers.
     assert run_caveats(_records(9, 0), NAMES, raised=()) == ()
 
 
-def test_the_arms_down_figures_are_the_benchmarks():
-    # What the caveat quotes is what the committed end-to-end results measured
-    # (python -m benchmarks arm_evidence), not a number typed in.
-    down = arm_span_by_evidence(committed_sessions(CAVEAT_SETS))["arms_down"]
-    assert ARMS_DOWN_STUDIO.sessions == down["sessions"]
-    assert (ARMS_DOWN_STUDIO.low, ARMS_DOWN_STUDIO.high, ARMS_DOWN_STUDIO.mean) == (
-        down["low_mm"],
-        down["high_mm"],
-        down["mean_mm"],
-    )
+def test_the_arms_down_figures_are_the_shipped_studio_sessions():
+    # What the caveat quotes is what the scored studio sessions measured (the
+    # shipped file, itself recomputed from the committed results by
+    # tests/estimation/test_studio_accuracy.py), not a number typed in.
+    def session(name: str, raised: bool, span: float | None) -> StudioSession:
+        errors = {"height_mm": 1.0} if span is None else {"arm_span_mm": span}
+        return StudioSession(name, 1700.0, 70.0, 30.0, raised, errors)
+
+    pool = [
+        session("a", False, 4.04),
+        session("b", False, -2.0),
+        session("c", False, 21.26),
+        session("d", True, -40.0),  # arms raised: not this caveat's
+        session("e", False, None),  # no arm span scored
+    ]
+    figures = arms_down_studio(pool)
+    assert (figures.low, figures.high, figures.mean, figures.sessions) == (-2.0, 21.3, 7.8, 3)
+    with pytest.raises(InputError, match="no arm span with the arms down"):
+        arms_down_studio(pool[3:])
+    shipped = [
+        s.errors["arm_span_mm"]
+        for s in studio_sessions()
+        if not s.arms_raised and "arm_span_mm" in s.errors
+    ]
+    assert arms_down_studio().sessions == len(shipped) >= 8
+    assert arms_down_studio().high == round(max(shipped), 1)
+    (caveat,) = run_caveats(_records(9, 9, persons=1), NAMES, raised=())
+    assert f"mean {arms_down_studio().mean:+.1f} mm, {len(shipped)} sessions" in caveat.message
 
 
 def test_soles_far_below_the_floor_are_a_caveat():
