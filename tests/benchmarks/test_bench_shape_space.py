@@ -5,7 +5,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from benchmarks.bench_shape_space import arm_chain_mm, projection_errors, regressor_chain_errors
+from benchmarks.bench_shape_space import (
+    arm_chain_mm,
+    own_tpose_spans,
+    projection_errors,
+    regressor_chain_errors,
+)
 from bodymetry.estimation.body_model import geometry
 from bodymetry.estimation.body_model.biometrics import measure
 from bodymetry.estimation.body_model.model import BodyModel
@@ -74,3 +79,16 @@ def test_the_regressor_error_is_zero_where_the_keypoints_are_the_regressors(mode
     moved[:, k] += 0.004 * hand / np.linalg.norm(hand, axis=-1, keepdims=True)  # 4 mm longer
     bank = SimpleNamespace(vertices=vertices, keypoints=moved, keypoint_names=names)
     np.testing.assert_allclose(regressor_chain_errors(model, bank), -4.0, atol=1e-6)
+
+
+def test_the_own_t_pose_holds_the_arms_straight_and_reaches_further(model):
+    nu = np.vstack([np.zeros(model.n_shape), model.prior_shapes("heldout")[:3]])
+    own = own_tpose_spans(model, nu)
+    # Straight and in line: the span is the arm chain (shoulder breadth plus both arms'
+    # segments) to within 2 mm (the shoulders' own offset, the pose deformation).
+    chain = arm_chain_mm(model.rest_keypoints(nu), tuple(model.keypoint_names))
+    np.testing.assert_allclose(own, chain, atol=2.0)
+    # The template's angles leave every body's arms a little bent and raised
+    # (docs/biometrics.md, "Known deviation"): its span is shorter.
+    today = np.array([b.arm_span_mm for b in measure(model, nu)])
+    assert np.all(own - today > 1.0)
