@@ -486,28 +486,15 @@ def keypoint_regressor(
 def own_tpose_spans(model: BodyModel, nu: np.ndarray) -> np.ndarray:
     """(B,) float, mm: the arm span of each shape ν (B, n) in its own T-pose: both
     arms straight and horizontal from the shape's own rest joints and knuckles
-    (:func:`~bodymetry.estimation.body_model.bake.rig_pose.arm_pose`, as the studio
-    poses its true bodies), not the template's angles that
+    (:func:`~bodymetry.estimation.body_model.bake.independent.body_tposes`, as the
+    studio poses its true bodies), not the template's angles that
     :func:`~bodymetry.estimation.body_model.biometrics.measure` uses."""
-    from bodymetry.estimation.body_model.bake.rig_pose import arm_pose
+    # The studio's own T-poses of its true bodies, solved on this shape's keypoints.
+    from bodymetry.estimation.body_model.bake.independent import body_tposes
     from bodymetry.estimation.body_model.model import BodyState
-    from bodymetry.estimation.body_model.skeleton import JOINTS
 
     names = model.keypoint_names
-    rest = model.rest_keypoints(nu)
-    theta = np.stack(
-        [
-            model.limits.clip(
-                arm_pose(
-                    kp[: len(JOINTS)],
-                    model.hinge_axes,
-                    {side: kp[names.index(f"knuckle_{side}")] for side in "lr"},
-                    0.0,
-                )
-            )
-            for kp in rest
-        ]
-    )
+    theta = body_tposes(model, model.rest_keypoints(nu))
     posed = model.pose(BodyState(np.zeros((len(nu), 3)), theta, nu)).keypoints
     left, right = posed[:, names.index("knuckle_l")], posed[:, names.index("knuckle_r")]
     return 1000.0 * np.linalg.norm(left - right, axis=-1)
