@@ -245,7 +245,7 @@ def throughput(folder: Path = DEMO) -> dict:
     return result
 
 
-def _part_labels(pixels: np.ndarray, parts: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+def part_labels(pixels: np.ndarray, parts: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """(H, W) int: each pixel's nearest projected vertex's part within
     :data:`PART_RADIUS_PX`, else -1. ``pixels`` (V, 2), ``parts`` (V,) int."""
     w, h = size
@@ -287,7 +287,7 @@ def part_recall(folder: Path = DEMO) -> dict:
         vertices = body.pose(BodyState.from_vector(y[None])).vertices[0]
         for camera, observed in zip(cameras, frame.masks, strict=True):
             true = gt.person(camera.name, frame.frame)
-            labels = _part_labels(camera.project(vertices), parts, camera.size)
+            labels = part_labels(camera.project(vertices), parts, camera.size)
             outline = true & ~cv2.erode(true.astype(np.uint8), ring).astype(bool)
             for row, pixels in enumerate((true, true & ~observed, observed & ~true, outline)):
                 near = labels[pixels]
