@@ -30,6 +30,15 @@ cost (its correspondences and the body model). For a subject the model was not
 built from (``--subject independent:...``) there is no true ν: the "true states"
 then have the true pose and the per-frame fits' median ν (the stage's own start).
 
+``python -m benchmarks session_bias --parts`` (``session_bias_parts.json``) adds
+``part_swaps``: the ``stage`` condition again with the pixels of one group of body
+parts (:data:`PART_GROUPS`) taken from the rendered truth, one group at a time, and
+with every pixel but the hands' and the forearms' taken from it: which part's
+segmentation moves which measurement. A pixel belongs to the part of its nearest
+projected vertex within :data:`benchmarks.bench_capture.PART_RADIUS_PX` (the subject
+posed by its true state, an independent subject with its shape projected onto the
+model's space).
+
 For an independent subject the report also gives ``posing_offsets_mm``: at each
 frame's true pose and the subject's own shape (its rest body projected onto the
 model's shape space), how far the rendered true outline lies outside the model's
@@ -44,6 +53,7 @@ Only sessions with ground truth (``ground_truth/states.npz``,
 
 from __future__ import annotations
 
+import functools
 import os
 import tempfile
 from collections.abc import Callable
@@ -53,6 +63,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from benchmarks.bench_capture import part_labels
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.capture.session import Session, load_session
 from bodymetry.cli import DEMO_SESSION
@@ -75,6 +86,16 @@ KEYS = ("height_mm", "arm_span_mm", "weight_kg")
 CONDITIONS = ("stage", "true_silhouettes", "true_states", "true_states_silhouettes")
 #: The arm subsets are reported when each has at least this many frames.
 MIN_SUBSET = 3
+#: The groups of body parts whose pixels ``part_swaps`` takes from the truth in turn.
+PART_GROUPS = {
+    "hands": ("hand_l", "hand_r"),
+    "forearms": ("lower_arm_l", "lower_arm_r"),
+    "upper_arms": ("upper_arm_l", "upper_arm_r"),
+    "trunk_head": ("pelvis", "torso", "head"),
+    "legs": ("thigh_l", "shin_l", "foot_l", "thigh_r", "shin_r", "foot_r"),
+}
+#: ``part_swaps``'s last condition: every pixel from the truth but these groups'.
+ALL_BUT = ("hands", "forearms")
 
 
 def _true_masks(session, cameras, frame: int) -> list[np.ndarray]:
@@ -132,11 +153,36 @@ def _lowest_point_mm(body, estimates) -> float | None:
     return round(float(np.median(lowest_points(body.pose_states(np.stack(states))))) * 1000.0, 2)
 
 
+def _projected_nu(body, subject: str) -> np.ndarray:
+    """An independent subject's rest body projected onto the model's shape space."""
+    spec = IndependentSpec.parse(subject.split(":", 1)[1])
+    return body.shape_from_vertices(IndependentSubject(spec).rest[None])[0]
+
+
+def swapped_masks(
+    observed: np.ndarray, true: np.ndarray, labels: np.ndarray, parts: list[int], keep: bool
+) -> np.ndarray:
+    """(H, W) bool: ``observed`` with the pixels whose part ``labels`` (H, W) int (-1:
+    none) is one of ``parts`` taken from ``true`` (``keep`` False), or every pixel but
+    those (``keep`` True)."""
+    near = np.isin(labels, parts)
+    return np.where(near != keep, true, observed)
+
+
+def frame_part_labels(body, cameras, state: np.ndarray, nu: np.ndarray) -> list[np.ndarray]:
+    """Per camera (H, W) int: each pixel's body part (:data:`PARTS` index; -1 beyond
+    ``PART_RADIUS_PX`` of every projected vertex), the body posed by ``state``'s τ and θ
+    with shape ``nu``."""
+    y = np.r_[state[: len(state) - len(nu)], nu]
+    vertices = body.pose(BodyState.from_vector(y[None])).vertices[0]
+    parts = body.parts_of_vertices(False)
+    return [part_labels(cam.project(vertices), parts, cam.size) for cam in cameras]
+
+
 def posing_offsets(body, cameras, subject: str, states, masks, refinement) -> dict:
     """Median outline offset per region (mm) of an independent subject's rendered
     truth against the model at the true pose and the subject's projected shape."""
-    spec = IndependentSpec.parse(subject.split(":", 1)[1])
-    nu = body.shape_from_vertices(IndependentSubject(spec).rest[None])[0]
+    nu = _projected_nu(body, subject)
     parts = body.parts_of_vertices(not refinement.full_mesh)
     per_region: dict[str, list[float]] = {name: [] for name in REGIONS if REGIONS[name]}
     for state, frame_masks in zip(states, masks, strict=True):
@@ -177,8 +223,9 @@ def processed_session(session_dir: Path, run_dir: Path) -> ProcessedSession:
     return ProcessedSession(run, session, truth, run.results.config, frames)
 
 
-def session_bias(session_dir: Path, run_dir: Path) -> dict:
-    """Process one session (or reuse its finished run) and run the four conditions."""
+def session_bias(session_dir: Path, run_dir: Path, parts: bool = False) -> dict:
+    """Process one session (or reuse its finished run) and run the four conditions
+    (and, with ``parts``, the part swaps)."""
     processed = processed_session(session_dir, run_dir)
     run, session, truth = processed.run, processed.session, processed.truth
     recorded, frames = processed.recorded, processed.frames
@@ -192,17 +239,17 @@ def session_bias(session_dir: Path, run_dir: Path) -> dict:
         "true_nu": true_nu,
     }
 
-    def condition(name: str, use: np.ndarray) -> dict:
-        """The stage under one condition, on the frames where ``use`` is True."""
+    def condition(name: str, use: np.ndarray, masks: list | None = None) -> dict:
+        """The stage under one condition, on the frames where ``use`` is True
+        (``masks``: per frame the silhouettes to use instead of the condition's)."""
         use_truth = name.startswith("true_states")
         use_masks = name.endswith("silhouettes")
+        chosen = masks or [
+            t if use_masks else f.masks for f, t in zip(frames, true_masks, strict=True)
+        ]
         inputs = [
-            replace(
-                f,
-                start=s if use_truth else f.start,
-                masks=m if use_masks else f.masks,
-            )
-            for f, s, m, u in zip(frames, true_states, true_masks, use, strict=True)
+            replace(f, start=s if use_truth else f.start, masks=m)
+            for f, s, m, u in zip(frames, true_states, chosen, use, strict=True)
             if u
         ]
         fit = fit_session_shape(
@@ -238,6 +285,30 @@ def session_bias(session_dir: Path, run_dir: Path) -> dict:
     }
     # The subject's spec is a detail of ground_truth/subject.json, not a measurement.
     subject = str(SubjectTruth.read(session.ground_truth_path).details.get("subject", ""))
+    if parts:
+        # The part labels need the subject's shape: its own ν, or its body projected.
+        nu = _projected_nu(body, subject) if subject.startswith("independent:") else None
+        if nu is not None or true_nu:
+            labels = [
+                frame_part_labels(body, run.cameras, s, s[NU] if nu is None else nu)
+                for s in true_states
+            ]
+            swaps = {g: (PART_GROUPS[g], False) for g in PART_GROUPS}
+            swaps["all_but_" + "_".join(ALL_BUT)] = (
+                tuple(p for g in ALL_BUT for p in PART_GROUPS[g]),
+                True,
+            )
+            out["part_swaps"] = {}
+            for label, (group, keep) in swaps.items():
+                ids = [PARTS.index(p) for p in group]
+                masks = [
+                    [
+                        swapped_masks(o, t, lab, ids, keep)
+                        for o, t, lab in zip(f.masks, tm, fl, strict=True)
+                    ]
+                    for f, tm, fl in zip(frames, true_masks, labels, strict=True)
+                ]
+                out["part_swaps"][label] = condition("stage", every, masks)
     if subject.startswith("independent:"):
         out["posing_offsets_mm"] = posing_offsets(
             body, run.cameras, subject, true_states, true_masks, recorded.fit.refinement
@@ -257,5 +328,5 @@ def per_session(report: Callable[[Path, Path], dict]) -> dict:
         return {"sessions": [report(f, root / f.name) for f in folders]}
 
 
-def run() -> dict:
-    return per_session(session_bias)
+def run(parts: bool = False) -> dict:
+    return per_session(functools.partial(session_bias, parts=parts))
