@@ -115,11 +115,17 @@ def _true_masks(session, cameras, frame: int) -> list[np.ndarray]:
 
 def _true_states(session, frames: list[SessionFrame]) -> tuple[list[np.ndarray], bool]:
     """Each frame's true ``[τ, θ, ν]`` (ν the per-frame fits' median without a true
-    one), and whether the session has a true ν."""
+    one), and whether the session has a true ν.
+
+    A recorded ν with fewer components than the model's predates its shape space
+    (the bundled demo, recorded on 2026-11-22 with 9, before the re-bake of 2026-12-04): its
+    components are another basis's, so it is no true ν here. A longer one is
+    the same space's (the studio records every stored component) and is cut."""
     folder = session.path(session.ground_truth)
     states = load_npz(folder / "states.npz")
     start_nu = np.median(np.stack([f.start[NU] for f in frames]), axis=0)
-    nu = states["nu"][: len(start_nu)] if "nu" in states else start_nu
+    known = "nu" in states and len(states["nu"]) >= len(start_nu)
+    nu = states["nu"][: len(start_nu)] if known else start_nu
     out = []
     for f in frames:
         row = np.nonzero(states["frame"] == f.frame)[0]
@@ -127,7 +133,7 @@ def _true_states(session, frames: list[SessionFrame]) -> tuple[list[np.ndarray],
             raise ValueError(f"{folder}/states.npz: no state for frame {f.frame}")
         i = int(row[0])
         out.append(np.r_[states["tau"][i], states["theta"][i], nu])
-    return out, "nu" in states
+    return out, known
 
 
 def _arms_up(body, states: list[np.ndarray]) -> np.ndarray:
@@ -288,7 +294,9 @@ def session_bias(session_dir: Path, run_dir: Path, parts: bool = False) -> dict:
     if parts:
         # The part labels need the subject's shape: its own ν, or its body projected.
         nu = _projected_nu(body, subject) if subject.startswith("independent:") else None
-        if nu is not None or true_nu:
+        if nu is None and not true_nu:
+            out["part_swaps"] = {"skipped": "the subject's shape in this model's space is unknown"}
+        else:
             labels = [
                 frame_part_labels(body, run.cameras, s, s[NU] if nu is None else nu)
                 for s in true_states
