@@ -262,6 +262,16 @@ def part_labels(pixels: np.ndarray, parts: np.ndarray, size: tuple[int, int]) ->
     return np.where(dist <= PART_RADIUS_PX, part_of[nearest], -1)
 
 
+def frame_part_labels(body, cameras, state: np.ndarray, nu: np.ndarray) -> list[np.ndarray]:
+    """Per camera (H, W) int: each pixel's body part (:data:`PARTS` index; -1 beyond
+    :data:`PART_RADIUS_PX` of every projected vertex), the body posed by ``state``'s
+    τ and θ (its leading values) with shape ``nu``."""
+    y = np.r_[state[: len(state) - len(nu)], nu]
+    vertices = body.pose(BodyState.from_vector(y[None])).vertices[0]
+    parts = body.parts_of_vertices(False)
+    return [part_labels(cam.project(vertices), parts, cam.size) for cam in cameras]
+
+
 def part_recall(folder: Path = DEMO) -> dict:
     """Per body part: the share of the true silhouette's pixels near that part that
     the default segmentation misses, the share it adds, and the outline's net offset
@@ -278,16 +288,14 @@ def part_recall(folder: Path = DEMO) -> dict:
         return {"skipped": f"{folder}: the subject is not our body model (no true shape)"}
     nu = states["nu"]
     body = shipped_model(len(nu))
-    parts = body.parts_of_vertices(False)
     gt = GroundTruth(session, with_shadows=False)
     counts = np.zeros((4, len(PARTS)), np.int64)  # true, missed, added, true outline
     ring = np.ones((3, 3), np.uint8)
     for frame in segment_session(session, keep_images=False):
         y = np.r_[states["tau"][frame.frame], states["theta"][frame.frame], nu]
-        vertices = body.pose(BodyState.from_vector(y[None])).vertices[0]
-        for camera, observed in zip(cameras, frame.masks, strict=True):
+        views = frame_part_labels(body, cameras, y, nu)
+        for camera, observed, labels in zip(cameras, frame.masks, views, strict=True):
             true = gt.person(camera.name, frame.frame)
-            labels = part_labels(camera.project(vertices), parts, camera.size)
             outline = true & ~cv2.erode(true.astype(np.uint8), ring).astype(bool)
             for row, pixels in enumerate((true, true & ~observed, observed & ~true, outline)):
                 near = labels[pixels]

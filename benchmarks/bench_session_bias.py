@@ -63,7 +63,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from benchmarks.bench_capture import part_labels
+from benchmarks.bench_capture import frame_part_labels
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.capture.session import Session, load_session
 from bodymetry.cli import DEMO_SESSION
@@ -173,16 +173,6 @@ def swapped_masks(
     those (``keep`` True)."""
     near = np.isin(labels, parts)
     return np.where(near != keep, true, observed)
-
-
-def frame_part_labels(body, cameras, state: np.ndarray, nu: np.ndarray) -> list[np.ndarray]:
-    """Per camera (H, W) int: each pixel's body part (:data:`PARTS` index; -1 beyond
-    ``PART_RADIUS_PX`` of every projected vertex), the body posed by ``state``'s τ and θ
-    with shape ``nu``."""
-    y = np.r_[state[: len(state) - len(nu)], nu]
-    vertices = body.pose(BodyState.from_vector(y[None])).vertices[0]
-    parts = body.parts_of_vertices(False)
-    return [part_labels(cam.project(vertices), parts, cam.size) for cam in cameras]
 
 
 def posing_offsets(body, cameras, subject: str, states, masks, refinement) -> dict:
