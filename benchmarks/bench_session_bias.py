@@ -175,10 +175,10 @@ def swapped_masks(
     return np.where(near != keep, true, observed)
 
 
-def posing_offsets(body, cameras, subject: str, states, masks, refinement) -> dict:
+def posing_offsets(body, cameras, nu: np.ndarray, states, masks, refinement) -> dict:
     """Median outline offset per region (mm) of an independent subject's rendered
-    truth against the model at the true pose and the subject's projected shape."""
-    nu = _projected_nu(body, subject)
+    truth against the model at the true pose and the subject's projected shape
+    ``nu`` (:func:`_projected_nu`)."""
     parts = body.parts_of_vertices(not refinement.full_mesh)
     per_region: dict[str, list[float]] = {name: [] for name in REGIONS if REGIONS[name]}
     for state, frame_masks in zip(states, masks, strict=True):
@@ -281,9 +281,11 @@ def session_bias(session_dir: Path, run_dir: Path, parts: bool = False) -> dict:
     }
     # The subject's spec is a detail of ground_truth/subject.json, not a measurement.
     subject = str(SubjectTruth.read(session.ground_truth_path).details.get("subject", ""))
+    # An independent subject's shape in the model's space (once: a projection of its
+    # full body), for the part labels and the posing offsets.
+    nu = _projected_nu(body, subject) if subject.startswith("independent:") else None
     if parts:
         # The part labels need the subject's shape: its own ν, or its body projected.
-        nu = _projected_nu(body, subject) if subject.startswith("independent:") else None
         if nu is None and not true_nu:
             out["part_swaps"] = {"skipped": "the subject's shape in this model's space is unknown"}
         else:
@@ -307,9 +309,9 @@ def session_bias(session_dir: Path, run_dir: Path, parts: bool = False) -> dict:
                     for f, tm, fl in zip(frames, true_masks, labels, strict=True)
                 ]
                 out["part_swaps"][label] = condition("stage", every, masks)
-    if subject.startswith("independent:"):
+    if nu is not None:
         out["posing_offsets_mm"] = posing_offsets(
-            body, run.cameras, subject, true_states, true_masks, recorded.fit.refinement
+            body, run.cameras, nu, true_states, true_masks, recorded.fit.refinement
         )
     return out
 
