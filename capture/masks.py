@@ -21,9 +21,12 @@ Clean-up (:func:`clean_mask`), on the raw person mask of one image:
    in colour: the background, or the person's local colour (the mean of the
    person's interior pixels in an ``edge_window`` square). That is the
    half-coverage point of a blurred edge; it raised the mean IoU on the demo
-   recording from 0.93 to 0.96. Where the mask is thin (a hand, a wrist), a
-   mean colour mixes the lit and shaded sides and the sleeve, so each pixel is
-   matted against the part's own colours instead (:func:`refine_edges`).
+   recording from 0.93 to 0.96. "Nearer" weighs chroma down against luma
+   (:data:`CHROMA_WEIGHT`): 4:2:0 video stores chroma per 2 x 2 block, so a
+   saturated garment's chroma reaches a pixel past its outline. Where the mask
+   is thin (a hand, a wrist), a mean colour mixes the lit and shaded sides and
+   the sleeve, so each pixel is matted against the part's own colours instead
+   (:func:`refine_edges`).
 
 Flags per camera and frame (:data:`FLAGS`):
 
@@ -472,7 +475,9 @@ def refine_edges(
 
     A pixel of the band is person when its colour is nearer the person's local
     colour (mean over the interior in a ``window`` square) than the
-    background's. The band is decided twice: first with the interior of
+    background's, by a distance that weighs chroma down against luma
+    (:data:`CHROMA_WEIGHT`: 4:2:0 video spreads a garment's chroma a pixel past
+    its outline). The band is decided twice: first with the interior of
     ``mask``, then with the interior of that first answer. The change threshold
     makes ``mask`` too wide (about 0.9 px on the demo), so the first interior
     still holds edge pixels mixed with the background by the optical blur; that
@@ -512,7 +517,7 @@ def refine_edges(
     m = inside.astype(np.uint8)
     img = image[y0:y1, x0:x1].astype(np.float32)
     bg = background[y0:y1, x0:x1].astype(np.float32)
-    d_background = ((img - bg) ** 2).sum(axis=2)
+    d_background = _edge_distance2(img - bg)
     disc = _disc(radius)
     band = (cv2.dilate(m, disc) > 0) & ~(cv2.erode(m, disc) > 0)
     allowed = True if shadow is None else ~(shadow[y0:y1, x0:x1] & ~inside)
@@ -544,6 +549,30 @@ def refine_edges(
 #: which edge refinement leaves a pixel as the mask has it.
 MIN_EDGE_CONTRAST = 20.0
 
+#: Weight of the chroma part of a colour difference (squared) against its luma part
+#: where edge refinement decides which colour a pixel is nearer. Video is recorded in
+#: 4:2:0 (H.264 and HEVC from nearly every camera, and the studio's renders): chroma
+#: at half the resolution in each direction, so a saturated garment's chroma spreads
+#: about a pixel past its outline, while luma is sampled at every pixel. With chroma at
+#: full weight the outline of a saturated shirt lay further out (studio session 363:
+#: torso +0.20 px outside the true outline, upper arms +0.07 and +0.12 px; at 0.25:
+#: +0.13, +0.02 and +0.03 px) and weights read heavy (docs/capture.md, "Edge refinement").
+CHROMA_WEIGHT = 0.25
+
+#: The luma axis of a BGR colour (BT.601, as encoders convert RGB to YCbCr), unit length.
+_LUMA = np.array([0.114, 0.587, 0.299]) / np.linalg.norm([0.114, 0.587, 0.299])
+#: (3, 3): a BGR difference ``d`` maps to ``d @ _EDGE_METRIC``, whose squared length is
+#: its luma part squared plus :data:`CHROMA_WEIGHT` times its chroma part squared.
+_EDGE_METRIC = (
+    np.outer(_LUMA, _LUMA) + np.sqrt(CHROMA_WEIGHT) * (np.eye(3) - np.outer(_LUMA, _LUMA))
+).astype(np.float32)
+
+
+def _edge_distance2(diff: np.ndarray) -> np.ndarray:
+    """(...) float32: squared length of BGR differences ``diff`` (..., 3) with their
+    chroma weighed by :data:`CHROMA_WEIGHT` (luma in full)."""
+    return ((diff @ _EDGE_METRIC) ** 2).sum(axis=-1)
+
 
 def _nearer_person(
     img: np.ndarray, bg: np.ndarray, d_background: np.ndarray, person: np.ndarray, window: int
@@ -556,13 +585,15 @@ def _nearer_person(
     img, bg : (h, w, 3) float32
         Image and background colour.
     d_background : (h, w) float
-        Squared colour distance of each pixel to the background.
+        Squared colour distance of each pixel to the background
+        (:func:`_edge_distance2`).
     person : (h, w) bool
     window : int
 
     Returns
     -------
     nearer : (h, w) bool
+        Nearer by :func:`_edge_distance2` (chroma weighed down).
     has_interior : (h, w) bool
         The window holds an interior pixel (``nearer`` means nothing elsewhere).
     contrast : (h, w) bool
@@ -573,7 +604,7 @@ def _nearer_person(
     weight = cv2.boxFilter(inner, -1, (window, window), normalize=False)
     local = cv2.boxFilter(img * inner[..., None], -1, (window, window), normalize=False)
     local /= np.maximum(weight, 1e-6)[..., None]
-    d_person = ((img - local) ** 2).sum(axis=2)
+    d_person = _edge_distance2(img - local)
     contrast = ((local - bg) ** 2).sum(axis=2) >= MIN_EDGE_CONTRAST**2
     return d_person < d_background, weight > 0, contrast
 
@@ -636,7 +667,7 @@ def _matted_person(
     ys, xs = np.nonzero(where)
     h, w = inner.shape
     r = window // 2
-    change = img[ys, xs] - bg[ys, xs]
+    change = (img[ys, xs] - bg[ys, xs]) @ _EDGE_METRIC
     best_residual = np.full(ys.size, np.inf, np.float32)
     alpha = np.zeros(ys.size, np.float32)
     for dy in range(-r, r + 1):
@@ -644,8 +675,10 @@ def _matted_person(
         for dx in range(-r, r + 1):
             xx = np.clip(xs + dx, 0, w - 1)
             d = img[yy, xx] - bg[ys, xs]
+            usable = inner[yy, xx] & ((d * d).sum(axis=1) >= MIN_EDGE_CONTRAST**2)
+            # alpha and the residual in the edge metric (chroma weighed down).
+            d = d @ _EDGE_METRIC
             dd = (d * d).sum(axis=1)
-            usable = inner[yy, xx] & (dd >= MIN_EDGE_CONTRAST**2)
             a = np.clip((change * d).sum(axis=1) / np.maximum(dd, 1e-6), 0.0, 1.0)
             residual = ((change - a[:, None] * d) ** 2).sum(axis=1)
             better = usable & (residual < best_residual)

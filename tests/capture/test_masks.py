@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
 
+from bodymetry.capture import masks
 from bodymetry.capture.masks import (
     CleanupConfig,
     clean_mask,
@@ -13,6 +17,7 @@ from bodymetry.capture.masks import (
     refine_edges,
     thin_parts,
 )
+from bodymetry.capture.video import H264Writer
 from bodymetry.errors import InputError
 
 H, W = 240, 320
@@ -209,6 +214,47 @@ def test_refine_edges_puts_a_blurred_edge_where_half_the_pixel_is_person(person,
         img.transpose(1, 0, 2).copy(), bg_img.transpose(1, 0, 2).copy(), wide.T.copy(), 2, 7
     )
     np.testing.assert_array_equal(out_t[:, rows], truth.T[:, rows])
+
+
+def _through_h264(img: np.ndarray) -> np.ndarray:
+    """``img`` (H, W, 3) uint8 written as the studio writes video (H.264, 4:2:0) and
+    read back."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "edge.mp4"
+        with H264Writer(path, 25, (img.shape[1], img.shape[0]), 20) as writer:
+            for _ in range(2):
+                writer.write(img)
+        cap = cv2.VideoCapture(str(path))
+        ok, out = cap.read()
+        cap.release()
+    assert ok
+    return out
+
+
+@pytest.mark.parametrize("person", [(40, 40, 200), (200, 60, 30)])
+@pytest.mark.parametrize("edge", [50, 51])
+def test_refine_edges_places_a_saturated_edge_through_4_2_0_video(person, edge, monkeypatch):
+    # Known answer: a red (or blue) garment before a grey wall, blurred as the studio's
+    # optics blur it, through H.264 4:2:0 and back. Its chroma is stored per 2 x 2
+    # block, so where the outline falls inside a block (odd column) the garment's
+    # chroma spreads into the wall's pixel there. The refined outline must lie on the
+    # true one at either column; with chroma at full weight it lies one column out at
+    # the odd one (checked below, so this test can tell).
+    wall = (120, 118, 115)
+    truth = np.zeros((64, 128), bool)
+    truth[:, :edge] = True
+    img = np.where(truth[..., None], np.float32(person), np.float32(wall))
+    img = np.clip(cv2.GaussianBlur(img, (0, 0), 0.7) + 0.5, 0, 255).astype(np.uint8)
+    decoded = _through_h264(img)
+    background = _through_h264(np.full_like(img, wall)).astype(np.float32)
+    wide = np.zeros_like(truth)
+    wide[:, : edge + 2] = True
+    rows = slice(8, 56)  # away from the top and bottom, where the codec's blocks end
+    out = refine_edges(decoded, background, wide, 2, 7)
+    np.testing.assert_array_equal(out[rows], truth[rows])
+    monkeypatch.setattr(masks, "_EDGE_METRIC", np.eye(3, dtype=np.float32))
+    full_chroma = refine_edges(decoded, background, wide, 2, 7)
+    assert full_chroma[rows].sum(axis=1).mean() == (edge + 1 if edge % 2 else edge)
 
 
 def test_refine_edges_never_adds_shadow_and_keeps_an_empty_mask():
