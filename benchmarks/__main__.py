@@ -36,6 +36,7 @@ REPORTS = {
     "persons": "benchmarks.bench_persons",
     "posing": "benchmarks.bench_posing",
     "profile": "benchmarks.bench_profile",
+    "rendered_weight": "benchmarks.bench_rendered_weight",
     "session_bias": "benchmarks.bench_session_bias",
     "session_spread": "benchmarks.bench_session_spread",
     "shape_space": "benchmarks.bench_shape_space",

@@ -65,6 +65,7 @@ from benchmarks.bench_arm_evidence import arm_span_by_evidence
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.cli import DEMO_SESSION
 from bodymetry.estimation.arm_evidence import raised_frames
+from bodymetry.estimation.body_model.geometry import mesh_volume
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunLayout, RunResults
 from bodymetry.estimation.studio_accuracy import ADULT_AGE, CHILD_WEIGHT_SHARE
@@ -72,9 +73,11 @@ from bodymetry.estimation.studio_accuracy import ADULT_AGE, CHILD_WEIGHT_SHARE
 # Issue 15's session-stage targets on tight-clothed subjects are the runtime's own (a run's
 # body_accuracy caveat holds like bodies to them; a child's weight to CHILD_WEIGHT_SHARE).
 from bodymetry.estimation.studio_accuracy import TARGETS as SESSION_TARGETS
+from bodymetry.fileio import load_npz
 from bodymetry.frame_jobs import read_rescue
 from bodymetry.process import process_session
 from bodymetry.review.evaluation import evaluate_run
+from bodymetry.studio.independent import IndependentSpec, IndependentSubject
 from bodymetry.studio.looks import Look
 from bodymetry.studio.synth import SubjectSpec, SynthConfig, synthesize
 
@@ -310,6 +313,46 @@ def _fitted_shapes(results: RunResults) -> dict:
     }
 
 
+def rendered_weight(session: Path, frames: list[int], truth: SubjectTruth | None) -> dict | None:
+    """Issue 33: the weight of the body the studio rendered, in the poses it rendered.
+
+    An independent subject is posed by linear blend skinning, which does not keep
+    a body's volume (it loses some where joints bend); the silhouettes show the
+    posed bodies, so no method that reads them can see the rest body's volume.
+    The pipeline reads its weight from its own posed bodies
+    (``estimation/posed_weight.py``), right for a real person, whose volume does
+    not change when they move; against the studio's rest weight it reads the
+    skinning's loss as its own error. This gives the median over ``frames`` of
+    the skinned nude body's volume times the truth's density (``weight_kg`` over
+    ``volume_l``) beside the rest weight. None for a subject of our own model or
+    without ground truth.
+
+    Returns
+    -------
+    dict or None
+        ``rest_kg``, ``posed_kg`` (median), ``posed_low_kg`` and ``posed_high_kg``
+        (the frames' extremes) and ``loss_kg`` (posed less rest).
+    """
+    if truth is None or not str(truth.details.get("subject", "")).startswith("independent:"):
+        return None
+    rest, litres = truth.get("weight_kg"), truth.get("volume_l")
+    if not rest or not litres or not frames:
+        return None
+    subject = IndependentSubject(IndependentSpec.parse(truth.details["subject"].split(":", 1)[1]))
+    states = load_npz(Path(session) / "ground_truth" / "states.npz")
+    rows = [int(np.nonzero(states["frame"] == f)[0][0]) for f in frames]
+    verts = subject.skin(states["tau"][rows], states["theta"][rows])[0]
+    kg_per_m3 = rest / litres * 1000.0
+    posed = mesh_volume(verts, subject.bank.faces) * kg_per_m3
+    return {
+        "rest_kg": round(rest, 3),
+        "posed_kg": round(float(np.median(posed)), 3),
+        "posed_low_kg": round(float(posed.min()), 3),
+        "posed_high_kg": round(float(posed.max()), 3),
+        "loss_kg": round(float(np.median(posed)) - rest, 3),
+    }
+
+
 def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) -> dict:
     """Process and evaluate one session; the figures of this benchmark."""
     workers = _workers()
@@ -380,6 +423,9 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
             if results.session_shape is None or not results.session_shape.ok
             else round(results.session_shape.canonical_weight_kg, 3)
         ),
+        # Issue 33: the studio's skinned body in the kept poses (what the silhouettes
+        # show), against which the posed weight can be read without the skinning's loss.
+        "rendered_weight": rendered_weight(session, [f.frame for f in frames], truth),
         # Issue 33: how far the session stage's shape prior moved each value.
         "prior_pull": (
             {k: round(results.session_shape.prior_pull[k], 3) for k in SESSION_TARGETS}
