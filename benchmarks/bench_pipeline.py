@@ -423,9 +423,10 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
             if results.session_shape is None or not results.session_shape.ok
             else round(results.session_shape.canonical_weight_kg, 3)
         ),
-        # Issue 33: the studio's skinned body in the kept poses (what the silhouettes
-        # show), against which the posed weight can be read without the skinning's loss.
-        "rendered_weight": rendered_weight(session, [f.frame for f in frames], truth),
+        # Issue 33: the studio's skinned body in the measured frames' poses (what their
+        # silhouettes show), against which the posed weight can be read without the
+        # skinning's loss.
+        "rendered_weight": rendered_weight(session, [f.frame for f in frames if f.ok], truth),
         # Issue 33: how far the session stage's shape prior moved each value.
         "prior_pull": (
             {k: round(results.session_shape.prior_pull[k], 3) for k in SESSION_TARGETS}

@@ -9,7 +9,7 @@ person, whose volume does not change when they move. Against the studio's truth
 own error, and the pipeline's own bias is hidden wherever the two cancel.
 
 This report reads the committed end-to-end results (no fitting) and, per
-session, the weight of the skinned nude body in the kept frames' true poses
+session, the weight of the skinned nude body in the measured frames' true poses
 (:func:`benchmarks.bench_pipeline.rendered_weight`: the record's
 ``rendered_weight`` when it has one, otherwise computed from the rendered
 session's ``ground_truth``, looked up at the recorded path or by name in the
@@ -69,8 +69,8 @@ def _rendered(record: dict) -> dict | None:
     folder = _session_folder(record["session"])
     if folder is None:
         return None
-    kept = [int(f) for f in record.get("left_out", {})]
-    frames = [f for f in _kept_frames(folder) if f not in kept]
+    left_out = {int(f) for f in record.get("left_out", {})}
+    frames = [f for f in _kept_frames(folder) if f not in left_out]
     return rendered_weight(folder, frames, SubjectTruth.read(folder / "ground_truth"))
 
 
@@ -121,7 +121,7 @@ def run() -> dict:
     return {
         "setup": (
             f"committed results {list(SETS)} (those present); the skinned nude body's "
-            "volume in the kept frames' true poses (median) times the truth's density"
+            "volume in the measured frames' true poses (median) times the truth's density"
         ),
         "sessions": rows,
         "not_found": missing,
