@@ -77,7 +77,7 @@ from bodymetry.fileio import load_npz
 from bodymetry.frame_jobs import read_rescue
 from bodymetry.process import process_session
 from bodymetry.review.evaluation import evaluate_run
-from bodymetry.studio.independent import IndependentSpec, IndependentSubject
+from bodymetry.studio.independent import IndependentSubject
 from bodymetry.studio.looks import Look
 from bodymetry.studio.synth import SubjectSpec, SynthConfig, synthesize
 
@@ -338,7 +338,7 @@ def rendered_weight(session: Path, frames: list[int], truth: SubjectTruth | None
     rest, litres = truth.get("weight_kg"), truth.get("volume_l")
     if not rest or not litres or not frames:
         return None
-    subject = IndependentSubject(IndependentSpec.parse(truth.details["subject"].split(":", 1)[1]))
+    subject = IndependentSubject(SubjectSpec.parse(truth.details["subject"], 0).independent)
     states = load_npz(Path(session) / "ground_truth" / "states.npz")
     rows = [int(np.nonzero(states["frame"] == f)[0][0]) for f in frames]
     verts = subject.skin(states["tau"][rows], states["theta"][rows])[0]

@@ -8,7 +8,8 @@ person, whose volume does not change when they move. Against the studio's truth
 (the rest body's weight) the skinning's loss therefore reads as the pipeline's
 own error, and the pipeline's own bias is hidden wherever the two cancel.
 
-This report reads the committed end-to-end results (no fitting) and, per
+This report reads the committed end-to-end results the studio's accuracy is
+scored on (:data:`benchmarks.bench_studio_accuracy.SETS`; no fitting) and, per
 session, the weight of the skinned nude body in the measured frames' true poses
 (:func:`benchmarks.bench_pipeline.rendered_weight`: the record's
 ``rendered_weight`` when it has one, otherwise computed from the rendered
@@ -24,29 +25,18 @@ folds no silhouette shows.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.bench_arm_evidence import committed_sessions
 from benchmarks.bench_pipeline import rendered_weight
+from benchmarks.bench_studio_accuracy import SETS
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.capture.session import load_session
 from bodymetry.fileio import load_npz
 
-RESULTS = Path(__file__).with_name("results")
-#: The committed end-to-end sets read (those present).
-SETS = (
-    "pipeline_recheck.json",
-    "pipeline_edge.json",
-    "pipeline_edge_unseen.json",
-    "pipeline_looks.json",
-    "pipeline_contrast.json",
-    "pipeline_arms.json",
-    "pipeline_weight.json",
-    "pipeline_children.json",
-)
 #: Issue 15's weight target for the session stage, kg.
 TARGET_KG = 1.5
 
@@ -94,10 +84,7 @@ def _summary(errors: np.ndarray, weights: np.ndarray) -> dict:
 def run() -> dict:
     rows, missing = [], []
     for name in SETS:
-        path = RESULTS / name
-        if not path.is_file():
-            continue
-        for record in json.loads(path.read_text())["sessions"]:
+        for record in committed_sessions((name,)):
             row = record["figure3"]["weight_kg"]
             if "session" not in row:
                 continue

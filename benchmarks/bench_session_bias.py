@@ -79,7 +79,8 @@ from bodymetry.estimation.standing_height import lowest_points
 from bodymetry.fileio import load_npz
 from bodymetry.process import process_session
 from bodymetry.review.run_data import RunData, load_run
-from bodymetry.studio.independent import IndependentSpec, IndependentSubject
+from bodymetry.studio.independent import IndependentSubject
+from bodymetry.studio.synth import SubjectSpec
 
 #: The biometrics compared (results.json keys).
 KEYS = ("height_mm", "arm_span_mm", "weight_kg")
@@ -161,7 +162,7 @@ def _lowest_point_mm(body, estimates) -> float | None:
 
 def _projected_nu(body, subject: str) -> np.ndarray:
     """An independent subject's rest body projected onto the model's shape space."""
-    spec = IndependentSpec.parse(subject.split(":", 1)[1])
+    spec = SubjectSpec.parse(subject, 0).independent
     return body.shape_from_vertices(IndependentSubject(spec).rest[None])[0]
 
 

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks import bench_rendered_weight
+from benchmarks import bench_arm_evidence, bench_rendered_weight
 from benchmarks.bench_pipeline import rendered_weight
 from bodymetry.capture.ground_truth import SubjectTruth
 from bodymetry.estimation.body_model import geometry
@@ -97,7 +97,7 @@ def test_the_report_gives_both_errors_with_known_answers(tmp_path, monkeypatch):
     (tmp_path / "pipeline_recheck.json").write_text(
         json.dumps({"sessions": [*records, no_session]})
     )
-    monkeypatch.setattr(bench_rendered_weight, "RESULTS", tmp_path)
+    monkeypatch.setattr(bench_arm_evidence, "RESULTS", tmp_path)
     out = bench_rendered_weight.run()
     assert [r["session"] for r in out["sessions"]] == ["light", "heavy", "lost"]
     assert out["against_rest"]["mean_kg"] == pytest.approx(0.0, abs=1e-9)
