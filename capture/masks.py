@@ -556,7 +556,7 @@ MIN_EDGE_CONTRAST = 20.0
 #: about a pixel past its outline, while luma is sampled at every pixel. With chroma at
 #: full weight the outline of a saturated shirt lay further out (studio session 363:
 #: torso +0.20 px outside the true outline, upper arms +0.07 and +0.12 px; at 0.25:
-#: +0.13, +0.02 and +0.03 px) and weights read heavy (docs/capture.md, "Edge refinement").
+#: +0.15, +0.04 and +0.05 px) and weights read heavy (docs/capture.md, "Edge refinement").
 CHROMA_WEIGHT = 0.25
 
 #: The luma axis of a BGR colour (BT.601, as encoders convert RGB to YCbCr), unit length.
