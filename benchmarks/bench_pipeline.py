@@ -344,12 +344,13 @@ def rendered_weight(session: Path, frames: list[int], truth: SubjectTruth | None
     verts = subject.skin(states["tau"][rows], states["theta"][rows])[0]
     kg_per_m3 = rest / litres * 1000.0
     posed = mesh_volume(verts, subject.bank.faces) * kg_per_m3
+    median = float(np.median(posed))
     return {
         "rest_kg": round(rest, 3),
-        "posed_kg": round(float(np.median(posed)), 3),
+        "posed_kg": round(median, 3),
         "posed_low_kg": round(float(posed.min()), 3),
         "posed_high_kg": round(float(posed.max()), 3),
-        "loss_kg": round(float(np.median(posed)) - rest, 3),
+        "loss_kg": round(median - rest, 3),
     }
 
 
