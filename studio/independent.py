@@ -380,9 +380,7 @@ class IndependentSubject:
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
         tau = np.broadcast_to(np.asarray(tau, dtype=float), (len(theta), 3))
         rot, joints = forward_kinematics(theta, tau, self.rest_joints, self.hinge_axes)
-        # Each part's rigid map x -> R (x - j_rest) + j, blended by the skin weights.
-        t = joints - np.einsum("bkij,kj->bki", rot, self.rest_joints)
-        vertices = dual_quaternion_skin(self.weights, rot, t, rest)
+        vertices = dual_quaternion_skin(rest, self.weights, self.rest_joints, rot, joints)
         parts = self.model.keypoint_parts
         rel = self.keypoints - self.rest_joints[parts]
         keypoints = joints[:, parts] + np.einsum("bkij,kj->bki", rot[:, parts], rel)

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["dual_quaternion_skin", "linear_blend_skin"]
+__all__ = ["dual_quaternion_skin"]
 
 
 def _quaternions(rotations: np.ndarray) -> np.ndarray:
@@ -41,50 +41,45 @@ def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.concatenate([w, v], axis=-1)
 
 
-def linear_blend_skin(
-    weights: np.ndarray, rotations: np.ndarray, translations: np.ndarray, rest: np.ndarray
-) -> np.ndarray:
-    """Linear blend skinning: each point moved by the weighted mean of the parts' maps.
-
-    Parameters
-    ----------
-    weights : (V, K) float
-        Skin weights, rows summing to 1.
-    rotations : (B, K, 3, 3) float
-        Each part's rotation.
-    translations : (B, K, 3) float
-        Each part's translation: a rest point ``x`` of part ``k`` goes to
-        ``rotations[:, k] @ x + translations[:, k]``.
-    rest : (V, 3) float
-        The rest surface.
-
-    Returns
-    -------
-    (B, V, 3) float
-    """
-    blended_r = np.einsum("vk,bkij->bvij", weights, rotations)
-    blended_t = np.einsum("vk,bki->bvi", weights, translations)
-    return np.einsum("bvij,vj->bvi", blended_r, rest) + blended_t
-
-
 def dual_quaternion_skin(
-    weights: np.ndarray, rotations: np.ndarray, translations: np.ndarray, rest: np.ndarray
+    rest_vertices: np.ndarray,
+    weights: np.ndarray,
+    rest_joints: np.ndarray,
+    rotations: np.ndarray,
+    joints: np.ndarray,
 ) -> np.ndarray:
     """Dual quaternion skinning: each point moved by the blend of the parts' rigid motions.
 
-    Each part's motion ``x -> R x + t`` becomes a unit dual quaternion
+    The arguments are those of the bake's linear blend skinning
+    (:func:`bodymetry.estimation.body_model.bake.pose_space.lbs`). Each part's
+    motion ``x -> R (x - j_rest) + j``, i.e. ``x -> R x + t``, becomes a unit dual quaternion
     ``q + ε ½ (0, t) q``; a point blends its parts' dual quaternions with its skin
     weights, each flipped to the hemisphere of the point's heaviest part (``q``
     and ``-q`` are the same rotation, and a blend of opposite signs would cancel),
     normalizes the blend by its real part's norm and applies the rigid motion it
     stands for. A point with one part moves exactly as that part does.
 
-    Parameters and returns as :func:`linear_blend_skin`.
+    Parameters
+    ----------
+    rest_vertices : (V, 3) float
+    weights : (V, K) float
+        Skin weights, rows summing to 1.
+    rest_joints : (K, 3) float
+        Each part's pivot in the rest pose.
+    rotations : (B, K, 3, 3) float
+        Each part's global rotation.
+    joints : (B, K, 3) float
+        Each part's posed pivot.
+
+    Returns
+    -------
+    (B, V, 3) float
     """
     weights = np.asarray(weights, dtype=float)
-    rest = np.asarray(rest, dtype=float)
-    real = _quaternions(np.asarray(rotations, dtype=float))  # (B, K, 4)
-    t = np.asarray(translations, dtype=float)
+    rest = np.asarray(rest_vertices, dtype=float)
+    rotations = np.asarray(rotations, dtype=float)
+    real = _quaternions(rotations)  # (B, K, 4)
+    t = np.asarray(joints, dtype=float) - np.einsum("bkij,kj->bki", rotations, rest_joints)
     dual = 0.5 * _qmul(np.concatenate([np.zeros(t.shape[:-1] + (1,)), t], axis=-1), real)
     heaviest = np.argmax(weights, axis=1)  # (V,)
     out = np.empty((len(real), len(rest), 3))

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from bodymetry.estimation.body_model.bake.pose_space import lbs
 from bodymetry.estimation.body_model.geometry import mesh_volume
-from bodymetry.studio.skinning import dual_quaternion_skin, linear_blend_skin
+from bodymetry.studio.skinning import dual_quaternion_skin
 
 #: Round-off of the quaternion conversions and the blend (metres, on unit-size inputs).
 EXACT = 1e-9
@@ -46,24 +47,24 @@ def _two_part_weights(points: np.ndarray, blend: float = 0.2) -> np.ndarray:
     return np.stack([1.0 - w1, w1], axis=1)
 
 
-def _motion(rotation: np.ndarray, pivot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Part 0 fixed, part 1 turned by ``rotation`` about ``pivot``: (1, 2, 3, 3), (1, 2, 3)."""
-    rot = np.stack([np.eye(3), rotation])[None]
-    t = np.stack([np.zeros(3), pivot - rotation @ pivot])[None]
-    return rot, t
+def _motion(rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Part 0 fixed, part 1 turned by ``rotation`` about the origin: the rest joints
+    (2, 3), rotations (1, 2, 3, 3) and posed joints (1, 2, 3)."""
+    return np.zeros((2, 3)), np.stack([np.eye(3), rotation])[None], np.zeros((1, 2, 3))
 
 
 def test_one_part_per_point_moves_rigidly():
     rng = np.random.default_rng(5)
     rest = rng.normal(size=(200, 3))
+    rest_joints = rng.normal(size=(4, 3))
     rot = Rotation.random(3 * 4, random_state=6).as_matrix().reshape(3, 4, 3, 3)
-    t = rng.normal(size=(3, 4, 3))
+    joints = rng.normal(size=(3, 4, 3))
     part = rng.integers(0, 4, size=200)
     weights = np.eye(4)[part]
-    out = dual_quaternion_skin(weights, rot, t, rest)
-    expected = np.einsum("bvij,vj->bvi", rot[:, part], rest) + t[:, part]
+    out = dual_quaternion_skin(rest, weights, rest_joints, rot, joints)
+    expected = np.einsum("bvij,vj->bvi", rot[:, part], rest - rest_joints[part]) + joints[:, part]
     np.testing.assert_allclose(out, expected, atol=EXACT)
-    np.testing.assert_allclose(linear_blend_skin(weights, rot, t, rest), expected, atol=EXACT)
+    np.testing.assert_allclose(lbs(rest, weights, rest_joints, rot, joints), expected, atol=EXACT)
 
 
 def test_parts_moving_together_move_every_point_rigidly():
@@ -71,27 +72,29 @@ def test_parts_moving_together_move_every_point_rigidly():
     rest = rng.normal(size=(100, 3))
     weights = rng.dirichlet(np.ones(3), size=100)
     r = Rotation.from_rotvec([0.3, -2.9, 0.4]).as_matrix()  # near a half turn: the sign test
+    rest_joints = rng.normal(size=(3, 3))
     rot = np.broadcast_to(r, (1, 3, 3, 3))
-    t = np.broadcast_to([0.5, -1.0, 2.0], (1, 3, 3))
-    out = dual_quaternion_skin(weights, rot, t, rest)
-    np.testing.assert_allclose(out[0], rest @ r.T + t[0, 0], atol=EXACT)
+    shift = np.array([0.5, -1.0, 2.0])
+    joints = (rest_joints @ r.T + shift)[None]
+    out = dual_quaternion_skin(rest, weights, rest_joints, rot, joints)
+    np.testing.assert_allclose(out[0], rest @ r.T + shift, atol=EXACT)
 
 
 def test_a_twisted_limb_keeps_its_girth_where_linear_blending_pinches_it():
     # The candy wrapper: the far half of a limb twisted 170 degrees about its own axis.
     points, faces, rings = _cylinder()
     weights = _two_part_weights(points)
-    rot, t = _motion(Rotation.from_rotvec([np.radians(170.0), 0, 0]).as_matrix(), np.zeros(3))
+    motion = _motion(Rotation.from_rotvec([np.radians(170.0), 0, 0]).as_matrix())
     middle = rings == 20
     rest_volume = mesh_volume(points, faces)
-    lbs = linear_blend_skin(weights, rot, t, points)[0]
-    dqs = dual_quaternion_skin(weights, rot, t, points)[0]
+    linear = lbs(points, weights, *motion)[0]
+    dqs = dual_quaternion_skin(points, weights, *motion)[0]
     radius = lambda v: np.linalg.norm(v[middle][:, 1:], axis=1)  # noqa: E731
     # Linear blending of two rotations 170 degrees apart shrinks the middle ring to
     # cos(85 degrees) of its radius; rigid blending keeps every ring round.
-    assert radius(lbs).max() < 0.1 * 0.1
+    assert radius(linear).max() < 0.1 * 0.1
     np.testing.assert_allclose(radius(dqs), 0.1, rtol=1e-9)
-    assert mesh_volume(lbs, faces) < 0.9 * rest_volume
+    assert mesh_volume(linear, faces) < 0.9 * rest_volume
     # (the straight edges between rings turned ~20 degrees against each other cut
     # their chords: the polyhedron loses under 1 %, the smooth limb nothing)
     assert mesh_volume(dqs, faces) == pytest.approx(rest_volume, rel=0.01)
@@ -101,9 +104,9 @@ def test_a_twisted_limb_keeps_its_girth_where_linear_blending_pinches_it():
 def test_a_bent_limb_loses_less_volume_than_with_linear_blending(degrees):
     points, faces, _ = _cylinder()
     weights = _two_part_weights(points)
-    rot, t = _motion(Rotation.from_rotvec([0, 0, np.radians(degrees)]).as_matrix(), np.zeros(3))
+    motion = _motion(Rotation.from_rotvec([0, 0, np.radians(degrees)]).as_matrix())
     rest_volume = mesh_volume(points, faces)
-    lbs_loss = rest_volume - mesh_volume(linear_blend_skin(weights, rot, t, points)[0], faces)
-    dqs_change = mesh_volume(dual_quaternion_skin(weights, rot, t, points)[0], faces) - rest_volume
+    lbs_loss = rest_volume - mesh_volume(lbs(points, weights, *motion)[0], faces)
+    dqs_change = mesh_volume(dual_quaternion_skin(points, weights, *motion)[0], faces) - rest_volume
     assert lbs_loss > 0.0
     assert abs(dqs_change) < 0.5 * lbs_loss
