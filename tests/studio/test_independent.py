@@ -190,3 +190,10 @@ def test_skinning_keeps_the_volume_of_a_heavy_body_with_its_arms_overhead(model)
     change_l = 1000.0 * geometry.mesh_volume(verts, faces) - rest_l
     assert np.abs(change_l).max() < 0.01 * rest_l, change_l
     assert np.linalg.norm(motion.theta[raised[0], shoulder]) > 1.5  # the arms above the shoulders
+
+
+def test_the_truth_names_the_skinning_and_an_unknown_one_is_refused(model):
+    subject = IndependentSubject(IndependentSpec(0, body=7), model=model)
+    assert subject.describe()["skinning"] == "dual_quaternion"
+    with pytest.raises(ValueError, match="skinning"):
+        subject.skin(np.zeros(3), np.zeros((1, N_POSE)), skinning="spline")
