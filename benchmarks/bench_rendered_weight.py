@@ -1,7 +1,11 @@
 """The weight against the volume the studio rendered: ``python -m benchmarks rendered_weight``.
 
-The studio's independent subjects are posed by linear blend skinning, which does
-not keep a body's volume: where joints bend the skin folds into itself. The
+The studio's independent subjects were posed by linear blend skinning until
+2026-12-07, which does not keep a body's volume: where joints bend the skin folds
+into itself (up to 3 L with the arms overhead). Since then they are posed by dual
+quaternion skinning (``studio/skinning.py``), which keeps it within about half a
+litre; each session is weighed the way it was rendered
+(:func:`benchmarks.bench_pipeline.rendered_weight`). The
 silhouettes show those posed bodies, and the pipeline reads the weight from its
 own posed bodies (``estimation/posed_weight.py``), which is right for a real
 person, whose volume does not change when they move. Against the studio's truth

@@ -44,8 +44,8 @@ frame's true pose and the subject's own shape (its rest body projected onto the
 model's shape space), how far the rendered true outline lies outside the model's
 contour, per body region (median over frames of
 :func:`~bodymetry.estimation.outline_check.frame_offsets`; + outside). It is the
-difference between our posed body model and the rig's linear blend skinning that
-poses the subject, which no fit of ν can remove.
+difference between our posed body model and the rig's skinning that poses the
+subject, which no fit of ν can remove.
 
 Only sessions with ground truth (``ground_truth/states.npz``,
 ``ground_truth/silhouettes``, ``ground_truth/subject.json``) can be used.
