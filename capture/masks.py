@@ -22,10 +22,10 @@ Clean-up (:func:`clean_mask`), on the raw person mask of one image:
    person's interior pixels in an ``edge_window`` square). That is the
    half-coverage point of a blurred edge; it raised the mean IoU on the demo
    recording from 0.93 to 0.96. "Nearer" weighs chroma down against luma
-   (:data:`CHROMA_WEIGHT`): 4:2:0 video stores chroma per 2 x 2 block, so a
-   saturated garment's chroma reaches a pixel past its outline. Where the mask
-   is thin (a hand, a wrist), a mean colour mixes the lit and shaded sides and
-   the sleeve, so each pixel is matted against the part's own colours instead
+   (:data:`~bodymetry.capture.colour.CHROMA_WEIGHT`): 4:2:0 video stores chroma per 2 x
+   2 block, so a saturated garment's chroma reaches a pixel past its outline. Where the
+   mask is thin (a hand, a wrist), a mean colour mixes the lit and shaded sides and the
+   sleeve, so each pixel is matted against the part's own colours instead
    (:func:`refine_edges`).
 
 Flags per camera and frame (:data:`FLAGS`):
@@ -80,6 +80,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from bodymetry.capture.colour import VIDEO_METRIC, video_distance2
 from bodymetry.errors import InputError
 
 __all__ = [
@@ -476,13 +477,13 @@ def refine_edges(
     A pixel of the band is person when its colour is nearer the person's local
     colour (mean over the interior in a ``window`` square) than the
     background's, by a distance that weighs chroma down against luma
-    (:data:`CHROMA_WEIGHT`: 4:2:0 video spreads a garment's chroma a pixel past
-    its outline). The band is decided twice: first with the interior of
-    ``mask``, then with the interior of that first answer. The change threshold
-    makes ``mask`` too wide (about 0.9 px on the demo), so the first interior
-    still holds edge pixels mixed with the background by the optical blur; that
-    pulls the person's colour towards the background and moves the decision
-    outwards (a person pixel needs less than half the pixel). The second pass
+    (:data:`~bodymetry.capture.colour.CHROMA_WEIGHT`: 4:2:0 video spreads a garment's
+    chroma a pixel past its outline). The band is decided twice: first with the interior
+    of ``mask``, then with the interior of that first answer. The change threshold makes
+    ``mask`` too wide (about 0.9 px on the demo), so the first interior still holds edge
+    pixels mixed with the background by the optical blur; that pulls the person's colour
+    towards the background and moves the decision outwards (a person pixel needs less
+    than half the pixel). The second pass
     takes the colour from pixels a pixel inside the refined outline (where that
     leaves none in the window, as on a hand, the first answer stands): on the
     demo the torso's outline moves from +0.18 to +0.10 px outside the true one,
@@ -549,29 +550,15 @@ def refine_edges(
 #: which edge refinement leaves a pixel as the mask has it.
 MIN_EDGE_CONTRAST = 20.0
 
-#: Weight of the chroma part of a colour difference (squared) against its luma part
-#: where edge refinement decides which colour a pixel is nearer. Video is recorded in
-#: 4:2:0 (H.264 and HEVC from nearly every camera, and the studio's renders): chroma
-#: at half the resolution in each direction, so a saturated garment's chroma spreads
-#: about a pixel past its outline, while luma is sampled at every pixel. With chroma at
-#: full weight the outline of a saturated shirt lay further out (studio session 363:
-#: torso +0.20 px outside the true outline, upper arms +0.07 and +0.12 px; at 0.25:
-#: +0.15, +0.04 and +0.05 px) and weights read heavy (docs/capture.md, "Edge refinement").
-CHROMA_WEIGHT = 0.25
-
-#: The luma axis of a BGR colour (BT.601, as encoders convert RGB to YCbCr), unit length.
-_LUMA = np.array([0.114, 0.587, 0.299]) / np.linalg.norm([0.114, 0.587, 0.299])
-#: (3, 3): a BGR difference ``d`` maps to ``d @ _EDGE_METRIC``, whose squared length is
-#: its luma part squared plus :data:`CHROMA_WEIGHT` times its chroma part squared.
-_EDGE_METRIC = (
-    np.outer(_LUMA, _LUMA) + np.sqrt(CHROMA_WEIGHT) * (np.eye(3) - np.outer(_LUMA, _LUMA))
-).astype(np.float32)
+#: The edge refinement's colour metric (:data:`bodymetry.capture.colour.VIDEO_METRIC`:
+#: chroma weighed down, as 4:2:0 video spreads it past outlines).
+_EDGE_METRIC = VIDEO_METRIC
 
 
 def _edge_distance2(diff: np.ndarray) -> np.ndarray:
     """(...) float32: squared length of BGR differences ``diff`` (..., 3) with their
-    chroma weighed by :data:`CHROMA_WEIGHT` (luma in full)."""
-    return ((diff @ _EDGE_METRIC) ** 2).sum(axis=-1)
+    chroma weighed by :data:`~bodymetry.capture.colour.CHROMA_WEIGHT` (luma in full)."""
+    return video_distance2(diff, _EDGE_METRIC)
 
 
 def _nearer_person(

@@ -416,7 +416,13 @@ class ViewEvidence:
     shadow : (H, W) bool
         Its cast-shadow label (all False without a background).
     change : (H, W) float32 or None
-        The change term (:func:`~bodymetry.capture.fusion.change_evidence`).
+        The change term (:func:`~bodymetry.capture.fusion.change_evidence`) of the
+        colour distance with its chroma weighed down
+        (:meth:`~bodymetry.capture.background.Subtractor.video_distance2`).
+    colour_change : (H, W) float32 or None
+        The same of the colour distance with every channel alike, which
+        :func:`~bodymetry.capture.fusion.outline_contrast` reads (its classes were
+        measured on it).
     brightness : (H, W) float32 or None
         The log brightness ratio to the empty scene (for the floor-shadow test).
     person : Person or None
@@ -431,6 +437,7 @@ class ViewEvidence:
     brightness: np.ndarray | None
     person: Person | None
     threshold: float = 0.5
+    colour_change: np.ndarray | None = None
 
     @cached_property
     def found(self) -> np.ndarray | None:
@@ -531,8 +538,12 @@ class FrameSegmenter:
         if sub is None:
             return ViewEvidence(None, np.zeros((h, w), bool), None, None, person, threshold)
         raw, shadow, dist2, brightness = sub.labels(image, distances=True, brightness=True)
-        change = change_evidence(dist2, sub.config.fg_sigma)
-        return ViewEvidence(raw, shadow, change, brightness, person, threshold)
+        # The fusion's change term leaves out the chroma that 4:2:0 video spreads past a
+        # garment's outline into the narrow gaps beside it (docs/capture.md, "Chroma in
+        # the gaps"); the outline contrast keeps the full colour distance.
+        change = change_evidence(sub.video_distance2(image), sub.config.fg_sigma)
+        colour_change = change_evidence(dist2, sub.config.fg_sigma)
+        return ViewEvidence(raw, shadow, change, brightness, person, threshold, colour_change)
 
     def _asked_again(
         self, images: Sequence[np.ndarray | None], evidence: list[ViewEvidence | None]
@@ -923,7 +934,7 @@ class FrameSegmenter:
                 self.cameras, [v.landmarks for v in views], self.config.landmarks
             )
         contrast = outline_contrast(
-            [v.mask for v in views], [None if ev is None else ev.change for ev in evidence]
+            [v.mask for v in views], [None if ev is None else ev.colour_change for ev in evidence]
         )
         return _FrameViews(views, landmarks, agreement, persons, tuple(people or ()), contrast)
 

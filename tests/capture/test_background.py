@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
+from video_frames import through_h264
 
 from bodymetry.capture.background import (
     BackgroundModel,
@@ -12,6 +14,7 @@ from bodymetry.capture.background import (
     horprasert_distortions,
     read_clip,
 )
+from bodymetry.capture.colour import CHROMA_WEIGHT, LUMA, video_distance2, video_metric
 from bodymetry.capture.toy import ToyScene, toy_background, toy_frame, write_video
 from bodymetry.errors import InputError
 
@@ -181,3 +184,50 @@ def test_wrong_image_size_and_bad_config() -> None:
         SubtractionConfig(method="magic")
     with pytest.raises(InputError, match="shadow_alpha_min"):
         SubtractionConfig(shadow_alpha_min=1.5)
+
+
+def test_video_distance_keeps_luma_and_weighs_chroma_down() -> None:
+    # Known answers of the metric: a grey step is all luma, a step along a direction
+    # orthogonal to luma is all chroma.
+    luma = 5.0 * LUMA
+    chroma = np.cross(LUMA, [1.0, 0.0, 0.0])
+    chroma *= 5.0 / np.linalg.norm(chroma)
+    assert video_distance2(luma) == pytest.approx(25.0, rel=1e-5)
+    assert video_distance2(chroma) == pytest.approx(CHROMA_WEIGHT * 25.0, rel=1e-5)
+    assert video_distance2(luma + chroma) == pytest.approx((1 + CHROMA_WEIGHT) * 25.0, rel=1e-5)
+    weighed = video_metric(0.01)
+    assert video_distance2(luma + chroma, weighed) == pytest.approx(25.25, rel=1e-5)
+    assert video_distance2(luma + chroma, video_metric(1.0)) == pytest.approx(50.0, rel=1e-5)
+
+
+@pytest.mark.parametrize("gap", [60, 61])
+def test_a_narrow_gap_beside_a_saturated_garment_is_unchanged_in_luma(gap, tmp_path) -> None:
+    # A red garment on both sides of a 3-pixel gap of grey wall (a hanging arm beside
+    # the trunk), blurred as the studio's optics blur it, through H.264 4:2:0: the
+    # garment's chroma fills the gap (its middle pixel is "changed" by the full colour
+    # distance at either block phase), its luma does not; the garment stays changed.
+    wall, red = (120, 118, 115), (40, 40, 200)
+    rng = np.random.default_rng(3)
+    empty = [
+        np.clip(np.full((64, 128, 3), wall) + rng.normal(0, 1.5, (64, 128, 3)), 0, 255)
+        for _ in range(5)
+    ]
+    clip = [
+        through_h264(f.astype(np.uint8), tmp_path / f"wall{k}.mp4") for k, f in enumerate(empty)
+    ]
+    img = np.full((64, 128, 3), wall, np.float32)
+    img[:, :gap] = red
+    img[:, gap + 3 :] = red
+    img = np.clip(cv2.GaussianBlur(img, (0, 0), 0.7) + 0.5, 0, 255).astype(np.uint8)
+    decoded = through_h264(img, tmp_path / "gap.mp4")
+    sub = Subtractor(BackgroundModel.from_frames("cam_00", np.stack(clip)))
+    _, _, dist2 = sub.labels(decoded, distances=True)
+    video = sub.video_distance2(decoded)
+    threshold = sub.config.fg_sigma**2
+    rows = slice(8, 56)  # away from the top and bottom, where the codec's blocks end
+    middle = gap + 1
+    assert (dist2[rows, middle] > threshold).all()
+    assert (video[rows, middle] < threshold).all()
+    assert (video[rows, gap - 3] > 7.0 * threshold).all() and (
+        video[rows, gap + 6] > 7.0 * threshold
+    ).all()

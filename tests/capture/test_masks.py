@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
+from video_frames import through_h264
 
 from bodymetry.capture import masks
 from bodymetry.capture.masks import (
@@ -16,7 +15,6 @@ from bodymetry.capture.masks import (
     refine_edges,
     thin_parts,
 )
-from bodymetry.capture.video import H264Writer
 from bodymetry.errors import InputError
 
 H, W = 240, 320
@@ -215,19 +213,6 @@ def test_refine_edges_puts_a_blurred_edge_where_half_the_pixel_is_person(person,
     np.testing.assert_array_equal(out_t[:, rows], truth.T[:, rows])
 
 
-def _through_h264(img: np.ndarray, path: Path) -> np.ndarray:
-    """``img`` (H, W, 3) uint8 written to ``path`` as the studio writes video (H.264,
-    4:2:0) and read back."""
-    with H264Writer(path, 25, (img.shape[1], img.shape[0]), 20) as writer:
-        for _ in range(2):
-            writer.write(img)
-    cap = cv2.VideoCapture(str(path))
-    ok, out = cap.read()
-    cap.release()
-    assert ok
-    return out
-
-
 @pytest.mark.parametrize("person", [(40, 40, 200), (200, 60, 30)])
 @pytest.mark.parametrize("edge", [50, 51])
 def test_refine_edges_places_a_saturated_edge_through_4_2_0_video(
@@ -244,8 +229,8 @@ def test_refine_edges_places_a_saturated_edge_through_4_2_0_video(
     truth[:, :edge] = True
     img = np.where(truth[..., None], np.float32(person), np.float32(wall))
     img = np.clip(cv2.GaussianBlur(img, (0, 0), 0.7) + 0.5, 0, 255).astype(np.uint8)
-    decoded = _through_h264(img, tmp_path / "person.mp4")
-    background = _through_h264(np.full_like(img, wall), tmp_path / "wall.mp4").astype(np.float32)
+    decoded = through_h264(img, tmp_path / "person.mp4")
+    background = through_h264(np.full_like(img, wall), tmp_path / "wall.mp4").astype(np.float32)
     wide = np.zeros_like(truth)
     wide[:, : edge + 2] = True
     rows = slice(8, 56)  # away from the top and bottom, where the codec's blocks end
