@@ -38,7 +38,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bodymetry.capture.colour import CHANGE_CHROMA_WEIGHT, video_distance2, video_metric
+from bodymetry.capture.colour import CHANGE_CHROMA_WEIGHT, LUMA
 from bodymetry.errors import InputError
 
 __all__ = [
@@ -243,10 +243,6 @@ def horprasert_distortions(
     return alpha, cd, dist
 
 
-#: :func:`~bodymetry.capture.colour.video_metric` of the change term's chroma weight.
-_CHANGE_METRIC = video_metric(CHANGE_CHROMA_WEIGHT)
-
-
 class Subtractor:
     """Background subtraction for one camera (see the module notes).
 
@@ -281,8 +277,10 @@ class Subtractor:
                 mog.apply(frame, learningRate=-1)
         return mog
 
-    def _distortions(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """alpha, CD^2, |(I - E) / sigma|^2 (H, W) float32, channel planes for speed."""
+    def _distortions(self, image: np.ndarray, luma: bool = False) -> tuple[np.ndarray, ...]:
+        """alpha, CD^2, |(I - E) / sigma|^2 (H, W) float32, channel planes for speed;
+        with ``luma`` also the squared part of ``(I - E) / sigma`` along the luma axis
+        (:data:`bodymetry.capture.colour.LUMA`)."""
 
         if self._planes is None:
             inv = 1.0 / self.sigma
@@ -293,8 +291,9 @@ class Subtractor:
                 e,
                 ee,
                 1.0 / np.maximum(ee, 1e-6),
+                sum(np.float32(LUMA[k]) * e[k] for k in range(3)),
             )
-        inv, e, ee, inv_ee = self._planes
+        inv, e, ee, inv_ee, le = self._planes
         planes = cv2.split(image)
         i = [cv2.multiply(planes[k], inv[k], dtype=cv2.CV_32F) for k in range(3)]
         ie = i[0] * e[0] + i[1] * e[1] + i[2] * e[2]
@@ -302,22 +301,17 @@ class Subtractor:
         alpha = ie * inv_ee
         cd2 = ii - alpha * ie  # |i - alpha e|^2 with alpha = (i . e) / |e|^2
         dist2 = ii - 2.0 * ie + ee
-        return alpha, cd2, dist2
-
-    def video_distance2(self, image: np.ndarray) -> np.ndarray:
-        """(H, W) float32: ``|(I - E) / sigma|^2`` with its chroma part weighed by
-        :data:`~bodymetry.capture.colour.CHANGE_CHROMA_WEIGHT`
-        (:func:`bodymetry.capture.colour.video_distance2`), noise units squared.
-
-        4:2:0 video carries a saturated garment's chroma a pixel or two into the
-        background beside it and into the gaps between a hanging arm and the trunk,
-        where the luma is the background's; this distance leaves that chroma nearly out.
-        """
-        diff = (image.astype(np.float32) - self.model.median) / self.sigma
-        return video_distance2(diff, _CHANGE_METRIC)
+        if not luma:
+            return alpha, cd2, dist2
+        along = sum(np.float32(LUMA[k]) * i[k] for k in range(3)) - le
+        return alpha, cd2, dist2, along * along
 
     def labels(
-        self, image: np.ndarray, distances: bool = False, brightness: bool = False
+        self,
+        image: np.ndarray,
+        distances: bool = False,
+        brightness: bool = False,
+        video: bool = False,
     ) -> tuple[np.ndarray, ...]:
         """Person and shadow masks of one image.
 
@@ -328,6 +322,9 @@ class Subtractor:
             Also return the squared colour distance to the background.
         brightness : bool
             Also return the log brightness ratio to the background.
+        video : bool
+            Also return the squared colour distance with its chroma part weighed by
+            :data:`~bodymetry.capture.colour.CHANGE_CHROMA_WEIGHT`.
 
         Returns
         -------
@@ -336,6 +333,14 @@ class Subtractor:
         dist2 : (H, W) float32
             With ``distances``: ``|(I - E) / sigma|^2``, noise units squared
             (for MOG2, the Horprasert distance all the same).
+        video2 : (H, W) float32
+            With ``video``: the same distance as
+            :func:`bodymetry.capture.colour.video_distance2` measures it at
+            :data:`~bodymetry.capture.colour.CHANGE_CHROMA_WEIGHT` (luma part squared
+            plus the weight times the chroma part squared). 4:2:0 video carries a
+            saturated garment's chroma a pixel or two into the background beside it
+            and into the gaps between a hanging arm and the trunk, where the luma is
+            the background's; this distance leaves that chroma nearly out.
         log_alpha : (H, W) float32
             With ``brightness``: ``log`` of the brightness distortion ``alpha``
             (clipped at ``alpha = 1e-3``), e.g. for
@@ -347,7 +352,7 @@ class Subtractor:
                 f"its background model {self.model.size[0]}x{self.model.size[1]}"
             )
         cfg = self.config
-        alpha, cd2, dist2 = self._distortions(image)
+        alpha, cd2, dist2, *luma2 = self._distortions(image, luma=video)
         if self._mog2 is not None:
             out = self._mog2.apply(image, learningRate=0)
             labels = (out == 255, out == 127)
@@ -360,6 +365,10 @@ class Subtractor:
             highlight = changed & same_chroma & (alpha >= 1.0) & (alpha <= cfg.highlight_alpha_max)
             labels = (changed & ~shadow & ~highlight, shadow)
         extra = (dist2,) if distances else ()
+        if video:
+            # luma^2 + w chroma^2, with chroma^2 = dist2 - luma^2.
+            w = np.float32(CHANGE_CHROMA_WEIGHT)
+            extra += (w * dist2 + (np.float32(1.0) - w) * luma2[0],)
         if brightness:
             extra += (np.log(np.maximum(alpha, np.float32(1e-3))),)
         return (*labels, *extra)

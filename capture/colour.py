@@ -32,7 +32,7 @@ __all__ = [
 CHROMA_WEIGHT = 0.25
 
 #: The same for background subtraction's change term in the evidence fusion
-#: (:meth:`bodymetry.capture.background.Subtractor.video_distance2`), where a pixel's
+#: (``video`` of :meth:`bodymetry.capture.background.Subtractor.labels`), where a pixel's
 #: difference from the empty scene is held against the camera noise: in a 3-pixel gap
 #: beside a red garment the bled chroma is a few times the noise and the luma at it
 #: (docs/capture.md, "Chroma in the gaps": on the studio's unseen edge set the session

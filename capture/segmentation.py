@@ -418,7 +418,7 @@ class ViewEvidence:
     change : (H, W) float32 or None
         The change term (:func:`~bodymetry.capture.fusion.change_evidence`) of the
         colour distance with its chroma weighed down
-        (:meth:`~bodymetry.capture.background.Subtractor.video_distance2`).
+        (:meth:`~bodymetry.capture.background.Subtractor.labels`' ``video2``).
     colour_change : (H, W) float32 or None
         The same of the colour distance with every channel alike, which
         :func:`~bodymetry.capture.fusion.outline_contrast` reads (its classes were
@@ -537,11 +537,13 @@ class FrameSegmenter:
         threshold = self.config.person.threshold
         if sub is None:
             return ViewEvidence(None, np.zeros((h, w), bool), None, None, person, threshold)
-        raw, shadow, dist2, brightness = sub.labels(image, distances=True, brightness=True)
+        raw, shadow, dist2, video2, brightness = sub.labels(
+            image, distances=True, brightness=True, video=True
+        )
         # The fusion's change term leaves out the chroma that 4:2:0 video spreads past a
         # garment's outline into the narrow gaps beside it (docs/capture.md, "Chroma in
         # the gaps"); the outline contrast keeps the full colour distance.
-        change = change_evidence(sub.video_distance2(image), sub.config.fg_sigma)
+        change = change_evidence(video2, sub.config.fg_sigma)
         colour_change = change_evidence(dist2, sub.config.fg_sigma)
         return ViewEvidence(raw, shadow, change, brightness, person, threshold, colour_change)
 

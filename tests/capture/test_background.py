@@ -14,7 +14,13 @@ from bodymetry.capture.background import (
     horprasert_distortions,
     read_clip,
 )
-from bodymetry.capture.colour import CHROMA_WEIGHT, LUMA, video_distance2, video_metric
+from bodymetry.capture.colour import (
+    CHANGE_CHROMA_WEIGHT,
+    CHROMA_WEIGHT,
+    LUMA,
+    video_distance2,
+    video_metric,
+)
 from bodymetry.capture.toy import ToyScene, toy_background, toy_frame, write_video
 from bodymetry.errors import InputError
 
@@ -221,8 +227,11 @@ def test_a_narrow_gap_beside_a_saturated_garment_is_unchanged_in_luma(gap, tmp_p
     img = np.clip(cv2.GaussianBlur(img, (0, 0), 0.7) + 0.5, 0, 255).astype(np.uint8)
     decoded = through_h264(img, tmp_path / "gap.mp4")
     sub = Subtractor(BackgroundModel.from_frames("cam_00", np.stack(clip)))
-    _, _, dist2 = sub.labels(decoded, distances=True)
-    video = sub.video_distance2(decoded)
+    _, _, dist2, video = sub.labels(decoded, distances=True, video=True)
+    # The same distance as the video metric at the change term's chroma weight gives.
+    whitened = (decoded.astype(np.float32) - sub.model.median) / sub.sigma
+    expected = video_distance2(whitened, video_metric(CHANGE_CHROMA_WEIGHT))
+    np.testing.assert_allclose(video, expected, rtol=1e-4, atol=1e-3)
     threshold = sub.config.fg_sigma**2
     rows = slice(8, 56)  # away from the top and bottom, where the codec's blocks end
     middle = gap + 1
