@@ -65,7 +65,7 @@ from bodymetry.capture.person import (
 from bodymetry.capture.persons import everyone_silhouettes, observe_persons, raised_hands
 from bodymetry.capture.session import Session
 from bodymetry.capture.shadows import FloorShadow, at_feet, floor_shadows
-from bodymetry.capture.skin import SkinConfig, clothing_masks, facing
+from bodymetry.capture.skin import SkinConfig, clothing_masks, facing, hand_skin
 from bodymetry.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -542,7 +542,12 @@ class FrameSegmenter:
         )
         # The fusion's change term leaves out the chroma that 4:2:0 video spreads past a
         # garment's outline into the narrow gaps beside it (docs/capture.md, "Chroma in
-        # the gaps"); the outline contrast keeps the full colour distance.
+        # the gaps"), except at the hands, whose skin differs from a beige floor more in
+        # chroma than in lightness ("Hands before the floor"); the outline contrast keeps
+        # the full colour distance.
+        if person is not None and person.landmarks is not None:
+            hands = hand_skin(image, person.landmarks)
+            video2[hands] = dist2[hands]
         change = change_evidence(video2, sub.config.fg_sigma)
         colour_change = change_evidence(dist2, sub.config.fg_sigma)
         return ViewEvidence(raw, shadow, change, brightness, person, threshold, colour_change)

@@ -41,14 +41,24 @@ __all__ = [
     "clothing_masks",
     "colour_coords",
     "facing",
+    "hand_skin",
+    "landmark_discs",
     "seed_mask",
     "skin_models",
+    "skin_toned",
 ]
 
 #: BlazePose landmarks on the face (nose, eyes, ears, mouth corners).
 FACE = tuple(range(11))
 #: BlazePose landmarks on the hands (pinky and index knuckles, thumbs).
 HANDS = (17, 18, 19, 20, 21, 22)
+#: The wrists and the hand landmarks.
+WRISTS_HANDS = (15, 16, *HANDS)
+#: :func:`hand_skin`'s radius around each wrist and hand landmark, a share of the
+#: torso length: a hand's length from the wrist, and half a hand's width beyond it
+#: (studio seed 42 reaching, arm span error: 0.12: -15.5 mm, 0.2: -10.7 mm, none:
+#: -21.9 mm; docs/capture.md, "Hands before the floor").
+HAND_REACH = 0.2
 #: A view's own skin colour is used where it lies within this many times
 #: ``max_distance`` of the frame's (a camera's white balance and exposure move it
 #: by more than the skin's spread within one view; seeds on cloth by far more).
@@ -157,6 +167,71 @@ def facing(landmarks: np.ndarray, centre: np.ndarray) -> bool:
     return float(np.dot(nose - ears, np.asarray(centre, float) - ears)) > 0
 
 
+def landmark_discs(
+    shape: tuple[int, int],
+    landmarks: np.ndarray,
+    ids: Sequence[int],
+    share: float,
+    min_visibility: float = 0.5,
+) -> np.ndarray:
+    """(H, W) bool: discs around some of a person's landmarks in one view.
+
+    Parameters
+    ----------
+    shape : (H, W)
+    landmarks : (33, 3) float
+        The person's landmarks in this view (pixel x, pixel y, visibility).
+    ids : sequence of int
+        Which landmarks (e.g. :data:`FACE`, :data:`HANDS`).
+    share : float
+        The discs' radius as a share of the view's torso length (mid-shoulder to
+        mid-hip), so that it follows the person's size in the image.
+    min_visibility : float
+        Landmarks seen less surely than this draw nothing.
+
+    Returns
+    -------
+    (H, W) bool
+        All False when the torso length is unknown (a shoulder or hip missing).
+    """
+    marks = np.asarray(landmarks, float)
+    discs = np.zeros(shape, np.uint8)
+    torso = _torso_length(marks)
+    if not np.isfinite(torso) or torso < 1:
+        return discs > 0
+    radius = max(1, round(share * torso))
+    for x, y, seen in marks[list(ids)]:
+        if np.isfinite(x) and np.isfinite(y) and seen >= min_visibility:
+            cv2.circle(discs, (round(x), round(y)), radius, 1, -1)
+    return discs > 0
+
+
+def hand_skin(image: np.ndarray, landmarks: np.ndarray, reach: float = HAND_REACH) -> np.ndarray:
+    """(H, W) bool: pixels near a person's hands whose colour skin can have.
+
+    Background subtraction weighs chroma down (4:2:0 video spreads a garment's
+    chroma into the gaps beside it, :mod:`bodymetry.capture.colour`), but a hand
+    before a beige floor or a wooden wall differs from it more in chroma than in
+    lightness: here its change keeps the full colour. Only the pixels within
+    ``reach`` of the torso length of a visible wrist or hand landmark and with a
+    chroma skin has (:func:`skin_toned`) are marked; a grey gap between a hand
+    and the thigh has too little chroma to be one of them.
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8 BGR
+    landmarks : (33, 3) float
+        The person's landmarks in this image (pixel x, pixel y, visibility).
+    reach : float
+        Radius around each landmark, a share of the torso length.
+    """
+    near = landmark_discs(image.shape[:2], landmarks, WRISTS_HANDS, reach)
+    if near.any():
+        box = _box(near)
+        near[box] &= skin_toned(colour_coords(image[box], 1.0))
+    return near
+
+
 def seed_mask(
     shape: tuple[int, int],
     person: np.ndarray,
@@ -182,23 +257,16 @@ def seed_mask(
         Discs around the surely seen face and hand landmarks, inside the
         silhouette eroded by one pixel (its outline mixes in the background).
     """
-    discs = np.zeros(shape, np.uint8)
+    discs = np.zeros(shape, bool)
     for marks, face in landmarks:
-        marks = np.asarray(marks, float)
-        torso = _torso_length(marks)
-        if not np.isfinite(torso) or torso < 1:
-            continue
         parts = ((FACE, config.face_radius),) if face else ()
         for ids, share in (*parts, (HANDS, config.hand_radius)):
-            radius = max(1, round(share * torso))
-            for x, y, seen in marks[list(ids)]:
-                if np.isfinite(x) and np.isfinite(y) and seen >= config.min_visibility:
-                    cv2.circle(discs, (round(x), round(y)), radius, 1, -1)
+            discs |= landmark_discs(shape, marks, ids, share, config.min_visibility)
     inner = cv2.erode(np.asarray(person, np.uint8), np.ones((3, 3), np.uint8))
-    return (discs > 0) & (inner > 0)
+    return discs & (inner > 0)
 
 
-def _toned(coords: np.ndarray) -> np.ndarray:
+def skin_toned(coords: np.ndarray) -> np.ndarray:
     """(...,) bool: which colour coordinates (..., 3) have a chroma skin can have.
 
     Human skin of every tone lies in a narrow band of warm hues (a* and b* both
@@ -233,7 +301,7 @@ def skin_models(samples: Sequence[np.ndarray], config: SkinConfig) -> list[SkinM
     ----------
     samples : sequence of C (N_c, 3) float
         Each view's seed colours (:func:`colour_coords` at :func:`seed_mask`);
-        those no skin has (:func:`_toned`) are dropped first.
+        those no skin has (:func:`skin_toned`) are dropped first.
     config : SkinConfig
 
     Returns
@@ -250,7 +318,7 @@ def skin_models(samples: Sequence[np.ndarray], config: SkinConfig) -> list[SkinM
         not widen it, nor seeds on cloth).
     """
     toned = [np.asarray(x, float).reshape(-1, 3) for x in samples]
-    kept = [_trimmed(x[_toned(x)], config.trim) for x in toned]
+    kept = [_trimmed(x[skin_toned(x)], config.trim) for x in toned]
     everything = np.concatenate(kept) if kept else np.empty((0, 3))
     if len(everything) < config.min_seeds:
         return [None] * len(kept)
@@ -340,7 +408,7 @@ def clothing_masks(
             continue
         person = np.asarray(person, bool)
         inside = person[box]
-        skin = (model.distance(lab) <= config.max_distance) & _toned(lab) & inside
+        skin = (model.distance(lab) <= config.max_distance) & skin_toned(lab) & inside
         skin = cv2.morphologyEx(skin.astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0
         worn = cv2.morphologyEx((inside & ~skin).astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0
         out[c] = np.zeros_like(person)

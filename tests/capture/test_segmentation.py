@@ -16,7 +16,7 @@ import pytest
 import yaml
 from skeletons import detection
 
-from bodymetry.capture.background import SubtractionConfig
+from bodymetry.capture.background import BackgroundModel, SubtractionConfig
 from bodymetry.capture.person import Person
 from bodymetry.capture.segmentation import (
     CaptureConfig,
@@ -196,3 +196,44 @@ def test_a_camera_that_found_nobody_is_asked_again_where_the_others_see_someone(
     frame.segmenter = _CropOnlySegmenter(rig, 2, at)
     assert frame._asked_again(images, list(lonely))[2].person is None
     assert frame.segmenter.asked == []
+
+
+class _FixedSegmenter:
+    """A segmenter that finds one person with the given landmarks everywhere."""
+
+    def __init__(self, landmarks):
+        self.landmarks = landmarks
+
+    def detect(self, image, roi=None):
+        return Person(np.zeros(image.shape[:2], np.float32), self.landmarks)
+
+
+def test_the_change_term_keeps_the_chroma_of_skin_by_the_hands():
+    """The change term weighs chroma down (4:2:0 bleed into gaps) except by the hands:
+    skin before a beige floor of nearly the same lightness is a strong change there,
+    the same colour far from the hands a weak one, and the outline contrast's full
+    colour distance is the same at both."""
+    h, w = 120, 160
+    rng = np.random.default_rng(11)
+    beige = np.array([140.0, 170.0, 190.0])  # BGR; luma 172.6
+    skin = (100, 165, 225)  # luma 175.5, a* ~ 12, b* ~ 35
+    frames = np.clip(beige + rng.normal(0, 2, (8, h, w, 3)), 0, 255).astype(np.uint8)
+    model = BackgroundModel.from_frames("cam_a", frames)
+    marks = np.full((33, 3), np.nan)
+    for i, (x, y) in {11: (60, 20), 12: (90, 20), 23: (62, 60), 24: (88, 60),
+                      15: (40, 70), 17: (38, 76), 19: (40, 77), 21: (43, 75)}.items():  # fmt: skip
+        marks[i] = (x, y, 0.99)
+    img = np.clip(beige + rng.normal(0, 2, (h, w, 3)), 0, 255)
+    img[70:80, 36:46] = skin  # the hand
+    img[70:80, 126:136] = skin  # the same colour far from the hands
+    img = img.astype(np.uint8)
+    frame = FrameSegmenter([model], [(w, h)], CaptureConfig(method="background"), None, None, None)
+    frame.segmenter = _FixedSegmenter(marks)
+    ev = frame.evidence(0, img)
+    hand, far = ev.change[72:78, 38:44], ev.change[72:78, 128:134]
+    np.testing.assert_allclose(hand, ev.colour_change[72:78, 38:44], atol=1e-6)
+    full = ev.colour_change[72:78, 128:134]
+    assert abs(full.mean() - hand.mean()) < 0.25  # the same colour change at both (noise)
+    assert hand.mean() > far.mean() + 0.5 and far.mean() < 0.5
+    frame.segmenter = _FixedSegmenter(np.full((33, 3), np.nan))  # no landmarks: weighed down
+    assert frame.evidence(0, img).change[72:78, 38:44].mean() < 0.5

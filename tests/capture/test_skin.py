@@ -10,6 +10,8 @@ from bodymetry.capture.skin import (
     clothing_masks,
     colour_coords,
     facing,
+    hand_skin,
+    landmark_discs,
     seed_mask,
     skin_models,
 )
@@ -211,3 +213,36 @@ def test_capture_learns_from_every_persons_landmarks_and_classifies_their_pixels
     assert found[150:200, 60:100].all()  # the sighting's trousers
     # Without any landmarks, nothing is told.
     assert frame_clothing([img], [upper], None, [None], [], None, CaptureConfig()) == (None,)
+
+
+def test_landmark_discs_follow_the_torso_length():
+    """The discs' radius is a share of the torso length: the same figure drawn twice
+    as large covers four times the pixels, and without a hip nothing is drawn."""
+    _, _, _, marks = _person(np.random.default_rng(7))
+    small = landmark_discs((H, W), marks, HANDS, 0.1)
+    big = marks.copy()
+    big[:, :2] *= 2
+    large = landmark_discs((2 * H, 2 * W), big, HANDS, 0.1)
+    assert small.any() and abs(large.sum() / small.sum() - 4.0) < 0.4
+    no_hip = marks.copy()
+    no_hip[23] = np.nan
+    assert not landmark_discs((H, W), no_hip, HANDS, 0.1).any()
+    unseen = marks.copy()
+    unseen[list(HANDS), 2] = 0.2
+    assert not landmark_discs((H, W), unseen, HANDS, 0.1).any()
+
+
+def test_hand_skin_is_skin_coloured_and_near_the_hands():
+    """:func:`hand_skin` marks the forearms' skin by the hands, not the face's (far from
+    them), nor grey floor or navy trousers painted by a hand."""
+    rng = np.random.default_rng(8)
+    img, _, _, marks = _person(rng)
+    img[140:150, 30:50] = (90, 90, 90)  # grey floor below the left hand
+    img[120:140, 130:140] = TROUSERS  # navy beside the right hand
+    near = hand_skin(img, marks)
+    assert near[124:140, 32:48].mean() > 0.95  # the left hand's skin
+    assert near[124:140, 112:128].mean() > 0.95  # the right hand's
+    assert not near[20:60, 60:100].any()  # the face is skin, but far from the hands
+    assert not near[140:150, 30:50].any()
+    assert not near[120:140, 131:140].any()
+    assert not hand_skin(img, np.full((33, 3), np.nan)).any()  # nobody's landmarks
