@@ -54,6 +54,6 @@ SOURCE = (
     "--validation, --heavy and --fresh, rendered afresh with a skinning that keeps the "
     "volume of the body and evaluated again with the height read from the floor, the weight "
     "from the posed bodies and the outline and the background change read with chroma "
-    "weighed down except at the hands, benchmarks/results/pipeline_recheck.json, 2026-12-07); real footage "
-    "adds errors that studio renders cannot measure"
+    "weighed down except at the hands, benchmarks/results/pipeline_recheck.json, 2026-12-07); "
+    "real footage adds errors that studio renders cannot measure"
 )
