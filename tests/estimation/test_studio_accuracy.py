@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -218,7 +219,9 @@ def test_a_mid_size_adult_seen_in_low_contrast_gets_the_body_accuracy_caveat():
     assert low.bias < 0 and low.beyond(TARGETS["weight_kg"])
     caveats = run_caveats(_records(9, contrast=1.1), ("cam_00",), headline=adult, raised=range(9))
     (caveat,) = [c for c in caveats if c.code == "body_accuracy"]
-    assert "the weight read low by" in caveat.message
+    # Beyond the target by its RMS or by its one-sided bias (whichever the shipped
+    # sessions give), and read low either way.
+    assert re.search(r"the weight read (low by|[\d.]+ kg RMS off .*mean -)", caveat.message)
     assert "low-contrast clothing" in caveat.message
     high = run_caveats(_records(9, contrast=2.0), ("cam_00",), headline=adult, raised=range(9))
     assert not any(c.code == "body_accuracy" for c in high)
