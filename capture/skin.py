@@ -226,9 +226,10 @@ def hand_skin(image: np.ndarray, landmarks: np.ndarray, reach: float = HAND_REAC
         Radius around each landmark, a share of the torso length.
     """
     near = landmark_discs(image.shape[:2], landmarks, WRISTS_HANDS, reach)
+    # Only the discs' pixels are converted (as one row): with the arms held out, the
+    # box around both hands would span the whole trunk between them.
     if near.any():
-        box = _box(near)
-        near[box] &= skin_toned(colour_coords(image[box], 1.0))
+        near[near] = skin_toned(colour_coords(image[near][None], 1.0)[0])
     return near
 
 
