@@ -319,7 +319,7 @@ def rendered_weight(session: Path, frames: list[int], truth: SubjectTruth | None
     An independent subject was posed by linear blend skinning until 2026-12-07,
     which does not keep a body's volume (it loses some where joints bend, up to 3 L
     with the arms overhead), and by dual quaternion skinning since, which keeps it
-    within about half a litre (``studio/skinning.py``); the silhouettes show the
+    within about half a litre (``estimation/body_model/skinning.py``); the silhouettes show the
     posed bodies, so no method that reads them can see the rest body's volume.
     Each session is posed again the way it was rendered (``subject.json``'s
     ``skinning``; none named: linear blend).

@@ -1,7 +1,7 @@
 """Our posing against the studio's skinning (issue 33): ``python -m benchmarks posing``.
 
 The studio renders its independent bodies posed by its skinning (dual quaternions
-since 2026-12-07, linear blending before; ``studio/skinning.py``) with their
+since 2026-12-07, linear blending before; ``estimation/body_model/skinning.py``) with their
 own joints (:class:`~bodymetry.studio.independent.IndependentSubject`); the fit
 explains those silhouettes with our SCAPE model posed by its own rule (part
 rotations, the learned pose deformation Q, the anchored vertex solve). Where the two

@@ -3,7 +3,7 @@
 The studio's independent subjects were posed by linear blend skinning until
 2026-12-07, which does not keep a body's volume: where joints bend the skin folds
 into itself (up to 3 L with the arms overhead). Since then they are posed by dual
-quaternion skinning (``studio/skinning.py``), which keeps it within about half a
+quaternion skinning (``estimation/body_model/skinning.py``), which keeps it within about half a
 litre; each session is weighed the way it was rendered
 (:func:`benchmarks.bench_pipeline.rendered_weight`). The
 silhouettes show those posed bodies, and the pipeline reads the weight from its

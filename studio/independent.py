@@ -33,16 +33,19 @@ import numpy as np
 import scipy.sparse as sp
 
 from bodymetry.errors import InputError
-from bodymetry.estimation.body_model.bake.pose_space import lbs
 from bodymetry.estimation.body_model.biometrics import Biometrics, measure_canonical
 from bodymetry.estimation.body_model.model import INDEPENDENT_FORMAT, BodyModel
 from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS, forward_kinematics
+from bodymetry.estimation.body_model.skinning import skin
 from bodymetry.fileio import load_npz
 from bodymetry.studio.clothing import CLOTHING, GARMENTS, ClothingLayer, dress
 from bodymetry.studio.scene import Appearance
-from bodymetry.studio.skinning import SKINNING, SKINNINGS, dual_quaternion_skin
 
+#: How the studio poses its independent subjects (``ground_truth/subject.json`` records
+#: it as ``skinning``; :mod:`bodymetry.estimation.body_model.skinning`). Sessions
+#: rendered before 2026-12-07 name no ``skinning``: they were posed by ``linear_blend``.
+SKINNING = "dual_quaternion"
 #: The committed bank of independent bodies.
 INDEPENDENT_BODIES_PATH = Path(__file__).with_name("data") / "independent_bodies.npz"
 #: ``ease=MM``'s range, millimetres: from nearly tight to garments that stand off
@@ -363,7 +366,8 @@ class IndependentSubject:
         rest: np.ndarray | None = None,
         skinning: str = SKINNING,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Pose a rest surface by dual quaternion skinning (:mod:`.skinning`).
+        """Pose a rest surface by dual quaternion skinning
+        (:mod:`bodymetry.estimation.body_model.skinning`).
 
         Parameters
         ----------
@@ -373,7 +377,7 @@ class IndependentSubject:
         rest : (V, 3) float, optional
             The surface to pose (default: the nude body; :attr:`surface` for the render).
         skinning : {"dual_quaternion", "linear_blend"}
-            How: the studio's (:data:`~bodymetry.studio.skinning.SKINNING`), or the
+            How: the studio's (:data:`SKINNING`), or the
             linear blend skinning that posed the sessions rendered before
             2026-12-07, whose ``subject.json`` names no ``skinning``.
 
@@ -389,10 +393,7 @@ class IndependentSubject:
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
         tau = np.broadcast_to(np.asarray(tau, dtype=float), (len(theta), 3))
         rot, joints = forward_kinematics(theta, tau, self.rest_joints, self.hinge_axes)
-        if skinning not in SKINNINGS:
-            raise ValueError(f"skinning: expected one of {SKINNINGS}, got {skinning!r}")
-        blend = dual_quaternion_skin if skinning == "dual_quaternion" else lbs
-        vertices = blend(rest, self.weights, self.rest_joints, rot, joints)
+        vertices = skin(skinning, rest, self.weights, self.rest_joints, rot, joints)
         parts = self.model.keypoint_parts
         rel = self.keypoints - self.rest_joints[parts]
         keypoints = joints[:, parts] + np.einsum("bkij,kj->bki", rot[:, parts], rel)

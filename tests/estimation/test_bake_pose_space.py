@@ -24,6 +24,7 @@ from bodymetry.estimation.body_model.skeleton import (
     forward_kinematics,
     local_rotations,
 )
+from bodymetry.estimation.body_model.skinning import lbs
 
 # --------------------------------------------------------------------------------------
 # Tolerances, all in one place (absolute; metres on unit-scale meshes, or entries of Q).
@@ -95,7 +96,7 @@ def test_lbs_rest_pose_returns_the_rest_mesh(rng):
     rest = _rest_joints(rng)
     W = rng.dirichlet(np.ones(N_PARTS), size=len(v))
     R = np.broadcast_to(np.eye(3), (2, N_PARTS, 3, 3))
-    out = ps.lbs(v, W, rest, R, np.broadcast_to(rest, (2, N_PARTS, 3)))
+    out = lbs(v, W, rest, R, np.broadcast_to(rest, (2, N_PARTS, 3)))
     np.testing.assert_allclose(out, np.broadcast_to(v, out.shape), atol=ATOL)
 
 
@@ -107,7 +108,7 @@ def test_lbs_one_rigid_motion_for_all_parts_moves_the_mesh_rigidly(rng):
     Rg = R[:, :1].repeat(N_PARTS, axis=1)  # every part turns like the root
     t = rng.normal(size=(3, 1, 3))
     joints = np.einsum("bij,kj->bki", Rg[:, 0], rest) + t
-    out = ps.lbs(v, W, rest, Rg, joints)
+    out = lbs(v, W, rest, Rg, joints)
     np.testing.assert_allclose(out, np.einsum("bij,vj->bvi", Rg[:, 0], v) + t, atol=ATOL)
 
 
@@ -117,7 +118,7 @@ def test_lbs_one_hot_weights_move_each_part_rigidly(rng):
     owner = rng.integers(0, N_PARTS, len(v))
     W = np.eye(N_PARTS)[owner]
     R, joints, _ = _posed(rng, 2, rest)
-    out = ps.lbs(v, W, rest, R, joints)
+    out = lbs(v, W, rest, R, joints)
     expected = np.einsum("bvij,vj->bvi", R[:, owner], v - rest[owner]) + joints[:, owner]
     np.testing.assert_allclose(out, expected, atol=ATOL)
 
@@ -129,7 +130,7 @@ def test_lbs_blends_linearly(rng):
     a, b = PARTS.index("thigh_l"), PARTS.index("shin_l")
     W = np.zeros((5, N_PARTS))
     W[:, a], W[:, b] = 0.3, 0.7
-    out = ps.lbs(v, W, rest, R, joints)[0]
+    out = lbs(v, W, rest, R, joints)[0]
     ya = (v - rest[a]) @ R[0, a].T + joints[0, a]
     yb = (v - rest[b]) @ R[0, b].T + joints[0, b]
     np.testing.assert_allclose(out, 0.3 * ya + 0.7 * yb, atol=ATOL)
@@ -198,7 +199,7 @@ def test_rigid_parts_need_no_pose_deformation(rng):
     rest = _rest_joints(rng)
     owner = np.repeat(parts, 3)  # each soup vertex belongs to its triangle's part
     R, joints, rotvec = _posed(rng, 30, rest)
-    posed = ps.lbs(v, np.eye(N_PARTS)[owner], rest, R, joints)
+    posed = lbs(v, np.eye(N_PARTS)[owner], rest, R, joints)
     pairs = ps.nearest_joint_pairs(v, f, parts, rest)
     coef = ps.fit_pose_coefficients(v, f, parts, pairs, posed, R, rotvec)
     assert coef.shape == (200, 9, N_POSE_FEATURES)
@@ -244,7 +245,7 @@ def test_ridge_shrinks_the_coefficients(rng):
     pairs = ps.nearest_joint_pairs(v, f, parts, rest)
     R, joints, rotvec = _posed(rng, 20, rest)
     W = rng.dirichlet(np.ones(N_PARTS), size=len(v))  # blended LBS: non-rigid
-    posed = ps.lbs(v, W, rest, R, joints)
+    posed = lbs(v, W, rest, R, joints)
     loose = ps.fit_pose_coefficients(v, f, parts, pairs, posed, R, rotvec, ridge=RIDGE_TINY)
     tight = ps.fit_pose_coefficients(v, f, parts, pairs, posed, R, rotvec, ridge=10.0)
     assert np.linalg.norm(tight) < 0.5 * np.linalg.norm(loose)

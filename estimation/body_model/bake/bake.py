@@ -39,7 +39,6 @@ from bodymetry.estimation.body_model.bake.assets import (
 )
 from bodymetry.estimation.body_model.bake.pose_space import (
     fit_pose_coefficients,
-    lbs,
     nearest_joint_pairs,
     sample_training_poses,
 )
@@ -70,6 +69,7 @@ from bodymetry.estimation.body_model.skeleton import (
     forward_kinematics,
     local_rotations,
 )
+from bodymetry.estimation.body_model.skinning import lbs
 from bodymetry.fileio import save_npz, write_json_atomic
 
 log = logging.getLogger(__name__)

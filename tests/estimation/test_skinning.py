@@ -1,4 +1,4 @@
-"""The studio's skinning: rigid where one part rules, and no collapse where parts turn apart."""
+"""Skinning: rigid where one part rules, and no collapse where parts turn apart."""
 
 from __future__ import annotations
 
@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bodymetry.estimation.body_model.bake.pose_space import lbs
 from bodymetry.estimation.body_model.geometry import mesh_volume
-from bodymetry.studio.skinning import dual_quaternion_skin
+from bodymetry.estimation.body_model.skinning import dual_quaternion_skin, lbs, skin
 
 #: Round-off of the quaternion conversions and the blend (metres, on unit-size inputs).
 EXACT = 1e-9
@@ -110,3 +109,18 @@ def test_a_bent_limb_loses_less_volume_than_with_linear_blending(degrees):
     dqs_change = mesh_volume(dual_quaternion_skin(points, weights, *motion)[0], faces) - rest_volume
     assert lbs_loss > 0.0
     assert abs(dqs_change) < 0.5 * lbs_loss
+
+
+def test_skin_dispatches_by_name_and_rejects_others():
+    points, _, _ = _cylinder(n_rings=5, n_around=8)
+    weights = _two_part_weights(points)
+    motion = _motion(Rotation.from_rotvec([0, 0, 1.0]).as_matrix())
+    np.testing.assert_array_equal(
+        skin("dual_quaternion", points, weights, *motion),
+        dual_quaternion_skin(points, weights, *motion),
+    )
+    np.testing.assert_array_equal(
+        skin("linear_blend", points, weights, *motion), lbs(points, weights, *motion)
+    )
+    with pytest.raises(ValueError, match="skinning: expected one of"):
+        skin("rigid", points, weights, *motion)
