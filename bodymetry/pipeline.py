@@ -1034,7 +1034,7 @@ def session_stage(
         shared_body_model(),
         prepared.cameras,
         checked,
-        config.fit.refinement,
+        config.session_shape.refinement(config.fit.refinement),
         alignments=[shape.alignments.get(f.frame) for f in frames],
         clothing=[f.clothing for f in frames],
     )

@@ -137,6 +137,13 @@ class ContourObservation:
     def valid(self) -> np.ndarray:
         return np.array([t is not None for t in self.trees])
 
+    @property
+    def scale(self) -> float:
+        """The working scale: working pixels per pixel of the masks (``Camera.scaled``)."""
+        if self.originals is None or len(self.cameras) == 0:
+            return 1.0
+        return float(self.cameras[0].K[0, 0] / self.originals[0].K[0, 0])
+
     def in_unknown(self, c: int, points: np.ndarray) -> np.ndarray:
         """(P,) bool: which of view ``c``'s working pixels ``points`` (P, 2) fall
         on its unknown pixels (all False where it has none; outside the image:

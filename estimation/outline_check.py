@@ -184,8 +184,9 @@ def _frame_pairs(
         verts.append(p.edges[:, 0])
         sizes.append(depth / cam.K[0, 0] * 1000.0)
         offsets.append(px * sizes[-1])
-        # The outline's points are at the contour scale (Camera.scaled: x' = (x + 0.5) s - 0.5).
-        where.append((p.targets + 0.5) / refinement.image_scale - 0.5)
+        # The outline's points are at the contour scale (Camera.scaled: x' = (x + 0.5) s - 0.5),
+        # the alignment's own where one is given (the session stage's may differ).
+        where.append((p.targets + 0.5) / obs.scale - 0.5)
         views.append(np.full(len(p.edges), p.camera))
     if not verts:
         empty = np.zeros(0)

@@ -147,6 +147,13 @@ class SessionShapeConfig:
         body's height (a world whose z = 0 is not the floor).
     seed : int
         Seed of the jitter.
+    image_scale : float
+        Scale of the images the contours are compared at, and ...
+    max_points : int
+        ... the outline points per view: the stage measures, so it compares at
+        the images' own resolution with twice the per-frame refinement's points
+        (the ``best`` quality preset's; docs/session-shape.md, "Full resolution").
+        They replace the refinement's own.
     """
 
     enabled: bool = True
@@ -160,6 +167,8 @@ class SessionShapeConfig:
     seed: int = 0
     floor_height: bool = True
     posed_weight: bool = True
+    image_scale: float = 1.0
+    max_points: int = 800
 
     def __post_init__(self) -> None:
         if self.iterations < 0:
@@ -176,6 +185,17 @@ class SessionShapeConfig:
             raise ValueError(f"descents: expected >= 1, got {self.descents}")
         if not self.jitter >= 0:
             raise ValueError(f"jitter: expected >= 0, got {self.jitter}")
+        if not 0 < self.image_scale <= 1:
+            raise ValueError(f"image_scale: expected in (0, 1], got {self.image_scale}")
+        if self.max_points < 10:
+            raise ValueError(f"max_points: expected >= 10, got {self.max_points}")
+
+    def refinement(self, refinement: RefineConfig | None = None) -> RefineConfig:
+        """The contour cost's settings in this stage: ``refinement`` (the run's
+        per-frame refinement) at this stage's ``image_scale`` and ``max_points``."""
+        return replace(
+            refinement or RefineConfig(), image_scale=self.image_scale, max_points=self.max_points
+        )
 
 
 @dataclass(frozen=True)
@@ -442,7 +462,8 @@ def fit_session_shape(
     frames : sequence of SessionFrame
         The session's accepted frames.
     refinement : RefineConfig, optional
-        The contour cost's settings (the run's per-frame refinement).
+        The contour cost's settings (the run's per-frame refinement), at the
+        stage's own resolution (:meth:`SessionShapeConfig.refinement`).
     config : SessionShapeConfig, optional
     density : float
         kg/m³ for weight.
@@ -455,8 +476,8 @@ def fit_session_shape(
         Never raises for bad data: the summary's status says what went wrong.
     """
     t0, cpu0 = time.perf_counter(), time.process_time()
-    refinement = refinement or RefineConfig()
     config = config or SessionShapeConfig()
+    refinement = config.refinement(refinement)
     used = tuple(int(f.frame) for f in frames)
     give_up = functools.partial(_give_up, used, t0)
     if len(frames) < config.min_frames:

@@ -290,3 +290,24 @@ def test_the_trunks_share_on_clothing_is_measured_where_capture_told(scene):
     back = OutlineCheck.from_json(told.to_json())
     assert back.trunk_clothing_share == pytest.approx(told.trunk_clothing_share, abs=1e-3)
     assert np.isnan(OutlineCheck.from_json({"status": "ok"}).trunk_clothing_share)
+
+
+def test_an_alignment_at_another_scale_finds_the_clothing_at_its_own_pixels(scene):
+    """The session stage aligns at full resolution while the run's refinement works
+    at half: where its outline points lie in the masks follows the alignment's
+    scale, so the trunk's clothing share is what a fresh full-scale check finds."""
+    model, cameras, states = scene
+    state = states[0]
+    masks = _masks(model, cameras, state)
+    shirts = _masks(model, cameras, state, _region_faces(model, ("torso", "pelvis")))
+    half, full = RefineConfig(image_scale=0.5), RefineConfig(image_scale=1.0)
+    cost = ContourCost(model, prepare_contours(cameras, masks, full.image_scale), full)
+    assert cost.obs.scale == 1.0
+    assert prepare_contours(cameras, masks, half.image_scale).scale == 0.5
+    alignment = Alignment(cost, state.copy(), cost.evaluate(state)[1])
+    kept = check_outline(
+        model, cameras, [(masks, state)], half, alignments=[alignment], clothing=[shirts]
+    )
+    fresh = check_outline(model, cameras, [(masks, state)], full, clothing=[shirts])
+    assert kept.trunk_clothing_share == pytest.approx(fresh.trunk_clothing_share, abs=1e-9)
+    assert kept.trunk_clothing_share > 0.6

@@ -19,6 +19,7 @@ from bodymetry.estimation.body_model.model import (
 from bodymetry.estimation.posed_weight import posed_volumes
 from bodymetry.estimation.projection import project_silhouettes
 from bodymetry.estimation.records import FrameRecord, SessionShape, StageEstimate, summarize
+from bodymetry.estimation.refinement import RefineConfig
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import RunResults, SessionInfo
 from bodymetry.estimation.session_shape import (
@@ -191,9 +192,19 @@ def test_descents_are_averaged_and_their_spread_is_in_the_standard_errors(scene)
     one = fit_session_shape(model, cameras, frames, config=replace(config, descents=1)).summary
     assert one.descents == 1 and set(one.descent_spread.values()) == {0.0}
     assert "spread" not in one.covariance
-    for bad in ({"descents": 0}, {"jitter": -1.0}):
+    for bad in ({"descents": 0}, {"jitter": -1.0}, {"image_scale": 0.0}, {"max_points": 5}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             SessionShapeConfig(**bad)
+
+
+def test_the_stage_compares_at_its_own_resolution_with_the_runs_other_settings():
+    run = RefineConfig(image_scale=0.5, max_points=400, huber_px=2.0)
+    own = SessionShapeConfig().refinement(run)
+    assert (own.image_scale, own.max_points) == (1.0, 800)
+    assert own.huber_px == 2.0 and own.shape_prior == run.shape_prior
+    half = SessionShapeConfig(image_scale=0.5, max_points=400).refinement(run)
+    assert half == run
+    assert SessionShapeConfig().refinement().iterations == RefineConfig().iterations
 
 
 def _linear_blocks(n_frames: int, rng: np.random.Generator) -> list[tuple]:
