@@ -65,20 +65,25 @@ class OutlineConfig:
     ----------
     loose_mm : float
         Warn of loose clothing when the trunk's offset exceeds the lower
-        limbs' by more than this (the pipeline benchmark's studio sessions,
-        2026-12-02: tight subjects -1.2 to +2.8 mm, a loose shirt and shorts
-        +3.6 to +5.0 mm; docs/session-shape.md).
+        limbs' by more than this. Set on 2026-12-07 for the session stage at
+        full resolution: the studio's tight subjects (issue 15's eleven and
+        the unseen edge set) at most +0.15 ± 0.45 mm, the loose shirt and
+        shorts (seeds 45, 46, 56, 73, 74) +1.4 to +4.6 mm (at half
+        resolution before: tight -1.2 to +2.8 mm, loose +3.4 to +5.0 mm, 3.2 mm;
+        docs/session-shape.md).
     crown_mm : float
         Warn of hair or headwear when the crown's offset exceeds the lower
-        limbs' by more than this (studio: bare head at most 2 mm, hair up to
-        2.5 cm thick at least 11.9 mm; the real Pose2Sim capture 5.8 mm).
+        limbs' by more than this (studio at full resolution: bare head at most
+        +0.1 mm, hair up to 2.5 cm thick +6.8 to +10.8 mm; the real Pose2Sim
+        subject's cap +6.6 mm. At half resolution before: 2 mm, 11.9 mm and
+        5.8 mm, 7 mm).
     min_points : int
         Fewest contour points a region needs in a frame to count there.
     max_mm_per_px : float
         Coarsest working pixel (millimetres at the body) the check decides
-        at: the signatures are a few millimetres, a third to a whole pixel of
-        the demo's 10 mm working pixels; at 25 mm (a 240x180 camera) they are
-        lost in the outline's quantization.
+        at: the signatures are a few millimetres, a fifth to a whole pixel of
+        the demo's 5.5 mm pixels at the session stage's full resolution; at
+        25 mm (a 240x180 camera) they are lost in the outline's quantization.
     bare_trunk : float
         Where capture told skin from clothing (:mod:`bodymetry.capture.skin`),
         a trunk whose outline lies on clothing in less than this share is
@@ -86,8 +91,8 @@ class OutlineConfig:
         (the real Pose2Sim subject, shirtless, reads +2.7 ± 1.3 mm).
     """
 
-    loose_mm: float = 3.2
-    crown_mm: float = 7.0
+    loose_mm: float = 1.0
+    crown_mm: float = 4.0
     min_points: int = 10
     max_mm_per_px: float = 15.0
     bare_trunk: float = 0.5

@@ -251,11 +251,12 @@ def test_a_figure_within_one_standard_error_below_the_threshold_says_it_cannot_t
     from bodymetry.estimation.outline_check import _clothing_warnings
 
     config = OutlineConfig()
-    (possible,) = _clothing_warnings(3.0, 0.3, 0.0, 0.1, config)
+    t = config.loose_mm
+    (possible,) = _clothing_warnings(t - 0.2, 0.3, 0.0, 0.1, config)
     assert possible.startswith("loose clothing possible") and "do not settle" in possible
-    assert _clothing_warnings(2.5, 0.3, 0.0, 0.1, config) == []  # more than one s.e. below
-    assert _clothing_warnings(3.0, float("nan"), 0.0, 0.1, config) == []  # one frame
-    (likely,) = _clothing_warnings(3.5, 0.4, 0.0, 0.1, config)
+    assert _clothing_warnings(t - 0.5, 0.3, 0.0, 0.1, config) == []  # over one s.e. below
+    assert _clothing_warnings(t - 0.2, float("nan"), 0.0, 0.1, config) == []  # one frame
+    (likely,) = _clothing_warnings(t + 0.3, 0.4, 0.0, 0.1, config)
     assert likely.startswith("loose clothing likely")
 
 
