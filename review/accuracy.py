@@ -34,17 +34,17 @@ _MID = "mid-population subjects"
 #: on the 5-90-year shape space (issue 33), rendered afresh on 2026-12-07 with the studio's
 #: dual quaternion skinning (which keeps the body's volume) and evaluated with the height
 #: read from the floor, the weight from the posed bodies, the outline refined and the
-#: fusion's change term read with chroma weighed down but at the hands
-#: (``benchmarks/results/pipeline_recheck.json``;
+#: fusion's change term read with chroma weighed down but at the hands, the session stage
+#: comparing at the images' full resolution (``benchmarks/results/pipeline_recheck.json``;
 #: docs/session-shape.md, "The height read from the floor", "The weight read from the posed
 #: bodies", "The studio keeps the volume"; docs/capture.md, "Chroma a pixel past the outline",
-#: "Chroma in the gaps", "Hands before the floor"). Other machines running the same
-#: code give values a few millimetres and a few tenths of a kilogram apart (README, "The
-#: same code on three machines").
+#: "Chroma in the gaps", "Hands before the floor"; docs/session-shape.md, "Full
+#: resolution"). Other machines running the same code give values a few millimetres and a
+#: few tenths of a kilogram apart (README, "The same code on three machines").
 SESSION_ACCURACY: dict[str, MeasuredAccuracy] = {
-    "height_mm": MeasuredAccuracy(rms=2.3, worst=4.9, bias=1.5, sessions=11, scope=_MID),
-    "arm_span_mm": MeasuredAccuracy(rms=7.3, worst=13.8, bias=1.4, sessions=11, scope=_MID),
-    "weight_kg": MeasuredAccuracy(rms=0.7, worst=1.5, bias=0.2, sessions=11, scope=_MID),
+    "height_mm": MeasuredAccuracy(rms=1.7, worst=3.8, bias=1.1, sessions=11, scope=_MID),
+    "arm_span_mm": MeasuredAccuracy(rms=7.7, worst=13.8, bias=-2.5, sessions=11, scope=_MID),
+    "weight_kg": MeasuredAccuracy(rms=0.6, worst=1.3, bias=0.1, sessions=11, scope=_MID),
 }
 
 #: Where :data:`SESSION_ACCURACY` comes from, for the report.
@@ -54,6 +54,7 @@ SOURCE = (
     "--validation, --heavy and --fresh, rendered afresh with a skinning that keeps the "
     "volume of the body and evaluated again with the height read from the floor, the weight "
     "from the posed bodies and the outline and the background change read with chroma "
-    "weighed down except at the hands, benchmarks/results/pipeline_recheck.json, 2026-12-07); "
+    "weighed down except at the hands, the session stage comparing at full resolution, "
+    "benchmarks/results/pipeline_recheck.json, 2026-12-07); "
     "real footage adds errors that studio renders cannot measure"
 )
