@@ -26,9 +26,10 @@ tight-clothed ones rendered after the last change chosen on the sets above;
 clothing in a plain grey room); ``--edge`` renders :data:`EDGE_SESSIONS` (issue 33:
 the studio's edge bodies, by percentile of height, weight and age, children included,
 tight clothing in the saturated colours) and adds :func:`edge_summary`;
-``--edge-unseen`` the same bodies with other seeds and motions
-(:data:`EDGE_UNSEEN_SESSIONS`); ``--children`` three children's sessions rendered after
-the ``body_accuracy`` caveat (:data:`CHILDREN_SESSIONS`), with :func:`edge_summary`;
+``--edge-unseen`` and ``--edge-fresh`` the same bodies with other seeds and motions
+(:data:`EDGE_UNSEEN_SESSIONS`, :data:`EDGE_FRESH_SESSIONS`); ``--children`` three
+children's sessions rendered after the ``body_accuracy`` caveat
+(:data:`CHILDREN_SESSIONS`), with :func:`edge_summary`;
 ``--contrast`` four in low-contrast clothing rendered after runs were held against the
 sessions seen in like contrast (:data:`CONTRAST_SESSIONS`), with :func:`stated_accuracy`;
 ``--held-out`` renders
@@ -193,18 +194,32 @@ EDGE_SESSIONS = (
     (341, "mixed", "independent:341,edge=boy_age10"),
     (342, "arm_raises", "independent:342,edge=girl_age14"),
 )
-#: Issue 33, the edge bodies again with seeds and motions the set above never gave
-#: them (seed + 20, the next motion of arm_raises -> reach -> mixed -> walk_turn), rendered
-#: after the height was read from the floor: ``--edge-unseen``.
 _EDGE_MOTIONS = ("arm_raises", "reach", "mixed", "walk_turn")
-EDGE_UNSEEN_SESSIONS = tuple(
-    (
-        seed + 20,
-        _EDGE_MOTIONS[(_EDGE_MOTIONS.index(motion) + 1) % len(_EDGE_MOTIONS)],
-        f"independent:{seed + 20},edge={subject.rpartition('=')[2]}",
+
+
+def edge_variant(seed_offset: int, motion_shift: int) -> tuple[tuple[str, str, str], ...]:
+    """The edge bodies of :data:`EDGE_SESSIONS` again, each with its seed moved by
+    ``seed_offset`` and its motion ``motion_shift`` places further along
+    arm_raises -> reach -> mixed -> walk_turn: the same percentile bodies, drawn,
+    dressed and moving as no earlier set rendered them."""
+    return tuple(
+        (
+            seed + seed_offset,
+            _EDGE_MOTIONS[(_EDGE_MOTIONS.index(motion) + motion_shift) % len(_EDGE_MOTIONS)],
+            f"independent:{seed + seed_offset},edge={subject.rpartition('=')[2]}",
+        )
+        for seed, motion, subject in EDGE_SESSIONS
     )
-    for seed, motion, subject in EDGE_SESSIONS
-)
+
+
+#: Issue 33, the edge bodies again with seeds and motions the set above never gave
+#: them (seed + 20, the next motion), rendered after the height was read from the
+#: floor: ``--edge-unseen``.
+EDGE_UNSEEN_SESSIONS = edge_variant(20, 1)
+#: Issue 33, a third draw (seed + 120, the motion after that), rendered after the session
+#: stage compared at full resolution, and never used to choose a setting:
+#: ``--edge-fresh``.
+EDGE_FRESH_SESSIONS = edge_variant(120, 2)
 #: Issue 33, the arm span's evidence (``estimation/arm_evidence.py``): the arms-down
 #: sessions of the sets above read the arm span high, so walking subjects (the arms by the
 #: sides) are checked on bodies and seeds none of those sets used, beside two with the arms
@@ -645,13 +660,14 @@ def run(
     looks: bool = False,
     edge: bool = False,
     edge_unseen: bool = False,
+    edge_fresh: bool = False,
     arms: bool = False,
     weight: bool = False,
     children: bool = False,
     contrast: bool = False,
 ) -> dict:
     reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
-    edge = edge or edge_unseen
+    edge = edge or edge_unseen or edge_fresh
     same_model = HELD_OUT_SESSIONS if held_out else SESSIONS
     independent = independent or bool(os.environ.get("BODYMETRY_BENCH_INDEPENDENT"))
     subjects = (
@@ -696,7 +712,11 @@ def run(
                     subject,
                 )
                 for seed, motion, subject in (
-                    EDGE_UNSEEN_SESSIONS if edge_unseen else EDGE_SESSIONS
+                    EDGE_UNSEEN_SESSIONS
+                    if edge_unseen
+                    else EDGE_FRESH_SESSIONS
+                    if edge_fresh
+                    else EDGE_SESSIONS
                 )
             ]
         elif independent:

@@ -85,6 +85,10 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
     """The held-out, heavy and fresh sets are only held out if no other set used their seeds
     or, for subjects the model was not built from, their bank bodies."""
     from benchmarks.bench_pipeline import (
+        ARMS_SESSIONS,
+        CHILDREN_SESSIONS,
+        CONTRAST_SESSIONS,
+        EDGE_FRESH_SESSIONS,
         EDGE_SESSIONS,
         EDGE_UNSEEN_SESSIONS,
         FRESH_SESSIONS,
@@ -94,6 +98,7 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
         LOOK_SESSIONS,
         SESSIONS,
         VALIDATION_SESSIONS,
+        WEIGHT_SESSIONS,
     )
     from bodymetry.studio.independent import IndependentSpec, committed_bank
 
@@ -107,6 +112,11 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
         LOOK_SESSIONS,
         EDGE_SESSIONS,
         EDGE_UNSEEN_SESSIONS,
+        EDGE_FRESH_SESSIONS,
+        ARMS_SESSIONS,
+        WEIGHT_SESSIONS,
+        CHILDREN_SESSIONS,
+        CONTRAST_SESSIONS,
     )
     seeds = [s[0] for group in sets for s in group]
     assert len(seeds) == len(set(seeds))
@@ -188,18 +198,20 @@ def test_edge_set_has_every_required_edge_body_once():
     assert all(spec.clothing == "tight" and not spec.hair for spec in specs)
 
 
-def test_the_unseen_edge_set_has_every_edge_body_with_another_motion():
-    from benchmarks.bench_pipeline import EDGE_SESSIONS, EDGE_UNSEEN_SESSIONS
+def test_the_unseen_and_fresh_edge_sets_have_every_edge_body_with_a_motion_of_its_own():
+    from benchmarks.bench_pipeline import EDGE_FRESH_SESSIONS, EDGE_SESSIONS, EDGE_UNSEEN_SESSIONS
 
     def key(subject: str) -> str:
         return subject.rpartition("=")[2]
 
-    assert [key(s[2]) for s in EDGE_UNSEEN_SESSIONS] == [key(s[2]) for s in EDGE_SESSIONS]
-    for (seed, motion, _), (new_seed, new_motion, subject) in zip(
-        EDGE_SESSIONS, EDGE_UNSEEN_SESSIONS, strict=True
-    ):
-        assert new_seed != seed and new_motion != motion
-        assert subject.startswith(f"independent:{new_seed},")
+    for variant in (EDGE_UNSEEN_SESSIONS, EDGE_FRESH_SESSIONS):
+        assert [key(s[2]) for s in variant] == [key(s[2]) for s in EDGE_SESSIONS]
+    for rows in zip(EDGE_SESSIONS, EDGE_UNSEEN_SESSIONS, EDGE_FRESH_SESSIONS, strict=True):
+        seeds, motions = [r[0] for r in rows], [r[1] for r in rows]
+        # Each body moves in three different motions under three different seeds.
+        assert len(set(seeds)) == 3 and len(set(motions)) == 3
+        for seed, _, subject in rows:
+            assert subject.startswith(f"independent:{seed},")
 
 
 def test_the_fitted_shapes_are_kept_so_a_session_can_be_measured_again():
