@@ -35,8 +35,9 @@ CAVEAT_SETS = (
     "pipeline_looks.json",
     "pipeline_edge_unseen.json",
 )
-#: Rendered after the caveat was written (``pipeline --arms``, ``--weight``): its check.
-CHECK_SETS = ("pipeline_arms.json", "pipeline_weight.json")
+#: Rendered after the caveat was written (``pipeline --arms``, ``--weight``,
+#: ``--edge-fresh``): its check.
+CHECK_SETS = ("pipeline_arms.json", "pipeline_weight.json", "pipeline_edge_fresh.json")
 #: Issue 15's arm span target for the session stage, mm.
 TARGET_MM = 15.0
 

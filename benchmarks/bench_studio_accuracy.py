@@ -53,6 +53,7 @@ SETS = (
     "pipeline_weight.json",
     "pipeline_children.json",
     "pipeline_contrast.json",
+    "pipeline_edge_fresh.json",
 )
 
 
