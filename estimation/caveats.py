@@ -432,9 +432,9 @@ def run_caveats(
                 f"an arm was raised (at least {RAISED_DEG:.0f} degrees from hanging) in "
                 f"{len(raised)} of {len(measured)} measured frames{seen}: the arm span rests "
                 "on arms by the body's sides, which the studio's sessions read "
-                f"{studio.low:+.1f} to {studio.high:+.1f} mm high (mean {studio.mean:+.1f} mm, "
-                f"{studio.sessions} sessions); record a few frames with the arms held out or "
-                "raised to measure it",
+                f"{studio.low:+.1f} to {studio.high:+.1f} mm off (mean {studio.mean:+.1f} mm, "
+                f"{studio.sessions} sessions; + reads long); record a few frames with the "
+                "arms held out or raised to measure it",
             )
         )
     contrast = run_contrast(ordered)

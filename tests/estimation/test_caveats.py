@@ -176,7 +176,8 @@ def test_arms_down_is_a_caveat_below_the_minimum_of_raised_frames():
             "measured frames"
         )
         assert (" 25" in caveat.message) == bool(raised)
-        assert f"{arms_down_studio().high:+.1f} mm high" in caveat.message
+        studio = arms_down_studio()
+        assert f"{studio.low:+.1f} to {studio.high:+.1f} mm off" in caveat.message
     # Nothing measured: no caveat about the numbers.
     assert run_caveats(_records(9, 0), NAMES, raised=()) == ()
 
