@@ -197,7 +197,7 @@ EDGE_SESSIONS = (
 _EDGE_MOTIONS = ("arm_raises", "reach", "mixed", "walk_turn")
 
 
-def edge_variant(seed_offset: int, motion_shift: int) -> tuple[tuple[str, str, str], ...]:
+def edge_variant(seed_offset: int, motion_shift: int) -> tuple[tuple[int, str, str], ...]:
     """The edge bodies of :data:`EDGE_SESSIONS` again, each with its seed moved by
     ``seed_offset`` and its motion ``motion_shift`` places further along
     arm_raises -> reach -> mixed -> walk_turn: the same percentile bodies, drawn,
