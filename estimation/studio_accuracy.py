@@ -330,7 +330,10 @@ def like_accuracy(
         The run's ``height_mm`` and ``weight_kg`` (others ignored).
     arms_raised : bool, optional
         Whether the run had an arm raised in enough measured frames; the arm span is
-        then held against sessions of the same arm evidence (None: all).
+        then held against sessions of the same arm evidence (None: all). Where fewer
+        than :data:`MIN_LIKE` of those were of a like body, two partial answers stand
+        in: every body's sessions of that arm evidence (what the evidence costs) and
+        the like bodies' of either (what the body costs); the larger by RMS is quoted.
     sessions : sequence of StudioSession, optional
         Default: the shipped ones.
     among_others : bool
@@ -365,18 +368,32 @@ def like_accuracy(
         arms = arms_note(key, arms_raised)
         scope = f"sessions of bodies like this one{seen}{arms}{alone}"
         answers = [(_scored(like, key, arms_raised), scope)]
-        if len(answers[0][0]) < MIN_LIKE and low_contrast:
-            answers = [
-                (
-                    _scored(like_sessions(height, weight, everyone), key, arms_raised),
-                    f"sessions of bodies like this one, too few in low-contrast clothing"
-                    f"{arms}{alone}",
-                ),
-                (
-                    _scored(same, key, arms_raised),
-                    f"sessions of every body in low-contrast clothing{arms}{alone}",
-                ),
-            ]
+        if len(answers[0][0]) < MIN_LIKE:
+            # Too few sessions match on every count: relax one at a time. Each answer
+            # holds part of the error (the body's, the silhouettes', the arm
+            # evidence's), all of them apply, so the larger by RMS is quoted below.
+            every_body = (
+                _scored(same, key, arms_raised),
+                f"sessions of every body{seen}{arms}{alone}",
+            )
+            answers = []
+            if low_contrast:
+                answers.append(
+                    (
+                        _scored(like_sessions(height, weight, everyone), key, arms_raised),
+                        f"sessions of bodies like this one, too few in low-contrast clothing"
+                        f"{arms}{alone}",
+                    )
+                )
+                answers.append(every_body)
+            either = _scored(like, key, None)
+            # The arm evidence is relaxed for a body the studio knows (enough like
+            # sessions either way); an unlike body is outside what was validated.
+            if arms and len(either) >= MIN_LIKE:
+                answers.append(every_body)
+                answers.append(
+                    (either, f"sessions of bodies like this one{seen}, arms raised or not{alone}")
+                )
         stated = [
             MeasuredAccuracy.of([s.errors[key] for s in pool], scope)
             for pool, scope in answers

@@ -88,8 +88,14 @@ def test_the_accuracy_of_like_bodies_is_their_errors_rms_mean_and_extremes():
     assert arm.scope.endswith("arms raised")
     # Height and weight pool every like session, whatever the arms did.
     assert acc["height_mm"].sessions == 4
-    # Arms down: one like session is not enough to say anything of the arm span.
-    assert "arm_span_mm" not in like_accuracy(measured, arms_raised=False, sessions=sessions)
+    # Arms down: one like session is too few; the like bodies of either arm evidence
+    # (what the body costs) and every body's arms-down sessions (here the same one) stand
+    # in, the larger quoted.
+    down = like_accuracy(measured, arms_raised=False, sessions=sessions)["arm_span_mm"]
+    assert (down.sessions, down.scope) == (
+        4,
+        "sessions of bodies like this one, arms raised or not",
+    )
     assert like_accuracy(measured, arms_raised=None, sessions=sessions)["arm_span_mm"].sessions == 4
     # Nothing like the body: nothing said.
     assert like_accuracy({"height_mm": 1900.0, "weight_kg": 90.0}, True, sessions) == {}
@@ -208,6 +214,31 @@ def test_a_run_is_held_against_the_sessions_seen_in_like_contrast():
     )
     # ... but in high contrast too few like bodies are too few (outside_validated's).
     assert like_accuracy(body, True, high[:1] + low_like, low_contrast=False) == {}
+
+
+def test_an_arm_span_with_too_few_like_sessions_of_its_arm_evidence_relaxes_one_count():
+    child = {"height_mm": 1150.0, "weight_kg": 21.0}
+    # Two like bodies, both with the arms raised, reading the span 20 mm short; the
+    # arms-down sessions are adults', 10 mm long.
+    raised = [_session(f"c{k}", 1150.0, 21.0, (1.0, -20.0, 0.1), age=6.0) for k in range(2)]
+    down = [_session(f"a{k}", 1700.0, 70.0, (1.0, 10.0, 0.2), arms=False) for k in range(3)]
+    acc = like_accuracy(child, False, raised + down, low_contrast=False)
+    # The larger of what the body costs (its like sessions, either arm evidence) and what
+    # the evidence costs (every body's arms-down sessions).
+    assert acc["arm_span_mm"].rms == pytest.approx(20.0, abs=TOL)
+    assert acc["arm_span_mm"].scope == "sessions of bodies like this one, arms raised or not"
+    long_down = [_session(f"a{k}", 1700.0, 70.0, (1.0, 30.0, 0.2), arms=False) for k in range(3)]
+    acc = like_accuracy(child, False, raised + long_down, low_contrast=False)["arm_span_mm"]
+    assert (acc.rms, acc.sessions) == (pytest.approx(30.0, abs=TOL), 3)
+    assert acc.scope == "sessions of every body, arms down"
+    # The other measurements are the like bodies' as before, and with enough like
+    # sessions of its own arm evidence nothing is relaxed.
+    assert acc is not None and like_accuracy(child, False, raised + down)["weight_kg"].sessions == 2
+    assert like_accuracy(child, True, raised + down)["arm_span_mm"].scope == (
+        "sessions of bodies like this one, arms raised"
+    )
+    # Nothing to relax to: no answer, as before.
+    assert "arm_span_mm" not in like_accuracy(child, False, raised[:1] + down[:1])
 
 
 def test_a_mid_size_adult_seen_in_low_contrast_gets_the_body_accuracy_caveat():
