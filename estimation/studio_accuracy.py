@@ -385,12 +385,13 @@ def like_accuracy(
                         f"{arms}{alone}",
                     )
                 )
-                answers.append(every_body)
-            either = _scored(like, key, None)
+            either = _scored(like, key, None) if arms else []
             # The arm evidence is relaxed for a body the studio knows (enough like
             # sessions either way); an unlike body is outside what was validated.
-            if arms and len(either) >= MIN_LIKE:
+            relax_arms = len(either) >= MIN_LIKE
+            if low_contrast or relax_arms:
                 answers.append(every_body)
+            if relax_arms:
                 answers.append(
                     (either, f"sessions of bodies like this one{seen}, arms raised or not{alone}")
                 )
