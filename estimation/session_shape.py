@@ -185,8 +185,8 @@ class SessionShapeConfig:
             raise ValueError(f"descents: expected >= 1, got {self.descents}")
         if not self.jitter >= 0:
             raise ValueError(f"jitter: expected >= 0, got {self.jitter}")
-        if not 0 < self.image_scale <= 1:
-            raise ValueError(f"image_scale: expected in (0, 1], got {self.image_scale}")
+        # RefineConfig checks image_scale (in (0, 1]) as it checks the refinement's own.
+        self.refinement()
         if self.max_points < 10:
             raise ValueError(f"max_points: expected >= 10, got {self.max_points}")
 
