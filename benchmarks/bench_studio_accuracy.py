@@ -15,7 +15,11 @@ Its result says how well that rule would have told a session's error from the
 others (leave one out): per core measurement, the sessions whose own error was
 beyond the target, those the ``body_accuracy`` rule (:meth:`MeasuredAccuracy.beyond`)
 would have named from the other sessions alone, and for each session the like
-bodies' RMS and mean computed without it.
+bodies' RMS and mean computed without it. And whether the 95 % interval a run
+states (:mod:`bodymetry.estimation.uncertainty`) holds the truth: per
+measurement, how many of the intervals stated from the other sessions alone held
+it (``coverage``), their median half-width, the sessions outside, and the silent
+misses (beyond the target, outside the interval, named by no caveat).
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from bodymetry.estimation.studio_accuracy import (
     like_accuracy,
     target_for,
 )
+from bodymetry.estimation.uncertainty import stated_interval
 
 #: The committed results scored with the current pipeline (the height read from the
 #: floor and the weight from the posed bodies), tight clothing only.
@@ -78,6 +83,8 @@ def scored_sessions(names: tuple[str, ...] = SETS) -> list[StudioSession]:
                     arms_raised=bool(arms_raised(s["arm_raised_frames"])),
                     errors={k: float(f3[k]["session"]["mean"] - f3[k]["actual"]) for k in CORE},
                     low_contrast=bool(is_low_contrast(s.get("outline_contrast"))),
+                    standard_errors={k: float(f3[k]["session"]["std"]) for k in CORE},
+                    frames=int(f3[CORE[0]]["session"]["n"]),
                 )
             )
     return out
@@ -98,6 +105,13 @@ def leave_one_out(sessions: list[StudioSession]) -> dict:
         for key in CORE:
             acc = like.get(key)
             target = target_for(key, s.weight_kg, s.age_years < ADULT_AGE)
+            # The interval the run would have stated, centred on the error (the value
+            # less the truth): does it hold zero, the truth?
+            interval = (
+                None
+                if acc is None or key not in s.standard_errors
+                else stated_interval(s.errors[key], s.standard_errors[key], s.frames, acc)
+            )
             row[key] = {
                 "beyond_target": bool(abs(s.errors[key]) > target),
                 "like_sessions": 0 if acc is None else acc.sessions,
@@ -109,6 +123,8 @@ def leave_one_out(sessions: list[StudioSession]) -> dict:
                 "flagged": (key == "arm_span_mm" and not s.arms_raised)
                 or s.low_contrast
                 or (acc is not None and acc.beyond(target)),
+                "half_width": None if interval is None else round(interval.half_width, 2),
+                "inside": None if interval is None else interval.contains(0.0),
             }
         rows.append(row)
     return {
@@ -120,9 +136,30 @@ def leave_one_out(sessions: list[StudioSession]) -> dict:
                 "beyond_and_flagged": sum(
                     r[key]["beyond_target"] and r[key]["flagged"] for r in rows
                 ),
+                **_coverage(rows, key),
             }
             for key in CORE
         },
+    }
+
+
+def _coverage(rows: list[dict], key: str) -> dict:
+    """How often the stated 95 % interval held the truth, and the silent misses: beyond
+    the target, outside the interval (or none stated) and named by no caveat."""
+    stated = [r for r in rows if r[key]["inside"] is not None]
+    return {
+        "intervals_stated": len(stated),
+        "truth_inside": sum(r[key]["inside"] for r in stated),
+        "coverage": round(sum(r[key]["inside"] for r in stated) / max(len(stated), 1), 3),
+        "median_half_width": (
+            round(float(np.median([r[key]["half_width"] for r in stated])), 2) if stated else None
+        ),
+        "outside": [r["session"] for r in stated if not r[key]["inside"]],
+        "silent_misses": [
+            r["session"]
+            for r in rows
+            if r[key]["beyond_target"] and not r[key]["flagged"] and not r[key]["inside"]
+        ],
     }
 
 

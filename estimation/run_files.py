@@ -48,6 +48,7 @@ from bodymetry.estimation.studio_accuracy import (
     like_accuracy,
     run_contrast,
 )
+from bodymetry.estimation.uncertainty import StatedInterval, stated_intervals
 from bodymetry.fileio import read_json_object, write_json_atomic
 
 __all__ = [
@@ -526,6 +527,17 @@ class RunResults:
         return like_accuracy(self.headline_values, arms, among_others=among, low_contrast=low)
 
     @property
+    def stated_intervals(self) -> dict[str, StatedInterval]:
+        """The first person's 95 % interval per core measurement with a session value
+        and a :attr:`studio_accuracy` (:mod:`bodymetry.estimation.uncertainty`; derived,
+        like :attr:`caveats`)."""
+        session = self.summary.get("session", {})
+        values = {k: s.mean for k, s in session.items() if s.mean is not None}
+        errors = {k: s.std for k, s in session.items() if s.std is not None}
+        frames = max((s.n for s in session.values()), default=0)
+        return stated_intervals(values, errors, frames, self.studio_accuracy)
+
+    @property
     def headline_values(self) -> dict[str, float]:
         """The first person's measurements as the run states them: per measurement the
         session stage's value, else the generative frames' mean (missing when neither)."""
@@ -574,6 +586,7 @@ class RunResults:
                     "caveats": [c.to_json() for c in view.caveats],
                     "outline_contrast": view.outline_contrast,
                     "studio_accuracy": {k: a.to_json() for k, a in view.studio_accuracy.items()},
+                    "intervals": {k: i.to_json() for k, i in view.stated_intervals.items()},
                 }
                 for p, view in ((p, self.for_person(p.id)) for p in self.persons)
             ],

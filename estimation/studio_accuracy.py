@@ -190,6 +190,10 @@ class StudioSession:
     low_contrast : bool
         The subject wore white, light grey or wall-coloured clothing (a run of such a
         session reads an outline contrast below :data:`LOW_CONTRAST`).
+    standard_errors : mapping of str to float
+        The session stage's stated standard error per core measurement (mm, kg).
+    frames : int
+        How many frames the session stage used (0 where not recorded).
     """
 
     name: str
@@ -199,6 +203,8 @@ class StudioSession:
     arms_raised: bool
     errors: Mapping[str, float] = field(default_factory=dict)
     low_contrast: bool = False
+    standard_errors: Mapping[str, float] = field(default_factory=dict)
+    frames: int = 0
 
     def to_json(self) -> dict:
         return {
@@ -209,6 +215,8 @@ class StudioSession:
             "arms_raised": self.arms_raised,
             "low_contrast": self.low_contrast,
             "errors": {k: round(v, 2) for k, v in self.errors.items()},
+            "standard_errors": {k: round(v, 3) for k, v in self.standard_errors.items()},
+            "frames": self.frames,
         }
 
     @classmethod
@@ -221,6 +229,8 @@ class StudioSession:
             arms_raised=bool(data["arms_raised"]),
             errors={k: float(v) for k, v in data["errors"].items()},
             low_contrast=bool(data.get("low_contrast", False)),
+            standard_errors={k: float(v) for k, v in data.get("standard_errors", {}).items()},
+            frames=int(data.get("frames", 0)),
         )
 
 

@@ -37,6 +37,7 @@ from bodymetry.errors import InputError
 from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
 from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, Stat
 from bodymetry.estimation.run_files import REPORT_HTML, RunLayout, RunResults, StudyResults
+from bodymetry.estimation.uncertainty import StatedInterval
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
 from bodymetry.review.report import figure_uri, template_environment
@@ -71,6 +72,8 @@ _DIGITS = {"mm": 1, "kg": 2, "l": 2}
 _DEFAULT_DIGITS = 2
 #: Decimals of the fraction of frames used and of the IoU.
 _FRACTION_DIGITS = 3
+#: The ends of a session value's 95 % interval, as cohort.csv names them.
+INTERVAL_ENDS = ("low", "high")
 _IOU_DIGITS = 4
 
 
@@ -109,6 +112,9 @@ class CohortRow:
         used frames (``results.json`` summary; empty without one).
     iou_mean : float or None
         Mean silhouette IoU over the used frames (mean over cameras, then frames).
+    intervals : dict of str to StatedInterval
+        Per core measurement with one, the session value's 95 % interval
+        (:mod:`bodymetry.estimation.uncertainty`).
     caveats : str
         The codes of the run's caveats (:mod:`bodymetry.estimation.caveats`),
         joined with ``"; "``: read its numbers with care.
@@ -132,6 +138,7 @@ class CohortRow:
     fraction_used: float | None = None
     stats: Mapping[str, Mapping[str, Stat]] = field(default_factory=dict)
     iou_mean: float | None = None
+    intervals: Mapping[str, StatedInterval] = field(default_factory=dict)
     caveats: str = ""
     warnings: str = ""
     link: str | None = None
@@ -233,6 +240,7 @@ def _person_row(base: dict[str, Any], results: RunResults, several: bool) -> Coh
         stats={stage: dict(stats) for stage, stats in results.summary.items()},
         # Plain mean of a non-empty list: numpy would warn on an empty one.
         iou_mean=float(sum(ious) / len(ious)) if ious else None,
+        intervals=results.stated_intervals,
         caveats="; ".join(c.code for c in results.caveats),
         warnings="; ".join(_one_line(w) for w in results.warnings),
     )
@@ -271,6 +279,7 @@ def cohort_columns(keys: Sequence[str]) -> list[str]:
     cols += [
         f"{stage}_{key}_{what}" for stage in STAGES for key in keys for what in ("mean", "std")
     ]
+    cols += [f"session_{key}_{end}" for key in CORE_MEASUREMENTS for end in INTERVAL_ENDS]
     cols += ["caveats", "warnings", "report", "session_path", "rig"]
     return cols
 
@@ -303,6 +312,12 @@ def _record(row: CohortRow, keys: Sequence[str]) -> dict[str, Any]:
             s = row.stat(stage, key)
             out[f"{stage}_{key}_mean"] = _rounded(s.mean if s else None, _digits(key))
             out[f"{stage}_{key}_std"] = _rounded(s.std if s else None, _digits(key))
+    for key in CORE_MEASUREMENTS:
+        interval = row.intervals.get(key)
+        for end in INTERVAL_ENDS:
+            out[f"session_{key}_{end}"] = _rounded(
+                getattr(interval, end) if interval else None, _digits(key)
+            )
     out.update(
         {
             "caveats": row.caveats,
@@ -352,6 +367,7 @@ def _write_parquet(
     floats = {"fraction_used", "iou_mean"} | {
         f"{stage}_{key}_{what}" for stage in STAGES for key in keys for what in ("mean", "std")
     }
+    floats |= {f"session_{key}_{end}" for key in CORE_MEASUREMENTS for end in INTERVAL_ENDS}
     arrays = {}
     for col in columns:
         kind = pa.int64() if col in ints else pa.float64() if col in floats else pa.string()

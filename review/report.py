@@ -57,6 +57,7 @@ from bodymetry.estimation.run_files import (
     RunResults,
 )
 from bodymetry.estimation.studio_accuracy import LIKE_HEIGHT, LIKE_WEIGHT, LOW_CONTRAST, MIN_LIKE
+from bodymetry.estimation.uncertainty import COVERAGE, MEASURED_COVERAGE, MEASURED_SESSIONS
 from bodymetry.estimation.view_selection import left_out_views
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
@@ -461,14 +462,17 @@ def headline_cards(run: RunData) -> list[dict[str, Any]]:
         Each: ``key``, ``label``, ``unit``; ``mean``, ``std`` and ``n`` of the
         disc. + generative stage over the frames; ``session`` as (value,
         standard error) or None; ``unavailable`` (why ``session`` is None, ``""``
-        when it is not); ``actual`` (float or None) and ``accuracy`` (the
-        measured accuracy of the session values, or None).
+        when it is not); ``actual`` (float or None), ``accuracy`` (the
+        measured accuracy of the session values, or None) and ``interval`` (the
+        session value's 95 % interval, :mod:`bodymetry.estimation.uncertainty`, or
+        None where none is stated).
     """
     summary = run.results.summary
     truth = run.ground_truth
     why = session_unavailable(run.results.session_shape)
     # The studio's figures for bodies like this one where it scored enough of them.
     like = run.results.studio_accuracy
+    intervals = run.results.stated_intervals
     cards = []
     for key in CORE_MEASUREMENTS:
         gen = _stat(summary, "generative", key)
@@ -487,6 +491,7 @@ def headline_cards(run: RunData) -> list[dict[str, Any]]:
                 "unavailable": "" if session else why or "no session value for this measurement",
                 "actual": truth.get(key) if truth else None,
                 "accuracy": like.get(key) or SESSION_ACCURACY.get(key),
+                "interval": intervals.get(key) if session else None,
             }
         )
     return cards
@@ -676,6 +681,12 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
         "timing": results.timing_seconds,
         "accuracy_source": ACCURACY_SOURCE,
         "like_min": MIN_LIKE,
+        "interval_coverage": round(100 * COVERAGE),
+        "interval_measured": ", ".join(
+            f"{round(100 * share)} % of {plots.LABELS[key].lower()}s"
+            for key, share in MEASURED_COVERAGE.items()
+        ),
+        "interval_sessions": MEASURED_SESSIONS,
         "like_height": round(100 * LIKE_HEIGHT),
         "like_weight": round(100 * LIKE_WEIGHT),
         "validated_range": VALIDATED.describe(),
@@ -917,6 +928,18 @@ def _headline_lines(ctx: dict[str, Any]) -> list[str]:
         + ", ".join(f"{h['label'].lower()} {_pm((h['mean'], h['std']))} {h['unit']}" for h in cards)
         + "."
     )
+    stated = [h for h in cards if h["interval"]]
+    if stated:
+        lines.append(
+            f"{COVERAGE:.0%} interval (standard error and the studio's error on like bodies "
+            "combined): "
+            + ", ".join(
+                f"{h['label'].lower()} {_num(h['interval'].low)} to {_num(h['interval'].high)} "
+                f"{h['unit']}"
+                for h in stated
+            )
+            + "."
+        )
     missing = [h for h in cards if not h["session"]]
     if missing:
         lines.append(f"Session estimate unavailable ({missing[0]['unavailable']}).")

@@ -51,6 +51,8 @@ def test_the_shipped_sessions_are_the_committed_benchmarks():
         assert (a.height_mm, a.weight_kg) == pytest.approx((b.height_mm, b.weight_kg), abs=0.05)
         for key, value in b.errors.items():
             assert a.errors[key] == pytest.approx(value, abs=0.005), (a.name, key)
+            assert a.standard_errors[key] == pytest.approx(b.standard_errors[key], abs=5e-4)
+        assert a.frames == b.frames >= 1
     # Tight clothing only: the loose-clothed renders of issue 15 are not in it.
     assert len(shipped) >= 50 and not any("loose" in s.name for s in shipped)
 

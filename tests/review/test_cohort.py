@@ -110,6 +110,15 @@ def test_csv_has_a_row_per_session_with_the_runs_summaries(study, review_run):
                     else:
                         assert float(cell) == round(stat[what], _digits(key))
         assert summary["generative"]["height_mm"]["n"] == n_used
+        # The session value's 95 % interval, where the run states one.
+        intervals = RunResults.read(study / row["session"] / "results.json").stated_intervals
+        for key in CORE_MEASUREMENTS:
+            for end in ("low", "high"):
+                cell = row[f"session_{key}_{end}"]
+                if key in intervals:
+                    assert float(cell) == round(getattr(intervals[key], end), _digits(key))
+                else:
+                    assert cell == ""
     # Each copy its own numbers: the CSV is not one run repeated (any one column
     # may agree by chance to its rounding: the tiny run's frames are close).
     columns = [f"generative_{k}_{w}" for k in CORE_MEASUREMENTS for w in ("mean", "std")]

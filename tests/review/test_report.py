@@ -313,6 +313,15 @@ def test_the_session_stage_is_beside_the_per_frame_stages(review_run):
         assert f"RMS error {quoted.rms:.1f}" in html, key
         assert f"(studio, {quoted.sessions} {quoted.scope})" in html, key
     assert ACCURACY_SOURCE in html and "bodies like this one" in html
+    # Beside it, the 95 % interval combining the two (estimation/uncertainty.py).
+    intervals = review_run.results.stated_intervals
+    assert intervals, "the review run's body is like the studio's: intervals are stated"
+    for interval in intervals.values():
+        low, high = (f"{v:,.1f}".replace(",", " ") for v in (interval.low, interval.high))
+        assert f'95 % interval <span class="nw">{low} – {high}' in html
+    assert "Welch–Satterthwaite" in html
+    written = json.loads((review_run.folder / "results.json").read_text())["persons"][0]
+    assert written["intervals"] == {k: i.to_json() for k, i in intervals.items()}
     with open(review_run.folder / "measurements.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     used = {str(f) for f in shape.frames}
