@@ -243,6 +243,11 @@ def _print_summary(results: RunResults, several: bool = False) -> None:
         # The session stage is one value with its standard error, not a mean over frames.
         spread = "± s.e." if stage == "session" else "mean ± std"
         table.add_column(f"{stage} {spread}", justify="right")
+    # The session value's 95 % interval: its standard error and the studio's error on
+    # like bodies together (docs/outputs.md, "The 95 % interval").
+    intervals = results.stated_intervals
+    if intervals:
+        table.add_column("95 % interval", justify="right")
     for key in (*CORE_MEASUREMENTS, "chest_mm", "waist_mm", "hip_mm"):
         row = [key]
         if truth:
@@ -251,6 +256,9 @@ def _print_summary(results: RunResults, several: bool = False) -> None:
         for stage in STAGES:
             s = results.summary.get(stage, {}).get(key)
             row.append("-" if s is None or s.mean is None else f"{s.mean:.1f} ± {s.std:.1f}")
+        if intervals:
+            i = intervals.get(key)
+            row.append("-" if i is None else f"{i.low:.1f} to {i.high:.1f}")
         table.add_row(*row)
     console.print(table)
     shape = results.session_shape

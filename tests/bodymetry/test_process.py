@@ -777,3 +777,22 @@ def test_soles_the_floor_reading_did_not_trust_are_a_caveat_of_the_run(run):
     # A file made before the bound read its -31.8 mm from the floor, and says so.
     assert "floor" not in codes(floor_mm=-31.8, floor_height=True, floor_applied=True)
     assert "floor" not in codes(floor_mm=-31.8, floor_height=False, floor_applied=False)
+
+
+def test_the_printed_table_gives_each_session_value_s_95_percent_interval(run, monkeypatch):
+    """`bodymetry process` prints, beside each session value ± standard error, the interval
+    the run states (estimation/uncertainty.py), to the table's one decimal."""
+    import rich.console
+
+    import bodymetry.cli.process as cli_process
+
+    results = run[2]
+    intervals = results.stated_intervals
+    assert intervals, "the tiny run's body is like the studio's: intervals are stated"
+    wide = rich.console.Console(width=300, record=True)
+    monkeypatch.setattr(cli_process, "console", wide)
+    cli_process._print_summary(results)
+    text = " ".join(wide.export_text().split())
+    assert "95 % interval" in text
+    for interval in intervals.values():
+        assert f"{interval.low:.1f} to {interval.high:.1f}" in text
