@@ -26,8 +26,9 @@ tight-clothed ones rendered after the last change chosen on the sets above;
 clothing in a plain grey room); ``--edge`` renders :data:`EDGE_SESSIONS` (issue 33:
 the studio's edge bodies, by percentile of height, weight and age, children included,
 tight clothing in the saturated colours) and adds :func:`edge_summary`;
-``--edge-unseen`` and ``--edge-fresh`` the same bodies with other seeds and motions
-(:data:`EDGE_UNSEEN_SESSIONS`, :data:`EDGE_FRESH_SESSIONS`); ``--children`` three
+``--edge-unseen``, ``--edge-fresh`` and ``--edge-fourth`` the same bodies with other
+seeds and motions (:data:`EDGE_UNSEEN_SESSIONS`, :data:`EDGE_FRESH_SESSIONS`,
+:data:`EDGE_FOURTH_SESSIONS`); ``--children`` three
 children's sessions rendered after the ``body_accuracy`` caveat
 (:data:`CHILDREN_SESSIONS`), with :func:`edge_summary`;
 ``--contrast`` four in low-contrast clothing rendered after runs were held against the
@@ -220,6 +221,17 @@ EDGE_UNSEEN_SESSIONS = edge_variant(20, 1)
 #: stage compared at full resolution, and never used to choose a setting:
 #: ``--edge-fresh``.
 EDGE_FRESH_SESSIONS = edge_variant(120, 2)
+#: Issue 33, a fourth draw (seed + 220, the last motion each body had not moved in),
+#: rendered after runs stated their 95 % interval, to check the interval on sessions the
+#: studio's scored ones do not hold and the edge bodies once more: ``--edge-fourth``.
+EDGE_FOURTH_SESSIONS = edge_variant(220, 3)
+#: The edge sets by flag, in the order they were drawn.
+EDGE_DRAWS = {
+    "edge": EDGE_SESSIONS,
+    "edge_unseen": EDGE_UNSEEN_SESSIONS,
+    "edge_fresh": EDGE_FRESH_SESSIONS,
+    "edge_fourth": EDGE_FOURTH_SESSIONS,
+}
 #: Issue 33, the arm span's evidence (``estimation/arm_evidence.py``): the arms-down
 #: sessions of the sets above read the arm span high, so walking subjects (the arms by the
 #: sides) are checked on bodies and seeds none of those sets used, beside two with the arms
@@ -438,6 +450,12 @@ def evaluate_session(session: Path, run: Path, cache_dir: Path | None = None) ->
         # holds a run against the sessions seen in like contrast).
         "outline_contrast": results.outline_contrast,
         "studio_accuracy": {k: a.to_json() for k, a in results.studio_accuracy.items()},
+        # The 95 % interval the run stated (estimation/uncertainty.py): did it hold the truth?
+        "intervals": {
+            k: {**i.to_json(), "holds_truth": i.contains(table[k]["actual"])}
+            for k, i in results.stated_intervals.items()
+            if table.get(k, {}).get("actual") is not None
+        },
         # Issue 33: the session weight read from the posed bodies, and the canonical one.
         "canonical_weight_kg": (
             None
@@ -661,13 +679,16 @@ def run(
     edge: bool = False,
     edge_unseen: bool = False,
     edge_fresh: bool = False,
+    edge_fourth: bool = False,
     arms: bool = False,
     weight: bool = False,
     children: bool = False,
     contrast: bool = False,
 ) -> dict:
     reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
-    edge = edge or edge_unseen or edge_fresh
+    drawn = {"edge_unseen": edge_unseen, "edge_fresh": edge_fresh, "edge_fourth": edge_fourth}
+    draw = next((name for name, on in drawn.items() if on), "edge")
+    edge = edge or draw != "edge"
     same_model = HELD_OUT_SESSIONS if held_out else SESSIONS
     independent = independent or bool(os.environ.get("BODYMETRY_BENCH_INDEPENDENT"))
     subjects = (
@@ -711,13 +732,7 @@ def run(
                     {},
                     subject,
                 )
-                for seed, motion, subject in (
-                    EDGE_UNSEEN_SESSIONS
-                    if edge_unseen
-                    else EDGE_FRESH_SESSIONS
-                    if edge_fresh
-                    else EDGE_SESSIONS
-                )
+                for seed, motion, subject in EDGE_DRAWS[draw]
             ]
         elif independent:
             folders = [
