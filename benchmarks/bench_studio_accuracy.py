@@ -59,6 +59,7 @@ SETS = (
     "pipeline_children.json",
     "pipeline_contrast.json",
     "pipeline_edge_fresh.json",
+    "pipeline_edge_fourth.json",
 )
 
 
