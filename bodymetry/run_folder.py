@@ -68,9 +68,21 @@ def session_fingerprint(session: Session) -> str:
     return h.hexdigest()[:16]
 
 
+#: Settings added after runs were made, at their defaults (the path into
+#: ``ProcessConfig.to_json()``): left out of the hash there, so that earlier runs keep theirs.
+_LATER_SETTINGS: dict[tuple[str, ...], object] = {("fit", "refinement", "thin_px"): 0.0}
+
+
 def config_fingerprint(config: ProcessConfig) -> str:
     """A hash of the settings that change the results (not workers, cache or review)."""
     data = config.to_json()
+    for path, default in _LATER_SETTINGS.items():
+        *parents, key = path
+        holder = data
+        for name in parents:
+            holder = holder.get(name, {})
+        if holder.get(key) == default:
+            holder.pop(key)
     relevant = {
         k: data[k] for k in ("quality", "fit", "training", "frame_step", "working_person_px")
     }

@@ -33,9 +33,11 @@ cost (:class:`ContourCost`, shared with the session stage) and the descent
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from types import ModuleType
 
+import cv2
 import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
@@ -56,6 +58,10 @@ from bodymetry.estimation.generative import compiled_likelihood, project_planes,
 from bodymetry.estimation.least_squares import Damping, damped_step, marquardt
 from bodymetry.estimation.projection import camera_arrays, fill_silhouette
 from bodymetry.estimation.raster import coverage_views
+
+#: How far from a contour edge (camera pixels, a square window) a part of the model's
+#: silhouette must reach ``RefineConfig.thin_px`` deep for the camera to resolve it.
+THIN_WINDOW = 2
 
 
 @dataclass(frozen=True)
@@ -106,6 +112,18 @@ class RefineConfig:
         zig-zags and the rendered outline is its outermost part, so its edges
         lie on average a fraction of a pixel inside the outline they draw;
         without the correction the fit grows the body to close that gap.
+    thin_px : float
+        Leave out the model-to-observed residuals of contour edges on parts of
+        the model's own silhouette (at the camera's resolution) narrower than
+        about ``2 * thin_px`` camera pixels: where no pixel of the part lies more
+        than ``thin_px`` inside it within :data:`THIN_WINDOW` pixels of the edge.
+        A part the camera does not resolve (a child's spread fingers) covers no
+        pixel whole, capture keeps few of its pixels, and its contour has
+        nothing observed to align with, as an occluded one has not; pulled
+        inwards regardless, the fit shortens the hand. The observed-to-model
+        residuals stay. 0 (the per-frame fits): none left out; the session
+        stage sets it (``SessionShapeConfig.thin_px``). Needs
+        ``outline_offsets`` (the model's own silhouettes).
     """
 
     iterations: int = 15
@@ -119,6 +137,7 @@ class RefineConfig:
     full_mesh: bool = True
     visibility_scale: float = 1.0
     outline_offsets: bool = True
+    thin_px: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("iterations", "screen_iterations"):
@@ -136,6 +155,8 @@ class RefineConfig:
             raise ValueError(f"shape_prior: expected >= 0, got {self.shape_prior}")
         if len(self.steps) != 3 or min(self.steps) <= 0:
             raise ValueError(f"steps: expected 3 values > 0, got {self.steps}")
+        if not self.thin_px >= 0:
+            raise ValueError(f"thin_px: expected >= 0, got {self.thin_px}")
 
 
 @dataclass(frozen=True)
@@ -221,6 +242,30 @@ class _Silhouette:
     camera: Camera
     low: np.ndarray
     high: np.ndarray
+
+    def thin(self, thin_px: float) -> Callable[[np.ndarray, Camera], np.ndarray]:
+        """Whether points lie on a part of this silhouette too thin for the camera
+        (:attr:`RefineConfig.thin_px`): a function of (N, 2) points in ``working``
+        pixels and that camera, giving (N,) bool (outside the image: False)."""
+        (x0, y0), (x1, y1) = self.low, self.high
+        thin = np.zeros(self.mask.shape, bool)
+        if x1 > x0 and y1 > y0:
+            box = np.ascontiguousarray(self.mask[y0:y1, x0:x1], np.uint8)
+            depth = cv2.distanceTransform(box, cv2.DIST_L2, 3)
+            size = 2 * THIN_WINDOW + 1
+            local = cv2.dilate(depth, np.ones((size, size), np.uint8))
+            thin[y0:y1, x0:x1] = local < thin_px
+
+        def on_thin(points: np.ndarray, working: Camera) -> np.ndarray:
+            scale = working.K[0, 0] / self.camera.K[0, 0]
+            ij = np.rint((points + 0.5) / scale - 0.5).astype(np.int64)
+            h, w = thin.shape
+            inside = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+            out = np.zeros(len(points), bool)
+            out[inside] = thin[ij[inside, 1], ij[inside, 0]]
+            return out
+
+        return on_thin
 
     def outline(self, working: Camera, config: RefineConfig) -> np.ndarray:
         """(M, 2) outline samples in ``working``'s pixels, traced and sampled as the
@@ -405,8 +450,17 @@ class ContourCost:
                 delta = np.einsum("ij,ij->i", p - outline[near], nrm[j])
                 to_model = to_model + delta[:, None] * nrm[j]
                 to_observed = to_observed + delta[k][:, None] * nrm
-            out.append(_Pairs(c, e, to_model, nrm[j], 1.0 / len(e)))
-            out.append(_Pairs(c, e[k], to_observed, nrm, 1.0 / len(k), source=k))
+            model_side = _Pairs(c, e, to_model, nrm[j], 1.0 / len(e))
+            source: np.ndarray | None = k
+            if own is not None and self.config.thin_px > 0:
+                # Each residual keeps its weight: what is left out weighs nothing.
+                keep = ~own.thin(self.config.thin_px)(p, self.obs.cameras[c])
+                if not keep.all():
+                    model_side = _Pairs(c, e[keep], to_model[keep], nrm[j][keep], 1.0 / len(e))
+                    source = None  # its edges are no longer the ones k indexes
+            if len(model_side.edges):
+                out.append(model_side)
+            out.append(_Pairs(c, e[k], to_observed, nrm, 1.0 / len(k), source=source))
         return out
 
     def _own_silhouettes(self, V: np.ndarray) -> dict[int, _Silhouette]:

@@ -87,8 +87,10 @@ RESULTS_FORMATS_READ = (2, 3)
 #: again from the recorded frames when ``process`` meets it, so that an upgrade
 #: reaches the numbers of runs already finished. Raise it when the summary changes
 #: (1: the height read from the floor; 2: the weight read from the posed bodies;
-#: 3: the floor trusted down to ``standing_height.MAX_SOLE_DEPTH`` only).
-SUMMARY_VERSION = 3
+#: 3: the floor trusted down to ``standing_height.MAX_SOLE_DEPTH`` only; 4: parts of the
+#: model the camera does not resolve give no model-to-outline residual in the session
+#: stage, ``SessionShapeConfig.thin_px``).
+SUMMARY_VERSION = 4
 #: Version of ``run.json``.
 MANIFEST_FORMAT = 1
 #: Version of ``evaluation.json`` (1: the generative stage was ``disc_generative``).

@@ -154,6 +154,11 @@ class SessionShapeConfig:
         the images' own resolution with twice the per-frame refinement's points
         (the ``best`` quality preset's; docs/session-shape.md, "Full resolution").
         They replace the refinement's own.
+    thin_px : float
+        Parts of the model narrower than about twice this many camera pixels
+        give no model-to-observed residual (:attr:`RefineConfig.thin_px`; the
+        fingers of a child: docs/session-shape.md, "Parts the camera does not
+        resolve"). 0: every part counts.
     """
 
     enabled: bool = True
@@ -169,6 +174,7 @@ class SessionShapeConfig:
     posed_weight: bool = True
     image_scale: float = 1.0
     max_points: int = 800
+    thin_px: float = 1.2
 
     def __post_init__(self) -> None:
         if self.iterations < 0:
@@ -185,16 +191,21 @@ class SessionShapeConfig:
             raise ValueError(f"descents: expected >= 1, got {self.descents}")
         if not self.jitter >= 0:
             raise ValueError(f"jitter: expected >= 0, got {self.jitter}")
-        # RefineConfig checks image_scale (in (0, 1]) as it checks the refinement's own.
+        # RefineConfig checks image_scale (in (0, 1]) and thin_px (>= 0) as it checks
+        # the refinement's own.
         self.refinement()
         if self.max_points < 10:
             raise ValueError(f"max_points: expected >= 10, got {self.max_points}")
 
     def refinement(self, refinement: RefineConfig | None = None) -> RefineConfig:
         """The contour cost's settings in this stage: ``refinement`` (the run's
-        per-frame refinement) at this stage's ``image_scale`` and ``max_points``."""
+        per-frame refinement) at this stage's ``image_scale``, ``max_points`` and
+        ``thin_px``."""
         return replace(
-            refinement or RefineConfig(), image_scale=self.image_scale, max_points=self.max_points
+            refinement or RefineConfig(),
+            image_scale=self.image_scale,
+            max_points=self.max_points,
+            thin_px=self.thin_px,
         )
 
 

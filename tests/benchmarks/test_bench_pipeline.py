@@ -86,6 +86,7 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
     or, for subjects the model was not built from, their bank bodies."""
     from benchmarks.bench_pipeline import (
         ARMS_SESSIONS,
+        CHILDREN_FRESH_SESSIONS,
         CHILDREN_SESSIONS,
         CONTRAST_SESSIONS,
         EDGE_FOURTH_SESSIONS,
@@ -118,6 +119,7 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
         ARMS_SESSIONS,
         WEIGHT_SESSIONS,
         CHILDREN_SESSIONS,
+        CHILDREN_FRESH_SESSIONS,
         CONTRAST_SESSIONS,
     )
     seeds = [s[0] for group in sets for s in group]

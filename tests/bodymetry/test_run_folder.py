@@ -68,6 +68,25 @@ def test_other_settings_are_refused_unless_restarted(session, tmp_path):
     assert not (out / "frames").exists()
 
 
+def test_a_setting_added_later_keeps_earlier_runs_hash_at_its_default():
+    """The per-frame refinement's thin_px came after runs were made: at its default (0)
+    the hash is that of the settings without it, so a finished run resumes after an
+    upgrade; set, it is another run."""
+    import hashlib
+    from dataclasses import replace
+
+    config = ProcessConfig()
+    data = config.to_json()
+    assert data["fit"]["refinement"].pop("thin_px") == 0.0
+    hashed = ("quality", "fit", "training", "frame_step", "working_person_px")
+    earlier = {k: data[k] for k in hashed}
+    digest = hashlib.sha256(json.dumps(earlier, sort_keys=True).encode()).hexdigest()[:16]
+    assert config_fingerprint(config) == digest
+    refinement = replace(config.fit.refinement, thin_px=1.2)
+    thin = replace(config, fit=replace(config.fit, refinement=refinement))
+    assert config_fingerprint(thin) != digest
+
+
 def test_another_session_is_refused(session, tmp_path):
     out = tmp_path / "run"
     prepare_run_folder(out, session, ProcessConfig())

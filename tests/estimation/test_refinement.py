@@ -342,3 +342,68 @@ def test_compiled_residuals_of_a_batch_are_the_numpy_ones(scene, monkeypatch):
         alone = cost.residuals(V[s], pairs)
         assert alone[0].shape == (R,)
         assert np.array_equal(alone[0], got["numba"][0][s])
+
+
+def test_thin_parts_are_those_the_camera_does_not_resolve():
+    """A silhouette of a wide block and a 2-pixel bar: points on the bar's outline are
+    thin at thin_px 1.2 (no pixel of it lies 1.2 px deep within THIN_WINDOW), those on
+    the block's are not; at a working scale of one half the same pixels answer."""
+    from bodymetry.estimation.refinement import _Silhouette
+    from bodymetry.studio.rig import studio_rig
+
+    camera = studio_rig(1, (80, 60), seed=0)[0]
+    mask = np.zeros((60, 80), bool)
+    mask[10:40, 10:30] = True  # a block 20 px wide
+    mask[24:26, 30:70] = True  # a bar 2 px thick, from the block's side
+    own = _Silhouette(mask, camera, np.array([0, 0]), np.array([80, 60]))
+    on_thin = own.thin(1.2)
+    bar = np.array([[50.0, 24.0], [60.0, 25.0], [69.0, 24.0]])
+    block = np.array([[10.0, 20.0], [20.0, 10.0], [29.0, 35.0], [20.0, 39.0]])
+    assert on_thin(bar, camera).all()
+    assert not on_thin(block, camera).any()
+    assert not on_thin(np.array([[-5.0, 3.0], [200.0, 10.0]]), camera).any()  # outside
+    half = camera.scaled(0.5)
+    assert on_thin((bar + 0.5) * 0.5 - 0.5, half).all()
+    assert not on_thin((block + 0.5) * 0.5 - 0.5, half).any()
+    # A bar 4 px thick is resolved.
+    mask[24:28, 30:70] = True
+    assert (
+        not _Silhouette(mask, camera, np.array([0, 0]), np.array([80, 60]))
+        .thin(1.2)(bar, camera)
+        .any()
+    )
+
+
+def test_thin_parts_leave_out_only_their_model_to_outline_residuals(scene):
+    """At a coarse resolution the fingers are thin: with thin_px their model-to-outline
+    residuals go (and only a few), the outline-to-model ones all stay, and each kept
+    residual keeps its weight and value."""
+    model, cameras, truth, masks = _scene((160, 120))
+    obs = prepare_contours(cameras, masks, 1.0)
+    y = truth.vector()[0]
+    plain = ContourCost(model, obs, RefineConfig(image_scale=1.0))
+    thin = ContourCost(model, obs, RefineConfig(image_scale=1.0, thin_px=1.2))
+    V, lod = plain.vertices(y)[0], plain.vertices(y, lod=True)[0]
+    a, b = plain.pairs(V, lod), thin.pairs(V, lod)
+    a_model = {p.camera: p for p in a if _first(a, p)}
+    b_model = {p.camera: p for p in b if _first(b, p)}
+    dropped = sum(len(a_model[c].edges) - len(b_model[c].edges) for c in a_model)
+    total = sum(len(p.edges) for p in a_model.values())
+    assert 0 < dropped < 0.2 * total
+    for c, p in b_model.items():
+        assert p.weight == a_model[c].weight
+        assert np.isin(p.edges[:, 0], a_model[c].edges[:, 0]).all()
+    second_a = [p for p in a if not _first(a, p)]
+    second_b = [p for p in b if not _first(b, p)]
+    assert [len(p.edges) for p in second_a] == [len(p.edges) for p in second_b]
+    # The residuals of what is kept are the same numbers.
+    res_a, _ = plain.residuals(V, second_a)
+    res_b, _ = thin.residuals(V, second_b)
+    assert np.allclose(res_a, res_b)
+    with pytest.raises(ValueError, match="thin_px"):
+        RefineConfig(thin_px=-1.0)
+
+
+def _first(pairs, p) -> bool:
+    """Whether ``p`` is its view's model-to-outline pair (the first of its view's two)."""
+    return next(q for q in pairs if q.camera == p.camera) is p
