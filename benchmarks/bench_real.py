@@ -246,6 +246,10 @@ def run() -> dict:
                 "timing_seconds": results.timing_seconds,
                 "warnings": list(results.warnings),
                 "outline": None if results.outline is None else results.outline.to_json(),
+                # What the run states of its numbers: the studio's accuracy on bodies
+                # like this one, and each session value's 95 % interval.
+                "studio_accuracy": {k: a.to_json() for k, a in results.studio_accuracy.items()},
+                "intervals": {k: i.to_json() for k, i in results.stated_intervals.items()},
             }
         )
         result["meets_targets"] = bool(
