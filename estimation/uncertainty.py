@@ -114,9 +114,7 @@ class StatedInterval:
 
     def to_json(self) -> dict:
         """For ``results.json`` (4 decimals; an infinite ν_eff as null)."""
-        out = {k: v for k, v in self.__dict__.items()}
-        out["half_width"] = self.half_width
-        out["coverage"] = COVERAGE
+        out = {**self.__dict__, "half_width": self.half_width, "coverage": COVERAGE}
         return {
             k: (round(v, 4) if math.isfinite(v) else None) if isinstance(v, float) else v
             for k, v in out.items()
@@ -157,11 +155,7 @@ def stated_interval(
     nu_b = max(accuracy.sessions, 1)
     denominator = u_a**4 / nu_a + u_b**4 / nu_b
     nu = u_c**4 / denominator if denominator > 0 else math.inf
-    k = (
-        float(stats.t.ppf(0.5 + COVERAGE / 2, nu))
-        if math.isfinite(nu)
-        else float(stats.norm.ppf(0.5 + COVERAGE / 2))
-    )
+    k = float(stats.t.ppf(0.5 + COVERAGE / 2, nu))  # infinite nu: the normal quantile
     return StatedInterval(
         value=float(value),
         standard_uncertainty=u_c,
