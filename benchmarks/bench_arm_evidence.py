@@ -36,12 +36,13 @@ CAVEAT_SETS = (
     "pipeline_edge_unseen.json",
 )
 #: Rendered after the caveat was written (``pipeline --arms``, ``--weight``,
-#: ``--edge-fresh``, ``--edge-fourth``): its check.
+#: ``--edge-fresh``, ``--edge-fourth``, ``--children-fresh``): its check.
 CHECK_SETS = (
     "pipeline_arms.json",
     "pipeline_weight.json",
     "pipeline_edge_fresh.json",
     "pipeline_edge_fourth.json",
+    "pipeline_children_fresh.json",
 )
 #: Issue 15's arm span target for the session stage, mm.
 TARGET_MM = 15.0

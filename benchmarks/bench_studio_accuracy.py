@@ -60,6 +60,7 @@ SETS = (
     "pipeline_contrast.json",
     "pipeline_edge_fresh.json",
     "pipeline_edge_fourth.json",
+    "pipeline_children_fresh.json",
 )
 
 
