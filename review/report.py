@@ -931,8 +931,8 @@ def _headline_lines(ctx: dict[str, Any]) -> list[str]:
     stated = [h for h in cards if h["interval"]]
     if stated:
         lines.append(
-            f"{COVERAGE:.0%} interval (standard error and the studio's error on like bodies "
-            "combined): "
+            f"{round(100 * COVERAGE)} % interval (standard error and the studio's error on "
+            "like bodies combined): "
             + ", ".join(
                 f"{h['label'].lower()} {_num(h['interval'].low)} to {_num(h['interval'].high)} "
                 f"{h['unit']}"

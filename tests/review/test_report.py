@@ -28,6 +28,7 @@ from bodymetry.review.accuracy import SESSION_ACCURACY
 from bodymetry.review.accuracy import SOURCE as ACCURACY_SOURCE
 from bodymetry.review.build import build_review
 from bodymetry.review.report import (
+    _headline_lines,
     _left_out_lines,
     body_renders,
     breakable,
@@ -323,6 +324,11 @@ def test_the_session_stage_is_beside_the_per_frame_stages(review_run):
     assert "Welch–Satterthwaite" in html
     written = json.loads((review_run.folder / "results.json").read_text())["persons"][0]
     assert written["intervals"] == {k: i.to_json() for k, i in intervals.items()}
+    # The PDF's summary page says them in one line.
+    lines = _headline_lines({"headline": headline_cards(load_run(review_run.folder))})
+    (stated,) = [line for line in lines if line.startswith("95 % interval")]
+    height = intervals["height_mm"]
+    assert f"height {height.low:,.1f} to {height.high:,.1f} mm".replace(",", " ") in stated
     with open(review_run.folder / "measurements.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     used = {str(f) for f in shape.frames}
