@@ -516,13 +516,14 @@ class RunResults:
         every frame), judged once for :attr:`caveats` and :attr:`studio_accuracy`."""
         return raised_frames(self.frames)
 
-    @property
+    @cached_property
     def studio_accuracy(self) -> dict[str, MeasuredAccuracy]:
         """The studio's accuracy on bodies like the first person's measured one, per core
         measurement with enough like sessions
         (:func:`bodymetry.estimation.studio_accuracy.like_accuracy`; derived, like
-        :attr:`caveats`); single-person sessions, and the scope says so for a person
-        measured among others."""
+        :attr:`caveats`, once: the report's cards, :attr:`stated_intervals` and
+        ``results.json`` all read it); single-person sessions, and the scope says so for
+        a person measured among others."""
         among = any(r.crowded for r in self.frames)
         arms = arms_raised(self.arm_raised_frames)
         low = is_low_contrast(self.outline_contrast)
