@@ -51,6 +51,7 @@ __all__ = [
     "PERSON_REACH",
     "PERSON_SOLIDITY",
     "PERSON_SPACING",
+    "TOP_DEPTH",
     "HullBodies",
     "HullCheck",
     "HullConfig",
@@ -85,6 +86,10 @@ PERSON_SPACING = 0.45
 PERSON_SOLIDITY = 0.7
 #: Metres: the legs of a standing person lie within this of the head's floor position.
 PERSON_REACH = 0.12
+#: How far below a hull top (metres) its voxels are looked at for one held by
+#: every camera that sees it (:attr:`HullBodies.held`): three 4 cm voxels, a
+#: head's crown.
+TOP_DEPTH = 0.12
 
 
 @dataclass(frozen=True)
@@ -171,6 +176,15 @@ class HullBodies:
         The tops :func:`count_persons` counted (:func:`person_tops`) as world
         points, metres (floor position and the top of the highest voxel), highest
         first; (0, 3) when there is no person-sized body.
+    held : (T,) bool
+        Per top, whether the cameras that see it hold it: some voxel of its crown
+        (within :data:`TOP_DEPTH` below the top and :data:`PERSON_REACH` of its
+        floor position) lies inside the silhouette of every camera that sees it.
+        A head lies in every view's silhouette (studio heads: 2 to 16 such
+        voxels, the fewest where two people's hulls merge and the top sits off
+        the head); a top that the ``misses`` allowed let through where a few
+        views' cones cross (a sliver between two opposite views, which the
+        others' silhouettes leave out) has none.
     """
 
     labels: np.ndarray
@@ -179,6 +193,7 @@ class HullBodies:
     voxel: float
     persons: int = 0
     tops: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
+    held: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), repr=False)
 
     @property
     def largest(self) -> np.ndarray:
@@ -462,7 +477,15 @@ class VisualHull:
         centres, heights = person_tops(self.grid(people), self.voxel)
         tops = np.column_stack([self.origin[:2] + centres * self.voxel, heights])
         persons = max(len(tops), int(bodies.person_sized.sum()))
-        return replace(bodies, persons=persons, tops=tops)
+        agreed = people & (hits >= votes)
+        held = np.array([self._crown(top, agreed).any() for top in tops], bool)
+        return replace(bodies, persons=persons, tops=tops, held=held)
+
+    def _crown(self, top: np.ndarray, voxels: np.ndarray) -> np.ndarray:
+        """(N,) bool: ``voxels`` (N,) bool within :data:`PERSON_REACH` of ``top``'s (3,)
+        floor position and :data:`TOP_DEPTH` below it."""
+        beside = np.linalg.norm(self.points[:, :2] - top[:2], axis=1) <= PERSON_REACH
+        return voxels & beside & (self.points[:, 2] >= top[2] - TOP_DEPTH)
 
     def _votes(self, masks: Sequence[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray]:
         """Per voxel (N,) int16: the cameras whose silhouette holds it, and the cameras

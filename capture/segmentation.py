@@ -736,12 +736,15 @@ class FrameSegmenter:
             brightness=[None if ev is None else ev.brightness for ev in evidence],
         )
 
-    def _hands_up(self, bodies: HullBodies, person: Sighting) -> bool:
-        """Whether the hull's count of more than one comes from ``person``'s raised
-        hands: the hull holds one person-sized body, and all its tops but one lie
-        at the hands of the one person the segmenter's detections agree on
+    def _one_person(self, bodies: HullBodies, person: Sighting) -> bool:
+        """Whether the hull's count of more than one is the one person the
+        segmenter's detections agree on (``person``): the hull holds one
+        person-sized body, and all its tops but one are that person's raised hands
         (:func:`~bodymetry.capture.persons.raised_hands`; both arms held straight
-        up give two tops as solid and as far apart as two heads)."""
+        up give two tops as solid and as far apart as two heads) or are not held
+        by every camera that sees them (:attr:`HullBodies.held`: a sliver where
+        two opposite views' cones cross, which the 3-of-4 vote lets through; a
+        second person's head lies in every view's silhouette)."""
         if self.hull is None or int(bodies.person_sized.sum()) != 1:
             return False
         tops = bodies.tops
@@ -749,8 +752,14 @@ class FrameSegmenter:
             self.hull.cameras, person.landmarks, self.config.landmarks
         )
         hands = raised_hands(tops, landmarks)
-        if hands.any() and int((~hands).sum()) <= 1:
-            log.debug("hull tops %s m: one person's raised hands", tops[hands].round(2).tolist())
+        crossing = ~bodies.held if len(bodies.held) == len(tops) else np.zeros(len(tops), bool)
+        explained = hands | crossing
+        if explained.any() and int((~explained).sum()) <= 1:
+            log.debug(
+                "hull tops %s m: one person's raised hands, %s m: cones crossing",
+                tops[hands].round(2).tolist(),
+                tops[crossing & ~hands].round(2).tolist(),
+            )
             return True
         return False
 
@@ -876,7 +885,8 @@ class FrameSegmenter:
                 # touch or cross; the segmenter's detections, matched across cameras by
                 # their skeletons, can (as without a clip). The hull's split stays the
                 # answer where they find fewer than two people, unless the hull's extra
-                # tops are the one person's raised hands (:meth:`_hands_up`).
+                # tops are the one person's raised hands or crossing cones
+                # (:meth:`_one_person`).
                 found = self.people(images, evidence, persons, bodies, floor)
                 if found is not None and len(found) > 1:
                     people, persons = found, len(found)
@@ -884,7 +894,7 @@ class FrameSegmenter:
                     persons > 1
                     and found is not None
                     and len(found) == 1
-                    and self._hands_up(bodies, found[0])
+                    and self._one_person(bodies, found[0])
                 ):
                     bodies = replace(bodies, persons=1)
                     persons = 1

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -17,6 +18,8 @@ import yaml
 from skeletons import detection
 
 from bodymetry.capture.background import BackgroundModel, SubtractionConfig
+from bodymetry.capture.consistency import HullBodies
+from bodymetry.capture.people import Sighting
 from bodymetry.capture.person import Person
 from bodymetry.capture.segmentation import (
     CaptureConfig,
@@ -237,3 +240,26 @@ def test_the_change_term_keeps_the_chroma_of_skin_by_the_hands():
     assert hand.mean() > far.mean() + 0.5 and far.mean() < 0.5
     frame.segmenter = _FixedSegmenter(np.full((33, 3), np.nan))  # no landmarks: weighed down
     assert frame.evidence(0, img).change[72:78, 38:44].mean() < 0.5
+
+
+def test_extra_hull_tops_the_cameras_do_not_all_hold_are_no_second_person():
+    """One person-sized hull body with two tops, the one person the skeletons agree
+    on: a second top that not every seeing camera holds is crossing cones (the
+    false ``several_persons`` of the studio's boy of 14, seed 596); one that every
+    camera holds may be a second head, and the count stands."""
+    rig = studio_rig(4, (320, 240), seed=3)
+    frame = FrameSegmenter(
+        [None] * 4, rig.sizes, CaptureConfig(method="background"), None, None, rig
+    )
+    one = Sighting(np.zeros(3), (None,) * 4, (None,) * 4, (False,) * 4)  # no skeleton in 3D
+    tops = np.array([[0.0, -0.12, 1.64], [-0.33, -0.49, 1.58]])
+    body = HullBodies(np.array([0, 1]), np.array([0, 4000]), np.array([0.0, 1.64]), 0.04)
+    assert frame._one_person(replace(body, persons=2, tops=tops, held=np.array([True, False])), one)
+    assert not frame._one_person(
+        replace(body, persons=2, tops=tops, held=np.array([True, True])), one
+    )
+    # Two person-sized bodies are two people whatever their tops.
+    two = HullBodies(np.array([0, 1, 2]), np.array([0, 4000, 3000]), np.array([0, 1.6, 1.5]), 0.04)
+    assert not frame._one_person(
+        replace(two, persons=2, tops=tops, held=np.array([True, False])), one
+    )
