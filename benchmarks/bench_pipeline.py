@@ -35,6 +35,8 @@ rendered after the session stage left out the parts the camera does not resolve
 (:data:`CHILDREN_FRESH_SESSIONS`), with :func:`edge_summary`;
 ``--contrast`` four in low-contrast clothing rendered after runs were held against the
 sessions seen in like contrast (:data:`CONTRAST_SESSIONS`), with :func:`stated_accuracy`;
+``--contrast-fresh`` six more rendered after every session stated a 95 % interval
+(:data:`CONTRAST_FRESH_SESSIONS`), with :func:`stated_accuracy`;
 ``--held-out`` renders
 :data:`HELD_OUT_SESSIONS`, a replication of the four same-model sessions with new
 subjects.
@@ -173,6 +175,17 @@ CONTRAST_SESSIONS = (
     (422, "arm_raises", "independent:422", "clothing=light_grey,room=plain,light=soft"),
     (423, "mixed", "independent:423", "clothing=wall,room=plain,light=hard"),
     (424, "arm_raises", "independent:424", "clothing=light_grey,room=textured,light=soft"),
+)
+#: Issue 32: six more in neutral and wall-coloured clothing, rendered after every
+#: session stated a 95 % interval (``--contrast-fresh``): seeds, bodies and motions
+#: never used, each look in a plain or textured room under hard or soft light.
+CONTRAST_FRESH_SESSIONS = (
+    (601, "reach", "independent:601", "clothing=white,room=plain,light=soft"),
+    (602, "arm_raises", "independent:602", "clothing=light_grey,room=plain,light=hard"),
+    (603, "mixed", "independent:603", "clothing=wall,room=plain,light=soft"),
+    (604, "walk_turn", "independent:604", "clothing=black,room=plain,light=hard"),
+    (605, "arm_raises", "independent:605", "clothing=white,room=textured,light=hard"),
+    (606, "reach", "independent:606", "clothing=wall,room=textured,light=soft"),
 )
 DEMO_RIG_SEED = 5
 FRAMES = 400  # 16 kept frames each
@@ -699,6 +712,7 @@ def run(
     children: bool = False,
     children_fresh: bool = False,
     contrast: bool = False,
+    contrast_fresh: bool = False,
 ) -> dict:
     reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
     drawn = {"edge_unseen": edge_unseen, "edge_fresh": edge_fresh, "edge_fourth": edge_fourth}
@@ -720,7 +734,7 @@ def run(
         tmp = Path(tmp)
         if reuse:
             folders = [Path(p) for p in reuse.split(":") if p]
-        elif looks or contrast:
+        elif looks or contrast or contrast_fresh:
             folders = [
                 _render(
                     tmp / f"seed{seed}_{motion}_{Look.parse(look).label.replace('/', '_')}",
@@ -730,7 +744,11 @@ def run(
                     subject,
                 )
                 for seed, motion, subject, look in (
-                    CONTRAST_SESSIONS if contrast else LOOK_SESSIONS
+                    CONTRAST_SESSIONS
+                    if contrast
+                    else CONTRAST_FRESH_SESSIONS
+                    if contrast_fresh
+                    else LOOK_SESSIONS
                 )
             ]
         elif arms or weight or children or children_fresh:
@@ -774,7 +792,15 @@ def run(
     listed = LOOK_SESSIONS if looks else subjects if independent else same_model
     described = (
         [f.name for f in folders]
-        if reuse or looks or contrast or edge or arms or weight or children or children_fresh
+        if reuse
+        or looks
+        or contrast
+        or contrast_fresh
+        or edge
+        or arms
+        or weight
+        or children
+        or children_fresh
         else [s[::2] if independent else s[:2] for s in listed]
     )
     workers = _workers()
@@ -787,7 +813,7 @@ def run(
         ),
         "sessions": out,
         **({"edge_summary": edge_summary(out)} if edge or children or children_fresh else {}),
-        **({"stated_accuracy": stated_accuracy(out)} if contrast else {}),
+        **({"stated_accuracy": stated_accuracy(out)} if contrast or contrast_fresh else {}),
         "arm_evidence": arm_span_by_evidence(out),
         # Loose clothing biases both stages alike: the stages are compared on the rest.
         "stage_comparison": stage_comparison(
