@@ -63,6 +63,8 @@ from __future__ import annotations
 import os
 import tempfile
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -696,113 +698,112 @@ def stated_accuracy(sessions: list[dict]) -> list[dict]:
     return rows
 
 
-def run(
-    independent: bool = False,
-    validation: bool = False,
-    held_out: bool = False,
-    heavy: bool = False,
-    fresh: bool = False,
-    looks: bool = False,
-    edge: bool = False,
-    edge_unseen: bool = False,
-    edge_fresh: bool = False,
-    edge_fourth: bool = False,
-    arms: bool = False,
-    weight: bool = False,
-    children: bool = False,
-    children_fresh: bool = False,
-    contrast: bool = False,
-    contrast_fresh: bool = False,
-) -> dict:
+@dataclass(frozen=True)
+class StudioSet:
+    """One set of studio sessions the benchmark renders (``--<name>``, :data:`STUDIO_SETS`).
+
+    Attributes
+    ----------
+    rows : tuple of tuple
+        ``(seed, motion, options)`` for sessions of our own body model, ``(seed,
+        motion, subject)`` or ``(seed, motion, subject, look)`` for the others.
+    folder : callable
+        A row's rendered session folder name.
+    edge_summary : bool
+        The result adds :func:`edge_summary` (edge bodies and children).
+    stated_accuracy : bool
+        The result adds :func:`stated_accuracy` (sessions held against those seen in
+        like contrast).
+    """
+
+    rows: tuple
+    folder: Callable[[tuple], str]
+    edge_summary: bool = False
+    stated_accuracy: bool = False
+
+    def render(self, root: Path, row: tuple) -> Path:
+        """Render ``row`` into ``root``/its folder."""
+        seed, motion, *rest = row
+        if len(rest) == 1 and isinstance(rest[0], dict):  # our own body model's
+            return _render(root / self.folder(row), seed, motion, rest[0])
+        options = {"look": Look.parse(rest[1])} if len(rest) == 2 else {}
+        return _render(root / self.folder(row), seed, motion, options, rest[0])
+
+
+def _own_model_folder(row: tuple) -> str:
+    return f"seed{row[0]}_{row[1]}"
+
+
+def _outfit_folder(row: tuple) -> str:
+    return f"seed{row[0]}_{row[1]}_{_outfit(row[2])}"
+
+
+def _edge_folder(row: tuple) -> str:
+    return f"seed{row[0]}_{row[1]}_{row[2].rpartition('=')[2]}"
+
+
+def _look_folder(row: tuple) -> str:
+    return f"seed{row[0]}_{row[1]}_{Look.parse(row[3]).label.replace('/', '_')}"
+
+
+def _subject_folder(row: tuple) -> str:
+    return session_name(*row)
+
+
+#: The sets, by the flag that picks one (none: ``default``; ``BODYMETRY_BENCH_INDEPENDENT``
+#: set: ``independent``).
+STUDIO_SETS: dict[str, StudioSet] = {
+    "default": StudioSet(SESSIONS, _own_model_folder),
+    "held_out": StudioSet(HELD_OUT_SESSIONS, _own_model_folder),
+    "independent": StudioSet(INDEPENDENT_SESSIONS, _outfit_folder),
+    "validation": StudioSet(VALIDATION_SESSIONS, _outfit_folder),
+    "heavy": StudioSet(HEAVY_SESSIONS, _outfit_folder),
+    "fresh": StudioSet(FRESH_SESSIONS, _outfit_folder),
+    "looks": StudioSet(LOOK_SESSIONS, _look_folder),
+    "contrast": StudioSet(CONTRAST_SESSIONS, _look_folder, stated_accuracy=True),
+    "contrast_fresh": StudioSet(CONTRAST_FRESH_SESSIONS, _look_folder, stated_accuracy=True),
+    **{name: StudioSet(rows, _edge_folder, edge_summary=True) for name, rows in EDGE_DRAWS.items()},
+    "arms": StudioSet(ARMS_SESSIONS, _subject_folder),
+    "weight": StudioSet(WEIGHT_SESSIONS, _subject_folder),
+    "children": StudioSet(CHILDREN_SESSIONS, _subject_folder, edge_summary=True),
+    "children_fresh": StudioSet(CHILDREN_FRESH_SESSIONS, _subject_folder, edge_summary=True),
+}
+
+
+def studio_set(**flags: bool) -> tuple[str, StudioSet]:
+    """The set the flags pick (at most one).
+
+    Raises
+    ------
+    ValueError
+        For more than one flag, or one that names no set.
+    """
+    chosen = [name for name, on in flags.items() if on]
+    unknown = [name for name in chosen if name not in STUDIO_SETS]
+    if unknown:
+        raise ValueError(f"pipeline: no studio set {unknown}; sets: {', '.join(STUDIO_SETS)}")
+    if len(chosen) > 1:
+        raise ValueError(f"pipeline: one studio set at a time, got {chosen}")
+    if chosen:
+        return chosen[0], STUDIO_SETS[chosen[0]]
+    name = "independent" if os.environ.get("BODYMETRY_BENCH_INDEPENDENT") else "default"
+    return name, STUDIO_SETS[name]
+
+
+def run(**flags: bool) -> dict:
+    _, studio = studio_set(**flags)
     reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
-    drawn = {"edge_unseen": edge_unseen, "edge_fresh": edge_fresh, "edge_fourth": edge_fourth}
-    draw = next((name for name, on in drawn.items() if on), "edge")
-    edge = edge or draw != "edge"
-    same_model = HELD_OUT_SESSIONS if held_out else SESSIONS
-    independent = independent or bool(os.environ.get("BODYMETRY_BENCH_INDEPENDENT"))
-    subjects = (
-        FRESH_SESSIONS
-        if fresh
-        else HEAVY_SESSIONS
-        if heavy
-        else VALIDATION_SESSIONS
-        if validation
-        else INDEPENDENT_SESSIONS
-    )
-    independent = independent or validation or heavy or fresh
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         if reuse:
             folders = [Path(p) for p in reuse.split(":") if p]
-        elif looks or contrast or contrast_fresh:
-            folders = [
-                _render(
-                    tmp / f"seed{seed}_{motion}_{Look.parse(look).label.replace('/', '_')}",
-                    seed,
-                    motion,
-                    {"look": Look.parse(look)},
-                    subject,
-                )
-                for seed, motion, subject, look in (
-                    CONTRAST_SESSIONS
-                    if contrast
-                    else CONTRAST_FRESH_SESSIONS
-                    if contrast_fresh
-                    else LOOK_SESSIONS
-                )
-            ]
-        elif arms or weight or children or children_fresh:
-            rows = (
-                ARMS_SESSIONS
-                if arms
-                else WEIGHT_SESSIONS
-                if weight
-                else CHILDREN_FRESH_SESSIONS
-                if children_fresh
-                else CHILDREN_SESSIONS
-            )
-            folders = [
-                _render(tmp / session_name(*row), row[0], row[1], {}, row[2]) for row in rows
-            ]
-        elif edge:
-            folders = [
-                _render(
-                    tmp / f"seed{seed}_{motion}_{subject.rpartition('=')[2]}",
-                    seed,
-                    motion,
-                    {},
-                    subject,
-                )
-                for seed, motion, subject in EDGE_DRAWS[draw]
-            ]
-        elif independent:
-            folders = [
-                _render(tmp / f"seed{seed}_{motion}_{_outfit(subject)}", seed, motion, {}, subject)
-                for seed, motion, subject in subjects
-            ]
         else:
-            folders = [
-                _render(tmp / f"seed{seed}_{motion}", seed, motion, options)
-                for seed, motion, options in same_model
-            ]
+            folders = [studio.render(tmp, row) for row in studio.rows]
         cache = None if os.environ.get("BODYMETRY_BENCH_WARM") else tmp / "cache"
         skip_demo = bool(os.environ.get("BODYMETRY_BENCH_SKIP_DEMO"))
         out = [] if skip_demo else [evaluate_session(Path(DEMO_SESSION), tmp / "run_demo", cache)]
         out += [evaluate_session(f, tmp / f"run_{f.name}", cache) for f in folders]
-    listed = LOOK_SESSIONS if looks else subjects if independent else same_model
-    described = (
-        [f.name for f in folders]
-        if reuse
-        or looks
-        or contrast
-        or contrast_fresh
-        or edge
-        or arms
-        or weight
-        or children
-        or children_fresh
-        else [s[::2] if independent else s[:2] for s in listed]
-    )
+    described = [f.name for f in folders]
     workers = _workers()
     return {
         "setup": (
@@ -812,8 +813,8 @@ def run(
             f"default preset, {workers} worker{'s' if workers > 1 else ''}"
         ),
         "sessions": out,
-        **({"edge_summary": edge_summary(out)} if edge or children or children_fresh else {}),
-        **({"stated_accuracy": stated_accuracy(out)} if contrast or contrast_fresh else {}),
+        **({"edge_summary": edge_summary(out)} if studio.edge_summary else {}),
+        **({"stated_accuracy": stated_accuracy(out)} if studio.stated_accuracy else {}),
         "arm_evidence": arm_span_by_evidence(out),
         # Loose clothing biases both stages alike: the stages are compared on the rest.
         "stage_comparison": stage_comparison(

@@ -1,6 +1,7 @@
 """The pipeline benchmark's comparison of the session stage with the per-frame mean."""
 
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -85,43 +86,15 @@ def test_every_studio_set_has_its_own_seeds_and_the_held_out_sets_their_own_bodi
     """The held-out, heavy and fresh sets are only held out if no other set used their seeds
     or, for subjects the model was not built from, their bank bodies."""
     from benchmarks.bench_pipeline import (
-        ARMS_SESSIONS,
-        CHILDREN_FRESH_SESSIONS,
-        CHILDREN_SESSIONS,
-        CONTRAST_SESSIONS,
-        EDGE_FOURTH_SESSIONS,
-        EDGE_FRESH_SESSIONS,
-        EDGE_SESSIONS,
-        EDGE_UNSEEN_SESSIONS,
         FRESH_SESSIONS,
         HEAVY_SESSIONS,
-        HELD_OUT_SESSIONS,
         INDEPENDENT_SESSIONS,
-        LOOK_SESSIONS,
-        SESSIONS,
+        STUDIO_SETS,
         VALIDATION_SESSIONS,
-        WEIGHT_SESSIONS,
     )
     from bodymetry.studio.independent import IndependentSpec, committed_bank
 
-    sets = (
-        SESSIONS,
-        HELD_OUT_SESSIONS,
-        INDEPENDENT_SESSIONS,
-        VALIDATION_SESSIONS,
-        HEAVY_SESSIONS,
-        FRESH_SESSIONS,
-        LOOK_SESSIONS,
-        EDGE_SESSIONS,
-        EDGE_UNSEEN_SESSIONS,
-        EDGE_FRESH_SESSIONS,
-        EDGE_FOURTH_SESSIONS,
-        ARMS_SESSIONS,
-        WEIGHT_SESSIONS,
-        CHILDREN_SESSIONS,
-        CHILDREN_FRESH_SESSIONS,
-        CONTRAST_SESSIONS,
-    )
+    sets = [studio.rows for studio in STUDIO_SETS.values()]
     seeds = [s[0] for group in sets for s in group]
     assert len(seeds) == len(set(seeds))
     n = len(committed_bank())
@@ -238,3 +211,40 @@ def test_the_fitted_shapes_are_kept_so_a_session_can_be_measured_again():
     np.testing.assert_allclose(shapes["session"], nus.mean(axis=0), atol=5e-7)
     withheld = SimpleNamespace(session_shape=SimpleNamespace(ok=False, nu=()), frames=[])
     assert _fitted_shapes(withheld) == {"session": None, "generative": {}}
+
+
+def test_one_flag_picks_one_studio_set_and_every_set_names_its_sessions_apart(monkeypatch):
+    from benchmarks.bench_pipeline import STUDIO_SETS, StudioSet, studio_set
+
+    monkeypatch.delenv("BODYMETRY_BENCH_INDEPENDENT", raising=False)
+    assert studio_set() == ("default", STUDIO_SETS["default"])
+    assert studio_set(looks=False) == ("default", STUDIO_SETS["default"])
+    assert studio_set(edge_fourth=True)[1].edge_summary
+    assert studio_set(contrast_fresh=True)[1].stated_accuracy
+    monkeypatch.setenv("BODYMETRY_BENCH_INDEPENDENT", "1")
+    assert studio_set()[0] == "independent" and studio_set(looks=True)[0] == "looks"
+    with pytest.raises(ValueError, match="one studio set at a time"):
+        studio_set(looks=True, contrast=True)
+    with pytest.raises(ValueError, match=r"no studio set \['bogus'\]"):
+        studio_set(bogus=True)
+    folders = [studio.folder(row) for studio in STUDIO_SETS.values() for row in studio.rows]
+    assert len(folders) == len(set(folders))
+    assert all(isinstance(studio, StudioSet) and studio.rows for studio in STUDIO_SETS.values())
+    assert STUDIO_SETS["contrast_fresh"].folder(STUDIO_SETS["contrast_fresh"].rows[0]) == (
+        "seed601_reach_white_plain_soft"
+    )
+    # Each kind of row renders with its options and subject (the renderer stubbed).
+    import benchmarks.bench_pipeline as bench
+
+    calls = []
+    monkeypatch.setattr(bench, "_render", lambda *args: calls.append(args) or args[0])
+    root = Path("/nowhere")
+    for name in ("default", "independent", "edge", "arms", "contrast_fresh"):
+        STUDIO_SETS[name].render(root, STUDIO_SETS[name].rows[0])
+    own, independent, edge, arms, look = calls
+    assert own == (root / "seed11_walk_turn", 11, "walk_turn", {})
+    assert independent[1:] == (43, "arm_raises", {}, "independent:43")
+    assert independent[0] == root / "seed43_arm_raises_tight"
+    assert edge[0].name == "seed331_arm_raises_female_height_p01" and edge[3] == {}
+    assert arms[4] == "independent:371" and arms[0].name == "seed371_walk_turn_371"
+    assert look[3]["look"].label == "white/plain/soft" and look[4] == "independent:601"
