@@ -68,6 +68,8 @@ from bodymetry.review.person_colors import person_hex, person_overlap_rgb
 from bodymetry.review.run_data import FrameView, RunData, frame_views, load_run, run_frame_views
 
 log = logging.getLogger(__name__)
+#: The stated interval's coverage as the report writes it ("95").
+_COVERAGE_PERCENT = round(100 * COVERAGE)
 
 #: Frames shown with silhouette overlays (evenly spaced, plus the worst fit).
 OVERLAY_FRAMES = 3
@@ -681,7 +683,7 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
         "timing": results.timing_seconds,
         "accuracy_source": ACCURACY_SOURCE,
         "like_min": MIN_LIKE,
-        "interval_coverage": round(100 * COVERAGE),
+        "interval_coverage": _COVERAGE_PERCENT,
         "interval_measured": ", ".join(
             f"{round(100 * share)} % of {plots.LABELS[key].lower()}s"
             for key, share in MEASURED_COVERAGE.items()
@@ -931,7 +933,7 @@ def _headline_lines(ctx: dict[str, Any]) -> list[str]:
     stated = [h for h in cards if h["interval"]]
     if stated:
         lines.append(
-            f"{round(100 * COVERAGE)} % interval (standard error and the studio's error on "
+            f"{_COVERAGE_PERCENT} % interval (standard error and the studio's error on "
             "like bodies combined): "
             + ", ".join(
                 f"{h['label'].lower()} {_num(h['interval'].low)} to {_num(h['interval'].high)} "
