@@ -189,6 +189,18 @@ CONTRAST_FRESH_SESSIONS = (
     (605, "arm_raises", "independent:605", "clothing=white,room=textured,light=hard"),
     (606, "reach", "independent:606", "clothing=wall,room=textured,light=soft"),
 )
+#: Issue 32: the outline check in low contrast (``--contrast-clothing``), rendered after
+#: it held low-contrast runs to their own threshold: four tight and two loose-clothed
+#: subjects (the studio's loose shirt and shorts) in neutral and wall-coloured clothing,
+#: seeds, bodies and motions never used.
+CONTRAST_CLOTHING_SESSIONS = (
+    (611, "arm_raises", "independent:611", "clothing=white,room=plain,light=hard"),
+    (612, "reach", "independent:612", "clothing=light_grey,room=textured,light=soft"),
+    (613, "walk_turn", "independent:613", "clothing=wall,room=plain,light=hard"),
+    (614, "mixed", "independent:614", "clothing=light_grey,room=plain,light=soft"),
+    (615, "arm_raises", "independent:615,clothing=loose", "clothing=white,room=plain,light=soft"),
+    (616, "reach", "independent:616,clothing=loose", "clothing=light_grey,room=plain,light=hard"),
+)
 DEMO_RIG_SEED = 5
 FRAMES = 400  # 16 kept frames each
 
@@ -762,6 +774,7 @@ STUDIO_SETS: dict[str, StudioSet] = {
     "looks": StudioSet(LOOK_SESSIONS, _look_folder),
     "contrast": StudioSet(CONTRAST_SESSIONS, _look_folder, stated_accuracy=True),
     "contrast_fresh": StudioSet(CONTRAST_FRESH_SESSIONS, _look_folder, stated_accuracy=True),
+    "contrast_clothing": StudioSet(CONTRAST_CLOTHING_SESSIONS, _look_folder, stated_accuracy=True),
     **{name: StudioSet(rows, _edge_folder, edge_summary=True) for name, rows in EDGE_DRAWS.items()},
     "arms": StudioSet(ARMS_SESSIONS, _subject_folder),
     "weight": StudioSet(WEIGHT_SESSIONS, _subject_folder),

@@ -96,6 +96,7 @@ from bodymetry.estimation.run_files import (
     SessionInfo,
 )
 from bodymetry.estimation.session_shape import fit_session_shape, session_frame
+from bodymetry.estimation.studio_accuracy import is_low_contrast, run_contrast
 from bodymetry.estimation.training import cached_models_path, load_or_train, rig_key
 from bodymetry.estimation.view_selection import (
     ABSENT,
@@ -1037,6 +1038,8 @@ def session_stage(
         config.session_shape.refinement(config.fit.refinement),
         alignments=[shape.alignments.get(f.frame) for f in frames],
         clothing=[f.clothing for f in frames],
+        # Low contrast moves the captured outline by part: the check needs more.
+        low_contrast=bool(is_low_contrast(run_contrast(ok))),
     )
     out = [
         replace(r, estimates={**r.estimates, "session": shape.estimates[r.frame]})

@@ -84,6 +84,16 @@ class OutlineConfig:
         at: the signatures are a few millimetres, a fifth to a whole pixel of
         the demo's 5.5 mm pixels at the session stage's full resolution; at
         25 mm (a 240x180 camera) they are lost in the outline's quantization.
+    loose_mm_low_contrast : float
+        ``loose_mm`` for a run seen in low contrast (white, grey or wall-coloured
+        clothing before a wall of about its colour: the run's outline contrast
+        under :data:`~bodymetry.estimation.studio_accuracy.LOW_CONTRAST`). There
+        the captured outline itself errs by part: the limbs a few tenths of a
+        pixel inside, the trunk less (docs/capture.md), and the studio's tight
+        subjects in such clothing read up to +1.56 ± 0.74 mm (14 sessions; 4 of
+        them warned at ``loose_mm``, while their weights read 1.0 to 3.7 kg
+        light, not heavy). The loose-clothed ones in saturated colours read +2.2
+        to +5.5 mm (docs/session-shape.md, "Outline check").
     bare_trunk : float
         Where capture told skin from clothing (:mod:`bodymetry.capture.skin`),
         a trunk whose outline lies on clothing in less than this share is
@@ -92,15 +102,17 @@ class OutlineConfig:
     """
 
     loose_mm: float = 1.3
+    loose_mm_low_contrast: float = 2.5
     crown_mm: float = 4.0
     min_points: int = 10
     max_mm_per_px: float = 15.0
     bare_trunk: float = 0.5
 
     def __post_init__(self) -> None:
-        if not (self.loose_mm > 0 and self.crown_mm > 0):
+        if not (self.loose_mm > 0 and self.loose_mm_low_contrast > 0 and self.crown_mm > 0):
             raise ValueError(
-                f"loose_mm, crown_mm: expected > 0, got {self.loose_mm}, {self.crown_mm}"
+                "loose_mm, loose_mm_low_contrast, crown_mm: expected > 0, got "
+                f"{self.loose_mm}, {self.loose_mm_low_contrast}, {self.crown_mm}"
             )
         if self.min_points < 1:
             raise ValueError(f"min_points: expected >= 1, got {self.min_points}")
@@ -228,6 +240,7 @@ def check_outline(
     config: OutlineConfig | None = None,
     alignments: Sequence[Alignment | None] | None = None,
     clothing: Sequence[Sequence[np.ndarray | None]] | None = None,
+    low_contrast: bool = False,
 ) -> OutlineCheck:
     """The session's outline offsets per region, and its warnings.
 
@@ -249,6 +262,9 @@ def check_outline(
         told): the share of the trunk's outline on clothing
         (``trunk_clothing_share``) tells a bare trunk, which wears no loose
         shirt (``OutlineConfig.bare_trunk``).
+    low_contrast : bool
+        Capture saw the person in low contrast: loose clothing is judged against
+        ``OutlineConfig.loose_mm_low_contrast``.
 
     Returns
     -------
@@ -295,7 +311,9 @@ def check_outline(
     on_cloth = on_cloth[np.isfinite(on_cloth)]
     trunk_share = float(on_cloth.mean()) if len(on_cloth) else float("nan")
     warnings = (
-        [] if coarse else _clothing_warnings(trunk, trunk_se, crown, crown_se, config, trunk_share)
+        []
+        if coarse
+        else _clothing_warnings(trunk, trunk_se, crown, crown_se, config, trunk_share, low_contrast)
     )
     status = _status(mm_per_px, coarse, config)
     return OutlineCheck(
@@ -330,29 +348,33 @@ def _clothing_warnings(
     crown_se: float,
     config: OutlineConfig,
     trunk_share: float = float("nan"),
+    low_contrast: bool = False,
 ) -> list[str]:
     """The warnings for loose clothing (the trunk's excess offset, mm) and for hair
     or headwear (the crown's), each with its standard error.
 
-    Loose clothing is warned of above ``loose_mm``, and also within one standard
-    error below it, where the frames do not settle the verdict either way; not
-    where the trunk's outline is bare skin (``trunk_share``, the share of it on
-    clothing, under ``bare_trunk``)."""
+    Loose clothing is warned of above ``loose_mm`` (``loose_mm_low_contrast`` for a
+    run seen in low contrast), and also within one standard error below it, where
+    the frames do not settle the verdict either way; not where the trunk's outline
+    is bare skin (``trunk_share``, the share of it on clothing, under
+    ``bare_trunk``)."""
     warnings = []
     bare = np.isfinite(trunk_share) and trunk_share < config.bare_trunk
-    if np.isfinite(trunk) and trunk > config.loose_mm and not bare:
-        note = _borderline(trunk, trunk_se, config.loose_mm)
+    limit = config.loose_mm_low_contrast if low_contrast else config.loose_mm
+    tight = "tight clothing in low contrast" if low_contrast else "tight clothing"
+    if np.isfinite(trunk) and trunk > limit and not bare:
+        note = _borderline(trunk, trunk_se, limit)
         warnings.append(
             f"loose clothing likely: the silhouettes lie {_mm(trunk, trunk_se)} "
             "further outside the fitted body at the trunk than at the forearms and shins "
-            f"(tight clothing: under {config.loose_mm:g} mm{note}); the weight, "
+            f"({tight}: under {limit:g} mm{note}); the weight, "
             "circumferences and widths are probably overstated"
         )
-    elif not bare and np.isfinite(trunk_se) and trunk + trunk_se >= config.loose_mm:
+    elif not bare and np.isfinite(trunk_se) and trunk + trunk_se >= limit:
         warnings.append(
             f"loose clothing possible: the silhouettes lie {_mm(trunk, trunk_se)} "
             "further outside the fitted body at the trunk than at the forearms and "
-            f"shins (tight clothing: under {config.loose_mm:g} mm; within one standard "
+            f"shins ({tight}: under {limit:g} mm; within one standard "
             "error below it, the frames do not settle it); the weight, circumferences "
             "and widths may be overstated"
         )

@@ -89,8 +89,9 @@ RESULTS_FORMATS_READ = (2, 3)
 #: (1: the height read from the floor; 2: the weight read from the posed bodies;
 #: 3: the floor trusted down to ``standing_height.MAX_SOLE_DEPTH`` only; 4: parts of the
 #: model the camera does not resolve give no model-to-outline residual in the session
-#: stage, ``SessionShapeConfig.thin_px``).
-SUMMARY_VERSION = 4
+#: stage, ``SessionShapeConfig.thin_px``; 5: the outline check holds a run seen in low
+#: contrast to ``OutlineConfig.loose_mm_low_contrast``).
+SUMMARY_VERSION = 5
 #: Version of ``run.json``.
 MANIFEST_FORMAT = 1
 #: Version of ``evaluation.json`` (1: the generative stage was ``disc_generative``).

@@ -628,6 +628,20 @@ def test_capture_s_outline_contrast_reaches_the_record_and_the_run(run, tmp_path
     assert finished.outline_contrast == 1.1
     assert finished.studio_accuracy
     assert all("low-contrast clothing" in a.scope for a in finished.studio_accuracy.values())
+    # The session stage's outline check holds a run seen in low contrast to its own
+    # threshold (OutlineConfig.loose_mm_low_contrast).
+    asked = []
+    check = pipeline.check_outline
+    monkeypatch.setattr(
+        pipeline, "check_outline", lambda *a, **k: asked.append(k["low_contrast"]) or check(*a, **k)
+    )
+    staged = dataclasses.replace(
+        config, session_shape=dataclasses.replace(config.session_shape, enabled=True, iterations=0)
+    )
+    plain = {f: dataclasses.replace(r, outline_contrast=1.8) for f, r in done.items()}
+    for records in (low, plain):
+        pipeline.session_stage(prepared, staged, list(records.values()))
+    assert asked == [True, False]
 
 
 def _finished(prepared, config, rig, done):

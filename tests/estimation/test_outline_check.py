@@ -260,6 +260,30 @@ def test_a_figure_within_one_standard_error_below_the_threshold_says_it_cannot_t
     assert likely.startswith("loose clothing likely")
 
 
+def test_a_run_seen_in_low_contrast_is_held_to_its_own_threshold():
+    """In low contrast the captured outline itself errs by part: the studio's tight
+    subjects read up to +1.56 +- 0.74 mm there, so loose clothing needs more."""
+    from bodymetry.estimation.outline_check import _clothing_warnings
+
+    config = OutlineConfig()
+    low = config.loose_mm_low_contrast
+    assert low > config.loose_mm
+    # The worst tight low-contrast session of the studio: warned before, not now.
+    assert _clothing_warnings(1.56, 0.74, 0.0, 0.1, config)
+    assert _clothing_warnings(1.56, 0.74, 0.0, 0.1, config, low_contrast=True) == []
+    (likely,) = _clothing_warnings(low + 0.5, 0.3, 0.0, 0.1, config, low_contrast=True)
+    assert likely.startswith("loose clothing likely")
+    assert f"tight clothing in low contrast: under {low:g} mm" in likely
+    (possible,) = _clothing_warnings(low - 0.2, 0.3, 0.0, 0.1, config, low_contrast=True)
+    assert possible.startswith("loose clothing possible")
+    # Hair is judged as before, and a bare trunk wears no loose shirt in any contrast.
+    (hair,) = _clothing_warnings(0.0, 0.1, 12.0, 0.5, config, low_contrast=True)
+    assert hair.startswith("hair or headwear likely")
+    assert _clothing_warnings(5.0, 0.3, 0.0, 0.1, config, 0.2, low_contrast=True) == []
+    with pytest.raises(ValueError, match="loose_mm_low_contrast"):
+        OutlineConfig(loose_mm_low_contrast=0.0)
+
+
 def test_a_bare_trunk_wears_no_loose_shirt():
     from bodymetry.estimation.outline_check import _clothing_warnings
 
