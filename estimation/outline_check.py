@@ -41,7 +41,7 @@ from bodymetry.calibration.camera import CameraGroup
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.contours import near_region, prepare_contours
-from bodymetry.estimation.records import OutlineCheck
+from bodymetry.estimation.records import HAIR, LOOSE_CLOTHING, OutlineCheck
 from bodymetry.estimation.refinement import Alignment, ContourCost, RefineConfig
 
 #: Body regions the offsets are pooled over, by part name.
@@ -365,23 +365,23 @@ def _clothing_warnings(
     if np.isfinite(trunk) and trunk > limit and not bare:
         note = _borderline(trunk, trunk_se, limit)
         warnings.append(
-            f"loose clothing likely: the silhouettes lie {_mm(trunk, trunk_se)} "
+            f"{LOOSE_CLOTHING} likely: the silhouettes lie {_mm(trunk, trunk_se)} "
             "further outside the fitted body at the trunk than at the forearms and shins "
-            f"({tight}: under {limit:g} mm{note}); the weight, "
+            f"({tight}: under {limit:g} mm{note}); the weight, arm span, "
             "circumferences and widths are probably overstated"
         )
     elif not bare and np.isfinite(trunk_se) and trunk + trunk_se >= limit:
         warnings.append(
-            f"loose clothing possible: the silhouettes lie {_mm(trunk, trunk_se)} "
+            f"{LOOSE_CLOTHING} possible: the silhouettes lie {_mm(trunk, trunk_se)} "
             "further outside the fitted body at the trunk than at the forearms and "
             f"shins ({tight}: under {limit:g} mm; within one standard "
-            "error below it, the frames do not settle it); the weight, circumferences "
-            "and widths may be overstated"
+            "error below it, the frames do not settle it); the weight, arm span, "
+            "circumferences and widths may be overstated"
         )
     if np.isfinite(crown) and crown > config.crown_mm:
         note = _borderline(crown, crown_se, config.crown_mm)
         warnings.append(
-            f"hair or headwear likely: the silhouettes lie {_mm(crown, crown_se)} "
+            f"{HAIR} likely: the silhouettes lie {_mm(crown, crown_se)} "
             "further outside the fitted body at the crown than at the forearms and shins "
             f"(bare head: under {config.crown_mm:g} mm{note}); the height is probably "
             "overstated"

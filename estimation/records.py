@@ -544,6 +544,20 @@ def summarize(
     return out
 
 
+#: How the outline check's warnings begin (:mod:`bodymetry.estimation.outline_check`).
+LOOSE_CLOTHING = "loose clothing"
+HAIR = "hair or headwear"
+#: Per warning, the core measurements the silhouette overstates when it is not the
+#: body's own outline: loose clothing the weight and the arm span (the studio's loose
+#: shirt and shorts read +12 to +17 kg and +5 to +40 mm), hair the height (+14 to
+#: +15 mm). Their 95 % interval, made from tight-clothed, bare-headed sessions, does not
+#: apply, and none is stated (:attr:`OutlineCheck.overstated`).
+OVERSTATED: dict[str, tuple[str, ...]] = {
+    LOOSE_CLOTHING: ("arm_span_mm", "weight_kg"),
+    HAIR: ("height_mm",),
+}
+
+
 @dataclass(frozen=True)
 class OutlineCheck:
     """Where the observed outline lies relative to the fitted body (``session_shape.outline``).
@@ -589,6 +603,17 @@ class OutlineCheck:
     crown_excess_se_mm: float = math.nan
     warnings: tuple[str, ...] = ()
     trunk_clothing_share: float = math.nan
+
+    @property
+    def overstated(self) -> dict[str, str]:
+        """Per core measurement the warnings say the silhouette overstates
+        (:data:`OVERSTATED`), what (:data:`LOOSE_CLOTHING` or :data:`HAIR`)."""
+        out: dict[str, str] = {}
+        for warning in self.warnings:
+            for start, keys in OVERSTATED.items():
+                if warning.startswith(start):
+                    out.update({key: start for key in keys if key not in out})
+        return out
 
     def to_json(self) -> dict[str, Any]:
         return {

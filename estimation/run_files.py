@@ -534,12 +534,24 @@ class RunResults:
     def stated_intervals(self) -> dict[str, StatedInterval]:
         """The first person's 95 % interval per core measurement with a session value
         and a :attr:`studio_accuracy` (:mod:`bodymetry.estimation.uncertainty`; derived,
-        like :attr:`caveats`)."""
+        like :attr:`caveats`); none for one the outline check says the silhouettes
+        overstate (:attr:`intervals_withheld`)."""
         session = self.summary.get("session", {})
-        values = {k: s.mean for k, s in session.items() if s.mean is not None}
+        withheld = self.intervals_withheld
+        values = {k: s.mean for k, s in session.items() if s.mean is not None and k not in withheld}
         errors = {k: s.std for k, s in session.items() if s.std is not None}
         frames = max((s.n for s in session.values()), default=0)
         return stated_intervals(values, errors, frames, self.studio_accuracy)
+
+    @property
+    def intervals_withheld(self) -> dict[str, str]:
+        """Per core measurement with no stated interval because the outline check found
+        loose clothing or hair, which (``"loose clothing"``, ``"hair or headwear"``;
+        :attr:`~bodymetry.estimation.records.OutlineCheck.overstated`): the studio's
+        accuracy, of tight clothing and bare heads, does not apply."""
+        shape = self.session_shape
+        outline = None if shape is None else shape.outline
+        return {} if outline is None else outline.overstated
 
     @property
     def headline_values(self) -> dict[str, float]:
@@ -591,6 +603,7 @@ class RunResults:
                     "outline_contrast": view.outline_contrast,
                     "studio_accuracy": {k: a.to_json() for k, a in view.studio_accuracy.items()},
                     "intervals": {k: i.to_json() for k, i in view.stated_intervals.items()},
+                    "intervals_withheld": view.intervals_withheld,
                 }
                 for p, view in ((p, self.for_person(p.id)) for p in self.persons)
             ],

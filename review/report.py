@@ -467,7 +467,8 @@ def headline_cards(run: RunData) -> list[dict[str, Any]]:
         when it is not); ``actual`` (float or None), ``accuracy`` (the
         measured accuracy of the session values, or None) and ``interval`` (the
         session value's 95 % interval, :mod:`bodymetry.estimation.uncertainty`, or
-        None where none is stated).
+        None where none is stated), ``no_interval`` (the outline check's finding,
+        loose clothing or hair, where that is why none is stated; ``""`` otherwise).
     """
     summary = run.results.summary
     truth = run.ground_truth
@@ -475,6 +476,7 @@ def headline_cards(run: RunData) -> list[dict[str, Any]]:
     # The studio's figures for bodies like this one where it scored enough of them.
     like = run.results.studio_accuracy
     intervals = run.results.stated_intervals
+    withheld = run.results.intervals_withheld
     cards = []
     for key in CORE_MEASUREMENTS:
         gen = _stat(summary, "generative", key)
@@ -494,6 +496,8 @@ def headline_cards(run: RunData) -> list[dict[str, Any]]:
                 "actual": truth.get(key) if truth else None,
                 "accuracy": like.get(key) or SESSION_ACCURACY.get(key),
                 "interval": intervals.get(key) if session else None,
+                # The outline check's finding that leaves it without one.
+                "no_interval": withheld.get(key, "") if session else "",
             }
         )
     return cards

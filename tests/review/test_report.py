@@ -324,6 +324,7 @@ def test_the_session_stage_is_beside_the_per_frame_stages(review_run):
     assert "Welch–Satterthwaite" in html
     written = json.loads((review_run.folder / "results.json").read_text())["persons"][0]
     assert written["intervals"] == {k: i.to_json() for k, i in intervals.items()}
+    assert written["intervals_withheld"] == {}  # no loose clothing, no hair
     # The PDF's summary page says them in one line.
     lines = _headline_lines({"headline": headline_cards(load_run(review_run.folder))})
     (stated,) = [line for line in lines if line.startswith("95 % interval")]
@@ -362,6 +363,42 @@ def test_the_report_says_how_plainly_the_person_stood_out(review_run, tmp_path):
     for accuracy in stated.values():
         assert f"(studio, {accuracy.sessions} {accuracy.scope})" in low
         assert "low-contrast clothing" in accuracy.scope
+
+
+def test_no_interval_where_the_outline_check_finds_loose_clothing_or_hair(review_run, tmp_path):
+    """The studio's accuracy is of tight clothing and bare heads: where the outline check
+    warns of loose clothing no weight or arm span interval is stated, of hair no height
+    interval, and the card says why."""
+    folder = tmp_path / "run"
+    shutil.copytree(review_run.folder, folder)
+    results = json.loads((folder / "results.json").read_text())
+    outline = results["persons"][0]["session_shape"]["outline"]
+    outline["warnings"] = [
+        "loose clothing likely: the silhouettes lie 4.8 ± 0.8 mm further outside ...",
+        "hair or headwear likely: the silhouettes lie 12.0 ± 0.5 mm further outside ...",
+    ]
+    (folder / "results.json").write_text(json.dumps(results))
+    read = RunResults.read(folder / "results.json")
+    assert read.intervals_withheld == {
+        "arm_span_mm": "loose clothing",
+        "weight_kg": "loose clothing",
+        "height_mm": "hair or headwear",
+    }
+    assert read.stated_intervals == {}
+    assert set(review_run.results.stated_intervals) == {"height_mm", "arm_span_mm", "weight_kg"}
+    build_review(folder, recordings=False, pdf=False)
+    html = (folder / "report.html").read_text()
+    assert "95 % interval <span" not in html
+    assert html.count("no 95 % interval: loose clothing (see the caveats)") == 2
+    assert html.count("no 95 % interval: hair or headwear (see the caveats)") == 1
+    assert "nor where the outline check found loose clothing" in html
+    # Hair alone leaves the weight's and the arm span's intervals.
+    outline["warnings"] = outline["warnings"][1:]
+    (folder / "results.json").write_text(json.dumps(results))
+    assert set(RunResults.read(folder / "results.json").stated_intervals) == {
+        "arm_span_mm",
+        "weight_kg",
+    }
 
 
 def test_a_run_without_the_session_stage_has_no_session_column(review_run, bare_run):
