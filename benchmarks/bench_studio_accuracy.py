@@ -61,6 +61,8 @@ SETS = (
     "pipeline_edge_fresh.json",
     "pipeline_edge_fourth.json",
     "pipeline_children_fresh.json",
+    "pipeline_contrast_fresh.json",
+    "pipeline_contrast_clothing.json",
 )
 
 

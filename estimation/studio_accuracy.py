@@ -6,7 +6,7 @@ segmentation). What those shared errors come to depends on the body. On the
 studio's tight-clothed sessions of bodies the model was not built from (the
 mid-population subjects of issue 15, the four draws of the edge bodies and the
 looks, arms, weight and children sets of issue 33, and the low-contrast set of
-issue 32: 90 sessions since 2026-12-07), the arm span of a
+issue 32: 100 sessions since 2026-12-07), the arm span of a
 6-year-old read 6-25 mm short in all five sessions, while adults of middle
 size read it within about 7 mm RMS. A single figure for every body would
 overstate a child's accuracy and understate an adult's.
