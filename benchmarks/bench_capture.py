@@ -133,17 +133,18 @@ CAPTURE_VARIANTS = {
 }
 
 
-def quality(folders: list[Path]) -> dict:
+def quality(folders: list[Path], default_only: bool = False) -> dict:
     """Per method, per session, per camera: IoU mean/min and shadow false positives,
     summarized per appearance class (:meth:`bodymetry.studio.looks.Look.appearance_class`).
 
     The subtraction methods run as before the learned segmenter
     (``capture.method=background``, no multi-view check); the capture variants
-    run as ``bodymetry process`` does.
+    run as ``bodymetry process`` does. ``default_only``: the default capture alone.
     """
-    variants = {m: (CaptureConfig(method="background"), m) for m in METHODS}
+    variants = {} if default_only else {m: (CaptureConfig(method="background"), m) for m in METHODS}
     if segmenter_available():
-        variants.update({k: (v, "horprasert") for k, v in CAPTURE_VARIANTS.items()})
+        chosen = list(CAPTURE_VARIANTS.items())[:1] if default_only else CAPTURE_VARIANTS.items()
+        variants.update({k: (v, "horprasert") for k, v in chosen})
     out: dict = {name: {} for name in variants}
     unreliable: dict = {name: 0 for name in variants}
     classes = {f.name: recorded_look(f / "ground_truth").appearance_class for f in folders}
@@ -339,7 +340,49 @@ def real_video() -> dict:
     return {"frames": len(frames[::25]), "flags": flags}
 
 
-def run() -> dict:
+#: ``--fresh``: the pipeline benchmark's sessions in neutral clothing rendered after the
+#: fusion was last changed (issue 32's "new studio sessions"), scored with the default
+#: capture at their own length (400 frames, every 25th kept).
+FRESH_SETS = ("contrast_fresh", "contrast_clothing")
+
+
+def fresh_quality() -> dict:
+    """The default capture on :data:`FRESH_SETS` (``BODYMETRY_BENCH_SESSIONS``: their
+    renders, colon-separated, instead of rendering them)."""
+    from benchmarks.bench_pipeline import STUDIO_SETS
+
+    reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
+    keep = os.environ.get("BODYMETRY_BENCH_CAPTURE_DIR")
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(keep) if keep else Path(tmp)
+        if reuse:
+            folders = [Path(p) for p in reuse.split(":") if p]
+        else:
+            studio = [STUDIO_SETS[name] for name in FRESH_SETS]
+            folders = [s.render(root, row) for s in studio for row in s.rows]
+        scored = quality(folders, default_only=True)
+    (variant,) = scored["per_camera"].values()
+    return {
+        "sessions": f"{[f.name for f in folders]} (pipeline --contrast-fresh, --contrast-clothing)",
+        "targets": {"neutral and wall-coloured": LOOK_TARGETS},
+        "summary": scored["summary"],
+        "per_session": {
+            name: {
+                "class": scored["classes"][name],
+                "iou_mean": round(float(np.mean([c["iou_mean"] for c in cams.values()])), 4),
+                "worst_frame_iou": round(min(c["iou_min"] for c in cams.values()), 4),
+                "worst_shadow_false_positive": round(
+                    max(c["shadow_false_positive"] for c in cams.values()), 4
+                ),
+            }
+            for name, cams in variant.items()
+        },
+    }
+
+
+def run(fresh: bool = False, **_: bool) -> dict:
+    if fresh:
+        return fresh_quality()
     keep = os.environ.get("BODYMETRY_BENCH_CAPTURE_DIR")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(keep) if keep else Path(tmp)

@@ -250,6 +250,7 @@ def run() -> dict:
                 # like this one, and each session value's 95 % interval.
                 "studio_accuracy": {k: a.to_json() for k, a in results.studio_accuracy.items()},
                 "intervals": {k: i.to_json() for k, i in results.stated_intervals.items()},
+                "intervals_withheld": results.intervals_withheld,
             }
         )
         result["meets_targets"] = bool(
