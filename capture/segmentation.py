@@ -752,7 +752,7 @@ class FrameSegmenter:
             self.hull.cameras, person.landmarks, self.config.landmarks
         )
         hands = raised_hands(tops, landmarks)
-        crossing = ~bodies.held if len(bodies.held) == len(tops) else np.zeros(len(tops), bool)
+        crossing = ~bodies.held
         explained = hands | crossing
         if explained.any() and int((~explained).sum()) <= 1:
             log.debug(
