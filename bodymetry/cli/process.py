@@ -261,6 +261,16 @@ def _print_summary(results: RunResults, several: bool = False) -> None:
             row.append("-" if i is None else f"{i.low:.1f} to {i.high:.1f}")
         table.add_row(*row)
     console.print(table)
+    # A measurement whose interval the outline check's finding voids says so (its row
+    # reads "-"; the caveat below says what was found).
+    withheld: dict[str, list[str]] = {}
+    for key, finding in results.intervals_withheld.items():
+        withheld.setdefault(finding, []).append(key)
+    for finding, keys in withheld.items():
+        console.print(
+            f"no 95 % interval for {', '.join(keys)}: {finding} (the studio's accuracy is of "
+            "tight clothing and bare heads)"
+        )
     shape = results.session_shape
     if shape is not None and not shape.ok:
         console.print(f"session shape: {rich.markup.escape(shape.status)}")

@@ -810,3 +810,18 @@ def test_the_printed_table_gives_each_session_value_s_95_percent_interval(run, m
     assert "95 % interval" in text
     for interval in intervals.values():
         assert f"{interval.low:.1f} to {interval.high:.1f}" in text
+    assert "no 95 % interval" not in text
+    # Loose clothing found: no weight or arm span interval, and the line says why.
+    shape = results.session_shape
+    loose = dataclasses.replace(
+        shape.outline, warnings=("loose clothing likely: the silhouettes lie ...",)
+    )
+    clothed = results.with_person(session_shape=dataclasses.replace(shape, outline=loose))
+    wide = rich.console.Console(width=300, record=True)
+    monkeypatch.setattr(cli_process, "console", wide)
+    cli_process._print_summary(clothed)
+    text = " ".join(wide.export_text().split())
+    assert "no 95 % interval for arm_span_mm, weight_kg: loose clothing" in text
+    height = clothed.stated_intervals["height_mm"]
+    assert f"{height.low:.1f} to {height.high:.1f}" in text
+    assert set(clothed.stated_intervals) == {"height_mm"}
