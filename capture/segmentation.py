@@ -880,7 +880,8 @@ class FrameSegmenter:
         people = None
         if sees_all:
             persons = None if bodies is None else bodies.persons
-            if persons is not None and (persons > 1 or self._more_than_one(evidence, terms)):
+            close = persons == 1 and self._more_than_one(evidence, terms)
+            if persons is not None and (persons > 1 or close):
                 # Background subtraction sees everyone but cannot tell apart people who
                 # touch or cross; the segmenter's detections, matched across cameras by
                 # their skeletons, can (as without a clip). The hull's split stays the
@@ -898,6 +899,13 @@ class FrameSegmenter:
                 ):
                     bodies = replace(bodies, persons=1)
                     persons = 1
+                elif close:
+                    # Two views show a second person-sized blob beside the one the
+                    # skeletons found (two people close, the second apart in too few
+                    # views to match): more than one, though not told apart. Never
+                    # seen in a single-person studio frame (docs/capture.md).
+                    log.debug("a second person beside the one found: more than one")
+                    persons = 2
         else:
             people = self.people(images, evidence)
             persons = None if people is None else len(people)

@@ -439,6 +439,27 @@ def test_one_hull_body_holding_a_second_person_asks_the_segmenter():
     assert not frame._more_than_one([evidence(a | b)] * 2, [GeometryTerms(a, a)] * 2)
 
 
+def test_a_second_person_beside_the_one_found_counts_though_not_told_apart():
+    """One hull body (two people close) where two views show a second person-sized blob
+    beside the segmenter's person, and the skeletons match only one (the second apart
+    in too few views, seed 7's frame 175 of bench_person_tracks): more than one
+    person, though nobody is told apart. Without the blob: one."""
+    rig, rng, empty, models = _plain_room(8)
+    config = CaptureConfig(method="background", fusion=FusionConfig(enabled=True))
+    frame = FrameSegmenter(models, rig.sizes, config, None, None, rig)
+    images = []
+    for cam in rig:
+        img = empty.copy()
+        img[_cylinder_mask(cam, (0.0, 0.0))] = (200, 90, 40)
+        images.append(np.clip(img + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8))
+    one = Sighting(np.zeros(3), (None,) * 4, (None,) * 4, (False,) * 4)
+    frame.people = lambda *args, **kwargs: [one]
+    for blob, persons in ((True, 2), (False, 1)):
+        frame._more_than_one = lambda *args, b=blob: b
+        _, _, _, counted, people, _ = frame(images)
+        assert (counted, people) == (persons, ()), blob
+
+
 def test_everyone_s_fused_silhouette_holds_every_detected_person_with_its_outline():
     """With an empty-scene clip, each person of several gets the fused, edge-refined
     silhouette a person alone gets (:meth:`FrameSegmenter.everyone`), not the
