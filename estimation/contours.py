@@ -35,6 +35,7 @@ __all__ = [
     "contour_ids",
     "contour_topology",
     "face_frames",
+    "mask_at",
     "mesh_edges",
     "near_outside",
     "near_region",
@@ -151,12 +152,18 @@ class ContourObservation:
         u = self.unknown[c] if self.unknown else None
         if u is None or len(points) == 0:
             return np.zeros(len(points), bool)
-        h, w = u.shape
-        ij = np.round(np.nan_to_num(points, nan=-1.0)).astype(int)
-        inside = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
-        out = np.zeros(len(points), bool)
-        out[inside] = u[ij[inside, 1], ij[inside, 0]]
-        return out
+        return mask_at(u, points)
+
+
+def mask_at(mask: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(P,) bool: ``mask`` (H, W) bool at the pixels nearest ``points`` (P, 2) float
+    (x, y); False outside the image and for NaN points."""
+    h, w = mask.shape
+    ij = np.round(np.nan_to_num(points, nan=-1.0)).astype(int)
+    inside = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+    out = np.zeros(len(points), bool)
+    out[inside] = mask[ij[inside, 1], ij[inside, 0]]
+    return out
 
 
 #: Observed outline points within this many pixels (at the masks' resolution) of

@@ -50,6 +50,7 @@ from bodymetry.estimation.contours import (
     contour_ids,
     contour_topology,
     face_frames,
+    mask_at,
     mesh_edges,
     occluding_contour,
     outline_samples,
@@ -258,12 +259,7 @@ class _Silhouette:
 
         def on_thin(points: np.ndarray, working: Camera) -> np.ndarray:
             scale = working.K[0, 0] / self.camera.K[0, 0]
-            ij = np.rint((points + 0.5) / scale - 0.5).astype(np.int64)
-            h, w = thin.shape
-            inside = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
-            out = np.zeros(len(points), bool)
-            out[inside] = thin[ij[inside, 1], ij[inside, 0]]
-            return out
+            return mask_at(thin, (points + 0.5) / scale - 0.5)
 
         return on_thin
 

@@ -10,6 +10,7 @@ import trimesh
 
 from bodymetry.estimation.contours import (
     boundary_points,
+    mask_at,
     mesh_edges,
     near_outside,
     occluding_contour,
@@ -101,3 +102,11 @@ def test_near_outside_is_the_distance_transform_within_one_pixel(seed):
     got = near_outside(mask, np.c_[xs.ravel(), ys.ravel()]).reshape(40, 50)
     assert np.array_equal(got, want)
     assert got.any() and not got.all()
+
+
+def test_mask_at_reads_the_nearest_pixel_and_nothing_outside():
+    mask = np.zeros((4, 5), bool)
+    mask[1, 3] = True
+    points = np.array([[3.0, 1.0], [3.4, 0.6], [2.4, 1.0], [-0.6, 1.0], [5.0, 1.0], [np.nan, 1.0]])
+    assert mask_at(mask, points).tolist() == [True, True, False, False, False, False]
+    assert mask_at(mask, np.zeros((0, 2))).shape == (0,)
