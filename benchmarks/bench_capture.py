@@ -349,31 +349,23 @@ FRESH_SETS = ("contrast_fresh", "contrast_clothing")
 def fresh_quality() -> dict:
     """The default capture on :data:`FRESH_SETS` (``BODYMETRY_BENCH_SESSIONS``: their
     renders, colon-separated, instead of rendering them)."""
-    from benchmarks.bench_pipeline import STUDIO_SETS
+    from benchmarks.bench_pipeline import STUDIO_SETS, studio_folders
 
-    reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
     keep = os.environ.get("BODYMETRY_BENCH_CAPTURE_DIR")
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(keep) if keep else Path(tmp)
-        if reuse:
-            folders = [Path(p) for p in reuse.split(":") if p]
-        else:
-            studio = [STUDIO_SETS[name] for name in FRESH_SETS]
-            folders = [s.render(root, row) for s in studio for row in s.rows]
+        folders = studio_folders(root, [STUDIO_SETS[name] for name in FRESH_SETS])
         scored = quality(folders, default_only=True)
     (variant,) = scored["per_camera"].values()
     return {
         "sessions": f"{[f.name for f in folders]} (pipeline --contrast-fresh, --contrast-clothing)",
         "targets": {"neutral and wall-coloured": LOOK_TARGETS},
         "summary": scored["summary"],
+        # Each session summarized as a class is (its cameras' figures against its targets).
         "per_session": {
             name: {
                 "class": scored["classes"][name],
-                "iou_mean": round(float(np.mean([c["iou_mean"] for c in cams.values()])), 4),
-                "worst_frame_iou": round(min(c["iou_min"] for c in cams.values()), 4),
-                "worst_shadow_false_positive": round(
-                    max(c["shadow_false_positive"] for c in cams.values()), 4
-                ),
+                **_class_summary(list(cams.values()), scored["classes"][name]),
             }
             for name, cams in variant.items()
         },

@@ -63,7 +63,7 @@ from __future__ import annotations
 import os
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -803,15 +803,20 @@ def studio_set(**flags: bool) -> tuple[str, StudioSet]:
     return name, STUDIO_SETS[name]
 
 
+def studio_folders(root: Path, studios: Sequence[StudioSet]) -> list[Path]:
+    """The sessions of ``BODYMETRY_BENCH_SESSIONS`` (rendered beforehand, colon-separated),
+    else every row of ``studios`` rendered into ``root``."""
+    reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
+    if reuse:
+        return [Path(p) for p in reuse.split(":") if p]
+    return [studio.render(root, row) for studio in studios for row in studio.rows]
+
+
 def run(**flags: bool) -> dict:
     _, studio = studio_set(**flags)
-    reuse = os.environ.get("BODYMETRY_BENCH_SESSIONS")
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        if reuse:
-            folders = [Path(p) for p in reuse.split(":") if p]
-        else:
-            folders = [studio.render(tmp, row) for row in studio.rows]
+        folders = studio_folders(tmp, [studio])
         cache = None if os.environ.get("BODYMETRY_BENCH_WARM") else tmp / "cache"
         skip_demo = bool(os.environ.get("BODYMETRY_BENCH_SKIP_DEMO"))
         out = [] if skip_demo else [evaluate_session(Path(DEMO_SESSION), tmp / "run_demo", cache)]

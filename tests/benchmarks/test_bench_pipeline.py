@@ -248,3 +248,12 @@ def test_one_flag_picks_one_studio_set_and_every_set_names_its_sessions_apart(mo
     assert edge[0].name == "seed331_arm_raises_female_height_p01" and edge[3] == {}
     assert arms[4] == "independent:371" and arms[0].name == "seed371_walk_turn_371"
     assert look[3]["look"].label == "white/plain/soft" and look[4] == "independent:601"
+    # Sessions rendered beforehand stand in for the rows (BODYMETRY_BENCH_SESSIONS).
+    calls.clear()
+    studios = [STUDIO_SETS["contrast_fresh"], STUDIO_SETS["contrast_clothing"]]
+    monkeypatch.delenv("BODYMETRY_BENCH_SESSIONS", raising=False)
+    rendered = bench.studio_folders(root, studios)
+    assert len(rendered) == len(calls) == 12 and rendered[6].name.startswith("seed611_")
+    monkeypatch.setenv("BODYMETRY_BENCH_SESSIONS", "/a/s1::/b/s2")
+    assert bench.studio_folders(root, studios) == [Path("/a/s1"), Path("/b/s2")]
+    assert len(calls) == 12  # nothing rendered
