@@ -70,6 +70,7 @@ __all__ = [
     "observe_persons",
     "person_views",
     "raised_hands",
+    "side_by_side",
     "split_hull",
     "track_ids",
     "track_persons",
@@ -112,6 +113,11 @@ _LEFT = np.array([LANDMARKS[i].startswith("left_") for i in _HANDS])
 _FACE = list(range(LANDMARKS.index("mouth_right") + 1))
 #: The assignment's cost of a pair outside the gates (never chosen over a real pair).
 _FORBIDDEN = 1e6
+#: :func:`side_by_side`: a blob stands as tall as a person where its height is at least
+#: this share of the hull's projection's, and two such blobs stand side by side where
+#: their columns overlap by at most :data:`SIDE_OVERLAP` of the narrower one's width.
+STANDING_SHARE = 0.7
+SIDE_OVERLAP = 0.25
 #: Depth buffer value of a pixel no voxel covers (finite: cv2.erode pads with the
 #: largest float32, so an infinite "nothing" would read as covered near the border).
 _NOTHING = np.float32(1e9)
@@ -227,6 +233,36 @@ def _neighbour_graph(occupied: np.ndarray, cell: float) -> sparse.csr_matrix:
     return sparse.csr_matrix(
         (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
     )
+
+
+def side_by_side(person: np.ndarray, support: np.ndarray) -> bool:
+    """Whether a view shows two people standing side by side where the hull holds one
+    body: two blobs of ``person`` (H, W) bool (background subtraction's person pixels
+    within the hull's projection), each as tall as :data:`STANDING_SHARE` of the
+    projection ``support`` (H, W) bool, whose columns overlap by at most
+    :data:`SIDE_OVERLAP` of the narrower one's width.
+
+    Two people half a metre apart whose reaching arms touch merge into one hull body
+    with one top (the dip between their heads is under the split's prominence), and
+    the segmenter's mask can hold both of them; a view that sees the gap between
+    them still shows two whole, upright blobs. One person's blobs are not both that
+    tall beside each other: a lost trunk leaves legs under half the projection's
+    height, and a detached arm is short or stands above the body, not beside it.
+    """
+    rows = np.flatnonzero(support.any(axis=1))
+    if rows.size == 0:
+        return False
+    tall = STANDING_SHARE * (rows[-1] - rows[0] + 1)
+    n, _, stats, _ = cv2.connectedComponentsWithStats(person.astype(np.uint8), connectivity=8)
+    spans = [
+        (x, x + w) for x, _, w, h, _ in stats[1:n] if h >= tall
+    ]  # columns [x0, x1) of the blobs as tall as a person
+    for i, (a0, a1) in enumerate(spans):
+        for b0, b1 in spans[i + 1 :]:
+            overlap = max(0, min(a1, b1) - max(a0, b0))
+            if overlap <= SIDE_OVERLAP * min(a1 - a0, b1 - b0):
+                return True
+    return False
 
 
 def raised_hands(tops: np.ndarray, landmarks: np.ndarray) -> np.ndarray:

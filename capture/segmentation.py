@@ -62,7 +62,12 @@ from bodymetry.capture.person import (
     PersonSegmenter,
     segmenter_available,
 )
-from bodymetry.capture.persons import everyone_silhouettes, observe_persons, raised_hands
+from bodymetry.capture.persons import (
+    everyone_silhouettes,
+    observe_persons,
+    raised_hands,
+    side_by_side,
+)
 from bodymetry.capture.session import Session
 from bodymetry.capture.shadows import FloorShadow, at_feet, floor_shadows
 from bodymetry.capture.skin import SkinConfig, clothing_masks, facing, hand_skin
@@ -769,8 +774,10 @@ class FrameSegmenter:
         """Whether the hull's one body may be two people standing close: in at least
         two views, background subtraction's person pixels where the hull stands hold
         more than :data:`SECOND_PERSON_SHARE` of the segmenter's person again outside
-        it (two people half a metre apart merge into one hull body, and its split
-        looks for two heads 0.45 m apart)."""
+        it, or form two whole people side by side
+        (:func:`~bodymetry.capture.persons.side_by_side`: the segmenter's mask can
+        hold both). Two people half a metre apart merge into one hull body, and its
+        split looks for two heads 0.45 m apart."""
         if self.segmenter is None:
             return False
         views = 0
@@ -778,8 +785,12 @@ class FrameSegmenter:
             if ev is None or ev.raw is None or ev.found is None or term is None:
                 continue
             found = grown_mask(ev.found, self.config.person.hide_margin)
-            rest = np.count_nonzero(ev.raw & term.hull_any & ~found)
-            views += rest > SECOND_PERSON_SHARE * np.count_nonzero(ev.found)
+            changed = ev.raw & term.hull_any
+            rest = np.count_nonzero(changed & ~found)
+            views += bool(
+                rest > SECOND_PERSON_SHARE * np.count_nonzero(ev.found)
+                or side_by_side(changed, term.hull_any)
+            )
         return views >= 2
 
     def features(

@@ -21,6 +21,7 @@ from bodymetry.capture.persons import (
     observe_persons,
     person_views,
     raised_hands,
+    side_by_side,
     split_hull,
     track_persons,
 )
@@ -437,6 +438,38 @@ def test_one_hull_body_holding_a_second_person_asks_the_segmenter():
     assert not frame._more_than_one([evidence(a)] * 2, [terms] * 2)  # the person alone
     # Changed pixels outside where the hull stands (a bystander) do not count.
     assert not frame._more_than_one([evidence(a | b)] * 2, [GeometryTerms(a, a)] * 2)
+    # The segmenter's mask holding both people (seed 9's frame 75 of
+    # bench_person_tracks): the two whole blobs side by side still count.
+    both = Person((a | b).astype(np.float32), np.full((33, 3), np.nan))
+    ev_both = ViewEvidence(a | b, np.zeros((h, w), bool), None, None, both)
+    assert frame._more_than_one([ev_both] * 2, [terms] * 2)
+    assert not frame._more_than_one([ev_both, evidence(a)], [terms] * 2)  # one view
+
+
+def test_side_by_side_is_two_whole_people_not_one_person_in_pieces():
+    """Two blobs as tall as the hull's projection beside each other are two people;
+    one person's pieces are not: legs without their trunk, a trunk above its legs, a
+    detached arm, one person behind the other (columns overlapping)."""
+    h, w = 120, 160
+    support = np.zeros((h, w), bool)
+    support[10:110, 30:110] = True
+
+    def blobs(*boxes):
+        m = np.zeros((h, w), bool)
+        for y0, y1, x0, x1 in boxes:
+            m[y0:y1, x0:x1] = True
+        return m
+
+    assert side_by_side(blobs((12, 110, 40, 60), (15, 110, 75, 95)), support)
+    # Arms reaching towards each other at different heights overlap a few columns.
+    reaching = blobs((12, 110, 40, 60), (30, 34, 60, 67), (15, 110, 70, 90), (50, 54, 63, 70))
+    assert side_by_side(reaching, support)
+    assert not side_by_side(blobs((12, 110, 40, 60)), support)  # one person
+    assert not side_by_side(blobs((60, 110, 40, 50), (60, 110, 55, 65)), support)  # legs
+    assert not side_by_side(blobs((12, 58, 38, 62), (60, 110, 40, 60)), support)  # stacked
+    assert not side_by_side(blobs((12, 110, 40, 60), (20, 50, 64, 70)), support)  # an arm
+    assert not side_by_side(blobs((12, 110, 40, 60), (15, 110, 48, 68)), support)  # behind
+    assert not side_by_side(blobs((12, 110, 40, 60)), np.zeros((h, w), bool))  # no hull
 
 
 def test_a_second_person_beside_the_one_found_counts_though_not_told_apart():
