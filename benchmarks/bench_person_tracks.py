@@ -43,6 +43,7 @@ from bodymetry.capture.persons import track_ids
 from bodymetry.capture.segmentation import segment_session
 from bodymetry.capture.session import load_session
 from bodymetry.studio.evaluate import GroundTruth
+from bodymetry.studio.looks import Look
 from bodymetry.studio.synth import SynthConfig, synthesize
 
 SEEDS = (7, 8, 9)
@@ -55,17 +56,28 @@ FRAMES = 200
 MIN_VISIBLE = 200
 
 
-def session(folder: Path, seed: int, frames: int = FRAMES) -> Path:
+def session(folder: Path, seed: int, frames: int = FRAMES, look: str | None = None) -> Path:
     """Render (once) the two-person session of ``seed`` (``frames`` long, a kept frame
     every 25) into ``folder/tracks_people2_seed<seed>`` (``..._<frames>f`` when not
-    :data:`FRAMES`; not ``people2_seed<seed>``: ``python -m benchmarks persons`` renders other
-    subjects and motions under that name, and a shared folder must not hand one the
-    other's)."""
-    out = folder / (f"tracks_people2_seed{seed}" + ("" if frames == FRAMES else f"_{frames}f"))
+    :data:`FRAMES`, ``..._<look>`` for a ``look`` (``synth --look``: the subject's
+    clothing, the room and the light); not ``people2_seed<seed>``: ``python -m
+    benchmarks persons`` renders other subjects and motions under that name, and a
+    shared folder must not hand one the other's)."""
+    name = f"tracks_people2_seed{seed}" + ("" if frames == FRAMES else f"_{frames}f")
+    if look:
+        name += "_" + look.replace("=", "-").replace(",", "_")
+    out = folder / name
     if not (out / "session.yaml").is_file():
         synthesize(
             out,
-            SynthConfig(frames=frames, frame_step=25, seed=seed, rig_seed=RIG_SEED, people=2),
+            SynthConfig(
+                frames=frames,
+                frame_step=25,
+                seed=seed,
+                rig_seed=RIG_SEED,
+                people=2,
+                look=Look.parse(look),
+            ),
             workers=1,
             overwrite=True,
         )

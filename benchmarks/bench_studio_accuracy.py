@@ -39,6 +39,7 @@ from bodymetry.estimation.studio_accuracy import (
     LIKE_HEIGHT,
     LIKE_WEIGHT,
     MIN_LIKE,
+    TARGETS,
     MeasuredAccuracy,
     StudioSession,
     is_low_contrast,
@@ -94,6 +95,49 @@ def scored_sessions(names: tuple[str, ...] = SETS) -> list[StudioSession]:
     return out
 
 
+#: The committed two-person results (``python -m benchmarks two_persons``, ``--long``,
+#: ``--fresh`` and ``--neutral``): each person scored against their own truth.
+TWO_PERSON_SETS = (
+    "two_persons.json",
+    "two_persons_long.json",
+    "two_persons_fresh.json",
+    "two_persons_neutral.json",
+)
+
+
+def crowded_sessions(names: tuple[str, ...] = TWO_PERSON_SETS) -> list[StudioSession]:
+    """One :class:`StudioSession` per person of the committed two-person results
+    ``names`` whose session stage gave a value of some core measurement (the age is
+    not recorded; an arm counts as raised where the run did not say ``arms_down``)."""
+    out = []
+    for name in names:
+        for folder, session in committed_two_person(name).items():
+            for p in session["persons"]:
+                errors = {k: float(v) for k, v in p["session_error"].items() if v is not None}
+                if not errors:
+                    continue
+                se = p.get("session_standard_error") or {}
+                out.append(
+                    StudioSession(
+                        name=f"{Path(name).stem}:{folder}/{p['person']}",
+                        height_mm=float(p["actual"]["height_mm"]),
+                        weight_kg=float(p["actual"]["weight_kg"]),
+                        age_years=float("nan"),
+                        arms_raised="arms_down" not in p["caveats"],
+                        errors=errors,
+                        standard_errors={k: float(v) for k, v in se.items() if v is not None},
+                        frames=int(p["frames_measured"]),
+                    )
+                )
+    return out
+
+
+def committed_two_person(name: str) -> dict:
+    """The sessions of one committed two-person results file (none where absent)."""
+    path = RESULTS / name
+    return json.loads(path.read_text())["sessions"] if path.is_file() else {}
+
+
 def leave_one_out(sessions: list[StudioSession]) -> dict:
     """Per session, the like bodies' accuracy without it, beside its own error."""
     rows = []
@@ -147,6 +191,36 @@ def leave_one_out(sessions: list[StudioSession]) -> dict:
     }
 
 
+def among_others_out(alone: list[StudioSession], crowded: list[StudioSession]) -> dict:
+    """Per person of the two-person sessions, the interval a run measuring them among
+    others would state (every single-person session, and the other two-person persons
+    alone), and whether it held the truth. Where the benchmark recorded no standard
+    error the statistical part is left out, which can only narrow the interval."""
+    rows = []
+    for i, s in enumerate(crowded):
+        others = crowded[:i] + crowded[i + 1 :]
+        measured = {"height_mm": s.height_mm, "weight_kg": s.weight_kg}
+        like = like_accuracy(measured, s.arms_raised, alone, among_others=True, crowded=others)
+        row: dict = {"session": s.name, "errors": {k: round(v, 2) for k, v in s.errors.items()}}
+        for key in CORE:
+            acc = like.get(key)
+            interval = (
+                None
+                if acc is None or key not in s.errors
+                else stated_interval(s.errors[key], s.standard_errors.get(key, 0.0), s.frames, acc)
+            )
+            row[key] = {
+                "beyond_target": key in s.errors and abs(s.errors[key]) > TARGETS[key],
+                "scope": None if acc is None else acc.scope,
+                # Every person here carries among_persons, which names the condition.
+                "flagged": True,
+                "half_width": None if interval is None else round(interval.half_width, 2),
+                "inside": None if interval is None else interval.contains(0.0),
+            }
+        rows.append(row)
+    return {"persons": rows, **{key: _coverage(rows, key) for key in CORE}}
+
+
 def _coverage(rows: list[dict], key: str) -> dict:
     """How often the stated 95 % interval held the truth, and the silent misses: beyond
     the target, outside the interval (or none stated) and named by no caveat."""
@@ -169,12 +243,17 @@ def _coverage(rows: list[dict], key: str) -> dict:
 
 def run(**_: bool) -> dict:
     sessions = scored_sessions()
+    crowded = crowded_sessions()
     DATA.parent.mkdir(parents=True, exist_ok=True)
     DATA.write_text(
         json.dumps(
             {
-                "source": f"python -m benchmarks studio_accuracy, from {list(SETS)}",
+                "source": (
+                    f"python -m benchmarks studio_accuracy, from {list(SETS)} and "
+                    f"{list(TWO_PERSON_SETS)} (among_others)"
+                ),
                 "sessions": [s.to_json() for s in sessions],
+                "among_others": [s.to_json() for s in crowded],
             },
             indent=1,
         )
@@ -205,4 +284,7 @@ def run(**_: bool) -> dict:
             },
         },
         "leave_one_out": leave_one_out(sessions),
+        # The persons of the two-person sessions, each held against the others
+        # (estimation.studio_accuracy.like_accuracy, among_others).
+        "among_others": among_others_out(sessions, crowded),
     }

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.bench_studio_accuracy import TWO_PERSON_SETS
 from bodymetry.errors import InputError
 from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES
 from bodymetry.estimation.caveats import (
@@ -261,15 +262,15 @@ def test_a_person_measured_among_others_says_so_with_the_studio_s_figures():
 
 def test_the_two_person_figures_are_the_benchmarks():
     # What the caveat quotes is what the committed two-person results measured
-    # (python -m benchmarks two_persons [--long | --fresh]), not a number typed in.
+    # (python -m benchmarks two_persons [--long | --fresh | --neutral]), not a number typed in.
     results = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
     rows = [
         person
-        for name in ("two_persons.json", "two_persons_long.json", "two_persons_fresh.json")
+        for name in TWO_PERSON_SETS
         for session in json.loads((results / name).read_text())["sessions"].values()
         for person in session["persons"]
     ]
-    assert PERSONS_STUDIO.persons == len(rows) == 18
+    assert PERSONS_STUDIO.persons == len(rows) == 24
     assert PERSONS_STUDIO.within == sum(all(p["within"].values()) for p in rows)
     for key, (lo, hi) in (
         ("height_mm", PERSONS_STUDIO.height_mm),

@@ -8,7 +8,7 @@ import re
 import numpy as np
 import pytest
 
-from benchmarks.bench_studio_accuracy import scored_sessions
+from benchmarks.bench_studio_accuracy import crowded_sessions, scored_sessions
 from bodymetry.estimation.caveats import CAVEAT_CODES, run_caveats
 from bodymetry.estimation.records import FrameRecord
 from bodymetry.estimation.studio_accuracy import (
@@ -20,6 +20,7 @@ from bodymetry.estimation.studio_accuracy import (
     TARGETS,
     MeasuredAccuracy,
     StudioSession,
+    among_others_sessions,
     contrast_accuracy,
     is_low_contrast,
     like_accuracy,
@@ -102,9 +103,55 @@ def test_the_accuracy_of_like_bodies_is_their_errors_rms_mean_and_extremes():
     # Nothing like the body: nothing said.
     assert like_accuracy({"height_mm": 1900.0, "weight_kg": 90.0}, True, sessions) == {}
     assert MeasuredAccuracy.of(e, "x").to_json()["rms"] == pytest.approx(arm.rms, abs=1e-4)
-    # Measured among others: the same figures, whose scope says they are one person's.
-    among = like_accuracy(measured, True, sessions, among_others=True)["arm_span_mm"]
-    assert among.rms == arm.rms and among.scope == arm.scope + ", each alone in view"
+    # Measured among others, no two-person session to go by: the same figures, whose
+    # scope says they are one person's.
+    among = like_accuracy(measured, True, sessions, among_others=True, crowded=[])
+    assert among["arm_span_mm"].rms == arm.rms
+    assert among["arm_span_mm"].scope == arm.scope + ", each alone in view"
+
+
+def test_a_person_among_others_is_held_to_the_larger_of_both_errors():
+    """Among others, the like single-person sessions and every person of the two-person
+    sessions both say something; the larger error by RMS is quoted (an unlike body
+    stays unvalidated, and one two-person person is too few)."""
+    measured = {"height_mm": 1700.0, "weight_kg": 70.0}
+    alone = [_session(str(k), 1700.0, 70.0, (1.0, 2.0, 0.5)) for k in range(3)]
+    # Two-person persons of any body and arms: larger weight errors, smaller heights.
+    crowded = [
+        _session(f"c{k}", 1500.0 + 100 * k, 50.0 + 20 * k, (0.5, 2.0, e), arms=bool(k % 2))
+        for k, e in enumerate((-3.0, 4.0, 1.0))
+    ]
+    acc = like_accuracy(measured, True, alone, among_others=True, crowded=crowded)
+    w = np.array([-3.0, 4.0, 1.0])
+    assert acc["weight_kg"].rms == pytest.approx(np.sqrt(np.mean(w**2)), abs=TOL)
+    assert acc["weight_kg"].sessions == 3
+    assert acc["weight_kg"].scope == "persons of the studio's two-person sessions, every body"
+    assert (acc["weight_kg"].low, acc["weight_kg"].high) == (-3.0, 4.0)
+    # The height reads better among others than alone here: alone's figures stand.
+    assert acc["height_mm"].rms == pytest.approx(1.0, abs=TOL)
+    assert acc["height_mm"].scope.endswith(", each alone in view")
+    # Not among others: the two-person sessions say nothing.
+    assert like_accuracy(measured, True, alone, crowded=crowded)["weight_kg"].rms == 0.5
+    # One two-person person is too few to say anything.
+    one = like_accuracy(measured, True, alone, among_others=True, crowded=crowded[:1])
+    assert one["weight_kg"].rms == pytest.approx(0.5, abs=TOL)
+    # A body no single-person session is like stays outside what was validated.
+    unlike = {"height_mm": 1200.0, "weight_kg": 25.0}
+    assert like_accuracy(unlike, True, alone, among_others=True, crowded=crowded) == {}
+
+
+def test_the_shipped_two_person_persons_are_the_committed_benchmarks():
+    # The two-person persons a run among others is held against are the committed
+    # two_persons*.json, not numbers typed in.
+    shipped = among_others_sessions()
+    recomputed = crowded_sessions()
+    assert [s.name for s in shipped] == [s.name for s in recomputed]
+    for a, b in zip(shipped, recomputed, strict=True):
+        assert a.arms_raised == b.arms_raised and math.isnan(a.age_years)
+        assert a.errors == pytest.approx(b.errors, abs=0.005), a.name
+        assert a.standard_errors == pytest.approx(b.standard_errors, abs=5e-4), a.name
+        assert a.frames == b.frames
+    assert len(shipped) >= 18
 
 
 def test_a_child_s_weight_is_held_to_a_share_of_it():
