@@ -765,7 +765,7 @@ def choose_person(
         out.append(
             replace(
                 seg, masks=masks, flags=flags, landmarks=landmarks,
-                view_landmarks=tuple(views), agreement={}, people=(), contrast=None,
+                view_landmarks=tuple(views), agreement={}, people=(), contrast=person.contrast,
                 unknown=unknown if any(u is not None for u in unknown) else (),
             )
         )  # fmt: skip

@@ -390,7 +390,9 @@ def view_agreement(
 
 
 def outline_contrast(
-    masks: Sequence[np.ndarray], changes: Sequence[np.ndarray | None]
+    masks: Sequence[np.ndarray],
+    changes: Sequence[np.ndarray | None],
+    beside: Sequence[np.ndarray | None] | None = None,
 ) -> float | None:
     """How plainly the person stands out from the empty scene along their outline.
 
@@ -413,6 +415,11 @@ def outline_contrast(
         The final silhouettes.
     changes : sequence of ((H_c, W_c) float32 or None)
         Each view's change term (None: no empty-scene clip for that camera).
+    beside : sequence of ((H_c, W_c) bool or None), optional
+        Per view, pixels that are not the empty scene though not the person's
+        (someone else, someone nearer who hides them): the rim within
+        :data:`RIM_PX` of them borders another person, not the background, and is
+        left out.
 
     Returns
     -------
@@ -421,11 +428,14 @@ def outline_contrast(
     """
     per_view = []
     kernel = np.ones((2 * RIM_PX + 1, 2 * RIM_PX + 1), np.uint8)
-    for mask, change in zip(masks, changes, strict=True):
+    beside = beside or (None,) * len(masks)
+    for mask, change, other in zip(masks, changes, beside, strict=True):
         if change is None or not np.any(mask):
             continue
         m = np.asarray(mask, np.uint8)
         rim = (m > 0) & ~(cv2.erode(m, kernel, borderValue=1) > 0)
+        if other is not None:
+            rim &= ~(cv2.dilate(np.asarray(other, np.uint8), kernel) > 0)
         if rim.any():
             per_view.append(float(np.quantile(change[rim], 1.0 - RIM_SHARE)))
     return float(np.median(per_view)) if per_view else None

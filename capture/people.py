@@ -198,6 +198,11 @@ class Sighting:
     mixed : tuple of bool
         Per camera, whether its detection of them is partly someone else's
         (:data:`MIXED_SHARE`; the view is left out of their fit); empty: none.
+    contrast : float or None
+        How plainly they stand out from the empty scene along the part of their
+        outline that borders it
+        (:func:`~bodymetry.capture.fusion.outline_contrast`, as for one subject);
+        None without an empty-scene clip.
     """
 
     position: np.ndarray
@@ -208,6 +213,7 @@ class Sighting:
     hidden: tuple[np.ndarray | None, ...] = ()
     source: str = "segmenter"
     mixed: tuple[bool, ...] = ()
+    contrast: float | None = None
 
     @property
     def views(self) -> int:

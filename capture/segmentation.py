@@ -969,10 +969,10 @@ class FrameSegmenter:
             landmarks = triangulate_landmarks(
                 self.cameras, [v.landmarks for v in views], self.config.landmarks
             )
-        contrast = outline_contrast(
-            [v.mask for v in views], [None if ev is None else ev.colour_change for ev in evidence]
-        )
-        return _FrameViews(views, landmarks, agreement, persons, tuple(people or ()), contrast)
+        changes = [None if ev is None else ev.colour_change for ev in evidence]
+        contrast = outline_contrast([v.mask for v in views], changes)
+        people = _with_contrast(people or (), [v.mask for v in views], changes)
+        return _FrameViews(views, landmarks, agreement, persons, people, contrast)
 
     def _agreement(
         self, views: list[_View], evidence: Sequence[ViewEvidence | None]
@@ -1038,6 +1038,33 @@ def frame_clothing(
         for c in range(n)
     ]
     return tuple(clothing_masks(list(images), silhouettes, seeds, config.skin))
+
+
+def _with_contrast(
+    people: Sequence[Sighting],
+    masks: Sequence[np.ndarray],
+    changes: Sequence[np.ndarray | None],
+) -> tuple[Sighting, ...]:
+    """``people`` each with their own outline contrast (:attr:`Sighting.contrast`):
+    their pixels' rim where it borders the empty scene, not someone else's pixels nor
+    someone nearer who hides them. ``masks``: the frame's silhouettes (for the shape of
+    a view that shows nothing of a person)."""
+    out = []
+    for k, person in enumerate(people):
+        mine = [
+            np.zeros_like(m) if p is None else p for p, m in zip(person.masks, masks, strict=True)
+        ]
+        beside = []
+        for c, m in enumerate(mine):
+            other = np.zeros_like(m)
+            for j, someone in enumerate(people):
+                if j != k and someone.masks[c] is not None:
+                    other |= someone.masks[c]
+            if person.hidden and person.hidden[c] is not None:
+                other |= person.hidden[c]
+            beside.append(other)
+        out.append(replace(person, contrast=outline_contrast(mine, changes, beside)))
+    return tuple(out)
 
 
 def segment_session(

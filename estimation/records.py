@@ -263,8 +263,8 @@ class FrameRecord:
         most); below
         :data:`~bodymetry.estimation.studio_accuracy.LOW_CONTRAST` the frame was
         seen in low contrast (white, grey or wall-coloured clothing in a plain
-        room). None: no empty-scene clip, a person told apart from others, or a
-        run before the figure.
+        room); a person told apart from others, on the rim that borders the empty
+        scene. None: no empty-scene clip, or a run before the figure.
     annealing : AnnealingTrace or None
     refinement : RefinementTrace or None
     seconds : dict of str to float

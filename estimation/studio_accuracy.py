@@ -316,7 +316,7 @@ def arms_note(key: str, arms_raised: bool | None) -> str:
 
 def run_contrast(records: Sequence[FrameRecord]) -> float | None:
     """A run's outline contrast: the median of its measured frames' (None where none
-    has one: no empty-scene clip, a person told apart from others, an older run)."""
+    has one: no empty-scene clip, an older run)."""
     values = [r.outline_contrast for r in records if r.ok and r.outline_contrast is not None]
     return float(np.median(values)) if values else None
 

@@ -241,6 +241,13 @@ def test_choose_person_follows_one_person_through_the_frames(tmp_path):
     either = pipeline.choose_person(prepared, mixed, ProcessConfig(), 0)
     assert either[1].flags == (("mixed",), (), ())
     assert not usable_view(int(either[1].masks[0].sum()), either[1].flags[0])
+    # Each person's own outline contrast (capture's) goes with their frames, so one
+    # seen in low contrast among others is held to the low-contrast sessions.
+    contrasts = (replace(seg[0].people[0], contrast=0.8), replace(seg[0].people[1], contrast=1.9))
+    seen = [replace(seg[0], people=contrasts), *seg[1:]]
+    chosen = pipeline.choose_person(prepared, seen, ProcessConfig(), 0)
+    assert [f.contrast for f in chosen] == [0.8, None, None]
+    assert pipeline.choose_person(prepared, seen, ProcessConfig(), 1)[0].contrast == 1.9
     models = pipeline.RigModels("key", tmp_path, True, 0.0)
     job = pipeline.fit_job_of(prepared, models, zero[0], ProcessConfig(person=0))
     assert np.array_equal(job.unknown[1], covered) and job.unknown[0] is None

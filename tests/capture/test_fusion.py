@@ -206,6 +206,23 @@ def test_outline_contrast_reads_the_rims_lower_quartile_median_over_views():
     assert outline_contrast([mask], [few]) == pytest.approx(CHANGE_CLIP)
 
 
+def test_outline_contrast_leaves_out_the_rim_beside_someone_else():
+    """A person's rim that borders someone else (or someone nearer who hides them)
+    says nothing of the empty scene: it is left out, the rest decides."""
+    mask = np.zeros((60, 60), bool)
+    mask[20:40, 20:40] = True
+    change = np.full(mask.shape, -CHANGE_CLIP, np.float32)
+    change[mask] = 1.8
+    change[20:40, 20:26] = -1.0  # their left side, where the other person stands
+    other = np.zeros_like(mask)
+    other[20:40, 10:20] = True
+    assert outline_contrast([mask], [change]) == pytest.approx(-1.0)
+    assert outline_contrast([mask], [change], [other]) == pytest.approx(1.8)
+    assert outline_contrast([mask], [change], [None]) == pytest.approx(-1.0)
+    # Beside others all round: nothing is read.
+    assert outline_contrast([mask], [change], [np.ones_like(mask)]) is None
+
+
 def test_config_validation():
     with pytest.raises(InputError, match="floor_band"):
         FusionConfig(floor_band=-0.1)

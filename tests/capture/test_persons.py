@@ -25,7 +25,12 @@ from bodymetry.capture.persons import (
     split_hull,
     track_persons,
 )
-from bodymetry.capture.segmentation import CaptureConfig, FrameSegmenter, ViewEvidence
+from bodymetry.capture.segmentation import (
+    CaptureConfig,
+    FrameSegmenter,
+    ViewEvidence,
+    _with_contrast,
+)
 from bodymetry.errors import InputError
 from bodymetry.studio.rig import look_at, studio_rig
 
@@ -531,3 +536,30 @@ def test_everyone_s_fused_silhouette_holds_every_detected_person_with_its_outlin
     # A view without a detection, or unreadable, has none.
     out = frame.everyone([None, *images[1:]], [None, *evidence[1:]], [[], *detections[1:]], bodies)
     assert out[0] is None and out[1] is not None
+
+
+def test_each_person_s_outline_contrast_is_read_where_they_border_the_empty_scene():
+    """Two people side by side, one partly hidden: each person's outline contrast is
+    read on the rim that borders the empty scene; where they touch, or where someone
+    nearer hides them, the rim says nothing of the clothing against the room."""
+    h, w = 60, 80
+    a, b = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    a[10:50, 10:30] = True
+    b[10:50, 30:50] = True  # touching a along x = 30
+    hidden = np.zeros((h, w), bool)
+    hidden[50:56, 10:30] = True  # someone nearer hides a's feet
+    change = np.full((h, w), -2.0, np.float32)
+    change[a] = 0.4  # a: low contrast (a grey shirt)
+    change[b] = 1.9  # b: saturated
+    change[10:50, 26:34] = -1.0  # weak where the two meet
+    change[44:50, 10:30] = -1.0  # and at a's hidden edge
+    one = Sighting(np.zeros(3), (a,), (None,), (False,), hidden=(hidden,))
+    two = Sighting(np.zeros(3), (b,), (None,), (False,))
+    mine, theirs = _with_contrast((one, two), [a | b], [change])
+    assert mine.contrast == pytest.approx(0.4) and theirs.contrast == pytest.approx(1.9)
+    # Without a clip there is no contrast; nobody: nothing.
+    assert _with_contrast((one,), [a], [None])[0].contrast is None
+    assert _with_contrast((), [a], [change]) == ()
+    # A view that shows nothing of a person counts nothing for them.
+    absent = Sighting(np.zeros(3), (None,), (None,), (False,))
+    assert _with_contrast((absent,), [a], [change])[0].contrast is None
