@@ -517,18 +517,26 @@ class RunResults:
         every frame), judged once for :attr:`caveats` and :attr:`studio_accuracy`."""
         return raised_frames(self.frames)
 
+    @property
+    def among_others(self) -> bool:
+        """Whether capture counted someone besides the first person in any of their
+        frames (:attr:`~bodymetry.estimation.records.FrameRecord.crowded`)."""
+        return any(r.crowded for r in self.frames)
+
     @cached_property
     def studio_accuracy(self) -> dict[str, MeasuredAccuracy]:
         """The studio's accuracy on bodies like the first person's measured one, per core
         measurement with enough like sessions
         (:func:`bodymetry.estimation.studio_accuracy.like_accuracy`; derived, like
         :attr:`caveats`, once: the report's cards, :attr:`stated_intervals` and
-        ``results.json`` all read it); single-person sessions, and the scope says so for
-        a person measured among others."""
-        among = any(r.crowded for r in self.frames)
+        ``results.json`` all read it); for a person measured among others
+        (:attr:`among_others`), the larger of that and the studio's two-person
+        sessions' error."""
         arms = arms_raised(self.arm_raised_frames)
         low = is_low_contrast(self.outline_contrast)
-        return like_accuracy(self.headline_values, arms, among_others=among, low_contrast=low)
+        return like_accuracy(
+            self.headline_values, arms, among_others=self.among_others, low_contrast=low
+        )
 
     @property
     def stated_intervals(self) -> dict[str, StatedInterval]:

@@ -57,7 +57,12 @@ from bodymetry.estimation.run_files import (
     RunResults,
 )
 from bodymetry.estimation.studio_accuracy import LIKE_HEIGHT, LIKE_WEIGHT, LOW_CONTRAST, MIN_LIKE
-from bodymetry.estimation.uncertainty import COVERAGE, MEASURED_COVERAGE, MEASURED_SESSIONS
+from bodymetry.estimation.uncertainty import (
+    COVERAGE,
+    MEASURED_AMONG,
+    MEASURED_COVERAGE,
+    MEASURED_SESSIONS,
+)
 from bodymetry.estimation.view_selection import left_out_views
 from bodymetry.fileio import atomic_path, write_text_atomic
 from bodymetry.review import plots
@@ -650,6 +655,7 @@ def _person_content(
         "clothing_share": _clothing_share(results.session_shape),
         "contrast": results.outline_contrast,
         "low_contrast": LOW_CONTRAST,
+        "among_others": results.among_others,
         # A run of several persons shows its own warnings once, above the persons.
         "warnings": list(person.warnings if several else results.warnings),
         "caveats": list(results.caveats),
@@ -693,6 +699,10 @@ def _content(run: RunData, body: BodyModel | None, overlays: list[OverlayRow]) -
             for key, share in MEASURED_COVERAGE.items()
         ),
         "interval_sessions": MEASURED_SESSIONS,
+        "interval_among": ", ".join(
+            f"{inside} of {stated} {plots.LABELS[key].lower()}s"
+            for key, (inside, stated) in MEASURED_AMONG.items()
+        ),
         "like_height": round(100 * LIKE_HEIGHT),
         "like_weight": round(100 * LIKE_WEIGHT),
         "validated_range": VALIDATED.describe(),

@@ -13,6 +13,7 @@ from scipy import stats
 from bodymetry.estimation.studio_accuracy import MeasuredAccuracy
 from bodymetry.estimation.uncertainty import (
     COVERAGE,
+    MEASURED_AMONG,
     MEASURED_COVERAGE,
     MEASURED_SESSIONS,
     stated_interval,
@@ -95,3 +96,6 @@ def test_the_coverage_the_report_quotes_is_the_committed_benchmark_s():
     assert len(leave_one_out["sessions"]) == MEASURED_SESSIONS
     for key, share in MEASURED_COVERAGE.items():
         assert leave_one_out[key]["coverage"] == pytest.approx(share, abs=5e-4), key
+    among = json.loads(RESULTS.read_text())["among_others"]
+    for key, (inside, stated) in MEASURED_AMONG.items():
+        assert (among[key]["truth_inside"], among[key]["intervals_stated"]) == (inside, stated)

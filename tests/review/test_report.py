@@ -22,6 +22,7 @@ from bodymetry.estimation.records import FrameRecord, SessionShape
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import EVALUATION_FORMAT, RunResults, SessionInfo
 from bodymetry.estimation.studio_accuracy import LOW_CONTRAST
+from bodymetry.estimation.uncertainty import MEASURED_AMONG
 from bodymetry.review import plots
 from bodymetry.review import report as report_module
 from bodymetry.review.accuracy import SESSION_ACCURACY
@@ -399,6 +400,28 @@ def test_no_interval_where_the_outline_check_finds_loose_clothing_or_hair(review
         "arm_span_mm",
         "weight_kg",
     }
+
+
+def test_a_person_among_others_is_told_how_their_interval_was_held(review_run, tmp_path):
+    """A person measured among others is held to the larger of the single-person and
+    the two-person sessions' errors: the interval's footnote says so, with how often
+    that held the truth; a person alone is not told."""
+    folder = tmp_path / "run"
+    shutil.copytree(review_run.folder, folder)
+    build_review(folder, recordings=False, pdf=False)
+    alone = (folder / "report.html").read_text()
+    assert "Measured among others" not in alone
+    results = json.loads((folder / "results.json").read_text())
+    for frame in results["persons"][0]["frames"]:
+        frame["persons"] = 2
+    (folder / "results.json").write_text(json.dumps(results))
+    read = RunResults.read(folder / "results.json")
+    assert read.among_others and not review_run.results.among_others
+    build_review(folder, recordings=False, pdf=False)
+    html = (folder / "report.html").read_text()
+    inside, stated = MEASURED_AMONG["weight_kg"]
+    assert "Measured among others, this person is held to the larger" in html
+    assert f"{inside} of {stated} weights" in html
 
 
 def test_a_run_without_the_session_stage_has_no_session_column(review_run, bare_run):
