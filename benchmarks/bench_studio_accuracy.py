@@ -107,15 +107,13 @@ TWO_PERSON_SETS = (
 
 def crowded_sessions(names: tuple[str, ...] = TWO_PERSON_SETS) -> list[StudioSession]:
     """One :class:`StudioSession` per person of the committed two-person results
-    ``names`` whose session stage gave a value of some core measurement (the age is
-    not recorded; an arm counts as raised where the run did not say ``arms_down``)."""
+    ``names`` (the age is not recorded; an arm counts as raised where the run did not
+    say ``arms_down``; a person whose session stage the run rejected has no errors)."""
     out = []
     for name in names:
         for folder, session in committed_two_person(name).items():
             for p in session["persons"]:
                 errors = {k: float(v) for k, v in p["session_error"].items() if v is not None}
-                if not errors:
-                    continue
                 se = p.get("session_standard_error") or {}
                 out.append(
                     StudioSession(

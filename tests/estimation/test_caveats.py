@@ -15,9 +15,9 @@ from bodymetry.estimation.arm_evidence import MIN_RAISED_FRAMES
 from bodymetry.estimation.caveats import (
     CAVEAT_CODES,
     MIN_MEASURED_FRAMES,
-    PERSONS_STUDIO,
     VALIDATED,
     arms_down_studio,
+    persons_studio,
     run_caveats,
 )
 from bodymetry.estimation.records import FrameRecord
@@ -251,7 +251,7 @@ def test_a_person_measured_among_others_says_so_with_the_studio_s_figures():
     assert caveat.message.startswith(
         "measured among 2 people (someone else in the capture volume in 5 of 6 kept frames)"
     )
-    lo, hi = PERSONS_STUDIO.weight_kg
+    lo, hi = persons_studio().weight_kg
     assert f"{lo:+.1f} to {hi:+.1f} kg in weight" in caveat.message
     # Not told apart (one subject per frame): the several_persons caveat instead.
     assert [c.code for c in run_caveats(records, NAMES)] == ["several_persons"]
@@ -270,12 +270,13 @@ def test_the_two_person_figures_are_the_benchmarks():
         for session in json.loads((results / name).read_text())["sessions"].values()
         for person in session["persons"]
     ]
-    assert PERSONS_STUDIO.persons == len(rows) == 24
-    assert PERSONS_STUDIO.within == sum(all(p["within"].values()) for p in rows)
+    studio = persons_studio()
+    assert studio.persons == len(rows) == 24
+    assert studio.within == sum(all(p["within"].values()) for p in rows)
     for key, (lo, hi) in (
-        ("height_mm", PERSONS_STUDIO.height_mm),
-        ("arm_span_mm", PERSONS_STUDIO.arm_span_mm),
-        ("weight_kg", PERSONS_STUDIO.weight_kg),
+        ("height_mm", studio.height_mm),
+        ("arm_span_mm", studio.arm_span_mm),
+        ("weight_kg", studio.weight_kg),
     ):
         # A person whose session stage the run rejected has no session error.
         errors = [p["session_error"][key] for p in rows if p["session_error"][key] is not None]
