@@ -481,6 +481,17 @@ class VisualHull:
         held = np.array([self._crown(top, agreed).any() for top in tops], bool)
         return replace(bodies, persons=persons, tops=tops, held=held)
 
+    def top_bodies(self, bodies: HullBodies) -> np.ndarray:
+        """(T,) int: the body (:attr:`HullBodies.labels`) each of ``bodies``' tops stands
+        on (the label of most of its crown's voxels: within :data:`PERSON_REACH` of its
+        floor position and :data:`TOP_DEPTH` below it)."""
+        out = np.zeros(len(bodies.tops), int)
+        for k, top in enumerate(bodies.tops):
+            labels = bodies.labels[self._crown(top, bodies.labels > 0)]
+            if labels.size:
+                out[k] = np.bincount(labels).argmax()
+        return out
+
     def _crown(self, top: np.ndarray, voxels: np.ndarray) -> np.ndarray:
         """(N,) bool: ``voxels`` (N,) bool within :data:`PERSON_REACH` of ``top``'s (3,)
         floor position and :data:`TOP_DEPTH` below it."""

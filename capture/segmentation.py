@@ -743,14 +743,18 @@ class FrameSegmenter:
 
     def _one_person(self, bodies: HullBodies, person: Sighting) -> bool:
         """Whether the hull's count of more than one is the one person the
-        segmenter's detections agree on (``person``): the hull holds one
-        person-sized body, and all its tops but one are that person's raised hands
-        (:func:`~bodymetry.capture.persons.raised_hands`; both arms held straight
-        up give two tops as solid and as far apart as two heads) or are not held
-        by every camera that sees them (:attr:`HullBodies.held`: a sliver where
-        two opposite views' cones cross, which the 3-of-4 vote lets through; a
-        second person's head lies in every view's silhouette)."""
-        if self.hull is None or int(bodies.person_sized.sum()) != 1:
+        segmenter's detections agree on (``person``): all the hull's tops but one
+        are that person's raised hands (:func:`~bodymetry.capture.persons.raised_hands`;
+        both arms held straight up give two tops as solid and as far apart as two
+        heads) or are not held by every camera that sees them (:attr:`HullBodies.held`:
+        a sliver where two opposite views' cones cross, which the 3-of-4 vote lets
+        through; a second person's head lies in every view's silhouette), the one
+        left stands on the largest body (the subject's), and every person-sized
+        body holds a top. A separate body whose tops are all unheld is a ghost: a
+        bystander whom one or two cameras see, whose cones cross the subject's in a
+        third (the skeletons, which need three cameras, count nobody there either);
+        the subject's silhouettes are the largest body's, which it does not touch."""
+        if self.hull is None:
             return False
         tops = bodies.tops
         landmarks = triangulate_landmarks(
@@ -759,14 +763,19 @@ class FrameSegmenter:
         hands = raised_hands(tops, landmarks)
         crossing = ~bodies.held
         explained = hands | crossing
-        if explained.any() and int((~explained).sum()) <= 1:
-            log.debug(
-                "hull tops %s m: one person's raised hands, %s m: cones crossing",
-                tops[hands].round(2).tolist(),
-                tops[crossing & ~hands].round(2).tolist(),
-            )
-            return True
-        return False
+        if not explained.any() or int((~explained).sum()) > 1:
+            return False
+        under = self.hull.top_bodies(bodies)
+        largest = int(np.argmax(bodies.voxels))
+        sized = set(np.flatnonzero(bodies.person_sized).tolist())
+        if not sized <= set(under.tolist()) or not set(under[~explained].tolist()) <= {largest}:
+            return False
+        log.debug(
+            "hull tops %s m: one person's raised hands, %s m: cones crossing",
+            tops[hands].round(2).tolist(),
+            tops[crossing & ~hands].round(2).tolist(),
+        )
+        return True
 
     def _more_than_one(
         self, evidence: Sequence[ViewEvidence | None], terms: Sequence[GeometryTerms | None]

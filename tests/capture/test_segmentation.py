@@ -242,24 +242,47 @@ def test_the_change_term_keeps_the_chroma_of_skin_by_the_hands():
     assert frame.evidence(0, img).change[72:78, 38:44].mean() < 0.5
 
 
+def _columns(hull, *places) -> HullBodies:
+    """The hull's voxels within 0.15 m of each (x, y, height) of ``places``, a body each,
+    their tops at the columns' tops (held or not: set by the caller)."""
+    pts = hull.points
+    labels = np.zeros(len(pts), int)
+    for k, (x, y, h) in enumerate(places, start=1):
+        labels[(np.hypot(pts[:, 0] - x, pts[:, 1] - y) <= 0.15) & (pts[:, 2] <= h)] = k
+    voxels = np.bincount(labels, minlength=len(places) + 1)
+    voxels[0] = 0
+    top = np.array([0.0] + [pts[labels == k, 2].max() for k in range(1, len(places) + 1)])
+    tops = np.array([[x, y, top[k]] for k, (x, y, _) in enumerate(places, start=1)])
+    return HullBodies(labels, voxels, top + hull.voxel / 2, hull.voxel, len(places), tops)
+
+
 def test_extra_hull_tops_the_cameras_do_not_all_hold_are_no_second_person():
-    """One person-sized hull body with two tops, the one person the skeletons agree
-    on: a second top that not every seeing camera holds is crossing cones (the
-    false ``several_persons`` of the studio's boy of 14, seed 596); one that every
-    camera holds may be a second head, and the count stands."""
+    """The one person the skeletons agree on, and a hull top besides theirs that not
+    every seeing camera holds: crossing cones (the false ``several_persons`` of the
+    studio's boy of 14, seed 596) on the subject's body, or a ghost body of its own (a
+    bystander whom two cameras see, whose cones cross the subject's in a third: the
+    false ``several_persons`` of a bystander session, seed 721). One that every camera
+    holds may be a second head, and the count stands; so does a body without a top."""
     rig = studio_rig(4, (320, 240), seed=3)
     frame = FrameSegmenter(
         [None] * 4, rig.sizes, CaptureConfig(method="background"), None, None, rig
     )
     one = Sighting(np.zeros(3), (None,) * 4, (None,) * 4, (False,) * 4)  # no skeleton in 3D
-    tops = np.array([[0.0, -0.12, 1.64], [-0.33, -0.49, 1.58]])
-    body = HullBodies(np.array([0, 1]), np.array([0, 4000]), np.array([0.0, 1.64]), 0.04)
+    # One body, two tops on it (the second a sliver beside the head).
+    body = _columns(frame.hull, (0.0, 0.0, 1.65))
+    tops = np.array([body.tops[0], body.tops[0] - [0.05, 0.05, 0.15]])
     assert frame._one_person(replace(body, persons=2, tops=tops, held=np.array([True, False])), one)
     assert not frame._one_person(
         replace(body, persons=2, tops=tops, held=np.array([True, True])), one
     )
-    # Two person-sized bodies are two people whatever their tops.
-    two = HullBodies(np.array([0, 1, 2]), np.array([0, 4000, 3000]), np.array([0, 1.6, 1.5]), 0.04)
-    assert not frame._one_person(
-        replace(two, persons=2, tops=tops, held=np.array([True, False])), one
-    )
+    # A second, smaller body whose top is not held: a ghost; held: a second person.
+    two = _columns(frame.hull, (0.0, 0.0, 1.65), (0.6, 0.5, 1.4))
+    assert two.person_sized[1:].all() and two.voxels[1] > two.voxels[2]
+    assert frame._one_person(replace(two, persons=2, held=np.array([True, False])), one)
+    assert not frame._one_person(replace(two, persons=2, held=np.array([True, True])), one)
+    # The held top on the smaller body, the larger one's unheld: the body measured
+    # (the largest) would not be the person the skeletons agree on.
+    assert not frame._one_person(replace(two, persons=2, held=np.array([False, True])), one)
+    # A person-sized body without a top (someone bent below the tops' height).
+    topless = replace(two, persons=2, tops=two.tops[:1], held=np.array([True]))
+    assert not frame._one_person(topless, one)
