@@ -185,6 +185,11 @@ class HullBodies:
         the head); a top that the ``misses`` allowed let through where a few
         views' cones cross (a sliver between two opposite views, which the
         others' silhouettes leave out) has none.
+    confirmed : (K + 1,) bool
+        Per body, whether some voxel of it lies inside the silhouette of every
+        camera that sees it (a person's does; a ghost where a few views' cones
+        cross, which the ``misses`` allowed let through, has none); empty where not
+        computed (read as confirmed).
     """
 
     labels: np.ndarray
@@ -194,6 +199,7 @@ class HullBodies:
     persons: int = 0
     tops: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
     held: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), repr=False)
+    confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), repr=False)
 
     @property
     def largest(self) -> np.ndarray:
@@ -479,7 +485,8 @@ class VisualHull:
         persons = max(len(tops), int(bodies.person_sized.sum()))
         agreed = people & (hits >= votes)
         held = np.array([self._crown(top, agreed).any() for top in tops], bool)
-        return replace(bodies, persons=persons, tops=tops, held=held)
+        confirmed = np.bincount(labels[agreed], minlength=n + 1) > 0
+        return replace(bodies, persons=persons, tops=tops, held=held, confirmed=confirmed)
 
     def top_bodies(self, bodies: HullBodies) -> np.ndarray:
         """(T,) int: the body (:attr:`HullBodies.labels`) each of ``bodies``' tops stands

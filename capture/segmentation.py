@@ -750,10 +750,13 @@ class FrameSegmenter:
         a sliver where two opposite views' cones cross, which the 3-of-4 vote lets
         through; a second person's head lies in every view's silhouette), the one
         left stands on the largest body (the subject's), and every person-sized
-        body holds a top. A separate body whose tops are all unheld is a ghost: a
-        bystander whom one or two cameras see, whose cones cross the subject's in a
-        third (the skeletons, which need three cameras, count nobody there either);
-        the subject's silhouettes are the largest body's, which it does not touch."""
+        body holds a top or is not :attr:`HullBodies.confirmed` (no voxel of it in
+        every seeing camera's silhouette). A separate body whose tops are all
+        unheld, or that has no top and no confirmed voxel, is a ghost: a bystander
+        whom one or two cameras see, whose cones cross the subject's in a third
+        (the skeletons, which need three cameras, count nobody there either); the
+        subject's silhouettes are the largest body's, which it does not touch. A
+        confirmed body without a top (someone bent below the tops' height) counts."""
         if self.hull is None:
             return False
         tops = bodies.tops
@@ -763,13 +766,16 @@ class FrameSegmenter:
         hands = raised_hands(tops, landmarks)
         crossing = ~bodies.held
         explained = hands | crossing
-        if not explained.any() or int((~explained).sum()) > 1:
+        if int((~explained).sum()) > 1:
             return False
         under = self.hull.top_bodies(bodies)
         largest = int(np.argmax(bodies.voxels))
-        sized = set(np.flatnonzero(bodies.person_sized).tolist())
-        if not sized <= set(under.tolist()) or not set(under[~explained].tolist()) <= {largest}:
+        topless = [k for k in np.flatnonzero(bodies.person_sized) if k not in under]
+        confirmed = [k >= len(bodies.confirmed) or bodies.confirmed[k] for k in topless]
+        if any(confirmed) or not set(under[~explained].tolist()) <= {largest}:
             return False
+        if not (explained.any() or topless):
+            return False  # nothing the hull counted is explained
         log.debug(
             "hull tops %s m: one person's raised hands, %s m: cones crossing",
             tops[hands].round(2).tolist(),

@@ -262,7 +262,8 @@ def test_extra_hull_tops_the_cameras_do_not_all_hold_are_no_second_person():
     studio's boy of 14, seed 596) on the subject's body, or a ghost body of its own (a
     bystander whom two cameras see, whose cones cross the subject's in a third: the
     false ``several_persons`` of a bystander session, seed 721). One that every camera
-    holds may be a second head, and the count stands; so does a body without a top."""
+    holds may be a second head, and the count stands; so does a body without a top
+    that some voxel of which every seeing camera holds."""
     rig = studio_rig(4, (320, 240), seed=3)
     frame = FrameSegmenter(
         [None] * 4, rig.sizes, CaptureConfig(method="background"), None, None, rig
@@ -283,6 +284,10 @@ def test_extra_hull_tops_the_cameras_do_not_all_hold_are_no_second_person():
     # The held top on the smaller body, the larger one's unheld: the body measured
     # (the largest) would not be the person the skeletons agree on.
     assert not frame._one_person(replace(two, persons=2, held=np.array([False, True])), one)
-    # A person-sized body without a top (someone bent below the tops' height).
+    # A person-sized body without a top: someone bent below the tops' height where
+    # some voxel of it lies in every seeing camera's silhouette, else a ghost.
     topless = replace(two, persons=2, tops=two.tops[:1], held=np.array([True]))
-    assert not frame._one_person(topless, one)
+    assert not frame._one_person(topless, one)  # not known: read as confirmed
+    confirmed = np.array([False, True, True])
+    assert not frame._one_person(replace(topless, confirmed=confirmed), one)
+    assert frame._one_person(replace(topless, confirmed=np.array([False, True, False])), one)
