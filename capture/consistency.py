@@ -202,11 +202,16 @@ class HullBodies:
     confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), repr=False)
 
     @property
+    def largest_body(self) -> int:
+        """The label of the largest body (0 when none)."""
+        return int(np.argmax(self.voxels)) if len(self.voxels) > 1 else 0
+
+    @property
     def largest(self) -> np.ndarray:
         """(N,) bool: the voxels of the largest body (all False when none)."""
         if len(self.voxels) <= 1:
             return np.zeros(len(self.labels), bool)
-        return self.labels == int(np.argmax(self.voxels))
+        return self.labels == self.largest_body
 
     @property
     def person_sized(self) -> np.ndarray:

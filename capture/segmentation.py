@@ -769,10 +769,9 @@ class FrameSegmenter:
         if int((~explained).sum()) > 1:
             return False
         under = self.hull.top_bodies(bodies)
-        largest = int(np.argmax(bodies.voxels))
         topless = [k for k in np.flatnonzero(bodies.person_sized) if k not in under]
         confirmed = [k >= len(bodies.confirmed) or bodies.confirmed[k] for k in topless]
-        if any(confirmed) or not set(under[~explained].tolist()) <= {largest}:
+        if any(confirmed) or not set(under[~explained].tolist()) <= {bodies.largest_body}:
             return False
         if not (explained.any() or topless):
             return False  # nothing the hull counted is explained
