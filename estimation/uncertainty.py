@@ -83,7 +83,7 @@ MEASURED_SESSIONS = 100
 MEASURED_AMONG: Mapping[str, tuple[int, int]] = {
     "height_mm": (23, 23),
     "arm_span_mm": (22, 23),
-    "weight_kg": (21, 23),
+    "weight_kg": (22, 23),
 }
 
 

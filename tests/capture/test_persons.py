@@ -451,6 +451,51 @@ def test_one_hull_body_holding_a_second_person_asks_the_segmenter():
     assert not frame._more_than_one([ev_both, evidence(a)], [terms] * 2)  # one view
 
 
+def test_someone_the_segmenter_passed_over_is_looked_for():
+    """A person in the room's colours beside a more prominent one: subtraction takes
+    them for shadow, the segmenter returns the other person, and the hull holds both
+    in one body (seed 711 of ``two_persons --neutral``, frames 75-125). Where one
+    blob of the changed pixels (shadow label included) on the hull's body and off
+    the segmenter's person is at least half that person in two views, the segmenter
+    is asked for everyone."""
+    h, w = 120, 160
+    a, b = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    a[20:110, 40:60] = True
+    b[30:110, 80:96] = True  # 80 x 16 = 1280 px against the person's 1800: 0.71
+    person = Person(a.astype(np.float32), np.full((33, 3), np.nan))
+    none = np.zeros((h, w), bool)
+
+    def evidence(shadow):
+        return ViewEvidence(a.copy(), shadow, None, None, person)
+
+    terms = GeometryTerms(a | b, a | b)
+    frame = FrameSegmenter([None, None], [(w, h)] * 2, CaptureConfig(method="background"),
+                           None, None, None)  # fmt: skip
+    assert not frame._someone_unseen([evidence(b)] * 2, [terms] * 2)  # no segmenter
+    frame.segmenter = object()
+    assert frame._someone_unseen([evidence(b)] * 2, [terms] * 2)
+    assert not frame._someone_unseen([evidence(b), evidence(none)], [terms] * 2)  # one view
+    assert not frame._someone_unseen([evidence(none)] * 2, [terms] * 2)  # the person alone
+    # Not subtraction's person pixels alone (those are _more_than_one's): the shadow
+    # label counts, as the segmenter's own person does not.
+    assert not frame._more_than_one([evidence(b)] * 2, [terms] * 2)
+    # Off the hull's body (a cast shadow on the floor, where only low voxels project).
+    assert not frame._someone_unseen([evidence(b)] * 2, [GeometryTerms(a, a | b)] * 2)
+    # A smaller blob (a shadow fringe, 0.36 of the person) or the same pixels in
+    # pieces none of which is half the person: nobody.
+    small = b.copy()
+    small[30:70] = False
+    assert not frame._someone_unseen([evidence(small)] * 2, [terms] * 2)
+    pieces = b.copy()
+    pieces[::4] = False
+    assert not frame._someone_unseen([evidence(pieces)] * 2, [terms] * 2)
+    # Invariance: the same views mirrored left to right give the same answer.
+    fa, fb, fab = (m[:, ::-1].copy() for m in (a, b, a | b))
+    mirrored = Person(fa.astype(np.float32), np.full((33, 3), np.nan))
+    flip = ViewEvidence(fa, fb, None, None, mirrored)
+    assert frame._someone_unseen([flip] * 2, [GeometryTerms(fab, fab)] * 2)
+
+
 def test_side_by_side_is_two_whole_people_not_one_person_in_pieces():
     """Two blobs as tall as the hull's projection beside each other are two people;
     one person's pieces are not: legs without their trunk, a trunk above its legs, a
