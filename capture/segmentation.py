@@ -475,6 +475,28 @@ def _changed(ev: ViewEvidence) -> np.ndarray:
     return ev.raw if ev.found is None else ev.raw | ev.found
 
 
+def _second_beside(ev: ViewEvidence, term: GeometryTerms, found: np.ndarray) -> bool:
+    """One view of :meth:`FrameSegmenter._more_than_one`: background subtraction's
+    person pixels where the hull stands, off ``found`` (the segmenter's person grown),
+    hold more than :data:`SECOND_PERSON_SHARE` of that person, or form two whole
+    people side by side."""
+    changed = ev.raw & term.hull_any
+    rest = np.count_nonzero(changed & ~found)
+    return rest > SECOND_PERSON_SHARE * np.count_nonzero(ev.found) or side_by_side(
+        changed, term.hull_any
+    )
+
+
+def _unseen_beside(ev: ViewEvidence, term: GeometryTerms, found: np.ndarray) -> bool:
+    """One view of :meth:`FrameSegmenter._someone_unseen`: one connected blob of the
+    hull's candidates on its body and off ``found`` (the segmenter's person grown) is
+    at least :data:`SOMEONE_ELSE_SHARE` of that person."""
+    rest = (ev.candidate() & term.hull_body & ~found).astype(np.uint8)
+    n, _, stats, _ = cv2.connectedComponentsWithStats(rest, connectivity=8)
+    largest = stats[1:, cv2.CC_STAT_AREA].max() if n > 1 else 0
+    return bool(largest >= SOMEONE_ELSE_SHARE * np.count_nonzero(ev.found))
+
+
 class _FrameViews(NamedTuple):
     """One frame as :class:`FrameSegmenter` segments it.
 
@@ -802,20 +824,7 @@ class FrameSegmenter:
         (:func:`~bodymetry.capture.persons.side_by_side`: the segmenter's mask can
         hold both). Two people half a metre apart merge into one hull body, and its
         split looks for two heads 0.45 m apart."""
-        if self.segmenter is None:
-            return False
-        views = 0
-        for ev, term in zip(evidence, terms, strict=True):
-            if ev is None or ev.raw is None or ev.found is None or term is None:
-                continue
-            found = grown_mask(ev.found, self.config.person.hide_margin)
-            changed = ev.raw & term.hull_any
-            rest = np.count_nonzero(changed & ~found)
-            views += bool(
-                rest > SECOND_PERSON_SHARE * np.count_nonzero(ev.found)
-                or side_by_side(changed, term.hull_any)
-            )
-        return views >= 2
+        return self._views_showing(evidence, terms, _second_beside) >= 2
 
     def _someone_unseen(
         self, evidence: Sequence[ViewEvidence | None], terms: Sequence[GeometryTerms | None]
@@ -827,18 +836,25 @@ class FrameSegmenter:
         of that person. A person in light grey in a grey room reads as the wall's
         shadow to subtraction, and the segmenter returns the more prominent person
         beside them (``docs/capture.md``, "Someone the segmenter passed over")."""
+        return self._views_showing(evidence, terms, _unseen_beside) >= 2
+
+    def _views_showing(
+        self,
+        evidence: Sequence[ViewEvidence | None],
+        terms: Sequence[GeometryTerms | None],
+        shows: Callable[[ViewEvidence, GeometryTerms, np.ndarray], bool],
+    ) -> int:
+        """The views with a background, the segmenter's person and the rig's terms
+        where ``shows(ev, term, found)`` holds, ``found`` (H, W) bool the segmenter's
+        person grown by ``hide_margin``; none without the segmenter."""
         if self.segmenter is None:
-            return False
+            return 0
         views = 0
         for ev, term in zip(evidence, terms, strict=True):
             if ev is None or ev.raw is None or ev.found is None or term is None:
                 continue
-            found = grown_mask(ev.found, self.config.person.hide_margin)
-            rest = (ev.candidate() & term.hull_body & ~found).astype(np.uint8)
-            n, _, stats, _ = cv2.connectedComponentsWithStats(rest, connectivity=8)
-            largest = stats[1:, cv2.CC_STAT_AREA].max() if n > 1 else 0
-            views += bool(largest >= SOMEONE_ELSE_SHARE * np.count_nonzero(ev.found))
-        return views >= 2
+            views += bool(shows(ev, term, grown_mask(ev.found, self.config.person.hide_margin)))
+        return views
 
     def features(
         self, c: int, ev: ViewEvidence, terms: GeometryTerms | None
