@@ -102,6 +102,7 @@ TWO_PERSON_SETS = (
     "two_persons_long.json",
     "two_persons_fresh.json",
     "two_persons_neutral.json",
+    "two_persons_neutral_fresh.json",
 )
 
 
