@@ -96,7 +96,8 @@ def scored_sessions(names: tuple[str, ...] = SETS) -> list[StudioSession]:
 
 
 #: The committed two-person results (``python -m benchmarks two_persons``, ``--long``,
-#: ``--fresh`` and ``--neutral``): each person scored against their own truth.
+#: ``--fresh``, ``--neutral`` and ``--neutral-fresh``): each person scored against their
+#: own truth.
 TWO_PERSON_SETS = (
     "two_persons.json",
     "two_persons_long.json",

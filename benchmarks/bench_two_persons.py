@@ -196,6 +196,17 @@ NEUTRAL_FRESH_LOOKS = {
 }
 
 
+#: Each set by its flag (``""``: none, the short sessions): its seeds, frames per session
+#: and the subject's look per seed (none: the studio's saturated clothes).
+RUNS: dict[str, tuple[tuple[int, ...], int, dict[int, str]]] = {
+    "": (SEEDS, FRAMES, {}),
+    "long": (LONG_SEEDS, LONG_FRAMES, {}),
+    "fresh": (FRESH_SEEDS, FRAMES, {}),
+    "neutral": (NEUTRAL_SEEDS, FRAMES, NEUTRAL_LOOKS),
+    "neutral_fresh": (tuple(NEUTRAL_FRESH_LOOKS), FRAMES, NEUTRAL_FRESH_LOOKS),
+}
+
+
 def run(
     long: bool = False,
     fresh: bool = False,
@@ -203,17 +214,14 @@ def run(
     neutral_fresh: bool = False,
     **_: bool,
 ) -> dict:
-    if long + fresh + neutral + neutral_fresh > 1:
+    flags = {"long": long, "fresh": fresh, "neutral": neutral, "neutral_fresh": neutral_fresh}
+    chosen = [name for name, on in flags.items() if on]
+    if len(chosen) > 1:
         raise SystemExit(
             "two_persons: at most one of --long, --fresh, --neutral and --neutral-fresh"
         )
     base = os.environ.get("BODYMETRY_BENCH_PERSONS_DIR")
-    seeds, frames = (LONG_SEEDS, LONG_FRAMES) if long else (SEEDS, FRAMES)
-    if fresh:
-        seeds = FRESH_SEEDS
-    looks = NEUTRAL_LOOKS if neutral else NEUTRAL_FRESH_LOOKS if neutral_fresh else {}
-    if looks:
-        seeds = tuple(looks)
+    seeds, frames, looks = RUNS[chosen[0] if chosen else ""]
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(base) if base else Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
