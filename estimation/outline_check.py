@@ -94,6 +94,19 @@ class OutlineConfig:
         them warned at ``loose_mm``, while their weights read 1.0 to 3.7 kg
         light, not heavy). The loose-clothed ones in saturated colours read +2.2
         to +5.5 mm (docs/session-shape.md, "Outline check").
+    limbs_inside_mm : float
+        In low contrast, the trunk's excess is held to ``loose_mm`` after all
+        when the bare forearms and shins lie at least this far *inside* the
+        fitted body (their offset, median over frames, at most
+        ``-limbs_inside_mm``): the body was fitted too big for its bare limbs,
+        which is what loose clothing does to the fit and the low-contrast
+        outline does not (it moves the trunk's outline out, not the limbs'
+        in). Studio, 2026-12-07: the tight subjects at most 0.76 mm inside
+        (the 18 low-contrast sessions among 119 tight ones), the loose ones
+        2.1 to 5.6 mm (11 sessions, gaps of 10 mm and more); a loose shirt
+        with a 10 mm gap seen in low contrast read a trunk excess of
+        2.26 ± 0.20 mm and weighed 9.0 kg heavy without a warning under
+        ``loose_mm_low_contrast`` alone (docs/session-shape.md).
     bare_trunk : float
         Where capture told skin from clothing (:mod:`bodymetry.capture.skin`),
         a trunk whose outline lies on clothing in less than this share is
@@ -103,6 +116,7 @@ class OutlineConfig:
 
     loose_mm: float = 1.3
     loose_mm_low_contrast: float = 2.5
+    limbs_inside_mm: float = 1.5
     crown_mm: float = 4.0
     min_points: int = 10
     max_mm_per_px: float = 15.0
@@ -114,6 +128,8 @@ class OutlineConfig:
                 "loose_mm, loose_mm_low_contrast, crown_mm: expected > 0, got "
                 f"{self.loose_mm}, {self.loose_mm_low_contrast}, {self.crown_mm}"
             )
+        if not self.limbs_inside_mm > 0:
+            raise ValueError(f"limbs_inside_mm: expected > 0, got {self.limbs_inside_mm}")
         if self.min_points < 1:
             raise ValueError(f"min_points: expected >= 1, got {self.min_points}")
         if not self.max_mm_per_px > 0:
@@ -310,10 +326,13 @@ def check_outline(
     on_cloth = np.concatenate(trunk_worn) if trunk_worn else np.zeros(0)
     on_cloth = on_cloth[np.isfinite(on_cloth)]
     trunk_share = float(on_cloth.mean()) if len(on_cloth) else float("nan")
+    limbs = _median(per_frame["lower limbs"])
     warnings = (
         []
         if coarse
-        else _clothing_warnings(trunk, trunk_se, crown, crown_se, config, trunk_share, low_contrast)
+        else _clothing_warnings(
+            trunk, trunk_se, crown, crown_se, config, trunk_share, low_contrast, limbs
+        )
     )
     status = _status(mm_per_px, coarse, config)
     return OutlineCheck(
@@ -349,32 +368,47 @@ def _clothing_warnings(
     config: OutlineConfig,
     trunk_share: float = float("nan"),
     low_contrast: bool = False,
+    limbs: float = float("nan"),
 ) -> list[str]:
     """The warnings for loose clothing (the trunk's excess offset, mm) and for hair
     or headwear (the crown's), each with its standard error.
 
     Loose clothing is warned of above ``loose_mm`` (``loose_mm_low_contrast`` for a
-    run seen in low contrast), and also within one standard error below it, where
-    the frames do not settle the verdict either way; not where the trunk's outline
-    is bare skin (``trunk_share``, the share of it on clothing, under
-    ``bare_trunk``)."""
+    run seen in low contrast, unless the bare forearms and shins lie inside the
+    fitted body by ``limbs_inside_mm`` or more: ``limbs``, their offset in mm, +
+    outside), and also within one standard error below it, where the frames do
+    not settle the verdict either way; not where the trunk's outline is bare
+    skin (``trunk_share``, the share of it on clothing, under ``bare_trunk``)."""
     warnings = []
     bare = np.isfinite(trunk_share) and trunk_share < config.bare_trunk
-    limit = config.loose_mm_low_contrast if low_contrast else config.loose_mm
-    tight = "tight clothing in low contrast" if low_contrast else "tight clothing"
+    # A body fitted too big for its bare limbs is the clothing's signature, which
+    # the low-contrast outline (the trunk's a little out) does not leave.
+    inside = bool(np.isfinite(limbs) and limbs <= -config.limbs_inside_mm)
+    relaxed = low_contrast and not inside
+    limit = config.loose_mm_low_contrast if relaxed else config.loose_mm
+    if relaxed:
+        bound = f"tight clothing in low contrast: under {limit:g} mm"
+    elif low_contrast:
+        bound = (
+            f"tight clothing: under {limit:g} mm, in low contrast too where the forearms "
+            f"and shins lie {config.limbs_inside_mm:g} mm or more inside the fitted body, "
+            f"here {-limbs:.1f} mm"
+        )
+    else:
+        bound = f"tight clothing: under {limit:g} mm"
     if np.isfinite(trunk) and trunk > limit and not bare:
         note = _borderline(trunk, trunk_se, limit)
         warnings.append(
             f"{LOOSE_CLOTHING} likely: the silhouettes lie {_mm(trunk, trunk_se)} "
             "further outside the fitted body at the trunk than at the forearms and shins "
-            f"({tight}: under {limit:g} mm{note}); the weight, arm span, "
+            f"({bound}{note}); the weight, arm span, "
             "circumferences and widths are probably overstated"
         )
     elif not bare and np.isfinite(trunk_se) and trunk + trunk_se >= limit:
         warnings.append(
             f"{LOOSE_CLOTHING} possible: the silhouettes lie {_mm(trunk, trunk_se)} "
             "further outside the fitted body at the trunk than at the forearms and "
-            f"shins ({tight}: under {limit:g} mm; within one standard "
+            f"shins ({bound}; within one standard "
             "error below it, the frames do not settle it); the weight, arm span, "
             "circumferences and widths may be overstated"
         )

@@ -11,6 +11,7 @@ from bodymetry.estimation.body_model.model import DEFAULT_SHAPE_DOFS, BodyModel,
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.contours import prepare_contours
 from bodymetry.estimation.outline_check import (
+    REGIONS,
     OutlineConfig,
     check_outline,
     crown_vertices,
@@ -111,6 +112,40 @@ def test_a_wider_trunk_warns_of_loose_clothing(scene):
         model, cameras, frames, config=OutlineConfig(loose_mm=check.trunk_excess_mm + 1)
     )
     assert not any("loose" in w for w in quiet.warnings)
+
+
+def test_in_low_contrast_a_body_too_big_for_its_bare_limbs_warns(scene):
+    """Forearms and shins 1 px inside the fitted body (the fit inflated by a loose
+    shirt): in low contrast the trunk's excess is held to ``loose_mm`` again, however
+    lenient ``loose_mm_low_contrast``; with the limbs' bound beyond their offset, not."""
+    model, cameras, states = scene
+    lower = _region_faces(model, REGIONS["lower limbs"])
+    parts = model.full.arrays.parts
+    rest = model.faces()[~np.isin(parts, [PARTS.index(n) for n in REGIONS["lower limbs"]])]
+    kernel = np.ones((3, 3), np.uint8)
+    frames = []
+    for s in states:
+        limbs = [
+            cv2.erode(m.astype(np.uint8), kernel).astype(bool)
+            for m in _masks(model, cameras, s, lower)
+        ]
+        frames.append(
+            ([a | b for a, b in zip(_masks(model, cameras, s, rest), limbs, strict=True)], s)
+        )
+
+    def loose(check):
+        return [w for w in check.warnings if "loose" in w]
+
+    lenient = OutlineConfig(loose_mm_low_contrast=50.0)
+    check = check_outline(model, cameras, frames, config=lenient, low_contrast=True)
+    assert check.offsets_mm["lower limbs"] < -lenient.limbs_inside_mm
+    (likely,) = loose(check)
+    assert likely.startswith("loose clothing likely") and "inside the fitted body" in likely
+    # The limbs' bound past their offset: the lenient low-contrast threshold holds.
+    far = OutlineConfig(loose_mm_low_contrast=50.0, limbs_inside_mm=50.0)
+    assert not loose(check_outline(model, cameras, frames, config=far, low_contrast=True))
+    # In full contrast the threshold is loose_mm whatever the limbs say.
+    assert loose(check_outline(model, cameras, frames, config=far))
 
 
 def test_hair_at_the_crown_warns(scene):
@@ -282,6 +317,29 @@ def test_a_run_seen_in_low_contrast_is_held_to_its_own_threshold():
     assert _clothing_warnings(5.0, 0.3, 0.0, 0.1, config, 0.2, low_contrast=True) == []
     with pytest.raises(ValueError, match="loose_mm_low_contrast"):
         OutlineConfig(loose_mm_low_contrast=0.0)
+
+
+def test_in_low_contrast_bare_limbs_inside_the_body_restore_the_full_contrast_threshold():
+    """The studio's loose shirt with a 10 mm gap in low contrast (seed 801): trunk
+    excess 2.26 +- 0.20 mm, forearms and shins 2.06 mm inside the fitted body, 9 kg
+    heavy; its tight subjects' limbs at most 0.76 mm inside."""
+    from bodymetry.estimation.outline_check import _clothing_warnings
+
+    config = OutlineConfig()
+    (likely,) = _clothing_warnings(2.26, 0.2, 0.0, 0.1, config, low_contrast=True, limbs=-2.06)
+    assert likely.startswith("loose clothing likely")
+    assert (
+        f"under {config.loose_mm:g} mm, in low contrast too" in likely and "here 2.1 mm" in likely
+    )
+    for limbs in (-0.76, 0.0, float("nan")):  # tight, or no limbs seen: the lenient bound
+        assert _clothing_warnings(2.26, 0.2, 0.0, 0.1, config, low_contrast=True, limbs=limbs) == []
+    (possible,) = _clothing_warnings(1.2, 0.2, 0.0, 0.1, config, low_contrast=True, limbs=-2.0)
+    assert possible.startswith("loose clothing possible")
+    # The limbs change nothing in full contrast, nor for a bare trunk.
+    assert _clothing_warnings(1.0, 0.1, 0.0, 0.1, config, limbs=-3.0) == []
+    assert _clothing_warnings(2.26, 0.2, 0.0, 0.1, config, 0.2, True, -2.06) == []
+    with pytest.raises(ValueError, match="limbs_inside_mm"):
+        OutlineConfig(limbs_inside_mm=0.0)
 
 
 def test_a_bare_trunk_wears_no_loose_shirt():
