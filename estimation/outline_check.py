@@ -53,6 +53,14 @@ REGIONS: dict[str, tuple[str, ...]] = {
     "crown": (),  # the head within CROWN_DEPTH of its top (see crown_vertices)
 }
 
+#: The regions whose median offset in a frame the crown's is compared with. Not
+#: the forearms and shins alone: a loose shirt fits the body too big for them
+#: (they lie 2-6 mm inside it), and against them alone a bare crown read as hair
+#: (a draped shirt with a 40 mm gap: 5.9 mm, where hair reads 6.6 mm and more);
+#: the trunk and head are fitted where they are seen, and a median of three
+#: ignores the one that clothing or hair moves (docs/session-shape.md).
+CROWN_REFERENCE = ("trunk", "head", "lower limbs")
+
 #: Depth below the top of the standing body's head that counts as its crown, metres.
 CROWN_DEPTH = 0.06
 
@@ -72,8 +80,9 @@ class OutlineConfig:
         resolution before: tight -1.2 to +2.8 mm, loose +3.4 to +5.0 mm, 3.2 mm;
         docs/session-shape.md).
     crown_mm : float
-        Warn of hair or headwear when the crown's offset exceeds the lower
-        limbs' by more than this (studio at full resolution: bare head at most
+        Warn of hair or headwear when the crown's offset exceeds the median
+        of the trunk's, head's and lower limbs' (:data:`CROWN_REFERENCE`) by
+        more than this (studio at full resolution: bare head at most
         +0.1 mm, hair up to 2.5 cm thick +6.8 to +10.8 mm; the real Pose2Sim
         subject's cap +6.6 mm. At half resolution before: 2 mm, 11.9 mm and
         5.8 mm, 7 mm).
@@ -290,9 +299,10 @@ def check_outline(
     config = config or OutlineConfig()
     members = _region_members(body, lod=not refinement.full_mesh)
     per_frame: dict[str, list[float]] = {name: [] for name in REGIONS}
-    # Per frame, each region's offset relative to the bare forearms and shins:
-    # a uniformly larger silhouette (a blurred or dilated segmentation) moves
-    # every region alike and is not clothing.
+    # Per frame, the trunk's offset relative to the bare forearms and shins and the
+    # crown's relative to the median of the trunk, head and those limbs: a uniformly
+    # larger silhouette (a blurred or dilated segmentation) moves every region alike
+    # and is neither clothing nor hair.
     excess: dict[str, list[float]] = {"trunk": [], "crown": []}
     pixel = []
     aligned = [None] * len(frames) if alignments is None else list(alignments)
@@ -315,9 +325,13 @@ def check_outline(
             med[name] = float(np.median(mm[sel])) if sel.sum() >= config.min_points else np.nan
             if np.isfinite(med[name]):
                 per_frame[name].append(med[name])
-        for name, values in excess.items():
-            if np.isfinite(med[name]) and np.isfinite(med["lower limbs"]):
-                values.append(med[name] - med["lower limbs"])
+        if not np.isfinite(med["lower limbs"]):
+            continue
+        if np.isfinite(med["trunk"]):
+            excess["trunk"].append(med["trunk"] - med["lower limbs"])
+        if np.isfinite(med["crown"]):
+            reference = [med[n] for n in CROWN_REFERENCE if np.isfinite(med[n])]
+            excess["crown"].append(med["crown"] - float(np.median(reference)))
     trunk, trunk_se = _median(excess["trunk"]), median_standard_error(excess["trunk"])
     crown, crown_se = _median(excess["crown"]), median_standard_error(excess["crown"])
     mm_per_px = float(np.median(np.concatenate(pixel))) if any(len(p) for p in pixel) else np.nan
@@ -416,7 +430,8 @@ def _clothing_warnings(
         note = _borderline(crown, crown_se, config.crown_mm)
         warnings.append(
             f"{HAIR} likely: the silhouettes lie {_mm(crown, crown_se)} "
-            "further outside the fitted body at the crown than at the forearms and shins "
+            "further outside the fitted body at the crown than elsewhere (the median of "
+            "the trunk, the head and the forearms and shins) "
             f"(bare head: under {config.crown_mm:g} mm{note}); the height is probably "
             "overstated"
         )

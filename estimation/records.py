@@ -582,7 +582,8 @@ class OutlineCheck:
         Trunk minus lower limbs (the loose-clothing signature) and its
         standard error over frames.
     crown_excess_mm, crown_excess_se_mm : float
-        Crown minus lower limbs (the hair signature) and its standard error.
+        Crown minus the median of trunk, head and lower limbs (the hair
+        signature, ``outline_check.CROWN_REFERENCE``) and its standard error.
     warnings : tuple of str
         What the offsets suggest (loose clothing, hair), in words.
     trunk_clothing_share : float

@@ -91,7 +91,8 @@ RESULTS_FORMATS_READ = (2, 3)
 #: model the camera does not resolve give no model-to-outline residual in the session
 #: stage, ``SessionShapeConfig.thin_px``; 5: the outline check holds a run seen in low
 #: contrast to ``OutlineConfig.loose_mm_low_contrast``; 6: unless its bare limbs lie inside
-#: the fitted body, ``OutlineConfig.limbs_inside_mm``).
+#: the fitted body, ``OutlineConfig.limbs_inside_mm``, and the crown compared with the
+#: median of the trunk, head and lower limbs, ``outline_check.CROWN_REFERENCE``).
 SUMMARY_VERSION = 6
 #: Version of ``run.json``.
 MANIFEST_FORMAT = 1

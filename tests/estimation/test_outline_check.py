@@ -141,6 +141,9 @@ def test_in_low_contrast_a_body_too_big_for_its_bare_limbs_warns(scene):
     assert check.offsets_mm["lower limbs"] < -lenient.limbs_inside_mm
     (likely,) = loose(check)
     assert likely.startswith("loose clothing likely") and "inside the fitted body" in likely
+    # Limbs inside a body fitted too big are not hair at its (bare) crown.
+    assert abs(check.crown_excess_mm) < EXACT_MM
+    assert not [w for w in check.warnings if w.startswith("hair")]
     # The limbs' bound past their offset: the lenient low-contrast threshold holds.
     far = OutlineConfig(loose_mm_low_contrast=50.0, limbs_inside_mm=50.0)
     assert not loose(check_outline(model, cameras, frames, config=far, low_contrast=True))
