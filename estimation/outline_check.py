@@ -104,18 +104,19 @@ class OutlineConfig:
         light, not heavy). The loose-clothed ones in saturated colours read +2.2
         to +5.5 mm (docs/session-shape.md, "Outline check").
     limbs_inside_mm : float
-        In low contrast, the trunk's excess is held to ``loose_mm`` after all
-        when the bare forearms and shins lie at least this far *inside* the
+        The bare forearms and shins lying at least this far *inside* the
         fitted body (their offset, median over frames, at most
-        ``-limbs_inside_mm``): the body was fitted too big for its bare limbs,
-        which is what loose clothing does to the fit and the low-contrast
-        outline does not (it moves the trunk's outline out, not the limbs'
-        in). Studio, 2026-12-07: the tight subjects at most 0.76 mm inside
-        (the 18 low-contrast sessions among 119 tight ones), the loose ones
-        2.1 to 5.6 mm (11 sessions, gaps of 10 mm and more); a loose shirt
-        with a 10 mm gap seen in low contrast read a trunk excess of
-        2.26 ± 0.20 mm and weighed 9.0 kg heavy without a warning under
-        ``loose_mm_low_contrast`` alone (docs/session-shape.md).
+        ``-limbs_inside_mm``) says the body was fitted too big for them, which
+        is what loose clothing does to the fit: it warns "loose clothing
+        possible" whatever the trunk's excess, and in low contrast it holds the
+        trunk's excess to ``loose_mm`` again (the low-contrast outline moves
+        the trunk's outline out, not the bare limbs' in). Studio, 2026-12-07:
+        121 tight subjects at most 0.76 mm inside (the two worst in low
+        contrast; 0.29 mm in full contrast); 15 loose ones 0.98 to 5.6 mm, the
+        least a 5 mm gap (+4.2 kg), and a 10 mm gap seen in low contrast
+        (2.06 mm inside, trunk excess 2.26 ± 0.20 mm) had weighed 9.0 kg heavy
+        without a warning under ``loose_mm_low_contrast`` alone
+        (docs/session-shape.md, "Loose clothing the trunk alone missed").
     bare_trunk : float
         Where capture told skin from clothing (:mod:`bodymetry.capture.skin`),
         a trunk whose outline lies on clothing in less than this share is
@@ -125,7 +126,7 @@ class OutlineConfig:
 
     loose_mm: float = 1.3
     loose_mm_low_contrast: float = 2.5
-    limbs_inside_mm: float = 1.5
+    limbs_inside_mm: float = 0.9
     crown_mm: float = 4.0
     min_points: int = 10
     max_mm_per_px: float = 15.0
@@ -391,8 +392,9 @@ def _clothing_warnings(
     run seen in low contrast, unless the bare forearms and shins lie inside the
     fitted body by ``limbs_inside_mm`` or more: ``limbs``, their offset in mm, +
     outside), and also within one standard error below it, where the frames do
-    not settle the verdict either way; not where the trunk's outline is bare
-    skin (``trunk_share``, the share of it on clothing, under ``bare_trunk``)."""
+    not settle the verdict either way, or wherever those limbs lie that far
+    inside; not where the trunk's outline is bare skin (``trunk_share``, the
+    share of it on clothing, under ``bare_trunk``)."""
     warnings = []
     bare = np.isfinite(trunk_share) and trunk_share < config.bare_trunk
     # A body fitted too big for its bare limbs is the clothing's signature, which
@@ -417,6 +419,14 @@ def _clothing_warnings(
             "further outside the fitted body at the trunk than at the forearms and shins "
             f"({bound}{note}); the weight, arm span, "
             "circumferences and widths are probably overstated"
+        )
+    elif not bare and inside and not (np.isfinite(trunk_se) and trunk + trunk_se >= limit):
+        warnings.append(
+            f"{LOOSE_CLOTHING} possible: the forearms and shins lie {-limbs:.1f} mm inside "
+            f"the fitted body (tight clothing: under {config.limbs_inside_mm:g} mm), as when "
+            "loose clothing makes the body fitted too big for its bare limbs; the trunk's "
+            f"outline lies {_mm(trunk, trunk_se)} further outside than theirs "
+            f"({bound}); the weight, arm span, circumferences and widths may be overstated"
         )
     elif not bare and np.isfinite(trunk_se) and trunk + trunk_se >= limit:
         warnings.append(

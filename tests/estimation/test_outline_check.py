@@ -325,7 +325,7 @@ def test_a_run_seen_in_low_contrast_is_held_to_its_own_threshold():
 def test_in_low_contrast_bare_limbs_inside_the_body_restore_the_full_contrast_threshold():
     """The studio's loose shirt with a 10 mm gap in low contrast (seed 801): trunk
     excess 2.26 +- 0.20 mm, forearms and shins 2.06 mm inside the fitted body, 9 kg
-    heavy; its tight subjects' limbs at most 0.76 mm inside."""
+    heavy; its tight subjects' limbs at most 0.76 mm inside (two in low contrast)."""
     from bodymetry.estimation.outline_check import _clothing_warnings
 
     config = OutlineConfig()
@@ -338,8 +338,13 @@ def test_in_low_contrast_bare_limbs_inside_the_body_restore_the_full_contrast_th
         assert _clothing_warnings(2.26, 0.2, 0.0, 0.1, config, low_contrast=True, limbs=limbs) == []
     (possible,) = _clothing_warnings(1.2, 0.2, 0.0, 0.1, config, low_contrast=True, limbs=-2.0)
     assert possible.startswith("loose clothing possible")
-    # The limbs change nothing in full contrast, nor for a bare trunk.
-    assert _clothing_warnings(1.0, 0.1, 0.0, 0.1, config, limbs=-3.0) == []
+    # In any contrast, limbs that far inside warn "possible" on their own: the
+    # studio's shirt with a 5 mm gap (seed 811, +4.2 kg) read 0.98 +- 0.23 mm of trunk
+    # excess, the limbs 0.98 mm inside.
+    (possible,) = _clothing_warnings(0.98, 0.23, 0.0, 0.1, config, limbs=-0.98)
+    assert possible.startswith("loose clothing possible: the forearms and shins lie 1.0 mm")
+    assert _clothing_warnings(0.98, 0.23, 0.0, 0.1, config, limbs=-0.76) == []
+    # Nothing for a bare trunk.
     assert _clothing_warnings(2.26, 0.2, 0.0, 0.1, config, 0.2, True, -2.06) == []
     with pytest.raises(ValueError, match="limbs_inside_mm"):
         OutlineConfig(limbs_inside_mm=0.0)
