@@ -53,6 +53,10 @@ REGIONS: dict[str, tuple[str, ...]] = {
     "crown": (),  # the head within CROWN_DEPTH of its top (see crown_vertices)
 }
 
+#: The offsets' key of the forearms' and shins' outline points on skin, where
+#: capture told skin from clothing (:func:`check_outline`).
+BARE_LIMBS = "bare lower limbs"
+
 #: The regions whose median offset in a frame the crown's is compared with. Not
 #: the forearms and shins alone: a loose shirt fits the body too big for them
 #: (they lie 2-6 mm inside it), and against them alone a bare crown read as hair
@@ -104,19 +108,21 @@ class OutlineConfig:
         light, not heavy). The loose-clothed ones in saturated colours read +2.2
         to +5.5 mm (docs/session-shape.md, "Outline check").
     limbs_inside_mm : float
-        The bare forearms and shins lying at least this far *inside* the
-        fitted body (their offset, median over frames, at most
-        ``-limbs_inside_mm``) says the body was fitted too big for them, which
-        is what loose clothing does to the fit: it warns "loose clothing
-        possible" whatever the trunk's excess, and in low contrast it holds the
-        trunk's excess to ``loose_mm`` again (the low-contrast outline moves
-        the trunk's outline out, not the bare limbs' in). Studio, 2026-12-07:
-        121 tight subjects at most 0.76 mm inside (the two worst in low
-        contrast; 0.29 mm in full contrast); 15 loose ones 0.98 to 5.6 mm, the
-        least a 5 mm gap (+4.2 kg), and a 10 mm gap seen in low contrast
-        (2.06 mm inside, trunk excess 2.26 ± 0.20 mm) had weighed 9.0 kg heavy
-        without a warning under ``loose_mm_low_contrast`` alone
-        (docs/session-shape.md, "Loose clothing the trunk alone missed").
+        The bare forearms and shins (their outline points on skin, where
+        capture told skin from clothing: ``offsets_mm["bare lower limbs"]``)
+        lying at least this far *inside* the fitted body (median over frames,
+        at most ``-limbs_inside_mm``) says the body was fitted too big for
+        them, which is what loose clothing does to the fit: it warns "loose
+        clothing possible" whatever the trunk's excess, and in low contrast it
+        holds the trunk's excess to ``loose_mm`` again. Clothed limbs do not
+        count: in low contrast their captured outline lies inside their own (a
+        tight wall-coloured suit's forearms and shins read 1.33 mm inside).
+        Studio, 2026-12-07: the forearms and shins of tight subjects at most
+        0.76 mm inside over 121 sessions; of 15 loose ones 0.98 to 5.6 mm, the
+        least a 5 mm gap (+4.2 kg); a 10 mm gap seen in low contrast (2.06 mm
+        inside, trunk excess 2.26 ± 0.20 mm) had weighed 9.0 kg heavy without
+        a warning under ``loose_mm_low_contrast`` alone (docs/session-shape.md,
+        "Loose clothing the trunk alone missed").
     bare_trunk : float
         Where capture told skin from clothing (:mod:`bodymetry.capture.skin`),
         a trunk whose outline lies on clothing in less than this share is
@@ -305,6 +311,8 @@ def check_outline(
     # larger silhouette (a blurred or dilated segmentation) moves every region alike
     # and is neither clothing nor hair.
     excess: dict[str, list[float]] = {"trunk": [], "crown": []}
+    # The trunk's excess over the forearms and shins where they are bare skin.
+    bare_excess: list[float] = []
     pixel = []
     aligned = [None] * len(frames) if alignments is None else list(alignments)
     if len(aligned) != len(frames):
@@ -317,15 +325,20 @@ def check_outline(
         verts, mm, size, where, views = _frame_pairs(
             body, cameras, masks, state, refinement, alignment
         )
+        selections = {name: member[verts] for name, member in members.items()}
         if cloth:
-            trunk_worn.append(_on_clothing(cloth, where, views)[members["trunk"][verts]])
+            on = _on_clothing(cloth, where, views)
+            trunk_worn.append(on[selections["trunk"]])
+            # Where capture told skin from clothing: the forearms and shins on skin.
+            selections[BARE_LIMBS] = selections["lower limbs"] & (on == 0)
         pixel.append(size)
         med = {}
-        for name, member in members.items():
-            sel = member[verts]
+        for name, sel in selections.items():
             med[name] = float(np.median(mm[sel])) if sel.sum() >= config.min_points else np.nan
             if np.isfinite(med[name]):
-                per_frame[name].append(med[name])
+                per_frame.setdefault(name, []).append(med[name])
+        if np.isfinite(med["trunk"]) and np.isfinite(med.get(BARE_LIMBS, np.nan)):
+            bare_excess.append(med["trunk"] - med[BARE_LIMBS])
         if not np.isfinite(med["lower limbs"]):
             continue
         if np.isfinite(med["trunk"]):
@@ -333,6 +346,11 @@ def check_outline(
         if np.isfinite(med["crown"]):
             reference = [med[n] for n in CROWN_REFERENCE if np.isfinite(med[n])]
             excess["crown"].append(med["crown"] - float(np.median(reference)))
+    # In low contrast a clothed limb's captured outline lies inside its own (the
+    # garment's shaded rim is lost), so the trunk is compared with the bare ones
+    # where capture saw them in enough frames.
+    if low_contrast and len(bare_excess) >= max(2, len(excess["trunk"]) // 2):
+        excess["trunk"] = bare_excess
     trunk, trunk_se = _median(excess["trunk"]), median_standard_error(excess["trunk"])
     crown, crown_se = _median(excess["crown"]), median_standard_error(excess["crown"])
     mm_per_px = float(np.median(np.concatenate(pixel))) if any(len(p) for p in pixel) else np.nan
@@ -341,7 +359,7 @@ def check_outline(
     on_cloth = np.concatenate(trunk_worn) if trunk_worn else np.zeros(0)
     on_cloth = on_cloth[np.isfinite(on_cloth)]
     trunk_share = float(on_cloth.mean()) if len(on_cloth) else float("nan")
-    limbs = _median(per_frame["lower limbs"])
+    limbs = _median(per_frame.get(BARE_LIMBS, []))
     warnings = (
         []
         if coarse
@@ -391,10 +409,11 @@ def _clothing_warnings(
     Loose clothing is warned of above ``loose_mm`` (``loose_mm_low_contrast`` for a
     run seen in low contrast, unless the bare forearms and shins lie inside the
     fitted body by ``limbs_inside_mm`` or more: ``limbs``, their offset in mm, +
-    outside), and also within one standard error below it, where the frames do
-    not settle the verdict either way, or wherever those limbs lie that far
-    inside; not where the trunk's outline is bare skin (``trunk_share``, the
-    share of it on clothing, under ``bare_trunk``)."""
+    outside, NaN where capture did not tell them bare), and also within one
+    standard error below it, where the frames do not settle the verdict either
+    way, or wherever those limbs lie that far inside; not where the trunk's
+    outline is bare skin (``trunk_share``, the share of it on clothing, under
+    ``bare_trunk``)."""
     warnings = []
     bare = np.isfinite(trunk_share) and trunk_share < config.bare_trunk
     # A body fitted too big for its bare limbs is the clothing's signature, which
@@ -406,8 +425,8 @@ def _clothing_warnings(
         bound = f"tight clothing in low contrast: under {limit:g} mm"
     elif low_contrast:
         bound = (
-            f"tight clothing: under {limit:g} mm, in low contrast too where the forearms "
-            f"and shins lie {config.limbs_inside_mm:g} mm or more inside the fitted body, "
+            f"tight clothing: under {limit:g} mm, in low contrast too where the bare "
+            f"forearms and shins lie {config.limbs_inside_mm:g} mm or more inside the fitted body, "
             f"here {-limbs:.1f} mm"
         )
     else:
@@ -422,7 +441,7 @@ def _clothing_warnings(
         )
     elif not bare and inside and not (np.isfinite(trunk_se) and trunk + trunk_se >= limit):
         warnings.append(
-            f"{LOOSE_CLOTHING} possible: the forearms and shins lie {-limbs:.1f} mm inside "
+            f"{LOOSE_CLOTHING} possible: the bare forearms and shins lie {-limbs:.1f} mm inside "
             f"the fitted body (tight clothing: under {config.limbs_inside_mm:g} mm), as when "
             "loose clothing makes the body fitted too big for its bare limbs; the trunk's "
             f"outline lies {_mm(trunk, trunk_se)} further outside than theirs "

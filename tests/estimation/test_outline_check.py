@@ -123,22 +123,28 @@ def test_in_low_contrast_a_body_too_big_for_its_bare_limbs_warns(scene):
     parts = model.full.arrays.parts
     rest = model.faces()[~np.isin(parts, [PARTS.index(n) for n in REGIONS["lower limbs"]])]
     kernel = np.ones((3, 3), np.uint8)
-    frames = []
+    frames, shirt = [], []  # the silhouettes; everything but the limbs is clothing
     for s in states:
         limbs = [
             cv2.erode(m.astype(np.uint8), kernel).astype(bool)
             for m in _masks(model, cameras, s, lower)
         ]
-        frames.append(
-            ([a | b for a, b in zip(_masks(model, cameras, s, rest), limbs, strict=True)], s)
-        )
+        worn = _masks(model, cameras, s, rest)
+        frames.append(([a | b for a, b in zip(worn, limbs, strict=True)], s))
+        shirt.append(worn)
 
     def loose(check):
         return [w for w in check.warnings if "loose" in w]
 
     lenient = OutlineConfig(loose_mm_low_contrast=50.0)
-    check = check_outline(model, cameras, frames, config=lenient, low_contrast=True)
-    assert check.offsets_mm["lower limbs"] < -lenient.limbs_inside_mm
+    kw = {"config": lenient, "low_contrast": True}
+    check = check_outline(model, cameras, frames, clothing=shirt, **kw)
+    assert check.offsets_mm["bare lower limbs"] < -lenient.limbs_inside_mm
+    # Not where capture did not tell the limbs bare, nor where it called them clothing:
+    # in low contrast a clothed limb's captured outline lies inside its own.
+    assert not loose(check_outline(model, cameras, frames, **kw))
+    suit = [masks for masks, _ in frames]
+    assert not loose(check_outline(model, cameras, frames, clothing=suit, **kw))
     (likely,) = loose(check)
     assert likely.startswith("loose clothing likely") and "inside the fitted body" in likely
     # Limbs inside a body fitted too big are not hair at its (bare) crown.
@@ -146,9 +152,38 @@ def test_in_low_contrast_a_body_too_big_for_its_bare_limbs_warns(scene):
     assert not [w for w in check.warnings if w.startswith("hair")]
     # The limbs' bound past their offset: the lenient low-contrast threshold holds.
     far = OutlineConfig(loose_mm_low_contrast=50.0, limbs_inside_mm=50.0)
-    assert not loose(check_outline(model, cameras, frames, config=far, low_contrast=True))
+    assert not loose(
+        check_outline(model, cameras, frames, config=far, low_contrast=True, clothing=shirt)
+    )
     # In full contrast the threshold is loose_mm whatever the limbs say.
-    assert loose(check_outline(model, cameras, frames, config=far))
+    assert loose(check_outline(model, cameras, frames, config=far, clothing=shirt))
+
+
+def test_in_low_contrast_the_trunk_is_compared_with_the_bare_limbs(scene):
+    """Shins in trousers whose captured outline lies 1 px inside (a low-contrast rim
+    lost), forearms bare and exact: in low contrast the trunk's excess is taken over
+    the bare forearms alone, in full contrast over both, as calibrated."""
+    model, cameras, states = scene
+    shins = _region_faces(model, ("shin_l", "shin_r"))
+    parts = model.full.arrays.parts
+    rest = model.faces()[~np.isin(parts, [PARTS.index(n) for n in ("shin_l", "shin_r")])]
+    forearms = ("lower_arm_l", "lower_arm_r", "hand_l", "hand_r")
+    worn_faces = model.faces()[~np.isin(parts, [PARTS.index(n) for n in forearms])]
+    kernel = np.ones((3, 3), np.uint8)
+    frames, worn = [], []
+    for s in states:
+        thin = [
+            cv2.erode(m.astype(np.uint8), kernel).astype(bool)
+            for m in _masks(model, cameras, s, shins)
+        ]
+        own = _masks(model, cameras, s, rest)
+        frames.append(([a | b for a, b in zip(own, thin, strict=True)], s))
+        worn.append(_masks(model, cameras, s, worn_faces))
+    low = check_outline(model, cameras, frames, clothing=worn, low_contrast=True)
+    full = check_outline(model, cameras, frames, clothing=worn)
+    assert abs(low.offsets_mm["bare lower limbs"]) < EXACT_MM
+    assert abs(low.trunk_excess_mm) < EXACT_MM
+    assert full.trunk_excess_mm > low.trunk_excess_mm + 0.5
 
 
 def test_hair_at_the_crown_warns(scene):
@@ -342,7 +377,7 @@ def test_in_low_contrast_bare_limbs_inside_the_body_restore_the_full_contrast_th
     # studio's shirt with a 5 mm gap (seed 811, +4.2 kg) read 0.98 +- 0.23 mm of trunk
     # excess, the limbs 0.98 mm inside.
     (possible,) = _clothing_warnings(0.98, 0.23, 0.0, 0.1, config, limbs=-0.98)
-    assert possible.startswith("loose clothing possible: the forearms and shins lie 1.0 mm")
+    assert possible.startswith("loose clothing possible: the bare forearms and shins lie 1.0")
     assert _clothing_warnings(0.98, 0.23, 0.0, 0.1, config, limbs=-0.76) == []
     # Nothing for a bare trunk.
     assert _clothing_warnings(2.26, 0.2, 0.0, 0.1, config, 0.2, True, -2.06) == []
