@@ -215,6 +215,7 @@ def test_the_fitted_shapes_are_kept_so_a_session_can_be_measured_again():
 
 def test_one_flag_picks_one_studio_set_and_every_set_names_its_sessions_apart(monkeypatch):
     from benchmarks.bench_pipeline import STUDIO_SETS, StudioSet, studio_set
+    from benchmarks.bench_pipeline import _outfit as bench_outfit
 
     monkeypatch.delenv("BODYMETRY_BENCH_INDEPENDENT", raising=False)
     assert studio_set() == ("default", STUDIO_SETS["default"])
@@ -233,6 +234,12 @@ def test_one_flag_picks_one_studio_set_and_every_set_names_its_sessions_apart(mo
     assert STUDIO_SETS["contrast_fresh"].folder(STUDIO_SETS["contrast_fresh"].rows[0]) == (
         "seed601_reach_white_plain_soft"
     )
+    # The loose-gap set's folders say what each subject wears, as _outfit reads it.
+    gaps = STUDIO_SETS["loose_gaps"]
+    worn = [bench_outfit(gaps.folder(row)) for row in gaps.rows]
+    assert worn == [bench_outfit(row[2]) for row in gaps.rows]
+    assert gaps.folder(gaps.rows[0]) == "seed831_arm_raises_white_textured_hard_loose"
+    assert worn.count("loose") == 4 and worn.count("tight") == 4
     # Each kind of row renders with its options and subject (the renderer stubbed).
     import benchmarks.bench_pipeline as bench
 
