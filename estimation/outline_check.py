@@ -98,15 +98,16 @@ class OutlineConfig:
         the demo's 5.5 mm pixels at the session stage's full resolution; at
         25 mm (a 240x180 camera) they are lost in the outline's quantization.
     loose_mm_low_contrast : float
-        ``loose_mm`` for a run seen in low contrast (white, grey or wall-coloured
-        clothing before a wall of about its colour: the run's outline contrast
-        under :data:`~bodymetry.estimation.studio_accuracy.LOW_CONTRAST`). There
-        the captured outline itself errs by part: the limbs a few tenths of a
-        pixel inside, the trunk less (docs/capture.md), and the studio's tight
-        subjects in such clothing read up to +1.56 ± 0.74 mm (14 sessions; 4 of
-        them warned at ``loose_mm``, while their weights read 1.0 to 3.7 kg
-        light, not heavy). The loose-clothed ones in saturated colours read +2.2
-        to +5.5 mm (docs/session-shape.md, "Outline check").
+        ``loose_mm`` for "likely" in a run seen in low contrast (white, grey or
+        wall-coloured clothing before a wall of about its colour: the run's
+        outline contrast under
+        :data:`~bodymetry.estimation.studio_accuracy.LOW_CONTRAST`). There the
+        captured outline itself errs by part: the limbs a few tenths of a pixel
+        inside, the trunk less (docs/capture.md), and the studio's tight
+        subjects in such clothing read up to +1.68 ± 0.49 mm (27 sessions),
+        while a shirt draped 6 mm off the skin read +1.72 ± 0.60 mm and +7.7 kg
+        (docs/session-shape.md, "Outline check"). Between ``loose_mm`` and this
+        the check cannot tell them apart and says "loose clothing possible".
     limbs_inside_mm : float
         The bare forearms and shins (their outline points on skin, where
         capture told skin from clothing: ``offsets_mm["bare lower limbs"]``)
@@ -454,6 +455,17 @@ def _clothing_warnings(
             f"shins ({bound}; within one standard "
             "error below it, the frames do not settle it); the weight, arm span, "
             "circumferences and widths may be overstated"
+        )
+    elif not bare and relaxed and np.isfinite(trunk) and trunk > config.loose_mm:
+        # Between the two thresholds low contrast cannot tell: a tight garment's
+        # lost rim and a loose one a few millimetres off the skin read alike.
+        warnings.append(
+            f"{LOOSE_CLOTHING} possible: the silhouettes lie {_mm(trunk, trunk_se)} "
+            "further outside the fitted body at the trunk than at the forearms and "
+            f"shins (tight clothing: under {config.loose_mm:g} mm; in low contrast the "
+            f"captured outline alone reads up to {limit:g} mm, so the check cannot tell "
+            "tight clothing from loose); the weight, arm span, circumferences and "
+            "widths may be overstated (or, as in low contrast, understated)"
         )
     if np.isfinite(crown) and crown > config.crown_mm:
         note = _borderline(crown, crown_se, config.crown_mm)
