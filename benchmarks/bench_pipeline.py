@@ -40,6 +40,7 @@ sessions seen in like contrast (:data:`CONTRAST_SESSIONS`), with :func:`stated_a
 ``--loose-gaps`` four loose-clothed subjects with gaps of 6-20 mm beside four tight
 ones, rendered after the outline check read the bare forearms and shins
 (:data:`LOOSE_GAP_SESSIONS`; whether each loose one is warned and no tight one);
+``--tight-night`` seven tight subjects rendered beside them (:data:`TIGHT_NIGHT_SESSIONS`);
 ``--held-out`` renders
 :data:`HELD_OUT_SESSIONS`, a replication of the four same-model sessions with new
 subjects.
@@ -239,6 +240,24 @@ LOOSE_GAP_SESSIONS = (
         "clothing=wall,room=textured,light=soft",
     ),
     (838, "walk_turn", "independent:838", "clothing=black,room=plain,light=soft"),
+)
+#: Tight-clothed subjects rendered beside the loose-gap sessions (``--tight-night``,
+#: 2026-12-07 night) to check the outline check raised no false warning: bank bodies
+#: and the heaviest woman and man, mostly in neutral and wall-coloured clothing;
+#: seeds, bodies and motions never used. Their weights join the studio's accuracy.
+TIGHT_NIGHT_SESSIONS = (
+    (815, "reach", "independent:815", "clothing=white,room=plain,light=soft"),
+    (816, "arm_raises", "independent:816", "clothing=light_grey,room=plain,light=hard"),
+    (817, "mixed", "independent:817", "clothing=wall,room=textured,light=soft"),
+    (821, "reach", "independent:821", "clothing=white,room=plain,light=soft"),
+    (822, "reach", "independent:822", "clothing=wall,room=textured,light=soft"),
+    (823, "arm_raises", "independent:823,edge=male_weight_p99", "clothing=saturated"),
+    (
+        824,
+        "walk_turn",
+        "independent:824,edge=female_weight_p99",
+        "clothing=light_grey,room=plain,light=hard",
+    ),
 )
 DEMO_RIG_SEED = 5
 FRAMES = 400  # 16 kept frames each
@@ -820,6 +839,7 @@ STUDIO_SETS: dict[str, StudioSet] = {
     "contrast_fresh": StudioSet(CONTRAST_FRESH_SESSIONS, _look_folder, stated_accuracy=True),
     "contrast_clothing": StudioSet(CONTRAST_CLOTHING_SESSIONS, _look_folder, stated_accuracy=True),
     "loose_gaps": StudioSet(LOOSE_GAP_SESSIONS, _look_outfit_folder, stated_accuracy=True),
+    "tight_night": StudioSet(TIGHT_NIGHT_SESSIONS, _look_outfit_folder, stated_accuracy=True),
     **{name: StudioSet(rows, _edge_folder, edge_summary=True) for name, rows in EDGE_DRAWS.items()},
     "arms": StudioSet(ARMS_SESSIONS, _subject_folder),
     "weight": StudioSet(WEIGHT_SESSIONS, _subject_folder),
