@@ -64,6 +64,8 @@ SETS = (
     "pipeline_children_fresh.json",
     "pipeline_contrast_fresh.json",
     "pipeline_contrast_clothing.json",
+    "pipeline_loose_gaps.json",
+    "pipeline_tight_night.json",
 )
 
 

@@ -63,26 +63,27 @@ COVERAGE = 0.95
 
 #: How often it did: per core measurement, the share of the studio's scored sessions
 #: whose truth lay inside the interval each would have stated from the other sessions
-#: alone (``python -m benchmarks studio_accuracy``, ``leave_one_out``; 100 sessions,
-#: 2026-12-07, the edge bodies' fourth draw, the fresh children and ten more sessions in
-#: neutral clothing included).
+#: alone (``python -m benchmarks studio_accuracy``, ``leave_one_out``; 111 sessions,
+#: 2026-12-08, the edge bodies' fourth draw, the fresh children, ten more sessions in
+#: neutral clothing and the eleven tight ones of ``--loose-gaps`` and ``--tight-night``
+#: included).
 #: ``tests/estimation/test_uncertainty.py`` reads them back from
 #: ``benchmarks/results/studio_accuracy.json``, so they cannot drift from what was measured.
 MEASURED_COVERAGE: Mapping[str, float] = {
-    "height_mm": 0.95,
-    "arm_span_mm": 0.98,
-    "weight_kg": 0.99,
+    "height_mm": 0.955,
+    "arm_span_mm": 0.964,
+    "weight_kg": 0.991,
 }
 #: ... over this many sessions.
-MEASURED_SESSIONS = 100
+MEASURED_SESSIONS = 111
 #: A person measured among others: per core measurement, of the studio's two-person
 #: sessions' persons each given the interval it would have stated from the others (and
 #: every single-person session), how many held the truth, of how many stated
-#: (``studio_accuracy.json``, ``among_others``; 2026-12-07, 29 persons; the test reads
+#: (``studio_accuracy.json``, ``among_others``; 2026-12-08, 29 persons; the test reads
 #: them back).
 MEASURED_AMONG: Mapping[str, tuple[int, int]] = {
     "height_mm": (29, 29),
-    "arm_span_mm": (28, 29),
+    "arm_span_mm": (27, 29),
     "weight_kg": (28, 29),
 }
 
