@@ -440,14 +440,6 @@ def _clothing_warnings(
             f"({bound}{note}); the weight, arm span, "
             "circumferences and widths are probably overstated"
         )
-    elif not bare and inside and not (np.isfinite(trunk_se) and trunk + trunk_se >= limit):
-        warnings.append(
-            f"{LOOSE_CLOTHING} possible: the bare forearms and shins lie {-limbs:.1f} mm inside "
-            f"the fitted body (tight clothing: under {config.limbs_inside_mm:g} mm), as when "
-            "loose clothing makes the body fitted too big for its bare limbs; the trunk's "
-            f"outline lies {_mm(trunk, trunk_se)} further outside than theirs "
-            f"({bound}); the weight, arm span, circumferences and widths may be overstated"
-        )
     elif not bare and np.isfinite(trunk_se) and trunk + trunk_se >= limit:
         warnings.append(
             f"{LOOSE_CLOTHING} possible: the silhouettes lie {_mm(trunk, trunk_se)} "
@@ -455,6 +447,14 @@ def _clothing_warnings(
             f"shins ({bound}; within one standard "
             "error below it, the frames do not settle it); the weight, arm span, "
             "circumferences and widths may be overstated"
+        )
+    elif not bare and inside:
+        warnings.append(
+            f"{LOOSE_CLOTHING} possible: the bare forearms and shins lie {-limbs:.1f} mm inside "
+            f"the fitted body (tight clothing: under {config.limbs_inside_mm:g} mm), as when "
+            "loose clothing makes the body fitted too big for its bare limbs; the trunk's "
+            f"outline lies {_mm(trunk, trunk_se)} further outside than theirs "
+            f"({bound}); the weight, arm span, circumferences and widths may be overstated"
         )
     elif not bare and relaxed and np.isfinite(trunk) and trunk > config.loose_mm:
         # Between the two thresholds low contrast cannot tell: a tight garment's

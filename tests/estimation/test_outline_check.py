@@ -63,6 +63,26 @@ def _with_grown_region(model, cameras, states, faces, px):
     return frames
 
 
+def _faces_but(model, names):
+    """The mesh's faces outside the parts ``names``."""
+    parts = model.full.arrays.parts
+    return model.faces()[~np.isin(parts, [PARTS.index(n) for n in names])]
+
+
+def _with_thinned_parts(model, cameras, states, names):
+    """Frames whose silhouettes are the body's own with the parts ``names`` 1 px thinner
+    (their captured outline inside their own, or a body fitted too big for them)."""
+    kernel = np.ones((3, 3), np.uint8)
+    thin_faces, rest = _region_faces(model, names), _faces_but(model, names)
+    frames = []
+    for s in states:
+        thin = _masks(model, cameras, s, thin_faces)
+        thin = [cv2.erode(m.astype(np.uint8), kernel).astype(bool) for m in thin]
+        own = _masks(model, cameras, s, rest)
+        frames.append(([a | b for a, b in zip(own, thin, strict=True)], s))
+    return frames
+
+
 def _region_faces(model, names):
     parts = model.full.arrays.parts
     return model.faces()[np.isin(parts, [PARTS.index(n) for n in names])]
@@ -119,19 +139,10 @@ def test_in_low_contrast_a_body_too_big_for_its_bare_limbs_warns(scene):
     shirt): in low contrast the trunk's excess is held to ``loose_mm`` again, however
     lenient ``loose_mm_low_contrast``; with the limbs' bound beyond their offset, not."""
     model, cameras, states = scene
-    lower = _region_faces(model, REGIONS["lower limbs"])
-    parts = model.full.arrays.parts
-    rest = model.faces()[~np.isin(parts, [PARTS.index(n) for n in REGIONS["lower limbs"]])]
-    kernel = np.ones((3, 3), np.uint8)
-    frames, shirt = [], []  # the silhouettes; everything but the limbs is clothing
-    for s in states:
-        limbs = [
-            cv2.erode(m.astype(np.uint8), kernel).astype(bool)
-            for m in _masks(model, cameras, s, lower)
-        ]
-        worn = _masks(model, cameras, s, rest)
-        frames.append(([a | b for a, b in zip(worn, limbs, strict=True)], s))
-        shirt.append(worn)
+    frames = _with_thinned_parts(model, cameras, states, REGIONS["lower limbs"])
+    # Everything but the limbs is clothing.
+    rest = _faces_but(model, REGIONS["lower limbs"])
+    shirt = [_masks(model, cameras, s, rest) for s in states]
 
     def loose(check):
         return [w for w in check.warnings if "loose" in w]
@@ -167,21 +178,9 @@ def test_in_low_contrast_the_trunk_is_compared_with_the_bare_limbs(scene):
     lost), forearms bare and exact: in low contrast the trunk's excess is taken over
     the bare forearms alone, in full contrast over both, as calibrated."""
     model, cameras, states = scene
-    shins = _region_faces(model, ("shin_l", "shin_r"))
-    parts = model.full.arrays.parts
-    rest = model.faces()[~np.isin(parts, [PARTS.index(n) for n in ("shin_l", "shin_r")])]
-    forearms = ("lower_arm_l", "lower_arm_r", "hand_l", "hand_r")
-    worn_faces = model.faces()[~np.isin(parts, [PARTS.index(n) for n in forearms])]
-    kernel = np.ones((3, 3), np.uint8)
-    frames, worn = [], []
-    for s in states:
-        thin = [
-            cv2.erode(m.astype(np.uint8), kernel).astype(bool)
-            for m in _masks(model, cameras, s, shins)
-        ]
-        own = _masks(model, cameras, s, rest)
-        frames.append(([a | b for a, b in zip(own, thin, strict=True)], s))
-        worn.append(_masks(model, cameras, s, worn_faces))
+    frames = _with_thinned_parts(model, cameras, states, ("shin_l", "shin_r"))
+    bare = _faces_but(model, ("lower_arm_l", "lower_arm_r", "hand_l", "hand_r"))
+    worn = [_masks(model, cameras, s, bare) for s in states]
     low = check_outline(model, cameras, frames, clothing=worn, low_contrast=True)
     full = check_outline(model, cameras, frames, clothing=worn)
     assert abs(low.offsets_mm["bare lower limbs"]) < EXACT_MM
