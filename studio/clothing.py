@@ -38,12 +38,15 @@ from bodymetry.estimation.body_model import geometry
 from bodymetry.estimation.body_model.skeleton import JOINTS, PARTS
 
 #: Clothing a subject can wear: ``tight`` (no layer: the body's own outline, as a
-#: tight suit would show), ``loose`` (shirt with short sleeves and shorts) or
-#: ``draped`` (the same garments resting on the body where it faces up: the
-#: shoulders and the top of the chest, as worn cloth does).
-CLOTHING = ("tight", "loose", "draped")
-#: The loose garments (``tight`` is the body's own outline).
+#: tight suit would show), ``shorts`` (no layer either, with the shins bare: a tight
+#: shirt and shorts, as a gait lab's sports kit), ``loose`` (shirt with short sleeves
+#: and shorts) or ``draped`` (the same garments resting on the body where it faces
+#: up: the shoulders and the top of the chest, as worn cloth does).
+CLOTHING = ("tight", "shorts", "loose", "draped")
+#: The loose garments (``tight`` and ``shorts`` are the body's own outline).
 GARMENTS = ("loose", "draped")
+#: The outfits that leave the shins bare (shorts, tight or loose).
+BARE_SHINS = ("shorts", *GARMENTS)
 
 
 @dataclass(frozen=True)
@@ -219,7 +222,7 @@ def dress(
     vertex_parts : (V,) int
     joints : (15, 3) float
         Its joint centres.
-    clothing : {"tight", "loose", "draped"}
+    clothing : {"tight", "shorts", "loose", "draped"}
     hair : bool
 
     Returns

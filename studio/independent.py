@@ -39,7 +39,7 @@ from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS, forward_kinematics
 from bodymetry.estimation.body_model.skinning import skin
 from bodymetry.fileio import load_npz
-from bodymetry.studio.clothing import CLOTHING, GARMENTS, ClothingLayer, dress
+from bodymetry.studio.clothing import BARE_SHINS, CLOTHING, GARMENTS, ClothingLayer, dress
 from bodymetry.studio.scene import Appearance
 
 #: How the studio poses its independent subjects (``ground_truth/subject.json`` records
@@ -188,7 +188,7 @@ class IndependentSpec:
         Index into the bank.
     edge : str or None
         A body of the edge bank by key (:data:`EDGE_KEYS`), instead of the drawn bank.
-    clothing : {"tight", "loose", "draped"}
+    clothing : {"tight", "shorts", "loose", "draped"}
     hair : bool
     ease : int or None
         The garments' smallest gap to the skin, millimetres
@@ -237,7 +237,7 @@ class IndependentSpec:
         except ValueError:
             raise InputError(
                 f"--subject independent:{value}: expected independent:SEED[,body=K|edge=KEY]"
-                "[,clothing=tight|loose|draped][,ease=MM][,hair=0|1]"
+                "[,clothing=tight|shorts|loose|draped][,ease=MM][,hair=0|1]"
             ) from None
         fields: dict = {}
         for option in options:
@@ -245,7 +245,7 @@ class IndependentSpec:
             if not sep or key not in ("body", "edge", "clothing", "hair", "ease"):
                 raise InputError(
                     f"--subject independent:{value}: unknown option {option!r} "
-                    "(expected body=K, edge=KEY, clothing=tight|loose|draped, ease=MM or hair=0|1)"
+                    "(expected body=K, edge=KEY, clothing=tight|shorts|loose|draped, ease=MM or hair=0|1)"
                 )
             if key in fields:
                 raise InputError(f"--subject independent:{value}: {key}= given twice")
@@ -452,9 +452,9 @@ class IndependentSubject:
         )
 
     def appearance(self) -> Appearance:
-        """Clothing colours: the studio's, with bare shins below loose shorts."""
+        """Clothing colours: the studio's, with bare shins below shorts (tight or loose)."""
         colors = np.array(Appearance().part_colors, dtype=float)
-        if self.spec.clothing in GARMENTS:
+        if self.spec.clothing in BARE_SHINS:
             skin = colors[PARTS.index("head")]
             for side in "lr":
                 colors[PARTS.index(f"shin_{side}")] = skin

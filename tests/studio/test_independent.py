@@ -144,6 +144,24 @@ def test_ease_sets_how_far_the_garments_stand_off(model, loose):
     assert looser.biometrics() == loose.biometrics()
 
 
+def test_shorts_are_tight_with_the_shins_bare(model, loose):
+    tight = IndependentSubject(IndependentSpec(4), model=model)
+    shorts = IndependentSubject(IndependentSpec(4, clothing="shorts"), model=model)
+    # No garment layer: the rendered surface is the body's own, as in tight clothing.
+    np.testing.assert_array_equal(shorts.surface, tight.surface)
+    assert shorts.biometrics() == tight.biometrics()
+    colors = np.asarray(shorts.appearance().part_colors)
+    suit = np.asarray(tight.appearance().part_colors)
+    skin = colors[model.parts.index("head")]
+    for part in model.parts:
+        expected = skin if part.startswith("shin_") else suit[model.parts.index(part)]
+        np.testing.assert_array_equal(colors[model.parts.index(part)], expected, err_msg=part)
+    # The loose shorts leave the same shins bare.
+    np.testing.assert_array_equal(np.asarray(loose.appearance().part_colors), colors)
+    spec = SubjectSpec.parse("independent:12,clothing=shorts", 0).independent
+    assert IndependentSpec.parse(spec.to_text().partition(":")[2]) == spec
+
+
 def test_hair_raises_the_head_but_not_the_measured_height(model, loose):
     assert loose.surface[:, 2].max() > loose.rest[:, 2].max() + 0.015
     assert loose.biometrics().height_mm == pytest.approx(1000.0 * loose.rest[:, 2].max())
