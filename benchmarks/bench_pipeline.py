@@ -41,6 +41,7 @@ sessions seen in like contrast (:data:`CONTRAST_SESSIONS`), with :func:`stated_a
 ones, rendered after the outline check read the bare forearms and shins
 (:data:`LOOSE_GAP_SESSIONS`; whether each loose one is warned and no tight one);
 ``--tight-night`` seven tight subjects rendered beside them (:data:`TIGHT_NIGHT_SESSIONS`);
+``--shorts`` tight subjects in shorts and loose ones with small gaps (:data:`SHORTS_SESSIONS`);
 ``--held-out`` renders
 :data:`HELD_OUT_SESSIONS`, a replication of the four same-model sessions with new
 subjects.
@@ -257,6 +258,50 @@ TIGHT_NIGHT_SESSIONS = (
         "walk_turn",
         "independent:824,edge=female_weight_p99",
         "clothing=light_grey,room=plain,light=hard",
+    ),
+)
+#: Issue 31, the outline check's bare-shin signature (``--shorts``, 2026-12-08): seven
+#: tight subjects in shorts (``clothing=shorts``, the shins bare: seed 42's body
+#: reaching, the woman of 80, the heaviest man, the thinnest woman, the girl of 6, light
+#: grey and white) and five loose ones with gaps of 5-8 mm (a draped one, two with hair,
+#: the heaviest man), rendered after the forearms were left out of it; seeds never used.
+SHORTS_SESSIONS = (
+    (871, "reach", "independent:871,body=19,clothing=shorts", "clothing=saturated"),
+    (872, "arm_raises", "independent:872,edge=female_age80,clothing=shorts", "clothing=saturated"),
+    (
+        873,
+        "walk_turn",
+        "independent:873,edge=male_weight_p99,clothing=shorts",
+        "clothing=saturated",
+    ),
+    (874, "mixed", "independent:874,edge=female_weight_p01,clothing=shorts", "clothing=saturated"),
+    (875, "arm_raises", "independent:875,edge=girl_age6,clothing=shorts", "clothing=saturated"),
+    (
+        876,
+        "reach",
+        "independent:876,clothing=shorts",
+        "clothing=light_grey,room=plain,light=soft",
+    ),
+    (877, "mixed", "independent:877,clothing=shorts", "clothing=white,room=textured,light=hard"),
+    (881, "arm_raises", "independent:881,clothing=loose,ease=5", "clothing=saturated"),
+    (
+        882,
+        "reach",
+        "independent:882,clothing=loose,ease=6",
+        "clothing=light_grey,room=plain,light=hard",
+    ),
+    (
+        883,
+        "mixed",
+        "independent:883,clothing=draped,ease=8",
+        "clothing=white,room=plain,light=soft",
+    ),
+    (884, "walk_turn", "independent:884,clothing=loose,ease=6,hair=1", "clothing=saturated"),
+    (
+        885,
+        "arm_raises",
+        "independent:885,edge=male_weight_p99,clothing=loose,ease=8",
+        "clothing=saturated",
     ),
 )
 DEMO_RIG_SEED = 5
@@ -840,6 +885,7 @@ STUDIO_SETS: dict[str, StudioSet] = {
     "contrast_clothing": StudioSet(CONTRAST_CLOTHING_SESSIONS, _look_folder, stated_accuracy=True),
     "loose_gaps": StudioSet(LOOSE_GAP_SESSIONS, _look_outfit_folder, stated_accuracy=True),
     "tight_night": StudioSet(TIGHT_NIGHT_SESSIONS, _look_outfit_folder, stated_accuracy=True),
+    "shorts": StudioSet(SHORTS_SESSIONS, _look_outfit_folder, stated_accuracy=True),
     **{name: StudioSet(rows, _edge_folder, edge_summary=True) for name, rows in EDGE_DRAWS.items()},
     "arms": StudioSet(ARMS_SESSIONS, _subject_folder),
     "weight": StudioSet(WEIGHT_SESSIONS, _subject_folder),

@@ -12,8 +12,9 @@ misfit does:
   forearms and shins bare. One body cannot be wide at the trunk and slim at
   the forearms beyond what the shape space allows, so the fit settles in
   between: the observed outline lies **outside** the fitted body at the trunk
-  and **inside** it at the bare limbs. With tight clothing the offset is about
-  the same everywhere;
+  and **inside** it at the bare limbs, the shins below shorts most. With tight
+  clothing the offset is about the same everywhere, but at a forearm thinner
+  than the shape space makes it;
 * hair or headwear puts the outline outside the fitted head, most at the
   crown, which is what the height is measured to.
 
@@ -56,6 +57,17 @@ REGIONS: dict[str, tuple[str, ...]] = {
 #: The offsets' key of the forearms' and shins' outline points on skin, where
 #: capture told skin from clothing (:func:`check_outline`).
 BARE_LIMBS = "bare lower limbs"
+#: The lower limbs apart, by part name: in low contrast the trunk is compared with
+#: whichever of them the fit meets best (:func:`check_outline`).
+LIMB_GROUPS: dict[str, tuple[str, ...]] = {
+    "forearms": ("lower_arm_l", "lower_arm_r"),
+    "shins": ("shin_l", "shin_r"),
+}
+#: The offsets' key of the shins' outline points on skin (below shorts, loose or tight).
+BARE_SHINS = "bare shins"
+#: The least share of a frame's shin outline points on skin for its shins to count as
+#: bare (trousers left up to 13 of 400-850 points on skin, at the shoes; shorts 70-85 %).
+BARE_SHARE = 0.5
 
 #: The regions whose median offset in a frame the crown's is compared with. Not
 #: the forearms and shins alone: a loose shirt fits the body too big for them
@@ -108,22 +120,26 @@ class OutlineConfig:
         while a shirt draped 6 mm off the skin read +1.72 ± 0.60 mm and +7.7 kg
         (docs/session-shape.md, "Outline check"). Between ``loose_mm`` and this
         the check cannot tell them apart and says "loose clothing possible".
-    limbs_inside_mm : float
-        The bare forearms and shins (their outline points on skin, where
-        capture told skin from clothing: ``offsets_mm["bare lower limbs"]``)
+    shins_inside_mm : float
+        The bare shins (their outline points on skin, where capture told skin
+        from clothing: ``offsets_mm["bare shins"]``, in half the frames or more)
         lying at least this far *inside* the fitted body (median over frames,
-        at most ``-limbs_inside_mm``) says the body was fitted too big for
-        them, which is what loose clothing does to the fit: it warns "loose
-        clothing possible" whatever the trunk's excess, and in low contrast it
-        holds the trunk's excess to ``loose_mm`` again. Clothed limbs do not
-        count: in low contrast their captured outline lies inside their own (a
-        tight wall-coloured suit's forearms and shins read 1.33 mm inside).
-        Studio, 2026-12-07: the forearms and shins of tight subjects at most
-        0.76 mm inside over 121 sessions; of 15 loose ones 0.98 to 5.6 mm, the
-        least a 5 mm gap (+4.2 kg); a 10 mm gap seen in low contrast (2.06 mm
-        inside, trunk excess 2.26 ± 0.20 mm) had weighed 9.0 kg heavy without
-        a warning under ``loose_mm_low_contrast`` alone (docs/session-shape.md,
-        "Loose clothing the trunk alone missed").
+        at most ``-shins_inside_mm``) says the body was fitted too big for
+        them, which is what loose clothing over the thighs does to the fit: it
+        warns "loose clothing possible" whatever the trunk's excess, and in low
+        contrast it holds the trunk's excess to ``loose_mm`` again. Clothed
+        shins do not count: in low contrast their captured outline lies inside
+        their own (a tight wall-coloured suit's forearms and shins read 1.33 mm
+        inside). Nor do the forearms: their girth is where the shape space
+        reaches least, and a tight-clothed woman of 76 with thin forearms,
+        measured within 0.1 kg, read hers 2.5 mm inside the fitted body (seed 42;
+        loose subjects' forearms 0.0 to 2.2 mm). Studio, 2026-12-08: the bare
+        shins of seven tight subjects in shorts (``clothing=shorts``) at most
+        0.57 mm inside in full contrast and 1.27 mm in low contrast (skin before
+        a beige floor; warned "possible", saying the check cannot tell); of ten
+        loose ones 1.15 to 3.43 mm for five, 0.0 to 0.4 mm for the two draped,
+        the heaviest man (his trunk warns) and the gaps of 5-6 mm
+        (docs/session-shape.md, "Forearms are not the clothing's signature").
     bare_trunk : float
         Where capture told skin from clothing (:mod:`bodymetry.capture.skin`),
         a trunk whose outline lies on clothing in less than this share is
@@ -133,7 +149,7 @@ class OutlineConfig:
 
     loose_mm: float = 1.3
     loose_mm_low_contrast: float = 2.5
-    limbs_inside_mm: float = 0.9
+    shins_inside_mm: float = 0.9
     crown_mm: float = 4.0
     min_points: int = 10
     max_mm_per_px: float = 15.0
@@ -145,8 +161,8 @@ class OutlineConfig:
                 "loose_mm, loose_mm_low_contrast, crown_mm: expected > 0, got "
                 f"{self.loose_mm}, {self.loose_mm_low_contrast}, {self.crown_mm}"
             )
-        if not self.limbs_inside_mm > 0:
-            raise ValueError(f"limbs_inside_mm: expected > 0, got {self.limbs_inside_mm}")
+        if not self.shins_inside_mm > 0:
+            raise ValueError(f"shins_inside_mm: expected > 0, got {self.shins_inside_mm}")
         if self.min_points < 1:
             raise ValueError(f"min_points: expected >= 1, got {self.min_points}")
         if not self.max_mm_per_px > 0:
@@ -307,13 +323,13 @@ def check_outline(
     config = config or OutlineConfig()
     members = _region_members(body, lod=not refinement.full_mesh)
     per_frame: dict[str, list[float]] = {name: [] for name in REGIONS}
-    # Per frame, the trunk's offset relative to the bare forearms and shins and the
+    # Per frame, the trunk's offset relative to the forearms and shins and the
     # crown's relative to the median of the trunk, head and those limbs: a uniformly
     # larger silhouette (a blurred or dilated segmentation) moves every region alike
     # and is neither clothing nor hair.
     excess: dict[str, list[float]] = {"trunk": [], "crown": []}
-    # The trunk's excess over the forearms and shins where they are bare skin.
-    bare_excess: list[float] = []
+    # The trunk's excess over the forearms or the shins, whichever the fit meets best.
+    best_excess: list[float] = []
     pixel = []
     aligned = [None] * len(frames) if alignments is None else list(alignments)
     if len(aligned) != len(frames):
@@ -332,14 +348,20 @@ def check_outline(
             trunk_worn.append(on[selections["trunk"]])
             # Where capture told skin from clothing: the forearms and shins on skin.
             selections[BARE_LIMBS] = selections["lower limbs"] & (on == 0)
+            bare_shins = selections["shins"] & (on == 0)
+            # Shins mostly on skin (below shorts), not a few points at a trouser's
+            # hem or a shoe's edge.
+            if bare_shins.sum() >= BARE_SHARE * selections["shins"].sum():
+                selections[BARE_SHINS] = bare_shins
         pixel.append(size)
         med = {}
         for name, sel in selections.items():
             med[name] = float(np.median(mm[sel])) if sel.sum() >= config.min_points else np.nan
             if np.isfinite(med[name]):
                 per_frame.setdefault(name, []).append(med[name])
-        if np.isfinite(med["trunk"]) and np.isfinite(med.get(BARE_LIMBS, np.nan)):
-            bare_excess.append(med["trunk"] - med[BARE_LIMBS])
+        limbs = [med[name] for name in LIMB_GROUPS if np.isfinite(med[name])]
+        if np.isfinite(med["trunk"]) and limbs:
+            best_excess.append(med["trunk"] - max(limbs))
         if not np.isfinite(med["lower limbs"]):
             continue
         if np.isfinite(med["trunk"]):
@@ -348,10 +370,11 @@ def check_outline(
             reference = [med[n] for n in CROWN_REFERENCE if np.isfinite(med[n])]
             excess["crown"].append(med["crown"] - float(np.median(reference)))
     # In low contrast a clothed limb's captured outline lies inside its own (the
-    # garment's shaded rim is lost), so the trunk is compared with the bare ones
-    # where capture saw them in enough frames.
-    if low_contrast and len(bare_excess) >= max(2, len(excess["trunk"]) // 2):
-        excess["trunk"] = bare_excess
+    # garment's shaded rim is lost), and a bare forearm can be thinner than the shape
+    # space makes it: the trunk is compared with the forearms or the shins, whichever
+    # the fit meets best (a tight wall-coloured suit's bare forearms, not its shins).
+    if low_contrast and best_excess:
+        excess["trunk"] = best_excess
     trunk, trunk_se = _median(excess["trunk"]), median_standard_error(excess["trunk"])
     crown, crown_se = _median(excess["crown"]), median_standard_error(excess["crown"])
     mm_per_px = float(np.median(np.concatenate(pixel))) if any(len(p) for p in pixel) else np.nan
@@ -360,12 +383,15 @@ def check_outline(
     on_cloth = np.concatenate(trunk_worn) if trunk_worn else np.zeros(0)
     on_cloth = on_cloth[np.isfinite(on_cloth)]
     trunk_share = float(on_cloth.mean()) if len(on_cloth) else float("nan")
-    limbs = _median(per_frame.get(BARE_LIMBS, []))
+    # Bare shins seen in a frame or two (a label's slip at a hem) say nothing.
+    if len(per_frame.get(BARE_SHINS, [])) < max(2, len(frames) // 2):
+        per_frame.pop(BARE_SHINS, None)
+    shins_offset = _median(per_frame.get(BARE_SHINS, []))
     warnings = (
         []
         if coarse
         else _clothing_warnings(
-            trunk, trunk_se, crown, crown_se, config, trunk_share, low_contrast, limbs
+            trunk, trunk_se, crown, crown_se, config, trunk_share, low_contrast, shins_offset
         )
     )
     status = _status(mm_per_px, coarse, config)
@@ -384,13 +410,13 @@ def check_outline(
 
 
 def _region_members(body: BodyModel, lod: bool) -> dict[str, np.ndarray]:
-    """Per region of :data:`REGIONS`, which vertices (V,) bool of the mesh
+    """Per region of :data:`REGIONS` and :data:`LIMB_GROUPS`, which vertices (V,) bool of the mesh
     (level of detail or full) belong to it."""
     parts = body.parts_of_vertices(lod)
     crown = crown_vertices(body, lod)
     return {
         name: crown if name == "crown" else np.isin(parts, [PARTS.index(p) for p in names])
-        for name, names in REGIONS.items()
+        for name, names in {**REGIONS, **LIMB_GROUPS}.items()
     }
 
 
@@ -402,24 +428,24 @@ def _clothing_warnings(
     config: OutlineConfig,
     trunk_share: float = float("nan"),
     low_contrast: bool = False,
-    limbs: float = float("nan"),
+    shins: float = float("nan"),
 ) -> list[str]:
     """The warnings for loose clothing (the trunk's excess offset, mm) and for hair
     or headwear (the crown's), each with its standard error.
 
     Loose clothing is warned of above ``loose_mm`` (``loose_mm_low_contrast`` for a
-    run seen in low contrast, unless the bare forearms and shins lie inside the
-    fitted body by ``limbs_inside_mm`` or more: ``limbs``, their offset in mm, +
-    outside, NaN where capture did not tell them bare), and also within one
-    standard error below it, where the frames do not settle the verdict either
-    way, or wherever those limbs lie that far inside; not where the trunk's
+    run seen in low contrast, unless the bare shins lie inside the fitted body by
+    ``shins_inside_mm`` or more: ``shins``, their offset in mm, + outside, NaN
+    where capture did not tell them bare), and also within one standard error
+    below it, where the frames do not settle the verdict either way, or wherever
+    the bare shins lie that far inside; not where the trunk's
     outline is bare skin (``trunk_share``, the share of it on clothing, under
     ``bare_trunk``)."""
     warnings = []
     bare = np.isfinite(trunk_share) and trunk_share < config.bare_trunk
     # A body fitted too big for its bare limbs is the clothing's signature, which
     # the low-contrast outline (the trunk's a little out) does not leave.
-    inside = bool(np.isfinite(limbs) and limbs <= -config.limbs_inside_mm)
+    inside = bool(np.isfinite(shins) and shins <= -config.shins_inside_mm)
     relaxed = low_contrast and not inside
     limit = config.loose_mm_low_contrast if relaxed else config.loose_mm
     if relaxed:
@@ -427,8 +453,8 @@ def _clothing_warnings(
     elif low_contrast:
         bound = (
             f"tight clothing: under {limit:g} mm, in low contrast too where the bare "
-            f"forearms and shins lie {config.limbs_inside_mm:g} mm or more inside the fitted body, "
-            f"here {-limbs:.1f} mm"
+            f"shins lie {config.shins_inside_mm:g} mm or more inside the fitted body, "
+            f"here {-shins:.1f} mm"
         )
     else:
         bound = f"tight clothing: under {limit:g} mm"
@@ -450,11 +476,20 @@ def _clothing_warnings(
         )
     elif not bare and inside:
         warnings.append(
-            f"{LOOSE_CLOTHING} possible: the bare forearms and shins lie {-limbs:.1f} mm inside "
-            f"the fitted body (tight clothing: under {config.limbs_inside_mm:g} mm), as when "
-            "loose clothing makes the body fitted too big for its bare limbs; the trunk's "
-            f"outline lies {_mm(trunk, trunk_se)} further outside than theirs "
-            f"({bound}); the weight, arm span, circumferences and widths may be overstated"
+            f"{LOOSE_CLOTHING} possible: the bare shins lie {-shins:.1f} mm inside "
+            f"the fitted body (tight clothing: under {config.shins_inside_mm:g} mm), as when "
+            "loose clothing makes the body fitted too big for its bare legs"
+            # Skin before a floor of like colour loses its rim as a grey garment does
+            # (a tight subject in shorts in the textured lab, seed 877: 1.27 mm).
+            + (
+                " (or as the captured outline of skin before a floor of about its colour "
+                "does in low contrast: the check cannot tell them apart)"
+                if low_contrast
+                else ""
+            )
+            + f"; the trunk's outline lies {_mm(trunk, trunk_se)} further outside than "
+            f"the limbs' ({bound}); the weight, arm span, circumferences and widths may be "
+            "overstated"
         )
     elif not bare and relaxed and np.isfinite(trunk) and trunk > config.loose_mm:
         # Between the two thresholds low contrast cannot tell: a tight garment's

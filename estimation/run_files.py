@@ -90,10 +90,12 @@ RESULTS_FORMATS_READ = (2, 3)
 #: 3: the floor trusted down to ``standing_height.MAX_SOLE_DEPTH`` only; 4: parts of the
 #: model the camera does not resolve give no model-to-outline residual in the session
 #: stage, ``SessionShapeConfig.thin_px``; 5: the outline check holds a run seen in low
-#: contrast to ``OutlineConfig.loose_mm_low_contrast``; 6: unless its bare limbs lie inside
-#: the fitted body, ``OutlineConfig.limbs_inside_mm``, and the crown compared with the
-#: median of the trunk, head and lower limbs, ``outline_check.CROWN_REFERENCE``).
-SUMMARY_VERSION = 6
+#: contrast to ``OutlineConfig.loose_mm_low_contrast``; 6: unless its bare forearms and
+#: shins lie inside the fitted body, and the crown compared with the
+#: median of the trunk, head and lower limbs, ``outline_check.CROWN_REFERENCE``; 7: the
+#: bare shins alone decide that, ``OutlineConfig.shins_inside_mm``, and in low contrast
+#: the trunk is compared with whichever limbs the fit meets best).
+SUMMARY_VERSION = 7
 #: Version of ``run.json``.
 MANIFEST_FORMAT = 1
 #: Version of ``evaluation.json`` (1: the generative stage was ``disc_generative``).
