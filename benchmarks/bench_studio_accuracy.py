@@ -66,6 +66,7 @@ SETS = (
     "pipeline_contrast_clothing.json",
     "pipeline_loose_gaps.json",
     "pipeline_tight_night.json",
+    "pipeline_shorts.json",
 )
 
 
