@@ -472,6 +472,13 @@ def test_the_outline_check_and_the_run_warnings_are_in_the_report(review_run, ba
     box = html[html.index('class="warnings"') :]
     assert warning in box[: box.index("</div>")]
     assert "4.2 ± 0.3 mm further outside the fitted body at the trunk" in html
+    # A silent check says what it cannot see: garments a few millimetres off the skin.
+    limit = "less than about 8 mm off the skin leaves no trace this check can see"
+    assert limit not in html
+    data["persons"][0]["session_shape"]["outline"]["warnings"] = []
+    data["warnings"] = [w for w in data["warnings"] if w != warning]
+    (bare_run / "results.json").write_text(json.dumps(data))
+    assert limit in build_report(bare_run).html.read_text()
 
 
 # --- the headline: the session estimate first --------------------------------------------------
