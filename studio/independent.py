@@ -245,7 +245,8 @@ class IndependentSpec:
             if not sep or key not in ("body", "edge", "clothing", "hair", "ease"):
                 raise InputError(
                     f"--subject independent:{value}: unknown option {option!r} "
-                    "(expected body=K, edge=KEY, clothing=tight|shorts|loose|draped, ease=MM or hair=0|1)"
+                    "(expected body=K, edge=KEY, clothing=tight|shorts|loose|draped, ease=MM "
+                    "or hair=0|1)"
                 )
             if key in fields:
                 raise InputError(f"--subject independent:{value}: {key}= given twice")
