@@ -361,7 +361,9 @@ def check_outline(
                 per_frame.setdefault(name, []).append(med[name])
         limbs = [med[name] for name in LIMB_GROUPS if np.isfinite(med[name])]
         if np.isfinite(med["trunk"]) and limbs:
-            best_excess.append(med["trunk"] - max(limbs))
+            # Nearest zero, not the largest: a limb misplaced by the fit (a forearm's
+            # outline 24 mm outside it in one frame) is not one the fit meets best.
+            best_excess.append(med["trunk"] - min(limbs, key=abs))
         if not np.isfinite(med["lower limbs"]):
             continue
         if np.isfinite(med["trunk"]):

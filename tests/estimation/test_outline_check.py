@@ -189,6 +189,19 @@ def test_in_low_contrast_the_trunk_is_compared_with_the_bare_limbs(scene):
     assert full.trunk_excess_mm > low.trunk_excess_mm + 0.5
 
 
+def test_in_low_contrast_a_limb_outside_its_outline_is_not_the_reference(scene):
+    """A forearm whose observed outline lies 3 px outside the fitted one (a limb the
+    fit misplaced) is not the limb the fit meets best: in low contrast the trunk is
+    compared with the limb group nearest zero (here the exact shins), not the larger."""
+    model, cameras, states = scene
+    forearms = _region_faces(model, ("lower_arm_l", "lower_arm_r"))
+    frames = _with_grown_region(model, cameras, states, forearms, 3)
+    low = check_outline(model, cameras, frames, low_contrast=True)
+    assert low.offsets_mm["forearms"] > _mm_per_px(cameras, states[0])
+    assert abs(low.offsets_mm["shins"]) < EXACT_MM
+    assert abs(low.trunk_excess_mm) < EXACT_MM
+
+
 def test_hair_at_the_crown_warns(scene):
     model, cameras, states = scene
     crown = crown_vertices(model, lod=False)
