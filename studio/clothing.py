@@ -46,7 +46,7 @@ CLOTHING = ("tight", "shorts", "loose", "draped")
 #: The loose garments (``tight`` and ``shorts`` are the body's own outline).
 GARMENTS = ("loose", "draped")
 #: The outfits that leave the shins bare (shorts, tight or loose).
-BARE_SHINS = ("shorts", *GARMENTS)
+BARE_SHIN_OUTFITS = ("shorts", *GARMENTS)
 
 
 @dataclass(frozen=True)

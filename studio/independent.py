@@ -39,7 +39,7 @@ from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS, forward_kinematics
 from bodymetry.estimation.body_model.skinning import skin
 from bodymetry.fileio import load_npz
-from bodymetry.studio.clothing import BARE_SHINS, CLOTHING, GARMENTS, ClothingLayer, dress
+from bodymetry.studio.clothing import BARE_SHIN_OUTFITS, CLOTHING, GARMENTS, ClothingLayer, dress
 from bodymetry.studio.scene import Appearance
 
 #: How the studio poses its independent subjects (``ground_truth/subject.json`` records
@@ -455,7 +455,7 @@ class IndependentSubject:
     def appearance(self) -> Appearance:
         """Clothing colours: the studio's, with bare shins below shorts (tight or loose)."""
         colors = np.array(Appearance().part_colors, dtype=float)
-        if self.spec.clothing in BARE_SHINS:
+        if self.spec.clothing in BARE_SHIN_OUTFITS:
             skin = colors[PARTS.index("head")]
             for side in "lr":
                 colors[PARTS.index(f"shin_{side}")] = skin
