@@ -20,6 +20,19 @@ nude body. The displacement is not a uniform offset:
 The smoothing follows the mesh graph, not 3D space, and the hang uses trunk
 vertices only, so arms and legs are never joined to the trunk.
 
+A skirt (``clothing=skirt``: a tight top and a knee-length A-line skirt, the shins
+bare) is no displaced copy of each part: it is one envelope about both legs
+(:func:`skirt_offsets`). Below a waistband a little above the hip joints, each
+1 cm slab of the skirt reaches, per direction from the root's vertical axis
+(left, right, front, back), at least as far out as the body anywhere above it
+in the skirt plus a flare (cloth falls from the hips and widens as it drops),
+plus the ease. Trunk vertices move out to that envelope along their direction
+from the axis. A thigh's outer half maps onto its own side's half of the
+envelope and its inner half onto a wall at the midline, so that the two halves
+close between the legs. The skirt is posed by skin weights that follow the
+pelvis halfway (:func:`garment_skin_weights`): cloth between the knees does not
+swing with one leg.
+
 Hair is a cap over the scalp (above the hairline that
 :meth:`bodymetry.studio.scene.Appearance.vertex_modulation` paints), up to
 2.5 cm thick at the crown, thinning to nothing at the hairline.
@@ -40,13 +53,18 @@ from bodymetry.estimation.body_model.skeleton import JOINTS, PARTS
 #: Clothing a subject can wear: ``tight`` (no layer: the body's own outline, as a
 #: tight suit would show), ``shorts`` (no layer either, with the shins bare: a tight
 #: shirt and shorts, as a gait lab's sports kit), ``loose`` (shirt with short sleeves
-#: and shorts) or ``draped`` (the same garments resting on the body where it faces
-#: up: the shoulders and the top of the chest, as worn cloth does).
-CLOTHING = ("tight", "shorts", "loose", "draped")
-#: The loose garments (``tight`` and ``shorts`` are the body's own outline).
+#: and shorts), ``draped`` (the same garments resting on the body where it faces
+#: up: the shoulders and the top of the chest, as worn cloth does) or ``skirt`` (a
+#: tight top and a knee-length A-line skirt over both legs, the shins bare).
+CLOTHING = ("tight", "shorts", "loose", "draped", "skirt")
+#: The loose shirt and shorts (``tight`` and ``shorts`` are the body's own outline).
 GARMENTS = ("loose", "draped")
-#: The outfits that leave the shins bare (shorts, tight or loose).
-BARE_SHIN_OUTFITS = ("shorts", *GARMENTS)
+#: The outfits with a skirt.
+SKIRTS = ("skirt",)
+#: The outfits that stand off the skin (``ease=`` applies to them).
+EASED = (*GARMENTS, *SKIRTS)
+#: The outfits that leave the shins bare (shorts, tight or loose, and the skirt).
+BARE_SHIN_OUTFITS = ("shorts", *GARMENTS, *SKIRTS)
 
 
 @dataclass(frozen=True)
@@ -83,6 +101,14 @@ class ClothingLayer:
         ``1 - s``, with ``s`` rising from 0 to 1 as the rest-pose normal's
         upward component rises from ``rest_on[0]`` to ``rest_on[1]``: gravity
         lays cloth on the surfaces that face up.
+    skirt_top : float
+        Where the skirt starts, metres above the hip joints (the waistband).
+    skirt_length : float
+        Where it ends, as a fraction of the thigh (hip to knee).
+    flare : float
+        How fast it widens as it drops, metres per metre (an A-line).
+    skirt_follows : float
+        Share of the pelvis in the skirt's skin weights (the rest its own thigh's).
     """
 
     ease: float = 0.015
@@ -98,6 +124,10 @@ class ClothingLayer:
     hair_thickness: float = 0.025
     seed: int = 11
     rest_on: tuple[float, float] = (0.2, 0.6)
+    skirt_top: float = 0.08
+    skirt_length: float = 0.95
+    flare: float = 0.25
+    skirt_follows: float = 0.5
 
 
 def _along(points: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:
@@ -142,6 +172,167 @@ def garment_weight(
             t = _along(rest[on], a, b)
             w[on] = np.clip((reach - t) * np.linalg.norm(b - a) / layer.hem, 0.0, 1.0)
     return w
+
+
+def skirt_weight(
+    rest: np.ndarray,
+    vertex_parts: np.ndarray,
+    joints: np.ndarray,
+    layer: ClothingLayer = ClothingLayer(),
+) -> np.ndarray:
+    """How much each vertex is covered by the skirt, (V,) in [0, 1].
+
+    1 on the trunk below the waistband (``layer.skirt_top`` above the hip joints) and
+    on the thighs above the hem (``layer.skirt_length`` of the way to the knee), a
+    linear taper over ``layer.hem`` at both ends, 0 elsewhere.
+
+    Parameters
+    ----------
+    rest : (V, 3) float
+        The standing body.
+    vertex_parts : (V,) int
+    joints : (15, 3) float
+    """
+    w = np.zeros(len(rest))
+    top = _skirt_top(joints, layer)
+    trunk = np.isin(vertex_parts, [PARTS.index("torso"), PARTS.index("pelvis")])
+    w[trunk] = np.clip((top - rest[trunk, 2]) / layer.hem, 0.0, 1.0)
+    for side in "lr":
+        on = vertex_parts == PARTS.index(f"thigh_{side}")
+        a, b = joints[JOINTS.index(f"hip_{side}")], joints[JOINTS.index(f"knee_{side}")]
+        t = _along(rest[on], a, b)
+        w[on] = np.clip((layer.skirt_length - t) * np.linalg.norm(b - a) / layer.hem, 0.0, 1.0)
+    return w
+
+
+def _skirt_top(joints: np.ndarray, layer: ClothingLayer) -> float:
+    hips = joints[[JOINTS.index("hip_l"), JOINTS.index("hip_r")], 2]
+    return float(hips.mean() + layer.skirt_top)
+
+
+#: Height of the slabs the skirt's envelope is measured in, metres.
+SKIRT_SLAB = 0.01
+
+
+def skirt_envelope(
+    rest: np.ndarray,
+    vertex_parts: np.ndarray,
+    joints: np.ndarray,
+    layer: ClothingLayer = ClothingLayer(),
+) -> tuple[np.ndarray, np.ndarray]:
+    """The skirt's reach from the root's vertical axis, slab by slab.
+
+    Returns
+    -------
+    tops : (S,) float
+        Top of each slab, metres (descending, :data:`SKIRT_SLAB` apart, from the waistband).
+    reach : (S, 4) float
+        How far out the skirt stands in each slab towards +x, -x, +y and -y, metres: the
+        body's furthest trunk or thigh vertex at or above the slab (within the skirt),
+        plus ``layer.flare`` per metre of drop below it, plus ``layer.ease``.
+    """
+    top = _skirt_top(joints, layer)
+    axis = joints[JOINTS.index("root"), :2]
+    lower = np.isin(
+        vertex_parts, [PARTS.index(p) for p in ("torso", "pelvis", "thigh_l", "thigh_r")]
+    )
+    knee = joints[[JOINTS.index("knee_l"), JOINTS.index("knee_r")], 2].max()
+    tops = np.arange(top, knee - SKIRT_SLAB, -SKIRT_SLAB)
+    pts = rest[lower & (rest[:, 2] <= top)]
+    rel = pts[:, :2] - axis
+    # Per slab and direction, the body's own reach there.
+    slab = np.clip(((top - pts[:, 2]) / SKIRT_SLAB).astype(int), 0, len(tops) - 1)
+    own = np.zeros((len(tops), 4))
+    for k, v in enumerate((rel[:, 0], -rel[:, 0], rel[:, 1], -rel[:, 1])):
+        np.maximum.at(own[:, k], slab, np.maximum(v, 0.0))
+    # Cloth hangs: each slab reaches as far as any slab above it, widening by the flare.
+    drop = tops[None, :] - tops[:, None]  # (below, above): how far slab i lies under j
+    hang = np.where(drop[..., None] >= 0.0, own[None] + layer.flare * drop[..., None], 0.0)
+    return tops, hang.max(axis=1) + layer.ease
+
+
+def skirt_offsets(
+    rest: np.ndarray,
+    vertex_parts: np.ndarray,
+    joints: np.ndarray,
+    layer: ClothingLayer = ClothingLayer(),
+) -> np.ndarray:
+    """Horizontal offsets (V, 3) that put the covered vertices on the skirt.
+
+    Trunk vertices move out along their direction from the root's vertical axis to
+    the envelope (:func:`skirt_envelope`; never inwards). A thigh vertex maps by
+    its angle about the thigh's axis: its outer half onto the envelope's half on its
+    side (straight out to the outermost point, front and back to the midline), its
+    inner half onto a wall 5 mm past the midline (from front to back), so that the
+    two legs' halves overlap between the legs and the skirt is closed. Scaled by
+    :func:`skirt_weight` (the hems taper).
+    """
+    w = skirt_weight(rest, vertex_parts, joints, layer)
+    out = np.zeros_like(rest)
+    on = np.flatnonzero(w > 0)
+    if on.size == 0:
+        return out
+    tops, reach = skirt_envelope(rest, vertex_parts, joints, layer)
+    axis = joints[JOINTS.index("root"), :2]
+    p = rest[on]
+    slab = np.clip(((tops[0] - p[:, 2]) / SKIRT_SLAB).astype(int), 0, len(tops) - 1)
+    xp, xn, yp, yn = reach[slab].T
+    rel = p[:, :2] - axis
+    target = p[:, :2].copy()
+    parts = vertex_parts[on]
+    trunk = np.isin(parts, [PARTS.index("torso"), PARTS.index("pelvis")])
+    # Trunk: along the direction from the axis, onto the quarter-ellipses of the reach.
+    c, s = rel[trunk].T / np.maximum(np.linalg.norm(rel[trunk], axis=1), 1e-9)
+    a = np.where(c >= 0.0, xp[trunk], xn[trunk])
+    b = np.where(s >= 0.0, yp[trunk], yn[trunk])
+    r = 1.0 / np.sqrt((c / a) ** 2 + (s / b) ** 2)
+    r = np.maximum(r, np.linalg.norm(rel[trunk], axis=1))
+    target[trunk] = axis + r[:, None] * np.stack([c, s], axis=1)
+    for side in "lr":
+        leg = parts == PARTS.index(f"thigh_{side}")
+        hip = joints[JOINTS.index(f"hip_{side}")]
+        knee = joints[JOINTS.index(f"knee_{side}")]
+        t = (p[leg, 2] - hip[2]) / (knee[2] - hip[2])
+        centre = hip[:2] + t[:, None] * (knee[:2] - hip[:2])
+        out_sign = 1.0 if hip[0] >= axis[0] else -1.0
+        d = p[leg, :2] - centre
+        alpha = np.arctan2(d[:, 1], out_sign * d[:, 0])  # 0 outwards, ±π inwards
+        half = np.where(out_sign > 0.0, xp[leg], xn[leg])
+        depth = np.where(d[:, 1] >= 0.0, yp[leg], yn[leg])
+        outer = np.abs(alpha) <= 0.5 * np.pi
+        x = np.where(outer, out_sign * half * np.cos(alpha), -out_sign * 0.005)
+        frac = np.where(outer, np.abs(np.sin(alpha)), (np.pi - np.abs(alpha)) / (0.5 * np.pi))
+        y = np.sign(d[:, 1]) * depth * frac
+        target[leg] = axis + np.stack([x, y], axis=1)
+    out[on, :2] = w[on, None] * (target - p[:, :2])
+    return out
+
+
+def garment_skin_weights(
+    weights,
+    rest: np.ndarray,
+    vertex_parts: np.ndarray,
+    joints: np.ndarray,
+    clothing: str,
+    layer: ClothingLayer = ClothingLayer(),
+):
+    """Skin weights (V, 15) of the rendered surface: the body's, and for a skirt
+    moved ``layer.skirt_follows`` of the way towards the pelvis where it covers.
+
+    Parameters
+    ----------
+    weights : (V, 15) float or sparse matrix
+        The body's skin weights (rows sum to 1).
+    rest, vertex_parts, joints, clothing
+        As :func:`dress`.
+    """
+    if clothing not in SKIRTS:
+        return weights
+    share = layer.skirt_follows * skirt_weight(rest, vertex_parts, joints, layer)
+    dense = weights.toarray() if hasattr(weights, "toarray") else np.array(weights, dtype=float)
+    dense *= (1.0 - share)[:, None]
+    dense[:, PARTS.index("pelvis")] += share
+    return dense
 
 
 def hair_weight(rest: np.ndarray, vertex_parts: np.ndarray) -> np.ndarray:
@@ -222,7 +413,7 @@ def dress(
     vertex_parts : (V,) int
     joints : (15, 3) float
         Its joint centres.
-    clothing : {"tight", "shorts", "loose", "draped"}
+    clothing : {"tight", "shorts", "loose", "draped", "skirt"}
     hair : bool
 
     Returns
@@ -265,6 +456,8 @@ def dress(
             low, high = layer.rest_on
             lying = np.clip((normals[:, 2] - low) / (high - low), 0.0, 1.0)
             offset *= (1.0 - lying)[:, None]
+    elif clothing in SKIRTS:
+        offset = skirt_offsets(rest, vertex_parts, joints, layer)
     else:
         offset = np.zeros_like(rest)
     if hair:

@@ -39,7 +39,14 @@ from bodymetry.estimation.body_model.motion.rest import RestPoseInfo
 from bodymetry.estimation.body_model.skeleton import JOINTS, N_PARTS, PARTS, forward_kinematics
 from bodymetry.estimation.body_model.skinning import skin
 from bodymetry.fileio import load_npz
-from bodymetry.studio.clothing import BARE_SHIN_OUTFITS, CLOTHING, GARMENTS, ClothingLayer, dress
+from bodymetry.studio.clothing import (
+    BARE_SHIN_OUTFITS,
+    CLOTHING,
+    EASED,
+    ClothingLayer,
+    dress,
+    garment_skin_weights,
+)
 from bodymetry.studio.scene import Appearance
 
 #: How the studio poses its independent subjects (``ground_truth/subject.json`` records
@@ -188,12 +195,12 @@ class IndependentSpec:
         Index into the bank.
     edge : str or None
         A body of the edge bank by key (:data:`EDGE_KEYS`), instead of the drawn bank.
-    clothing : {"tight", "shorts", "loose", "draped"}
+    clothing : {"tight", "shorts", "loose", "draped", "skirt"}
     hair : bool
     ease : int or None
         The garments' smallest gap to the skin, millimetres
         (:attr:`~bodymetry.studio.clothing.ClothingLayer.ease`; None: its
-        default, 15 mm), from :data:`EASE_MM`; loose or draped clothing only.
+        default, 15 mm), from :data:`EASE_MM`; loose, draped or skirt only.
     """
 
     seed: int
@@ -218,9 +225,10 @@ class IndependentSpec:
                 f"--subject independent: clothing={self.clothing!r}, expected one of "
                 f"{', '.join(CLOTHING)}"
             )
-        if self.ease is not None and self.clothing not in GARMENTS:
+        if self.ease is not None and self.clothing not in EASED:
             raise InputError(
-                f"--subject independent: ease={self.ease} needs clothing=loose or draped"
+                f"--subject independent: ease={self.ease} needs clothing="
+                f"{', '.join(EASED[:-1])} or {EASED[-1]}"
             )
         if self.ease is not None and not EASE_MM[0] <= self.ease <= EASE_MM[1]:
             raise InputError(
@@ -237,7 +245,7 @@ class IndependentSpec:
         except ValueError:
             raise InputError(
                 f"--subject independent:{value}: expected independent:SEED[,body=K|edge=KEY]"
-                "[,clothing=tight|shorts|loose|draped][,ease=MM][,hair=0|1]"
+                "[,clothing=tight|shorts|loose|draped|skirt][,ease=MM][,hair=0|1]"
             ) from None
         fields: dict = {}
         for option in options:
@@ -245,7 +253,7 @@ class IndependentSpec:
             if not sep or key not in ("body", "edge", "clothing", "hair", "ease"):
                 raise InputError(
                     f"--subject independent:{value}: unknown option {option!r} "
-                    "(expected body=K, edge=KEY, clothing=tight|shorts|loose|draped, ease=MM "
+                    "(expected body=K, edge=KEY, clothing=tight|shorts|loose|draped|skirt, ease=MM "
                     "or hair=0|1)"
                 )
             if key in fields:
@@ -341,6 +349,15 @@ class IndependentSubject:
         self.weights = self.bank.weights
         self.hinge_axes = np.asarray(self.model.hinge_axes, dtype=float)
 
+    @property
+    def layer(self) -> ClothingLayer:
+        """The garments' settings (the spec's ease, if given)."""
+        return (
+            ClothingLayer()
+            if self.spec.ease is None
+            else ClothingLayer(ease=self.spec.ease / 1000.0)
+        )
+
     @cached_property
     def surface(self) -> np.ndarray:
         """(V, 3) the rendered rest surface: the body, clothed and haired as asked."""
@@ -351,9 +368,20 @@ class IndependentSubject:
             self.rest_joints,
             clothing=self.spec.clothing,
             hair=self.spec.hair,
-            layer=ClothingLayer()
-            if self.spec.ease is None
-            else ClothingLayer(ease=self.spec.ease / 1000.0),
+            layer=self.layer,
+        )
+
+    @cached_property
+    def surface_weights(self):
+        """(V, 15) skin weights of the rendered surface (a skirt follows the pelvis
+        part of the way, :func:`~bodymetry.studio.clothing.garment_skin_weights`)."""
+        return garment_skin_weights(
+            self.weights,
+            self.rest,
+            self.model.vertex_parts,
+            self.rest_joints,
+            self.spec.clothing,
+            self.layer,
         )
 
     @property
@@ -366,6 +394,7 @@ class IndependentSubject:
         theta: np.ndarray,
         rest: np.ndarray | None = None,
         skinning: str = SKINNING,
+        weights=None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pose a rest surface by dual quaternion skinning
         (:mod:`bodymetry.estimation.body_model.skinning`).
@@ -381,6 +410,8 @@ class IndependentSubject:
             How: the studio's (:data:`SKINNING`), or the
             linear blend skinning that posed the sessions rendered before
             2026-12-07, whose ``subject.json`` names no ``skinning``.
+        weights : (V, 15) float, optional
+            Skin weights (default: the body's; :attr:`surface_weights` for the render).
 
         Returns
         -------
@@ -394,7 +425,8 @@ class IndependentSubject:
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
         tau = np.broadcast_to(np.asarray(tau, dtype=float), (len(theta), 3))
         rot, joints = forward_kinematics(theta, tau, self.rest_joints, self.hinge_axes)
-        vertices = skin(skinning, rest, self.weights, self.rest_joints, rot, joints)
+        weights = self.weights if weights is None else weights
+        vertices = skin(skinning, rest, weights, self.rest_joints, rot, joints)
         parts = self.model.keypoint_parts
         rel = self.keypoints - self.rest_joints[parts]
         keypoints = joints[:, parts] + np.einsum("bkij,kj->bki", rot[:, parts], rel)
@@ -402,7 +434,7 @@ class IndependentSubject:
 
     def pose(self, tau: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rendered vertices (B, V, 3) (clothed as asked) and true joints (B, 15, 3)."""
-        vertices, joints, _ = self.skin(tau, theta, self.surface)
+        vertices, joints, _ = self.skin(tau, theta, self.surface, weights=self.surface_weights)
         return vertices, joints
 
     def lowest_point(self, tau: np.ndarray, theta: np.ndarray, batch: int = 32) -> np.ndarray:

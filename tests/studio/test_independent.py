@@ -13,7 +13,7 @@ from bodymetry.estimation.body_model.bake.independent import shape_space_residua
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.body_model.motion.library import make_motion
 from bodymetry.estimation.body_model.skeleton import JOINT_SLICES, JOINTS, N_POSE
-from bodymetry.studio.clothing import garment_weight
+from bodymetry.studio.clothing import garment_weight, skirt_weight
 from bodymetry.studio.independent import (
     INDEPENDENT_BODIES_PATH,
     IndependentSpec,
@@ -162,6 +162,60 @@ def test_shorts_are_tight_with_the_shins_bare(model, loose):
     assert IndependentSpec.parse(spec.to_text().partition(":")[2]) == spec
 
 
+def test_skirt_closes_between_the_legs_and_contains_the_body(model):
+    skirt = IndependentSubject(IndependentSpec(4, clothing="skirt"), model=model)
+    tight = IndependentSubject(IndependentSpec(4), model=model)
+    assert skirt.biometrics() == tight.biometrics()  # the truth is the nude body
+    studio = Studio.from_model(model)
+    tau = np.array([[0.0, 0.0, 0.95]])
+    for pose in ("standing", "stride"):
+        theta = np.zeros((1, N_POSE))
+        if pose == "stride":  # one thigh forward, the other back
+            theta[0, JOINT_SLICES[JOINTS.index("hip_l")].start] = -0.4
+            theta[0, JOINT_SLICES[JOINTS.index("hip_r")].start] = 0.3
+        nude = skirt.skin(tau, theta)[0][0]
+        clothed = skirt.pose(tau, theta)[0][0]
+        # Between the thighs, 70 % of the way from the hips to the knees: the
+        # segment across both thighs' axes at that height, in the world.
+        posed_joints = skirt.skin(tau, theta)[1][0]
+        ends = []
+        for side in "lr":
+            hip = posed_joints[JOINTS.index(f"hip_{side}")]
+            ends.append(hip + 0.7 * (posed_joints[JOINTS.index(f"knee_{side}")] - hip))
+        across = np.linspace(ends[0], ends[1], 50)
+        legs_apart = 0
+        for camera in studio_rig(4, (320, 240), seed=5):
+            a = studio.person_raster(camera, nude).mask
+            b = studio.person_raster(camera, clothed).mask
+            assert np.count_nonzero(a & ~b) <= 0.003 * np.count_nonzero(a), pose
+            assert np.count_nonzero(b) > 1.05 * np.count_nonzero(a), pose
+            uv = np.round(camera.project(across)).astype(int)
+            # The skirt is one piece across the legs in every view ...
+            assert b[uv[:, 1], uv[:, 0]].all(), (pose, camera.name)
+            legs_apart += not a[uv[:, 1], uv[:, 0]].all()
+        assert legs_apart >= 1, pose  # ... where at least one view sees the legs apart
+    # Below the hem the legs are the body's own; the shins are bare.
+    covered = skirt_weight(skirt.rest, model.vertex_parts, skirt.rest_joints)
+    below = np.isin(model.vertex_parts, [model.parts.index(p) for p in ("shin_l", "foot_r")])
+    assert covered[below].max() == 0.0
+    np.testing.assert_array_equal(skirt.surface[below], skirt.rest[below])
+    colors = np.asarray(skirt.appearance().part_colors)
+    np.testing.assert_array_equal(
+        colors[model.parts.index("shin_l")], colors[model.parts.index("head")]
+    )
+    # Its skin weights follow the pelvis halfway where it covers, the body's elsewhere.
+    weights = skirt.surface_weights
+    body = skirt.weights.toarray() if hasattr(skirt.weights, "toarray") else skirt.weights
+    np.testing.assert_allclose(weights.sum(axis=1), 1.0, atol=1e-9)
+    thigh = (model.vertex_parts == model.parts.index("thigh_r")) & (covered == 1.0)
+    pelvis = model.parts.index("pelvis")
+    np.testing.assert_allclose(weights[thigh, pelvis], 0.5 + 0.5 * body[thigh, pelvis], atol=1e-9)
+    np.testing.assert_array_equal(weights[below], body[below])
+    spec = SubjectSpec.parse("independent:12,clothing=skirt,ease=25", 0).independent
+    assert spec == IndependentSpec(12, clothing="skirt", ease=25)
+    assert IndependentSpec.parse(spec.to_text().partition(":")[2]) == spec
+
+
 def test_hair_raises_the_head_but_not_the_measured_height(model, loose):
     assert loose.surface[:, 2].max() > loose.rest[:, 2].max() + 0.015
     assert loose.biometrics().height_mm == pytest.approx(1000.0 * loose.rest[:, 2].max())
@@ -181,7 +235,7 @@ def test_subject_texts_parse_with_clear_errors():
         ("independent:1,hair=yes", "hair"),
         ("independent:1,colour=red", "unknown option"),
         ("independent:1,body=two", "body"),
-        ("independent:1,ease=20", "needs clothing=loose or draped"),
+        ("independent:1,ease=20", "needs clothing=loose, draped or skirt"),
         ("independent:1,clothing=loose,ease=90", "expected 5..50"),
         ("independent:1,clothing=loose,ease=wide", "ease='wide', expected an integer"),
     ):
