@@ -42,6 +42,8 @@ ones, rendered after the outline check read the bare forearms and shins
 (:data:`LOOSE_GAP_SESSIONS`; whether each loose one is warned and no tight one);
 ``--tight-night`` seven tight subjects rendered beside them (:data:`TIGHT_NIGHT_SESSIONS`);
 ``--shorts`` tight subjects in shorts and loose ones with small gaps (:data:`SHORTS_SESSIONS`);
+``--skirts`` knee-length skirts (:data:`SKIRT_SESSIONS`: whether each run withholds what
+the skirt makes wrong);
 ``--held-out`` renders
 :data:`HELD_OUT_SESSIONS`, a replication of the four same-model sessions with new
 subjects.
@@ -260,6 +262,31 @@ TIGHT_NIGHT_SESSIONS = (
         "clothing=light_grey,room=plain,light=hard",
     ),
 )
+#: Issue 31, skirts (``--skirts``, 2026-12-08): a tight top and a knee-length A-line skirt
+#: (``clothing=skirt``, the shins bare) on the heaviest-looking bank body (twice), a woman
+#: of 68, the thinnest woman, a girl of 10, white clothing in the plain room, a skirt only
+#: 5 mm off the hips and the tallest man; rendered after the skirt was added to the
+#: studio, seeds never used.
+SKIRT_SESSIONS = (
+    (901, "walk_turn", "independent:901,clothing=skirt", "clothing=saturated"),
+    (902, "arm_raises", "independent:902,clothing=skirt", "clothing=saturated"),
+    (903, "reach", "independent:903,clothing=skirt", "clothing=saturated"),
+    (
+        904,
+        "walk_turn",
+        "independent:904,edge=female_weight_p01,clothing=skirt",
+        "clothing=saturated",
+    ),
+    (905, "mixed", "independent:905,edge=girl_age10,clothing=skirt", "clothing=saturated"),
+    (
+        906,
+        "arm_raises",
+        "independent:906,clothing=skirt",
+        "clothing=white,room=plain,light=hard",
+    ),
+    (907, "reach", "independent:907,clothing=skirt,ease=5", "clothing=saturated"),
+    (908, "walk_turn", "independent:908,edge=male_height_p99,clothing=skirt", "clothing=saturated"),
+)
 #: Issue 31, the outline check's bare-shin signature (``--shorts``, 2026-12-08): seven
 #: tight subjects in shorts (``clothing=shorts``, the shins bare: seed 42's body
 #: reaching, the woman of 80, the heaviest man, the thinnest woman, the girl of 6, light
@@ -425,8 +452,8 @@ MIN_FRAME_SHARE = 0.9
 def _outfit(subject: str) -> str:
     """``loose`` or ``tight``: what an independent session's subject wears, from its
     ``--subject`` text or its folder name (``seed46_arm_raises_loose``); the draped
-    garments are loose ones."""
-    garments = ("clothing=loose", "clothing=draped")
+    garments and the skirt are loose ones."""
+    garments = ("clothing=loose", "clothing=draped", "clothing=skirt")
     worn = any(g in subject for g in garments) or subject.endswith(("_loose", "_draped"))
     return "loose" if worn else "tight"
 
@@ -886,6 +913,7 @@ STUDIO_SETS: dict[str, StudioSet] = {
     "loose_gaps": StudioSet(LOOSE_GAP_SESSIONS, _look_outfit_folder, stated_accuracy=True),
     "tight_night": StudioSet(TIGHT_NIGHT_SESSIONS, _look_outfit_folder, stated_accuracy=True),
     "shorts": StudioSet(SHORTS_SESSIONS, _look_outfit_folder, stated_accuracy=True),
+    "skirts": StudioSet(SKIRT_SESSIONS, _look_outfit_folder, stated_accuracy=True),
     **{name: StudioSet(rows, _edge_folder, edge_summary=True) for name, rows in EDGE_DRAWS.items()},
     "arms": StudioSet(ARMS_SESSIONS, _subject_folder),
     "weight": StudioSet(WEIGHT_SESSIONS, _subject_folder),

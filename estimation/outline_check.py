@@ -42,7 +42,7 @@ from bodymetry.calibration.camera import CameraGroup
 from bodymetry.estimation.body_model.model import BodyModel, BodyState
 from bodymetry.estimation.body_model.skeleton import PARTS
 from bodymetry.estimation.contours import near_region, prepare_contours
-from bodymetry.estimation.records import HAIR, LOOSE_CLOTHING, OutlineCheck
+from bodymetry.estimation.records import HAIR, LEGS_HIDDEN, LOOSE_CLOTHING, OutlineCheck
 from bodymetry.estimation.refinement import Alignment, ContourCost, RefineConfig
 
 #: Body regions the offsets are pooled over, by part name.
@@ -140,6 +140,17 @@ class OutlineConfig:
         loose ones 1.15 to 3.43 mm for five, 0.0 to 0.4 mm for the two draped,
         the heaviest man (his trunk warns) and the gaps of 5-6 mm
         (docs/session-shape.md, "Forearms are not the clothing's signature").
+    legs_hidden_mm : float
+        Bare shins lying at least this far inside the fitted body say the thighs
+        were hidden by something that stands well off them (a skirt, a dress, a
+        long coat): the fit shapes the legs to the garment and poses them to fill
+        it (the hips turned 20-40 degrees in a walk), so the height is off too. It
+        warns "legs hidden likely", and no interval is stated for the height, the
+        arm span or the weight (:data:`~bodymetry.estimation.records.OVERSTATED`).
+        Studio, 2026-12-08: the loose shorts' bare shins 0.0 to 3.43 mm inside, the
+        tight shorts' at most 1.27 mm; knee-length skirts (``clothing=skirt``)
+        5.71 to 10.79 mm, and 3.44 mm for one only 5 mm off the hips, whose
+        height held (docs/session-shape.md, "Skirts").
     bare_trunk : float
         Where capture told skin from clothing (:mod:`bodymetry.capture.skin`),
         a trunk whose outline lies on clothing in less than this share is
@@ -150,6 +161,7 @@ class OutlineConfig:
     loose_mm: float = 1.3
     loose_mm_low_contrast: float = 2.5
     shins_inside_mm: float = 0.9
+    legs_hidden_mm: float = 4.5
     crown_mm: float = 4.0
     min_points: int = 10
     max_mm_per_px: float = 15.0
@@ -163,6 +175,11 @@ class OutlineConfig:
             )
         if not self.shins_inside_mm > 0:
             raise ValueError(f"shins_inside_mm: expected > 0, got {self.shins_inside_mm}")
+        if not self.legs_hidden_mm > self.shins_inside_mm:
+            raise ValueError(
+                f"legs_hidden_mm: expected > shins_inside_mm ({self.shins_inside_mm}), "
+                f"got {self.legs_hidden_mm}"
+            )
         if self.min_points < 1:
             raise ValueError(f"min_points: expected >= 1, got {self.min_points}")
         if not self.max_mm_per_px > 0:
@@ -442,12 +459,15 @@ def _clothing_warnings(
     below it, where the frames do not settle the verdict either way, or wherever
     the bare shins lie that far inside; not where the trunk's
     outline is bare skin (``trunk_share``, the share of it on clothing, under
-    ``bare_trunk``)."""
+    ``bare_trunk``). Legs hidden by a skirt are warned of where the bare shins
+    lie ``legs_hidden_mm`` or more inside, whatever the trunk."""
     warnings = []
     bare = np.isfinite(trunk_share) and trunk_share < config.bare_trunk
     # A body fitted too big for its bare limbs is the clothing's signature, which
     # the low-contrast outline (the trunk's a little out) does not leave.
     inside = bool(np.isfinite(shins) and shins <= -config.shins_inside_mm)
+    # Far inside: the thighs were hidden (a skirt), and the legs fitted to the garment.
+    hidden = bool(np.isfinite(shins) and shins <= -config.legs_hidden_mm)
     relaxed = low_contrast and not inside
     limit = config.loose_mm_low_contrast if relaxed else config.loose_mm
     if relaxed:
@@ -476,7 +496,7 @@ def _clothing_warnings(
             "error below it, the frames do not settle it); the weight, arm span, "
             "circumferences and widths may be overstated"
         )
-    elif not bare and inside:
+    elif not bare and inside and not hidden:
         warnings.append(
             f"{LOOSE_CLOTHING} possible: the bare shins lie {-shins:.1f} mm inside "
             f"the fitted body (tight clothing: under {config.shins_inside_mm:g} mm), as when "
@@ -503,6 +523,17 @@ def _clothing_warnings(
             f"captured outline alone reads up to {limit:g} mm, so the check cannot tell "
             "tight clothing from loose); the weight, arm span, circumferences and "
             "widths may be overstated (or, as in low contrast, understated)"
+        )
+    if hidden:
+        warnings.append(
+            f"{LEGS_HIDDEN} likely: the bare shins lie {-shins:.1f} mm inside the fitted "
+            f"body (bare legs below shorts, loose or tight: under {config.legs_hidden_mm:g} "
+            "mm), as when a skirt, a dress or a long coat hides the thighs and the fit "
+            "shapes and poses the legs to fill it; the height, weight, arm span, "
+            "circumferences and widths are the garment's, not the body's (the studio's "
+            "skirts read the "
+            "weight 10-32 kg heavy, the arm span 23-39 mm short and the height up to "
+            "37 mm high)"
         )
     if np.isfinite(crown) and crown > config.crown_mm:
         note = _borderline(crown, crown_se, config.crown_mm)

@@ -94,8 +94,10 @@ RESULTS_FORMATS_READ = (2, 3)
 #: shins lie inside the fitted body, and the crown compared with the
 #: median of the trunk, head and lower limbs, ``outline_check.CROWN_REFERENCE``; 7: the
 #: bare shins alone decide that, ``OutlineConfig.shins_inside_mm``, and in low contrast
-#: the trunk is compared with whichever limbs the fit meets best).
-SUMMARY_VERSION = 7
+#: the trunk is compared with whichever limbs the fit meets best; 8: bare shins far inside
+#: the fitted body, ``OutlineConfig.legs_hidden_mm``, say a skirt hid the legs, and no
+#: interval is stated for the height either).
+SUMMARY_VERSION = 8
 #: Version of ``run.json``.
 MANIFEST_FORMAT = 1
 #: Version of ``evaluation.json`` (1: the generative stage was ``disc_generative``).

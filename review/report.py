@@ -48,6 +48,7 @@ from bodymetry.estimation.body_model.biometrics import MEASUREMENTS
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.caveats import VALIDATED
 from bodymetry.estimation.fit import shared_body_model
+from bodymetry.estimation.outline_check import OutlineConfig
 from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES, SessionGate, SessionShape, Stat
 from bodymetry.estimation.run_files import (
     GT_STAGE,
@@ -652,6 +653,8 @@ def _person_content(
         "session_shape": results.session_shape,
         "prior_pull": prior_pull_text(results.session_shape),
         "outline": results.outline,
+        # The outline check runs with its defaults (no run setting changes them).
+        "legs_hidden_mm": OutlineConfig().legs_hidden_mm,
         "clothing_share": _clothing_share(results.session_shape),
         "contrast": results.outline_contrast,
         "low_contrast": LOW_CONTRAST,

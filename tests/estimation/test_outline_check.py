@@ -145,12 +145,14 @@ def test_in_low_contrast_a_body_too_big_for_its_bare_limbs_warns(scene):
     shirt = [_masks(model, cameras, s, rest) for s in states]
 
     def loose(check):
-        return [w for w in check.warnings if "loose" in w]
+        return [w for w in check.warnings if w.startswith("loose clothing")]
 
     def sure(check):  # low contrast alone says "possible" above loose_mm
         return [w for w in check.warnings if w.startswith("loose clothing likely")]
 
-    lenient = OutlineConfig(loose_mm_low_contrast=50.0)
+    # (A pixel here is about 5 mm: limbs a pixel thinner than the body would also
+    # read as legs hidden by a skirt, which is not what this test is about.)
+    lenient = OutlineConfig(loose_mm_low_contrast=50.0, legs_hidden_mm=60.0)
     kw = {"config": lenient, "low_contrast": True}
     check = check_outline(model, cameras, frames, clothing=shirt, **kw)
     assert check.offsets_mm["bare shins"] < -lenient.shins_inside_mm
@@ -166,7 +168,7 @@ def test_in_low_contrast_a_body_too_big_for_its_bare_limbs_warns(scene):
     assert abs(check.crown_excess_mm) < EXACT_MM
     assert not [w for w in check.warnings if w.startswith("hair")]
     # The limbs' bound past their offset: the lenient low-contrast threshold holds.
-    far = OutlineConfig(loose_mm_low_contrast=50.0, shins_inside_mm=50.0)
+    far = OutlineConfig(loose_mm_low_contrast=50.0, shins_inside_mm=50.0, legs_hidden_mm=60.0)
     assert not sure(
         check_outline(model, cameras, frames, config=far, low_contrast=True, clothing=shirt)
     )
@@ -410,6 +412,56 @@ def test_in_low_contrast_bare_shins_inside_the_body_restore_the_full_contrast_th
     assert _clothing_warnings(2.16, 0.2, 0.0, 0.1, config, 0.2, True, -2.24) == []
     with pytest.raises(ValueError, match="shins_inside_mm"):
         OutlineConfig(shins_inside_mm=0.0)
+
+
+def test_bare_shins_far_inside_say_the_legs_were_hidden():
+    """Knee-length skirts (``clothing=skirt``): the fit shapes the thighs to the skirt
+    and turns the hips to fill it, the bare shins below lie 5.71-10.79 mm inside the
+    fitted body and the height reads up to 37 mm high; loose shorts' bare shins lie
+    at most 3.43 mm inside, tight shorts' 1.27 mm (docs/session-shape.md, "Skirts")."""
+    from bodymetry.estimation.outline_check import _clothing_warnings
+
+    config = OutlineConfig()
+    # A skirt on a heavy woman (seed 901): the trunk warns, and the legs on their own.
+    loose, hidden = _clothing_warnings(2.88, 1.18, 2.06, 0.74, config, 0.95, shins=-9.0)
+    assert loose.startswith("loose clothing likely")
+    assert hidden.startswith("legs hidden likely: the bare shins lie 9.0 mm inside")
+    check = OutlineCheck(warnings=(loose, hidden))
+    assert set(check.overstated) == {"height_mm", "arm_span_mm", "weight_kg"}
+    assert check.overstated["height_mm"] == "legs hidden"
+    # Whatever the trunk (bare, or nothing outside), in any contrast.
+    for kwargs in ({"trunk_share": 0.1}, {"low_contrast": True}, {}):
+        warnings = _clothing_warnings(0.1, 0.3, 0.0, 0.1, config, shins=-5.9, **kwargs)
+        assert [w for w in warnings if w.startswith("legs hidden likely")], kwargs
+        # ... and the shins' "possible" is not said twice.
+        assert not [w for w in warnings if w.startswith("loose clothing possible: the bare")]
+    # Loose shorts (seed 833's 3.43 mm, a 20 mm gap): loose clothing possible, the legs not hidden.
+    (possible,) = _clothing_warnings(0.5, 0.3, 0.0, 0.1, config, shins=-3.43)
+    assert possible.startswith("loose clothing possible: the bare shins lie 3.4")
+    assert OutlineCheck(warnings=(possible,)).overstated == {
+        "arm_span_mm": "loose clothing",
+        "weight_kg": "loose clothing",
+    }
+    with pytest.raises(ValueError, match="legs_hidden_mm"):
+        OutlineConfig(legs_hidden_mm=0.5)
+
+
+def test_bare_shins_a_pixel_inside_the_body_read_as_hidden_legs(scene):
+    """The whole check on silhouettes whose bare shins are a pixel (about 5 mm) thinner
+    than the fitted body, the rest its own outline: "legs hidden", in full contrast
+    and in low; with the shins called clothing, nothing of the kind."""
+    model, cameras, states = scene
+    shins = ("shin_l", "shin_r")
+    frames = _with_thinned_parts(model, cameras, states, shins)
+    clothed = [_masks(model, cameras, s, _faces_but(model, shins)) for s in states]
+    for low in (False, True):
+        check = check_outline(model, cameras, frames, clothing=clothed, low_contrast=low)
+        assert check.offsets_mm["bare shins"] <= -OutlineConfig().legs_hidden_mm
+        assert [w for w in check.warnings if w.startswith("legs hidden likely")], low
+        assert set(check.overstated) == {"height_mm", "arm_span_mm", "weight_kg"}
+    suit = [masks for masks, _ in frames]
+    covered = check_outline(model, cameras, frames, clothing=suit)
+    assert not [w for w in covered.warnings if w.startswith("legs hidden")]
 
 
 def test_thin_bare_forearms_alone_are_not_loose_clothing(scene):

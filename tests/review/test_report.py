@@ -402,6 +402,35 @@ def test_no_interval_where_the_outline_check_finds_loose_clothing_or_hair(review
     }
 
 
+def test_legs_hidden_by_a_skirt_withhold_every_interval(review_run, tmp_path):
+    """A skirt shapes and poses the fitted legs (the studio's read the height up to 37 mm
+    high): "legs hidden" withholds the height's interval too, the card says so, and the
+    clothing note reads the bare shins against the bound that decides it."""
+    folder = tmp_path / "run"
+    shutil.copytree(review_run.folder, folder)
+    results = json.loads((folder / "results.json").read_text())
+    outline = results["persons"][0]["session_shape"]["outline"]
+    outline["offsets_mm"]["bare shins"] = -9.0
+    outline["warnings"] = [
+        "loose clothing likely: the silhouettes lie 2.9 ± 1.2 mm further outside ...",
+        "legs hidden likely: the bare shins lie 9.0 mm inside the fitted body ...",
+    ]
+    (folder / "results.json").write_text(json.dumps(results))
+    read = RunResults.read(folder / "results.json")
+    assert read.intervals_withheld == {
+        "arm_span_mm": "loose clothing",
+        "weight_kg": "loose clothing",
+        "height_mm": "legs hidden",
+    }
+    assert read.stated_intervals == {}
+    build_review(folder, recordings=False, pdf=False)
+    html = (folder / "report.html").read_text()
+    assert html.count("no 95 % interval: legs hidden (see the caveats)") == 1
+    assert "the bare shins lie -9.0 mm outside it" in html
+    assert f"{OutlineConfig().legs_hidden_mm:.1f} mm or more inside, as when a skirt" in html
+    assert "legs hidden by a skirt (all three)" in html
+
+
 def test_a_person_among_others_is_told_how_their_interval_was_held(review_run, tmp_path):
     """A person measured among others is held to the larger of the single-person and
     the two-person sessions' errors: the interval's footnote says so, with how often
