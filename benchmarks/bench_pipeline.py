@@ -452,8 +452,8 @@ MIN_FRAME_SHARE = 0.9
 def _outfit(subject: str) -> str:
     """``loose`` or ``tight``: what an independent session's subject wears, from its
     ``--subject`` text or its folder name (``seed46_arm_raises_loose``); the draped
-    garments and the skirt are loose ones."""
-    garments = ("clothing=loose", "clothing=draped", "clothing=skirt")
+    garments, the skirt and the dress are loose ones."""
+    garments = ("clothing=loose", "clothing=draped", "clothing=skirt", "clothing=dress")
     worn = any(g in subject for g in garments) or subject.endswith(("_loose", "_draped"))
     return "loose" if worn else "tight"
 

@@ -43,7 +43,7 @@ it by the same skinning.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -54,13 +54,14 @@ from bodymetry.estimation.body_model.skeleton import JOINTS, PARTS
 #: tight suit would show), ``shorts`` (no layer either, with the shins bare: a tight
 #: shirt and shorts, as a gait lab's sports kit), ``loose`` (shirt with short sleeves
 #: and shorts), ``draped`` (the same garments resting on the body where it faces
-#: up: the shoulders and the top of the chest, as worn cloth does) or ``skirt`` (a
-#: tight top and a knee-length A-line skirt over both legs, the shins bare).
-CLOTHING = ("tight", "shorts", "loose", "draped", "skirt")
+#: up: the shoulders and the top of the chest, as worn cloth does), ``skirt`` (a
+#: tight top and a knee-length A-line skirt over both legs, the shins bare) or
+#: ``dress`` (the loose shirt, without shorts, over the skirt).
+CLOTHING = ("tight", "shorts", "loose", "draped", "skirt", "dress")
 #: The loose shirt and shorts (``tight`` and ``shorts`` are the body's own outline).
 GARMENTS = ("loose", "draped")
 #: The outfits with a skirt.
-SKIRTS = ("skirt",)
+SKIRTS = ("skirt", "dress")
 #: The outfits that stand off the skin (``ease=`` applies to them).
 EASED = (*GARMENTS, *SKIRTS)
 #: The outfits that leave the shins bare (shorts, tight or loose, and the skirt).
@@ -413,7 +414,7 @@ def dress(
     vertex_parts : (V,) int
     joints : (15, 3) float
         Its joint centres.
-    clothing : {"tight", "shorts", "loose", "draped", "skirt"}
+    clothing : {"tight", "shorts", "loose", "draped", "skirt", "dress"}
     hair : bool
 
     Returns
@@ -428,8 +429,10 @@ def dress(
     normals /= np.linalg.norm(normals, axis=1, keepdims=True) + 1e-12
     smooth = geometry.neighbour_mean(faces, len(rest))
     d = np.zeros(len(rest))
-    if clothing in GARMENTS:
-        w = garment_weight(rest, vertex_parts, joints, layer)
+    if clothing in (*GARMENTS, "dress"):
+        # A dress is the loose shirt without the shorts, over the skirt (below).
+        shirt = replace(layer, leg=0.0) if clothing == "dress" else layer
+        w = garment_weight(rest, vertex_parts, joints, shirt)
         cloth = w > 0
         d[cloth] = layer.ease
         for _ in range(layer.smoothing_steps):
@@ -456,10 +459,11 @@ def dress(
             low, high = layer.rest_on
             lying = np.clip((normals[:, 2] - low) / (high - low), 0.0, 1.0)
             offset *= (1.0 - lying)[:, None]
-    elif clothing in SKIRTS:
-        offset = skirt_offsets(rest, vertex_parts, joints, layer)
     else:
         offset = np.zeros_like(rest)
+    if clothing in SKIRTS:
+        # The skirt falls from whatever the body wears above it (a dress's shirt).
+        offset += skirt_offsets(rest + offset, vertex_parts, joints, layer)
     if hair:
         thickness = layer.hair_thickness * hair_weight(rest, vertex_parts)
         # The head is not clothed: hair is the only layer there.

@@ -162,8 +162,9 @@ def test_shorts_are_tight_with_the_shins_bare(model, loose):
     assert IndependentSpec.parse(spec.to_text().partition(":")[2]) == spec
 
 
-def test_skirt_closes_between_the_legs_and_contains_the_body(model):
-    skirt = IndependentSubject(IndependentSpec(4, clothing="skirt"), model=model)
+@pytest.mark.parametrize("outfit", ["skirt", "dress"])
+def test_skirt_closes_between_the_legs_and_contains_the_body(model, outfit):
+    skirt = IndependentSubject(IndependentSpec(4, clothing=outfit), model=model)
     tight = IndependentSubject(IndependentSpec(4), model=model)
     assert skirt.biometrics() == tight.biometrics()  # the truth is the nude body
     studio = Studio.from_model(model)
@@ -211,9 +212,18 @@ def test_skirt_closes_between_the_legs_and_contains_the_body(model):
     pelvis = model.parts.index("pelvis")
     np.testing.assert_allclose(weights[thigh, pelvis], 0.5 + 0.5 * body[thigh, pelvis], atol=1e-9)
     np.testing.assert_array_equal(weights[below], body[below])
-    spec = SubjectSpec.parse("independent:12,clothing=skirt,ease=25", 0).independent
-    assert spec == IndependentSpec(12, clothing="skirt", ease=25)
+    spec = SubjectSpec.parse(f"independent:12,clothing={outfit},ease=25", 0).independent
+    assert spec == IndependentSpec(12, clothing=outfit, ease=25)
     assert IndependentSpec.parse(spec.to_text().partition(":")[2]) == spec
+    # A dress's top is the loose shirt (its trunk stands off the skin as the shirt's
+    # does); a skirt's top is tight.
+    torso = model.vertex_parts == model.parts.index("torso")
+    chest = torso & (skirt.rest[:, 2] > skirt.rest_joints[JOINTS.index("spine"), 2])
+    gap_mm = 1000.0 * np.linalg.norm(skirt.surface - skirt.rest, axis=1)[chest]
+    if outfit == "dress":
+        assert np.median(gap_mm) > 10.0
+    else:
+        assert gap_mm.max() == 0.0
 
 
 def test_hair_raises_the_head_but_not_the_measured_height(model, loose):
@@ -235,7 +245,7 @@ def test_subject_texts_parse_with_clear_errors():
         ("independent:1,hair=yes", "hair"),
         ("independent:1,colour=red", "unknown option"),
         ("independent:1,body=two", "body"),
-        ("independent:1,ease=20", "needs clothing=loose, draped or skirt"),
+        ("independent:1,ease=20", "needs clothing=loose, draped, skirt or dress"),
         ("independent:1,clothing=loose,ease=90", "expected 5..50"),
         ("independent:1,clothing=loose,ease=wide", "ease='wide', expected an integer"),
     ):
