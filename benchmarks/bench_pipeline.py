@@ -266,7 +266,9 @@ TIGHT_NIGHT_SESSIONS = (
 #: (``clothing=skirt``, the shins bare) on the heaviest-looking bank body (twice), a woman
 #: of 68, the thinnest woman, a girl of 10, white clothing in the plain room, a skirt only
 #: 5 mm off the hips and the tallest man; rendered after the skirt was added to the
-#: studio, seeds never used.
+#: studio, seeds never used. Then five rendered after the "legs hidden" bound was set
+#: on those (911-915: two dresses, the shortest woman in light grey, the girl of 6, the
+#: woman of 80 in a skirt 30 mm off the hips).
 SKIRT_SESSIONS = (
     (901, "walk_turn", "independent:901,clothing=skirt", "clothing=saturated"),
     (902, "arm_raises", "independent:902,clothing=skirt", "clothing=saturated"),
@@ -286,6 +288,21 @@ SKIRT_SESSIONS = (
     ),
     (907, "reach", "independent:907,clothing=skirt,ease=5", "clothing=saturated"),
     (908, "walk_turn", "independent:908,edge=male_height_p99,clothing=skirt", "clothing=saturated"),
+    (911, "walk_turn", "independent:911,clothing=dress", "clothing=saturated"),
+    (
+        912,
+        "reach",
+        "independent:912,edge=female_height_p01,clothing=skirt",
+        "clothing=light_grey,room=plain,light=soft",
+    ),
+    (913, "arm_raises", "independent:913,edge=girl_age6,clothing=skirt", "clothing=saturated"),
+    (914, "mixed", "independent:914,edge=female_weight_p99,clothing=dress", "clothing=saturated"),
+    (
+        915,
+        "walk_turn",
+        "independent:915,edge=female_age80,clothing=skirt,ease=30",
+        "clothing=saturated",
+    ),
 )
 #: Issue 31, the outline check's bare-shin signature (``--shorts``, 2026-12-08): seven
 #: tight subjects in shorts (``clothing=shorts``, the shins bare: seed 42's body

@@ -148,9 +148,10 @@ class OutlineConfig:
         warns "legs hidden likely", and no interval is stated for the height, the
         arm span or the weight (:data:`~bodymetry.estimation.records.OVERSTATED`).
         Studio, 2026-12-08: the loose shorts' bare shins 0.0 to 3.43 mm inside, the
-        tight shorts' at most 1.27 mm; knee-length skirts (``clothing=skirt``)
-        5.71 to 10.79 mm, and 3.44 mm for one only 5 mm off the hips, whose
-        height held (docs/session-shape.md, "Skirts").
+        tight shorts' at most 1.27 mm; knee-length skirts and dresses
+        (``clothing=skirt``, ``dress``) 5.44 to 13.73 mm in 11 of 13, and 3.33 and
+        3.44 mm for a skirt only 5 mm off the hips and one in light grey in low
+        contrast, whose heights held (docs/session-shape.md, "Skirts").
     bare_trunk : float
         Where capture told skin from clothing (:mod:`bodymetry.capture.skin`),
         a trunk whose outline lies on clothing in less than this share is
@@ -531,9 +532,8 @@ def _clothing_warnings(
             "mm), as when a skirt, a dress or a long coat hides the thighs and the fit "
             "shapes and poses the legs to fill it; the height, weight, arm span, "
             "circumferences and widths are the garment's, not the body's (the studio's "
-            "skirts read the "
-            "weight 10-32 kg heavy, the arm span 23-39 mm short and the height up to "
-            "37 mm high)"
+            "skirts and dresses read the height up to 52 mm high, the weight 5-47 kg "
+            "heavy and the arm span 18-46 mm short)"
         )
     if np.isfinite(crown) and crown > config.crown_mm:
         note = _borderline(crown, crown_se, config.crown_mm)

@@ -552,7 +552,7 @@ LEGS_HIDDEN = "legs hidden"
 #: body's own outline: loose clothing the weight and the arm span (the studio's loose
 #: shirt and shorts read +12 to +17 kg and +5 to +40 mm), hair the height (+14 to
 #: +15 mm), a skirt over the thighs all three (the legs are shaped and posed to the
-#: skirt: the height up to 37 mm high, the weight 10-32 kg heavy, the arm span 23-39 mm
+#: skirt: the height up to 52 mm high, the weight 5-47 kg heavy, the arm span 18-46 mm
 #: short). Their 95 % interval, made from
 #: tight-clothed, bare-headed sessions, does not apply, and none is stated
 #: (:attr:`OutlineCheck.overstated`).

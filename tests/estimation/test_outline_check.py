@@ -416,8 +416,8 @@ def test_in_low_contrast_bare_shins_inside_the_body_restore_the_full_contrast_th
 
 def test_bare_shins_far_inside_say_the_legs_were_hidden():
     """Knee-length skirts (``clothing=skirt``): the fit shapes the thighs to the skirt
-    and turns the hips to fill it, the bare shins below lie 5.71-10.79 mm inside the
-    fitted body and the height reads up to 37 mm high; loose shorts' bare shins lie
+    and turns the hips to fill it, the bare shins below lie 5.44-13.73 mm inside the
+    fitted body and the height reads up to 52 mm high; loose shorts' bare shins lie
     at most 3.43 mm inside, tight shorts' 1.27 mm (docs/session-shape.md, "Skirts")."""
     from bodymetry.estimation.outline_check import _clothing_warnings
 

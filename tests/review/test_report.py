@@ -403,7 +403,7 @@ def test_no_interval_where_the_outline_check_finds_loose_clothing_or_hair(review
 
 
 def test_legs_hidden_by_a_skirt_withhold_every_interval(review_run, tmp_path):
-    """A skirt shapes and poses the fitted legs (the studio's read the height up to 37 mm
+    """A skirt shapes and poses the fitted legs (the studio's read the height up to 52 mm
     high): "legs hidden" withholds the height's interval too, the card says so, and the
     clothing note reads the bare shins against the bound that decides it."""
     folder = tmp_path / "run"
