@@ -43,6 +43,7 @@ it by the same skinning.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -55,17 +56,21 @@ from bodymetry.estimation.body_model.skeleton import JOINTS, PARTS
 #: shirt and shorts, as a gait lab's sports kit), ``loose`` (shirt with short sleeves
 #: and shorts), ``draped`` (the same garments resting on the body where it faces
 #: up: the shoulders and the top of the chest, as worn cloth does), ``skirt`` (a
-#: tight top and a knee-length A-line skirt over both legs, the shins bare) or
-#: ``dress`` (the loose shirt, without shorts, over the skirt).
-CLOTHING = ("tight", "shorts", "loose", "draped", "skirt", "dress")
+#: tight top and a knee-length A-line skirt over both legs, the shins bare),
+#: ``dress`` (the loose shirt, without shorts, over the skirt) or ``long_skirt`` (a
+#: tight top and the skirt down to mid-calf, over tights: no bare shin).
+CLOTHING = ("tight", "shorts", "loose", "draped", "skirt", "dress", "long_skirt")
 #: The loose shirt and shorts (``tight`` and ``shorts`` are the body's own outline).
 GARMENTS = ("loose", "draped")
 #: The outfits with a skirt.
-SKIRTS = ("skirt", "dress")
+SKIRTS = ("skirt", "dress", "long_skirt")
+#: ``layer.skirt_length`` of the ``long_skirt``: the thigh and 60 % of the shin.
+LONG_SKIRT_LENGTH = 1.6
 #: The outfits that stand off the skin (``ease=`` applies to them).
 EASED = (*GARMENTS, *SKIRTS)
-#: The outfits that leave the shins bare (shorts, tight or loose, and the skirt).
-BARE_SHIN_OUTFITS = ("shorts", *GARMENTS, *SKIRTS)
+#: The outfits that leave the shins bare (shorts, tight or loose, and the knee-length
+#: skirt and dress).
+BARE_SHIN_OUTFITS = ("shorts", *GARMENTS, "skirt", "dress")
 
 
 @dataclass(frozen=True)
@@ -105,7 +110,9 @@ class ClothingLayer:
     skirt_top : float
         Where the skirt starts, metres above the hip joints (the waistband).
     skirt_length : float
-        Where it ends, as a fraction of the thigh (hip to knee).
+        Where it ends: from 0 to 1 the fraction of the thigh (hip to knee) it
+        covers, from 1 to 2 the thigh and that fraction of the shin (knee to ankle)
+        as well (``long_skirt``: :data:`LONG_SKIRT_LENGTH`).
     flare : float
         How fast it widens as it drops, metres per metre (an A-line).
     skirt_follows : float
@@ -198,12 +205,21 @@ def skirt_weight(
     top = _skirt_top(joints, layer)
     trunk = np.isin(vertex_parts, [PARTS.index("torso"), PARTS.index("pelvis")])
     w[trunk] = np.clip((top - rest[trunk, 2]) / layer.hem, 0.0, 1.0)
-    for side in "lr":
-        on = vertex_parts == PARTS.index(f"thigh_{side}")
-        a, b = joints[JOINTS.index(f"hip_{side}")], joints[JOINTS.index(f"knee_{side}")]
-        t = _along(rest[on], a, b)
-        w[on] = np.clip((layer.skirt_length - t) * np.linalg.norm(b - a) / layer.hem, 0.0, 1.0)
+    for k, (part, proximal, distal) in enumerate(_LEG_SEGMENTS):
+        reach = layer.skirt_length - k  # of this segment
+        for side in "lr":
+            on = vertex_parts == PARTS.index(f"{part}_{side}")
+            a, b = (
+                joints[JOINTS.index(f"{proximal}_{side}")],
+                joints[JOINTS.index(f"{distal}_{side}")],
+            )
+            t = _along(rest[on], a, b)
+            w[on] = np.clip((reach - t) * np.linalg.norm(b - a) / layer.hem, 0.0, 1.0)
     return w
+
+
+#: The leg's segments a skirt may cover, from the hip down: (part, upper joint, lower joint).
+_LEG_SEGMENTS = (("thigh", "hip", "knee"), ("shin", "knee", "ankle"))
 
 
 def _skirt_top(joints: np.ndarray, layer: ClothingLayer) -> float:
@@ -234,11 +250,12 @@ def skirt_envelope(
     """
     top = _skirt_top(joints, layer)
     axis = joints[JOINTS.index("root"), :2]
-    lower = np.isin(
-        vertex_parts, [PARTS.index(p) for p in ("torso", "pelvis", "thigh_l", "thigh_r")]
-    )
-    knee = joints[[JOINTS.index("knee_l"), JOINTS.index("knee_r")], 2].max()
-    tops = np.arange(top, knee - SKIRT_SLAB, -SKIRT_SLAB)
+    legs = [f"{part}_{side}" for part, _, _ in _LEG_SEGMENTS for side in "lr"]
+    lower = np.isin(vertex_parts, [PARTS.index(p) for p in ("torso", "pelvis", *legs)])
+    # Down to the lower joint of the last segment it reaches (the knees or the ankles).
+    last = _LEG_SEGMENTS[min(int(np.ceil(layer.skirt_length)), len(_LEG_SEGMENTS)) - 1][2]
+    bottom = joints[[JOINTS.index(f"{last}_l"), JOINTS.index(f"{last}_r")], 2].max()
+    tops = np.arange(top, bottom - SKIRT_SLAB, -SKIRT_SLAB)
     pts = rest[lower & (rest[:, 2] <= top)]
     rel = pts[:, :2] - axis
     # Per slab and direction, the body's own reach there.
@@ -289,10 +306,10 @@ def skirt_offsets(
     r = 1.0 / np.sqrt((c / a) ** 2 + (s / b) ** 2)
     r = np.maximum(r, np.linalg.norm(rel[trunk], axis=1))
     target[trunk] = axis + r[:, None] * np.stack([c, s], axis=1)
-    for side in "lr":
-        leg = parts == PARTS.index(f"thigh_{side}")
-        hip = joints[JOINTS.index(f"hip_{side}")]
-        knee = joints[JOINTS.index(f"knee_{side}")]
+    for (part, proximal, distal), side in itertools.product(_LEG_SEGMENTS, "lr"):
+        leg = parts == PARTS.index(f"{part}_{side}")
+        hip = joints[JOINTS.index(f"{proximal}_{side}")]
+        knee = joints[JOINTS.index(f"{distal}_{side}")]
         t = (p[leg, 2] - hip[2]) / (knee[2] - hip[2])
         centre = hip[:2] + t[:, None] * (knee[:2] - hip[:2])
         out_sign = 1.0 if hip[0] >= axis[0] else -1.0
@@ -307,6 +324,11 @@ def skirt_offsets(
         target[leg] = axis + np.stack([x, y], axis=1)
     out[on, :2] = w[on, None] * (target - p[:, :2])
     return out
+
+
+def skirt_layer(clothing: str, layer: ClothingLayer = ClothingLayer()) -> ClothingLayer:
+    """``layer`` with the skirt's length of the outfit (the long skirt's down the shins)."""
+    return replace(layer, skirt_length=LONG_SKIRT_LENGTH) if clothing == "long_skirt" else layer
 
 
 def garment_skin_weights(
@@ -329,7 +351,8 @@ def garment_skin_weights(
     """
     if clothing not in SKIRTS:
         return weights
-    share = layer.skirt_follows * skirt_weight(rest, vertex_parts, joints, layer)
+    skirt = skirt_layer(clothing, layer)
+    share = skirt.skirt_follows * skirt_weight(rest, vertex_parts, joints, skirt)
     dense = weights.toarray() if hasattr(weights, "toarray") else np.array(weights, dtype=float)
     dense *= (1.0 - share)[:, None]
     dense[:, PARTS.index("pelvis")] += share
@@ -414,7 +437,7 @@ def dress(
     vertex_parts : (V,) int
     joints : (15, 3) float
         Its joint centres.
-    clothing : {"tight", "shorts", "loose", "draped", "skirt", "dress"}
+    clothing : {"tight", "shorts", "loose", "draped", "skirt", "dress", "long_skirt"}
     hair : bool
 
     Returns
@@ -463,7 +486,8 @@ def dress(
         offset = np.zeros_like(rest)
     if clothing in SKIRTS:
         # The skirt falls from whatever the body wears above it (a dress's shirt).
-        offset += skirt_offsets(rest + offset, vertex_parts, joints, layer)
+        skirt = skirt_layer(clothing, layer)
+        offset += skirt_offsets(rest + offset, vertex_parts, joints, skirt)
     if hair:
         thickness = layer.hair_thickness * hair_weight(rest, vertex_parts)
         # The head is not clothed: hair is the only layer there.

@@ -195,12 +195,12 @@ class IndependentSpec:
         Index into the bank.
     edge : str or None
         A body of the edge bank by key (:data:`EDGE_KEYS`), instead of the drawn bank.
-    clothing : {"tight", "shorts", "loose", "draped", "skirt", "dress"}
+    clothing : {"tight", "shorts", "loose", "draped", "skirt", "dress", "long_skirt"}
     hair : bool
     ease : int or None
         The garments' smallest gap to the skin, millimetres
         (:attr:`~bodymetry.studio.clothing.ClothingLayer.ease`; None: its
-        default, 15 mm), from :data:`EASE_MM`; loose, draped, skirt or dress only.
+        default, 15 mm), from :data:`EASE_MM`; loose, draped, skirt, dress or long_skirt.
     """
 
     seed: int
@@ -245,7 +245,7 @@ class IndependentSpec:
         except ValueError:
             raise InputError(
                 f"--subject independent:{value}: expected independent:SEED[,body=K|edge=KEY]"
-                "[,clothing=tight|shorts|loose|draped|skirt|dress][,ease=MM][,hair=0|1]"
+                "[,clothing=tight|shorts|loose|draped|skirt|dress|long_skirt][,ease=MM][,hair=0|1]"
             ) from None
         fields: dict = {}
         for option in options:
@@ -253,7 +253,7 @@ class IndependentSpec:
             if not sep or key not in ("body", "edge", "clothing", "hair", "ease"):
                 raise InputError(
                     f"--subject independent:{value}: unknown option {option!r} "
-                    "(expected body=K, edge=KEY, clothing=tight|shorts|loose|draped|skirt|dress, "
+                    f"(expected body=K, edge=KEY, clothing={'|'.join(CLOTHING)}, "
                     "ease=MM or hair=0|1)"
                 )
             if key in fields:

@@ -112,7 +112,7 @@ class SubjectSpec:
     @classmethod
     def parse(cls, text: str | None, default_seed: int) -> SubjectSpec:
         """``None`` | ``"seed:N"`` | ``"heldout:N"`` | ``"nu:v1,v2,..."`` |
-        ``"independent:SEED[,body=K|edge=KEY][,clothing=tight|shorts|loose|draped|skirt|dress][,ease=MM][,hair=0|1]"``."""
+        ``"independent:SEED[,body=K|edge=KEY][,clothing=tight|shorts|loose|draped|skirt|dress|long_skirt][,ease=MM][,hair=0|1]"``."""
         if text is None:
             return cls(seed=default_seed)
         kind, _, value = text.partition(":")

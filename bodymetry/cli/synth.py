@@ -28,7 +28,7 @@ def _parse_size(text: str) -> tuple[int, int]:
     "--subject",
     default=None,
     help="seed:N | heldout:N | nu:v1,v2,... | independent:SEED[,body=K|edge=KEY]"
-    "[,clothing=tight|shorts|loose|draped|skirt|dress][,ease=MM][,hair=0|1] "
+    "[,clothing=tight|shorts|loose|draped|skirt|dress|long_skirt][,ease=MM][,hair=0|1] "
     "(a body our model was not built from; "
     "edge=KEY picks one by percentile, e.g. female_height_p01 or girl_age6, docs/studio.md; "
     "default: from --seed).",

@@ -13,7 +13,7 @@ from bodymetry.estimation.body_model.bake.independent import shape_space_residua
 from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.body_model.motion.library import make_motion
 from bodymetry.estimation.body_model.skeleton import JOINT_SLICES, JOINTS, N_POSE
-from bodymetry.studio.clothing import garment_weight, skirt_weight
+from bodymetry.studio.clothing import garment_weight, skirt_layer, skirt_weight
 from bodymetry.studio.independent import (
     INDEPENDENT_BODIES_PATH,
     IndependentSpec,
@@ -162,7 +162,7 @@ def test_shorts_are_tight_with_the_shins_bare(model, loose):
     assert IndependentSpec.parse(spec.to_text().partition(":")[2]) == spec
 
 
-@pytest.mark.parametrize("outfit", ["skirt", "dress"])
+@pytest.mark.parametrize("outfit", ["skirt", "dress", "long_skirt"])
 def test_skirt_closes_between_the_legs_and_contains_the_body(model, outfit):
     skirt = IndependentSubject(IndependentSpec(4, clothing=outfit), model=model)
     tight = IndependentSubject(IndependentSpec(4), model=model)
@@ -195,15 +195,25 @@ def test_skirt_closes_between_the_legs_and_contains_the_body(model, outfit):
             assert b[uv[:, 1], uv[:, 0]].all(), (pose, camera.name)
             legs_apart += not a[uv[:, 1], uv[:, 0]].all()
         assert legs_apart >= 1, pose  # ... where at least one view sees the legs apart
-    # Below the hem the legs are the body's own; the shins are bare.
-    covered = skirt_weight(skirt.rest, model.vertex_parts, skirt.rest_joints)
-    below = np.isin(model.vertex_parts, [model.parts.index(p) for p in ("shin_l", "foot_r")])
+    layer = skirt_layer(outfit)
+    covered = skirt_weight(skirt.rest, model.vertex_parts, skirt.rest_joints, layer)
+    # Below the hem the legs are the body's own: the shins below a knee-length skirt
+    # (bare), the ankles and feet below the long one (in tights of the skirt's colour).
+    long = outfit == "long_skirt"
+    shin = model.vertex_parts == model.parts.index("shin_l")
+    ankle = skirt.rest_joints[JOINTS.index("ankle_l"), 2]
+    knee = skirt.rest_joints[JOINTS.index("knee_l"), 2]
+    low = shin & (skirt.rest[:, 2] < ankle + 0.2 * (knee - ankle))
+    below = low | np.isin(model.vertex_parts, [model.parts.index("foot_r")])
+    if not long:
+        below |= shin
     assert covered[below].max() == 0.0
     np.testing.assert_array_equal(skirt.surface[below], skirt.rest[below])
+    if long:  # half the shin under the skirt
+        assert covered[shin & (skirt.rest[:, 2] > ankle + 0.7 * (knee - ankle))].min() == 1.0
     colors = np.asarray(skirt.appearance().part_colors)
-    np.testing.assert_array_equal(
-        colors[model.parts.index("shin_l")], colors[model.parts.index("head")]
-    )
+    bare = colors[model.parts.index("head")] if not long else colors[model.parts.index("pelvis")]
+    np.testing.assert_array_equal(colors[model.parts.index("shin_l")], bare)
     # Its skin weights follow the pelvis halfway where it covers, the body's elsewhere.
     weights = skirt.surface_weights
     body = skirt.weights.toarray() if hasattr(skirt.weights, "toarray") else skirt.weights
@@ -245,7 +255,7 @@ def test_subject_texts_parse_with_clear_errors():
         ("independent:1,hair=yes", "hair"),
         ("independent:1,colour=red", "unknown option"),
         ("independent:1,body=two", "body"),
-        ("independent:1,ease=20", "needs clothing=loose, draped, skirt or dress"),
+        ("independent:1,ease=20", "needs clothing=loose, draped, skirt, dress or long_skirt"),
         ("independent:1,clothing=loose,ease=90", "expected 5..50"),
         ("independent:1,clothing=loose,ease=wide", "ease='wide', expected an integer"),
     ):
