@@ -60,6 +60,7 @@ from bodymetry.estimation.view_selection import (
 
 __all__ = [
     "MIN_PIXELS",
+    "POOR_FIT",
     "PRESETS",
     "FitConfig",
     "FrameFit",
@@ -71,6 +72,10 @@ __all__ = [
     "refit_frame",
     "shared_body_model",
 ]
+
+#: How a fitted frame whose silhouettes the model explains too poorly is marked (its
+#: status begins so, :func:`session_gate`).
+POOR_FIT = "poor fit"
 
 #: The quality presets: the one table of what ``--quality`` means.
 PRESETS: dict[str, tuple[AnnealingConfig, RefineConfig]] = {
@@ -788,7 +793,7 @@ def session_gate(
 def _gate_status(mean_iou: float, threshold: float) -> str:
     if mean_iou >= threshold:
         return "ok"
-    return f"poor fit: mean silhouette IoU {mean_iou:.2f} < {threshold:.2f}"
+    return f"{POOR_FIT}: mean silhouette IoU {mean_iou:.2f} < {threshold:.2f}"
 
 
 @dataclass(frozen=True)

@@ -522,6 +522,37 @@ def test_process_with_no_measured_frame_exits_3(monkeypatch, toy: Path, tmp_path
     )
 
 
+def test_every_frame_a_poor_fit_says_what_may_hide_the_body(
+    monkeypatch, toy: Path, tmp_path: Path
+) -> None:
+    """Every frame fitted and none well (the studio's long skirts): the error says what
+    can cause it, with the best fit's IoU."""
+    import bodymetry.cli.process as cli_process
+
+    frames = tuple(
+        FrameRecord(
+            f,
+            f"poor fit: mean silhouette IoU {iou:.2f} < 0.80",
+            silhouette_iou={"a": iou - 0.05, "b": iou + 0.05},
+        )
+        for f, iou in ((0, 0.6), (10, 0.62), (20, 0.61))
+    )
+    results = RunResults.of_subject(
+        session=SessionInfo("/s", "s", ("cam_00",), 25.0, 10),
+        config=ProcessConfig(),
+        frames=frames,
+        summary={},
+    )
+    monkeypatch.setattr(cli_process, "process_session", lambda *a, **k: results)
+    run = tmp_path / "run"
+    result = _run("process", str(toy), "--out", str(run), "--no-review")
+    line = " ".join(_assert_one_line(result, 3).split())
+    assert line.startswith("error: no frame of 3 could be measured: 3 poor fit (frames 0, 10, 20)")
+    assert "fitted no frame's silhouettes well (the best frame's mean IoU 0.62)" in line
+    assert "a long skirt or coat" in line
+    assert line.endswith(f"per frame in {run / 'results.json'}")
+
+
 # --- progress without a terminal --------------------------------------------------------------
 class _Clock:
     def __init__(self) -> None:
