@@ -216,7 +216,7 @@ def no_frames_message(results: RunResults, run: Path) -> str:
     hint = ""
     if set(kinds) == {POOR_FIT}:
         # Found in every view and fitted, but never well: what the cameras saw is not
-        # a body the model can take the shape of (the studio's long skirts: IoU 0.62-0.70
+        # a body the model can take the shape of (the studio's long skirts: IoU 0.60-0.70
         # in every frame), or the cameras do not see what the calibration says.
         means = [[v for v in f.silhouette_iou.values() if math.isfinite(v)] for f in frames]
         ious = [sum(m) / len(m) for m in means if m]
