@@ -27,9 +27,9 @@ bare) is no displaced copy of each part: it is one envelope about both legs
 (left, right, front, back), at least as far out as the body anywhere above it
 in the skirt plus a flare (cloth falls from the hips and widens as it drops),
 plus the ease. Trunk vertices move out to that envelope along their direction
-from the axis. A thigh's outer half maps onto its own side's half of the
-envelope and its inner half onto a wall at the midline, so that the two halves
-close between the legs. The skirt is posed by skin weights that follow the
+from the axis. A thigh's outer half (and a long skirt's shin's) maps onto its own
+side's half of the envelope and its inner half onto a wall at the midline, so that
+the two halves close between the legs. The skirt is posed by skin weights that follow the
 pelvis halfway (:func:`garment_skin_weights`): cloth between the knees does not
 swing with one leg.
 

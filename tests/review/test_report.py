@@ -366,20 +366,29 @@ def test_the_report_says_how_plainly_the_person_stood_out(review_run, tmp_path):
         assert "low-contrast clothing" in accuracy.scope
 
 
-def test_no_interval_where_the_outline_check_finds_loose_clothing_or_hair(review_run, tmp_path):
-    """The studio's accuracy is of tight clothing and bare heads: where the outline check
-    warns of loose clothing no weight or arm span interval is stated, of hair no height
-    interval, and the card says why."""
+def _with_outline(review_run, tmp_path, warnings, offsets=None):
+    """A copy of the review run whose outline check warned ``warnings`` (and read the
+    ``offsets`` mm given): its folder, its results.json as a dict, and read back."""
     folder = tmp_path / "run"
     shutil.copytree(review_run.folder, folder)
     results = json.loads((folder / "results.json").read_text())
     outline = results["persons"][0]["session_shape"]["outline"]
-    outline["warnings"] = [
+    outline["warnings"] = list(warnings)
+    outline["offsets_mm"].update(offsets or {})
+    (folder / "results.json").write_text(json.dumps(results))
+    return folder, results, RunResults.read(folder / "results.json")
+
+
+def test_no_interval_where_the_outline_check_finds_loose_clothing_or_hair(review_run, tmp_path):
+    """The studio's accuracy is of tight clothing and bare heads: where the outline check
+    warns of loose clothing no weight or arm span interval is stated, of hair no height
+    interval, and the card says why."""
+    warnings = [
         "loose clothing likely: the silhouettes lie 4.8 ± 0.8 mm further outside ...",
         "hair or headwear likely: the silhouettes lie 12.0 ± 0.5 mm further outside ...",
     ]
-    (folder / "results.json").write_text(json.dumps(results))
-    read = RunResults.read(folder / "results.json")
+    folder, results, read = _with_outline(review_run, tmp_path, warnings)
+    outline = results["persons"][0]["session_shape"]["outline"]
     assert read.intervals_withheld == {
         "arm_span_mm": "loose clothing",
         "weight_kg": "loose clothing",
@@ -406,17 +415,11 @@ def test_legs_hidden_by_a_skirt_withhold_every_interval(review_run, tmp_path):
     """A skirt shapes and poses the fitted legs (the studio's read the height up to 52 mm
     high): "legs hidden" withholds the height's interval too, the card says so, and the
     clothing note reads the bare shins against the bound that decides it."""
-    folder = tmp_path / "run"
-    shutil.copytree(review_run.folder, folder)
-    results = json.loads((folder / "results.json").read_text())
-    outline = results["persons"][0]["session_shape"]["outline"]
-    outline["offsets_mm"]["bare shins"] = -9.0
-    outline["warnings"] = [
+    warnings = [
         "loose clothing likely: the silhouettes lie 2.9 ± 1.2 mm further outside ...",
         "legs hidden likely: the bare shins lie 9.0 mm inside the fitted body ...",
     ]
-    (folder / "results.json").write_text(json.dumps(results))
-    read = RunResults.read(folder / "results.json")
+    folder, _, read = _with_outline(review_run, tmp_path, warnings, {"bare shins": -9.0})
     assert read.intervals_withheld == {
         "arm_span_mm": "loose clothing",
         "weight_kg": "loose clothing",
