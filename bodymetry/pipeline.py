@@ -74,6 +74,7 @@ from bodymetry.capture.session import Session, load_session
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import (
     FrameFit,
+    poor_fit_hint,
     preload,
     session_gate,
     shared_body_model,
@@ -1097,7 +1098,11 @@ def finish_person(
         ordered, session.camera_names, bound=config.capture.fusion.min_agreement
     )
     if not any(r.ok for r in ordered):
-        warnings.append(f"no frame of the {len(ordered)} kept frames was measured")
+        hint = poor_fit_hint(ordered)
+        warnings.append(
+            f"no frame of the {len(ordered)} kept frames was measured"
+            + (f": {hint}" if hint else "")
+        )
     if shape is not None and shape.outline is not None:
         warnings.extend(shape.outline.warnings)
     truth = _truth(session, ordered, warnings, ident if persons.told_apart else None)

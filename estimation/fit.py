@@ -69,6 +69,7 @@ __all__ = [
     "fit_frame",
     "generative_fit",
     "polish",
+    "poor_fit_hint",
     "refit_frame",
     "shared_body_model",
 ]
@@ -788,6 +789,26 @@ def session_gate(
             r = replace(r, status=_gate_status(r.mean_iou, threshold))
         out.append(r)
     return SessionGate(threshold, config.min_iou, reference, scale), out
+
+
+def poor_fit_hint(records: Sequence[FrameRecord]) -> str:
+    """What can make every frame a poor fit, with the best frame's mean IoU; ``""``
+    unless every record is one.
+
+    Found in every view and fitted, but never well: what the cameras saw is not a
+    body the model can take the shape of (the studio's long skirts: a mean IoU of
+    0.60-0.70 in every frame, docs/session-shape.md, "Skirts"), or the cameras do
+    not see what the calibration says.
+    """
+    if not records or {r.status.split(":", 1)[0].strip() for r in records} != {POOR_FIT}:
+        return ""
+    means = [r.mean_iou for r in records if math.isfinite(r.mean_iou)]
+    best = f" (the best frame's mean IoU {max(means):.2f})" if means else ""
+    return (
+        f"the body model fitted no frame's silhouettes well{best}: clothing that hides "
+        "the body's shape (a long skirt or coat), something carried, or a calibration "
+        "that does not fit the videos; the report's overlays show where"
+    )
 
 
 def _gate_status(mean_iou: float, threshold: float) -> str:

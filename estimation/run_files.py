@@ -96,7 +96,8 @@ RESULTS_FORMATS_READ = (2, 3)
 #: bare shins alone decide that, ``OutlineConfig.shins_inside_mm``, and in low contrast
 #: the trunk is compared with whichever limbs the fit meets best; 8: bare shins far inside
 #: the fitted body, ``OutlineConfig.legs_hidden_mm``, say a skirt hid the legs, and no
-#: interval is stated for the height either).
+#: interval is stated for the height either; a run whose every frame is a poor fit says
+#: what can cause it, ``fit.poor_fit_hint``).
 SUMMARY_VERSION = 8
 #: Version of ``run.json``.
 MANIFEST_FORMAT = 1

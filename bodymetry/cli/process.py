@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from bodymetry.cli.common import (
     quality_option,
 )
 from bodymetry.errors import InputError
-from bodymetry.estimation.fit import POOR_FIT, FitConfig
+from bodymetry.estimation.fit import FitConfig, poor_fit_hint
 from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import (
@@ -213,21 +212,10 @@ def no_frames_message(results: RunResults, run: Path) -> str:
     for kind, numbers in sorted(kinds.items(), key=lambda kv: (-len(kv[1]), kv[0])):
         shown = ", ".join(str(n) for n in numbers[:3]) + (", ..." if len(numbers) > 3 else "")
         parts.append(f"{len(numbers)} {kind} (frame{'s' if len(numbers) > 1 else ''} {shown})")
-    hint = ""
-    if set(kinds) == {POOR_FIT}:
-        # Found in every view and fitted, but never well: what the cameras saw is not
-        # a body the model can take the shape of (the studio's long skirts: IoU 0.60-0.70
-        # in every frame), or the cameras do not see what the calibration says.
-        means = [[v for v in f.silhouette_iou.values() if math.isfinite(v)] for f in frames]
-        ious = [sum(m) / len(m) for m in means if m]
-        best = f" (the best frame's mean IoU {max(ious):.2f})" if ious else ""
-        hint = (
-            f"; the body model fitted no frame's silhouettes well{best}: clothing that "
-            "hides the body's shape (a long skirt or coat), something carried, or a "
-            "calibration that does not fit the videos; the report's overlays show where"
-        )
+    hint = poor_fit_hint(frames)
     return (
-        f"no frame of {len(frames)} could be measured: {'; '.join(parts)}{hint}; "
+        f"no frame of {len(frames)} could be measured: {'; '.join(parts)}"
+        f"{'; ' + hint if hint else ''}; "
         f"per frame in {run / 'results.json'}"
     )
 

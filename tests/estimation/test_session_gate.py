@@ -12,6 +12,7 @@ from bodymetry.estimation.fit import (
     MAX_WIDTH_SCALE,
     REFERENCE_WIDTH_M,
     FitConfig,
+    poor_fit_hint,
     session_gate,
     shared_body_model,
     width_scale,
@@ -126,3 +127,18 @@ def test_the_gate_says_whether_the_frames_or_the_widened_min_iou_set_it():
         assert not session_gate(_sized(studio, height, volume), FitConfig())[0].follows_frames
         assert session_gate(_sized(real, height, volume), FitConfig())[0].follows_frames
     assert not SessionGate(0.9, 0.9, None).follows_frames
+
+
+def test_every_frame_a_poor_fit_gets_a_hint_and_only_then():
+    """The studio's long skirts: every frame fitted, none well. The hint names the best
+    frame's mean IoU and what can cause it; a run with a good frame, or frames lost for
+    another reason, gets none."""
+    _, out = session_gate(_records([0.62, 0.70, 0.66, 0.64]), FitConfig())
+    assert not any(r.ok for r in out)
+    hint = poor_fit_hint(out)
+    assert hint.startswith("the body model fitted no frame's silhouettes well")
+    assert "(the best frame's mean IoU 0.70)" in hint and "a long skirt or coat" in hint
+    _, some = session_gate(_records([0.95, 0.62, 0.70]), FitConfig())
+    assert poor_fit_hint(some) == ""
+    assert poor_fit_hint([*out[:2], FrameRecord(9, "no silhouette in any camera")]) == ""
+    assert poor_fit_hint([]) == ""
