@@ -55,6 +55,12 @@ list), and says why in a sentence a user can act on:
     more than on colour, and the studio's sessions seen so read the weight
     light in nearly every one and the arm span up to two centimetres off either
     way (issue 32): the message quotes their errors.
+``coarse_pixels``
+    The session stage's working pixels at the body
+    (:attr:`~bodymetry.estimation.records.OutlineCheck.mm_per_px`) are coarser than
+    :data:`~bodymetry.estimation.studio_accuracy.COARSE_FACTOR` times those of every
+    studio session that measured the accuracy (640x480 cameras, a person about
+    300 px tall): the studio's figures do not apply, and no 95 % interval is stated.
 ``outside_validated``
     Fewer than 2 of the studio's scored sessions were of a body like the
     measured one (:mod:`bodymetry.estimation.studio_accuracy`: true height within
@@ -93,9 +99,11 @@ from bodymetry.estimation.studio_accuracy import (
     LOW_CONTRAST,
     MIN_LIKE,
     TARGETS,
+    VALIDATED_MM_PER_PX,
     StudioSession,
     among_others_sessions,
     arms_note,
+    coarse_pixels,
     contrast_accuracy,
     is_low_contrast,
     like_accuracy,
@@ -140,6 +148,7 @@ CAVEAT_CODES = (
     "floor",
     "arms_down",
     "low_contrast",
+    "coarse_pixels",
     "outside_validated",
     "body_accuracy",
 )
@@ -338,6 +347,7 @@ def run_caveats(
     headline: Mapping[str, float] | None = None,
     raised: Sequence[int] | None = None,
     sole_depth_mm: float | None = None,
+    mm_per_px: float | None = None,
 ) -> tuple[Caveat, ...]:
     """The caveats of a run (module docstring), in :data:`CAVEAT_CODES` order.
 
@@ -362,6 +372,9 @@ def run_caveats(
     sole_depth_mm : float, optional
         The session stage's soles below the floor, mm (:attr:`SessionShape.floor_mm`,
         negative below); None: not judged (no session stage, or the floor not read).
+    mm_per_px : float, optional
+        The session stage's working pixel at the body, mm (the outline check's); None:
+        not judged.
 
     Returns
     -------
@@ -460,6 +473,17 @@ def run_caveats(
     low = is_low_contrast(contrast)
     if low:
         out.append(_low_contrast(contrast, arms_raised(raised)))
+    if coarse_pixels(mm_per_px):
+        out.append(
+            Caveat(
+                "coarse_pixels",
+                f"the outline was measured with working pixels of {mm_per_px:.1f} mm at the "
+                f"body, coarser than the {VALIDATED_MM_PER_PX:.1f} mm of every studio session "
+                "that measured bodymetry's accuracy (640x480 cameras, a standing person about "
+                "300 px tall): the studio's figures do not apply here and no 95 % interval "
+                "is stated; cameras nearer the person or of higher resolution give finer pixels",
+            )
+        )
     out += _validity(headline or {}, raised, low)
     return tuple(out)
 

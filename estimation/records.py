@@ -548,6 +548,9 @@ def summarize(
 LOOSE_CLOTHING = "loose clothing"
 HAIR = "hair or headwear"
 LEGS_HIDDEN = "legs hidden"
+#: Why every core measurement's interval is withheld where the run's working pixels
+#: were coarser than the studio's (``RunResults.intervals_withheld``).
+COARSE_PIXELS = "coarse pixels"
 #: Per warning, the core measurements the silhouette overstates when it is not the
 #: body's own outline: loose clothing the weight and the arm span (the studio's loose
 #: shirt and shorts read +12 to +17 kg and +5 to +40 mm), hair the height (+14 to

@@ -33,6 +33,8 @@ from bodymetry.errors import InputError
 from bodymetry.estimation.arm_evidence import arms_raised, raised_frames
 from bodymetry.estimation.caveats import Caveat, run_caveats
 from bodymetry.estimation.records import (
+    COARSE_PIXELS,
+    CORE_MEASUREMENTS,
     STAGES,
     FrameRecord,
     OutlineCheck,
@@ -44,6 +46,7 @@ from bodymetry.estimation.resolution import WorkingResolution
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.studio_accuracy import (
     MeasuredAccuracy,
+    coarse_pixels,
     is_low_contrast,
     like_accuracy,
     run_contrast,
@@ -97,8 +100,9 @@ RESULTS_FORMATS_READ = (2, 3)
 #: the trunk is compared with whichever limbs the fit meets best; 8: bare shins far inside
 #: the fitted body, ``OutlineConfig.legs_hidden_mm``, say a skirt hid the legs, and no
 #: interval is stated for the height either; a run whose every frame is a poor fit says
-#: what can cause it, ``fit.poor_fit_hint``).
-SUMMARY_VERSION = 8
+#: what can cause it, ``fit.poor_fit_hint``; 9: a run at pixels coarser than the studio's
+#: gets the ``coarse_pixels`` caveat and no interval, ``studio_accuracy.coarse_pixels``).
+SUMMARY_VERSION = 9
 #: Version of ``run.json``.
 MANIFEST_FORMAT = 1
 #: Version of ``evaluation.json`` (1: the generative stage was ``disc_generative``).
@@ -507,6 +511,7 @@ class RunResults:
             headline=self.headline_values,
             raised=self.arm_raised_frames,
             sole_depth_mm=None if floor is None or not math.isfinite(floor) else floor,
+            mm_per_px=None if outline is None else outline.mm_per_px,
         )
 
     @property
@@ -561,12 +566,23 @@ class RunResults:
     @property
     def intervals_withheld(self) -> dict[str, str]:
         """Per core measurement with no stated interval because the outline check found
-        loose clothing or hair, which (``"loose clothing"``, ``"hair or headwear"``;
+        loose clothing, hair or legs hidden, which (``"loose clothing"``, ``"hair or
+        headwear"``, ``"legs hidden"``;
         :attr:`~bodymetry.estimation.records.OutlineCheck.overstated`): the studio's
-        accuracy, of tight clothing and bare heads, does not apply."""
+        accuracy, of tight clothing and bare heads, does not apply; nor, for all of
+        them, where its working pixels were coarser than the studio's
+        (:data:`COARSE_PIXELS`, :func:`~bodymetry.estimation.studio_accuracy.coarse_pixels`)."""
         shape = self.session_shape
         outline = None if shape is None else shape.outline
-        return {} if outline is None else outline.overstated
+        if outline is None:
+            return {}
+        # Pixels coarser than the studio's: its accuracy does not apply to any of them.
+        coarse = (
+            dict.fromkeys(CORE_MEASUREMENTS, COARSE_PIXELS)
+            if coarse_pixels(outline.mm_per_px)
+            else {}
+        )
+        return {**coarse, **outline.overstated}
 
     @property
     def headline_values(self) -> dict[str, float]:

@@ -68,16 +68,19 @@ from bodymetry.estimation.records import CORE_MEASUREMENTS, FrameRecord
 __all__ = [
     "ADULT_AGE",
     "CHILD_WEIGHT_SHARE",
+    "COARSE_FACTOR",
     "CORE",
     "LIKE_HEIGHT",
     "LIKE_WEIGHT",
     "LOW_CONTRAST",
     "MIN_LIKE",
     "TARGETS",
+    "VALIDATED_MM_PER_PX",
     "MeasuredAccuracy",
     "StudioSession",
     "among_others_sessions",
     "arms_note",
+    "coarse_pixels",
     "contrast_accuracy",
     "is_low_contrast",
     "like_accuracy",
@@ -113,6 +116,16 @@ MIN_LIKE = 2
 #: saturated and black clothing read 1.56 (the demo) to 1.87, white, light grey and
 #: wall-coloured clothing 0.44-1.26 (white in hard light the highest).
 LOW_CONTRAST = 1.4
+#: The coarsest working pixel at the body (millimetres, the outline check's
+#: ``mm_per_px``) of the studio's scored sessions: every one was recorded by the demo
+#: rig's 640x480 cameras, a standing person 300-320 px tall, and read 5.43-5.69 mm
+#: (``tests/estimation/test_studio_accuracy.py`` reads it back from the committed results).
+VALIDATED_MM_PER_PX = 5.69
+#: A run whose working pixel at the body is coarser than this many times
+#: :data:`VALIDATED_MM_PER_PX` was measured where the studio measured no accuracy: a
+#: 320x240 rig (11.1 mm) read the thinnest woman in light grey 6.9 kg heavy, outside the
+#: interval stated from the 640x480 sessions (docs/outputs.md, "The 95 % interval").
+COARSE_FACTOR = 1.25
 #: The shipped sessions.
 DATA = Path(__file__).with_name("data") / "studio_sessions.json"
 
@@ -312,6 +325,16 @@ def arms_note(key: str, arms_raised: bool | None) -> str:
     if key != "arm_span_mm" or arms_raised is None:
         return ""
     return ", arms raised" if arms_raised else ", arms down"
+
+
+def coarse_pixels(mm_per_px: float | None) -> bool:
+    """Whether a run's working pixel at the body (mm) is coarser than the studio validated
+    (:data:`COARSE_FACTOR` times :data:`VALIDATED_MM_PER_PX`); False where unknown."""
+    return (
+        mm_per_px is not None
+        and math.isfinite(mm_per_px)
+        and mm_per_px > COARSE_FACTOR * VALIDATED_MM_PER_PX
+    )
 
 
 def run_contrast(records: Sequence[FrameRecord]) -> float | None:

@@ -22,7 +22,7 @@ from bodymetry.cli.common import (
 )
 from bodymetry.errors import InputError
 from bodymetry.estimation.fit import FitConfig, poor_fit_hint
-from bodymetry.estimation.records import CORE_MEASUREMENTS, STAGES
+from bodymetry.estimation.records import COARSE_PIXELS, CORE_MEASUREMENTS, STAGES
 from bodymetry.estimation.run_config import ProcessConfig
 from bodymetry.estimation.run_files import (
     MEASUREMENTS_CSV,
@@ -269,9 +269,13 @@ def _print_summary(results: RunResults, several: bool = False) -> None:
     for key, finding in results.intervals_withheld.items():
         withheld.setdefault(finding, []).append(key)
     for finding, keys in withheld.items():
+        studio = (
+            "measured at finer pixels"
+            if finding == COARSE_PIXELS
+            else "of tight clothing and bare heads"
+        )
         console.print(
-            f"no 95 % interval for {', '.join(keys)}: {finding} (the studio's accuracy is of "
-            "tight clothing and bare heads)"
+            f"no 95 % interval for {', '.join(keys)}: {finding} (the studio's accuracy is {studio})"
         )
     shape = results.session_shape
     if shape is not None and not shape.ok:

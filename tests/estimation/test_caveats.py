@@ -41,6 +41,16 @@ def test_a_clean_run_has_no_caveat_and_an_unmeasured_one_none_either():
     assert run_caveats(_records(9, 0, persons=3), NAMES) == ()  # exit 3's business
 
 
+def test_pixels_coarser_than_the_studio_s_are_a_caveat():
+    """A 320x240 rig's 11.1 mm pixels at the body: the studio's accuracy, measured at
+    5.4-5.7 mm, does not apply; the demo rig's pixels, or none known, say nothing."""
+    (coarse,) = run_caveats(_records(9, 9, persons=1), NAMES, mm_per_px=11.1)
+    assert coarse.code == "coarse_pixels" and "11.1 mm at the body" in coarse.message
+    assert "no 95 % interval is stated" in coarse.message
+    for size in (5.5, None, math.nan):
+        assert run_caveats(_records(9, 9, persons=1), NAMES, mm_per_px=size) == ()
+
+
 def test_a_second_person_in_some_frames_is_named_with_the_frames():
     records = _records(9, 9, persons=1)
     for k in (2, 5):

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import json
 import math
 import re
 
 import numpy as np
 import pytest
 
-from benchmarks.bench_studio_accuracy import crowded_sessions, scored_sessions
+from benchmarks.bench_arm_evidence import RESULTS
+from benchmarks.bench_studio_accuracy import SETS, crowded_sessions, scored_sessions
 from bodymetry.estimation.caveats import CAVEAT_CODES, run_caveats
 from bodymetry.estimation.records import FrameRecord
 from bodymetry.estimation.studio_accuracy import (
@@ -18,9 +20,11 @@ from bodymetry.estimation.studio_accuracy import (
     LOW_CONTRAST,
     MIN_LIKE,
     TARGETS,
+    VALIDATED_MM_PER_PX,
     MeasuredAccuracy,
     StudioSession,
     among_others_sessions,
+    coarse_pixels,
     contrast_accuracy,
     is_low_contrast,
     like_accuracy,
@@ -339,3 +343,20 @@ def test_a_run_seen_in_low_contrast_says_so_with_the_studio_s_errors():
         records = _records(9, contrast=contrast)
         caveats = run_caveats(records, ("cam_00",), headline=adult, raised=range(9))
         assert "low_contrast" not in [c.code for c in caveats]
+
+
+def test_the_validated_pixel_is_the_scored_sessions_coarsest():
+    """Every scored session was recorded by the demo rig (640x480): the coarsest working
+    pixel at the body among the committed results is the one a run is held to; a run at
+    half that resolution (a 320x240 rig, 11.1 mm) is not, nor one that does not say."""
+    sizes = [
+        s["outline"]["mm_per_px"]
+        for name in SETS
+        for s in json.loads((RESULTS / name).read_text())["sessions"]
+        if isinstance(s.get("outline"), dict) and s["outline"].get("mm_per_px")
+    ]
+    assert len(sizes) >= 100
+    assert max(sizes) == pytest.approx(VALIDATED_MM_PER_PX, abs=0.005)
+    assert not coarse_pixels(max(sizes)) and not coarse_pixels(5.41)  # real Pose2Sim: 5.41
+    assert coarse_pixels(11.1)
+    assert not coarse_pixels(None) and not coarse_pixels(math.nan)

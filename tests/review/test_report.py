@@ -20,8 +20,8 @@ from bodymetry.estimation.body_model.model import BodyModel
 from bodymetry.estimation.outline_check import OutlineConfig
 from bodymetry.estimation.records import FrameRecord, SessionShape
 from bodymetry.estimation.run_config import ProcessConfig
-from bodymetry.estimation.run_files import EVALUATION_FORMAT, RunResults, SessionInfo
-from bodymetry.estimation.studio_accuracy import LOW_CONTRAST
+from bodymetry.estimation.run_files import EVALUATION_FORMAT, RunLayout, RunResults, SessionInfo
+from bodymetry.estimation.studio_accuracy import LOW_CONTRAST, VALIDATED_MM_PER_PX
 from bodymetry.estimation.uncertainty import MEASURED_AMONG
 from bodymetry.review import plots
 from bodymetry.review import report as report_module
@@ -298,40 +298,61 @@ def test_body_figure_needs_a_render():
         plots.body_figure({})
 
 
-def test_the_session_stage_is_beside_the_per_frame_stages(review_run):
+def _at_studio_pixels(review_run, tmp_path):
+    """A copy of the review run as if seen at the studio's pixels: the tiny run's 240x180
+    cameras (about 15 mm at the body) are coarser than every scored session's, so it
+    states no interval (the ``coarse_pixels`` caveat); at the studio's it does. Its
+    results.json is written again (with the intervals derived from it) and its review
+    built again. Returns the folder and its results."""
+    folder = tmp_path / "studio_pixels"
+    shutil.copytree(review_run.folder, folder)
+    results = RunResults.read(folder / "results.json")
+    shape = results.session_shape
+    outline = dataclasses.replace(shape.outline, mm_per_px=VALIDATED_MM_PER_PX)
+    results = results.with_person(session_shape=dataclasses.replace(shape, outline=outline))
+    results.write(RunLayout(folder))
+    build_review(folder, recordings=False, pdf=False)
+    return folder, RunResults.read(folder / "results.json")
+
+
+def test_the_session_stage_is_beside_the_per_frame_stages(review_run, tmp_path):
     """The session's one shape: its value ± standard error in the Figure 3 table and
     the measurements, a column per measurement in the CSV."""
-    shape = review_run.results.session_shape
+    folder, results = _at_studio_pixels(review_run, tmp_path)
+    shape = results.session_shape
     assert shape is not None and shape.ok, shape
-    html = (review_run.folder / "report.html").read_text()
+    html = (folder / "report.html").read_text()
     assert "Session (one shape)" in html and "S.e." in html
-    height = review_run.results.summary["session"]["height_mm"]
+    height = results.summary["session"]["height_mm"]
     assert f"{height.mean:,.1f}".replace(",", " ") in html
     assert f"{height.std:.1f}" in html
     # Beside each core session value, the accuracy the benchmarks measured on bodies like
     # this one (else on the mid-population subjects), and whence.
-    like = review_run.results.studio_accuracy
+    like = results.studio_accuracy
     for key, accuracy in SESSION_ACCURACY.items():
         quoted = like.get(key, accuracy)
         assert f"RMS error {quoted.rms:.1f}" in html, key
         assert f"(studio, {quoted.sessions} {quoted.scope})" in html, key
     assert ACCURACY_SOURCE in html and "bodies like this one" in html
     # Beside it, the 95 % interval combining the two (estimation/uncertainty.py).
-    intervals = review_run.results.stated_intervals
+    intervals = results.stated_intervals
     assert intervals, "the review run's body is like the studio's: intervals are stated"
     for interval in intervals.values():
         low, high = (f"{v:,.1f}".replace(",", " ") for v in (interval.low, interval.high))
         assert f'95 % interval <span class="nw">{low} – {high}' in html
     assert "Welch–Satterthwaite" in html
-    written = json.loads((review_run.folder / "results.json").read_text())["persons"][0]
+    written = json.loads((folder / "results.json").read_text())["persons"][0]
     assert written["intervals"] == {k: i.to_json() for k, i in intervals.items()}
     assert written["intervals_withheld"] == {}  # no loose clothing, no hair
+    # At its own pixels the tiny run states none, and says why.
+    assert review_run.results.stated_intervals == {}
+    assert "coarse_pixels" in [c.code for c in review_run.results.caveats]
     # The PDF's summary page says them in one line.
-    lines = _headline_lines({"headline": headline_cards(load_run(review_run.folder))})
+    lines = _headline_lines({"headline": headline_cards(load_run(folder))})
     (stated,) = [line for line in lines if line.startswith("95 % interval")]
     height = intervals["height_mm"]
     assert f"height {height.low:,.1f} to {height.high:,.1f} mm".replace(",", " ") in stated
-    with open(review_run.folder / "measurements.csv", newline="") as fh:
+    with open(folder / "measurements.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     used = {str(f) for f in shape.frames}
     for row in rows:
@@ -366,15 +387,18 @@ def test_the_report_says_how_plainly_the_person_stood_out(review_run, tmp_path):
         assert "low-contrast clothing" in accuracy.scope
 
 
-def _with_outline(review_run, tmp_path, warnings, offsets=None):
+def _with_outline(review_run, tmp_path, warnings, offsets=None, mm_per_px=None):
     """A copy of the review run whose outline check warned ``warnings`` (and read the
-    ``offsets`` mm given): its folder, its results.json as a dict, and read back."""
+    ``offsets`` mm and working pixel given): its folder, its results.json as a dict, and
+    read back."""
     folder = tmp_path / "run"
     shutil.copytree(review_run.folder, folder)
     results = json.loads((folder / "results.json").read_text())
     outline = results["persons"][0]["session_shape"]["outline"]
     outline["warnings"] = list(warnings)
     outline["offsets_mm"].update(offsets or {})
+    # The studio's pixels unless given (the tiny run's are coarser than any scored one's).
+    outline["mm_per_px"] = mm_per_px or VALIDATED_MM_PER_PX
     (folder / "results.json").write_text(json.dumps(results))
     return folder, results, RunResults.read(folder / "results.json")
 
@@ -395,7 +419,8 @@ def test_no_interval_where_the_outline_check_finds_loose_clothing_or_hair(review
         "height_mm": "hair or headwear",
     }
     assert read.stated_intervals == {}
-    assert set(review_run.results.stated_intervals) == {"height_mm", "arm_span_mm", "weight_kg"}
+    _, _, clean = _with_outline(review_run, tmp_path / "clean", [])
+    assert set(clean.stated_intervals) == {"height_mm", "arm_span_mm", "weight_kg"}
     build_review(folder, recordings=False, pdf=False)
     html = (folder / "report.html").read_text()
     assert "95 % interval <span" not in html
@@ -432,6 +457,24 @@ def test_legs_hidden_by_a_skirt_withhold_every_interval(review_run, tmp_path):
     assert "the bare shins lie -9.0 mm outside it" in html
     assert f"{OutlineConfig().legs_hidden_mm:.1f} mm or more inside, as when a skirt" in html
     assert "legs hidden by a skirt (all three)" in html
+
+
+def test_pixels_coarser_than_the_studio_s_withhold_every_interval(review_run, tmp_path):
+    """A run whose working pixels at the body are twice the studio's (a 320x240 rig): no
+    interval, the card and the caveat say why; an outline finding keeps its own name."""
+    folder, _, read = _with_outline(review_run, tmp_path, [], mm_per_px=11.1)
+    assert read.intervals_withheld == dict.fromkeys(
+        ("height_mm", "arm_span_mm", "weight_kg"), "coarse pixels"
+    )
+    assert read.stated_intervals == {}
+    assert "coarse_pixels" in [c.code for c in read.caveats]
+    build_review(folder, recordings=False, pdf=False)
+    html = (folder / "report.html").read_text()
+    assert html.count("no 95 % interval: coarse pixels (see the caveats)") == 3
+    hair = ["hair or headwear likely: the silhouettes lie 12.0 ± 0.5 mm further outside ..."]
+    _, _, both = _with_outline(review_run, tmp_path / "b", hair, mm_per_px=11.1)
+    assert both.intervals_withheld["height_mm"] == "hair or headwear"
+    assert both.intervals_withheld["weight_kg"] == "coarse pixels"
 
 
 def test_a_person_among_others_is_told_how_their_interval_was_held(review_run, tmp_path):
