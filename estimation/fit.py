@@ -800,7 +800,7 @@ def poor_fit_hint(records: Sequence[FrameRecord]) -> str:
     0.60-0.70 in every frame, docs/session-shape.md, "Skirts"), or the cameras do
     not see what the calibration says.
     """
-    if not records or {r.status.split(":", 1)[0].strip() for r in records} != {POOR_FIT}:
+    if not records or {r.status_kind for r in records} != {POOR_FIT}:
         return ""
     means = [r.mean_iou for r in records if math.isfinite(r.mean_iou)]
     best = f" (the best frame's mean IoU {max(means):.2f})" if means else ""

@@ -301,6 +301,12 @@ class FrameRecord:
         return est if est is not None and est.finite else None
 
     @property
+    def status_kind(self) -> str:
+        """The status's kind, the text before any ``:`` ("poor fit" for "poor fit: mean
+        silhouette IoU 0.41 < 0.90"); ``"unknown"`` for an empty status."""
+        return self.status.split(":", 1)[0].strip() or "unknown"
+
+    @property
     def fitted(self) -> bool:
         """Whether the frame carries a fit (``ok`` or left out by a quality gate)."""
         return self.estimate() is not None

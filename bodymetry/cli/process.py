@@ -207,7 +207,7 @@ def no_frames_message(results: RunResults, run: Path) -> str:
         return f"no frame was measured: the session has no kept frame (see {run / 'results.json'})"
     kinds: dict[str, list[int]] = {}
     for f in frames:
-        kinds.setdefault(f.status.split(":", 1)[0].strip() or "unknown", []).append(f.frame)
+        kinds.setdefault(f.status_kind, []).append(f.frame)
     parts = []
     for kind, numbers in sorted(kinds.items(), key=lambda kv: (-len(kv[1]), kv[0])):
         shown = ", ".join(str(n) for n in numbers[:3]) + (", ..." if len(numbers) > 3 else "")
