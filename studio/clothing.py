@@ -172,14 +172,29 @@ def garment_weight(
     around = (np.linalg.norm(rest[:, :2] - neck[:2], axis=1) - 0.09) / layer.hem
     w[trunk] = np.clip(np.maximum(below, around), 0.0, 1.0)[trunk]
     limbs = (("upper_arm", "shoulder", "elbow", layer.sleeve), ("thigh", "hip", "knee", layer.leg))
+    _cover_limbs(w, rest, vertex_parts, joints, limbs, layer.hem)
+    return w
+
+
+def _cover_limbs(
+    w: np.ndarray,
+    rest: np.ndarray,
+    vertex_parts: np.ndarray,
+    joints: np.ndarray,
+    limbs,
+    hem: float,
+) -> None:
+    """Set ``w`` (V,) on the limbs' vertices, both sides: 1 down to ``reach`` of the way
+    from the upper joint to the lower one, tapering to 0 over ``hem`` metres.
+
+    ``limbs``: (part, upper joint, lower joint, reach) per limb segment."""
     for part, proximal, distal, reach in limbs:
         for side in "lr":
             on = vertex_parts == PARTS.index(f"{part}_{side}")
             a = joints[JOINTS.index(f"{proximal}_{side}")]
             b = joints[JOINTS.index(f"{distal}_{side}")]
             t = _along(rest[on], a, b)
-            w[on] = np.clip((reach - t) * np.linalg.norm(b - a) / layer.hem, 0.0, 1.0)
-    return w
+            w[on] = np.clip((reach - t) * np.linalg.norm(b - a) / hem, 0.0, 1.0)
 
 
 def skirt_weight(
@@ -191,8 +206,8 @@ def skirt_weight(
     """How much each vertex is covered by the skirt, (V,) in [0, 1].
 
     1 on the trunk below the waistband (``layer.skirt_top`` above the hip joints) and
-    on the thighs above the hem (``layer.skirt_length`` of the way to the knee), a
-    linear taper over ``layer.hem`` at both ends, 0 elsewhere.
+    on the legs above the hem (``layer.skirt_length``: of the way to the knee, and past
+    1 down the shin), a linear taper over ``layer.hem`` at both ends, 0 elsewhere.
 
     Parameters
     ----------
@@ -205,16 +220,9 @@ def skirt_weight(
     top = _skirt_top(joints, layer)
     trunk = np.isin(vertex_parts, [PARTS.index("torso"), PARTS.index("pelvis")])
     w[trunk] = np.clip((top - rest[trunk, 2]) / layer.hem, 0.0, 1.0)
-    for k, (part, proximal, distal) in enumerate(_LEG_SEGMENTS):
-        reach = layer.skirt_length - k  # of this segment
-        for side in "lr":
-            on = vertex_parts == PARTS.index(f"{part}_{side}")
-            a, b = (
-                joints[JOINTS.index(f"{proximal}_{side}")],
-                joints[JOINTS.index(f"{distal}_{side}")],
-            )
-            t = _along(rest[on], a, b)
-            w[on] = np.clip((reach - t) * np.linalg.norm(b - a) / layer.hem, 0.0, 1.0)
+    # Each leg segment's share of the skirt's length (the shin's past the knee).
+    legs = [(*seg, layer.skirt_length - k) for k, seg in enumerate(_LEG_SEGMENTS)]
+    _cover_limbs(w, rest, vertex_parts, joints, legs, layer.hem)
     return w
 
 
